@@ -1,0 +1,3 @@
+"""Placeholder smoke demo (replaced by the full pipeline)."""
+def main() -> None:
+    print("smoke")

@@ -1,0 +1,29 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "needle_sim_ros"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        # Parameter files live at the repository root (config/) and are installed with this package.
+        ("share/" + package_name + "/config", glob("../config/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.py")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="needle_sim developers",
+    maintainer_email="dev@needle-sim.invalid",
+    description="Real-time 3D dynamic ANCF needle simulation for ROS 2 Jazzy.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "needle_talker_demo = needle_sim_ros.nodes.smoke_demo:main",
+        ],
+    },
+)
