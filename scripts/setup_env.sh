@@ -71,7 +71,9 @@ export RMW_IMPLEMENTATION="\${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 export PYTHONNOUSERSITE=1
 export NUMBA_CACHE_DIR="$REPO/build/numba_cache"
 if [ -f "$REPO/install/setup.bash" ]; then
-  COLCON_TRACE= AMENT_TRACE_SETUP_FILES= source "$REPO/install/setup.bash"
+  case \$- in *u*) _needle_nounset=1; set +u;; *) _needle_nounset=;; esac
+  source "$REPO/install/setup.bash"
+  [ -n "\$_needle_nounset" ] && set -u; unset _needle_nounset
 fi
 ENV
 # shellcheck disable=SC1091
