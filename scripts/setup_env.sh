@@ -80,7 +80,9 @@ ENV
 source "$VENV/needle_env.sh"
 
 # 5. Workspace build --------------------------------------------------------------------------
-src_hash=$(cd "$REPO" && find needle_interfaces needle_sim_ros needle_vision config -type f \
+src_dirs=(needle_interfaces needle_sim_ros needle_vision)
+[ -d "$REPO/config" ] && src_dirs+=(config)
+src_hash=$(cd "$REPO" && find "${src_dirs[@]}" -type f \
              -not -path '*/__pycache__/*' -not -name '*.pyc' -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/install/setup.bash" ]; then
   mkdir -p "$REPO/build"
