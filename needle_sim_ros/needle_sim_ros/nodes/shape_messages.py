@@ -1,0 +1,97 @@
+"""Needle centerline <-> ROS messages: NeedleShape, nav_msgs/Path, geometry_msgs/PoseArray and a Marker tube."""
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion, Vector3
+from nav_msgs.msg import Path
+from needle_interfaces.msg import NeedleShape
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker
+
+
+def quaternions_from_tangents(tangents: np.ndarray) -> np.ndarray:
+    """Unit quaternions (x, y, z, w) of frames whose x axis is each tangent, with the least rotation from world x."""
+    t = tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
+    x = np.array([1.0, 0.0, 0.0])
+    axis = np.cross(x, t)
+    w = 1.0 + t[:, 0]
+    q = np.column_stack([axis, w])
+    opposite = w < 1e-9  # tangent along -x: rotate by pi about z
+    q[opposite] = [0.0, 0.0, 1.0, 0.0]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _pose(position, quaternion) -> Pose:
+    return Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
+                orientation=Quaternion(x=float(quaternion[0]), y=float(quaternion[1]), z=float(quaternion[2]), w=float(quaternion[3])))
+
+
+def needle_shape_msg(header: Header, source: str, points: np.ndarray, tangents: np.ndarray, arc_length: np.ndarray,
+                     tip_position: np.ndarray, tip_orientation: np.ndarray, uncertainty: np.ndarray | None = None) -> NeedleShape:
+    return NeedleShape(
+        header=header,
+        source=source,
+        points=[Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in points],
+        tangents=[Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in tangents],
+        arc_length=[float(s) for s in arc_length],
+        uncertainty=[] if uncertainty is None else [float(u) for u in uncertainty],
+        tip_pose=_pose(tip_position, tip_orientation),
+        length=float(arc_length[-1]) if len(arc_length) else 0.0,
+    )
+
+
+def shape_arrays(msg: NeedleShape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points (n,3), arc_length (n,), uncertainty (n,) or empty) of a NeedleShape."""
+    points = np.array([[p.x, p.y, p.z] for p in msg.points], dtype=float).reshape(-1, 3)
+    return points, np.asarray(msg.arc_length, dtype=float), np.asarray(msg.uncertainty, dtype=float)
+
+
+def pose_array_msg(header: Header, points: np.ndarray, tangents: np.ndarray) -> PoseArray:
+    """Shape as PoseArray (SmartNeedle `current_shape` convention, but in metres): x axis along the tangent."""
+    quats = quaternions_from_tangents(tangents)
+    return PoseArray(header=header, poses=[_pose(p, q) for p, q in zip(points, quats)])
+
+
+def path_msg(header: Header, points: np.ndarray, tangents: np.ndarray) -> Path:
+    quats = quaternions_from_tangents(tangents)
+    return Path(header=header, poses=[PoseStamped(header=header, pose=_pose(p, q)) for p, q in zip(points, quats)])
+
+
+def tube_triangles(points: np.ndarray, tangents: np.ndarray, radius: float, sides: int = 8) -> np.ndarray:
+    """Triangle-list vertices (m, 3) of a tube of the given radius around a centerline.
+
+    Cross-section frames are carried along the curve by parallel transport (no twist), so the tube does not
+    spin with the curve's Frenet frame and stays well defined where the curvature vanishes.
+    """
+    t = tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(t[0, 2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    normals = np.empty_like(t)
+    n = np.cross(helper, t[0])
+    normals[0] = n / np.linalg.norm(n)
+    for i in range(1, len(t)):
+        n = normals[i - 1] - np.dot(normals[i - 1], t[i]) * t[i]
+        normals[i] = n / np.linalg.norm(n)
+    binormals = np.cross(t, normals)
+    angles = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
+    rings = points[:, None, :] + radius * (np.cos(angles)[None, :, None] * normals[:, None, :]
+                                           + np.sin(angles)[None, :, None] * binormals[:, None, :])
+    a, b = rings[:-1], rings[1:]
+    a_next, b_next = np.roll(a, -1, axis=1), np.roll(b, -1, axis=1)
+    quads = np.stack([a, b, b_next, a, b_next, a_next], axis=2)  # two triangles per quad
+    return quads.reshape(-1, 3)
+
+
+def tube_marker_msg(header: Header, points: np.ndarray, tangents: np.ndarray, radius: float,
+                    color=(0.75, 0.75, 0.8, 1.0), namespace: str = "needle") -> Marker:
+    marker = Marker(header=header, ns=namespace, id=0, type=Marker.TRIANGLE_LIST, action=Marker.ADD)
+    marker.pose.orientation.w = 1.0
+    marker.scale = Vector3(x=1.0, y=1.0, z=1.0)
+    marker.color = ColorRGBA(r=color[0], g=color[1], b=color[2], a=color[3])
+    marker.points = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in tube_triangles(points, tangents, radius)]
+    return marker
+
+
+def time_msg(seconds: float) -> Time:
+    sec = int(np.floor(seconds))
+    return Time(sec=sec, nanosec=min(int(round((seconds - sec) * 1e9)), 999_999_999))
