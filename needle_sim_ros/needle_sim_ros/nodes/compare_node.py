@@ -1,0 +1,268 @@
+"""needle_compare: model vs measured needle shape, published as ShapeError and logged to MCAP.
+
+Subscribes ``model/shape`` (NeedleShape) and ``measured/shape`` (NeedleShape) or ``measured/points`` (PointCloud2,
+float32 x, y, z), pairs them by header stamp, brings the measurement into the model frame with the camera -> model
+extrinsic and publishes ``shape_error`` (needle_interfaces/ShapeError). With ``log.path`` set it records the shapes,
+errors, ``base_pose`` (PoseStamped) and ``wrench`` (WrenchStamped) plus the parameters in force into a
+rosbag2-compatible MCAP file, finalized on SIGINT/SIGTERM. The comparison itself is :mod:`needle_sim_ros.comparison`.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+import yaml
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from needle_interfaces.msg import NeedleShape, ShapeError
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from scipy.spatial.transform import RigidTransform, Rotation
+from sensor_msgs.msg import PointCloud2, PointField
+
+from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
+from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec, declare_all
+from needle_sim_ros.nodes.recording_bridge import TopicRecorder
+from needle_sim_ros.nodes.shape_messages import shape_arrays
+from needle_sim_ros.recording import RecordingError, WriterOptions
+
+NODE_NAME = "needle_compare"
+WARN_PERIOD = 5.0  # [s] between repeated warnings about bad input
+LOGGABLE = {"model/shape": NeedleShape, "measured/shape": NeedleShape, "measured/points": PointCloud2,
+            "shape_error": ShapeError, "base_pose": PoseStamped, "wrench": WrenchStamped}
+
+
+def _unit_quaternion(q) -> bool:
+    return math.isfinite(sum(q)) and np.linalg.norm(q) > 1e-6
+
+
+PARAMETERS = [
+    ParamSpec("tolerance", 0.005, "Largest stamp difference [s] between a measured and a model shape that are "
+              "compared.", low=0.0, high=10.0),
+    ParamSpec("extrinsic.translation", [0.0, 0.0, 0.0], "Camera origin in the model frame [m] (x, y, z): "
+              "p_model = R p_camera + t.", length=3),
+    ParamSpec("extrinsic.rotation", [0.0, 0.0, 0.0, 1.0], "Camera orientation R in the model frame as a "
+              "quaternion (x, y, z, w); normalized here.", length=4,
+              check=(_unit_quaternion, "must be a finite, non-zero quaternion")),
+    ParamSpec("model_frame", "", "Expected header.frame_id of model shapes; errors are expressed in it. "
+              "Empty: accept any."),
+    ParamSpec("measured_frame", "", "Expected header.frame_id of measurements (the camera frame). Empty: accept any."),
+    ParamSpec("measured_input", "shape", "Measurement topic: 'shape' = measured/shape (NeedleShape, ordered base to "
+              "tip), 'points' = measured/points (PointCloud2 with float32 x, y, z).", choices=("shape", "points")),
+    ParamSpec("max_match_distance", 0.0, "Measured samples farther than this [m] from the model centerline are "
+              "outliers and not matched; 0 matches all.", low=0.0, high=10.0),
+    ParamSpec("model_buffer", 200, "Model shapes kept for pairing [count]; must cover the measurement latency "
+              "times the model rate.", low=1, high=100000),
+    ParamSpec("summary_path", "", "JSON file written at shutdown with mean/max RMSE and counts. Empty: none."),
+    ParamSpec("log.path", "", "MCAP recording: a '.mcap' file, or a rosbag2 bag directory (any other path; may be "
+              "split). Empty: no recording."),
+    ParamSpec("log.topics", list(LOGGABLE), "Topics recorded (relative to the node namespace), a subset of "
+              + ", ".join(LOGGABLE) + ".", check=(lambda v: set(v) <= set(LOGGABLE), "unknown topic")),
+    ParamSpec("log.compression", "zstd", "Chunk compression of the recording.", choices=("zstd", "lz4", "none")),
+    ParamSpec("log.chunk_size", 1 << 20, "Uncompressed chunk size [bytes] at which a chunk is written to disk.",
+              low=1024, high=1 << 30),
+    ParamSpec("log.chunk_interval", 1.0, "Longest time [s] a chunk stays in memory (data lost on a crash).",
+              low=0.0, high=3600.0),
+    ParamSpec("log.max_file_size", 0, "Split a bag directory into a new file past this size [bytes]; 0 = never.",
+              low=0, high=1 << 50),
+    ParamSpec("log.max_file_duration", 0.0, "Split a bag directory into a new file past this duration [s]; "
+              "0 = never.", low=0.0, high=1e7),
+    ParamSpec("log.overwrite", False, "Replace an existing recording at log.path instead of refusing to start."),
+]
+
+
+def stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def cloud_points(cloud: PointCloud2) -> np.ndarray:
+    """Finite x, y, z points (n, 3) [m] of a PointCloud2 whose x, y, z fields are float32; raises ValueError."""
+    fields = {f.name: f for f in cloud.fields}
+    if any(name not in fields or fields[name].datatype != PointField.FLOAT32 for name in "xyz"):
+        raise ValueError("PointCloud2 needs float32 fields x, y, z")
+    width, height, step = int(cloud.width), int(cloud.height), int(cloud.point_step)
+    if step < 12 or cloud.row_step < width * step or len(cloud.data) < height * cloud.row_step:
+        raise ValueError("PointCloud2 data is shorter than width * height * point_step")
+    dtype = np.dtype({"names": list("xyz"), "formats": [(">f4" if cloud.is_bigendian else "<f4")] * 3,
+                      "offsets": [fields[n].offset for n in "xyz"], "itemsize": step})
+    raw = np.frombuffer(bytes(cloud.data), dtype=np.uint8)[:height * cloud.row_step].reshape(height, cloud.row_step)
+    rows = np.ascontiguousarray(raw[:, :width * step]).view(dtype).reshape(-1)
+    points = np.column_stack([rows[n].astype(float) for n in "xyz"])
+    return points[np.all(np.isfinite(points), axis=1)]
+
+
+def parameter_file(values: dict[str, Any]) -> str:
+    """The parameters in force as a ROS 2 parameter file (dotted names nested)."""
+    tree: dict[str, Any] = {}
+    for name, value in values.items():
+        *groups, leaf = name.split(".")
+        node = tree
+        for group in groups:
+            node = node.setdefault(group, {})
+        node[leaf] = list(value) if isinstance(value, (list, tuple)) else value
+    return yaml.safe_dump({NODE_NAME: {"ros__parameters": tree}}, sort_keys=False)
+
+
+class CompareNode(Node):
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.values = declare_all(self, PARAMETERS)
+        v = self.values
+        if v["log.path"].endswith(".mcap") and (v["log.max_file_size"] or v["log.max_file_duration"]):
+            raise ParameterError("parameters 'log.max_file_size'/'log.max_file_duration' split a recording and need "
+                                 f"'log.path' to be a bag directory (no .mcap suffix), got '{v['log.path']}'")
+        rotation = Rotation.from_quat(np.asarray(v["extrinsic.rotation"]) / np.linalg.norm(v["extrinsic.rotation"]))
+        self.model_from_camera = RigidTransform.from_components(v["extrinsic.translation"], rotation)
+        self.max_match_distance = v["max_match_distance"] or math.inf
+        self.pairer = StampPairer(int(round(v["tolerance"] * 1e9)), model_buffer=v["model_buffer"])
+        self.summary = ErrorSummary()
+        self.error_qos = QoSProfile(depth=10)
+        self.error_publisher = self.create_publisher(ShapeError, "shape_error", self.error_qos)
+        self.recorder = self._open_recording() if v["log.path"] else None
+        self.logged = {self.resolve_topic_name(t): t for t in v["log.topics"]} if self.recorder else {}
+
+        self.create_subscription(NeedleShape, "model/shape", self.on_model, QoSProfile(depth=50))
+        if v["measured_input"] == "shape":
+            self.create_subscription(NeedleShape, "measured/shape", self.on_measured_shape, QoSProfile(depth=10))
+        else:
+            self.create_subscription(PointCloud2, "measured/points", self.on_measured_points, QoSProfile(depth=10))
+        for topic, message_type in (("base_pose", PoseStamped), ("wrench", WrenchStamped)):
+            if self.resolve_topic_name(topic) in self.logged:
+                self.create_subscription(message_type, topic,
+                                         lambda data, t=topic, m=message_type: self.log(t, data, m),
+                                         QoSProfile(depth=100), raw=True)
+
+    def _open_recording(self) -> TopicRecorder:
+        v = self.values
+        options = WriterOptions(compression=v["log.compression"], chunk_size=v["log.chunk_size"],
+                                chunk_interval=v["log.chunk_interval"], max_file_size=v["log.max_file_size"],
+                                max_file_duration=v["log.max_file_duration"], overwrite=v["log.overwrite"])
+        flat = {name: str(value) for name, value in v.items()}
+        try:
+            recorder = TopicRecorder(self, v["log.path"], options, custom_data={f"{NODE_NAME}.{k}": s
+                                                                                  for k, s in flat.items()})
+        except (RecordingError, ValueError) as error:
+            raise ParameterError(f"parameter 'log.path' = '{v['log.path']}': {error}") from error
+        recorder.add_parameters(NODE_NAME, flat, parameter_file(v))
+        self.get_logger().info(f"recording to {v['log.path']}")
+        return recorder
+
+    # --- input ------------------------------------------------------------------------------------------------
+    def log(self, topic: str, message: Any, message_type: type, own_qos: QoSProfile | None = None) -> None:
+        resolved = self.resolve_topic_name(topic)
+        if resolved in self.logged:
+            self.recorder.record(resolved, message, message_type, own_qos)
+
+    def reject(self, what: str, reason: str) -> None:
+        self.summary.reject(what)
+        self.get_logger().warning(f"ignoring {what}: {reason}", throttle_duration_sec=WARN_PERIOD)
+
+    def frame_ok(self, what: str, frame_id: str, expected: str) -> bool:
+        if expected and frame_id != expected:
+            self.reject(what, f"frame_id '{frame_id}' is not '{expected}'")
+            return False
+        return True
+
+    def on_model(self, msg: NeedleShape) -> None:
+        self.log("model/shape", msg, NeedleShape)
+        if not self.frame_ok("model shape", msg.header.frame_id, self.values["model_frame"]):
+            return
+        try:
+            points, arc_length, _ = shape_arrays(msg)
+            centerline = Centerline(points, arc_length)
+            if len(points) < 2:
+                raise ComparisonError("needs at least two samples")
+        except ComparisonError as error:
+            self.reject("model shape", str(error))
+            return
+        self.compare(self.pairer.add_model(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+
+    def on_measured_shape(self, msg: NeedleShape) -> None:
+        self.log("measured/shape", msg, NeedleShape)
+        if not self.frame_ok("measured shape", msg.header.frame_id, self.values["measured_frame"]):
+            return
+        try:
+            points, arc_length, _ = shape_arrays(msg)
+            centerline = Centerline(points, arc_length)
+        except ComparisonError as error:
+            self.reject("measured shape", str(error))
+            return
+        self.compare(self.pairer.add_measurement(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+
+    def on_measured_points(self, msg: PointCloud2) -> None:
+        self.log("measured/points", msg, PointCloud2)
+        if not self.frame_ok("measured points", msg.header.frame_id, self.values["measured_frame"]):
+            return
+        try:
+            centerline = Centerline(cloud_points(msg), ordered=False)
+        except (ValueError, ComparisonError) as error:
+            self.reject("measured points", str(error))
+            return
+        self.compare(self.pairer.add_measurement(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+
+    # --- output -----------------------------------------------------------------------------------------------
+    def compare(self, pairs) -> None:
+        for pair in pairs:
+            (model_header, model), (measured_header, measured) = pair.model, pair.measurement
+            try:
+                result = compare_centerlines(model, measured, self.model_from_camera, self.max_match_distance)
+            except ComparisonError as error:
+                self.reject("shape pair", str(error))
+                continue
+            self.summary.add(result)
+            msg = ShapeError(rmse=result.rmse, max_error=result.max_error, tip_error=result.tip_error,
+                             matched_samples=result.matched_samples, errors=result.errors.tolist(),
+                             arc_length=result.arc_length.tolist())
+            msg.header.stamp = measured_header.stamp
+            msg.header.frame_id = model_header.frame_id
+            msg.model_stamp = model_header.stamp
+            msg.measurement_stamp = measured_header.stamp
+            self.error_publisher.publish(msg)
+            self.log("shape_error", msg, ShapeError, self.error_qos)
+
+    def finish(self) -> dict:
+        """Finalize the recording; return (and write, if configured) the run summary."""
+        if self.recorder is not None:
+            files = self.recorder.close()
+            print(f"[{NODE_NAME}] recording finalized: {', '.join(map(str, files))}", flush=True)
+        self.summary.unpaired_measurements = self.pairer.unpaired
+        report = self.summary.as_dict()
+        print(f"[{NODE_NAME}] summary: {json.dumps(report)}", flush=True)
+        if self.values["summary_path"]:
+            path = Path(self.values["summary_path"])
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(json.dumps(report, indent=2) + "\n")
+            except OSError as error:
+                print(f"[{NODE_NAME}] cannot write summary_path '{path}': {error}", file=sys.stderr, flush=True)
+        return report
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    try:
+        node = CompareNode()
+    except ParameterError as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
+        rclpy.try_shutdown()
+        return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.finish()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,156 @@
+"""needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
+
+    needle_replay BAG [--rate R] [--start-offset S] [--loop] [--topics T ...] [--clock [HZ]] [--delay S]
+                      [--wait-for-subscribers S] [--ros-args -r FROM:=TO ...]
+
+BAG is a .mcap file or a bag directory. Messages are published as the recorded CDR bytes (no deserialization) with
+the QoS the recorded publishers offered; ``--clock`` publishes the playback time on /clock for use_sim_time.
+Topics are renamed with ROS remapping rules (``--ros-args -r /wrench:=/replayed/wrench``), which apply to the
+recorded (absolute) topic names.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rclpy.utilities import remove_ros_args
+from rosgraph_msgs.msg import Clock
+
+from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
+from needle_sim_ros.recording import BagReadError, BagReader, PlaybackSchedule
+
+NODE_NAME = "needle_replay"
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def parse_arguments(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog=NODE_NAME, description=__doc__.split("\n\n")[0],
+                                     epilog="Remap topics with ROS arguments: --ros-args -r FROM:=TO")
+    parser.add_argument("bag", help="recording: a .mcap file or a rosbag2 bag directory")
+    parser.add_argument("--rate", "-r", type=_positive, default=1.0, help="playback rate factor (default 1)")
+    parser.add_argument("--start-offset", type=_non_negative, default=0.0, help="skip the first S seconds of the bag")
+    parser.add_argument("--loop", "-l", action="store_true", help="play again from the start when done")
+    parser.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics (default: all)")
+    parser.add_argument("--clock", nargs="?", type=_non_negative, const=100.0, default=0.0, metavar="HZ",
+                        help="publish the playback time on /clock at HZ (default 100 when given)")
+    parser.add_argument("--delay", type=_non_negative, default=0.0,
+                        help="wait S seconds before playing (after --wait-for-subscribers)")
+    parser.add_argument("--wait-for-subscribers", type=_non_negative, default=0.0, metavar="S",
+                        help="wait up to S seconds until every topic has a subscriber")
+    return parser.parse_args(argv)
+
+
+class ReplayNode(Node):
+    def __init__(self, reader: BagReader, args: argparse.Namespace) -> None:
+        super().__init__(NODE_NAME)
+        self.reader, self.args = reader, args
+        self.publishers_by_topic = {}
+        for topic in args.topics or sorted(reader.topics):
+            recorded = reader.topics[topic]
+            try:
+                message_type = message_class(recorded.type_name)
+            except (ImportError, AttributeError, ValueError) as error:
+                self.get_logger().warning(f"skipping topic '{topic}': type '{recorded.type_name}' is not "
+                                          f"installed ({error})")
+                continue
+            self.publishers_by_topic[topic] = self.create_publisher(
+                message_type, topic, playback_qos(recorded.offered_qos))
+        self.clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1)) if args.clock else None
+        self.published = 0
+
+    def wait_for_subscribers(self, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while rclpy.ok() and time.monotonic() < deadline:
+            if all(p.get_subscription_count() > 0 for p in self.publishers_by_topic.values()):
+                return
+            time.sleep(0.01)
+        lonely = [t for t, p in self.publishers_by_topic.items() if p.get_subscription_count() == 0]
+        if lonely:
+            self.get_logger().warning(f"no subscriber after {timeout} s on: {', '.join(lonely)}")
+
+    def publish_clock(self, bag_time_ns: int) -> None:
+        sec, nanosec = divmod(bag_time_ns, 1_000_000_000)
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = int(sec), int(nanosec)
+        self.clock_publisher.publish(msg)
+
+    def play_once(self) -> bool:
+        """Publish every selected message at its due time; False if interrupted."""
+        start = self.reader.start_time_ns + round(self.args.start_offset * 1e9)
+        schedule = PlaybackSchedule(start, time.monotonic_ns(), self.args.rate)
+        clock_period = round(1e9 / self.args.clock) if self.args.clock else 0
+        next_clock = schedule.wall_start_ns
+        for message in self.reader.messages(self.publishers_by_topic, start_time_ns=start):
+            due = schedule.wall_time_ns(message.log_time_ns)
+            while True:
+                now = time.monotonic_ns()
+                if clock_period and now >= next_clock:
+                    self.publish_clock(schedule.bag_time_ns(now))
+                    next_clock = max(next_clock + clock_period, now)
+                if now >= due:
+                    break
+                if not rclpy.ok():
+                    return False
+                wake = min(due, next_clock) if clock_period else due
+                time.sleep((wake - now) / 1e9)
+            if not rclpy.ok():
+                return False
+            self.publishers_by_topic[message.topic].publish(message.data)
+            self.published += 1
+        return True
+
+    def play(self) -> None:
+        if self.args.wait_for_subscribers:
+            self.wait_for_subscribers(self.args.wait_for_subscribers)
+        if self.args.delay:  # after discovery, lets reliable connections settle before the first message
+            time.sleep(self.args.delay)
+        while self.play_once() and self.args.loop:
+            pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv if argv is None else argv
+    args = parse_arguments(remove_ros_args(argv)[1:])
+    logger = rclpy.logging.get_logger(NODE_NAME)
+    try:
+        reader = BagReader(args.bag)
+    except BagReadError as error:
+        logger.fatal(str(error))
+        return 1
+    unknown = sorted(set(args.topics or ()) - set(reader.topics))
+    if unknown:
+        logger.fatal(f"--topics: not in '{args.bag}': {', '.join(unknown)} "
+                     f"(recorded: {', '.join(sorted(reader.topics))})")
+        return 1
+    rclpy.init(args=argv)
+    node = ReplayNode(reader, args)
+    try:
+        node.play()
+        node.get_logger().info(f"played {node.published} messages from {args.bag}")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

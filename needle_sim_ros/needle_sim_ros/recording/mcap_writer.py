@@ -1,0 +1,364 @@
+"""rosbag2-compatible MCAP recording of already CDR-serialized messages (``ros2 bag info/play``, Foxglove).
+
+Layout as rosbag2_storage_mcap writes it: profile ``ros2``; one schema per type (encoding ``ros2msg``, text from
+:mod:`.message_definitions`); one channel per topic (message encoding ``cdr``, metadata ``offered_qos_profiles``
+and ``topic_type_hash``); chunked (zstd or lz4) with message indexes, chunk indexes, statistics and summary; on close
+a ``rosbag2`` metadata record with the bag metadata (:mod:`.bag_metadata`).
+
+Crash safety: records go straight to the OS (no user-space buffer), and a chunk is written as soon as it holds
+``chunk_size`` bytes or spans ``chunk_interval`` seconds of log time, so after SIGKILL the file holds every
+complete chunk; :mod:`.recovery` rebuilds an indexed file from it. A path ending in ``.mcap`` is a single file;
+any other path is a rosbag2 bag directory (``<name>_<i>.mcap`` + metadata.yaml) that may be split by size or time.
+"""
+from __future__ import annotations
+
+import errno
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+from needle_sim_ros.recording.bag_metadata import (METADATA_RECORD_KEY, METADATA_RECORD_NAME, FileSummary,
+                                                   TopicSummary, bag_metadata, metadata_record_text,
+                                                   metadata_yaml_text)
+from needle_sim_ros.recording.message_definitions import SCHEMA_ENCODING, message_definition, type_description_hash
+from needle_sim_ros.recording.qos import OfferedQos, offered_qos_profiles_yaml
+
+PROFILE = "ros2"
+LIBRARY = f"needle_sim_ros recorder; {LIBRARY_IDENTIFIER}"
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+_MESSAGE_RECORD_OVERHEAD = 1 + 8 + 2 + 4 + 8 + 8  # opcode, length, channel id, sequence, log and publish time
+
+
+class RecordingError(RuntimeError):
+    """The recording cannot be written (unwritable path, existing output, disk full ...); names the file."""
+
+
+@dataclass(frozen=True)
+class WriterOptions:
+    """How the MCAP files are written.
+
+    compression: chunk compression, ``zstd``, ``lz4`` or ``none``.
+    chunk_size: uncompressed bytes [B] after which a chunk is written.
+    chunk_interval: log-time span [s] after which a chunk is written (bounds the loss on a crash); 0 = by size only.
+    max_file_size: bytes [B] after which a bag directory continues in a new file; 0 = never.
+    max_file_duration: log-time span [s] after which a bag directory continues in a new file; 0 = never.
+    overwrite: replace an existing output instead of refusing.
+    """
+
+    compression: str = "zstd"
+    chunk_size: int = 1 << 20
+    chunk_interval: float = 1.0
+    max_file_size: int = 0
+    max_file_duration: float = 0.0
+    overwrite: bool = False
+
+    def __post_init__(self) -> None:
+        if self.compression not in _COMPRESSION:
+            raise ValueError(f"compression '{self.compression}' is not one of {', '.join(_COMPRESSION)}")
+        for name in ("chunk_size", "chunk_interval", "max_file_size", "max_file_duration"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.chunk_size < 1:
+            raise ValueError(f"chunk_size must be >= 1 byte, got {self.chunk_size}")
+
+
+@dataclass
+class _Channel:
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+    message_encoding: str
+    metadata: dict[str, str]
+    message_count: int = 0
+
+
+@dataclass
+class _StaticRecord:
+    """Metadata or attachment written into every file of the bag."""
+
+    name: str
+    metadata: dict[str, str] | None = None
+    media_type: str = ""
+    data: bytes = b""
+    log_time_ns: int = 0
+
+
+class _UnbufferedFile:
+    """Output stream for mcap.Writer that hands every record to the OS at once and counts the bytes written."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.position = 0
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+
+    def write(self, data: bytes) -> int:
+        view = memoryview(data)
+        while view:
+            written = os.write(self._fd, view)
+            view = view[written:]
+            self.position += written
+        return len(data)
+
+    def tell(self) -> int:
+        return self.position
+
+    def flush(self) -> None:
+        """Nothing is buffered here; the OS keeps the data after the process dies."""
+
+    def close(self) -> None:
+        os.close(self._fd)
+
+
+@dataclass
+class _OpenFile:
+    stream: _UnbufferedFile
+    writer: Writer
+    channel_ids: dict[str, int] = field(default_factory=dict)
+    schema_ids: dict[tuple[str, str, bytes], int] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+    first_log_time_ns: int | None = None
+    last_log_time_ns: int = 0
+    chunk_start_ns: int | None = None
+    chunk_bytes: int = 0
+
+
+def _describe(error: OSError, path: Path) -> str:
+    reason = "disk full" if error.errno == errno.ENOSPC else (error.strerror or str(error))
+    return f"cannot write recording file '{path}': {reason} [errno {error.errno}]"
+
+
+class McapBagWriter:
+    """Writes serialized messages into a rosbag2-compatible MCAP file or bag directory.
+
+    ``custom_data`` goes into the bag metadata (``ros2 bag info`` / rosbag2_py ``custom_data``). Any write failure
+    raises RecordingError and stops the recording; what was written stays recoverable.
+    """
+
+    def __init__(self, path: str | os.PathLike, options: WriterOptions = WriterOptions(),
+                 custom_data: dict[str, str] | None = None) -> None:
+        self.path = Path(path)
+        self.options = options
+        self.custom_data = dict(custom_data or {})
+        self.is_directory = self.path.suffix != ".mcap"
+        if not self.is_directory and (options.max_file_size or options.max_file_duration):
+            raise ValueError(f"splitting by max_file_size/max_file_duration needs a bag directory path "
+                             f"(without .mcap suffix), got '{self.path}'")
+        self._channels: dict[str, _Channel] = {}
+        self._static: list[_StaticRecord] = []
+        self._files: list[FileSummary] = []
+        self._file: _OpenFile | None = None
+        self._failure: str | None = None
+        self._prepare_output()
+        self._open_next_file()
+
+    # --- public API -------------------------------------------------------------------------------------------
+    @property
+    def files(self) -> list[Path]:
+        """Storage files written so far (the open one included)."""
+        names = [f.path for f in self._files] + ([self._file.stream.path.name] if self._file else [])
+        return [self._file_path(name) for name in names]
+
+    @property
+    def topics(self) -> list[str]:
+        return list(self._channels)
+
+    @property
+    def message_count(self) -> int:
+        return sum(c.message_count for c in self._channels.values())
+
+    def add_topic(self, topic: str, type_name: str, offered_qos: Sequence[OfferedQos] = (OfferedQos(),)) -> None:
+        """Register a topic of ROS 2 type ``pkg/msg/Type`` (schema from the installed .msg files)."""
+        self.add_channel(topic, type_name, SCHEMA_ENCODING, message_definition(type_name).encode(),
+                         {"offered_qos_profiles": offered_qos_profiles_yaml(offered_qos),
+                          "topic_type_hash": type_description_hash(type_name)})
+
+    def add_channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes,
+                    metadata: dict[str, str], message_encoding: str = "cdr") -> None:
+        """Register a topic with an explicit schema and channel metadata (e.g. copied from another file)."""
+        channel = _Channel(topic, schema_name, schema_encoding, bytes(schema_data), message_encoding, dict(metadata))
+        known = self._channels.get(topic)
+        if known is not None:
+            if (known.schema_name, known.schema_data) != (channel.schema_name, channel.schema_data):
+                raise ValueError(f"topic '{topic}' is already recorded with type '{known.schema_name}'")
+            return
+        self._channels[topic] = channel
+        self._guarded(lambda: self._register(channel))
+
+    def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None,
+              sequence: int = 0) -> None:
+        """Append one serialized message; ``log_time_ns`` is the receive time (rosbag2's recv_timestamp)."""
+        channel = self._channels.get(topic)
+        if channel is None:
+            raise KeyError(f"topic '{topic}' was not added to the recording")
+        self._guarded(lambda: self._write(channel, data, int(log_time_ns),
+                                          int(log_time_ns if publish_time_ns is None else publish_time_ns), sequence))
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Key-value metadata record (Foxglove's metadata panel); repeated in every file of a split bag."""
+        record = _StaticRecord(name, metadata={str(k): str(v) for k, v in data.items()})
+        self._static.append(record)
+        self._guarded(lambda: self._write_static(record))
+
+    def add_attachment(self, name: str, media_type: str, data: bytes, log_time_ns: int = 0) -> None:
+        """Attachment (e.g. a parameter file); repeated in every file of a split bag."""
+        record = _StaticRecord(name, media_type=media_type, data=bytes(data), log_time_ns=int(log_time_ns))
+        self._static.append(record)
+        self._guarded(lambda: self._write_static(record))
+
+    def flush_due(self, now_ns: int) -> None:
+        """Write the open chunk if it has waited ``chunk_interval`` (call periodically when messages are sparse)."""
+        file = self._file
+        if file and file.chunk_start_ns is not None and self.options.chunk_interval > 0 \
+                and now_ns - file.chunk_start_ns >= self.options.chunk_interval * 1e9:
+            self._guarded(self._flush_chunk)
+
+    def close(self) -> list[Path]:
+        """Write the summary and footer (and metadata.yaml of a bag directory); returns the files written."""
+        if self._file is not None:
+            if self._failure is None:
+                self._guarded(self._finish_file)
+            else:
+                self._abandon_file()
+        return self.files
+
+    def __enter__(self) -> "McapBagWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- files ------------------------------------------------------------------------------------------------
+    def _file_path(self, name: str) -> Path:
+        return self.path / name if self.is_directory else self.path
+
+    def _prepare_output(self) -> None:
+        target = self.path
+        try:
+            if self.is_directory:
+                if target.exists() and any(target.iterdir()):
+                    if not self.options.overwrite:
+                        raise RecordingError(f"recording directory '{target}' already exists and is not empty")
+                    for old in [*target.glob("*.mcap"), target / "metadata.yaml"]:
+                        old.unlink(missing_ok=True)
+                target.mkdir(parents=True, exist_ok=True)
+            else:
+                if target.exists() and not self.options.overwrite:
+                    raise RecordingError(f"recording file '{target}' already exists")
+                target.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise RecordingError(_describe(error, target)) from error
+
+    def _open_next_file(self) -> None:
+        name = f"{self.path.name}_{len(self._files)}.mcap" if self.is_directory else self.path.name
+        path = self._file_path(name)
+        try:
+            stream = _UnbufferedFile(path)
+        except OSError as error:
+            self._failure = _describe(error, path)
+            raise RecordingError(self._failure) from error
+        writer = Writer(stream, chunk_size=self.options.chunk_size,
+                        compression=_COMPRESSION[self.options.compression])
+        self._file = _OpenFile(stream, writer)
+        self._guarded(lambda: self._start_file(writer))
+
+    def _start_file(self, writer: Writer) -> None:
+        writer.start(profile=PROFILE, library=LIBRARY)
+        for record in self._static:
+            self._write_static(record)
+        for channel in self._channels.values():
+            self._register(channel)
+
+    def _summary(self, file: _OpenFile) -> FileSummary:
+        count = sum(file.counts.values())
+        start = file.first_log_time_ns or 0
+        return FileSummary(file.stream.path.name, start, file.last_log_time_ns - start if count else 0, count)
+
+    def _topic_summaries(self) -> list[TopicSummary]:
+        return [TopicSummary(c.topic, c.schema_name, c.message_encoding, c.metadata.get("offered_qos_profiles", ""),
+                             c.metadata.get("topic_type_hash", ""), c.message_count)
+                for c in self._channels.values()]
+
+    def _finish_file(self) -> None:
+        file = self._file
+        summary = self._summary(file)
+        metadata = bag_metadata(self._topic_summaries(), [*self._files, summary], self.custom_data)
+        file.writer.add_metadata(METADATA_RECORD_NAME, {METADATA_RECORD_KEY: metadata_record_text(metadata)})
+        file.writer.finish()
+        file.stream.close()
+        self._files.append(summary)
+        self._file = None
+        if self.is_directory:
+            temporary = self.path / "metadata.yaml.tmp"
+            temporary.write_text(metadata_yaml_text(metadata))
+            os.replace(temporary, self.path / "metadata.yaml")
+
+    def _abandon_file(self) -> None:
+        try:
+            self._file.stream.close()
+        except OSError:
+            pass
+        self._files.append(self._summary(self._file))
+        self._file = None
+
+    # --- records ----------------------------------------------------------------------------------------------
+    def _guarded(self, action) -> None:
+        if self._failure is not None:
+            raise RecordingError(f"recording stopped after an earlier error: {self._failure}")
+        try:
+            action()
+        except OSError as error:
+            self._failure = _describe(error, self._file.stream.path if self._file else self.path)
+            raise RecordingError(self._failure) from error
+
+    def _register(self, channel: _Channel) -> None:
+        file = self._file
+        key = (channel.schema_name, channel.schema_encoding, channel.schema_data)
+        if key not in file.schema_ids:
+            file.schema_ids[key] = file.writer.register_schema(channel.schema_name, channel.schema_encoding,
+                                                               channel.schema_data)
+        file.channel_ids[channel.topic] = file.writer.register_channel(
+            channel.topic, channel.message_encoding, file.schema_ids[key], channel.metadata)
+
+    def _write_static(self, record: _StaticRecord) -> None:
+        if record.metadata is not None:
+            self._file.writer.add_metadata(record.name, record.metadata)
+        else:
+            self._file.writer.add_attachment(record.log_time_ns, record.log_time_ns, record.name, record.media_type,
+                                             record.data)
+
+    def _split_due(self, file: _OpenFile, log_time_ns: int) -> bool:
+        if file.first_log_time_ns is None:
+            return False
+        too_big = self.options.max_file_size and file.stream.position + file.chunk_bytes >= self.options.max_file_size
+        too_long = self.options.max_file_duration and \
+            log_time_ns - file.first_log_time_ns >= self.options.max_file_duration * 1e9
+        return bool(too_big or too_long)
+
+    def _write(self, channel: _Channel, data: bytes, log_time_ns: int, publish_time_ns: int, sequence: int) -> None:
+        if self.is_directory and self._split_due(self._file, log_time_ns):
+            self._finish_file()
+            self._open_next_file()
+        file = self._file
+        written_before = file.stream.position
+        file.writer.add_message(file.channel_ids[channel.topic], log_time_ns, data, publish_time_ns, sequence)
+        channel.message_count += 1
+        file.counts[channel.topic] = file.counts.get(channel.topic, 0) + 1
+        file.first_log_time_ns = log_time_ns if file.first_log_time_ns is None else min(file.first_log_time_ns,
+                                                                                          log_time_ns)
+        file.last_log_time_ns = max(file.last_log_time_ns, log_time_ns)
+        if file.stream.position != written_before:  # the chunk filled up and was written
+            file.chunk_start_ns, file.chunk_bytes = None, 0
+            return
+        file.chunk_bytes += len(data) + _MESSAGE_RECORD_OVERHEAD
+        if file.chunk_start_ns is None:
+            file.chunk_start_ns = log_time_ns
+        elif self.options.chunk_interval > 0 and log_time_ns - file.chunk_start_ns >= self.options.chunk_interval * 1e9:
+            self._flush_chunk()
+
+    def _flush_chunk(self) -> None:
+        self._file.writer.flush()
+        self._file.chunk_start_ns, self._file.chunk_bytes = None, 0

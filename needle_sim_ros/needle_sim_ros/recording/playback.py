@@ -1,0 +1,25 @@
+"""Playback timing: bag (log) time <-> wall time at a rate factor, as ``ros2 bag play --rate`` does."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PlaybackSchedule:
+    """``wall = wall_start + (bag - bag_start) / rate`` (times in ns; rate > 0, 2 = twice as fast)."""
+
+    bag_start_ns: int
+    wall_start_ns: int
+    rate: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.rate > 0.0:
+            raise ValueError(f"rate must be > 0, got {self.rate}")
+
+    def wall_time_ns(self, bag_time_ns: int) -> int:
+        """When a message logged at ``bag_time_ns`` is due."""
+        return self.wall_start_ns + round((bag_time_ns - self.bag_start_ns) / self.rate)
+
+    def bag_time_ns(self, wall_time_ns: int) -> int:
+        """Playback (simulated) time at ``wall_time_ns``, published on /clock."""
+        return self.bag_start_ns + round((wall_time_ns - self.wall_start_ns) * self.rate)

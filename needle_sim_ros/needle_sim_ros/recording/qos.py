@@ -1,0 +1,104 @@
+"""Offered QoS profiles of a recorded topic in rosbag2's YAML form (bag metadata version 9, ROS 2 Jazzy).
+
+rosbag2 stores, per topic, the list of QoS profiles offered by the recorded publishers: in MCAP as the channel
+metadata value ``offered_qos_profiles`` (a YAML document holding a list) and in metadata.yaml as that list. Version 9
+spells policies as the rmw strings (``keep_last``, ``reliable``, ``transient_local``, ``automatic`` ...) and durations
+as ``{sec, nsec}``; versions <= 8 used the rmw enum integers, which :func:`parse_offered_qos_profiles` also reads.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import yaml
+
+DURATION_INFINITE_NS = 2**63 - 1  # RMW_DURATION_INFINITE = {sec: 9223372036, nsec: 854775807}
+DURATION_UNSPECIFIED_NS = 0
+
+HISTORY = ("system_default", "keep_last", "keep_all", "unknown")
+RELIABILITY = ("system_default", "reliable", "best_effort", "unknown", "best_available")
+DURABILITY = ("system_default", "transient_local", "volatile", "unknown", "best_available")
+LIVELINESS = ("system_default", "automatic", "manual_by_node", "manual_by_topic", "unknown", "best_available")
+
+# Infinity as reported by Foxy-era RMW implementations, read as infinite (as rosbag2 does).
+_LEGACY_INFINITE = {(0x7FFFFFFF, 0xFFFFFFFF), (0x7FFFFFFF, 0x7FFFFFFF), divmod(0x7FFFFFFFFFFFFFFF, 10**9)}
+
+
+@dataclass(frozen=True)
+class OfferedQos:
+    """One QoS profile (rmw_qos_profile_t) with policies as rmw strings and durations in nanoseconds."""
+
+    history: str = "keep_last"
+    depth: int = 10
+    reliability: str = "reliable"
+    durability: str = "volatile"
+    deadline_ns: int = DURATION_UNSPECIFIED_NS
+    lifespan_ns: int = DURATION_UNSPECIFIED_NS
+    liveliness: str = "system_default"
+    liveliness_lease_duration_ns: int = DURATION_UNSPECIFIED_NS
+    avoid_ros_namespace_conventions: bool = False
+
+    def __post_init__(self) -> None:
+        for name, allowed in (("history", HISTORY), ("reliability", RELIABILITY), ("durability", DURABILITY),
+                              ("liveliness", LIVELINESS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"QoS {name} '{getattr(self, name)}' is not one of {', '.join(allowed)}")
+        if self.depth < 0:
+            raise ValueError(f"QoS depth must be >= 0, got {self.depth}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """rosbag2 version-9 mapping of this profile (key order as rosbag2 writes it)."""
+        def duration(ns: int) -> dict[str, int]:
+            sec, nsec = divmod(int(ns), 10**9)
+            return {"sec": sec, "nsec": nsec}
+
+        return {
+            "history": self.history,
+            "depth": int(self.depth),
+            "reliability": self.reliability,
+            "durability": self.durability,
+            "deadline": duration(self.deadline_ns),
+            "lifespan": duration(self.lifespan_ns),
+            "liveliness": self.liveliness,
+            "liveliness_lease_duration": duration(self.liveliness_lease_duration_ns),
+            "avoid_ros_namespace_conventions": bool(self.avoid_ros_namespace_conventions),
+        }
+
+    @classmethod
+    def from_dict(cls, item: dict[str, Any]) -> "OfferedQos":
+        """Read a profile written by any rosbag2 version (policy strings or rmw enum integers)."""
+        def policy(key: str, names: Sequence[str]) -> str:
+            value = item[key]
+            if isinstance(value, int):
+                return names[value] if 0 <= value < len(names) else "unknown"
+            return value if value in names else "unknown"
+
+        def duration(key: str) -> int:
+            sec, nsec = int(item[key]["sec"]), int(item[key]["nsec"])
+            return DURATION_INFINITE_NS if (sec, nsec) in _LEGACY_INFINITE else min(sec * 10**9 + nsec,
+                                                                                     DURATION_INFINITE_NS)
+
+        return cls(history=policy("history", HISTORY), depth=int(item["depth"]),
+                   reliability=policy("reliability", RELIABILITY), durability=policy("durability", DURABILITY),
+                   deadline_ns=duration("deadline"), lifespan_ns=duration("lifespan"),
+                   liveliness=policy("liveliness", LIVELINESS),
+                   liveliness_lease_duration_ns=duration("liveliness_lease_duration"),
+                   avoid_ros_namespace_conventions=bool(item["avoid_ros_namespace_conventions"]))
+
+
+def offered_qos_profiles_yaml(profiles: Sequence[OfferedQos]) -> str:
+    """Channel metadata value ``offered_qos_profiles``: a YAML list of version-9 profiles ('' for none)."""
+    if not profiles:
+        return ""
+    return yaml.safe_dump([p.as_dict() for p in profiles], sort_keys=False, default_flow_style=False).rstrip("\n")
+
+
+def parse_offered_qos_profiles(text: str) -> list[OfferedQos]:
+    """Inverse of :func:`offered_qos_profiles_yaml`, also for rosbag2 versions <= 8; raises ValueError."""
+    if not text or not text.strip():
+        return []
+    try:
+        items = yaml.safe_load(text)
+        return [OfferedQos.from_dict(item) for item in items]
+    except (yaml.YAMLError, TypeError, KeyError, AttributeError) as error:
+        raise ValueError(f"offered_qos_profiles is not a list of QoS profiles: {error}") from None

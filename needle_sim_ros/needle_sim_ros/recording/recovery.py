@@ -1,0 +1,181 @@
+"""Recovery of an MCAP recording that was cut short (killed writer, full disk): no summary, no footer.
+
+An MCAP file is a magic followed by records ``opcode (1 B) | length (8 B) | body``. The data section is read
+record by record; a record counts only if its whole body is in the file, and a chunk only if it decompresses and
+matches its CRC. Reading stops at the first incomplete or corrupt record (the lost tail) or at the end of the data
+section. Schemas, channels, messages, metadata and attachments found so far are rewritten with
+:class:`.McapBagWriter` into a valid, indexed file; the ``rosbag2`` bag-metadata record is regenerated.
+
+CLI: ``needle_mcap_recover in.mcap out.mcap`` (a bag directory as input: all its .mcap files, in order).
+"""
+from __future__ import annotations
+
+import argparse
+import io
+import struct
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
+from mcap.stream_reader import breakup_chunk
+from zstandard import ZstdError
+
+from needle_sim_ros.recording.bag_metadata import METADATA_RECORD_NAME
+from needle_sim_ros.recording.bag_reader import BagReadError, mcap_files
+from needle_sim_ros.recording.mcap_writer import PROFILE, McapBagWriter, RecordingError, WriterOptions
+
+MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEAD = struct.Struct("<BQ")
+# What a cut or damaged record raises while being parsed or decompressed (CRC mismatch is a ValueError;
+# the lz4 and zstd decoders raise RuntimeError / ZstdError).
+_CORRUPT = (McapError, ValueError, struct.error, RuntimeError, ZstdError, UnicodeDecodeError)
+
+
+class RecoveryError(RuntimeError):
+    """The input is not a recoverable MCAP file."""
+
+
+@dataclass
+class RecoveryReport:
+    """What was recovered: messages, complete chunks read, and bytes of an incomplete or corrupt tail dropped."""
+
+    messages: int = 0
+    chunks: int = 0
+    topics: int = 0
+    metadata: int = 0
+    attachments: int = 0
+    discarded_bytes: int = 0
+    complete_input: bool = True
+
+    def describe(self) -> str:
+        tail = ("the input was complete" if self.complete_input
+                else f"discarded an incomplete tail of {self.discarded_bytes} bytes")
+        return (f"recovered {self.messages} messages on {self.topics} topics from {self.chunks} chunks, "
+                f"{self.metadata} metadata records and {self.attachments} attachments; {tail}")
+
+
+class _DataSection:
+    """Complete records of one MCAP file, chunks broken up into their records."""
+
+    def __init__(self, path: Path, report: RecoveryReport) -> None:
+        self.path = path
+        self.report = report
+
+    def records(self) -> Iterator[object]:
+        try:
+            with open(self.path, "rb") as source:
+                size = source.seek(0, io.SEEK_END)
+                source.seek(0)
+                if source.read(len(MAGIC)) != MAGIC:
+                    raise RecoveryError(f"'{self.path}' is not an MCAP file (bad magic)")
+                yield from self._scan(source, size)
+        except OSError as error:
+            raise RecoveryError(f"cannot read '{self.path}': {error.strerror or error}") from error
+
+    def _scan(self, source, size: int) -> Iterator[object]:
+        good_end = source.tell()
+        while True:
+            head = source.read(_RECORD_HEAD.size)
+            if len(head) < _RECORD_HEAD.size:
+                break
+            opcode, length = _RECORD_HEAD.unpack(head)
+            if length > size - source.tell():
+                break
+            body = source.read(length)
+            if opcode == Opcode.HEADER:
+                self._check_profile(body)
+                records = []
+            else:
+                try:
+                    records = self._parse(opcode, body)
+                except _CORRUPT:
+                    break  # everything from this record on is lost
+            if records is None:  # end of the data section: the file was complete
+                return
+            good_end = source.tell()
+            yield from records
+        self.report.complete_input = False
+        self.report.discarded_bytes += size - good_end
+
+    def _check_profile(self, body: bytes) -> None:
+        header = Header.read(ReadDataStream(io.BytesIO(body)))
+        if header.profile != PROFILE:
+            raise RecoveryError(f"'{self.path}' has MCAP profile '{header.profile}', not '{PROFILE}'")
+
+    def _parse(self, opcode: int, body: bytes) -> list[object] | None:
+        stream = ReadDataStream(io.BytesIO(body))
+        if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+            return None
+        if opcode == Opcode.CHUNK:
+            records = breakup_chunk(Chunk.read(stream), validate_crc=True)
+            self.report.chunks += 1
+            return records
+        if opcode == Opcode.MESSAGE:
+            return [Message.read(stream, len(body))]
+        readers = {Opcode.SCHEMA: Schema.read, Opcode.CHANNEL: Channel.read, Opcode.METADATA: Metadata.read,
+                   Opcode.ATTACHMENT: Attachment.read}
+        return [readers[opcode](stream)] if opcode in readers else []  # indexes are rebuilt by the writer
+
+
+def recover(source: str | Path, destination: str | Path, options: WriterOptions = WriterOptions()) -> RecoveryReport:
+    """Rewrite every complete message of ``source`` (file or bag directory) into a valid MCAP ``destination``."""
+    report = RecoveryReport()
+    sources = mcap_files(Path(source))
+    writer = McapBagWriter(destination, options)
+    try:
+        for path in sources:
+            schemas: dict[int, Schema] = {}
+            topics: dict[int, str] = {}
+            for record in _DataSection(path, report).records():
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel) and record.schema_id in schemas:
+                    schema = schemas[record.schema_id]
+                    writer.add_channel(record.topic, schema.name, schema.encoding, schema.data, record.metadata,
+                                       record.message_encoding)
+                    topics[record.id] = record.topic
+                elif isinstance(record, Message) and record.channel_id in topics:
+                    writer.write(topics[record.channel_id], record.data, record.log_time, record.publish_time,
+                                 record.sequence)
+                    report.messages += 1
+                elif isinstance(record, Metadata) and record.name != METADATA_RECORD_NAME:
+                    writer.add_metadata(record.name, record.metadata)
+                    report.metadata += 1
+                elif isinstance(record, Attachment):
+                    writer.add_attachment(record.name, record.media_type, record.data, record.log_time)
+                    report.attachments += 1
+    finally:
+        writer.close()
+    report.topics = len(writer.topics)
+    return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="needle_mcap_recover",
+        description="Rebuild a valid, indexed MCAP file from a recording cut short (no summary/footer): every "
+                    "message of every complete chunk is kept.")
+    parser.add_argument("input", type=Path, help="truncated .mcap file, or a bag directory of .mcap files")
+    parser.add_argument("output", type=Path, help="recovered .mcap file (or bag directory without .mcap suffix)")
+    parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+                        help="chunk compression of the output (default: zstd)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    args = parser.parse_args(argv)
+    if args.input.resolve() == args.output.resolve():
+        parser.error("output must differ from input")
+    try:
+        report = recover(args.input, args.output, WriterOptions(compression=args.compression, overwrite=args.overwrite))
+    except (RecoveryError, RecordingError, BagReadError) as error:
+        print(f"needle_mcap_recover: {error}", file=sys.stderr)
+        return 1
+    print(f"needle_mcap_recover: {report.describe()} -> {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,196 @@
+"""needle_replay and needle_compare as separate processes: recorded timing and /clock, replay -> compare pipeline
+with MCAP logging finalized on SIGTERM, and clear exits on bad input."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import Point, WrenchStamped
+from mcap.reader import make_reader
+from needle_interfaces.msg import NeedleShape, ShapeError
+from rclpy.qos import QoSProfile
+from rclpy.serialization import serialize_message
+from rosgraph_msgs.msg import Clock
+from scipy.spatial.transform import RigidTransform, Rotation
+
+from needle_sim_ros.recording import McapBagWriter, OfferedQos, PlaybackSchedule
+
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+BAG_START_NS = 1_700_000_000_000_000_000
+CAMERA_TO_MODEL = RigidTransform.from_components([0.1, -0.2, 0.3], Rotation.from_euler("zyx", [30.0, 10.0, -5.0],
+                                                                                        degrees=True))
+
+
+@pytest.fixture(scope="module")
+def ros_env():
+    """A ROS domain of this test process only (id from the pid), discovery on this host only."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONUNBUFFERED="1", PYTHONPATH=f"{PACKAGE_ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    os.environ.update({k: env[k] for k in saved})
+    yield env
+    for key, value in saved.items():
+        os.environ.pop(key) if value is None else os.environ.__setitem__(key, value)
+
+
+@pytest.fixture
+def node(ros_env):
+    rclpy.init()
+    node = rclpy.create_node("replay_test")
+    yield node
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def start(ros_env, module: str, *args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", f"needle_sim_ros.nodes.{module}", *args], env=ros_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def spin_until(node, done, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while not done() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.01)
+
+
+def test_playback_schedule_maps_bag_time_to_wall_time():
+    schedule = PlaybackSchedule(bag_start_ns=1_000, wall_start_ns=50, rate=2.0)
+    assert schedule.wall_time_ns(1_000 + 400) == 50 + 200
+    assert schedule.bag_time_ns(schedule.wall_time_ns(123_456)) == 123_456
+    with pytest.raises(ValueError, match="rate"):
+        PlaybackSchedule(0, 0, rate=0.0)
+
+
+def wrench_bag(path: Path, count: int, period_ns: int) -> list[int]:
+    stamps = [BAG_START_NS + k * period_ns for k in range(count)]
+    with McapBagWriter(path) as writer:
+        writer.add_topic("/wrench", "geometry_msgs/msg/WrenchStamped", [OfferedQos(depth=100)])
+        for k, stamp in enumerate(stamps):
+            msg = WrenchStamped()
+            msg.wrench.force.x = float(k)
+            writer.write("/wrench", serialize_message(msg), stamp)
+    return stamps
+
+
+def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(node, ros_env, tmp_path):
+    count, period_ns, rate = 100, 10_000_000, 2.0          # 1 s of 100 Hz wrench, played in 0.5 s
+    stamps = wrench_bag(tmp_path / "wrench.mcap", count, period_ns)
+    arrivals, clocks = [], []
+    node.create_subscription(WrenchStamped, "/replayed/wrench",
+                             lambda m: arrivals.append((time.monotonic_ns(), int(m.wrench.force.x))),
+                             QoSProfile(depth=count))
+    node.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
+                             QoSProfile(depth=1000))
+    player = start(ros_env, "replay_node", str(tmp_path / "wrench.mcap"), "--rate", str(rate), "--clock", "200",
+                   "--wait-for-subscribers", "20", "--delay", "0.5", "--ros-args", "-r", "/wrench:=/replayed/wrench")
+    try:
+        spin_until(node, lambda: len(arrivals) == count and player.poll() is not None, 40.0)
+        out, _ = player.communicate(timeout=10)
+    finally:
+        player.kill()
+    assert player.returncode == 0, out
+    assert [k for _, k in arrivals] == list(range(count)), out
+    received = np.array([t for t, _ in arrivals], dtype=float)
+    expected = (np.array(stamps, dtype=float) - stamps[0]) / rate
+    # The played time scale: arrival vs schedule has slope 1 (0.5 s of playback; 1 % = 5 ms drift).
+    slope = np.polyfit(expected, received, 1)[0]
+    assert slope == pytest.approx(1.0, abs=0.01)
+    # Jitter: deviation of each arrival from the schedule, after removing the constant transport latency (sleep
+    # overshoot, scheduling of two processes on a shared 2-core machine). Bounds: median 1 ms and 90th percentile
+    # 5 ms (the message spacing); the worst case is not bounded, a loaded machine can stall any process for tens of ms.
+    lag = np.abs((received - expected) - np.median(received - expected))
+    assert np.median(lag) < 1e6, f"median jitter {np.median(lag) / 1e6:.3f} ms"
+    assert np.percentile(lag, 90) < 5e6, f"90th percentile jitter {np.percentile(lag, 90) / 1e6:.3f} ms"
+    print(f"replay jitter: median {np.median(lag) / 1e3:.0f} us, p95 {np.percentile(lag, 95) / 1e3:.0f} us, "
+          f"max {np.max(lag) / 1e3:.0f} us over {count} messages at {rate * 100:.0f} Hz")
+    # /clock at 200 Hz over 0.5 s of wall time: ~100 ticks of bag time, non-decreasing, inside the bag's range.
+    assert len(clocks) > 50
+    assert np.all(np.diff(clocks) >= 0)
+    assert stamps[0] <= clocks[0] and clocks[-1] <= stamps[-1] + 20_000_000
+
+
+def shapes_bag(path: Path, count: int, offset: float) -> None:
+    """Model shapes (world frame) at 50 Hz and stereo measurements 1 ms later, in the camera frame, offset from the
+    model by ``offset`` normal to the needle's plane."""
+    s = np.linspace(0.0, 0.15, 31)
+    radius = 0.6
+    model = np.column_stack([radius * np.sin(s / radius), radius * (1 - np.cos(s / radius)), np.zeros_like(s)])
+    camera = CAMERA_TO_MODEL.inv().apply(model[::3] + [0.0, 0.0, offset])
+
+    def shape(points, arc, frame, stamp, source):
+        msg = NeedleShape(source=source, arc_length=list(arc), points=[Point(x=p[0], y=p[1], z=p[2]) for p in points])
+        msg.header.frame_id = frame
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
+        return serialize_message(msg)
+
+    with McapBagWriter(path) as writer:
+        writer.add_topic("/model/shape", "needle_interfaces/msg/NeedleShape")
+        writer.add_topic("/measured/shape", "needle_interfaces/msg/NeedleShape")
+        for k in range(count):
+            stamp = BAG_START_NS + k * 20_000_000
+            writer.write("/model/shape", shape(model, s, "world", stamp, "model"), stamp)
+            writer.write("/measured/shape", shape(camera, s[::3], "camera", stamp + 1_000_000, "stereo"),
+                         stamp + 2_000_000)
+
+
+def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(node, ros_env, tmp_path):
+    count, offset = 25, 0.0015
+    shapes_bag(tmp_path / "shapes.mcap", count, offset)
+    translation, rotation = CAMERA_TO_MODEL.as_components()
+    errors = []
+    node.create_subscription(ShapeError, "/shape_error", errors.append, QoSProfile(depth=100))
+    comparer = start(ros_env, "compare_node", "--ros-args",
+                     "-p", f"extrinsic.translation:={translation.tolist()}",
+                     "-p", f"extrinsic.rotation:={rotation.as_quat().tolist()}",
+                     "-p", "model_frame:=world", "-p", "measured_frame:=camera",
+                     "-p", f"log.path:={tmp_path / 'log.mcap'}", "-p", f"summary_path:={tmp_path / 'summary.json'}")
+    try:
+        spin_until(node, lambda: node.count_publishers("/shape_error") > 0, 20.0)
+        player = start(ros_env, "replay_node", str(tmp_path / "shapes.mcap"), "--wait-for-subscribers", "20",
+                       "--delay", "0.5")
+        out, _ = player.communicate(timeout=40)
+        assert player.returncode == 0, out
+        # Every measurement but the last is decided by the next model shape (the last waits for one).
+        spin_until(node, lambda: len(errors) == count - 1, 10.0)
+        comparer.send_signal(signal.SIGTERM)
+        log, _ = comparer.communicate(timeout=20)
+    finally:
+        comparer.kill()
+    assert comparer.returncode == 0, log
+    assert len(errors) == count - 1, log
+    for error in errors:
+        # Exact geometry: every sample is `offset` off the (planar) model centerline.
+        assert error.rmse == pytest.approx(offset, abs=1e-9) and error.max_error == pytest.approx(offset, abs=1e-9)
+        assert error.matched_samples == 11 and error.header.frame_id == "world"
+        assert (error.measurement_stamp.nanosec - error.model_stamp.nanosec) % 10**9 == 1_000_000
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["compared"] == count - 1 and summary["rmse_max_m"] == pytest.approx(offset, abs=1e-9)
+    with open(tmp_path / "log.mcap", "rb") as stream:     # finalized: summary section present
+        reader = make_reader(stream)
+        statistics = reader.get_summary().statistics
+        topics = {c.id: c.topic for c in reader.get_summary().channels.values()}
+        counts = {topics[i]: n for i, n in statistics.channel_message_counts.items()}
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        attachments = [a.name for a in reader.iter_attachments()]
+    assert counts == {"/model/shape": count, "/measured/shape": count, "/shape_error": count - 1}
+    assert metadata["needle_compare/parameters"]["model_frame"] == "world"
+    assert "rosbag2" in metadata and attachments == ["needle_compare_parameters.yaml"]
+
+
+@pytest.mark.parametrize("module, args, message", [
+    ("compare_node", ["--ros-args", "-p", "extrinsic.rotation:=[0.0, 0.0, 0.0, 0.0]"], "extrinsic.rotation"),
+    ("compare_node", ["--ros-args", "-p", "measured_input:=cloud"], "measured_input"),
+    ("replay_node", ["/nonexistent/bag.mcap"], "/nonexistent/bag.mcap"),
+    ("replay_node", ["x.mcap", "--rate", "0"], "--rate"),
+])
+def test_bad_input_exits_non_zero_naming_the_culprit(ros_env, module, args, message):
+    result = subprocess.run([sys.executable, "-m", f"needle_sim_ros.nodes.{module}", *args], env=ros_env,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode != 0
+    assert message in result.stdout + result.stderr
