@@ -17,6 +17,9 @@ setup(
     description="Stereo needle reconstruction for the needle_sim suite.",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "needle_stereo = needle_vision.stereo_node:main",
+            "needle_stereo_offline = needle_vision.offline:main",
+        ],
     },
 )

@@ -1,0 +1,90 @@
+"""Small operations on ordered polylines ``(n, d)``: arc length, resampling, moving average."""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numba
+import numpy as np
+from scipy.ndimage import correlate1d
+
+
+@numba.njit(cache=True)
+def arc_length(points):  # pragma: no cover - compiled
+    """Cumulative chord length from the first point of ``(n, d)`` points: ``(n,)``."""
+    n, d = points.shape
+    out = np.zeros(n)
+    for k in range(1, n):
+        step = 0.0
+        for j in range(d):
+            step += (points[k, j] - points[k - 1, j]) ** 2
+        out[k] = out[k - 1] + np.sqrt(step)
+    return out
+
+
+def derivative(values: np.ndarray, parameter: np.ndarray) -> np.ndarray:
+    """d values / d parameter of samples ``(n,)`` or ``(n, d)`` at increasing ``parameter (n,)`` (central
+    differences, one-sided at the ends)."""
+    values = np.asarray(values, dtype=float)
+    step = parameter.reshape((-1,) + (1,) * (values.ndim - 1))
+    out = np.empty_like(values)
+    out[1:-1] = (values[2:] - values[:-2]) / (step[2:] - step[:-2])
+    out[0] = (values[1] - values[0]) / (step[1] - step[0])
+    out[-1] = (values[-1] - values[-2]) / (step[-1] - step[-2])
+    return out
+
+
+def interpolate(arc: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Piecewise-linear ``values (n, d)`` given at increasing ``arc (n,)``, evaluated at ``at (m,)``
+    (clamped to the end values outside)."""
+    return np.column_stack([np.interp(at, arc, values[:, k]) for k in range(values.shape[1])])
+
+
+def resample(points: np.ndarray, count: int) -> np.ndarray:
+    """``count`` points equally spaced in arc length along the polyline (ends kept)."""
+    arc = arc_length(points)
+    return interpolate(arc, points, np.linspace(0.0, arc[-1], count))
+
+
+@numba.njit(cache=True)
+def moving_average(values, window):  # pragma: no cover - compiled
+    """Centred moving average along axis 0 of ``(n, d)`` values; the window shrinks symmetrically at the
+    ends so that the end points stay put."""
+    n, d = values.shape
+    out = np.empty_like(values)
+    half = window // 2
+    for k in range(n):
+        h = min(half, k, n - 1 - k)
+        for j in range(d):
+            total = 0.0
+            for i in range(k - h, k + h + 1):
+                total += values[i, j]
+            out[k, j] = total / (2 * h + 1)
+    return out
+
+
+@lru_cache(maxsize=32)
+def _polynomial_projector(window: int, order: int) -> np.ndarray:
+    """Hat matrix of a least-squares polynomial fit of ``order`` to ``window`` equally spaced samples."""
+    vandermonde = np.vander(np.arange(window) - window // 2, order + 1, increasing=True)
+    return vandermonde @ np.linalg.pinv(vandermonde)
+
+
+def local_polynomial_smooth(values: np.ndarray, window: int, order: int = 3) -> np.ndarray:
+    """Savitzky-Golay smoothing of ``(n, d)`` samples along axis 0: each sample is replaced by the value at it
+    of the polynomial fitted over the ``window`` (odd) samples centred on it; the first and last
+    ``window // 2`` samples take the fit of the first/last full window (polynomial extrapolation, no
+    shrinking towards the ends). Requires ``n >= window``."""
+    values = np.asarray(values, dtype=float)
+    if window % 2 == 0 or window > len(values) or window <= order:
+        raise ValueError(f"window {window} must be odd, > order {order} and <= the {len(values)} samples")
+    projector = _polynomial_projector(window, order)
+    half = window // 2
+    out = correlate1d(values, projector[half], axis=0, mode="nearest")
+    out[:half] = projector[:half] @ values[:window]
+    out[-half:] = projector[-half:] @ values[-window:]
+    return out
+
+
+def smoothing_noise_gain(window: int, order: int = 3) -> float:
+    """Factor by which :func:`local_polynomial_smooth` scales white noise at the centre of its window."""
+    return float(np.linalg.norm(_polynomial_projector(window, order)[window // 2]))

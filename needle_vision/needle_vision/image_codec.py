@@ -1,0 +1,78 @@
+"""``sensor_msgs/Image`` fields <-> numpy arrays for mono8, mono16, bgr8 and rgb8 (no cv_bridge, no ROS).
+
+Works on plain field values, so the node (rclpy messages) and the offline command (messages decoded from a
+bag) share it. The pipeline works on one grey channel: colour images are converted to grey.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any, Mapping
+
+import cv2
+import numpy as np
+
+#: encoding -> (dtype, channels)
+ENCODINGS = {"mono8": (np.uint8, 1), "mono16": (np.uint16, 1), "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3)}
+
+
+class ImageFormatError(ValueError):
+    """An image whose encoding, size or buffer the pipeline cannot use; the message says why."""
+
+
+def image_to_array(height: int, width: int, encoding: str, step: int, data: bytes | bytearray | np.ndarray,
+                   is_bigendian: bool = False) -> np.ndarray:
+    """The pixels as an ``(height, width)`` or ``(height, width, 3)`` array (a view where possible)."""
+    if encoding not in ENCODINGS:
+        raise ImageFormatError(f"unsupported image encoding '{encoding}' (supported: {', '.join(ENCODINGS)})")
+    dtype, channels = ENCODINGS[encoding]
+    itemsize = np.dtype(dtype).itemsize
+    if height <= 0 or width <= 0 or step < width * channels * itemsize:
+        raise ImageFormatError(f"{encoding} image {width}x{height}: step {step} is smaller than a row "
+                               f"({width * channels * itemsize} bytes)")
+    buffer = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else data.view(np.uint8)
+    if buffer.size < step * height:
+        raise ImageFormatError(f"{encoding} image {width}x{height}: data has {buffer.size} bytes, "
+                               f"expected {step * height}")
+    rows = buffer[:step * height].reshape(height, step)[:, :width * channels * itemsize]
+    array = np.ascontiguousarray(rows).view(dtype) if itemsize > 1 else rows
+    if itemsize > 1 and bool(is_bigendian) != (sys.byteorder == "big"):
+        array = array.byteswap()
+    return array.reshape(height, width, channels) if channels > 1 else array.reshape(height, width)
+
+
+def image_to_gray(height: int, width: int, encoding: str, step: int, data: Any,
+                  is_bigendian: bool = False) -> np.ndarray:
+    """One grey channel (uint8 or uint16) of an image given by its ``sensor_msgs/Image`` fields."""
+    array = image_to_array(height, width, encoding, step, data, is_bigendian)
+    if array.ndim == 3:
+        array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if encoding == "bgr8" else cv2.COLOR_RGB2GRAY)
+    return array
+
+
+def image_message_to_gray(message: Mapping[str, Any] | Any) -> np.ndarray:
+    """:func:`image_to_gray` of a message object (rclpy or decoded from a bag) or a mapping of its fields."""
+    get = message.get if isinstance(message, Mapping) else (lambda key: getattr(message, key))
+    return image_to_gray(int(get("height")), int(get("width")), str(get("encoding")), int(get("step")),
+                         get("data"), bool(get("is_bigendian")))
+
+
+def gray_to_encoding(gray: np.ndarray, encoding: str) -> np.ndarray:
+    """A grey image on the 8-bit scale (float allowed, clipped and rounded) in ``encoding``'s pixel layout
+    (mono16 holds 257x the 8-bit value; colour encodings repeat the grey value in each channel)."""
+    if encoding not in ENCODINGS:
+        raise ImageFormatError(f"unsupported image encoding '{encoding}' (supported: {', '.join(ENCODINGS)})")
+    if encoding == "mono16":
+        return np.clip(np.rint(np.asarray(gray, dtype=np.float64) * 257.0), 0, 65535).astype(np.uint16)
+    gray8 = np.clip(np.rint(gray), 0, 255).astype(np.uint8)
+    return np.repeat(gray8[:, :, None], 3, axis=2) if ENCODINGS[encoding][1] == 3 else gray8
+
+
+def image_fields(array: np.ndarray, encoding: str) -> dict[str, Any]:
+    """``sensor_msgs/Image`` fields (without header) holding ``array`` in ``encoding`` (little-endian)."""
+    dtype, channels = ENCODINGS.get(encoding, (None, None))
+    if dtype is None or array.dtype != dtype or array.ndim != (3 if channels > 1 else 2) \
+            or (channels > 1 and array.shape[2] != channels):
+        raise ImageFormatError(f"array {array.shape} {array.dtype} does not match encoding '{encoding}'")
+    array = np.ascontiguousarray(array, dtype=np.dtype(dtype).newbyteorder("<"))
+    return {"height": array.shape[0], "width": array.shape[1], "encoding": encoding, "is_bigendian": 0,
+            "step": array.shape[1] * channels * array.itemsize, "data": array.tobytes()}

@@ -1,0 +1,118 @@
+"""Per-pair stereo measurement of the needle with its state (seed 000, Sec. III-A): background models, the
+reconstruction of each synchronised pair, and optional tracking. Shared by the node and the offline command.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from needle_vision.background import BackgroundModel, ContrastThreshold
+from needle_vision.calibration import StereoRig
+from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
+from needle_vision.correspondence import MatchError, MatchingConfig
+from needle_vision.reconstruction import NeedleMeasurement, ReconstructionConfig, reconstruct_centerline
+from needle_vision.rectification import Rectification
+from needle_vision.tracking import CenterlineMotion, CenterlineTracker, TrackingConfig
+from needle_vision.transform import RigidTransform
+
+
+@dataclass(frozen=True)
+class StereoConfig:
+    """Everything the measurement needs besides the rig (the node's parameters, grouped).
+
+    ``background_frames``: the first pairs, assumed needle-free, averaged into the background (0: bootstrap
+    from the first pair by erasing the needle morphologically); ``background_learning_rate``: running update of
+    the background away from the needle after each measurement (0: static); ``tracking``: None disables it.
+    """
+
+    threshold: ContrastThreshold = ContrastThreshold()
+    centerline: CenterlineConfig = CenterlineConfig()
+    matching: MatchingConfig = MatchingConfig()
+    reconstruction: ReconstructionConfig = field(default_factory=ReconstructionConfig)
+    background_frames: int = 10
+    background_learning_rate: float = 0.0
+    tracking: TrackingConfig | None = None
+
+
+class FrameStatus(Enum):
+    BACKGROUND = "used to build the background model"
+    MEASURED = "needle measured"
+    REJECTED = "rejected"
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Outcome of one pair: status, the measurement and motion when measured, the reason when rejected."""
+
+    status: FrameStatus
+    measurement: NeedleMeasurement | None = None
+    motion: CenterlineMotion | None = None
+    reason: str = ""
+
+
+class StereoNeedlePipeline:
+    """Measures the needle in synchronised pairs of raw grey images (uint8 or uint16) of ``rig``.
+
+    Immutable model: rig, rectification, config, ``output_from_left`` (pose of the left optical frame in the
+    output frame). Mutable state: background models, background frames collected so far, the tracker.
+    """
+
+    def __init__(self, rig: StereoRig, config: StereoConfig = StereoConfig(),
+                 output_from_left: RigidTransform = RigidTransform()):
+        self.rig = rig
+        self.config = config
+        self.output_from_left = output_from_left
+        self.rectification = Rectification.from_rig(rig)
+        self.backgrounds: tuple[BackgroundModel, BackgroundModel] | None = None
+        self._background_frames: list[tuple[np.ndarray, np.ndarray]] = []
+        self._dtype: np.dtype | None = None
+        self.tracker = CenterlineTracker(config.tracking) if config.tracking else None
+
+    def _check(self, left: np.ndarray, right: np.ndarray) -> str:
+        """Why the pair cannot be used, or ''."""
+        for side, image, camera in (("left", left, self.rig.left), ("right", right, self.rig.right)):
+            if image.ndim != 2:
+                return f"{side} image is not single-channel"
+            if image.shape != (camera.height, camera.width):
+                return (f"{side} image is {image.shape[1]}x{image.shape[0]} but its calibration is "
+                        f"{camera.width}x{camera.height}")
+        if left.dtype != right.dtype:
+            return f"left and right images differ in depth ({left.dtype} vs {right.dtype})"
+        if self._dtype is not None and left.dtype != self._dtype:
+            return f"image depth changed from {self._dtype} to {left.dtype} (the background model is {self._dtype})"
+        return ""
+
+    def process(self, stamp: float, left: np.ndarray, right: np.ndarray) -> FrameResult:
+        """Use one synchronised pair (stamp [s]) for the background or measure the needle in it."""
+        problem = self._check(left, right)
+        if problem:
+            return FrameResult(FrameStatus.REJECTED, reason=problem)
+        self._dtype = left.dtype
+        config = self.config
+        if self.backgrounds is None:
+            if config.background_frames > 0:
+                self._background_frames.append((left.copy(), right.copy()))
+                if len(self._background_frames) < config.background_frames:
+                    return FrameResult(FrameStatus.BACKGROUND)
+                self.backgrounds = tuple(BackgroundModel.from_frames([pair[k] for pair in self._background_frames],
+                                                                     config.threshold) for k in range(2))
+                self._background_frames.clear()
+                return FrameResult(FrameStatus.BACKGROUND)
+            self.backgrounds = tuple(BackgroundModel.from_needle_frame(image, config.threshold,
+                                                                       config.centerline.profile_half_width)
+                                     for image in (left, right))
+        try:
+            centerlines = [extract_centerline(image, background, config.centerline)
+                           for image, background in zip((left, right), self.backgrounds)]
+            measurement = reconstruct_centerline(*centerlines, self.rectification, config.matching,
+                                                 config.reconstruction, self.output_from_left)
+        except (NoNeedleError, MatchError) as error:
+            return FrameResult(FrameStatus.REJECTED, reason=str(error))
+        if config.background_learning_rate > 0:
+            for image, background, centerline in zip((left, right), self.backgrounds, centerlines):
+                background.update(image, centerline.points, config.background_learning_rate,
+                                  2 * config.centerline.profile_half_width)
+        motion = self.tracker.update(stamp, measurement.arc_length, measurement.points) if self.tracker else None
+        return FrameResult(FrameStatus.MEASURED, measurement, motion)

@@ -1,0 +1,133 @@
+"""From two image centerlines to the measured 3D needle centerline (seed 000, Sec. III-A: corresponding points
+"are used for constructing an estimate of the three-dimensional needle's state").
+
+Rectify the points, correspond them (:mod:`needle_vision.correspondence`), triangulate them into the raw left
+optical frame, reject outliers (depth range, then robust distance to a smoothed curve), order from the base
+(the end nearer the configured base point) to the tip, smooth with a local cubic fit over
+``smoothing_length`` and resample every ``sample_spacing`` of arc length. Each sample carries a 1-sigma
+uncertainty propagated from the measured image noise (calibration error is not included).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from needle_vision.centerline import ImageCenterline
+from needle_vision.correspondence import MatchError, MatchingConfig, match_centerlines
+from needle_vision.curves import arc_length, derivative, interpolate, local_polynomial_smooth, smoothing_noise_gain
+from needle_vision.rectification import Rectification
+from needle_vision.transform import RigidTransform
+
+#: Floor of the per-point image noise [px] used for the uncertainty (the centroid's aliasing error).
+MIN_IMAGE_NOISE_PX = 0.02
+
+
+@dataclass(frozen=True)
+class ReconstructionConfig:
+    """Settings of triangulation and post-processing (names match the node's ``reconstruction.*``)."""
+
+    min_depth: float = 0.05           # [m] triangulated points nearer to the left camera are rejected
+    max_depth: float = 5.0            # [m] ... and farther
+    outlier_sigma: float = 4.0        # robust standard deviations from the smoothed curve that make an outlier
+    outlier_floor: float = 0.5e-3     # [m] distances below this are never outliers
+    smoothing_length: float = 8e-3    # [m] arc length of the local cubic fit that smooths the centerline
+    sample_spacing: float = 1e-3      # [m] arc-length step of the published samples
+    min_points: int = 20              # fewer inliers than this: no measurement
+    base_point: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [m] near the base, output frame
+
+
+@dataclass(frozen=True)
+class NeedleMeasurement:
+    """The measured centerline in the output frame, base to tip: samples ``points (k, 3)`` [m], unit
+    ``tangents``, ``arc_length`` [m], 1-sigma ``uncertainty`` [m], total ``length`` [m]; the inlier
+    ``triangulated`` points ``(n, 3)`` before smoothing; and the raw image centerlines (for the debug image)."""
+
+    points: np.ndarray
+    tangents: np.ndarray
+    arc_length: np.ndarray
+    uncertainty: np.ndarray
+    length: float
+    triangulated: np.ndarray
+    left_centerline: ImageCenterline
+    right_centerline: ImageCenterline
+    anchored_fraction: float
+
+
+def _odd_window(length: float, spacing: float, count: int, minimum: int = 5) -> int:
+    window = int(round(length / max(spacing, 1e-12))) | 1
+    return max(minimum, min(window, count if count % 2 else count - 1))
+
+
+def _ends_inside(points: np.ndarray, width: int, height: int, margin: float = 5.0) -> bool:
+    """Whether both ends of an image centerline lie ``margin`` px inside the image (not cut by its border)."""
+    ends = points[[0, -1]]
+    return bool(np.all((ends >= margin) & (ends <= [width - 1 - margin, height - 1 - margin])))
+
+
+def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: int) -> np.ndarray:
+    """Points within max(outlier_sigma robust sigmas, outlier_floor) of a smoothed curve; repeated once more
+    when outliers were found (they bend the first smoothed curve)."""
+    keep = np.ones(len(points), bool)
+    for _ in range(2):
+        index = np.flatnonzero(keep)
+        w = _odd_window(window, 1, len(index))
+        if len(index) <= w:
+            break
+        distance = np.linalg.norm(points[index] - local_polynomial_smooth(points[index], w, 2), axis=1)
+        limit = max(config.outlier_sigma * 1.4826 * np.median(distance), config.outlier_floor)
+        outliers = distance > limit
+        if not outliers.any():
+            break
+        keep[index[outliers]] = False
+    return keep
+
+
+def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
+                           matching: MatchingConfig, config: ReconstructionConfig,
+                           output_from_left: RigidTransform) -> NeedleMeasurement:
+    """Triangulate, clean, order, smooth and resample; raises MatchError when no measurement results."""
+    left_rect = rectification.rectify(left.points, "left")
+    right_rect = rectification.rectify(right.points, "right")
+    ends_visible = all(_ends_inside(centerline.points, camera.width, camera.height) for centerline, camera
+                       in ((left, rectification.rig.left), (right, rectification.rig.right)))
+    match = match_centerlines(left_rect, right_rect, rectification.epipolar_axis, matching, ends_visible)
+    points = rectification.triangulate(match.left, match.right[:, rectification.disparity_axis])
+    depth = np.linalg.norm(points, axis=1)
+    valid = np.isfinite(depth) & (depth >= config.min_depth) & (depth <= config.max_depth)
+    if np.count_nonzero(valid) < config.min_points:
+        raise MatchError(f"only {np.count_nonzero(valid)} triangulated points lie within "
+                         f"{config.min_depth:g}-{config.max_depth:g} m of the left camera")
+    points, anchored, sin_angle = points[valid], match.anchored[valid], match.sin_angle[valid]
+    spacing = float(arc_length(points)[-1] / (len(points) - 1))
+    window = _odd_window(config.smoothing_length, spacing, len(points))
+    keep = _robust_inliers(points, config, window)
+    points, anchored, sin_angle = points[keep], anchored[keep], sin_angle[keep]
+    if len(points) < config.min_points:
+        raise MatchError(f"only {len(points)} points left after outlier rejection")
+
+    # Per-point noise: lateral from the image noise, depth through the disparity (worse where the needle is
+    # close to parallel to the epipolar lines: there the match slides along the curve).
+    noise_px = max(left.noise_px, right.noise_px, MIN_IMAGE_NOISE_PX)
+    min_sin = np.sin(np.radians(matching.min_epipolar_angle_deg))
+    slope = np.where(anchored, np.maximum(sin_angle, min_sin), 0.5 * min_sin)
+    depth_noise = rectification.depth_per_disparity(points) * noise_px * np.sqrt(2 + 1 / slope ** 2)
+    lateral_noise = np.linalg.norm(points, axis=1) / rectification.focal_length * noise_px
+    window = _odd_window(config.smoothing_length, spacing, len(points))
+    smoothing_gain = smoothing_noise_gain(window, 3)  # noise kept by the cubic fit
+    point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2) * smoothing_gain
+
+    points = output_from_left.apply(points)
+    if np.linalg.norm(points[-1] - config.base_point) < np.linalg.norm(points[0] - config.base_point):
+        points, point_sigma, anchored = points[::-1], point_sigma[::-1], anchored[::-1]
+    smooth = local_polynomial_smooth(points, window, 3)
+    arc = arc_length(smooth)
+    length = float(arc[-1])
+    samples = np.append(np.arange(0.0, length, config.sample_spacing), length)
+    if samples[-1] - samples[-2] < 0.25 * config.sample_spacing:  # no sliver at the tip
+        samples = np.delete(samples, -2)
+    resampled = interpolate(arc, smooth, samples)
+    tangents = derivative(resampled, samples)
+    tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
+    return NeedleMeasurement(resampled, tangents, samples, np.interp(samples, arc, point_sigma), length,
+                             points, left, right, float(np.mean(anchored)))

@@ -1,0 +1,271 @@
+"""Synthetic stereo images of a needle for tests, benchmarks and sample bags (rig of seed 000, Sec. III-A).
+
+A known 3D centerline is drawn as a tube of the needle's radius into both cameras of a calibrated, verged,
+distorted rig. Each pixel's needle coverage is the exact area fraction of the pixel square covered by the
+locally straight projected band (a box filter: anti-aliased edges with the response of a 100 % fill-factor
+sensor), so the projected centerline is known to well below 0.01 px. The scene has a textured background
+under uneven illumination (vignetting, a ramp and a spot light; a factor ~3 between dark and bright parts) and
+the lens blurs slightly and the sensor adds read and shot noise before quantisation (:class:`Imaging`).
+
+Use :func:`default_rig` for a rig like the paper's (two 1440x1080 cameras, 150 mm baseline, toed in to meet
+0.5 m away, barrel distortion), :func:`make_scene` for the static scene, then :func:`render_stereo_pair` per
+frame and :func:`render_background_pair` for needle-free frames. World frame (REP 103): the needle base
+(clamp point A) at the origin, the undeformed needle along +x, gravity along -z; the cameras look at the
+needle from +y.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from needle_vision.calibration import CameraCalibration, StereoRig
+from needle_vision.curves import resample
+from needle_vision.image_codec import gray_to_encoding
+from needle_vision.transform import RigidTransform, look_at_rotation
+
+#: The paper's needle: radius [m] and length [m] (seed 000, Sec. III-A).
+NEEDLE_RADIUS = 0.635e-3
+NEEDLE_LENGTH = 0.27
+
+
+def default_rig() -> StereoRig:
+    """A rig like seed 000's: 1440x1080 cameras 150 mm apart, toed in (~8.5° each) to meet at the needle's
+    middle 0.5 m away, with barrel distortion and small mounting errors (so nothing is parallel).
+
+    The baseline (left -> right camera) points along world -z: the cameras are stacked, so the needle (along
+    +x, rows of the image from base at the top to the tip at the bottom) crosses the epipolar lines.
+    """
+    look_at = np.array([0.135, 0.0, -0.04])
+    midpoint = look_at + np.array([0.0, 0.5, 0.0])
+    baseline_direction = np.array([0.0, 0.0, -1.0])
+    centres = {"left": midpoint - 0.075 * baseline_direction, "right": midpoint + 0.075 * baseline_direction}
+    mounting_error = {"left": np.radians([0.35, -0.2, 0.5]), "right": np.radians([-0.25, 0.3, -0.4])}
+    poses = {side: RigidTransform(look_at_rotation(look_at - centres[side], baseline_direction)
+                                  @ Rotation.from_rotvec(mounting_error[side]).as_matrix(), centres[side])
+             for side in centres}
+    left = CameraCalibration(1440, 1080, [[1402.5, 0, 726.3], [0, 1401.8, 533.9], [0, 0, 1]],
+                             [-0.118, 0.092, 4e-4, -3e-4, -0.021], camera_name="left")
+    right = CameraCalibration(1440, 1080, [[1398.7, 0, 712.8], [0, 1399.4, 546.2], [0, 0, 1]],
+                              [-0.111, 0.084, -2e-4, 5e-4, -0.017], camera_name="right")
+    right_from_left = poses["right"].inverse().compose(poses["left"])
+    return StereoRig(left, right, right_from_left.rotation, right_from_left.translation, poses["left"])
+
+
+def world_from_camera(rig: StereoRig, side: str) -> RigidTransform:
+    """Pose of camera ``side`` ('left'/'right') in the world frame."""
+    return rig.world_from_left if side == "left" else rig.world_from_left.compose(rig.left_from_right)
+
+
+def project_points(rig: StereoRig, points_world: np.ndarray, side: str) -> np.ndarray:
+    """Raw (distorted) pixel coordinates ``(n, 2)`` of world points in camera ``side``."""
+    camera = rig.left if side == "left" else rig.right
+    points_camera = world_from_camera(rig, side).inverse().apply(np.asarray(points_world, dtype=float))
+    pixels, _ = cv2.projectPoints(points_camera.reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
+                                  camera.camera_matrix, camera.distortion)
+    return pixels.reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Static appearance seen by each camera: illumination [DN for albedo 1] and background albedo images
+    (float32, image size), and the needle's albedo (dark steel against a bright background by default)."""
+
+    illumination: tuple[np.ndarray, np.ndarray]
+    background_albedo: tuple[np.ndarray, np.ndarray]
+    needle_albedo: float = 0.12
+
+
+@dataclass(frozen=True)
+class Imaging:
+    """Lens and sensor: the needle is seen through a Gaussian point spread of ``blur_sigma_px`` before pixel
+    integration (a sharp lens near f/4: 0.5 px; 0 gives the bare pixel-area response; the background
+    texture is smooth enough not to need it), then per-pixel noise [DN, 8-bit scale] of variance
+    ``read_noise² + shot_gain * signal``, then quantisation."""
+
+    blur_sigma_px: float = 0.5
+    read_noise: float = 1.5
+    shot_gain: float = 0.05
+
+
+def _smooth_noise(rng: np.random.Generator, size: tuple[int, int], sigma: float) -> np.ndarray:
+    """Gaussian-correlated noise of unit standard deviation with correlation length ``sigma`` [px]."""
+    width, height = size
+    factor = max(1, int(sigma // 2))  # blur a smaller field and enlarge it: same statistics, much faster
+    field = rng.standard_normal((height // factor + 2, width // factor + 2)).astype(np.float32)
+    field = cv2.GaussianBlur(field, (0, 0), sigma / factor)
+    field = cv2.resize(field, (width + 2 * factor, height + 2 * factor), interpolation=cv2.INTER_CUBIC)
+    field = field[factor:factor + height, factor:factor + width]
+    return (field - field.mean()) / field.std()
+
+
+def make_scene(rig: StereoRig, rng: np.random.Generator, *, brightness: float = 235.0,
+               needle_albedo: float = 0.12, texture_contrast: float = 0.08) -> Scene:
+    """A textured, unevenly lit background for each camera (see the module docstring)."""
+    illumination, albedo = [], []
+    for camera in (rig.left, rig.right):
+        width, height = camera.image_size
+        y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+        u, v = (x - width / 2) / (width / 2), (y - height / 2) / (height / 2)
+        angle, spot = rng.uniform(0, 2 * np.pi), rng.uniform(-0.6, 0.6, 2)
+        ramp = 0.5 * (1 + np.cos(angle) * u * 0.8 + np.sin(angle) * v * 0.8)
+        light = (1 - 0.3 * (u ** 2 + v ** 2)) * (0.45 + 0.4 * ramp) \
+            + 0.25 * np.exp(-((u - spot[0]) ** 2 + (v - spot[1]) ** 2) / 0.15)
+        illumination.append((brightness * light / light.max()).astype(np.float32))
+        texture = 0.72 + texture_contrast * _smooth_noise(rng, (width, height), 4.0) \
+            + texture_contrast * _smooth_noise(rng, (width, height), 30.0)
+        albedo.append(np.clip(texture, 0.45, 0.95).astype(np.float32))
+    return Scene(tuple(illumination), tuple(albedo), needle_albedo)
+
+
+_GAUSS_HERMITE = (lambda nodes, weights: (nodes, weights / weights.sum()))(*np.polynomial.hermite_e.hermegauss(12))
+
+
+def _box_filtered_step(z: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """P(Z <= z) for Z = a*U1 + b*U2, U_i ~ U(-1/2, 1/2), a >= b >= 0: the fraction of a unit pixel whose
+    signed distance to a straight edge (normal with |components| a, b) is below ``z``."""
+    half_sum, half_diff = (a + b) / 2, (a - b) / 2
+    safe_ab = np.maximum(2 * a * b, 1e-12)
+    low = (z + half_sum) ** 2 / safe_ab
+    high = 1 - (half_sum - z) ** 2 / safe_ab
+    middle = 0.5 + z / a
+    return np.where(z <= -half_sum, 0.0, np.where(z >= half_sum, 1.0,
+                    np.where(z < -half_diff, low, np.where(z > half_diff, high, middle))))
+
+
+def _abs_normal(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(larger, smaller) absolute component of unit normals ``(n, 2)``."""
+    return (np.maximum(np.abs(normal[:, 0]), np.abs(normal[:, 1])),
+            np.minimum(np.abs(normal[:, 0]), np.abs(normal[:, 1])))
+
+
+def _band_coverage(across: np.ndarray, normal: np.ndarray, half_width: np.ndarray, blur_sigma: float) -> np.ndarray:
+    """Response of unit pixels at signed distance ``across`` from the axis of a straight band of
+    ``half_width``: area fraction covered, averaged over a Gaussian point spread of ``blur_sigma`` [px]
+    (Gauss-Hermite quadrature; exact area fraction when ``blur_sigma`` is 0)."""
+    a, b = _abs_normal(normal)
+    nodes, weights = _GAUSS_HERMITE if blur_sigma > 0 else (np.zeros(1), np.ones(1))
+    return sum(w * (_box_filtered_step(half_width - across - blur_sigma * g, a, b)
+                    - _box_filtered_step(-half_width - across - blur_sigma * g, a, b)) for g, w in zip(nodes, weights))
+
+
+def _end_fraction(along: np.ndarray, tangent: np.ndarray, blur_sigma: float) -> np.ndarray:
+    """Fraction of the response kept by a flat end: ``along`` is the signed distance inside the end [px]."""
+    a, b = _abs_normal(np.broadcast_to(tangent, (len(along), 2)))
+    nodes, weights = _GAUSS_HERMITE if blur_sigma > 0 else (np.zeros(1), np.ones(1))
+    return sum(w * _box_filtered_step(along - blur_sigma * g, a, b) for g, w in zip(nodes, weights))
+
+
+def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius: float, blur_sigma_px: float = 0.0,
+                    max_spacing_px: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel response to a tube (flat ends) around a centerline given in the camera's optical frame: the
+    covered fraction of each pixel's area, through a Gaussian point spread of ``blur_sigma_px``.
+
+    Returns ``(rows, cols, coverage)`` of the pixels the tube touches. The centerline is resampled so that its
+    projection has vertices at most ``max_spacing_px`` apart; the local half-width is the projected distance
+    of the silhouette lines (``±radius`` across the viewing ray), which includes perspective and distortion.
+    """
+    points_camera = np.asarray(points_camera, dtype=float)
+
+    def project(points: np.ndarray) -> np.ndarray:
+        pixels, _ = cv2.projectPoints(points.reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
+                                      camera.camera_matrix, camera.distortion)
+        return pixels.reshape(-1, 2)
+
+    length_px = np.linalg.norm(np.diff(project(points_camera), axis=0), axis=1).sum()
+    points = resample(points_camera, max(2, int(np.ceil(length_px / max_spacing_px)) + 1))
+    centres = project(points)
+    tangent = np.gradient(points, axis=0)
+    lateral = np.cross(tangent, points)
+    lateral_norm = np.linalg.norm(lateral, axis=1, keepdims=True)
+    lateral = np.where(lateral_norm > 1e-12, lateral / np.maximum(lateral_norm, 1e-12), [1.0, 0.0, 0.0])
+    half_width = 0.5 * np.linalg.norm(project(points + radius * lateral) - project(points - radius * lateral), axis=1)
+
+    # Candidate pixels: a thick polyline around the projected centerline, within the image.
+    margin = int(np.ceil(half_width.max() + 2 + 4 * blur_sigma_px))
+    lo = np.maximum(np.floor(centres.min(axis=0)).astype(int) - margin, 0)
+    hi = np.minimum(np.ceil(centres.max(axis=0)).astype(int) + margin + 1, [camera.width, camera.height])
+    if np.any(hi <= lo):
+        return np.zeros(0, int), np.zeros(0, int), np.zeros(0)
+    mask = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
+    cv2.polylines(mask, [np.round((centres - lo) * 16).astype(np.int32)], False, 255, 2 * margin + 1,
+                  lineType=cv2.LINE_8, shift=4)
+    rows, cols = np.nonzero(mask)
+    pixels = np.column_stack([cols + lo[0], rows + lo[1]]).astype(float)
+
+    # The tube is cut flat at both ends: extend the band straight by a few pixels, measure the distance to it,
+    # then multiply by the covered fraction along the axis near each end.
+    end_tangents = [centres[0] - centres[1], centres[-1] - centres[-2]]
+    end_tangents = [t / np.linalg.norm(t) for t in end_tangents]
+    extended = np.vstack([centres[0] + 3 * end_tangents[0], centres, centres[-1] + 3 * end_tangents[1]])
+    extended_half_width = np.concatenate([half_width[:1], half_width, half_width[-1:]])
+
+    # Closest point on the projected polyline (nearest vertex, then its two segments).
+    _, nearest = cKDTree(extended).query(pixels)
+    best_distance = np.full(len(pixels), np.inf)
+    best = np.zeros((len(pixels), 4))  # normal x, normal y, half-width at the closest point, signed distance
+    for first in (nearest - 1, nearest):
+        first = np.clip(first, 0, len(extended) - 2)
+        start, direction = extended[first], extended[first + 1] - extended[first]
+        length = np.maximum(np.linalg.norm(direction, axis=1), 1e-12)
+        t = np.clip(np.einsum("ij,ij->i", pixels - start, direction) / length ** 2, 0.0, 1.0)
+        offset = pixels - (start + t[:, None] * direction)
+        distance = np.linalg.norm(offset, axis=1)
+        normal = np.column_stack([-direction[:, 1], direction[:, 0]]) / length[:, None]
+        better = distance < best_distance
+        best_distance = np.where(better, distance, best_distance)
+        best[better] = np.column_stack([normal, (1 - t) * extended_half_width[first]
+                                        + t * extended_half_width[first + 1],
+                                        np.einsum("ij,ij->i", offset, normal)])[better]
+    coverage = _band_coverage(best[:, 3], best[:, :2], best[:, 2], blur_sigma_px)
+    for end, outward in ((centres[0], end_tangents[0]), (centres[-1], end_tangents[1])):
+        near = np.linalg.norm(pixels - end, axis=1) < half_width.max() + 5 + 4 * blur_sigma_px  # + extension
+        coverage[near] *= _end_fraction(-(pixels[near] - end) @ outward, outward, blur_sigma_px)
+    keep = coverage > 0
+    return rows[keep] + lo[1], cols[keep] + lo[0], coverage[keep]
+
+
+def _expose(signal: np.ndarray, rng: np.random.Generator, imaging: Imaging, encoding: str) -> np.ndarray:
+    sigma = np.sqrt(imaging.read_noise ** 2 + imaging.shot_gain * np.maximum(signal, 0))
+    noisy = signal + sigma * rng.standard_normal(signal.shape, dtype=np.float32)
+    return gray_to_encoding(noisy, encoding)
+
+
+def render_background_pair(rig: StereoRig, rng: np.random.Generator, *, scene: Scene | None = None,
+                           imaging: Imaging = Imaging(), encoding: str = "mono8"
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Needle-free frames (for the background model). ``scene`` defaults to ``make_scene(rig, rng(0))``."""
+    scene = scene or make_scene(rig, np.random.default_rng(0))
+    return tuple(_expose(scene.illumination[k] * scene.background_albedo[k], rng, imaging, encoding)
+                 for k in range(2))
+
+
+def render_stereo_pair(rig: StereoRig, centerline_points_world: np.ndarray, radius: float,
+                       rng: np.random.Generator, *, scene: Scene | None = None,
+                       imaging: Imaging = Imaging(), encoding: str = "mono8"
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right images of a tube of ``radius`` [m] around ``centerline_points_world`` ``(n, 3)`` [m].
+
+    The centerline is taken as the polyline through the points (give them densely, e.g. every 0.5 mm).
+    ``encoding``: mono8, mono16, bgr8 or rgb8. ``scene`` defaults to ``make_scene(rig, rng(0))`` (make it once
+    and pass it when rendering many frames: it costs ~0.1 s).
+    """
+    points = np.asarray(centerline_points_world, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2 or not np.all(np.isfinite(points)):
+        raise ValueError("centerline_points_world must be a finite (n >= 2, 3) array")
+    if not radius > 0:
+        raise ValueError(f"radius must be positive, got {radius}")
+    scene = scene or make_scene(rig, np.random.default_rng(0))
+    images = []
+    for k, (side, camera) in enumerate((("left", rig.left), ("right", rig.right))):
+        albedo = scene.background_albedo[k].copy()
+        points_camera = world_from_camera(rig, side).inverse().apply(points)
+        if np.any(points_camera[:, 2] <= radius):
+            raise ValueError(f"part of the needle is behind the {side} camera")
+        rows, cols, coverage = needle_coverage(camera, points_camera, radius, imaging.blur_sigma_px)
+        albedo[rows, cols] = (1 - coverage) * albedo[rows, cols] + coverage * scene.needle_albedo
+        images.append(_expose(scene.illumination[k] * albedo, rng, imaging, encoding))
+    return images[0], images[1]

@@ -1,0 +1,194 @@
+"""``needle_stereo``: stereo measurement of the needle centerline (seed 000, Sec. III-A) as a ROS 2 node.
+
+Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``, ``right/camera_info`` (stereo_image_proc
+naming; remap as needed); pairs frames by stamp; publishes ``needle/measured_points`` (sensor_msgs/PointCloud2:
+the centerline samples, x y z float32, plus vx..vz, ax..az when tracking), ``needle/measured_shape``
+(needle_interfaces/NeedleShape with per-sample uncertainty) and ``needle/debug_image`` (bgr8, centerlines
+drawn). Everything else happens in the ROS-free :class:`needle_vision.pipeline.StereoNeedlePipeline`.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+import rclpy
+import rclpy.executors
+from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
+from needle_interfaces.msg import NeedleShape
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterValueException, ParameterException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
+from std_msgs.msg import Header
+
+from needle_vision.calibration import (CalibrationError, StereoRig, calibration_from_camera_info,
+                                       load_camera_calibration)
+from needle_vision.image_codec import ImageFormatError, image_fields, image_message_to_gray
+from needle_vision.outputs import debug_image, pointcloud2_fields
+from needle_vision.pairing import StampPairer
+from needle_vision.parameters import SPECS, ParameterError, ParamSpec, output_from_left, stereo_config, validate_all
+from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
+from needle_vision.transform import quaternion_from_x_axis
+
+
+def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    descriptor = ParameterDescriptor(name=spec.name, read_only=True, description=spec.description + (
+        f" Choices: {', '.join(map(str, spec.choices))}." if spec.choices else ""))
+    if spec.low is not None and spec.high is not None and not isinstance(spec.default, list):
+        if isinstance(spec.default, float):
+            descriptor.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
+                                                                  to_value=float(spec.high))]
+        elif isinstance(spec.default, int) and not isinstance(spec.default, bool):
+            descriptor.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
+    return descriptor
+
+
+def _stamp_seconds(header: Header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+class NeedleStereoNode(Node):
+    def __init__(self) -> None:
+        super().__init__("needle_stereo")
+        values = {}
+        for spec in SPECS:
+            try:
+                values[spec.name] = self.declare_parameter(spec.name, spec.default, _descriptor(spec)).value
+            except (InvalidParameterValueException, ParameterException, TypeError) as error:
+                raise ParameterError(f"parameter '{spec.name}': {error} ({spec.description})") from error
+        self.values = validate_all(values)
+        self.config = stereo_config(self.values)
+        self.output_from_left = output_from_left(self.values)
+        self.pairer = StampPairer(self.values["sync_tolerance"])
+        self.pipeline: StereoNeedlePipeline | None = None
+        self.camera_infos: dict[str, CameraInfo] = {}
+        self.frame_id = self.values["output_frame"]
+        self._last_warning: dict[str, float] = {}
+        self._reported_drops = 0
+        qos = qos_profile_sensor_data if self.values["image_qos"] == "sensor_data" else \
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        if self.values["left_calibration_file"]:
+            try:
+                rig = StereoRig.from_camera_calibrations(load_camera_calibration(self.values["left_calibration_file"]),
+                                                         load_camera_calibration(self.values["right_calibration_file"]))
+            except CalibrationError as error:
+                raise ParameterError(f"parameter 'left_calibration_file'/'right_calibration_file': {error}") from error
+            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
+        else:
+            for side in ("left", "right"):
+                self.create_subscription(CameraInfo, f"{side}/camera_info",
+                                         lambda msg, side=side: self.on_camera_info(side, msg), qos)
+        for side in ("left", "right"):
+            self.create_subscription(Image, f"{side}/image_raw", lambda msg, side=side: self.on_image(side, msg), qos)
+        self.cloud_pub = self.create_publisher(PointCloud2, "needle/measured_points", 10)
+        self.shape_pub = self.create_publisher(NeedleShape, "needle/measured_shape", 10)
+        self.debug_pub = self.create_publisher(Image, "needle/debug_image", 1)
+        source = "calibration files" if self.pipeline else "left/camera_info and right/camera_info"
+        self.get_logger().info(f"needle_stereo ready: calibration from {source}, "
+                               f"background from {self.config.background_frames} pairs")
+
+    def warn(self, kind: str, text: str) -> None:
+        """A warning, at most one per ``warning_period`` for each kind."""
+        now = time.monotonic()
+        if now - self._last_warning.get(kind, -np.inf) >= self.values["warning_period"]:
+            self._last_warning[kind] = now
+            self.get_logger().warning(text)
+
+    def on_camera_info(self, side: str, msg: CameraInfo) -> None:
+        previous = self.camera_infos.get(side)
+        if previous is not None and all(np.array_equal(getattr(previous, key), getattr(msg, key))
+                                        for key in ("width", "height", "k", "d", "r", "p")):
+            return
+        self.camera_infos[side] = msg
+        if len(self.camera_infos) < 2:
+            return
+        try:
+            rig = StereoRig.from_camera_calibrations(calibration_from_camera_info(self.camera_infos["left"], "left"),
+                                                     calibration_from_camera_info(self.camera_infos["right"], "right"))
+        except CalibrationError as error:
+            self.pipeline = None
+            self.warn("calibration", f"camera_info unusable, nothing is measured: {error}")
+            return
+        self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
+        self.get_logger().info("stereo calibration received from camera_info; background model restarts")
+
+    def on_image(self, side: str, msg: Image) -> None:
+        pair = self.pairer.push(side, _stamp_seconds(msg.header), msg)
+        if self.pairer.dropped > self._reported_drops:
+            self.warn("sync", f"{self.pairer.dropped - self._reported_drops} frame(s) without a partner within "
+                              f"{self.values['sync_tolerance']} s were dropped")
+            self._reported_drops = self.pairer.dropped
+        if pair is None:
+            return
+        if self.pipeline is None:
+            self.warn("calibration", "no usable stereo calibration yet (waiting for left/camera_info and "
+                                     "right/camera_info): frame skipped")
+            return
+        try:
+            images = [image_message_to_gray(pair.left), image_message_to_gray(pair.right)]
+        except ImageFormatError as error:
+            self.warn("encoding", f"image skipped: {error}")
+            return
+        result = self.pipeline.process(pair.stamp, *images)
+        if result.status is FrameStatus.REJECTED:
+            self.warn("rejected", f"nothing published for the pair at {pair.stamp:.6f} s: {result.reason}")
+        if result.status is not FrameStatus.BACKGROUND:
+            self.publish_debug(pair.left.header, images, result)
+        if result.status is FrameStatus.MEASURED:
+            self.publish(pair.left.header, result)
+
+    def publish(self, image_header: Header, result: FrameResult) -> None:
+        measurement = result.measurement
+        header = Header(stamp=image_header.stamp, frame_id=self.frame_id or image_header.frame_id)
+        extra = {"v": result.motion.velocity, "a": result.motion.acceleration} if result.motion else None
+        fields = pointcloud2_fields(measurement.points, extra)
+        fields["fields"] = [PointField(**field) for field in fields["fields"]]
+        self.cloud_pub.publish(PointCloud2(header=header, **fields))
+        tip, tip_tangent = measurement.points[-1], measurement.tangents[-1]
+        quaternion = quaternion_from_x_axis(tip_tangent)
+        self.shape_pub.publish(NeedleShape(
+            header=header, source=NeedleShape.SOURCE_STEREO,
+            points=[Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in measurement.points],
+            tangents=[Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2])) for t in measurement.tangents],
+            arc_length=measurement.arc_length.tolist(), uncertainty=measurement.uncertainty.tolist(),
+            tip_pose=Pose(position=Point(x=float(tip[0]), y=float(tip[1]), z=float(tip[2])),
+                          orientation=Quaternion(x=float(quaternion[0]), y=float(quaternion[1]),
+                                                 z=float(quaternion[2]), w=float(quaternion[3]))),
+            length=measurement.length))
+
+    def publish_debug(self, image_header: Header, images: list[np.ndarray], result: FrameResult) -> None:
+        if not self.values["debug_image.enabled"] or self.debug_pub.get_subscription_count() == 0:
+            return
+        measurement = result.measurement
+        picture = debug_image(images[0], images[1],
+                              measurement.left_centerline.points if measurement else None,
+                              measurement.right_centerline.points if measurement else None,
+                              self.values["debug_image.downsample"])
+        self.debug_pub.publish(Image(header=image_header, **image_fields(picture, "bgr8")))
+
+
+def main(args: list[str] | None = None) -> int:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = NeedleStereoNode()
+        rclpy.spin(node)
+    except ParameterError as error:
+        rclpy.logging.get_logger("needle_stereo").fatal(str(error))
+        return 2
+    except KeyboardInterrupt:
+        pass
+    except rclpy.executors.ExternalShutdownException:
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,87 @@
+"""Sub-pixel needle centerline in one image against the projection of the rendered 3D centerline."""
+import numpy as np
+import pytest
+
+from conftest import SHAPES
+from needle_vision.background import BackgroundModel, ContrastThreshold
+from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
+from needle_vision.render import NEEDLE_RADIUS, make_scene, project_points, render_background_pair, render_stereo_pair
+
+
+def image_distance(points: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Distance of image points to the projected true centerline (dense polyline: 0.7 px vertex spacing)."""
+    start, direction = truth[:-1], np.diff(truth, axis=0)
+    offset = points[:, None, :] - start[None]
+    t = np.clip(np.einsum("psk,sk->ps", offset, direction) / np.einsum("sk,sk->s", direction, direction), 0, 1)
+    return np.min(np.linalg.norm(offset - t[..., None] * direction[None], axis=2), axis=1)
+
+
+@pytest.mark.parametrize("name", ["straight", "planar", "3d"])
+@pytest.mark.parametrize("side", [0, 1])
+def test_centerline_is_sub_pixel_and_complete(rig, backgrounds, renders, name, side):
+    centerline = extract_centerline(renders(name)[side], backgrounds[side])
+    truth = project_points(rig, SHAPES[name], ("left", "right")[side])
+    distance = image_distance(centerline.points, truth)
+    # Per-slice noise is ~0.06 px (sensor noise 1.5-3.5 DN on a ~100 DN, 3.5 px wide profile); no outliers.
+    assert np.sqrt(np.mean(distance ** 2)) < 0.1
+    assert distance[2:-2].max() < 0.35  # ~5 sigma
+    # The last slices at a flat end cut it obliquely: their centroid may shift by up to half the needle width.
+    assert distance.max() < 1.0
+    assert centerline.noise_px == pytest.approx(np.sqrt(np.mean(distance ** 2)), rel=0.5)
+    # Both ends found to within 2 px (0.7 mm): slices only partly covering the end are dropped.
+    ends = sorted([np.linalg.norm(centerline.points[[0, -1]] - truth[0], axis=1).min(),
+                   np.linalg.norm(centerline.points[[0, -1]] - truth[-1], axis=1).min()])
+    assert ends[1] < 2.0
+    # Ordered along the needle: consecutive points about a pixel apart, never jumping.
+    steps = np.linalg.norm(np.diff(centerline.points, axis=0), axis=1)
+    assert steps.max() < 2.0
+
+
+def test_bright_needle_with_bright_polarity(rig):
+    scene = make_scene(rig, np.random.default_rng(4), needle_albedo=1.0)  # shiny needle, contrast only ~0.3
+    threshold = ContrastThreshold(polarity=-1)
+    background = BackgroundModel.from_frames(
+        [render_background_pair(rig, np.random.default_rng(k), scene=scene)[0] for k in range(4)], threshold)
+    image = render_stereo_pair(rig, SHAPES["planar"], NEEDLE_RADIUS, np.random.default_rng(9), scene=scene)[0]
+    centerline = extract_centerline(image, background)
+    distance = image_distance(centerline.points, project_points(rig, SHAPES["planar"], "left"))
+    assert np.sqrt(np.mean(distance ** 2)) < 0.2  # a third of the dark needle's contrast: ~3x the noise
+    with pytest.raises(NoNeedleError):  # the wrong polarity sees nothing needle-like
+        extract_centerline(image, BackgroundModel(background.image, ContrastThreshold(polarity=1)))
+
+
+def test_background_bootstrapped_from_a_needle_frame(rig, renders):
+    image = renders("planar")[0]
+    background = BackgroundModel.from_needle_frame(image, ContrastThreshold(), CenterlineConfig().profile_half_width)
+    centerline = extract_centerline(image, background)
+    distance = image_distance(centerline.points, project_points(rig, SHAPES["planar"], "left"))
+    # The closing flattens the texture under the needle's neighbourhood: less accurate than averaged frames.
+    assert np.sqrt(np.mean(distance ** 2)) < 0.25
+
+
+def test_sixteen_bit_images(rig, scene):
+    frames = [render_background_pair(rig, np.random.default_rng(k), scene=scene, encoding="mono16")[0]
+              for k in range(4)]
+    threshold = ContrastThreshold(absolute=6.0 * 257)
+    background = BackgroundModel.from_frames(frames, threshold)
+    image = render_stereo_pair(rig, SHAPES["3d"], NEEDLE_RADIUS, np.random.default_rng(2), scene=scene,
+                               encoding="mono16")[0]
+    distance = image_distance(extract_centerline(image, background).points, project_points(rig, SHAPES["3d"], "left"))
+    assert np.sqrt(np.mean(distance ** 2)) < 0.1
+
+
+def test_frame_without_needle_is_reported(background_frames, backgrounds):
+    with pytest.raises(NoNeedleError):
+        extract_centerline(background_frames[0][0], backgrounds[0])
+
+
+def test_small_blob_is_not_a_needle(background_frames, backgrounds):
+    image = background_frames[1][0].copy()
+    image[500:508, 700:708] = 10  # a dark 8 px speck: shorter than detection.min_length
+    with pytest.raises(NoNeedleError, match="no needle"):
+        extract_centerline(image, backgrounds[0])
+
+
+def test_image_of_another_size_is_refused(backgrounds):
+    with pytest.raises(ValueError, match="differs"):
+        extract_centerline(np.zeros((480, 640), np.uint8), backgrounds[0])

@@ -1,0 +1,132 @@
+"""needle_stereo as a separate process, driven over ROS 2 from this test (isolated ROS domain)."""
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+rclpy = pytest.importorskip("rclpy", reason="the node test needs ROS 2 (rclpy)")
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
+
+from conftest import SHAPES, distance_to_curve  # noqa: E402
+from needle_interfaces.msg import NeedleShape  # noqa: E402
+from needle_vision.calibration import camera_info_fields  # noqa: E402
+from needle_vision.image_codec import image_fields  # noqa: E402
+
+PACKAGE = Path(__file__).resolve().parents[1]
+REPO = PACKAGE.parent
+
+
+def start_node(ros_env: dict, *arguments: str) -> subprocess.Popen:
+    env = dict(ros_env)
+    env["PYTHONPATH"] = os.pathsep.join([str(PACKAGE), env.get("PYTHONPATH", "")])
+    return subprocess.Popen([sys.executable, "-m", "needle_vision.stereo_node", "--ros-args", *arguments],
+                            env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+@pytest.mark.parametrize("arguments, named", [
+    (["-p", "sync_tolerance:=-1.0"], "sync_tolerance"),
+    (["-p", "detection.downsample:=3"], "detection.downsample"),
+    (["-p", "left_calibration_file:=config/stereo/right.yaml", "-p", "right_calibration_file:=config/stereo/left.yaml"],
+     "left_calibration_file"),
+])
+def test_bad_parameter_stops_the_node_naming_it(ros_env, arguments, named):
+    process = start_node(ros_env, *arguments)
+    output, _ = process.communicate(timeout=60)
+    assert process.returncode != 0
+    assert f"'{named}" in output
+
+
+def _image_msg(image: np.ndarray, stamp: float, frame_id: str, encoding: str = "mono8") -> Image:
+    fields = image_fields(image, "mono8")
+    fields["encoding"] = encoding
+    msg = Image(**fields)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = int(stamp), int(round(stamp % 1 * 1e9))
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, background_frames, renders):
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
+        "background": {"frames": 2}, "output_frame": "world", "warning_period": 0.01, "image_qos": "reliable",
+        "output_transform": rig.world_from_left.as_xyz_quaternion()}}}))
+    process = start_node(ros_env, "--params-file", str(params))  # calibration from camera_info topics
+    rclpy.init()
+    node = rclpy.create_node("needle_stereo_test")
+    try:
+        received = {"shape": [], "cloud": [], "debug": []}
+        node.create_subscription(NeedleShape, "needle/measured_shape", received["shape"].append, 10)
+        node.create_subscription(PointCloud2, "needle/measured_points", received["cloud"].append, 10)
+        node.create_subscription(Image, "needle/debug_image", received["debug"].append, 10)
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        images = {side: node.create_publisher(Image, f"{side}/image_raw", reliable) for side in ("left", "right")}
+        infos = {side: node.create_publisher(CameraInfo, f"{side}/camera_info", reliable) for side in ("left", "right")}
+        ros = rig.with_ros_rectification()
+        deadline = time.monotonic() + 60  # node start-up (imports, compiled-code cache) and discovery
+        publishers = [*images.values(), *infos.values()]
+        while time.monotonic() < deadline and min(p.get_subscription_count() for p in publishers) < 1:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert process.poll() is None, process.stdout.read()
+
+        # Like a camera driver, publish camera_info for a while before the images: discovery completes on the
+        # node's side after it does on ours, and messages sent before that are lost.
+        warm_up = time.monotonic() + 1.5
+        outputs = ("needle/measured_shape", "needle/measured_points", "needle/debug_image")
+        while time.monotonic() < deadline and (time.monotonic() < warm_up
+                                               or min(node.count_publishers(topic) for topic in outputs) < 1):
+            for side, camera in (("left", ros.left), ("right", ros.right)):
+                infos[side].publish(CameraInfo(**camera_info_fields(camera)))
+            rclpy.spin_once(node, timeout_sec=0.1)
+        needle = renders("planar")
+        pairs = [(1.00, *background_frames[0]), (1.01, *background_frames[1]), (1.02, *needle),
+                 (1.03, needle[0][::2, ::2].copy(), needle[1][::2, ::2].copy()),  # wrong size
+                 (1.04, *needle), (1.05, *needle)]
+        for stamp, left, right in pairs:
+            for side, image, camera in (("left", left, ros.left), ("right", right, ros.right)):
+                info = CameraInfo(**camera_info_fields(camera))
+                info.header = _image_msg(image, stamp, f"{side}_optical").header
+                infos[side].publish(info)
+                images[side].publish(_image_msg(image, stamp, f"{side}_optical"))
+            end = time.monotonic() + 0.5
+            while time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.05)
+        end = time.monotonic() + 5
+        while time.monotonic() < end and len(received["shape"]) < 3:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        process.send_signal(signal.SIGINT)
+        try:
+            output, _ = process.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            output, _ = process.communicate()
+
+    stamps = [shape.header.stamp.sec + shape.header.stamp.nanosec * 1e-9 for shape in received["shape"]]
+    assert len(stamps) == 3, output  # the three good needle pairs (reliable transport)
+    assert all(abs(stamp - 1.03) > 1e-3 for stamp in stamps)  # nothing for the wrong-size pair
+    assert "is 720x540 but its calibration is 1440x1080" in output
+    shape = received["shape"][0]
+    assert shape.header.frame_id == "world" and shape.source == NeedleShape.SOURCE_STEREO
+    points = np.array([[p.x, p.y, p.z] for p in shape.points])
+    distance, _ = distance_to_curve(points, SHAPES["planar"])
+    assert np.sqrt(np.mean(distance ** 2)) < 1e-4
+    assert len(shape.uncertainty) == len(points) == len(shape.arc_length) == len(shape.tangents)
+    assert shape.length == pytest.approx(shape.arc_length[-1])
+    tip_axis = np.array([shape.tangents[-1].x, shape.tangents[-1].y, shape.tangents[-1].z])
+    q = shape.tip_pose.orientation  # the tip frame's x axis is the tip tangent
+    x_axis = np.array([1 - 2 * (q.y ** 2 + q.z ** 2), 2 * (q.x * q.y + q.w * q.z), 2 * (q.x * q.z - q.w * q.y)])
+    np.testing.assert_allclose(x_axis, tip_axis, atol=1e-9)
+    cloud = received["cloud"][0]
+    assert [f.name for f in cloud.fields] == ["x", "y", "z"] and cloud.width == len(points)
+    np.testing.assert_allclose(np.frombuffer(bytes(cloud.data), "<f4").reshape(-1, 3), points, atol=1e-6)
+    # Side by side, half size (also published for rejected pairs, e.g. 720 px wide for the half-size pair).
+    assert any(image.encoding == "bgr8" and (image.width, image.height) == (1440, 540) for image in received["debug"])

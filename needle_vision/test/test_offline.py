@@ -1,0 +1,109 @@
+"""needle_stereo_offline on an image folder and on an MCAP bag made here."""
+import csv
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from conftest import SHAPES, distance_to_curve
+from needle_vision.calibration import camera_info_fields
+from needle_vision.image_codec import image_fields
+from needle_vision.offline import main
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def params_file(tmp_path: Path, rig, **overrides) -> Path:
+    parameters = {"background": {"frames": 3}, "output_frame": "world",
+                  "output_transform": rig.world_from_left.as_xyz_quaternion(), **overrides}
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": parameters}}))
+    return path
+
+
+def read_rows(path: Path) -> tuple[list[str], np.ndarray]:
+    with open(path) as stream:
+        rows = list(csv.reader(stream))
+    return rows[0], np.array([[float(v) if v else np.nan for v in row] for row in rows[1:]])
+
+
+def test_image_folder(tmp_path, rig, background_frames, renders, capsys):
+    for side, index in (("left", 0), ("right", 1)):
+        (tmp_path / "frames" / side).mkdir(parents=True)
+        for k, pair in enumerate(background_frames[:3]):
+            cv2.imwrite(str(tmp_path / "frames" / side / f"{k:04d}.png"), pair[index])
+        cv2.imwrite(str(tmp_path / "frames" / side / "0003.png"), renders("planar")[index])
+    output = tmp_path / "out.csv"
+    code = main([str(tmp_path / "frames"), "--params", str(params_file(tmp_path, rig)), "--quiet",
+                 "--left-calibration", str(REPO / "config/stereo/left.yaml"),
+                 "--right-calibration", str(REPO / "config/stereo/right.yaml"), "--output", str(output)])
+    assert code == 0
+    header, rows = read_rows(output)
+    assert header == ["frame", "stamp", "sample", "arc_length", "x", "y", "z", "uncertainty"]
+    assert set(rows[:, 0]) == {3} and rows[0, 1] == pytest.approx(3 / 220.0)  # stamps from --fps
+    distance, _ = distance_to_curve(rows[:, 4:7], SHAPES["planar"])
+    assert np.sqrt(np.mean(distance ** 2)) < 1e-4  # PNG is lossless: same accuracy as in memory
+    assert "3  used to build the background model" in capsys.readouterr().out
+
+
+def write_bag(path: Path, rig, frames, encoding_of=lambda k: "mono8"):
+    from mcap_ros2.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    ros = rig.with_ros_rectification()
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        schemas = {name: writer.register_msgdef(name, store.generate_msgdef(name, ros_version=2)[0])
+                   for name in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo")}
+        for k, (stamp, left, right) in enumerate(frames):
+            time = {"sec": int(stamp), "nanosec": int(round((stamp % 1) * 1e9))}
+            for side, image, camera in (("left", left, ros.left), ("right", right, ros.right)):
+                if image is None:
+                    continue
+                header = {"stamp": time, "frame_id": f"{side}_optical"}
+                info = {**camera_info_fields(camera), "header": header, "binning_x": 0, "binning_y": 0,
+                        "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}
+                writer.write_message(f"/{side}/camera_info", schemas["sensor_msgs/msg/CameraInfo"], info,
+                                     log_time=int(stamp * 1e9))
+                fields = image_fields(image, "mono8")
+                fields["encoding"] = encoding_of(k)
+                writer.write_message(f"/{side}/image_raw", schemas["sensor_msgs/msg/Image"],
+                                     {**fields, "header": header}, log_time=int(stamp * 1e9))
+        writer.finish()
+
+
+def test_mcap_bag_with_camera_info_and_bad_frames(tmp_path, rig, background_frames, renders, capsys):
+    frames = [(1.0 + 0.01 * k, *pair) for k, pair in enumerate(background_frames[:3])]
+    frames += [(1.05, renders("3d")[0], None),  # the right frame was dropped
+               (1.06, *renders("3d")),  # unsupported encoding (set below)
+               (1.07, *renders("3d"))]
+    bag = tmp_path / "recording.mcap"
+    write_bag(bag, rig, frames, encoding_of=lambda k: "yuv422" if k == 4 else "mono8")
+    output = tmp_path / "out.csv"
+    assert main([str(bag), "--params", str(params_file(tmp_path, rig, tracking={"enabled": True})),
+                 "--output", str(output), "--quiet"]) == 0
+    header, rows = read_rows(output)
+    assert header[-6:] == ["vx", "vy", "vz", "ax", "ay", "az"]
+    assert set(rows[:, 0]) == {3}  # pair index: the 4th usable pair (the last one) is the only measurement
+    assert np.all(np.isnan(rows[:, -6:]))  # tracking needs 5 frames before it reports motion
+    distance, _ = distance_to_curve(rows[:, 4:7], SHAPES["3d"])
+    assert np.sqrt(np.mean(distance ** 2)) < 1e-4  # calibration from the bag's camera_info
+    report = capsys.readouterr().out
+    assert "unsupported image encoding 'yuv422'" in report and "without a partner" in report
+    assert "1  needle measured" in report
+
+
+def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
+    assert main([str(tmp_path / "absent.mcap"), "--quiet"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    (tmp_path / "frames" / "left").mkdir(parents=True)
+    (tmp_path / "frames" / "right").mkdir()
+    assert main([str(tmp_path / "frames"), "--quiet"]) == 2
+    assert "needs calibration files" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"sync_tolerance": -1.0}}}))
+    assert main([str(tmp_path / "frames"), "--params", str(bad), "--quiet"]) == 2
+    assert "parameter 'sync_tolerance'" in capsys.readouterr().err

@@ -1,0 +1,60 @@
+"""Parameter table: validation with the parameter named, the sample params file, the pipeline settings."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from needle_vision.parameters import SPECS, ParameterError, load_params_file, stereo_config, validate_all
+
+CONFIG = Path(__file__).resolve().parents[2] / "config" / "needle_stereo.yaml"
+
+
+def test_every_parameter_has_a_description_with_meaning():
+    for spec in SPECS:
+        assert len(spec.description) > 20, spec.name
+        spec.validate(spec.default)  # defaults are valid
+
+
+def test_sample_params_file_is_complete_and_valid(monkeypatch):
+    monkeypatch.chdir(CONFIG.parents[1])  # calibration paths are relative to the repository root
+    values = load_params_file(CONFIG)
+    assert set(values) == {spec.name for spec in SPECS}  # every parameter is documented in the sample
+    validated = validate_all(values)
+    config = stereo_config(validated)
+    assert config.threshold.polarity == 1 and config.background_frames == 10 and config.tracking is None
+    text = CONFIG.read_text()
+    for spec in SPECS:  # every parameter line has a comment above it
+        leaf = spec.name.split(".")[-1]
+        line = next(k for k, line in enumerate(text.splitlines()) if line.strip().startswith(leaf + ":"))
+        assert "#" in "\n".join(text.splitlines()[max(line - 3, 0):line]), spec.name
+
+
+@pytest.mark.parametrize("name, value, message", [
+    ("sync_tolerance", -0.1, "must be >= 0"),
+    ("detection.downsample", 3, "must be one of 1, 2, 4, 8"),
+    ("needle_polarity", "grey", "must be one of dark, bright"),
+    ("output_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], "quaternion must be non-zero"),
+    ("base_point", [0.0, 0.0], "expected 3 values"),
+    ("reconstruction.sample_spacing", float("nan"), "must be finite"),
+    ("tracking.window", 2.5, "expected int"),
+    ("left_calibration_file", "/nonexistent.yaml", "file not found"),
+])
+def test_bad_values_name_the_parameter(name, value, message):
+    with pytest.raises(ParameterError, match=f"parameter '{name}'.*{message}"):
+        validate_all({name: value})
+
+
+def test_cross_checks():
+    with pytest.raises(ParameterError, match="reconstruction.max_depth"):
+        validate_all({"reconstruction.min_depth": 2.0, "reconstruction.max_depth": 1.0})
+    with pytest.raises(ParameterError, match="give both files"):
+        validate_all({"left_calibration_file": str(CONFIG)})
+    with pytest.raises(ParameterError, match="unknown parameter"):
+        validate_all({"detection.downsampling": 4})
+
+
+def test_tracking_and_polarity_reach_the_pipeline_config():
+    config = stereo_config(validate_all({"tracking.enabled": True, "tracking.window": 7, "needle_polarity": "bright",
+                                         "base_point": [0.1, 0.2, 0.3]}))
+    assert config.tracking.window == 7 and config.threshold.polarity == -1
+    np.testing.assert_array_equal(config.reconstruction.base_point, [0.1, 0.2, 0.3])

@@ -1,0 +1,97 @@
+"""3D centerline accuracy on renders of known needles (issue #6: RMS < 0.1 mm over >= 95 % of the length)."""
+import numpy as np
+import pytest
+
+from conftest import SHAPES, distance_to_curve
+from needle_vision.centerline import extract_centerline
+from needle_vision.correspondence import MatchingConfig
+from needle_vision.reconstruction import ReconstructionConfig, reconstruct_centerline
+from needle_vision.rectification import Rectification
+from needle_vision.render import world_from_camera
+from needle_vision.transform import RigidTransform
+
+
+@pytest.fixture(scope="module")
+def measure(rig, backgrounds, renders):
+    rectification = Rectification.from_rig(rig)
+    cache = {}
+
+    def get(name, output_from_left=None, base_point=np.zeros(3)):
+        key = (name, output_from_left is None)
+        if key not in cache:
+            centerlines = [extract_centerline(image, background)
+                           for image, background in zip(renders(name), backgrounds)]
+            cache[key] = reconstruct_centerline(*centerlines, rectification, MatchingConfig(),
+                                                ReconstructionConfig(base_point=base_point),
+                                                output_from_left or rig.world_from_left)
+        return cache[key]
+    return get
+
+
+def _length(curve: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(curve, axis=0), axis=1).sum())
+
+
+@pytest.mark.parametrize("name", ["straight", "planar", "3d"])
+def test_centerline_accuracy_and_coverage(measure, name):
+    measurement = measure(name)
+    truth = SHAPES[name]
+    distance, arc = distance_to_curve(measurement.points, truth)
+    # Issue requirement (0.1 mm; the paper's measurements scattered by 0.75 mm). Measured: 0.03-0.04 mm.
+    assert np.sqrt(np.mean(distance ** 2)) < 1e-4
+    assert distance.max() < 0.5e-3  # no outliers (the tip sample is the worst, ~0.25 mm)
+    coverage = (arc[-1] - arc[0]) / _length(truth)
+    assert coverage >= 0.95
+    # Ordered from the base (origin of the world frame, the default base point) to the tip.
+    assert np.linalg.norm(measurement.points[0] - truth[0]) < 2e-3
+    assert np.linalg.norm(measurement.points[-1] - truth[-1]) < 2e-3
+    assert np.all(np.diff(arc) > 0)
+
+
+@pytest.mark.parametrize("name", ["straight", "planar", "3d"])
+def test_samples_are_consistent(measure, name):
+    measurement = measure(name)
+    spacing = ReconstructionConfig().sample_spacing
+    np.testing.assert_allclose(np.diff(measurement.arc_length)[:-1], spacing, rtol=1e-9)
+    assert measurement.arc_length[-1] == pytest.approx(measurement.length)
+    np.testing.assert_allclose(np.linalg.norm(measurement.tangents, axis=1), 1.0, rtol=1e-12)
+    # Tangents agree with the chord between neighbouring samples (1 mm apart): to the curvature's order.
+    chords = np.diff(measurement.points, axis=0)
+    chords /= np.linalg.norm(chords, axis=1, keepdims=True)
+    assert np.min(np.einsum("ij,ij->i", chords, measurement.tangents[1:])) > 0.999
+    # Arc length of the smoothed centerline, not inflated by noise: the measured extent of a 0.27 m needle.
+    assert measurement.length == pytest.approx(_length(SHAPES[name]), abs=2e-3)
+    assert np.all(np.isfinite(measurement.uncertainty)) and np.all(measurement.uncertainty > 0)
+
+
+@pytest.mark.parametrize("name", ["straight", "planar", "3d"])
+def test_reported_uncertainty_matches_the_actual_error(measure, name):
+    """The 1-sigma uncertainty (image noise only) is within a factor 2.5 of the actual RMS error."""
+    measurement = measure(name)
+    rms = np.sqrt(np.mean(distance_to_curve(measurement.points, SHAPES[name])[0] ** 2))
+    assert 0.4 < np.median(measurement.uncertainty) / rms < 2.5
+
+
+def test_points_reported_in_the_raw_left_optical_frame(measure, rig):
+    """With no output transform the points are in the raw (not the rectified) left optical frame."""
+    measurement = measure("planar", output_from_left=RigidTransform(),
+                          base_point=world_from_camera(rig, "left").inverse().apply(np.zeros(3)))
+    truth = world_from_camera(rig, "left").inverse().apply(SHAPES["planar"])
+    distance, _ = distance_to_curve(measurement.points, truth)
+    assert np.sqrt(np.mean(distance ** 2)) < 1e-4
+    assert np.linalg.norm(measurement.points[0] - truth[0]) < 2e-3
+
+
+def test_stretch_parallel_to_epipolar_lines_comes_from_continuity(measure):
+    """The hook's 54 mm tail hangs along the baseline: its depth cannot be triangulated point-wise. It is
+    placed by curve order and continuity (between the bend and the tip) and still lands close to the truth."""
+    measurement = measure("hook")
+    distance, arc = distance_to_curve(measurement.points, SHAPES["hook"])
+    assert measurement.anchored_fraction < 0.85  # the tail was not matched along epipolar lines
+    # Continuity is weaker than triangulation: the error grows along the tail (0.2 mm at the tip measured).
+    assert np.sqrt(np.mean(distance ** 2)) < 2e-4
+    assert distance.max() < 0.6e-3
+    assert (arc[-1] - arc[0]) / _length(SHAPES["hook"]) >= 0.95
+    # The uncertainty says so: larger on the tail than on the triangulated stretch.
+    tail = arc > 0.23
+    assert np.median(measurement.uncertainty[tail]) > 3 * np.median(measurement.uncertainty[arc < 0.12])
