@@ -24,6 +24,7 @@ setup(
     entry_points={
         "console_scripts": [
             "needle_talker_demo = needle_sim_ros.nodes.smoke_demo:main",
+            "needle_simulator = needle_sim_ros.nodes.simulator_node:main",
             "needle_compare = needle_sim_ros.nodes.compare_node:main",
             "needle_replay = needle_sim_ros.nodes.replay_node:main",
             "needle_mcap_recover = needle_sim_ros.recording.recovery:main",

@@ -1,0 +1,392 @@
+"""`needle_simulator`: the ANCF needle in real time, driven by base-pose topics, publishing wrench and shape.
+
+Thin ROS layer over :class:`needle_sim_ros.simulation.NeedleSimulation` and
+:class:`needle_sim_ros.base_trajectory.BaseTrajectory`. A dedicated thread runs the fixed-rate loop and advances
+the model by elapsed clock time (not by counting wake-ups, which a loaded machine skips); the executor thread only
+receives poses and serves services and parameters.
+
+Time: with ``use_sim_time`` the node follows ``/clock`` and integrates deterministically up to
+min(clock, newest pose stamp) — poses are interpolated, never extrapolated — unless the pose input timed out.
+In wall-clock mode it integrates up to now, extrapolating the newest pose for at most
+``pose_input.max_extrapolation``.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseArray, PoseStamped, TwistStamped, WrenchStamped
+from nav_msgs.msg import Path
+from needle_interfaces.msg import NeedleShape, NeedleState
+from needle_interfaces.srv import ApplyPointLoad, ClearPointLoads
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from scipy.spatial.transform import Rotation
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker
+
+from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
+from needle_sim_ros.model import Integrator, NeedleProperties, build_model
+from needle_sim_ros.nodes.parameters import ParameterError, declare_all, guard_dynamic_updates
+from needle_sim_ros.nodes.shape_messages import (
+    needle_shape_msg, path_msg, pose_array_msg, time_msg, tube_marker_msg)
+from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.simulation import NeedleSimulation
+
+TIP_LOAD = "tip_force_parameter"
+TIP_LOAD_TOPIC = "tip_load_topic"
+WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
+
+
+def qos_profile(name: str, depth: int = 10) -> QoSProfile:
+    if name == "sensor_data":
+        return qos_profile_sensor_data
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class NeedleSimulatorNode(Node):
+    def __init__(self) -> None:
+        super().__init__("needle_simulator")
+        self.p = declare_all(self, SIMULATOR_PARAMETERS)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.props = NeedleProperties(
+            length=self.p["needle.length"], radius=self.p["needle.radius"],
+            youngs_modulus=self.p["needle.youngs_modulus"], density=self.p["needle.density"],
+            gravity=tuple(self.p["needle.gravity"]))
+        clamp = self.p["fixtures.clamp_interval"]
+        model, integrator = self._build_model(self.p["damping.rayleigh_alpha"], self.p["damping.rayleigh_beta"])
+        trajectory = BaseTrajectory(TrajectoryLimits(
+            window=self.p["pose_input.window"], max_extrapolation=self.p["pose_input.max_extrapolation"],
+            max_position_jump=self.p["pose_input.max_position_jump"],
+            max_orientation_jump=self.p["pose_input.max_orientation_jump"],
+            reanchor_after=self.p["pose_input.reanchor_after"]))
+        self.sim = NeedleSimulation(
+            model, integrator, self.p["integrator.dt"], trajectory,
+            flange_offset=(np.array(self.p["flange_offset.position"]), np.array(self.p["flange_offset.orientation"])),
+            extra_forces=self._tissue_forces(model), max_catch_up=self.p["loop.max_catch_up"],
+            pose_timeout=self.p["pose_input.timeout"], twist_timeout=self.p["pose_input.twist_timeout"],
+            clamp_interval=tuple(clamp) if len(clamp) == 2 else None,
+            model_builder=lambda fixtures: self._build_model(self.p["damping.rayleigh_alpha"],
+                                                             self.p["damping.rayleigh_beta"], fixtures))
+        self._apply_tip_force(self.p["loads.tip_force"])
+        self.use_sim_time = self.get_parameter("use_sim_time").value
+        self.counters = {verdict: 0 for verdict in PoseVerdict}
+        self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0}
+        self.deadline_misses = 0
+        self._warned_at: dict[str, float] = {}
+
+        topics = {k.split(".", 1)[1]: v for k, v in self.p.items() if k.startswith("topics.")}
+        self.wrench_pub = self.create_publisher(WrenchStamped, topics["wrench"], qos_profile(self.p["qos.wrench"], 100))
+        self.shape_pub = self.create_publisher(NeedleShape, topics["shape"], 10)
+        self.path_pub = self.create_publisher(Path, topics["path"], 10)
+        self.marker_pub = self.create_publisher(Marker, topics["marker"], 10)
+        self.pose_array_pub = self.create_publisher(PoseArray, topics["pose_array"], 10)
+        self.state_pub = self.create_publisher(NeedleState, topics["state"], 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(PoseStamped, topics["base_pose"], self.on_pose, qos_profile(self.p["qos.base_pose"], 100))
+        self.create_subscription(TwistStamped, topics["base_twist"], self.on_twist, qos_profile(self.p["qos.base_pose"], 100))
+        self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10)
+        self.create_service(Trigger, "~/reset", self.on_reset)
+        self.create_service(ApplyPointLoad, "~/apply_point_load", self.on_apply_point_load)
+        self.create_service(ClearPointLoads, "~/clear_point_loads", self.on_clear_point_loads)
+        guard_dynamic_updates(self, SIMULATOR_PARAMETERS, self.on_parameters_changed)
+        self._next_output = {"shape": 0.0, "marker": 0.0, "diagnostics": 0.0}
+        self._loop = threading.Thread(target=self.run_loop, name="needle_integration", daemon=True)
+        self.get_logger().info(
+            f"needle_simulator ready: {self.p['needle.elements']} elements, dt = {self.p['integrator.dt'] * 1e3:g} ms, "
+            f"{'simulated' if self.use_sim_time else 'wall-clock'} time; waiting for poses on "
+            f"'{self.resolve_topic_name(topics['base_pose'])}'")
+
+    # -- construction helpers --------------------------------------------------------------------------------
+    def _build_model(self, alpha: float, beta: float, fixtures: tuple = ()):
+        model = build_model(self.props, n_elements=self.p["needle.elements"],
+                            axial_gauss=self.p["needle.axial_gauss_points"],
+                            bending_gauss=self.p["needle.bending_gauss_points"],
+                            rayleigh_alpha=alpha, rayleigh_beta=beta, fixtures=fixtures)
+        integrator = Integrator(model, method=self.p["integrator.method"], rho_inf=self.p["integrator.rho_inf"],
+                                newton_tol=self.p["integrator.newton_tolerance"],
+                                max_newton_iterations=self.p["integrator.max_newton_iterations"])
+        return model, integrator
+
+    def _tissue_forces(self, model) -> list:
+        if not self.p["tissue.enable"]:
+            return []
+        from needle_sim_ros.tissue import build_tissue_forces  # only when enabled: keeps start-up lean
+        return build_tissue_forces(self.tissue_config(), model)
+
+    def tissue_config(self) -> dict:
+        return {name: param.value for name, param in self._parameters.items() if name.startswith("tissue.")}
+
+    def _apply_tip_force(self, force) -> None:
+        if np.any(np.asarray(force) != 0.0):
+            self.sim.set_point_load(TIP_LOAD, self.props.length, np.asarray(force, dtype=float))
+        else:
+            self.sim.clear_point_loads([TIP_LOAD])
+
+    def warn_throttled(self, key: str, message: str) -> None:
+        now = time.monotonic()
+        if now - self._warned_at.get(key, -np.inf) >= WARN_PERIOD:
+            self._warned_at[key] = now
+            self.get_logger().warning(message)
+
+    def now_seconds(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # -- inputs ----------------------------------------------------------------------------------------------
+    def on_pose(self, msg: PoseStamped) -> None:
+        world = self.p["frames.world"]
+        if msg.header.frame_id not in ("", world):
+            self.counters_other["wrong_frame"] += 1
+            self.warn_throttled("frame", f"ignoring base pose in frame '{msg.header.frame_id}': expected '{world}'")
+            return
+        received = self.now_seconds()
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if stamp == 0.0 or (not self.use_sim_time and abs(stamp - received) > self.p["pose_input.max_stamp_offset"]):
+            self.counters_other["stamp_replaced"] += 1
+            self.warn_throttled("stamp", f"base pose stamp {stamp:.3f} s is unset or {stamp - received:+.3f} s from now: "
+                                         "using the receive time instead")
+            stamp = received
+        p, q = msg.pose.position, msg.pose.orientation
+        with self._lock:
+            started = self.sim.started
+            verdict = self.sim.offer_pose(stamp, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+            self.counters[verdict] += 1
+        if self.sim.started and not started:
+            self.get_logger().info("first base pose received: needle initialised straight at it")
+        if verdict is PoseVerdict.NORMALIZED:
+            self.warn_throttled("normalized", "base pose quaternion was not unit length: normalized")
+        elif verdict is PoseVerdict.REANCHORED:
+            self.get_logger().warning("base pose jumped and stayed there: needle reset straight at the new pose")
+        elif verdict not in (PoseVerdict.ACCEPTED,):
+            self.warn_throttled(verdict.name, f"base pose {verdict.value}; keeping the previous trajectory")
+
+    def on_twist(self, msg: TwistStamped) -> None:
+        v, w = msg.twist.linear, msg.twist.angular
+        linear, angular = np.array([v.x, v.y, v.z]), np.array([w.x, w.y, w.z])
+        if msg.header.frame_id not in ("", self.p["frames.world"]) or not (np.all(np.isfinite(linear)) and np.all(np.isfinite(angular))):
+            self.warn_throttled("twist", "ignoring base twist: not finite or not in the world frame")
+            return
+        with self._lock:
+            self.sim.set_twist(self.now_seconds(), linear, angular)
+
+    def on_tip_load(self, msg: WrenchStamped) -> None:
+        """A force on the tip from a topic (a recorded experiment's tip mass); replaces the previous one."""
+        f = msg.wrench.force
+        force = np.array([f.x, f.y, f.z])
+        frame = msg.header.frame_id or self.p["frames.world"]
+        if not np.all(np.isfinite(force)) or frame not in (self.p["frames.world"], self.p["frames.base"]):
+            self.warn_throttled("tip_load", f"ignoring tip load: not finite or frame '{frame}' unknown")
+            return
+        with self._lock:
+            if frame == self.p["frames.base"] and self.sim.base is not None:
+                force = Rotation.from_quat(self.sim.base.orientation).apply(force)
+            self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+
+    # -- services and parameters -----------------------------------------------------------------------------
+    def on_reset(self, request, response):
+        with self._lock:
+            latest = self.sim.trajectory.latest
+            if latest is None:
+                response.success, response.message = False, "no base pose received yet"
+                return response
+            t = self.sim.state.t if self.sim.started else latest.t
+            self.sim.reset(self.sim.base_motion_at(t), t)
+        response.success, response.message = True, "needle reset to the straight state at the current base pose"
+        return response
+
+    def on_apply_point_load(self, request, response):
+        force = np.array([request.force.x, request.force.y, request.force.z])
+        frame = request.frame_id or self.p["frames.world"]
+        if frame not in (self.p["frames.world"], self.p["frames.base"]):
+            response.success, response.message = False, f"frame_id '{frame}' is neither '{self.p['frames.world']}' nor '{self.p['frames.base']}'"
+            return response
+        try:
+            with self._lock:
+                if frame == self.p["frames.base"]:
+                    if self.sim.base is None:
+                        raise ValueError("no base pose yet to express a base-frame force in the world frame")
+                    force = Rotation.from_quat(self.sim.base.orientation).apply(force)
+                self.sim.set_point_load(request.name or "default", request.arc_length, force)
+        except ValueError as error:
+            response.success, response.message = False, str(error)
+            return response
+        response.success, response.message = True, f"load '{request.name or 'default'}' applied at s = {request.arc_length:g} m"
+        return response
+
+    def on_clear_point_loads(self, request, response):
+        with self._lock:
+            response.removed = self.sim.clear_point_loads(list(request.names))
+        response.success, response.message = True, f"removed {response.removed} load(s)"
+        return response
+
+    def on_parameters_changed(self, changed: dict) -> None:
+        with self._lock:
+            self.p.update(changed)
+            if {"damping.rayleigh_alpha", "damping.rayleigh_beta"} & changed.keys():
+                alpha, beta = self.p["damping.rayleigh_alpha"], self.p["damping.rayleigh_beta"]
+                self.sim.rebuild_model(lambda fixtures: self._build_model(alpha, beta, fixtures))
+            if "loads.tip_force" in changed:
+                self._apply_tip_force(changed["loads.tip_force"])
+
+    # -- the real-time loop ----------------------------------------------------------------------------------
+    def start(self) -> None:
+        self._loop.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._loop.is_alive():
+            self._loop.join(timeout=2.0)
+
+    def run_loop(self) -> None:
+        period = self.p["integrator.dt"]
+        busy = self.p["loop.busy_wait"]
+        deadline = time.perf_counter()
+        while not self._stop.is_set() and rclpy.ok():
+            try:
+                self.loop_iteration()
+            except Exception as error:  # noqa: BLE001 - the loop must outlive any single bad iteration
+                if self._stop.is_set() or not rclpy.ok():
+                    break
+                self.warn_throttled("loop", f"integration loop iteration failed: {error!r}")
+            deadline += period
+            remaining = deadline - time.perf_counter()
+            if remaining < -10 * period:  # far behind (e.g. suspended): re-phase instead of bursting
+                deadline = time.perf_counter()
+            elif remaining > busy:
+                time.sleep(remaining - busy)
+            while time.perf_counter() < deadline:
+                pass
+
+    def loop_iteration(self) -> None:
+        """One tick: integrate up to the clock, publish the wrench of every step and the due outputs."""
+        now = self.now_seconds()
+        with self._lock:
+            started = self.sim.started
+            records = self.sim.advance(now, deterministic=self.use_sim_time) if started else []
+        if started and not self.sim.started:
+            self.get_logger().warning(f"clock jumped back to {now:.3f} s: waiting for a new first pose")
+        if len(records) > 1:
+            self.deadline_misses += len(records) - 1
+        for record in records:
+            self.publish_wrench(record)
+        if self.sim.started:
+            self.publish_periodic_outputs(now)
+        self.publish_diagnostics_if_due(now)
+
+    # -- outputs ---------------------------------------------------------------------------------------------
+    def header(self, t: float, frame: str) -> Header:
+        return Header(stamp=time_msg(t), frame_id=frame)
+
+    def publish_wrench(self, record) -> None:
+        w = record.wrench
+        msg = WrenchStamped(header=self.header(record.t, self.p["frames.base"]))
+        msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = (float(x) for x in w.force_base)
+        msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = (float(x) for x in w.torque_base)
+        self.wrench_pub.publish(msg)
+
+    def due(self, key: str, now: float, rate: float) -> bool:
+        """True once per 1/rate of clock time (also after the clock jumped backwards, e.g. a looping bag)."""
+        next_time = self._next_output[key]
+        if next_time - 2.0 / rate <= now < next_time:
+            return False
+        self._next_output[key] = now + 1.0 / rate
+        return True
+
+    def publish_periodic_outputs(self, now: float) -> None:
+        shape_due = self.due("shape", now, self.p["rates.shape_hz"])
+        marker_due = self.due("marker", now, self.p["rates.marker_hz"])
+        if not (shape_due or marker_due):
+            return
+        with self._lock:
+            t = self.sim.state.t
+            line = self.sim.shape(self.p["output.shape_samples"])
+            tip_position, tip_orientation = self.sim.tip()
+            kinetic, elastic = self.sim.energies()
+            readout = self.tissue_readout()
+        header = self.header(t, self.p["frames.world"])
+        if shape_due:
+            self.shape_pub.publish(needle_shape_msg(header, NeedleShape.SOURCE_MODEL, line.points, line.tangents,
+                                                    line.arc_length, tip_position, tip_orientation))
+            self.path_pub.publish(path_msg(header, line.points, line.tangents))
+            self.pose_array_pub.publish(pose_array_msg(header, line.points, line.tangents))
+            state = NeedleState(header=header, kinetic_energy=float(kinetic), elastic_energy=float(elastic))
+            if readout is not None:
+                state.insertion_depth = float(readout.insertion_depth)
+                state.inserted_length = float(readout.inserted_length)
+                state.tip_force.x, state.tip_force.y, state.tip_force.z = (float(x) for x in readout.tip_force)
+                state.axial_force = float(readout.axial_force)
+            self.state_pub.publish(state)
+        if marker_due:
+            self.marker_pub.publish(tube_marker_msg(header, line.points, line.tangents, self.props.radius))
+
+    def tissue_readout(self):
+        if not self.sim.extra_forces:
+            return None
+        from needle_sim_ros.tissue import tissue_readout
+        return tissue_readout(self.sim.extra_forces, self.sim.model, self.sim.state, self.sim.base)
+
+    def publish_diagnostics_if_due(self, now: float) -> None:
+        if not self.due("diagnostics", now, self.p["rates.diagnostics_hz"]):
+            return
+        with self._lock:
+            stats = self.sim.statistics
+            step_times = stats.take_step_times()
+            pose_age = self.sim.pose_age(self.now_seconds())
+            values = {
+                "steps": stats.steps,
+                "step_time_mean_ms": float(step_times.mean() * 1e3) if step_times.size else 0.0,
+                "step_time_max_ms": float(step_times.max() * 1e3) if step_times.size else 0.0,
+                "max_newton_iterations": stats.max_newton_iterations,
+                "failed_steps": stats.failed_steps,
+                "deadline_misses": self.deadline_misses,
+                "skipped_time_s": stats.skipped_time,
+                "pose_age_s": pose_age,
+                "point_loads": len(self.sim.point_loads),
+                **{f"poses_{v.name.lower()}": n for v, n in self.counters.items()},
+                **{f"poses_{k}": n for k, n in self.counters_other.items()},
+            }
+            stats.max_newton_iterations = 0
+        level, message = DiagnosticStatus.OK, "running"
+        if not self.sim.started:
+            level, message = DiagnosticStatus.WARN, "waiting for the first base pose"
+        elif pose_age > self.p["pose_input.timeout"]:
+            level, message = DiagnosticStatus.WARN, f"no base pose for {pose_age:.2f} s: holding the last pose"
+        elif values["failed_steps"]:
+            level, message = DiagnosticStatus.WARN, f"{values['failed_steps']} failed steps (needle reset)"
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: integration", message=message,
+                                  hardware_id="needle_sim",
+                                  values=[KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v)) for k, v in values.items()])
+        self.diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    try:
+        node = NeedleSimulatorNode()
+    except ParameterError as error:
+        rclpy.logging.get_logger("needle_simulator").fatal(str(error))
+        rclpy.try_shutdown()
+        return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    node.start()
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

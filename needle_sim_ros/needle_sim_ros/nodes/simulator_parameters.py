@@ -1,0 +1,80 @@
+"""Parameters of the `needle_simulator` node (declared with descriptors, validated at start)."""
+from __future__ import annotations
+
+import numpy as np
+
+from needle_sim_ros.nodes.parameters import ParamSpec
+
+
+def _unit_quaternion(q) -> bool:
+    return abs(float(np.linalg.norm(q)) - 1.0) < 1e-6
+
+
+def _positive_vector(v) -> bool:
+    return all(x > 0 for x in v)
+
+
+QOS_CHOICES = ("sensor_data", "reliable")
+
+SIMULATOR_PARAMETERS = [
+    # Needle (seed 000, Sec. III: stainless steel, r = 0.635 mm, L = 0.27 m).
+    ParamSpec("needle.length", 0.27, "Needle length L [m] from the clamp point A to the tip.", 1e-3, 10.0),
+    ParamSpec("needle.radius", 0.635e-3, "Radius of the solid circular cross-section [m].", 1e-6, 0.05),
+    ParamSpec("needle.youngs_modulus", 193e9, "Young's modulus E [Pa].", 1e6, 1e12),
+    ParamSpec("needle.density", 8000.0, "Density rho [kg/m^3].", 1.0, 1e5),
+    ParamSpec("needle.elements", 10, "Number of ANCF cable elements.", 1, 200),
+    ParamSpec("needle.gravity", [0.0, 0.0, -9.81], "Gravitational acceleration in the world frame [m/s^2].", -100.0, 100.0, length=3),
+    ParamSpec("needle.axial_gauss_points", 5, "Gauss points per element for the axial strain integral (eq. 12).", 1, 10),
+    ParamSpec("needle.bending_gauss_points", 3, "Gauss points per element for the bending integral (eq. 13).", 1, 10),
+    # Rayleigh damping acts on absolute velocities with the reference-state stiffness: alpha M also drags a rigidly
+    # moving needle (force alpha m v on the holder) and beta K also resists large rotations of deflected elements
+    # (through the axial stiffness EA), so both are kept small; generalized-alpha damps the high modes numerically.
+    ParamSpec("damping.rayleigh_alpha", 2.0, "Mass-proportional Rayleigh damping alpha [1/s] (C = alpha M + beta K).", 0.0, 1e4, dynamic=True),
+    ParamSpec("damping.rayleigh_beta", 0.0, "Stiffness-proportional Rayleigh damping beta [s] (C = alpha M + beta K).", 0.0, 1.0, dynamic=True),
+    ParamSpec("integrator.method", "generalized_alpha", "Implicit integrator.", choices=("generalized_alpha", "hht", "backward_euler")),
+    ParamSpec("integrator.rho_inf", 0.8, "Spectral radius at infinite frequency (numerical damping; 1 = none).", 0.0, 1.0),
+    ParamSpec("integrator.dt", 0.001, "Integration step [s]; the real-time loop runs at 1/dt.", 1e-5, 0.1),
+    ParamSpec("integrator.newton_tolerance", 1e-8, "Newton convergence tolerance (relative residual).", 1e-14, 1e-2),
+    ParamSpec("integrator.max_newton_iterations", 8, "Newton iterations per step before sub-stepping.", 1, 100),
+    ParamSpec("fixtures.clamp_interval", [0.0], "Arc-length interval [s_start, s_end] [m] clamped to the world where "
+              "it lies when the needle starts (seed 000 Fig. 8: [0.6 L, L]); both ends must be mesh nodes. [] or [0.0]: none.",
+              0.0, 10.0, check=(lambda v: len(v) in (0, 1, 2) and (len(v) < 2 or v[0] < v[1]) and (len(v) != 1 or v[0] == 0.0),
+                                "must be [] / [0.0] (none) or [s_start, s_end] with s_start < s_end")),
+    # Frames (REP 103/105).
+    ParamSpec("frames.world", "world", "Fixed frame of base poses, wrench (world copy) and shapes.", check=(bool, "must not be empty")),
+    ParamSpec("frames.base", "needle_base", "Frame of the needle base at the clamp point A, x along the needle.", check=(bool, "must not be empty")),
+    ParamSpec("flange_offset.position", [0.0, 0.0, 0.0], "Clamp point A in the flange frame of the incoming pose [m].", -10.0, 10.0, length=3),
+    ParamSpec("flange_offset.orientation", [0.0, 0.0, 0.0, 1.0], "Rotation flange -> needle base frame, quaternion (x, y, z, w).", -1.0, 1.0, length=4,
+              check=(_unit_quaternion, "must be a unit quaternion")),
+    # Topics (relative, so they can be remapped and namespaced).
+    ParamSpec("topics.base_pose", "base_pose", "Input geometry_msgs/PoseStamped of the needle holder (flange).", check=(bool, "must not be empty")),
+    ParamSpec("topics.base_twist", "base_twist", "Optional input geometry_msgs/TwistStamped (world frame) for velocity feed-forward.", check=(bool, "must not be empty")),
+    ParamSpec("topics.tip_load", "tip_load", "Optional input geometry_msgs/WrenchStamped: force on the needle tip (world or base frame), e.g. a recorded tip mass.", check=(bool, "must not be empty")),
+    ParamSpec("topics.wrench", "wrench", "Output geometry_msgs/WrenchStamped: wrench of the needle on its holder, base frame.", check=(bool, "must not be empty")),
+    ParamSpec("topics.shape", "needle/shape", "Output needle_interfaces/NeedleShape (world frame).", check=(bool, "must not be empty")),
+    ParamSpec("topics.path", "needle/path", "Output nav_msgs/Path of the centerline.", check=(bool, "must not be empty")),
+    ParamSpec("topics.marker", "needle/marker", "Output visualization_msgs/Marker tube.", check=(bool, "must not be empty")),
+    ParamSpec("topics.pose_array", "needle/state/current_shape", "Output geometry_msgs/PoseArray (SmartNeedle convention, metres).", check=(bool, "must not be empty")),
+    ParamSpec("topics.state", "needle/state", "Output needle_interfaces/NeedleState (depth, tip force, energies).", check=(bool, "must not be empty")),
+    ParamSpec("qos.wrench", "sensor_data", "QoS of the wrench output.", choices=QOS_CHOICES),
+    ParamSpec("qos.base_pose", "sensor_data", "QoS of the pose input (sensor_data also matches reliable publishers).", choices=QOS_CHOICES),
+    ParamSpec("rates.shape_hz", 100.0, "Rate of shape, path, pose-array and state outputs [Hz].", 0.1, 1000.0, dynamic=True),
+    ParamSpec("rates.marker_hz", 20.0, "Rate of the marker tube [Hz].", 0.1, 1000.0, dynamic=True),
+    ParamSpec("rates.diagnostics_hz", 1.0, "Rate of diagnostic_msgs/DiagnosticArray on /diagnostics [Hz].", 0.1, 100.0, dynamic=True),
+    ParamSpec("output.shape_samples", 50, "Centerline samples per shape message.", 2, 10000, dynamic=True),
+    # Pose input handling (see needle_sim_ros.base_trajectory).
+    ParamSpec("pose_input.window", 0.02, "Least-squares window for pose, velocity and acceleration estimates [s].", 1e-3, 1.0),
+    ParamSpec("pose_input.max_extrapolation", 0.01, "Longest extrapolation beyond the newest pose before it is held [s].", 0.0, 1.0),
+    ParamSpec("pose_input.timeout", 0.1, "Pose age after which the node reports the input as lost (holding) [s].", 1e-3, 60.0),
+    ParamSpec("pose_input.max_position_jump", 0.02, "Largest accepted position change between consecutive poses [m].", 1e-6, 10.0),
+    ParamSpec("pose_input.max_orientation_jump", 0.2, "Largest accepted orientation change between consecutive poses [rad].", 1e-6, 3.1416),
+    ParamSpec("pose_input.reanchor_after", 10, "Consecutive consistent jumped poses after which the needle is reset there.", 1, 10000),
+    ParamSpec("pose_input.max_stamp_offset", 0.5, "Wall-clock mode: stamps further than this from now are replaced by the receive time [s].", 1e-3, 3600.0),
+    ParamSpec("pose_input.twist_timeout", 0.05, "A twist older than this is ignored [s].", 1e-3, 10.0),
+    # External loads (e.g. the tip mass of seed 000 Fig. 7).
+    ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: [0, 0, -9.81 m]).", -1e3, 1e3, length=3, dynamic=True),
+    # Real-time loop.
+    ParamSpec("loop.max_catch_up", 0.05, "Largest lag [s] the loop integrates to catch up; beyond it time is skipped.", 1e-3, 10.0),
+    ParamSpec("loop.busy_wait", 0.0002, "Spin the last part of each period instead of sleeping, for tick accuracy [s].", 0.0, 0.01),
+    ParamSpec("tissue.enable", False, "Couple the needle-tissue interaction models configured under tissue.*."),
+]

@@ -1,0 +1,235 @@
+"""The simulator's clock-driven core: fixed-step ANCF integration towards a target time (ROS-free).
+
+A :class:`NeedleSimulation` owns the mutable part of the simulator (the model state, the base-pose trajectory,
+named point loads, tissue forces) and advances the immutable model with fixed steps of ``dt`` up to a requested
+time, taking the base motion at each step's end time from the trajectory. The node feeds it poses and calls
+:meth:`advance` from its real-time loop; the offline pipeline does the same in a plain loop over a bag.
+
+Two timing rules (:meth:`target_time`):
+* live: integrate up to now, extrapolating the newest pose for at most ``max_extrapolation`` (lowest latency);
+* deterministic (simulated time, offline): integrate up to min(now, newest pose stamp), so poses are always
+  interpolated and the result depends on the recorded data only — unless the input timed out, then up to now
+  holding the last pose.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict
+from needle_sim_ros.model import (
+    BaseMotion,
+    BaseWrench,
+    Fixture,
+    Gravity,
+    Integrator,
+    NeedleModel,
+    PointLoad,
+    State,
+    StepFailed,
+    centerline,
+    elastic_energy,
+    kinetic_energy,
+    reaction_wrench,
+    tip_pose,
+)
+
+
+@dataclass
+class StepRecord:
+    """What one accepted step produced: its end time, the base wrench and the integrator's effort."""
+
+    t: float
+    wrench: BaseWrench
+    newton_iterations: int
+    substeps: int
+    wall_time: float
+
+
+@dataclass
+class LoopStatistics:
+    """Counters reported in diagnostics."""
+
+    steps: int = 0
+    failed_steps: int = 0
+    skipped_time: float = 0.0
+    max_newton_iterations: int = 0
+    step_wall_times: list[float] = field(default_factory=list)
+
+    def take_step_times(self) -> np.ndarray:
+        times, self.step_wall_times = np.array(self.step_wall_times), []
+        return times
+
+
+ModelBuilder = Callable[[tuple], tuple[NeedleModel, Integrator]]
+
+
+class NeedleSimulation:
+    """Mutable simulator around an immutable :class:`NeedleModel`.
+
+    ``clamp_interval`` (s_start, s_end) [m] clamps that part of the needle to the world where it lies when the
+    needle is (re)started — the distal 40 % in the dynamic experiment of seed 000, Fig. 8. Since the clamp pose is
+    known only then, the model is rebuilt with that :class:`Fixture` by ``model_builder(fixtures)`` at each reset.
+
+    ``extra_forces`` (e.g. tissue models) are evaluated every step in addition to gravity and the named point
+    loads. A step that fails even after the integrator's sub-stepping resets the needle to the straight state at
+    the current base pose (counted in ``statistics.failed_steps``): the output never contains NaN.
+    """
+
+    def __init__(self, model: NeedleModel, integrator: Integrator, dt: float, trajectory: BaseTrajectory,
+                 flange_offset: tuple[np.ndarray, np.ndarray] = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
+                 extra_forces: Sequence = (), max_catch_up: float = 0.05, pose_timeout: float = 0.1,
+                 twist_timeout: float = 0.05, clamp_interval: tuple[float, float] | None = None,
+                 model_builder: ModelBuilder | None = None) -> None:
+        if clamp_interval is not None and model_builder is None:
+            raise ValueError("a clamp interval needs a model_builder to rebuild the model with the fixture")
+        self.model = model
+        self.integrator = integrator
+        self.dt = dt
+        self.trajectory = trajectory
+        self.flange_offset = flange_offset
+        self.extra_forces = list(extra_forces)
+        self.max_catch_up = max_catch_up
+        self.pose_timeout = pose_timeout
+        self.twist_timeout = twist_timeout
+        self.twist: tuple[float, np.ndarray, np.ndarray] | None = None
+        self.clamp_interval = clamp_interval
+        self.model_builder = model_builder
+        self.point_loads: dict[str, PointLoad] = {}
+        self.state: State | None = None
+        self.base: BaseMotion | None = None
+        self.statistics = LoopStatistics()
+        self._gravity = Gravity()
+
+    # -- configuration -----------------------------------------------------------------------------------
+    def rebuild_model(self, model_builder: ModelBuilder) -> None:
+        """Swap in a model built with other run-time parameters, keeping the fixtures in force."""
+        self.model_builder = model_builder
+        self.model, self.integrator = model_builder(self.model.fixtures)
+
+    @property
+    def forces(self) -> list:
+        return [self._gravity, *self.point_loads.values(), *self.extra_forces]
+
+    def set_point_load(self, name: str, arc_length: float, force_world: np.ndarray) -> None:
+        if not 0.0 <= arc_length <= self.model.props.length:
+            raise ValueError(f"arc_length {arc_length} m outside the needle [0, {self.model.props.length}] m")
+        if not np.all(np.isfinite(force_world)):
+            raise ValueError("force must be finite")
+        self.point_loads[name] = PointLoad(arc_length, np.asarray(force_world, dtype=float))
+
+    def clear_point_loads(self, names: Sequence[str] = ()) -> int:
+        targets = list(self.point_loads) if not names else [n for n in names if n in self.point_loads]
+        for name in targets:
+            del self.point_loads[name]
+        return len(targets)
+
+    # -- base input -----------------------------------------------------------------------------------------
+    def offer_pose(self, t: float, position, orientation) -> PoseVerdict:
+        """Offer a flange pose; the first valid pose (and a re-anchoring) starts the needle straight there."""
+        verdict = self.trajectory.offer(t, position, orientation)
+        if verdict is PoseVerdict.REANCHORED or (not self.started and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)):
+            self.reset(self.base_motion_at(t), t)
+        return verdict
+
+    def set_twist(self, t: float, linear_velocity: np.ndarray, angular_velocity: np.ndarray) -> None:
+        """Velocity feed-forward of the flange (world frame); used instead of the estimate while fresh."""
+        self.twist = (t, np.asarray(linear_velocity, dtype=float), np.asarray(angular_velocity, dtype=float))
+
+    def base_motion_at(self, t: float) -> BaseMotion:
+        """Motion of the clamp point A at time t from the flange trajectory, the offset and the optional twist."""
+        k = self.trajectory.motion_at(t)
+        linear, angular = k.linear_velocity, k.angular_velocity
+        if self.twist is not None and abs(t - self.twist[0]) <= self.twist_timeout:
+            linear, angular = self.twist[1], self.twist[2]
+        return BaseMotion.from_flange(k.position, k.orientation, *self.flange_offset,
+                                      linear, angular, k.linear_acceleration, k.angular_acceleration)
+
+    def pose_age(self, now: float) -> float:
+        latest = self.trajectory.latest
+        return now - latest.t if latest is not None else float("inf")
+
+    def target_time(self, now: float, deterministic: bool) -> float:
+        """Time the model should reach at clock time ``now`` (see the module docstring)."""
+        latest = self.trajectory.latest
+        if deterministic and latest is not None and now - latest.t <= self.pose_timeout:
+            return min(now, latest.t)
+        return now
+
+    # -- time stepping --------------------------------------------------------------------------------------
+    @property
+    def started(self) -> bool:
+        return self.state is not None
+
+    def reset(self, base: BaseMotion, t: float) -> None:
+        """Straight, unloaded needle at rest relative to the base at time t (clamped there, if configured)."""
+        if self.clamp_interval is not None:
+            fixture = Fixture(interval=self.clamp_interval, frame="world", needle_pose=(base.position, base.orientation))
+            self.model, self.integrator = self.model_builder((fixture,))
+        self.base = base
+        self.state = self.model.straight_state(base, t)
+
+    def discard_state(self) -> None:
+        """Forget the state (e.g. the clock jumped back); the next :meth:`reset` starts again."""
+        self.state = None
+
+    def advance(self, now: float, deterministic: bool) -> list[StepRecord]:
+        """Integrate up to :meth:`target_time`; a clock that jumped back (looping bag) discards the state."""
+        if self.state is not None and now < self.state.t - self.pose_timeout:
+            self.trajectory.clear()
+            self.discard_state()
+        return self.advance_to(self.target_time(now, deterministic), self.base_motion_at)
+
+    def advance_to(self, t_target: float, base_at: Callable[[float], BaseMotion]) -> list[StepRecord]:
+        """Integrate with fixed steps of dt until the next step would pass t_target.
+
+        If the simulation lags more than ``max_catch_up`` behind, the skipped interval is not integrated: the
+        state jumps forward in time (shape and velocities kept) and the skipped time is counted.
+        """
+        records: list[StepRecord] = []
+        if self.state is None:
+            return records
+        lag = t_target - self.state.t
+        if lag > self.max_catch_up:
+            skip = np.floor((lag - self.max_catch_up) / self.dt) * self.dt
+            self.state = replace(self.state, t=self.state.t + skip)
+            self.statistics.skipped_time += skip
+        while self.state.t + self.dt <= t_target + 1e-9 * self.dt:
+            records.append(self.step(base_at(self.state.t + self.dt)))
+        return records
+
+    def step(self, base_next: BaseMotion) -> StepRecord:
+        start = time.perf_counter()
+        forces = self.forces
+        try:
+            result = self.integrator.step(self.state, self.dt, base_next, forces)
+            self.state, iterations, substeps = result.state, result.newton_iterations, result.substeps
+        except StepFailed:
+            self.statistics.failed_steps += 1
+            self.state = self.model.straight_state(base_next, self.state.t + self.dt)
+            iterations, substeps = 0, 0
+        for force in forces:
+            advance = getattr(force, "advance", None)
+            if advance is not None:
+                advance(self.model, self.state, base_next)
+        self.base = base_next
+        wrench = reaction_wrench(self.model, self.state, base_next, forces)
+        wall = time.perf_counter() - start
+        stats = self.statistics
+        stats.steps += 1
+        stats.max_newton_iterations = max(stats.max_newton_iterations, iterations)
+        stats.step_wall_times.append(wall)
+        return StepRecord(self.state.t, wrench, iterations, substeps, wall)
+
+    # -- outputs --------------------------------------------------------------------------------------------
+    def shape(self, n_samples: int):
+        return centerline(self.model, self.state.q, n_samples)
+
+    def tip(self):
+        return tip_pose(self.model, self.state.q)
+
+    def energies(self) -> tuple[float, float]:
+        return kinetic_energy(self.model, self.state.qd), elastic_energy(self.model, self.state.q)
