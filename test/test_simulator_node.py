@@ -1,6 +1,5 @@
 """needle_simulator as a real node in its own process, driven and read from this process (issue 4)."""
 import math
-import os
 import subprocess
 import sys
 import time

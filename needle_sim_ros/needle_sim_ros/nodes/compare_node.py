@@ -15,11 +15,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import rclpy
 import yaml
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from scipy.spatial.transform import RigidTransform, Rotation
@@ -28,6 +26,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
 from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec, declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
+from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.shape_messages import shape_arrays
 from needle_sim_ros.recording import RecordingError, WriterOptions
 
@@ -244,24 +243,7 @@ class CompareNode(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
-    try:
-        node = CompareNode()
-    except ParameterError as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(str(error))
-        rclpy.try_shutdown()
-        return 2
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.finish()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(CompareNode, NODE_NAME, args)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,6 @@ from geometry_msgs.msg import PoseArray, PoseStamped, TwistStamped, WrenchStampe
 from nav_msgs.msg import Path
 from needle_interfaces.msg import NeedleShape, NeedleState
 from needle_interfaces.srv import ApplyPointLoad, ClearPointLoads
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
@@ -33,7 +32,8 @@ from visualization_msgs.msg import Marker
 
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
 from needle_sim_ros.model import Integrator, NeedleProperties, build_model
-from needle_sim_ros.nodes.parameters import ParameterError, declare_all, guard_dynamic_updates
+from needle_sim_ros.nodes.parameters import declare_all, guard_dynamic_updates
+from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.shape_messages import (
     needle_shape_msg, path_msg, pose_array_msg, time_msg, tube_marker_msg)
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
@@ -239,7 +239,7 @@ class NeedleSimulatorNode(Node):
     def start(self) -> None:
         self._loop.start()
 
-    def stop(self) -> None:
+    def finish(self) -> None:
         self._stop.set()
         if self._loop.is_alive():
             self._loop.join(timeout=2.0)
@@ -367,25 +367,7 @@ class NeedleSimulatorNode(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
-    try:
-        node = NeedleSimulatorNode()
-    except ParameterError as error:
-        rclpy.logging.get_logger("needle_simulator").fatal(str(error))
-        rclpy.try_shutdown()
-        return 2
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    node.start()
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.stop()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(NeedleSimulatorNode, "needle_simulator", args)
 
 
 if __name__ == "__main__":

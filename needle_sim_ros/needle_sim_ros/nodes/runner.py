@@ -1,0 +1,41 @@
+"""The `main` of every needle_sim_ros node: init, construct, spin, and a clean, defined exit."""
+from __future__ import annotations
+
+from typing import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+
+from needle_sim_ros.nodes.parameters import ParameterError
+
+EXIT_BAD_PARAMETER = 2
+
+
+def run_node(make_node: Callable[[], Node], name: str, args=None) -> int:
+    """Spin one node until SIGINT/SIGTERM; a ParameterError at construction exits with code 2.
+
+    Optional node hooks: ``start()`` after construction (e.g. a real-time thread), ``finish()`` before destruction
+    (e.g. stop that thread, finalize a log file).
+    """
+    rclpy.init(args=args)
+    try:
+        node = make_node()
+    except ParameterError as error:
+        rclpy.logging.get_logger(name).fatal(str(error))
+        rclpy.try_shutdown()
+        return EXIT_BAD_PARAMETER
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    if hasattr(node, "start"):
+        node.start()
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if hasattr(node, "finish"):
+            node.finish()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
