@@ -155,10 +155,11 @@ def test_shape_follows_a_base_rotation(simulator):
     for k in range(steps + 1):  # 90 deg about z in 1 s
         quaternion = Rotation.from_euler("z", 90.0 * k / steps, degrees=True).as_quat()
         simulator.hold(0.01, quaternion=quaternion)
-    simulator.hold(1.0, quaternion=Rotation.from_euler("z", 90.0, degrees=True).as_quat())
-    tip = simulator.shapes[-1].tip_pose.position
-    # The needle now points along world +y from the base at (0.4, 0, 0.3): tip at (0.4, L, 0.3) within 1 mm.
-    np.testing.assert_allclose([tip.x, tip.y, tip.z], [0.4, LENGTH, 0.3], atol=1e-3)
+    simulator.hold(2.0, quaternion=Rotation.from_euler("z", 90.0, degrees=True).as_quat())
+    tips = [[s.tip_pose.position.x, s.tip_pose.position.y, s.tip_pose.position.z] for s in simulator.shapes[-10:]]
+    # The needle now points along world +y from the base at (0.4, 0, 0.3): tip at (0.4, L, 0.3) within 1 mm
+    # (a residual vibration of the heavily damped needle after 2 s is far below that).
+    np.testing.assert_allclose(np.mean(tips, axis=0), [0.4, LENGTH, 0.3], atol=1e-3)
 
 
 def test_bad_inputs_are_survived_and_never_produce_nan(simulator):

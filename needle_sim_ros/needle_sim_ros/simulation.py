@@ -19,7 +19,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict
+from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
 from needle_sim_ros.model import (
     BaseMotion,
     BaseWrench,
@@ -27,15 +27,18 @@ from needle_sim_ros.model import (
     Gravity,
     Integrator,
     NeedleModel,
+    NeedleProperties,
     PointLoad,
     State,
     StepFailed,
+    build_model,
     centerline,
     elastic_energy,
     kinetic_energy,
     reaction_wrench,
     tip_pose,
 )
+from needle_sim_ros.tissue import build_tissue_forces
 
 
 @dataclass
@@ -74,14 +77,15 @@ class NeedleSimulation:
     needle is (re)started — the distal 40 % in the dynamic experiment of seed 000, Fig. 8. Since the clamp pose is
     known only then, the model is rebuilt with that :class:`Fixture` by ``model_builder(fixtures)`` at each reset.
 
-    ``extra_forces`` (e.g. tissue models) are evaluated every step in addition to gravity and the named point
-    loads. A step that fails even after the integrator's sub-stepping resets the needle to the straight state at
+    ``extra_forces_builder(model)`` makes the extra force contributions (e.g. tissue models with their own state:
+    track, stick anchors) evaluated every step in addition to gravity and the named point loads; they are made
+    anew at every reset, so a restarted needle starts in fresh tissue. A step that fails even after the integrator's sub-stepping resets the needle to the straight state at
     the current base pose (counted in ``statistics.failed_steps``): the output never contains NaN.
     """
 
     def __init__(self, model: NeedleModel, integrator: Integrator, dt: float, trajectory: BaseTrajectory,
                  flange_offset: tuple[np.ndarray, np.ndarray] = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
-                 extra_forces: Sequence = (), max_catch_up: float = 0.05, pose_timeout: float = 0.1,
+                 extra_forces_builder: Callable[[NeedleModel], list] | None = None, max_catch_up: float = 0.05, pose_timeout: float = 0.1,
                  twist_timeout: float = 0.05, clamp_interval: tuple[float, float] | None = None,
                  model_builder: ModelBuilder | None = None) -> None:
         if clamp_interval is not None and model_builder is None:
@@ -91,7 +95,8 @@ class NeedleSimulation:
         self.dt = dt
         self.trajectory = trajectory
         self.flange_offset = flange_offset
-        self.extra_forces = list(extra_forces)
+        self.extra_forces_builder = extra_forces_builder
+        self.extra_forces: list = []
         self.max_catch_up = max_catch_up
         self.pose_timeout = pose_timeout
         self.twist_timeout = twist_timeout
@@ -169,6 +174,8 @@ class NeedleSimulation:
         if self.clamp_interval is not None:
             fixture = Fixture(interval=self.clamp_interval, frame="world", needle_pose=(base.position, base.orientation))
             self.model, self.integrator = self.model_builder((fixture,))
+        if self.extra_forces_builder is not None:
+            self.extra_forces = list(self.extra_forces_builder(self.model))
         self.base = base
         self.state = self.model.straight_state(base, t)
 
@@ -233,3 +240,58 @@ class NeedleSimulation:
 
     def energies(self) -> tuple[float, float]:
         return kinetic_energy(self.model, self.state.qd), elastic_energy(self.model, self.state.q)
+
+
+def model_builder_from_parameters(p: dict) -> ModelBuilder:
+    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them."""
+    props = NeedleProperties(length=p["needle.length"], radius=p["needle.radius"],
+                             youngs_modulus=p["needle.youngs_modulus"], density=p["needle.density"],
+                             gravity=tuple(p["needle.gravity"]))
+
+    def model_builder(fixtures: tuple = ()) -> tuple[NeedleModel, Integrator]:
+        model = build_model(props, n_elements=p["needle.elements"], axial_gauss=p["needle.axial_gauss_points"],
+                            bending_gauss=p["needle.bending_gauss_points"], rayleigh_alpha=p["damping.rayleigh_alpha"],
+                            rayleigh_beta=p["damping.rayleigh_beta"], fixtures=fixtures)
+        integrator = Integrator(model, method=p["integrator.method"], rho_inf=p["integrator.rho_inf"],
+                                newton_tol=p["integrator.newton_tolerance"],
+                                max_newton_iterations=p["integrator.max_newton_iterations"])
+        return model, integrator
+
+    return model_builder
+
+
+def simulation_from_parameters(p: dict) -> NeedleSimulation:
+    """The simulator described by the `needle_simulator` parameters (flat dotted names, validated values).
+
+    One construction for the node and the offline pipeline, so both run the same simulator. Raises ValueError
+    for tissue parameters that the tissue models reject.
+    """
+    model_builder = model_builder_from_parameters(p)
+    tissue_config = {name: value for name, value in p.items() if name.startswith("tissue.")}
+
+    def tissue_builder(model: NeedleModel) -> list:
+        return build_tissue_forces(tissue_config, model)
+
+    trajectory = BaseTrajectory(TrajectoryLimits(
+        window=p["pose_input.window"], max_extrapolation=p["pose_input.max_extrapolation"],
+        max_position_jump=p["pose_input.max_position_jump"], max_orientation_jump=p["pose_input.max_orientation_jump"],
+        reanchor_after=p["pose_input.reanchor_after"]))
+    clamp = p["fixtures.clamp_interval"]
+    model, integrator = model_builder(())
+    if p["tissue.enable"]:
+        tissue_builder(model)  # reject bad tissue parameters now, not at the first pose
+    sim = NeedleSimulation(
+        model, integrator, p["integrator.dt"], trajectory,
+        flange_offset=(np.asarray(p["flange_offset.position"], dtype=float),
+                       np.asarray(p["flange_offset.orientation"], dtype=float)),
+        extra_forces_builder=tissue_builder if p["tissue.enable"] else None, max_catch_up=p["loop.max_catch_up"], pose_timeout=p["pose_input.timeout"],
+        twist_timeout=p["pose_input.twist_timeout"], clamp_interval=tuple(clamp) if len(clamp) == 2 else None,
+        model_builder=model_builder)
+    tip_force = np.asarray(p["loads.tip_force"], dtype=float)
+    if np.any(tip_force != 0.0):
+        sim.set_point_load(TIP_FORCE_PARAMETER, model.props.length, tip_force)
+    return sim
+
+
+TIP_FORCE_PARAMETER = "tip_force_parameter"  # name of the point load set by the `loads.tip_force` parameter
+TIP_LOAD_TOPIC = "tip_load_topic"  # name of the point load set from the `tip_load` topic

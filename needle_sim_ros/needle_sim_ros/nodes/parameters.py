@@ -38,6 +38,7 @@ class ParamSpec:
     length: int | None = None
     check: tuple[Callable[[Any], bool], str] | None = None
     dynamic: bool = False
+    allow_infinite: bool = False
 
     def descriptor(self) -> ParameterDescriptor:
         text = self.description + (f" Choices: {', '.join(self.choices)}." if self.choices else "")
@@ -55,11 +56,11 @@ class ParamSpec:
         def fail(reason: str) -> None:
             raise ParameterError(f"parameter '{self.name}' = {value!r}: {reason} ({self.description})")
 
-        values = list(value) if isinstance(value, (list, tuple)) or hasattr(value, "__array__") else [value]
+        values = list(value) if hasattr(value, "__len__") and not isinstance(value, str) else [value]
         if self.length is not None and len(values) != self.length:
             fail(f"expected {self.length} values, got {len(values)}")
         for v in values:
-            if isinstance(v, float) and not math.isfinite(v):
+            if isinstance(v, float) and (math.isnan(v) or (math.isinf(v) and not self.allow_infinite)):
                 fail("must be finite")
             if self.low is not None and isinstance(v, (int, float)) and not isinstance(v, bool) and v < self.low:
                 fail(f"must be >= {self.low}")

@@ -30,17 +30,15 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
-from needle_sim_ros.model import Integrator, NeedleProperties, build_model
-from needle_sim_ros.nodes.parameters import declare_all, guard_dynamic_updates
+from needle_sim_ros.base_trajectory import PoseVerdict
+from needle_sim_ros.nodes.parameters import ParameterError, declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.shape_messages import (
     needle_shape_msg, path_msg, pose_array_msg, time_msg, tube_marker_msg)
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
-from needle_sim_ros.simulation import NeedleSimulation
+from needle_sim_ros.simulation import TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, model_builder_from_parameters, simulation_from_parameters
+from needle_sim_ros.tissue import tissue_readout
 
-TIP_LOAD = "tip_force_parameter"
-TIP_LOAD_TOPIC = "tip_load_topic"
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
 
 
@@ -56,26 +54,11 @@ class NeedleSimulatorNode(Node):
         self.p = declare_all(self, SIMULATOR_PARAMETERS)
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self.props = NeedleProperties(
-            length=self.p["needle.length"], radius=self.p["needle.radius"],
-            youngs_modulus=self.p["needle.youngs_modulus"], density=self.p["needle.density"],
-            gravity=tuple(self.p["needle.gravity"]))
-        clamp = self.p["fixtures.clamp_interval"]
-        model, integrator = self._build_model(self.p["damping.rayleigh_alpha"], self.p["damping.rayleigh_beta"])
-        trajectory = BaseTrajectory(TrajectoryLimits(
-            window=self.p["pose_input.window"], max_extrapolation=self.p["pose_input.max_extrapolation"],
-            max_position_jump=self.p["pose_input.max_position_jump"],
-            max_orientation_jump=self.p["pose_input.max_orientation_jump"],
-            reanchor_after=self.p["pose_input.reanchor_after"]))
-        self.sim = NeedleSimulation(
-            model, integrator, self.p["integrator.dt"], trajectory,
-            flange_offset=(np.array(self.p["flange_offset.position"]), np.array(self.p["flange_offset.orientation"])),
-            extra_forces=self._tissue_forces(model), max_catch_up=self.p["loop.max_catch_up"],
-            pose_timeout=self.p["pose_input.timeout"], twist_timeout=self.p["pose_input.twist_timeout"],
-            clamp_interval=tuple(clamp) if len(clamp) == 2 else None,
-            model_builder=lambda fixtures: self._build_model(self.p["damping.rayleigh_alpha"],
-                                                             self.p["damping.rayleigh_beta"], fixtures))
-        self._apply_tip_force(self.p["loads.tip_force"])
+        try:
+            self.sim = simulation_from_parameters(self.p)
+        except ValueError as error:
+            raise ParameterError(f"tissue parameters: {error}") from error
+        self.props = self.sim.model.props
         self.use_sim_time = self.get_parameter("use_sim_time").value
         self.counters = {verdict: 0 for verdict in PoseVerdict}
         self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0}
@@ -105,30 +88,11 @@ class NeedleSimulatorNode(Node):
             f"'{self.resolve_topic_name(topics['base_pose'])}'")
 
     # -- construction helpers --------------------------------------------------------------------------------
-    def _build_model(self, alpha: float, beta: float, fixtures: tuple = ()):
-        model = build_model(self.props, n_elements=self.p["needle.elements"],
-                            axial_gauss=self.p["needle.axial_gauss_points"],
-                            bending_gauss=self.p["needle.bending_gauss_points"],
-                            rayleigh_alpha=alpha, rayleigh_beta=beta, fixtures=fixtures)
-        integrator = Integrator(model, method=self.p["integrator.method"], rho_inf=self.p["integrator.rho_inf"],
-                                newton_tol=self.p["integrator.newton_tolerance"],
-                                max_newton_iterations=self.p["integrator.max_newton_iterations"])
-        return model, integrator
-
-    def _tissue_forces(self, model) -> list:
-        if not self.p["tissue.enable"]:
-            return []
-        from needle_sim_ros.tissue import build_tissue_forces  # only when enabled: keeps start-up lean
-        return build_tissue_forces(self.tissue_config(), model)
-
-    def tissue_config(self) -> dict:
-        return {name: param.value for name, param in self._parameters.items() if name.startswith("tissue.")}
-
     def _apply_tip_force(self, force) -> None:
         if np.any(np.asarray(force) != 0.0):
-            self.sim.set_point_load(TIP_LOAD, self.props.length, np.asarray(force, dtype=float))
+            self.sim.set_point_load(TIP_FORCE_PARAMETER, self.props.length, np.asarray(force, dtype=float))
         else:
-            self.sim.clear_point_loads([TIP_LOAD])
+            self.sim.clear_point_loads([TIP_FORCE_PARAMETER])
 
     def warn_throttled(self, key: str, message: str) -> None:
         now = time.monotonic()
@@ -230,8 +194,7 @@ class NeedleSimulatorNode(Node):
         with self._lock:
             self.p.update(changed)
             if {"damping.rayleigh_alpha", "damping.rayleigh_beta"} & changed.keys():
-                alpha, beta = self.p["damping.rayleigh_alpha"], self.p["damping.rayleigh_beta"]
-                self.sim.rebuild_model(lambda fixtures: self._build_model(alpha, beta, fixtures))
+                self.sim.rebuild_model(model_builder_from_parameters(self.p))
             if "loads.tip_force" in changed:
                 self._apply_tip_force(changed["loads.tip_force"])
 
@@ -329,7 +292,6 @@ class NeedleSimulatorNode(Node):
     def tissue_readout(self):
         if not self.sim.extra_forces:
             return None
-        from needle_sim_ros.tissue import tissue_readout
         return tissue_readout(self.sim.extra_forces, self.sim.model, self.sim.state, self.sim.base)
 
     def publish_diagnostics_if_due(self, now: float) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from needle_sim_ros.nodes.parameters import ParamSpec
+from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
 
 def _unit_quaternion(q) -> bool:
@@ -76,5 +77,7 @@ SIMULATOR_PARAMETERS = [
     # Real-time loop.
     ParamSpec("loop.max_catch_up", 0.05, "Largest lag [s] the loop integrates to catch up; beyond it time is skipped.", 1e-3, 10.0),
     ParamSpec("loop.busy_wait", 0.0002, "Spin the last part of each period instead of sleeping, for tick accuracy [s].", 0.0, 0.01),
-    ParamSpec("tissue.enable", False, "Couple the needle-tissue interaction models configured under tissue.*."),
+    # Needle-tissue interaction (needle_sim_ros.tissue; config/tissue.yaml): checked together when enabled.
+    *(ParamSpec(name, default, meaning[:1].upper() + meaning[1:] + ".", allow_infinite=True)
+      for name, (default, meaning) in TISSUE_PARAMETERS.items()),
 ]

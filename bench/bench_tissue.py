@@ -1,0 +1,91 @@
+"""Real-time factor of the needle simulation with the tissue models enabled (issue 5 benchmark).
+
+Runs the ``insertion`` scenario core (10 ANCF elements, dt = 1 ms, 90 mm at 6 mm/s, config/tissue.yaml) once per
+tissue configuration and prints a table: simulated time / wall time of the integration loop (steps plus the
+tissue ``advance`` hooks; > 1 is faster than real time), mean step time, and the final tip position off the
+insertion axis (y, z; z includes the gravity sag of about -2.8 mm).
+A baseline without tissue (gravity only, same base motion) shows the tissue's cost.
+
+Usage: python bench/bench_tissue.py [--depth 0.09] [--speed 0.006] [--elements 10] [--dt 0.001]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "needle_sim_ros"))
+
+from needle_sim_ros.model import load_needle_config  # noqa: E402
+from needle_sim_ros.scenarios.insertion import DEFAULT_TISSUE_CONFIG, simulate_insertion  # noqa: E402
+
+NEEDLE, BUILD, INTEGRATOR = load_needle_config({})        # the simulator node's defaults (seed 000 needle)
+
+CASES = {
+    "karnopp + lateral + bevel": {},
+    "lateral + bevel, no axial law": {"tissue.shaft.axial_model": "none"},
+    "insertion profile (seed 002)": {"tissue.shaft.axial_model": "insertion_profile",
+                                     "tissue.insertion_profile.enable": True, "tissue.bevel_tip.enable": False},
+    "LuGre (seed 003) + lateral": {"tissue.shaft.axial_model": "lugre", "tissue.bevel_tip.enable": False},
+}
+
+
+def baseline_real_time_factor(n_elements: int, dt: float, duration: float) -> float:
+    """Same needle and base motion without tissue (gravity only): simulated / integration wall time."""
+    import time
+
+    import numpy as np
+
+    from needle_sim_ros.model import BaseMotion, Gravity, Integrator, build_model
+
+    model = build_model(NEEDLE, **{**BUILD, "n_elements": n_elements})
+    integrator = Integrator(model, **INTEGRATOR)
+    velocity = np.array([0.006, 0.0, 0.0])
+    orientation = np.array([0.0, 0.0, 0.0, 1.0])
+    state = model.straight_state(BaseMotion(np.zeros(3), orientation, linear_velocity=velocity))
+    steps = int(round(duration / dt))
+    start = time.perf_counter()
+    for k in range(1, steps + 1):
+        state = integrator.step(state, dt, BaseMotion(velocity * k * dt, orientation, linear_velocity=velocity),
+                                [Gravity()]).state
+    return steps * dt / (time.perf_counter() - start)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--depth", type=float, default=0.09)
+    parser.add_argument("--speed", type=float, default=0.006)
+    parser.add_argument("--elements", type=int, default=10)
+    parser.add_argument("--dt", type=float, default=1e-3)
+    args = parser.parse_args()
+
+    import yaml
+    tissue = {"tissue": yaml.safe_load(DEFAULT_TISSUE_CONFIG.read_text())["/**"]["ros__parameters"]["tissue"]}
+    print(f"{args.elements} elements, dt = {args.dt * 1e3:g} ms, {args.depth * 1e3:g} mm at {args.speed * 1e3:g} mm/s")
+    print(f"{'case':34s} {'sim time':>9s} {'wall':>8s} {'RT factor':>10s} {'mean step':>10s} {'tip y, z [mm]':>16s}")
+    baseline = baseline_real_time_factor(args.elements, args.dt, 3.0)
+    print(f"{'no tissue (gravity only, 3 s)':34s} {3.0:8.2f}s {3.0 / baseline:7.2f}s {baseline:10.2f} "
+          f"{args.dt / baseline * 1e3:8.3f}ms {'':>10s}")
+    for name, overrides in CASES.items():
+        config = {**_flatten(tissue), **overrides}
+        result = simulate_insertion(NEEDLE, config, args.speed, args.depth, dt=args.dt, sample_every=100,
+                                    build={**BUILD, "n_elements": args.elements}, integrator_kwargs=INTEGRATOR)
+        steps = result["simulated_time_s"] / args.dt
+        y, z = (1e3 * x for x in result["samples"][-1]["tip_deflection_m"])
+        print(f"{name:34s} {result['simulated_time_s']:8.2f}s {result['integration_wall_time_s']:7.2f}s "
+              f"{result['real_time_factor']:10.2f} {result['integration_wall_time_s'] / steps * 1e3:8.3f}ms "
+              f"{y:7.3f}, {z:7.3f}")
+    return 0
+
+
+def _flatten(nested: dict, prefix: str = "") -> dict:
+    flat = {}
+    for key, value in nested.items():
+        name = f"{prefix}.{key}" if prefix else key
+        flat.update(_flatten(value, name) if isinstance(value, dict) else {name: value})
+    return flat
+
+
+if __name__ == "__main__":
+    sys.exit(main())

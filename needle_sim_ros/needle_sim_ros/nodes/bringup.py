@@ -1,0 +1,103 @@
+"""``needle_bringup``: needle_simulator, needle_stereo and needle_compare composed in one process (no launch needed).
+
+    needle_bringup [--experiment config/experiments/dynamic_pitch.yaml] [--no-stereo] [--ros-args ...]
+
+Each node is the class of its own executable. A MultiThreadedExecutor spins the three (each node's callbacks stay
+mutually exclusive; the nodes run concurrently) and the simulator keeps its own integration thread. The comparison's
+inputs are remapped onto the other nodes' outputs (``needle_compare:model/shape:=needle/shape``,
+``needle_compare:measured/shape:=needle/measured_shape``) unless the command line remaps them first. With
+``--experiment`` the node config files (``config/needle_<node>.yaml``) and then the experiment file are passed as
+parameter files, and the experiment decides whether the stereo node runs. ROS arguments apply as for any node
+(``-p`` to all three; target one node with its section in a ``--params-file``). On SIGINT/SIGTERM the comparison
+finalizes its MCAP log and summary. Exit status 2: a parameter is invalid (the log names it).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.utilities import remove_ros_args
+
+from needle_sim_ros.nodes.parameters import ParameterError
+
+NAME = "needle_bringup"
+EXIT_BAD_PARAMETER = 2
+COMPARE_REMAPS = ("needle_compare:model/shape:=needle/shape", "needle_compare:measured/shape:=needle/measured_shape")
+
+
+def parse_arguments(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog=NAME, description=__doc__.split("\n\n")[0],
+                                     epilog="ROS arguments follow --ros-args (--params-file, -p, -r, --log-level).")
+    parser.add_argument("--experiment", type=Path, help="experiment params file (config/experiments/<bag>.yaml): "
+                        "adds the node config files and the experiment as parameter files")
+    parser.add_argument("--no-stereo", action="store_true", help="do not run needle_stereo (the measurement "
+                        "comes from elsewhere, e.g. a shape-sensing needle in the bag)")
+    return parser.parse_args(argv)
+
+
+def ros_arguments(args: argparse.Namespace) -> tuple[list[str], bool]:
+    """Extra ROS arguments (parameter files, the comparison's remaps) and whether the stereo node runs."""
+    extra: list[str] = []
+    stereo = not args.no_stereo
+    if args.experiment is not None:
+        from needle_sim_ros.offline.parameters import load_experiment
+        experiment = load_experiment(args.experiment)
+        files = dict.fromkeys(path for node_files in experiment.files.values() for path in node_files)
+        for path in files:
+            extra += ["--params-file", str(path)]
+        stereo = stereo and experiment.settings.stereo
+    for rule in COMPARE_REMAPS:
+        extra += ["-r", rule]
+    return ["--ros-args", *extra], stereo
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv if argv is None else argv)
+    args = parse_arguments(remove_ros_args(argv)[1:])
+    logger = rclpy.logging.get_logger(NAME)
+    try:
+        extra, stereo = ros_arguments(args)
+    except ValueError as error:
+        logger.fatal(str(error))
+        return EXIT_BAD_PARAMETER
+    rclpy.init(args=[*argv, *extra])  # the command line's own remaps come first and win
+    from needle_vision.parameters import ParameterError as StereoParameterError
+    from needle_vision.stereo_node import NeedleStereoNode
+
+    from needle_sim_ros.nodes.compare_node import CompareNode
+    from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
+    nodes = []
+    try:
+        for make in (NeedleSimulatorNode, *((NeedleStereoNode,) if stereo else ()), CompareNode):
+            nodes.append(make())
+    except (ParameterError, StereoParameterError) as error:
+        logger.fatal(str(error))
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        return EXIT_BAD_PARAMETER
+    simulator, compare = nodes[0], nodes[-1]
+    executor = MultiThreadedExecutor(num_threads=len(nodes) + 1)
+    for node in nodes:
+        executor.add_node(node)
+    simulator.start()
+    logger.info(f"running {', '.join(node.get_name() for node in nodes)} in one process")
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        simulator.stop()
+        compare.finish()
+        executor.shutdown()
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""Bevel-tip forces P and Q of seed 001 eqs. 4-5 (Misra et al.'s macroscopic model) and the bevel frame.
+
+Eq. 4:  P = K_T b^2/2 sin(lambda) (tan(lambda) - tan(beta)) / (1 + tan(lambda) tan(beta))
+Eq. 5:  Q = K_T b^2/2 cos(lambda) (tan(lambda) - tan(beta)) / (1 + tan(lambda) tan(beta)) - K_T a^2/2 tan(beta)
+
+(the fraction is tan(lambda - beta)).  K_T [N/m^2] is the tissue's tip-stiffness property (seed 001: 9.42e3,
+range 4e3..13e3), a and b [m] the bevel edge lengths, lambda the bevel angle and beta the acting-point angle
+(seed 001: beta/lambda = 0.2).  P acts along the shaft, against the insertion; Q acts perpendicular to the shaft.
+
+Bevel frame (the reading used here): Q > 0 pushes the tip toward the bevel side, the side of the sharp point,
+opposite to the outward normal of the bevel face (the tissue pressing on the inclined face pushes the tip away
+from the face), which is the side toward which bevel-tip needles are observed to bend.  The bevel side is fixed
+in the needle, so it rolls with the needle's axial rotation; the ANCF cable has no torsion, so its direction is
+taken from the base orientation: the configured bevel-side direction in the base frame, rotated to the world
+and projected perpendicular to the current tip tangent.  Spinning the base by 180 degrees reverses Q.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+
+@dataclass(frozen=True)
+class BevelTip:
+    """Bevel geometry and tissue tip stiffness (seed 001 Sec. IV and Fig. 2).
+
+    tip_stiffness: K_T [N/m^2].   bevel_angle: lambda [rad].   acting_angle: beta [rad] (0 <= beta < lambda).
+    edge_a, edge_b: bevel edge lengths a, b [m] (for a bevel of needle diameter D: b = D / sin(lambda) is the
+    bevel face and a = D / tan(lambda) its projection on the needle axis; see ``for_diameter``).
+    """
+
+    tip_stiffness: float
+    bevel_angle: float
+    acting_angle: float
+    edge_a: float
+    edge_b: float
+
+    def __post_init__(self) -> None:
+        for name in ("tip_stiffness", "edge_a", "edge_b"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0.0:
+                raise ValueError(f"BevelTip.{name} must be finite and >= 0, got {value!r}")
+        if not 0.0 < self.bevel_angle < 0.5 * np.pi:
+            raise ValueError(f"BevelTip.bevel_angle must be in (0, pi/2) rad, got {self.bevel_angle!r}")
+        if not 0.0 <= self.acting_angle < self.bevel_angle:
+            raise ValueError(f"BevelTip.acting_angle must be in [0, bevel_angle), got {self.acting_angle!r}")
+
+    @classmethod
+    def for_diameter(cls, tip_stiffness: float, bevel_angle: float, acting_fraction: float, diameter: float):
+        """Bevel of a needle of outer ``diameter`` [m]: b = D / sin(lambda), a = D / tan(lambda),
+        beta = acting_fraction * lambda (seed 001 reports beta/lambda between 0.03 and 0.3)."""
+        return cls(tip_stiffness, bevel_angle, acting_fraction * bevel_angle,
+                   diameter / np.tan(bevel_angle), diameter / np.sin(bevel_angle))
+
+    @property
+    def axial_force(self) -> float:
+        """P of eq. 4 [N]."""
+        lam, beta = self.bevel_angle, self.acting_angle
+        fraction = (np.tan(lam) - np.tan(beta)) / (1.0 + np.tan(lam) * np.tan(beta))
+        return 0.5 * self.tip_stiffness * self.edge_b**2 * np.sin(lam) * fraction
+
+    @property
+    def transverse_force(self) -> float:
+        """Q of eq. 5 [N]."""
+        lam, beta = self.bevel_angle, self.acting_angle
+        fraction = (np.tan(lam) - np.tan(beta)) / (1.0 + np.tan(lam) * np.tan(beta))
+        return (0.5 * self.tip_stiffness * self.edge_b**2 * np.cos(lam) * fraction
+                - 0.5 * self.tip_stiffness * self.edge_a**2 * np.tan(beta))
+
+    def tip_force(self, tip_gradient: np.ndarray, bevel_side_world: np.ndarray):
+        """World force on the tip ``F = -P t + Q n`` and its Jacobian dF/dr_x (3, 3).
+
+        tip_gradient: r_x at the tip (3,) (its direction is the tip tangent t).
+        bevel_side_world: the bevel-side direction (3,), any length, not parallel to t; n is its unit component
+        perpendicular to t.
+        """
+        rx = np.ascontiguousarray(tip_gradient, dtype=float)
+        side = np.ascontiguousarray(bevel_side_world, dtype=float)
+        force, jacobian, ok = _tip_force(rx, side, self.axial_force, self.transverse_force)
+        if not ok:
+            raise ValueError("bevel side direction is parallel to the needle tip tangent")
+        return force, jacobian
+
+
+@njit(cache=True)
+def _tip_force(rx, side, p, q):
+    """F = -P t + Q n with t = r_x/|r_x|, n = unit part of ``side`` normal to t, and dF/dr_x (runs per Newton
+    iteration in the 1 kHz loop, hence compiled)."""
+    rx_norm = np.sqrt(rx @ rx)
+    t = rx / rx_norm
+    along = side @ t
+    m = side - along * t
+    m_norm = np.sqrt(m @ m)
+    force = np.zeros(3)
+    jacobian = np.zeros((3, 3))
+    if m_norm < 1e-9 * np.sqrt(side @ side) or m_norm == 0.0:
+        return force, jacobian, False
+    n = m / m_norm
+    force[:] = -p * t + q * n
+    eye = np.eye(3)
+    dt_drx = (eye - np.outer(t, t)) / rx_norm
+    dm_dt = -(np.outer(t, side) + along * eye)
+    dn_dm = (eye - np.outer(n, n)) / m_norm
+    jacobian[:, :] = (-p * eye + q * (dn_dm @ dm_dt)) @ dt_drx
+    return force, jacobian, True

@@ -1,0 +1,407 @@
+"""Coupling of the tissue laws to the ANCF needle as ForceContribution objects (generalized force + Jacobians).
+
+* ``TissueContact``: per-step state shared by the contributions: tip depth and axial speed, capsule puncture,
+  the track cut by the tip.  Updated once per accepted step (idempotent, keyed on the state time) from the
+  ``advance`` hook of whichever contribution runs first.
+* ``ShaftSupport``: shaft points along the needle, each anchored to the track once inside it.  Lateral Winkler
+  springs and dampers (per unit length) act perpendicular to the track; along it acts the selected axial law of
+  ``shaft_laws`` (stick-slip).  Anchors, their track points and tangents and the layer parameters are frozen
+  during a step (explicit in the hook, implicit in the forces).  Assembled like ``MaterialPointForce``, with its
+  kernel, over the inserted points only.
+* ``BevelTipForce``: P and Q of seed 001 eqs. 4-5 at the tip, in the bevel frame rolled with the base, while the
+  tip is at the cut front (cutting or resting on it) below the punctured surface, ramped in over the bevel length.
+* ``TipResistance``: seed 002 at the tip: the capsule stiffness force a1 x + a2 x^2 along the entry normal before
+  puncture (conservative), then the cutting force while the tip advances into uncut tissue.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from needle_sim_ros.model import GeneralizedForce
+from needle_sim_ros.model.forces import assemble_point_forces
+
+from .bevel_tip import BevelTip
+from .geometry import TissueBlock
+from .insertion_profile import InsertionForceProfile
+from .karnopp import axial_traction
+from .shaft_laws import AxialCoefficients
+from .track import Track
+
+
+@njit(cache=True)
+def cutting_force(rx, v, cutting_force, speed_scale):
+    """-F_c clip(v.t / v_c, 0, 1) t (t = r_x/|r_x|) and its derivatives with respect to r_x and v (compiled)."""
+    rx_norm = np.sqrt(rx @ rx)
+    t = rx / rx_norm
+    argument = (v @ t) / speed_scale
+    ramp = min(max(argument, 0.0), 1.0)
+    slope = 1.0 / speed_scale if 0.0 < argument < 1.0 else 0.0
+    eye = np.eye(3)
+    dt_drx = (eye - np.outer(t, t)) / rx_norm
+    d_drx = -cutting_force * ((ramp * eye + slope * np.outer(t, v)) @ dt_drx)
+    return -cutting_force * ramp * t, d_drx, -cutting_force * slope * np.outer(t, t)
+
+
+def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tip position r and gradient r_x: the last node's coordinates [r, r_x] (model API layout)."""
+    return q[-6:-3], q[-3:]
+
+
+class TissueContact:
+    """State of the needle-tissue contact shared by the contributions.
+
+    puncture_depth: depth [m] the tip must reach before the capsule tears and the track starts (seed 002 d1);
+    None: the tissue is cut from first contact.  track: the (empty) track the tip will cut.
+    """
+
+    def __init__(self, block: TissueBlock, track: Track, puncture_depth: float | None = None) -> None:
+        self.block = block
+        self.puncture_depth = puncture_depth
+        self.track = track
+        self.punctured = False
+        self.tip_depth = 0.0
+        self.tip_axial_speed = 0.0
+        self.step_duration = 0.0
+        self.at_front = False
+        self._time: float | None = None
+
+    def update(self, model, state, base) -> None:
+        """Advance the contact to ``state`` (once per state time)."""
+        if self._time is not None and state.t == self._time:
+            return
+        self.step_duration = 0.0 if self._time is None else max(state.t - self._time, 0.0)
+        self._time = state.t
+        r_tip, rx_tip = tip_coordinates(state.q)
+        tangent = rx_tip / np.sqrt(rx_tip @ rx_tip)
+        self.tip_depth = float((r_tip - self.block.entry_point) @ self.block.entry_normal)
+        self.tip_axial_speed = float(state.qd[-6:-3] @ tangent)
+        if not self.punctured and self.tip_depth > (self.puncture_depth or 0.0):
+            self.punctured = True
+        if self.punctured and not self.track.started and self.tip_depth > 0.0:
+            normal = self.block.entry_normal
+            along = float(tangent @ normal)
+            entry = r_tip - (tangent * self.tip_depth / along if along > 1e-3 else normal * self.tip_depth)
+            self.track.start(entry, tangent)
+        if self.track.started:
+            self.track.cut(r_tip, tangent)
+            self.at_front = (self.tip_depth > 0.0
+                             and self.track.coordinate_ahead(r_tip) >= self.track.length - self.track.spacing)
+        else:
+            self.at_front = False
+
+
+@dataclass(frozen=True)
+class _Frozen:
+    """Per-step frozen data of the active shaft points (n_active entries each)."""
+
+    index: np.ndarray              # indices of the active points
+    weights: np.ndarray            # length share [m] times the share below the surface
+    slots: np.ndarray              # interpolation tables of the active points (model.interpolation)
+    S: np.ndarray
+    S_x: np.ndarray
+    anchor_points: np.ndarray      # (n, 3) stick anchors on the track
+    tangents: np.ndarray           # (n, 3) track tangents there
+    anchor_depth: np.ndarray       # (n,)
+    lateral_stiffness: np.ndarray  # (n,) [N/m^2]
+    lateral_damping: np.ndarray    # (n,) [N s/m^2]
+    axial: AxialCoefficients       # axial law coefficients (shaft_laws)
+    stick_stiffness: float         # k_a [N/m^2]
+
+    @classmethod
+    def inactive(cls) -> "_Frozen":
+        empty = np.zeros(0)
+        return cls(np.zeros(0, dtype=int), empty, np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4)),
+                   np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), empty, empty, empty,
+                   AxialCoefficients(empty, empty, 0.0, 0.0, 0.0), 1.0)
+
+
+@njit(cache=True)
+def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping, stick_stiffness, coulomb,
+                       viscous, offset, sign_gain, velocity_scale):
+    """Force per length on each shaft point and dF/dr, dF/dv: lateral springs and dampers perpendicular to the
+    track tangent tau, and the axial traction of ``karnopp.axial_traction`` along it (1 kHz loop: compiled)."""
+    n = r.shape[0]
+    force = np.zeros((n, 3))
+    d_dr = np.zeros((n, 3, 3))
+    d_dv = np.zeros((n, 3, 3))
+    for k in range(n):
+        tau = tangents[k]
+        offset_k = r[k] - anchors[k]
+        u = offset_k @ tau
+        v_axial = v[k] @ tau
+        t, dt_du, dt_dv = axial_traction(u, v_axial, stick_stiffness, coulomb[k], viscous[k], offset, sign_gain,
+                                         velocity_scale)
+        for i in range(3):
+            force[k, i] = (-lateral_stiffness[k] * (offset_k[i] - u * tau[i])
+                           - lateral_damping[k] * (v[k, i] - v_axial * tau[i]) + t * tau[i])
+            for j in range(3):
+                tt = tau[i] * tau[j]
+                perpendicular = (1.0 if i == j else 0.0) - tt
+                d_dr[k, i, j] = -lateral_stiffness[k] * perpendicular + dt_du * tt
+                d_dv[k, i, j] = -lateral_damping[k] * perpendicular + dt_dv * tt
+    return force, d_dr, d_dv
+
+
+@njit(cache=True)
+def entry_coverage(arc_lengths, depth, inside):
+    """Share of each shaft point's length (trapezoid segment) that lies below the entry surface, for consecutive
+    points (base to tip) with their depths and inside flags.
+
+    Interior inside points count fully; an inside point whose outer neighbour is still outside takes the inserted
+    length from the crossing of the surface (interpolated between the two) to its segment's inner end, so the
+    weights sum to the inserted length without jumps as points enter one by one.  (The first point of the list
+    is taken as interior.)"""
+    n = arc_lengths.size
+    coverage = np.zeros(n)
+    for k in range(n):
+        if not inside[k]:
+            continue
+        coverage[k] = 1.0
+        if k > 0 and not inside[k - 1]:
+            s, s_out = arc_lengths[k], arc_lengths[k - 1]
+            crossing = s - (s - s_out) * depth[k] / max(depth[k] - depth[k - 1], 1e-300)
+            upper = 0.5 * (s + arc_lengths[k + 1]) if k + 1 < n else s
+            coverage[k] = (upper - crossing) / (upper - 0.5 * (s + s_out))
+    return coverage
+
+
+class ShaftSupport:
+    """Winkler lateral support and an axial stick-slip law along the track, on shaft points at ``arc_lengths``.
+
+    arc_lengths: (k,) reference arc lengths of the shaft points, base to tip; weights: (k,) their length shares
+    [m].  lateral: enable the lateral springs/dampers (per-layer ``lateral_stiffness``, ``lateral_damping``).
+    axial_law: one of ``shaft_laws`` or None (no axial force).  Only the points inside the tissue are evaluated
+    (``Q = sum_k w_k S_k^T F_k`` with the model's MaterialPointForce assembly kernel), so the cost grows with the
+    inserted length, not the needle length.
+    """
+
+    def __init__(self, contact: TissueContact, arc_lengths: np.ndarray, weights: np.ndarray, lateral: bool,
+                 axial_law=None) -> None:
+        self.contact = contact
+        self.arc_lengths = np.asarray(arc_lengths, dtype=float)
+        self.weights = np.asarray(weights, dtype=float)
+        if np.any(np.diff(self.arc_lengths) <= 0) or self.weights.shape != self.arc_lengths.shape:
+            raise ValueError("ShaftSupport: arc_lengths must increase and match weights")
+        self.lateral = lateral
+        self.axial_law = axial_law
+        k = self.arc_lengths.size
+        self.anchor = np.zeros(k)                          # track coordinate of each point's stick anchor
+        self.active = np.zeros(k, dtype=bool)
+        self._coverage = np.zeros(0)                       # share below the surface of each active point
+        self._margin = 2.0 * float(np.max(np.diff(self.arc_lengths), initial=0.0))
+        self._frozen = _Frozen.inactive()
+        self._table = None
+
+    def _tables(self, model):
+        if self._table is None:
+            self._table = model.interpolation(self.arc_lengths)
+        return self._table
+
+    # -- forces ----------------------------------------------------------------------------------------------
+    def law(self, r, v):
+        """Force per unit length (n, 3) on the active points and dF/dr, dF/dv (n, 3, 3) (anchors frozen)."""
+        fz = self._frozen
+        return shaft_point_forces(r, v, fz.anchor_points, fz.tangents, fz.lateral_stiffness, fz.lateral_damping,
+                                  fz.stick_stiffness, *fz.axial)
+
+    def _active_kinematics(self, q, qd):
+        fz = self._frozen
+        elements_q = q.reshape(-1, 3)[fz.slots]
+        elements_qd = qd.reshape(-1, 3)[fz.slots]
+        return np.einsum("ka,kai->ki", fz.S, elements_q), np.einsum("ka,kai->ki", fz.S, elements_qd)
+
+    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
+        n = q.size
+        fz = self._frozen
+        if fz.index.size == 0:   # zero Jacobian given explicitly: the model's Newton needs one non-None (see report)
+            return GeneralizedForce(np.zeros(n), np.zeros((n, n)))
+        force, d_dr, d_dv = self.law(*self._active_kinematics(q, qd))
+        Q, dQ_dq, dQ_dqd = np.zeros(n), np.zeros((n, n)), np.zeros((n, n))
+        assemble_point_forces(fz.slots, fz.S, fz.S_x, fz.weights, force, d_dr, np.zeros_like(d_dr), d_dv,
+                              Q, dQ_dq, dQ_dqd)
+        return GeneralizedForce(Q, dQ_dq, dQ_dqd)
+
+    def total_force(self, model, q, qd, t, base) -> np.ndarray:
+        """World resultant [N] of the shaft forces at (q, qd)."""
+        if self._frozen.index.size == 0:
+            return np.zeros(3)
+        return self._frozen.weights @ self.law(*self._active_kinematics(q, qd))[0]
+
+    def elastic_energy(self, model, q) -> float:
+        """Energy [J] stored in the lateral springs and the sticking axial anchors (stick band |u| <= C/k_a)."""
+        fz = self._frozen
+        if fz.index.size == 0:
+            return 0.0
+        r, _ = self._active_kinematics(q, np.zeros_like(q))
+        offset = r - fz.anchor_points
+        u = np.einsum("ki,ki->k", offset, fz.tangents)
+        density = 0.5 * fz.lateral_stiffness * np.sum((offset - u[:, None] * fz.tangents) ** 2, axis=1)
+        band = fz.axial.coulomb / fz.stick_stiffness
+        density = density + 0.5 * fz.stick_stiffness * np.clip(u, -band, band) ** 2
+        return float(fz.weights @ density)
+
+    # -- per-step update -------------------------------------------------------------------------------------
+    def advance(self, model, state, base) -> None:
+        """Update contact and track, (de)activate points, slip the anchors, freeze the next step's data."""
+        contact = self.contact
+        contact.update(model, state, base)
+        if self.axial_law is not None:
+            self.axial_law.advance(contact.tip_depth, contact.tip_axial_speed, contact.step_duration)
+        track = contact.track
+        was_active = self.active.copy()
+        self.active[:] = False
+        # a point an arc length a behind the tip is at most a shallower than the tip, so only points closer to the
+        # tip than its depth can be inside; one more spacing gives the outer neighbours for entry_coverage
+        candidates = np.flatnonzero(self.arc_lengths > self.arc_lengths[-1] - contact.tip_depth - self._margin)
+        if not track.started or candidates.size == 0:
+            self._frozen = _Frozen.inactive()
+            return
+        table = self._tables(model)
+        elements = state.q.reshape(-1, 3)[table.slots[candidates]]
+        r = np.einsum("ka,kai->ki", table.S[candidates], elements)
+        depth = contact.block.depth(r)
+        inside = contact.block.inside(depth)
+        self._coverage = entry_coverage(self.arc_lengths[candidates], depth, inside)[inside]
+        index, r = candidates[inside], r[inside]
+        entering = ~was_active[index]
+        if np.any(entering):
+            self.anchor[index[entering]] = track.project(r[entering])[0]
+        self.active[index] = True
+        if index.size == 0:
+            self._frozen = _Frozen.inactive()
+            return
+        points, tangents = track.locate(self.anchor[index])
+        depth = contact.block.depth(points)
+        axial = None
+        if self.axial_law is not None:             # plastic slip of the anchors along the track
+            u = np.einsum("ki,ki->k", r - points, tangents)
+            axial = self.axial_law.coefficients(depth, contact.tip_depth)
+            band = axial.coulomb / self.axial_law.stick_stiffness
+            slip = u - np.clip(u, -band, band)
+            self.anchor[index] += slip
+            points = points + slip[:, None] * tangents     # same segment to first order; relocated next step
+        self._freeze(model, points, tangents, depth, axial)
+
+    def _freeze(self, model, points=None, tangents=None, depth=None, axial=None) -> None:
+        """Freeze anchors, tangents, layer and law coefficients and weights of the active points for the next
+        step (located on the track and looked up unless given)."""
+        index = np.flatnonzero(self.active)
+        if index.size == 0:
+            self._frozen = _Frozen.inactive()
+            return
+        track, block = self.contact.track, self.contact.block
+        table = self._tables(model)
+        if points is None:
+            points, tangents = track.locate(self.anchor[index])
+            depth = block.depth(points)
+        stiffness, damping = block.layer_values(("lateral_stiffness", "lateral_damping"), depth)
+        lateral = float(self.lateral)
+        if self.axial_law is None:
+            zero = np.zeros(index.size)
+            axial, stick_stiffness = AxialCoefficients(zero, zero, 0.0, 0.0, 0.0), 1.0
+        else:
+            axial = axial if axial is not None else self.axial_law.coefficients(depth, self.contact.tip_depth)
+            stick_stiffness = self.axial_law.stick_stiffness
+        self._frozen = _Frozen(index, self.weights[index] * self._coverage, table.slots[index], table.S[index],
+                               table.S_x[index], points, tangents, depth, lateral * stiffness, lateral * damping,
+                               axial, float(stick_stiffness))
+
+
+class BevelTipForce:
+    """Seed 001 eqs. 4-5 at the tip: F = K_T (-P1 t + Q1 n) with P1, Q1 the forces of ``bevel`` per unit K_T, K_T
+    of the tip's layer, n the bevel side (``bevel_side_base``, base frame) rolled with the base orientation."""
+
+    def __init__(self, contact: TissueContact, bevel: BevelTip, bevel_side_base: np.ndarray) -> None:
+        self.contact = contact
+        self.unit_bevel = BevelTip(1.0, bevel.bevel_angle, bevel.acting_angle, bevel.edge_a, bevel.edge_b)
+        side = np.asarray(bevel_side_base, dtype=float)
+        if side.shape != (3,) or abs(side[0]) > 0.999 * np.linalg.norm(side) or not np.linalg.norm(side) > 0:
+            raise ValueError("bevel_tip.side must be a 3-vector in the base frame not along the needle (x) axis")
+        self.bevel_side_base = side / np.linalg.norm(side)
+        self._scale = 0.0
+
+    def tip_force(self, q, base) -> tuple[np.ndarray, np.ndarray]:
+        """World tip force [N] and dF/dr_x (3, 3) at coordinates q."""
+        if self._scale == 0.0:
+            return np.zeros(3), np.zeros((3, 3))
+        side = base.rotation @ self.bevel_side_base
+        force, jacobian = self.unit_bevel.tip_force(tip_coordinates(q)[1], side)
+        return self._scale * force, self._scale * jacobian
+
+    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
+        n = q.size
+        if self._scale == 0.0:
+            return GeneralizedForce(np.zeros(n))
+        force, jacobian = self.tip_force(q, base)
+        generalized = np.zeros(n)
+        generalized[n - 6:n - 3] = force
+        d_dq = np.zeros((n, n))
+        d_dq[n - 6:n - 3, n - 3:] = jacobian
+        return GeneralizedForce(generalized, d_dq, None)
+
+    def advance(self, model, state, base) -> None:
+        """Engage at the cut front; eqs. 4-5 scale with the squared edge lengths, so while the bevel enters the
+        forces grow with the square of its embedded fraction (tip depth / axial bevel length a)."""
+        contact = self.contact
+        contact.update(model, state, base)
+        engaged = contact.punctured and contact.at_front
+        embedded = min(contact.tip_depth / max(self.unit_bevel.edge_a, 1e-12), 1.0)
+        self._scale = (float(contact.block.layer_value("tip_stiffness", contact.tip_depth)) * embedded**2
+                       if engaged else 0.0)
+
+
+class TipResistance:
+    """Seed 002 at the tip: capsule stiffness before puncture, cutting force F_c while cutting.
+
+    The capsule force -(a1 x + a2 x^2) n (x = tip depth, n = entry normal) is elastic.  The cutting force
+    -F_c clip(v_t / v_c, 0, 1) t resists only forward motion of the tip at the cut front (t tip tangent,
+    v_t its axial speed, ``cutting_speed_scale`` v_c regularises the onset), so it never adds energy.
+    """
+
+    def __init__(self, contact: TissueContact, profile: InsertionForceProfile, cutting_speed_scale: float) -> None:
+        if not cutting_speed_scale > 0.0:
+            raise ValueError(f"insertion_profile.cutting_speed_scale must be > 0, got {cutting_speed_scale!r}")
+        self.contact = contact
+        self.profile = profile
+        self.cutting_speed_scale = cutting_speed_scale
+        self._cutting = False
+
+    def tip_force(self, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """World tip force and its derivatives with respect to the tip r, r_x and velocity."""
+        contact = self.contact
+        r, rx = tip_coordinates(q)
+        zero = np.zeros((3, 3))
+        if not contact.punctured:
+            x = float(contact.block.depth(r))
+            if x <= 0.0:
+                return np.zeros(3), zero, zero, zero
+            n = contact.block.entry_normal
+            return (-self.profile.stiffness_force(x) * n, -self.profile.stiffness_slope(x) * np.outer(n, n),
+                    zero, zero)
+        if not self._cutting:
+            return np.zeros(3), zero, zero, zero
+        force, d_drx, d_dv = cutting_force(np.ascontiguousarray(rx), np.ascontiguousarray(qd[-6:-3]),
+                                           self.profile.cutting_force, self.cutting_speed_scale)
+        return force, zero, d_drx, d_dv
+
+    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
+        n = q.size
+        if self.contact.punctured and not self._cutting:
+            return GeneralizedForce(np.zeros(n))
+        force, d_dr, d_drx, d_dv = self.tip_force(q, qd)
+        generalized = np.zeros(n)
+        generalized[n - 6:n - 3] = force
+        d_dq = np.zeros((n, n))
+        d_dq[n - 6:n - 3, n - 6:n - 3] = d_dr
+        d_dq[n - 6:n - 3, n - 3:] = d_drx
+        d_dqd = np.zeros((n, n))
+        d_dqd[n - 6:n - 3, n - 6:n - 3] = d_dv
+        return GeneralizedForce(generalized, d_dq, d_dqd)
+
+    def advance(self, model, state, base) -> None:
+        contact = self.contact
+        contact.update(model, state, base)
+        self._cutting = contact.punctured and contact.at_front and contact.tip_depth < contact.block.thickness

@@ -1,0 +1,218 @@
+"""Tissue configuration (ROS 2 params under ``tissue.``) -> ForceContribution list, and the published readout.
+
+``TISSUE_PARAMETERS`` lists every key with its default and meaning (SI units); ``config/tissue.yaml`` sets them.
+Per-layer parameters are parallel arrays under ``tissue.layers.`` (one entry per layer, entry surface first).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .bevel_tip import BevelTip
+from needle_sim_ros.model import centerline
+
+from .coupling import BevelTipForce, ShaftSupport, TipResistance, TissueContact, tip_coordinates
+from .geometry import LAYER_PARAMETERS, TissueBlock, TissueLayer, inserted_interval
+from .insertion_profile import InsertionForceProfile
+from .lugre import LuGreParameters, ModifiedLuGre
+from .track import Track
+from .shaft_laws import KarnoppShaftFriction, LuGreShaftForce, ProfileShaftFriction
+
+AXIAL_MODELS = ("karnopp", "insertion_profile", "lugre", "none")
+
+TISSUE_PARAMETERS: dict[str, tuple[object, str]] = {
+    "tissue.enable": (False, "couple the tissue models to the needle"),
+    "tissue.entry_point": ([0.28, 0.0, 0.0], "a point of the entry surface, world frame [m]"),
+    "tissue.entry_normal": ([1.0, 0.0, 0.0], "entry surface normal pointing into the tissue, world frame"),
+    **{f"tissue.layers.{name}": (value, meaning) for (name, meaning), value in zip(
+        LAYER_PARAMETERS.items(), ([np.inf], [2.0e4], [5.0], [6.0], [120.0], [9.42e3]))},
+    "tissue.shaft.point_spacing": (2.0e-3, "spacing of the shaft points carrying the distributed forces [m]"),
+    "tissue.shaft.lateral_support": (True, "Winkler springs/dampers anchoring the shaft to its track"),
+    "tissue.shaft.axial_model": ("karnopp", f"axial law along the shaft: one of {AXIAL_MODELS}"),
+    "tissue.shaft.stick_stiffness": (2.0e4, "axial stiffness of the stick anchors per unit length k_a [N/m^2]; "
+                                            "stick band = C_n / k_a"),
+    "tissue.track.spacing": (0.5e-3, "the tip extends its track after advancing this far into uncut tissue [m]"),
+    "tissue.track.cutting_length": (2.0e-3, "length over which the cut direction turns to the tip direction [m]"),
+    "tissue.bevel_tip.enable": (True, "bevel-tip forces P, Q (seed 001 eqs. 4-5) at the tip"),
+    "tissue.bevel_tip.bevel_angle": (np.deg2rad(30.0), "bevel angle lambda [rad] (seed 001: 30 deg)"),
+    "tissue.bevel_tip.acting_fraction": (0.2, "beta / lambda, acting-point angle fraction (seed 001: 0.2)"),
+    "tissue.bevel_tip.diameter": (0.0, "needle diameter for the bevel edges a, b [m]; 0 = twice the needle radius"),
+    "tissue.bevel_tip.side": ([0.0, 1.0, 0.0], "bevel side (where Q pushes the tip) in the base frame"),
+    "tissue.insertion_profile.enable": (False, "seed 002 at the tip: capsule stiffness until puncture, then cutting"),
+    "tissue.insertion_profile.a1": (1.9, "capsule stiffness a1 [N/m] (seed 002: 0.0019 N/mm)"),
+    "tissue.insertion_profile.a2": (4.99e4, "capsule stiffness a2 [N/m^2] (seed 002: 0.0499 N/mm^2)"),
+    "tissue.insertion_profile.puncture_depth": (3e-3, "capsule puncture depth d1 [m]; F_s(d1) must stay below the "
+                                                      "needle's buckling load"),
+    "tissue.insertion_profile.frequencies": ([0.0], "friction series wavenumbers w_1..w_M [rad/m] (0 entries "
+                                                    "are dropped)"),
+    "tissue.insertion_profile.cos_coefficients": ([0.5, 0.0], "friction series A_0..A_M [N]"),
+    "tissue.insertion_profile.sin_coefficients": ([0.0], "friction series B_1..B_M [N]"),
+    "tissue.insertion_profile.cutting_force": (0.3, "cutting force F_c while the tip cuts [N]"),
+    "tissue.insertion_profile.cutting_speed_scale": (1.0e-3, "tip speed over which F_c ramps in [m/s]"),
+    "tissue.lugre.f1": (8.0, "seed 003 f1 [N/m]"),
+    "tissue.lugre.f2": (500.0, "seed 003 f2 [N/m]"),
+    "tissue.lugre.sigma0": (2.5e5, "seed 003 sigma0 [N/m^2]"),
+    "tissue.lugre.sigma1": (50.0, "seed 003 sigma1 [N/m]"),
+    "tissue.lugre.sigma2": (12.0, "seed 003 sigma2 [N/m]"),
+    "tissue.lugre.alpha": (125.0, "seed 003 alpha [1/m]"),
+    "tissue.lugre.velocity_scale": (1.0e-4, "sgn(l') regularisation tanh(l'/v_s) [m/s]"),
+}
+
+
+def flatten_tissue_config(config) -> dict:
+    """Dotted ``tissue.*`` keys from a flat dict, a nested dict, a ROS 2 params-file dict or a YAML path."""
+    if isinstance(config, (str, Path)):
+        with open(config, encoding="utf-8") as stream:
+            config = yaml.safe_load(stream) or {}
+    if not isinstance(config, dict):
+        raise ValueError(f"tissue config must be a dict or a YAML path, got {type(config).__name__}")
+    if len(config) == 1 and "tissue" not in config:                 # params file: {node or /**: {ros__parameters}}
+        inner = next(iter(config.values()))
+        if isinstance(inner, dict) and "ros__parameters" in inner:
+            config = inner["ros__parameters"]
+    flat: dict = {}
+
+    def walk(prefix: str, value) -> None:
+        if isinstance(value, dict):
+            for key, item in value.items():
+                walk(f"{prefix}.{key}" if prefix else str(key), item)
+        else:
+            flat[prefix] = value
+
+    walk("", config)
+    unknown = [k for k in flat if k.startswith("tissue.") and k not in TISSUE_PARAMETERS]
+    if unknown:
+        raise ValueError(f"unknown tissue parameters: {sorted(unknown)}")
+    return {k: v for k, v in flat.items() if k.startswith("tissue.")}
+
+
+@dataclass(frozen=True)
+class TissueConfig:
+    """Parsed ``tissue.*`` parameters (defaults from TISSUE_PARAMETERS)."""
+
+    values: dict
+
+    @classmethod
+    def from_any(cls, config) -> "TissueConfig":
+        values = {k: v for k, (v, _) in TISSUE_PARAMETERS.items()}
+        values.update(flatten_tissue_config(config))
+        return cls(values)
+
+    def __getitem__(self, key: str):
+        return self.values[key]
+
+    def vector(self, key: str, size: int | None = None) -> np.ndarray:
+        value = np.atleast_1d(np.asarray(self.values[key], dtype=float))
+        if (size is not None and value.shape != (size,)) or np.any(np.isnan(value)):
+            raise ValueError(f"{key} must be {size or 'a list of'} numbers, got {self.values[key]!r}")
+        return value
+
+    def block(self) -> TissueBlock:
+        columns = {name: self.vector(f"tissue.layers.{name}") for name in LAYER_PARAMETERS}
+        n = columns["thickness"].size
+        for name, column in columns.items():
+            if column.size != n:
+                raise ValueError(f"tissue.layers.{name} has {column.size} entries, tissue.layers.thickness has {n}")
+        layers = tuple(TissueLayer(**{name: float(columns[name][i]) for name in LAYER_PARAMETERS}) for i in range(n))
+        return TissueBlock(self.vector("tissue.entry_point", 3), self.vector("tissue.entry_normal", 3), layers)
+
+    def profile(self) -> InsertionForceProfile:
+        p = "tissue.insertion_profile."
+        frequencies = self.vector(p + "frequencies")
+        keep = frequencies != 0.0
+        cos_coefficients = self.vector(p + "cos_coefficients")
+        sin_coefficients = self.vector(p + "sin_coefficients")
+        if cos_coefficients.size != frequencies.size + 1 or sin_coefficients.size != frequencies.size:
+            raise ValueError(f"{p}cos_coefficients needs len(frequencies)+1 entries and {p}sin_coefficients "
+                             "len(frequencies) entries")
+        return InsertionForceProfile(
+            float(self[p + "a1"]), float(self[p + "a2"]), float(self[p + "puncture_depth"]),
+            tuple(frequencies[keep]), (cos_coefficients[0], *cos_coefficients[1:][keep]),
+            tuple(sin_coefficients[keep]), float(self[p + "cutting_force"]))
+
+    def lugre(self) -> ModifiedLuGre:
+        parameters = LuGreParameters(*(float(self[f"tissue.lugre.{n}"])
+                                       for n in ("f1", "f2", "sigma0", "sigma1", "sigma2", "alpha")))
+        return ModifiedLuGre(parameters, float(self["tissue.lugre.velocity_scale"]))
+
+
+def shaft_points(length: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Equally spaced points from the base to the tip (at most ``spacing`` apart) and their trapezoidal-rule
+    weights [m]; the tip is a support point, so the tissue holds it laterally from first contact."""
+    if not spacing > 0.0:
+        raise ValueError(f"tissue.shaft.point_spacing must be > 0, got {spacing!r}")
+    n = max(int(np.ceil(length / spacing)), 1)
+    weights = np.full(n + 1, length / n)
+    weights[[0, -1]] *= 0.5
+    return np.linspace(0.0, length, n + 1), weights
+
+
+def build_tissue_forces(config, model) -> list:
+    """ForceContribution list for the enabled tissue models (see TISSUE_PARAMETERS) on ``model``."""
+    cfg = TissueConfig.from_any(config)
+    block = cfg.block()
+    axial_model = cfg["tissue.shaft.axial_model"]
+    if axial_model not in AXIAL_MODELS:
+        raise ValueError(f"tissue.shaft.axial_model must be one of {AXIAL_MODELS}, got {axial_model!r}")
+    profile_enabled = bool(cfg["tissue.insertion_profile.enable"])
+    profile = cfg.profile() if profile_enabled or axial_model == "insertion_profile" else None
+    track = Track(float(cfg["tissue.track.spacing"]), float(cfg["tissue.track.cutting_length"]))
+    contact = TissueContact(block, track, profile.puncture_depth if profile_enabled else None)
+    stick_stiffness = float(cfg["tissue.shaft.stick_stiffness"])
+    axial_law = {"karnopp": lambda: KarnoppShaftFriction(block, stick_stiffness),
+                 "insertion_profile": lambda: ProfileShaftFriction(profile, stick_stiffness),
+                 "lugre": lambda: LuGreShaftForce(cfg.lugre()),
+                 "none": lambda: None}[axial_model]()
+    length = float(model.props.length)
+    arc_lengths, weights = shaft_points(length, float(cfg["tissue.shaft.point_spacing"]))
+    forces: list = [ShaftSupport(contact, arc_lengths, weights, bool(cfg["tissue.shaft.lateral_support"]),
+                                 axial_law)]
+    if cfg["tissue.bevel_tip.enable"]:
+        diameter = float(cfg["tissue.bevel_tip.diameter"]) or 2.0 * float(model.props.radius)
+        bevel = BevelTip.for_diameter(1.0, float(cfg["tissue.bevel_tip.bevel_angle"]),
+                                      float(cfg["tissue.bevel_tip.acting_fraction"]), diameter)
+        forces.append(BevelTipForce(contact, bevel, cfg.vector("tissue.bevel_tip.side", 3)))
+    if profile_enabled:
+        forces.append(TipResistance(contact, profile, float(cfg["tissue.insertion_profile.cutting_speed_scale"])))
+    return forces
+
+
+@dataclass(frozen=True)
+class TissueReadout:
+    """What the simulator publishes: insertion_depth [m] (tip depth below the entry surface, >= 0),
+    inserted_length [m] (needle arc length below the surface), tip_force [N] (world force of the tissue on the
+    tip: bevel + cutting/capsule), axial_force [N] (total tissue force on the needle along the base x axis,
+    positive when it resists insertion, i.e. what the holder's force sensor sees from the tissue)."""
+
+    insertion_depth: float
+    inserted_length: float
+    tip_force: np.ndarray
+    axial_force: float
+
+
+def tissue_readout(forces, model, state, base) -> TissueReadout | None:
+    """Readout of the tissue contributions in ``forces`` (None if there are none) at ``state``."""
+    tissue = [f for f in forces if isinstance(f, (ShaftSupport, BevelTipForce, TipResistance))]
+    if not tissue:
+        return None
+    contact = tissue[0].contact
+    r_tip, _ = tip_coordinates(state.q)
+    depth = max(float(contact.block.depth(r_tip)), 0.0)
+    line = centerline(model, state.q, max(4 * model.n_nodes, 16))
+    s_entry, s_tip = inserted_interval(contact.block, line.points, line.arc_length)
+    tip_force = np.zeros(3)
+    total = np.zeros(3)
+    for force in tissue:
+        if isinstance(force, BevelTipForce):
+            f = force.tip_force(state.q, base)[0]
+        elif isinstance(force, TipResistance):
+            f = force.tip_force(state.q, state.qd)[0]
+        else:
+            total += force.total_force(model, state.q, state.qd, state.t, base)
+            continue
+        tip_force += f
+        total += f
+    return TissueReadout(depth, s_tip - s_entry, tip_force, float(-total @ base.rotation[:, 0]))

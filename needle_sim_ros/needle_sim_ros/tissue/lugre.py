@@ -1,0 +1,204 @@
+"""Modified LuGre axial force model of seed 003 (eqs. 1-2) with its RK3 discretisation and sensitivities.
+
+Seed 003 prints, with l the insertion depth and f the axial force measured at the base:
+
+    dz/dt = l (1 - sigma0 z / g(l))                                                          (1a)
+    f     = sigma0 z l + sign(l) l {sigma1 exp(-alpha l) (1 - sigma0 z / g(l)) + sigma2}     (1b)
+    g(l)  = f1 + f2 exp(-alpha l)                                                            (2)
+
+The printed equations lose the dots of the time derivatives.  Reading used here (physically consistent, and as
+literal as possible):
+
+* The rate in (1a) is the insertion *velocity* l': the bristle state z must not move while the needle is at
+  rest (the seed says relaxation is ignored), so ``dz/dt = l' - sigma0 |l'| z / g(l)``, which is (1a) with the
+  original LuGre |v| restored.  Without |l'| the state equation is unstable during retraction (z runs away
+  exponentially), so the sign factor is required for a bounded force.
+* g is a function of depth, as printed ("velocity replaced by depth": the Stribeck drop becomes the puncture drop).
+* In (1b) ``sign(l)`` is the sign of the velocity (a depth is never negative), and the factor l that multiplies
+  every term is the depth: the bracket is a force per unit inserted length, so the force vanishes when the needle
+  is out of the tissue (l = 0) at the start of insertion and at the end of retraction, and turns negative on
+  retraction (z -> -g/sigma0 and sign(l') = -1).  Then
+
+      f = l [ sigma0 z + sigma1 exp(-alpha l) (sgn(l') - sigma0 z / g(l)) + sigma2 sgn(l') ]
+
+  which is (1b) with ``sgn(l') (1 - sigma0 sgn(l') z / g) = sgn(l') - sigma0 z / g``.
+* Units: z [m] (bristle deflection); f1, f2, sigma1, sigma2 [N/m] (force per inserted length); sigma0 [N/m^2];
+  alpha [1/m].  At constant insertion speed z settles at g(l)/sigma0 over a depth of about g/sigma0, so
+  f ~ l (f1 + f2 exp(-alpha l) + sigma2): the force rises, peaks near l = 1/alpha (puncture), drops and then
+  grows with the friction of the inserted length.
+* sgn(l') is regularised as tanh(l'/v_s) (``velocity_scale`` v_s, 0 = exact sign) so the force is continuous when
+  the needle stops; |l'| = l' sgn(l').
+
+Parameter vectors theta are ordered as ``PARAMETER_NAMES``; the estimator's augmented state is (z, theta).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+PARAMETER_NAMES = ("f1", "f2", "sigma0", "sigma1", "sigma2", "alpha")
+PARAMETER_UNITS = ("N/m", "N/m", "N/m^2", "N/m", "N/m", "1/m")
+_G_FLOOR = 1e-9   # [N/m] g is kept positive when an estimator wanders to f1 + f2 exp(-alpha l) <= 0
+
+
+@dataclass(frozen=True)
+class LuGreParameters:
+    """The six parameters of eqs. 1-2 (units in the module docstring)."""
+
+    f1: float
+    f2: float
+    sigma0: float
+    sigma1: float
+    sigma2: float
+    alpha: float
+
+    def as_array(self) -> np.ndarray:
+        return np.array([getattr(self, name) for name in PARAMETER_NAMES])
+
+    @classmethod
+    def from_array(cls, theta) -> "LuGreParameters":
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (6,) or not np.all(np.isfinite(theta)):
+            raise ValueError(f"LuGre parameter vector must be 6 finite values {PARAMETER_NAMES}, got {theta!r}")
+        return cls(*(float(v) for v in theta))
+
+
+def regularised_sign(velocity, velocity_scale: float):
+    """sgn(v) regularised as tanh(v / v_s); the exact sign for v_s = 0."""
+    velocity = np.asarray(velocity, dtype=float)
+    if velocity_scale <= 0.0:
+        return np.sign(velocity)
+    return np.tanh(velocity / velocity_scale)
+
+
+def regularised_sign_slope(velocity, velocity_scale: float):
+    """d sgn_vs(v)/dv (0 for the exact sign)."""
+    velocity = np.asarray(velocity, dtype=float)
+    if velocity_scale <= 0.0:
+        return np.zeros_like(velocity)
+    return (1.0 - np.tanh(velocity / velocity_scale) ** 2) / velocity_scale
+
+
+def stribeck(theta: np.ndarray, depth):
+    """g(l) of eq. 2 [N/m] and dg/dtheta (..., 6)."""
+    f1, f2, _, _, _, alpha = theta
+    decay = np.exp(-alpha * np.asarray(depth, dtype=float))
+    g = np.maximum(f1 + f2 * decay, _G_FLOOR)
+    zeros = np.zeros_like(decay)
+    dg = np.stack([np.ones_like(decay), decay, zeros, zeros, zeros, -f2 * depth * decay], axis=-1)
+    return g, dg
+
+
+def state_rate(z, theta, depth, velocity, velocity_scale, derivatives: bool = True):
+    """dz/dt of eq. 1a (reading above) and, if ``derivatives``, d/dz and d/dtheta (6,) (else None, None)."""
+    sigma0 = theta[2]
+    speed = velocity * regularised_sign(velocity, velocity_scale)          # |l'|
+    if not derivatives:
+        g = max(theta[0] + theta[1] * np.exp(-theta[5] * depth), _G_FLOOR)
+        return velocity - sigma0 * speed * z / g, None, None
+    g, dg = stribeck(theta, depth)
+    rate = velocity - sigma0 * speed * z / g
+    d_dz = -sigma0 * speed / g
+    d_dtheta = sigma0 * speed * z / g**2 * dg
+    d_dtheta[2] -= speed * z / g
+    return rate, d_dz, d_dtheta
+
+
+def _rk3_substep(z, theta, depth, velocity, dt, velocity_scale, sensitivities):
+    half_depth, end_depth = depth + 0.5 * dt * velocity, depth + dt * velocity
+    k1, a1, b1 = state_rate(z, theta, depth, velocity, velocity_scale, sensitivities)
+    k2, a2, b2 = state_rate(z + 0.5 * dt * k1, theta, half_depth, velocity, velocity_scale, sensitivities)
+    k3, a3, b3 = state_rate(z - dt * k1 + 2.0 * dt * k2, theta, end_depth, velocity, velocity_scale, sensitivities)
+    z_next = z + dt / 6.0 * (k1 + 4.0 * k2 + k3)
+    if not sensitivities:
+        return z_next, None
+    eye = np.eye(7)
+    dk1 = a1 * eye[0] + np.concatenate([[0.0], b1])
+    dk2 = a2 * (eye[0] + 0.5 * dt * dk1) + np.concatenate([[0.0], b2])
+    dk3 = a3 * (eye[0] - dt * dk1 + 2.0 * dt * dk2) + np.concatenate([[0.0], b3])
+    return z_next, eye[0] + dt / 6.0 * (dk1 + 4.0 * dk2 + dk3)
+
+
+def rk3_step(z: float, theta: np.ndarray, depth: float, velocity: float, dt: float, velocity_scale: float,
+             sensitivities: bool = True):
+    """Kutta's third-order Runge-Kutta scheme for eq. 1a over ``dt`` [s] with the depth advancing at the constant
+    ``velocity`` (seed 003 Sec. III discretisation).  The step is split so that each sub-step stays well inside
+    RK3's stability region (|dz'/dz| dt <= 1).  Returns (z_next, dz_next/d(z, theta) (7,) or None)."""
+    g = max(theta[0] + theta[1] * np.exp(-theta[5] * depth), _G_FLOOR)
+    stiffness = abs(theta[2] * velocity / g)
+    n_sub = int(min(np.ceil(stiffness * dt), 1000)) if np.isfinite(stiffness) else 1000
+    h = dt / max(n_sub, 1)
+    z_next, row = _rk3_substep(z, theta, depth, velocity, h, velocity_scale, sensitivities)
+    for i in range(1, n_sub):
+        z_next, step_row = _rk3_substep(z_next, theta, depth + i * h * velocity, velocity, h, velocity_scale,
+                                        sensitivities)
+        if sensitivities:
+            row = step_row[0] * row + np.concatenate([[0.0], step_row[1:]])
+    return z_next, row
+
+
+def force_per_length(z, theta, depth, velocity, velocity_scale):
+    """The bracket of eq. 1b, the force per inserted length [N/m] (vectorised over velocity), and its derivative
+    with respect to the velocity."""
+    _, _, sigma0, sigma1, sigma2, alpha = theta
+    g = max(float(stribeck(theta, depth)[0]), _G_FLOOR)
+    decay = np.exp(-alpha * depth)
+    s = regularised_sign(velocity, velocity_scale)
+    per_length = sigma0 * z + sigma1 * decay * (s - sigma0 * z / g) + sigma2 * s
+    return per_length, (sigma1 * decay + sigma2) * regularised_sign_slope(velocity, velocity_scale)
+
+
+def axial_force(z, theta, depth, velocity, velocity_scale):
+    """f of eq. 1b (reading above) [N] and df/d(z, theta) (7,) for a scalar depth (0 for depth <= 0)."""
+    f1, f2, sigma0, sigma1, sigma2, alpha = theta
+    depth = max(depth, 0.0)                                    # no force out of the tissue
+    s = regularised_sign(velocity, velocity_scale)
+    g, dg = stribeck(theta, depth)
+    decay = np.exp(-alpha * depth)
+    cut = s - sigma0 * z / g                                   # sgn(l') (1 - sigma0 sgn(l') z / g)
+    per_length = force_per_length(z, theta, depth, velocity, velocity_scale)[0]
+    d_cut = sigma0 * z / g**2 * dg
+    d_cut[2] -= z / g
+    d_per_length = sigma1 * decay * d_cut
+    d_per_length[2] += z
+    d_per_length[3] += decay * cut
+    d_per_length[4] += s
+    d_per_length[5] -= sigma1 * depth * decay * cut
+    d_dz = sigma0 - sigma1 * decay * sigma0 / g
+    return depth * per_length, depth * np.concatenate([[d_dz], d_per_length])
+
+
+@dataclass(frozen=True)
+class ModifiedLuGre:
+    """Seed 003 model with fixed parameters; ``velocity_scale`` v_s [m/s] regularises sgn(l')."""
+
+    parameters: LuGreParameters
+    velocity_scale: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.velocity_scale) or self.velocity_scale < 0.0:
+            raise ValueError(f"ModifiedLuGre.velocity_scale must be >= 0, got {self.velocity_scale!r}")
+        p = self.parameters
+        if p.f1 + min(p.f2, 0.0) <= 0.0 or p.sigma0 <= 0.0:
+            raise ValueError("ModifiedLuGre: need sigma0 > 0 and g(l) = f1 + f2 exp(-alpha l) > 0 for all l >= 0")
+
+    def step(self, z: float, depth: float, velocity: float, dt: float) -> float:
+        """Advance the bristle state z over dt (RK3)."""
+        return float(rk3_step(z, self.parameters.as_array(), depth, velocity, dt, self.velocity_scale, False)[0])
+
+    def force(self, z, depth, velocity) -> float:
+        """Axial force f [N] resisting the motion (positive while inserting)."""
+        return float(axial_force(z, self.parameters.as_array(), depth, velocity, self.velocity_scale)[0])
+
+    def simulate(self, depth: np.ndarray, velocity: np.ndarray, dt: float, z0: float = 0.0):
+        """Force f_k and state z_k at samples k of a depth/velocity record sampled every dt (z_0 = z0)."""
+        depth = np.asarray(depth, dtype=float)
+        velocity = np.asarray(velocity, dtype=float)
+        forces, states = np.empty(depth.size), np.empty(depth.size)
+        z = z0
+        for k in range(depth.size):
+            states[k] = z
+            forces[k] = self.force(z, depth[k], velocity[k])
+            z = self.step(z, depth[k], velocity[k], dt)
+        return forces, states

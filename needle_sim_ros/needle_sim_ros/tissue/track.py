@@ -1,0 +1,148 @@
+"""The track cut by the advancing needle tip: a polyline in the world frame, parameterised by its arc length.
+
+The track starts where the tip crossed the entry surface and grows a segment whenever the tip has advanced
+``spacing`` beyond its end (the tip cuts new tissue), turned toward the tip's direction (see ``Track.cut``); the
+shaft behind the tip then lies in it (seed 001 Sec. II:
+forces act "at the nodes in contact with the tissue nodes that are previously cut by the needle").  Retracting
+leaves the track in place, so a re-insertion follows it until the tip passes its end.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+class Track:
+    """Mutable polyline from the entry point; ``length`` is its arc length [m] (0 right after the entry).
+
+    Beyond its end the track continues straight along its end tangent (the initial direction while it has one
+    vertex): that is where the tip is heading, and points ahead of the last vertex are supported relative to it.
+    """
+
+    def __init__(self, spacing: float, cutting_length: float, capacity: int = 256) -> None:
+        if not spacing > 0.0:
+            raise ValueError(f"tissue.track.spacing must be > 0, got {spacing!r}")
+        if not cutting_length > 0.0:
+            raise ValueError(f"tissue.track.cutting_length must be > 0, got {cutting_length!r}")
+        self.spacing = spacing
+        self.cutting_length = cutting_length
+        self._vertices = np.zeros((capacity, 3))
+        self._arc = np.zeros(capacity)
+        self._count = 0
+        self._direction = np.array([1.0, 0.0, 0.0])
+
+    @property
+    def started(self) -> bool:
+        return self._count >= 1
+
+    @property
+    def vertices(self) -> np.ndarray:
+        return self._vertices[: self._count]
+
+    @property
+    def length(self) -> float:
+        return float(self._arc[self._count - 1]) if self._count else 0.0
+
+    def start(self, entry_point: np.ndarray, direction: np.ndarray) -> None:
+        """Begin the track at ``entry_point`` heading along ``direction``."""
+        norm = np.linalg.norm(direction)
+        if not norm > 0.0:
+            raise ValueError("track start: direction must be non-zero")
+        self._count = 0
+        self._direction = np.asarray(direction, dtype=float) / norm
+        self._append(np.asarray(entry_point, dtype=float))
+
+    def _append(self, point: np.ndarray) -> None:
+        if self._count == self._vertices.shape[0]:
+            self._vertices = np.vstack([self._vertices, np.zeros_like(self._vertices)])
+            self._arc = np.concatenate([self._arc, np.zeros_like(self._arc)])
+        if self._count:
+            step = point - self._vertices[self._count - 1]
+            self._arc[self._count] = self._arc[self._count - 1] + np.sqrt(step @ step)
+        self._vertices[self._count] = point
+        self._count += 1
+
+    def end_tangent(self) -> np.ndarray:
+        if self._count < 2:
+            return self._direction
+        d = self._vertices[self._count - 1] - self._vertices[self._count - 2]
+        return d / np.sqrt(d @ d)
+
+    def coordinate_ahead(self, point: np.ndarray) -> float:
+        """Track coordinate of a point near the end, measured along the end tangent (may exceed ``length``)."""
+        return self.length + float((point - self._vertices[self._count - 1]) @ self.end_tangent())
+
+    def cut(self, tip_position: np.ndarray, tip_tangent: np.ndarray) -> bool:
+        """Extend the track when the tip is more than ``spacing`` beyond its end; True if it grew.
+
+        The tip cuts along its own direction, which the bevel forces turn: the new segment, as long as the tip
+        advanced (Delta), turns from the end tangent toward the tip tangent by the fraction
+        min(Delta / cutting_length, 1) of the angle between them (slerp).  This is the discrete form of
+        d(track direction)/ds = (tip direction - track direction) / cutting_length, so the path does not depend
+        on ``spacing``; the tip's elastic offset from the track stays elastic.
+        """
+        advance = self.coordinate_ahead(tip_position) - self.length
+        if advance < self.spacing:
+            return False
+        a = self.end_tangent()
+        b = np.asarray(tip_tangent, dtype=float) / np.linalg.norm(tip_tangent)
+        fraction = min(advance / self.cutting_length, 1.0)
+        angle = np.arccos(np.clip(a @ b, -1.0, 1.0))
+        if angle < 1e-8:
+            direction = a + fraction * (b - a)
+        else:
+            direction = (np.sin((1.0 - fraction) * angle) * a + np.sin(fraction * angle) * b) / np.sin(angle)
+        self._append(self._vertices[self._count - 1] + advance * direction / np.linalg.norm(direction))
+        return True
+
+    def locate(self, coordinate) -> tuple[np.ndarray, np.ndarray]:
+        """Points (k, 3) and unit tangents (k, 3) at track coordinates (k,) (>= 0; beyond ``length`` on the
+        straight continuation)."""
+        s = np.ascontiguousarray(np.maximum(np.asarray(coordinate, dtype=float), 0.0))
+        return _locate(self._vertices[: self._count], self._arc[: self._count], self.end_tangent(), s)
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest track coordinate (k,) and distance (k,) of points (k, 3), over the segments and the straight
+        continuation beyond the end (vectorised)."""
+        points = np.asarray(points, dtype=float)
+        end = self._vertices[self._count - 1]
+        beyond = np.maximum((points - end) @ self.end_tangent(), 0.0)
+        coordinate = self.length + beyond
+        distance = np.linalg.norm(points - (end + beyond[:, None] * self.end_tangent()), axis=1)
+        if self._count >= 2:
+            starts, ends = self._vertices[: self._count - 1], self._vertices[1: self._count]
+            d = ends - starts
+            seg_length = np.linalg.norm(d, axis=1)
+            rel = points[:, None, :] - starts[None]
+            fraction = np.clip(np.einsum("kij,ij->ki", rel, d) / seg_length**2, 0.0, 1.0)
+            seg_distance = np.linalg.norm(rel - fraction[..., None] * d[None], axis=2)
+            best = np.argmin(seg_distance, axis=1)
+            rows = np.arange(best.size)
+            closer = seg_distance[rows, best] < distance
+            coordinate = np.where(closer, self._arc[best] + fraction[rows, best] * seg_length[best], coordinate)
+            distance = np.where(closer, seg_distance[rows, best], distance)
+        return coordinate, distance
+
+
+@njit(cache=True)
+def _locate(vertices, arc, end_tangent, s):
+    """Interpolate the polyline (vertices, cumulative arc) at coordinates s; straight beyond the end."""
+    n = s.size
+    points = np.empty((n, 3))
+    tangents = np.empty((n, 3))
+    count = arc.size
+    end = vertices[count - 1]
+    for k in range(n):
+        if count >= 2 and s[k] < arc[count - 1]:
+            j = min(max(np.searchsorted(arc, s[k], side="right") - 1, 0), count - 2)
+            seg = arc[j + 1] - arc[j]
+            fraction = (s[k] - arc[j]) / seg
+            for i in range(3):
+                d = vertices[j + 1, i] - vertices[j, i]
+                points[k, i] = vertices[j, i] + fraction * d
+                tangents[k, i] = d / seg
+        else:
+            for i in range(3):
+                points[k, i] = end[i] + (s[k] - arc[count - 1]) * end_tangent[i]
+                tangents[k, i] = end_tangent[i]
+    return points, tangents

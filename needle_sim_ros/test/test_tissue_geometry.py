@@ -1,0 +1,66 @@
+"""Tissue block geometry and the track cut by the tip."""
+import numpy as np
+import pytest
+
+from needle_sim_ros.tissue.geometry import TissueBlock, TissueLayer, inserted_interval
+from needle_sim_ros.tissue.track import Track
+
+
+def layer(thickness, stiffness=1.0):
+    return TissueLayer(thickness, stiffness, 0.0, 6.0, 120.0, 9.42e3)
+
+
+BLOCK = TissueBlock(np.array([0.1, 0.0, 0.0]), np.array([2.0, 0.0, 0.0]), (layer(0.01, 1.0), layer(np.inf, 2.0)))
+
+
+def test_depth_layers_and_values():
+    points = np.array([[0.09, 0, 0], [0.105, 1, 0], [0.2, 0, 3]])
+    np.testing.assert_allclose(BLOCK.depth(points), [-0.01, 0.005, 0.1])
+    np.testing.assert_array_equal(BLOCK.layer_index(BLOCK.depth(points)), [2, 0, 1])
+    np.testing.assert_allclose(BLOCK.layer_value("lateral_stiffness", BLOCK.depth(points)), [0.0, 1.0, 2.0])
+    finite = TissueBlock(np.zeros(3), np.array([0, 0, -1.0]), (layer(0.05),))
+    assert not finite.inside(0.06) and finite.inside(0.01)          # a finite block can be passed through
+
+
+def test_inserted_interval_of_a_tilted_straight_needle():
+    s = np.linspace(0.0, 0.2, 41)
+    direction = np.array([np.cos(0.3), np.sin(0.3), 0.0])
+    points = np.array([0.0, 0.0, 0.0]) + s[:, None] * direction
+    s_entry, s_tip = inserted_interval(BLOCK, points, s)
+    assert s_entry == pytest.approx(0.1 / np.cos(0.3))              # crossing of the plane x = 0.1
+    assert s_tip == 0.2
+    outside = inserted_interval(BLOCK, points * 0.1, s)
+    assert outside == (0.2, 0.2)
+
+
+def test_track_cuts_locates_and_projects():
+    track = Track(spacing=0.001, cutting_length=1e-6)   # cuts straight along the tip tangent
+    track.start(np.array([0.1, 0, 0]), np.array([2.0, 0, 0]))
+    assert track.length == 0.0
+    points, tangents = track.locate(np.array([0.003]))                 # straight continuation before any cut
+    np.testing.assert_allclose(points[0], [0.103, 0, 0])
+    for x in np.arange(0.1005, 0.12, 0.0005):                       # tip advancing 0.5 mm a step on a parabola,
+        # pointing along it: the track follows the parabola
+        tip = np.array([x, 0.5 * (x - 0.1) ** 2 / 0.05, 0])
+        track.cut(tip, np.array([1.0, (x - 0.1) / 0.05, 0.0]))
+    segments = np.linalg.norm(np.diff(track.vertices, axis=0), axis=1)
+    assert np.all((segments >= track.spacing * (1 - 1e-9)) & (segments < track.spacing + 0.6e-3))  # a cut per spacing
+    assert 0.0 <= track.coordinate_ahead(tip) - track.length < track.spacing           # the tip is at the front
+    # cut along the tip tangent: the polyline stays on the parabola to first order, kappa*spacing/2*length = 0.2 mm
+    assert track.project(tip[None])[1][0] < 0.25e-3
+    assert not track.cut(track.vertices[-1] + 0.5 * track.spacing * track.end_tangent(), track.end_tangent())
+    points, tangents = track.locate(np.array([0.0, 0.01, track.length + 0.002]))
+    np.testing.assert_allclose(points[0], [0.1, 0, 0])
+    np.testing.assert_allclose(points[2], track.vertices[-1] + 0.002 * track.end_tangent())
+    np.testing.assert_allclose(np.linalg.norm(tangents, axis=1), 1.0)
+    normal = np.cross(tangents, [0, 0, 1.0])                        # offsets perpendicular to the track
+    coordinate, distance = track.project(points + 1e-4 * normal)
+    np.testing.assert_allclose(coordinate, [0.0, 0.01, track.length + 0.002], atol=1e-7)
+    np.testing.assert_allclose(distance, 1e-4, rtol=1e-3)
+
+
+def test_bad_geometry_rejected():
+    with pytest.raises(ValueError, match="entry_normal"):
+        TissueBlock(np.zeros(3), np.zeros(3), (layer(1.0),))
+    with pytest.raises(ValueError, match="lateral_stiffness"):
+        TissueLayer(1.0, -1.0, 0.0, 0.0, 0.0, 0.0)
