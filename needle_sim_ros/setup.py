@@ -25,9 +25,13 @@ setup(
         "console_scripts": [
             "needle_talker_demo = needle_sim_ros.nodes.smoke_demo:main",
             "needle_simulator = needle_sim_ros.nodes.simulator_node:main",
+            "needle_scenario = needle_sim_ros.scenarios.cli:main",
             "needle_compare = needle_sim_ros.nodes.compare_node:main",
             "needle_replay = needle_sim_ros.nodes.replay_node:main",
             "needle_mcap_recover = needle_sim_ros.recording.recovery:main",
+            "needle_bringup = needle_sim_ros.nodes.bringup:main",
+            "needle_offline = needle_sim_ros.offline.cli:main",
+            "needle_make_bags = needle_sim_ros.experiments.make_bags:main",
         ],
     },
 )

@@ -254,7 +254,8 @@ def model_builder_from_parameters(p: dict) -> ModelBuilder:
                             rayleigh_beta=p["damping.rayleigh_beta"], fixtures=fixtures)
         integrator = Integrator(model, method=p["integrator.method"], rho_inf=p["integrator.rho_inf"],
                                 newton_tol=p["integrator.newton_tolerance"],
-                                max_newton_iterations=p["integrator.max_newton_iterations"])
+                                max_newton_iterations=p["integrator.max_newton_iterations"],
+                                max_substep_halvings=p["integrator.max_substep_halvings"])
         return model, integrator
 
     return model_builder

@@ -1,0 +1,28 @@
+"""ROS-free 3D ANCF needle model of seed 000 (Sec. II, eqs. 1-20): gradient-deficient cable elements, consistent
+mass, exact-curvature elastic forces with analytic Jacobian, Rayleigh damping, general external forces, a rigid
+base driving the constrained coordinates, fixtures, implicit integrators, statics and the base reaction wrench."""
+from .config import load_needle_config, needle_parameters
+from .damping import damping_force, damping_matrix, reference_stiffness
+from .elastic import elastic_energy, elastic_forces, tangent_stiffness
+from .fixtures import Fixture
+from .forces import (ForceContribution, GeneralizedForce, Gravity, LineLoad, MaterialPointForce, NodalLoad,
+                     PointForces, PointLoad)
+from .integrators import Integrator, StepFailed, StepResult
+from .kinematics import BaseMotion
+from .mesh import Interpolation
+from .model import NeedleModel, State, build_model
+from .outputs import (Centerline, axial_strain, centerline, curvature, gravitational_energy, kinetic_energy,
+                      tip_pose)
+from .properties import NeedleProperties
+from .reaction import BaseWrench, base_constraint_force, reaction_wrench
+from .statics import StaticResult, StaticSolveFailed, solve_static
+
+__all__ = [
+    "NeedleProperties", "build_model", "NeedleModel", "State", "Interpolation", "BaseMotion", "Fixture",
+    "ForceContribution", "GeneralizedForce", "Gravity", "PointLoad", "NodalLoad", "LineLoad", "MaterialPointForce",
+    "PointForces", "Integrator", "StepResult", "StepFailed", "solve_static", "StaticResult", "StaticSolveFailed",
+    "reaction_wrench", "base_constraint_force", "BaseWrench", "centerline", "Centerline", "tip_pose",
+    "axial_strain", "curvature", "kinetic_energy", "elastic_energy", "gravitational_energy", "elastic_forces",
+    "tangent_stiffness", "damping_force", "damping_matrix", "reference_stiffness", "load_needle_config",
+    "needle_parameters",
+]

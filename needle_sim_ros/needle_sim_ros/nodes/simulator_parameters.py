@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from needle_sim_ros.model.config import DEFAULTS as MODEL_DEFAULTS
 from needle_sim_ros.nodes.parameters import ParamSpec
 from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
@@ -19,25 +20,25 @@ QOS_CHOICES = ("sensor_data", "reliable")
 
 SIMULATOR_PARAMETERS = [
     # Needle (seed 000, Sec. III: stainless steel, r = 0.635 mm, L = 0.27 m).
-    ParamSpec("needle.length", 0.27, "Needle length L [m] from the clamp point A to the tip.", 1e-3, 10.0),
-    ParamSpec("needle.radius", 0.635e-3, "Radius of the solid circular cross-section [m].", 1e-6, 0.05),
-    ParamSpec("needle.youngs_modulus", 193e9, "Young's modulus E [Pa].", 1e6, 1e12),
-    ParamSpec("needle.density", 8000.0, "Density rho [kg/m^3].", 1.0, 1e5),
-    ParamSpec("needle.elements", 10, "Number of ANCF cable elements.", 1, 200),
-    ParamSpec("needle.gravity", [0.0, 0.0, -9.81], "Gravitational acceleration in the world frame [m/s^2].", -100.0, 100.0, length=3),
-    ParamSpec("needle.axial_gauss_points", 5, "Gauss points per element for the axial strain integral (eq. 12).", 1, 10),
-    ParamSpec("needle.bending_gauss_points", 3, "Gauss points per element for the bending integral (eq. 13).", 1, 10),
-    # Rayleigh damping acts on absolute velocities with the reference-state stiffness: alpha M also drags a rigidly
-    # moving needle (force alpha m v on the holder) and beta K also resists large rotations of deflected elements
-    # (through the axial stiffness EA), so both are kept small; generalized-alpha damps the high modes numerically.
-    ParamSpec("damping.rayleigh_alpha", 2.0, "Mass-proportional Rayleigh damping alpha [1/s] (C = alpha M + beta K).", 0.0, 1e4, dynamic=True),
-    ParamSpec("damping.rayleigh_beta", 0.0, "Stiffness-proportional Rayleigh damping beta [s] (C = alpha M + beta K).", 0.0, 1.0, dynamic=True),
-    ParamSpec("integrator.method", "generalized_alpha", "Implicit integrator.", choices=("generalized_alpha", "hht", "backward_euler")),
-    ParamSpec("integrator.rho_inf", 0.8, "Spectral radius at infinite frequency (numerical damping; 1 = none).", 0.0, 1.0),
-    ParamSpec("integrator.dt", 0.001, "Integration step [s]; the real-time loop runs at 1/dt.", 1e-5, 0.1),
-    ParamSpec("integrator.newton_tolerance", 1e-8, "Newton convergence tolerance (relative residual).", 1e-14, 1e-2),
-    ParamSpec("integrator.max_newton_iterations", 8, "Newton iterations per step before sub-stepping.", 1, 100),
-    ParamSpec("fixtures.clamp_interval", [0.0], "Arc-length interval [s_start, s_end] [m] clamped to the world where "
+    ParamSpec("needle.length", MODEL_DEFAULTS["needle.length"], "Needle length L [m] from the clamp point A to the tip.", 1e-3, 10.0),
+    ParamSpec("needle.radius", MODEL_DEFAULTS["needle.radius"], "Radius of the solid circular cross-section [m].", 1e-6, 0.05),
+    ParamSpec("needle.youngs_modulus", MODEL_DEFAULTS["needle.youngs_modulus"], "Young's modulus E [Pa].", 1e6, 1e12),
+    ParamSpec("needle.density", MODEL_DEFAULTS["needle.density"], "Density rho [kg/m^3].", 1.0, 1e5),
+    ParamSpec("needle.elements", MODEL_DEFAULTS["needle.elements"], "Number of ANCF cable elements.", 1, 200),
+    ParamSpec("needle.gravity", MODEL_DEFAULTS["needle.gravity"], "Gravitational acceleration in the world frame [m/s^2].", -100.0, 100.0, length=3),
+    ParamSpec("needle.axial_gauss_points", MODEL_DEFAULTS["needle.axial_gauss_points"], "Gauss points per element for the axial strain integral (eq. 12).", 1, 10),
+    ParamSpec("needle.bending_gauss_points", MODEL_DEFAULTS["needle.bending_gauss_points"], "Gauss points per element for the bending integral (eq. 13).", 1, 10),
+    # alpha M damps absolute velocities (a drag alpha m v on a rigidly moving needle, felt at the holder), so it is
+    # zero by default; beta K_0 acts on strain rates in a rotation-safe form (needle_sim_ros.model.damping).
+    ParamSpec("damping.rayleigh_alpha", MODEL_DEFAULTS["damping.rayleigh_alpha"], "Mass-proportional Rayleigh damping alpha [1/s] (C = alpha M + beta K).", 0.0, 1e4, dynamic=True),
+    ParamSpec("damping.rayleigh_beta", MODEL_DEFAULTS["damping.rayleigh_beta"], "Stiffness-proportional Rayleigh damping beta [s] (C = alpha M + beta K).", 0.0, 1.0, dynamic=True),
+    ParamSpec("integrator.method", MODEL_DEFAULTS["integrator.method"], "Implicit integrator.", choices=("generalized_alpha", "hht", "backward_euler")),
+    ParamSpec("integrator.rho_inf", MODEL_DEFAULTS["integrator.rho_inf"], "Spectral radius at infinite frequency (numerical damping; 1 = none).", 0.0, 1.0),
+    ParamSpec("integrator.dt", MODEL_DEFAULTS["integrator.dt"], "Integration step [s]; the real-time loop runs at 1/dt.", 1e-5, 0.1),
+    ParamSpec("integrator.newton_tolerance", MODEL_DEFAULTS["integrator.newton_tolerance"], "Newton convergence bound on the last correction (|dr| / L and |dr_x|).", 1e-14, 1e-2),
+    ParamSpec("integrator.max_substep_halvings", MODEL_DEFAULTS["integrator.max_substep_halvings"], "A failed step is retried as 2, 4, ... 2^n sub-steps before it is reported.", 0, 12),
+    ParamSpec("integrator.max_newton_iterations", MODEL_DEFAULTS["integrator.max_newton_iterations"], "Newton iterations per step before sub-stepping.", 1, 100),
+    ParamSpec("fixtures.clamp_interval", MODEL_DEFAULTS["fixtures.clamp_interval"], "Arc-length interval [s_start, s_end] [m] clamped to the world where "
               "it lies when the needle starts (seed 000 Fig. 8: [0.6 L, L]); both ends must be mesh nodes. [] or [0.0]: none.",
               0.0, 10.0, check=(lambda v: len(v) in (0, 1, 2) and (len(v) < 2 or v[0] < v[1]) and (len(v) != 1 or v[0] == 0.0),
                                 "must be [] / [0.0] (none) or [s_start, s_end] with s_start < s_end")),
@@ -59,8 +60,8 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("topics.state", "needle/state", "Output needle_interfaces/NeedleState (depth, tip force, energies).", check=(bool, "must not be empty")),
     ParamSpec("qos.wrench", "sensor_data", "QoS of the wrench output.", choices=QOS_CHOICES),
     ParamSpec("qos.base_pose", "sensor_data", "QoS of the pose input (sensor_data also matches reliable publishers).", choices=QOS_CHOICES),
-    ParamSpec("rates.shape_hz", 100.0, "Rate of shape, path, pose-array and state outputs [Hz].", 0.1, 1000.0, dynamic=True),
-    ParamSpec("rates.marker_hz", 20.0, "Rate of the marker tube [Hz].", 0.1, 1000.0, dynamic=True),
+    ParamSpec("rates.shape_hz", 100.0, "Rate of the NeedleShape and NeedleState outputs [Hz].", 0.1, 1000.0, dynamic=True),
+    ParamSpec("rates.visualization_hz", 10.0, "Rate of the RViz outputs: path, pose array and marker tube [Hz].", 0.01, 1000.0, dynamic=True),
     ParamSpec("rates.diagnostics_hz", 1.0, "Rate of diagnostic_msgs/DiagnosticArray on /diagnostics [Hz].", 0.1, 100.0, dynamic=True),
     ParamSpec("output.shape_samples", 50, "Centerline samples per shape message.", 2, 10000, dynamic=True),
     # Pose input handling (see needle_sim_ros.base_trajectory).

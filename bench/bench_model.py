@@ -1,0 +1,159 @@
+"""Benchmark of the ANCF needle model (needle_sim_ros.model); prints Markdown tables.  Not a test.
+
+    cd /work/main && source .venv/needle_env.sh && PYTHONPATH=needle_sim_ros python bench/bench_model.py [--quick]
+
+* start-up: numba compilation with an empty cache (first run after install) and loading from the cache;
+* integration step at dt = 1 ms for 5/10/20/40 elements: the base moves (5 mm/s insertion, 5 deg pitch at
+  0.2 Hz), gravity, Rayleigh beta = 1e-4, generalized-alpha (rho_inf = 0.8); real-time factor = dt / step time;
+  again with a 20-point MaterialPointForce (a tissue-like lateral spring-damper on the distal half, the path tissue
+  models take); plus reaction wrench (eq. 20), a 50-point centerline and BaseMotion.from_flange;
+* static equilibrium under weight + 80 g tip mass from the straight needle (10 elements).
+Times are the best of several repeats (the machine may be shared); BaseMotion objects are built outside the timed
+step loop.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, MaterialPointForce, NeedleProperties,
+                                  PointForces, PointLoad, build_model, centerline, reaction_wrench, solve_static)
+
+NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
+DT = 1e-3
+
+STARTUP_SCRIPT = """
+import time
+start = time.perf_counter()
+import numpy as np
+from needle_sim_ros.model import *
+props = NeedleProperties(0.27, 0.635e-3, 193e9, 8000.0)
+model = build_model(props, 10, rayleigh_beta=1e-4)
+base = BaseMotion.from_flange((0, 0, 0), (0, 0, 0, 1), (0, 0, 0.1), (0, 0, 0, 1))
+law = lambda r, rx, v, t, b: PointForces(-r, -np.broadcast_to(np.eye(3), (r.shape[0], 3, 3)))
+forces = [Gravity(), PointLoad(0.27, (0, 0, -0.1)), MaterialPointForce([0.2, 0.25], [0.01, 0.01], law)]
+state = model.straight_state(base)
+integrator = Integrator(model)
+state = integrator.step(state, 1e-3, base, forces[:2]).state
+state = integrator.step(state, 1e-3, base, forces).state
+static = solve_static(model, base, forces[:2]).state
+reaction_wrench(model, state, base, forces)
+centerline(model, state.q, 50)
+tip_pose(model, state.q)
+print(time.perf_counter() - start)
+"""
+
+
+def startup_times() -> tuple[float, float]:
+    """(seconds with an empty numba cache, seconds with the cache filled), each in a fresh interpreter."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        run = lambda: float(subprocess.run([sys.executable, "-c", STARTUP_SCRIPT], env=env, check=True,
+                                           capture_output=True, text=True).stdout.split()[-1])
+        return run(), min(run() for _ in range(2))
+
+
+def base_motion(t: float) -> BaseMotion:
+    """Insertion at 5 mm/s with a 5 deg pitch at 0.2 Hz."""
+    amplitude, omega = math.radians(5.0), 2 * math.pi * 0.2
+    angle = amplitude * math.sin(omega * t)
+    return BaseMotion((0.005 * t, 0.0, 0.0), (0.0, math.sin(angle / 2), 0.0, math.cos(angle / 2)),
+                      (0.005, 0.0, 0.0), (0.0, amplitude * omega * math.cos(omega * t), 0.0), 0.0,
+                      (0.0, -amplitude * omega**2 * math.sin(omega * t), 0.0))
+
+
+def tissue_like_force(n_points: int = 20) -> MaterialPointForce:
+    """Lateral spring (5e4 N/m^2) and damper (5 N s/m^2) towards the world x axis on the distal half."""
+    s = np.linspace(0.5 * NEEDLE.length, NEEDLE.length, n_points)
+    lateral = np.diag([0.0, 1.0, 1.0])
+
+    def law(r, r_x, v, t, base):
+        k = r.shape[0]
+        return PointForces(-5e4 * r @ lateral - 5.0 * v @ lateral, np.broadcast_to(-5e4 * lateral, (k, 3, 3)),
+                           None, np.broadcast_to(-5.0 * lateral, (k, 3, 3)))
+
+    return MaterialPointForce(s, np.full(n_points, 0.5 * NEEDLE.length / n_points), law)
+
+
+def best_time(function, calls: int, repeats: int) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(calls):
+            function()
+        best = min(best, (time.perf_counter() - start) / calls)
+    return best
+
+
+def step_benchmark(n_elements: int, forces: list, steps: int, repeats: int) -> tuple[float, float]:
+    """(best mean wall time per step [s], mean Newton iterations per step)."""
+    model = build_model(NEEDLE, n_elements, rayleigh_beta=1e-4)
+    integrator = Integrator(model)
+    bases = [base_motion(k * DT) for k in range((repeats + 1) * steps + 1)]
+    state = model.straight_state(bases[0])
+    for k in range(1, steps + 1):  # warm-up, leaves the start transient behind
+        state = integrator.step(state, DT, bases[k], forces).state
+    best, iterations = np.inf, 0
+    for r in range(repeats):
+        iterations = 0
+        start = time.perf_counter()
+        for k in range((r + 1) * steps + 1, (r + 2) * steps + 1):
+            result = integrator.step(state, DT, bases[k], forces)
+            state, iterations = result.state, iterations + result.newton_iterations
+        best = min(best, (time.perf_counter() - start) / steps)
+    return best, iterations / steps
+
+
+def output_times(n_elements: int, repeats: int) -> tuple[float, float]:
+    model = build_model(NEEDLE, n_elements, rayleigh_beta=1e-4)
+    base, forces = base_motion(0.1), [Gravity()]
+    state = Integrator(model).step(model.straight_state(base_motion(0.0)), 0.1, base, forces).state
+    return (best_time(lambda: reaction_wrench(model, state, base, forces), 200, repeats),
+            best_time(lambda: centerline(model, state.q, 50), 200, repeats))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="fewer steps and repeats, no start-up measurement")
+    args = parser.parse_args()
+    steps, repeats = (300, 2) if args.quick else (1000, 5)
+
+    if not args.quick:
+        cold, warm = startup_times()
+        print("| start-up (import, build, steps, static solve, outputs) | seconds |\n|---|---|")
+        print(f"| empty numba cache (compilation) | {cold:.1f} |\n| numba cache filled (cache=True) | {warm:.2f} |\n")
+
+    print("| elements | step [us] | real-time factor | step + 20-pt MaterialPointForce [us] | real-time factor "
+          "| Newton its/step (plain / with force) | reaction wrench [us] | centerline 50 pts [us] |")
+    print("|---|---|---|---|---|---|---|---|")
+    for n_elements in (5, 10, 20, 40):
+        plain, plain_its = step_benchmark(n_elements, [Gravity()], steps, repeats)
+        tissue, tissue_its = step_benchmark(n_elements, [Gravity(), tissue_like_force()], steps, repeats)
+        wrench, line = output_times(n_elements, repeats)
+        print(f"| {n_elements} | {plain * 1e6:.0f} | {DT / plain:.1f} | {tissue * 1e6:.0f} | {DT / tissue:.1f} "
+              f"| {plain_its:.2f} / {tissue_its:.2f} | {wrench * 1e6:.0f} | {line * 1e6:.0f} |")
+
+    flange = best_time(lambda: BaseMotion.from_flange((0.1, 0.2, 0.3), (0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.1),
+                                                      (0.0, 0.0, 0.0, 1.0), (0.005, 0, 0), (0, 0.1, 0)),
+                       2000, repeats)
+    print(f"\nBaseMotion.from_flange: {flange * 1e6:.0f} us per call")
+
+    model = build_model(NEEDLE, 10)
+    base = BaseMotion((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    forces = [Gravity(), PointLoad(NEEDLE.length, (0.0, 0.0, -9.81 * 0.08))]
+    solution = solve_static(model, base, forces)
+    static = best_time(lambda: solve_static(model, base, forces), 20, repeats)
+    print(f"\n| static 80 g tip mass, 10 elements, from straight | value |\n|---|---|\n"
+          f"| wall time | {static * 1e3:.1f} ms |\n| Newton iterations | {solution.newton_iterations} |\n"
+          f"| load increments | {solution.load_steps} |")
+
+
+if __name__ == "__main__":
+    main()

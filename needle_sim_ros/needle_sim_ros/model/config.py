@@ -1,0 +1,122 @@
+"""Needle configuration from a ROS 2 parameters file (``/**: ros__parameters: {needle: ..., damping: ...}``).
+
+Only the groups ``needle.``, ``damping.``, ``integrator.`` and ``fixtures.`` are read (other groups, e.g. the node's
+topics, are ignored); an unknown key inside them is an error, so a typo cannot silently fall back to a default.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from .fixtures import Fixture
+from .integrators import METHODS
+from .properties import NeedleProperties
+
+GROUPS = ("needle", "damping", "integrator", "fixtures")
+
+# seed 000 Sec. III needle; AISI 304 stainless steel (E = 193 GPa, rho = 8000 kg/m^3, AK Steel / ASM datasheet)
+DEFAULTS: dict[str, Any] = {
+    "needle.length": 0.27,
+    "needle.radius": 0.635e-3,
+    "needle.youngs_modulus": 193e9,
+    "needle.density": 8000.0,
+    "needle.elements": 10,
+    "needle.element_lengths": None,
+    "needle.gravity": [0.0, 0.0, -9.81],
+    "needle.axial_gauss_points": 5,
+    "needle.bending_gauss_points": 3,
+    "damping.rayleigh_alpha": 0.0,
+    "damping.rayleigh_beta": 1e-4,
+    "integrator.method": "generalized_alpha",
+    "integrator.rho_inf": 0.8,
+    "integrator.dt": 1e-3,
+    "integrator.newton_tolerance": 1e-6,
+    "integrator.max_newton_iterations": 10,
+    "integrator.max_substep_halvings": 4,
+    "fixtures.intervals": None,
+    "fixtures.frame": "world",
+    "fixtures.needle_position": [0.0, 0.0, 0.0],
+    "fixtures.needle_orientation": [0.0, 0.0, 0.0, 1.0],
+    # needle_simulator only (read by the node, ignored here): [s_start, s_end] clamped where the needle lies when
+    # it starts; [0.0] = none
+    "fixtures.clamp_interval": [0.0],
+}
+
+
+def _flatten(tree: Mapping, prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(_flatten(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
+
+
+def _parameter_tree(source) -> Mapping:
+    """The (merged) ros__parameters of a params file / dict, or the dict itself if it has none."""
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        if not path.is_file():
+            raise FileNotFoundError(f"needle config file not found: {path}")
+        source = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(source, Mapping):
+        raise ValueError(f"needle config must be a mapping, got {type(source).__name__}")
+    sections = [v["ros__parameters"] for v in source.values() if isinstance(v, Mapping) and "ros__parameters" in v]
+    if not sections:
+        return source
+    merged: dict[str, Any] = {}
+    for section in sections:
+        merged.update(_flatten(section))
+    return merged
+
+
+def needle_parameters(source) -> dict[str, Any]:
+    """All needle/damping/integrator/fixtures parameters (flat dotted names), defaults filled in."""
+    flat = _flatten(_parameter_tree(source))
+    ours = {k: v for k, v in flat.items() if k.split(".", 1)[0] in GROUPS}
+    unknown = sorted(set(ours) - set(DEFAULTS))
+    if unknown:
+        raise ValueError(f"unknown needle config key(s) {unknown}; known: {sorted(DEFAULTS)}")
+    return {**DEFAULTS, **ours}
+
+
+def _fixtures(p: Mapping[str, Any]) -> tuple[Fixture, ...]:
+    intervals = p["fixtures.intervals"]
+    if intervals is None:
+        return ()
+    values = np.asarray(intervals, dtype=float).ravel()
+    if values.size % 2:
+        raise ValueError(f"fixtures.intervals must hold pairs [s_start, s_end, ...] in m, got {intervals!r}")
+    pose = (tuple(p["fixtures.needle_position"]), tuple(p["fixtures.needle_orientation"]))
+    return tuple(Fixture(interval=(a, b), frame=p["fixtures.frame"], needle_pose=pose)
+                 for a, b in values.reshape(-1, 2))
+
+
+def load_needle_config(source) -> tuple[NeedleProperties, dict[str, Any], dict[str, Any]]:
+    """(NeedleProperties, build_model kwargs incl. n_elements, Integrator kwargs) from a params file or dict.
+    The time step is ``needle_parameters(source)["integrator.dt"]``."""
+    p = needle_parameters(source)
+    if p["integrator.method"] not in METHODS:
+        raise ValueError(f"integrator.method must be one of {METHODS}, got {p['integrator.method']!r}")
+    props = NeedleProperties(length=p["needle.length"], radius=p["needle.radius"],
+                             youngs_modulus=p["needle.youngs_modulus"], density=p["needle.density"],
+                             gravity=tuple(p["needle.gravity"]))
+    build = {"n_elements": int(p["needle.elements"]), "axial_gauss": int(p["needle.axial_gauss_points"]),
+             "bending_gauss": int(p["needle.bending_gauss_points"]),
+             "rayleigh_alpha": float(p["damping.rayleigh_alpha"]), "rayleigh_beta": float(p["damping.rayleigh_beta"]),
+             "fixtures": _fixtures(p)}
+    if p["needle.element_lengths"] is not None:
+        build["element_lengths"] = list(p["needle.element_lengths"])
+    dt = float(p["integrator.dt"])
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"integrator.dt must be > 0 [s], got {p['integrator.dt']!r}")
+    integrator = {"method": p["integrator.method"], "rho_inf": float(p["integrator.rho_inf"]),
+                  "newton_tol": float(p["integrator.newton_tolerance"]),
+                  "max_newton_iterations": int(p["integrator.max_newton_iterations"]),
+                  "max_substep_halvings": int(p["integrator.max_substep_halvings"])}
+    return props, build, integrator

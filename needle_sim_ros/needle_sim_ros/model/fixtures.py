@@ -1,0 +1,70 @@
+"""Fixtures: clamp nodes of the needle (all six coordinates [r, r_x]) to the world, the holder, or a moving frame.
+
+Seed 000 Sec. III clamps the distal 40 % of the needle while the base pitches (Fig. 8): that is
+``Fixture(interval=(0.6 * L, L))`` with the needle straight along the world x axis from the origin when clamped.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Union
+
+import numpy as np
+
+from .kinematics import BaseMotion, quaternion_matrix, unit_quaternion
+from .mesh import Mesh
+
+FixtureFrame = Union[str, Callable[[float], BaseMotion]]
+
+
+@dataclass(frozen=True, eq=False)
+class Fixture:
+    """Clamp a set of nodes and/or the nodes of an arc-length interval.
+
+    nodes: node indices (negative ones count from the tip); interval: (s_start, s_end) [m] -- every node with
+    reference arc length in the closed interval; both ends must be mesh nodes (choose ``element_lengths`` so), since
+    a cable element cannot be clamped along part of its length.
+    frame: "world" (fixed), "base" (moves with the holder) or a callable t -> BaseMotion of a moving frame.
+    needle_pose: (position, orientation xyzw) of the straight needle's base frame in the fixture frame at the time of
+    clamping; node i is held at rho = p + R s_i e_x with gradient tau = R e_x in that frame. Default: the needle lay
+    along the frame's x axis from its origin.
+    """
+
+    nodes: tuple[int, ...] = ()
+    interval: tuple[float, float] | None = None
+    frame: FixtureFrame = "world"
+    needle_pose: tuple = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+
+    def __post_init__(self) -> None:
+        if not (self.frame in ("world", "base") or callable(self.frame)):
+            raise ValueError(f"Fixture.frame must be 'world', 'base' or a callable t -> BaseMotion, got {self.frame!r}")
+        if not self.nodes and self.interval is None:
+            raise ValueError("Fixture needs nodes or an interval")
+
+    def resolve(self, mesh: Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(node indices (k,), rho (k, 3), tau (k, 3)) on ``mesh``."""
+        n_nodes = mesh.n_elements + 1
+        nodes = []
+        for node in self.nodes:
+            if not isinstance(node, (int, np.integer)) or not -n_nodes <= node < n_nodes:
+                raise ValueError(f"Fixture node {node!r} is not a node index of the {n_nodes}-node mesh")
+            nodes.append(int(node) % n_nodes)
+        if self.interval is not None:
+            start, end = (float(v) for v in self.interval)
+            tol = 1e-9 * mesh.length
+            if not (np.isfinite(start) and np.isfinite(end) and -tol <= start <= end <= mesh.length + tol):
+                raise ValueError(f"Fixture.interval {self.interval!r} must satisfy 0 <= s_start <= s_end <= L")
+            for s in (start, end):
+                if np.min(np.abs(mesh.node_arc_length - s)) > tol:
+                    raise ValueError(f"Fixture.interval end {s} m is not a mesh node (nodes at "
+                                     f"{np.round(mesh.node_arc_length, 6).tolist()} m); pass element_lengths "
+                                     "with a node there")
+            inside = (mesh.node_arc_length >= start - tol) & (mesh.node_arc_length <= end + tol)
+            nodes.extend(np.flatnonzero(inside).tolist())
+        nodes = np.array(sorted(set(nodes)), dtype=np.int64)
+        position = np.asarray(self.needle_pose[0], dtype=float)
+        if position.shape != (3,) or not np.all(np.isfinite(position)):
+            raise ValueError(f"Fixture.needle_pose position must be 3 finite numbers, got {self.needle_pose[0]!r}")
+        rotation = quaternion_matrix(unit_quaternion(self.needle_pose[1], "Fixture.needle_pose orientation"))
+        rho = position[None, :] + mesh.node_arc_length[nodes, None] * rotation[:, 0][None, :]
+        tau = np.tile(rotation[:, 0], (nodes.size, 1))
+        return nodes, rho, tau

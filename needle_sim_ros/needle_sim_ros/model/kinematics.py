@@ -1,0 +1,188 @@
+"""Rigid-body kinematics of the needle holder (seed 000 Fig. 3: frame f at the clamp point A) and of clamped nodes.
+
+A frame moving rigidly with position p, rotation R, twist (v, w) and acceleration (a, alpha) -- all in the world
+frame, v and a of the frame origin -- carries a node with frame coordinates (rho, tau) at
+    r   = p + R rho,            r_x   = R tau
+    r'  = v + w x d,            r_x'  = w x R tau                           (d = R rho)
+    r'' = a + alpha x d + w x (w x d),   r_x'' = alpha x R tau + w x (w x R tau).
+The base node A is such a node with rho = 0, tau = e_x: it prescribes q_c = [r_A, r_xA] (eqs. 18-19).
+Quaternions are in ROS order (x, y, z, w).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+_ZERO3 = (0.0, 0.0, 0.0)
+
+
+def _vector(value, name: str, size: int = 3) -> np.ndarray:
+    array = np.asarray(value, dtype=float)
+    if array.shape == ():
+        array = np.full(size, float(array))
+    if array.shape != (size,) or not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be {size} finite numbers, got {value!r}")
+    return array
+
+
+def unit_quaternion(value, name: str = "orientation") -> np.ndarray:
+    """A finite quaternion (x, y, z, w) of norm 1 (within 1e-6), renormalized; ValueError otherwise."""
+    quaternion = _vector(value, name, 4)
+    return _normalized(quaternion, name)
+
+
+def _normalized(quaternion: np.ndarray, name: str) -> np.ndarray:
+    norm = math.sqrt(float(quaternion @ quaternion))
+    if abs(norm - 1.0) > 1e-6:
+        raise ValueError(f"{name} must be a unit quaternion (x, y, z, w), got norm {norm:.9g}")
+    return quaternion / norm
+
+
+@njit(cache=True)
+def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = quaternion[0], quaternion[1], quaternion[2], quaternion[3]
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+@njit(cache=True)
+def matrix_quaternion(rotation: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) with w >= 0 of a rotation matrix (Shepperd's method)."""
+    m = rotation
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    k = 0
+    best = trace
+    for i in range(3):
+        if m[i, i] > best:
+            best = m[i, i]
+            k = i + 1
+    if k == 0:
+        w = 0.5 * np.sqrt(1.0 + trace)
+        x, y, z = (m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w), (m[1, 0] - m[0, 1]) / (4 * w)
+    elif k == 1:
+        x = 0.5 * np.sqrt(1.0 + 2 * m[0, 0] - trace)
+        w, y, z = (m[2, 1] - m[1, 2]) / (4 * x), (m[0, 1] + m[1, 0]) / (4 * x), (m[0, 2] + m[2, 0]) / (4 * x)
+    elif k == 2:
+        y = 0.5 * np.sqrt(1.0 + 2 * m[1, 1] - trace)
+        w, x, z = (m[0, 2] - m[2, 0]) / (4 * y), (m[0, 1] + m[1, 0]) / (4 * y), (m[1, 2] + m[2, 1]) / (4 * y)
+    else:
+        z = 0.5 * np.sqrt(1.0 + 2 * m[2, 2] - trace)
+        w, x, y = (m[1, 0] - m[0, 1]) / (4 * z), (m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z)
+    quaternion = np.array([x, y, z, w])
+    quaternion /= np.sqrt(x * x + y * y + z * z + w * w)
+    if w < 0.0:
+        quaternion = -quaternion
+    return quaternion
+
+
+_FIELDS = (("position", slice(0, 3)), ("orientation", slice(3, 7)), ("linear_velocity", slice(7, 10)),
+           ("angular_velocity", slice(10, 13)), ("linear_acceleration", slice(13, 16)),
+           ("angular_acceleration", slice(16, 19)))
+
+
+@dataclass(frozen=True, eq=False)
+class BaseMotion:
+    """Pose, twist and acceleration of a rigid frame in the world frame -- for the needle base, of frame f at the
+    clamp point A (x axis along the undeformed needle).  Velocities and accelerations are world-frame vectors;
+    linear ones are those of the frame origin."""
+
+    position: np.ndarray
+    orientation: np.ndarray
+    linear_velocity: np.ndarray = _ZERO3
+    angular_velocity: np.ndarray = _ZERO3
+    linear_acceleration: np.ndarray = _ZERO3
+    angular_acceleration: np.ndarray = _ZERO3
+    rotation: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # one packed buffer: validation and conversion of all six fields with few numpy calls (hot path)
+        values = np.empty(19)
+        for name, part in _FIELDS:
+            try:
+                values[part] = getattr(self, name)
+            except (ValueError, TypeError):
+                raise ValueError(f"BaseMotion.{name} must be {part.stop - part.start} numbers, "
+                                 f"got {getattr(self, name)!r}") from None
+        if not math.isfinite(values.sum()):
+            bad = [name for name, part in _FIELDS if not np.all(np.isfinite(values[part]))]
+            raise ValueError(f"BaseMotion.{bad[0]} must be finite, got {getattr(self, bad[0])!r}")
+        values[3:7] = _normalized(values[3:7], "BaseMotion.orientation")
+        for name, part in _FIELDS:
+            object.__setattr__(self, name, values[part])
+        object.__setattr__(self, "rotation", quaternion_matrix(values[3:7]))
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit needle axis r_xA = R e_x in the world frame."""
+        return self.rotation[:, 0]
+
+    @classmethod
+    def from_flange(cls, flange_position, flange_orientation, offset_position=_ZERO3,
+                    offset_orientation=(0.0, 0.0, 0.0, 1.0), linear_velocity=_ZERO3, angular_velocity=_ZERO3,
+                    linear_acceleration=_ZERO3, angular_acceleration=_ZERO3) -> BaseMotion:
+        """Motion of the clamp frame from the robot flange's motion (world frame) and the fixed flange-to-clamp
+        offset (position of A and rotation of frame f, both in the flange frame)."""
+        flange = cls(flange_position, flange_orientation, linear_velocity, angular_velocity, linear_acceleration,
+                     angular_acceleration)
+        offset = _vector(offset_position, "offset_position")
+        offset_rotation = quaternion_matrix(unit_quaternion(offset_orientation, "offset_orientation"))
+        values = np.empty(19)
+        rotation = np.empty((3, 3))
+        compose_offset(flange.position, flange.rotation, flange.linear_velocity, flange.angular_velocity,
+                       flange.linear_acceleration, flange.angular_acceleration, offset, offset_rotation, values,
+                       rotation)
+        motion = object.__new__(cls)
+        for name, part in _FIELDS:
+            object.__setattr__(motion, name, values[part])
+        object.__setattr__(motion, "rotation", rotation)
+        return motion
+
+    def impose_nodes(self, local_r: np.ndarray, local_rx: np.ndarray, nodes: np.ndarray, target: np.ndarray) -> None:
+        """Write [q, qd, qdd] of the given nodes, carried with frame coordinates rho = local_r, tau = local_rx
+        (k, 3), into the rows of target (3, n_dof)."""
+        rigid_node_kinematics(self.position, self.rotation, self.linear_velocity, self.angular_velocity,
+                              self.linear_acceleration, self.angular_acceleration, local_r, local_rx, nodes, target)
+
+
+STATIC_WORLD = BaseMotion(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+
+
+@njit(cache=True)
+def _cross(a, b):
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+@njit(cache=True)
+def rigid_node_kinematics(p, rotation, v, w, a, alpha, local_r, local_rx, nodes, target):
+    """[q, qd, qdd] of rigidly carried nodes (module docstring) into target (3, n_dof) at the nodes' coordinates."""
+    for k in range(nodes.size):
+        first = 6 * nodes[k]
+        d = rotation @ local_r[k]
+        t = rotation @ local_rx[k]
+        wd = _cross(w, d)
+        wt = _cross(w, t)
+        target[0, first:first + 3] = p + d
+        target[0, first + 3:first + 6] = t
+        target[1, first:first + 3] = v + wd
+        target[1, first + 3:first + 6] = wt
+        target[2, first:first + 3] = a + _cross(alpha, d) + _cross(w, wd)
+        target[2, first + 3:first + 6] = _cross(alpha, t) + _cross(w, wt)
+
+
+@njit(cache=True)
+def compose_offset(p, rotation, v, w, a, alpha, offset, offset_rotation, values, out_rotation):
+    """Motion of a frame rigidly offset from a moving frame (offset in that frame), packed as BaseMotion fields."""
+    d = rotation @ offset
+    wd = _cross(w, d)
+    out_rotation[:, :] = rotation @ offset_rotation
+    values[0:3] = p + d
+    values[3:7] = matrix_quaternion(out_rotation)
+    values[7:10] = v + wd
+    values[10:13] = w
+    values[13:16] = a + _cross(alpha, d) + _cross(w, wd)
+    values[16:19] = alpha

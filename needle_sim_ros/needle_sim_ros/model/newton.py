@@ -1,0 +1,290 @@
+"""Compiled Newton iterations on the active coordinates (seed 000 eqs. 17-19), shared by dynamics and statics.
+
+Residual of the equations of motion (eq. 17) on the active rows,
+    R(q) = M q'' - Q_d(q, q') - Q_el(q) - Q_ext,       (Q_d = -C q', see ``damping``)
+with q' and q'' affine functions of q (generalized-alpha / Newmark update, or q' = q'' = 0 for statics), and the
+iteration matrix  J = dR/dq = (K - dQ_ext/dq) + c_M M + c_C (C - dQ_ext/dq')  with c_M = dq''/dq, c_C = dq'/dq.
+Constrained rows and columns are replaced by the identity, so the solve runs on the full, banded coordinate vector
+and the constrained coordinates keep their prescribed values.  ``newton_control`` decides after each correction:
+converged (scaled correction <= tol), keep the factorization (chord step, close to the solution) or refactor with a
+fresh analytic Jacobian.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .banded import (ELEMENT_BANDWIDTH, band_cholesky, band_factor, band_solve, band_structure, band_width_columns,
+                     cholesky_solve)
+from .damping import add_axial_damping
+from .elastic import add_elastic
+
+CONVERGED, CHORD, REFACTOR, FAILED = 0, 1, 2, -1
+DIVERGED_CORRECTION = 100.0  # a correction of 100 needle lengths (or 100 in a gradient) means divergence
+CHORD_RANGE = 1e-4  # scaled correction (27 um on the seed's needle) below which a factorization may be reused
+CHORD_CONTRACTION = 0.1  # ... as long as each correction is at most this fraction of the previous one
+
+
+def model_tables(model) -> tuple:
+    """The model's constant arrays the kernels read: elastic quadrature tables, mass and damping slot matrices."""
+    return (*model.elastic, model.mass_slots, *model.damping)
+
+
+@njit(cache=True)
+def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_K, ext_D, c_K, c_M, c_C, active, residual, band, kl,
+                    with_matrix):
+    """residual <- R (zero on constrained rows); if with_matrix, band <- J (identity on constrained rows/cols).
+    tables: ``model_tables``; ext_K / ext_D: dense dQ_ext/dq, dQ_ext/dq' or (0, 0) arrays for zero, with a
+    bandwidth not above kl."""
+    (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
+     damping_transverse, strain_rate_weights) = tables
+    n = q.size
+    residual[:] = 0.0
+    if with_matrix:
+        band[:, :] = 0.0
+    add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, residual, band, kl,
+                c_K, with_matrix)
+    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, residual, band, kl, c_C, with_matrix)
+    for i in range(n):
+        residual[i] = -residual[i] - ext_Q[i]
+    n_slots = mass_slots.shape[0]
+    for s in range(n_slots):
+        for s2 in range(max(0, s - 3), min(n_slots, s + 4)):
+            m = mass_slots[s, s2]
+            ci = damping_isotropic[s, s2]
+            ca = damping_transverse[s, s2]
+            along = axis[0] * qd[3 * s2] + axis[1] * qd[3 * s2 + 1] + axis[2] * qd[3 * s2 + 2]
+            for c in range(3):
+                residual[3 * s + c] += m * qdd[3 * s2 + c] + ci * qd[3 * s2 + c] + ca * axis[c] * along
+            if with_matrix:
+                for c in range(3):
+                    row = 3 * s + c
+                    band[row, 3 * s2 + c - row + kl] += c_M * m + c_C * ci
+                    for c2 in range(3):
+                        band[row, 3 * s2 + c2 - row + kl] += c_C * ca * axis[c] * axis[c2]
+    if with_matrix:
+        if ext_K.shape[0] > 0:
+            for i in range(n):
+                for j in range(max(0, i - kl), min(n, i + kl + 1)):
+                    band[i, j - i + kl] -= c_K * ext_K[i, j]
+        if ext_D.shape[0] > 0:
+            for i in range(n):
+                for j in range(max(0, i - kl), min(n, i + kl + 1)):
+                    band[i, j - i + kl] -= c_C * ext_D[i, j]
+    for i in range(n):
+        if not active[i]:
+            residual[i] = 0.0
+            if with_matrix:
+                for j in range(max(0, i - kl), min(n, i + kl + 1)):
+                    band[i, j - i + kl] = 0.0
+                    band[j, i - j + kl] = 0.0
+                band[i, kl] = 1.0
+
+
+@njit(cache=True)
+def update_rates(values, history, coef, active):
+    """q', q'' and a of the active coordinates from q (generalized-alpha, Arnold-Bruels form):
+    q = q_n + h q'_n + h^2 (b0 a_n + b1 a),  q' = q'_n + h (g0 a_n + g1 a),
+    (1 - alpha_m) a + alpha_m a_n = (1 - alpha_f) q'' + alpha_f q''_n.
+    values, history: rows [q, q', q'', a] (4, n); coef = [h, alpha_m, alpha_f, b0, b1, g0, g1]."""
+    h, am, af, b0, b1, g0, g1 = coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6]
+    for i in range(values.shape[1]):
+        if active[i]:
+            a_new = (values[0, i] - history[0, i] - h * history[1, i] - h * h * b0 * history[3, i]) / (h * h * b1)
+            values[3, i] = a_new
+            values[1, i] = history[1, i] + h * (g0 * history[3, i] + g1 * a_new)
+            values[2, i] = ((1.0 - am) * a_new + am * history[3, i] - af * history[2, i]) / (1.0 - af)
+
+
+PREDICT_ACCELERATION, PREDICT_POSITION = 0, 1
+
+
+@njit(cache=True)
+def predict(values, history, prescribed, coef, active, predictor):
+    """Start of a step: constrained coordinates from ``prescribed`` (rows q, q', q''); active ones from the
+    predictor q''_{n+1} = q''_n (PREDICT_ACCELERATION: accurate for smooth motion) or q_{n+1} = q_n
+    (PREDICT_POSITION: robust when unresolved high-frequency content makes extrapolation useless)."""
+    h, am, b0, b1 = coef[0], coef[1], coef[3], coef[4]
+    for i in range(values.shape[1]):
+        if active[i]:
+            if predictor == PREDICT_ACCELERATION:
+                a0 = (history[2, i] - am * history[3, i]) / (1.0 - am)
+                values[0, i] = history[0, i] + h * history[1, i] + h * h * (b0 * history[3, i] + b1 * a0)
+            else:
+                values[0, i] = history[0, i]
+        else:
+            values[0, i] = prescribed[0, i]
+            values[1, i] = prescribed[1, i]
+            values[2, i] = prescribed[2, i]
+            values[3, i] = prescribed[2, i]
+    update_rates(values, history, coef, active)
+
+
+@njit(cache=True)
+def rate_coefficients(coef, dynamic):
+    """(c_M, c_C) = (dq''/dq, dq'/dq); zero for statics."""
+    if not dynamic:
+        return 0.0, 0.0
+    h, am, af, b1, g1 = coef[0], coef[1], coef[2], coef[4], coef[6]
+    return (1.0 - am) / ((1.0 - af) * h * h * b1), g1 / (h * b1)
+
+
+CHOLESKY, LU = 0, 1
+
+
+@njit(cache=True)
+def iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, ext_K, ext_D, residual, band, pivots,
+            factorization, kl, refactor, symmetric):
+    """One Newton (refactor) or chord correction; updates values (rows q, q', q'', a).
+
+    A symmetric matrix is factored by Cholesky, falling back to pivoted LU if it is not positive definite
+    (e.g. under axial compression); factorization[0] records which one the chord steps reuse.
+    Returns the scaled correction max_i |dq_i| / scale_i, or -1 for a singular matrix or non-finite values."""
+    c_M, c_C = rate_coefficients(coef, dynamic)
+    q, qd, qdd = values[0], values[1], values[2]
+    assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_K, ext_D, 1.0, c_M, c_C, active, residual, band, kl, refactor)
+    if refactor:
+        factorization[0] = CHOLESKY
+        if not (symmetric and band_cholesky(band, kl)):
+            if symmetric:  # the failed Cholesky overwrote the matrix
+                assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_K, ext_D, 1.0, c_M, c_C, active, residual, band,
+                                kl, True)
+            factorization[0] = LU
+            if not band_factor(band, pivots, kl):
+                return -1.0
+    if factorization[0] == CHOLESKY:
+        cholesky_solve(band, kl, residual)
+    else:
+        band_solve(band, pivots, kl, residual)
+    norm = 0.0
+    total = 0.0  # NaN-safe: max() would drop a NaN correction, a sum keeps it
+    for i in range(q.size):
+        if active[i]:
+            correction = residual[i]
+            q[i] -= correction
+            total += abs(correction)
+            norm = max(norm, abs(correction) / scale[i])
+    if not total < np.inf:
+        return -1.0
+    if dynamic:
+        update_rates(values, history, coef, active)
+    return norm
+
+
+@njit(cache=True)
+def newton_control(norm, previous, tol, always_refactor):
+    """CONVERGED, CHORD, REFACTOR or FAILED after a correction of scaled size norm (previous: the one before).
+    The factorization is kept (chord step) only close to the solution (correction below CHORD_RANGE, where the
+    Jacobian barely changes) and while corrections shrink by CHORD_CONTRACTION or better; otherwise full Newton."""
+    if norm < 0.0 or norm > DIVERGED_CORRECTION:
+        return FAILED
+    if norm <= tol:
+        return CONVERGED
+    if always_refactor or norm > CHORD_RANGE or norm > CHORD_CONTRACTION * previous:
+        return REFACTOR
+    return CHORD
+
+
+@njit(cache=True)
+def newton_solve(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q, residual,
+                 band, pivots, factorization, kl, tol, max_iterations, always_refactor):
+    """Newton loop with a constant external force (fast path). Dynamics starts from the predictor, statics from
+    the given values. Returns (status CONVERGED / FAILED / 1 = not converged, iterations, last scaled correction)."""
+    empty = np.zeros((0, 0))
+    if dynamic:
+        predict(values, history, prescribed, coef, active, predictor)
+    refactor = True
+    previous = np.inf
+    norm = np.inf
+    for iteration in range(max_iterations):
+        norm = iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, empty, empty, residual, band,
+                       pivots, factorization, kl, refactor, True)
+        action = newton_control(norm, previous, tol, always_refactor)
+        if action == CONVERGED or action == FAILED:
+            return action, iteration + 1, norm
+        refactor = action == REFACTOR
+        previous = norm
+    return 1, max_iterations, norm
+
+
+_NO_MATRIX = np.zeros((0, 0))
+
+
+class NewtonSolver:
+    """Buffers and the Python-side Newton loop for one model.
+
+    With only a constant external force (``varying`` empty) the whole loop runs compiled (``newton_solve``);
+    otherwise the state-dependent contributions are evaluated before every correction and their Jacobians enter the
+    matrix whenever it is refactored (the band widens if a Jacobian couples farther than one element).
+    Not thread-safe: one solver per thread.
+    """
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.tables = model_tables(model)
+        self.active = model.partition.active
+        self.scale = model.increment_scale
+        self.residual = np.empty(model.n_dof)
+        self.pivots = np.empty(model.n_dof, dtype=np.int64)
+        self.factorization = np.zeros(1, dtype=np.int64)
+        self._bands: dict[int, np.ndarray] = {}
+        self._buffers: dict[str, np.ndarray] = {}
+
+    def band(self, kl: int) -> np.ndarray:
+        if kl not in self._bands:
+            self._bands[kl] = np.zeros((self.model.n_dof, band_width_columns(kl)))
+        return self._bands[kl]
+
+    def solve(self, values, history, prescribed, coef, dynamic: bool, axis, constant_Q, varying, t: float, base,
+              tol: float, max_iterations: int, always_refactor: bool, load_factor: float = 1.0,
+              predictor: int = PREDICT_ACCELERATION):
+        """Run Newton in place on values (rows q, q', q'', a); returns (status, iterations, last correction)."""
+        if not varying:
+            return newton_solve(values, history, prescribed, coef, dynamic, predictor, self.active, self.scale,
+                                self.tables,
+                                axis, constant_Q, self.residual, self.band(ELEMENT_BANDWIDTH), self.pivots,
+                                self.factorization, ELEMENT_BANDWIDTH, tol, max_iterations, always_refactor)
+        if dynamic:
+            predict(values, history, prescribed, coef, self.active, predictor)
+        refactor, previous, norm, kl, symmetric = True, np.inf, np.inf, ELEMENT_BANDWIDTH, True
+        q, qd = values[0], values[1]
+        for iteration in range(max_iterations):
+            ext_Q, stiffness, damping = constant_Q.copy(), [], []
+            for force in varying:
+                generalized = force.evaluate(self.model, q, qd, t, base)
+                ext_Q += load_factor * np.asarray(generalized.Q, dtype=float)
+                if refactor:
+                    stiffness.append(generalized.dQ_dq)
+                    damping.append(generalized.dQ_dqd)
+            if refactor:
+                ext_K, ext_D = self._sum("K", stiffness, load_factor), self._sum("D", damping, load_factor)
+                kl, symmetric = ELEMENT_BANDWIDTH, True
+                for matrix in (ext_K, ext_D):
+                    if matrix.shape[0]:
+                        width, matrix_symmetric = band_structure(matrix)
+                        kl, symmetric = max(kl, width), symmetric and matrix_symmetric
+            norm = iterate(values, history, coef, dynamic, self.active, self.scale, self.tables, axis, ext_Q, ext_K,
+                           ext_D, self.residual, self.band(kl), self.pivots, self.factorization, kl, refactor,
+                           symmetric)
+            action = newton_control(norm, previous, tol, always_refactor)
+            if action == CONVERGED or action == FAILED:
+                return action, iteration + 1, norm
+            refactor, previous = action == REFACTOR, norm
+        return 1, max_iterations, norm
+
+    def _sum(self, name: str, matrices: list, factor: float) -> np.ndarray:
+        """load factor x the sum of the given Jacobians (None = zero); a (0, 0) array for zero.  A single one is
+        used as is; several are added in a reused buffer (large fresh arrays cost page faults)."""
+        present = [np.asarray(m, dtype=float) for m in matrices if m is not None]
+        if not present:
+            return _NO_MATRIX
+        if len(present) == 1 and factor == 1.0:
+            return present[0]
+        n = self.model.n_dof
+        buffer = self._buffers.get(name)
+        if buffer is None:
+            buffer = self._buffers[name] = np.empty((n, n))
+        np.multiply(present[0], factor, out=buffer)
+        for matrix in present[1:]:
+            buffer += factor * matrix
+        return buffer

@@ -1,0 +1,64 @@
+"""Material and cross-section of the needle (seed 000 Sec. II-B, Sec. III: homogeneous solid circular section)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class NeedleProperties:
+    """Homogeneous needle with a solid circular cross-section.
+
+    length [m] from the clamp point A to the tip; radius [m]; youngs_modulus E [Pa]; density rho [kg/m^3];
+    gravity [m/s^2], world frame (z up).
+    """
+
+    length: float
+    radius: float
+    youngs_modulus: float
+    density: float
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+
+    def __post_init__(self) -> None:
+        for name in ("length", "radius", "youngs_modulus", "density"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"NeedleProperties.{name} must be a finite number > 0, got {value!r}")
+        gravity = np.asarray(self.gravity, dtype=float)
+        if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
+            raise ValueError(f"NeedleProperties.gravity must be 3 finite numbers [m/s^2], got {self.gravity!r}")
+        object.__setattr__(self, "gravity", tuple(float(g) for g in gravity))
+        for name in ("length", "radius", "youngs_modulus", "density"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+
+    @property
+    def area(self) -> float:
+        """Cross-section area A = pi r^2 [m^2]."""
+        return math.pi * self.radius**2
+
+    @property
+    def second_moment(self) -> float:
+        """Second moment of area I = I_y = I_z = pi r^4 / 4 [m^4] (seed 000 assumes I_y = I_z)."""
+        return math.pi * self.radius**4 / 4.0
+
+    @property
+    def mass_per_length(self) -> float:
+        """rho A [kg/m]."""
+        return self.density * self.area
+
+    @property
+    def mass(self) -> float:
+        """Total needle mass rho A L [kg]."""
+        return self.mass_per_length * self.length
+
+    @property
+    def EA(self) -> float:
+        """Axial stiffness E A [N]."""
+        return self.youngs_modulus * self.area
+
+    @property
+    def EI(self) -> float:
+        """Bending stiffness E I [N m^2]."""
+        return self.youngs_modulus * self.second_moment

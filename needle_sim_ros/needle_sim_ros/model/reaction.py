@@ -1,0 +1,91 @@
+"""Reaction wrench at the base (seed 000 eq. 20).
+
+The constrained rows of eq. 18 give the generalized constraint force on the base coordinates q_c = [r_A, r_xA]:
+    Q_cc = M_cc q''_c + M_ca q''_a - Q_el_c - Q_d_c - Q_f_c
+(the seed prints Q_el_a; the constrained part Q_el_c is meant -- the rows of the base node).  Its part on r_A is the
+force of the holder on the needle; its part Q_rx on the gradient r_xA does the virtual work Q_rx . (dtheta x r_x)
+under a virtual rotation dtheta of the clamp, so the moment about A is M = r_xA x Q_rx.
+
+Sign convention: ``BaseWrench`` is the wrench the needle exerts ON its holder at A, i.e. minus the constraint
+force -- what a force/torque sensor between robot flange and holder reads (after moving its reference point to A).
+A gradient-deficient cable has no torsional degree of freedom, so the moment about the needle axis is zero.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numba import njit
+
+from .damping import add_axial_damping
+from .elastic import ElasticTables, add_elastic
+from .kinematics import BaseMotion
+from .model import NeedleModel, State
+
+
+@dataclass(frozen=True)
+class BaseWrench:
+    """Force [N] and moment about A [N m] of the needle on its holder, in the world and in the base frame."""
+
+    force_world: np.ndarray
+    torque_world: np.ndarray
+    force_base: np.ndarray
+    torque_base: np.ndarray
+
+
+@lru_cache(maxsize=32)
+def _base_rows(model: NeedleModel) -> tuple:
+    """Element 0 (the only one acting on the base node): its quadrature tables and the base rows of the mass and
+    damping slot matrices (slots 0-3)."""
+    first = ElasticTables(*(np.ascontiguousarray(table[:1]) for table in model.elastic))
+    rows = tuple(np.ascontiguousarray(m[:2, :4]) for m in (model.mass_slots, model.damping.isotropic,
+                                                             model.damping.transverse))
+    return (*first, np.ascontiguousarray(model.damping.strain_rate_weights[:1]), *rows)
+
+
+@njit(cache=True)
+def base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
+                           strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, axis, external):
+    """Q_cc = M_c. q'' - Q_el,c - Q_d,c - Q_f,c for the base node from element 0's coordinates (12,)."""
+    internal = np.zeros(12)
+    no_band = np.zeros((1, 1))
+    add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, internal, no_band, 0,
+                0.0, False)
+    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, internal, no_band, 0, 0.0, False)
+    result = np.empty(6)
+    for s in range(2):
+        for c in range(3):
+            total = -internal[3 * s + c] - external[3 * s + c]
+            for s2 in range(4):
+                along = axis[0] * qd[3 * s2] + axis[1] * qd[3 * s2 + 1] + axis[2] * qd[3 * s2 + 2]
+                total += (mass_rows[s, s2] * qdd[3 * s2 + c] + isotropic_rows[s, s2] * qd[3 * s2 + c]
+                          + transverse_rows[s, s2] * axis[c] * along)
+            result[3 * s + c] = total
+    return result
+
+
+def base_constraint_force(model: NeedleModel, state: State, base: BaseMotion, forces=()) -> np.ndarray:
+    """Q_cc on the base node [r_A, r_xA] (6,), eq. 20: the generalized force of the holder on the needle."""
+    external = np.zeros(6)
+    for force in forces:
+        external += np.asarray(force.evaluate(model, state.q, state.qd, state.t, base).Q)[:6]
+    return base_constraint_kernel(np.ascontiguousarray(state.q[:12]), np.ascontiguousarray(state.qd[:12]),
+                                  np.ascontiguousarray(state.qdd[:12]), *_base_rows(model),
+                                  np.ascontiguousarray(base.axis), external)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def reaction_wrench(model: NeedleModel, state: State, base: BaseMotion | None = None, forces=()) -> BaseWrench:
+    """Wrench of the needle on its holder at A (module docstring); ``forces`` as used for the step."""
+    base = base or state.base
+    if base is None:
+        raise ValueError("reaction_wrench needs the base motion (argument base or state.base)")
+    constraint = base_constraint_force(model, state, base, forces)
+    force = -constraint[:3]
+    torque = -_cross(state.q[3:6], constraint[3:6])
+    rotation = base.rotation
+    return BaseWrench(force, torque, rotation.T @ force, rotation.T @ torque)

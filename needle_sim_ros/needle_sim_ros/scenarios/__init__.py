@@ -1,0 +1,1 @@
+"""Command-line scenarios of the needle model (``needle_scenario``, see ``cli``)."""

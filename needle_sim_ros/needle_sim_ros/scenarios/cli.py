@@ -1,0 +1,38 @@
+"""``needle_scenario``: command-line scenarios of the ANCF needle model (ROS-free).
+
+    needle_scenario static --tip-mass 0.08 --elements 10 --json out.json --plot out.png
+    needle_scenario static --tip-mass 0 0.02 0.04 0.06 0.08 --plot fig7.png
+    needle_scenario pitch --json pitch.json --plot fig8.png
+    needle_scenario free_vibration --tip-mass 0.02 --rho-inf 0.95 --beta 0 --json release.json
+    needle_scenario insertion --speed 0.006 --depth 0.09
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import free_vibration, insertion, pitch, static
+
+SCENARIOS = (static, pitch, free_vibration, insertion)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="needle_scenario", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    subparsers = parser.add_subparsers(dest="scenario", required=True)
+    for scenario in SCENARIOS:
+        scenario.add_parser(subparsers).set_defaults(run=scenario.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except (ValueError, FileNotFoundError) as error:
+        print(f"needle_scenario {args.scenario}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,85 @@
+"""Shared pieces of the ``needle_scenario`` sub-commands: needle set-up from a params file and the command line,
+JSON fragments of results, and the matplotlib (Agg) figure helper."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from needle_sim_ros.model import (BaseMotion, BaseWrench, NeedleModel, NeedleProperties, centerline,
+                                  load_needle_config, needle_parameters)
+
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+
+
+def add_needle_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, default=None,
+                        help="ROS 2 params file with needle.*, damping.*, integrator.* (default: built-in defaults, "
+                             "the seed 000 needle)")
+    parser.add_argument("--elements", type=int, default=None, help="number of ANCF elements (overrides config)")
+    parser.add_argument("--axial-gauss", type=int, default=None,
+                        help="Gauss points of the axial integral, eq. 12 (overrides config; seed 000: 5)")
+    parser.add_argument("--centerline-samples", type=int, default=41, help="centerline points written to JSON")
+    parser.add_argument("--json", type=Path, default=None, help="write the result JSON here")
+    parser.add_argument("--plot", type=Path, default=None, help="write a PNG figure here")
+
+
+def needle_configuration(args: argparse.Namespace) -> tuple[NeedleProperties, dict, dict, dict]:
+    """(props, build_model kwargs, Integrator kwargs, flat parameters) from --config and the command line."""
+    source = args.config if args.config is not None else {}
+    props, build, integrator = load_needle_config(source)
+    parameters = needle_parameters(source)
+    if args.elements is not None:
+        build["n_elements"] = args.elements
+        build.pop("element_lengths", None)
+    if args.axial_gauss is not None:
+        build["axial_gauss"] = args.axial_gauss
+    return props, build, integrator, parameters
+
+
+def material(props: NeedleProperties) -> dict:
+    return {"youngs_modulus_pa": props.youngs_modulus, "density_kg_m3": props.density, "radius_m": props.radius,
+            "length_m": props.length, "gravity_m_s2": list(props.gravity)}
+
+
+def wrench_json(wrench: BaseWrench) -> dict:
+    """The wrench on the holder, base frame, about the clamp point A."""
+    return {"force_n": wrench.force_base.tolist(), "torque_nm": wrench.torque_base.tolist()}
+
+
+def in_base_frame(base: BaseMotion, points: np.ndarray) -> np.ndarray:
+    return (np.asarray(points) - base.position) @ base.rotation
+
+
+def shape_json(model: NeedleModel, q: np.ndarray, base: BaseMotion, n_samples: int) -> dict:
+    """Tip position and centerline in the base frame (x along the undeformed needle)."""
+    line = centerline(model, q, n_samples)
+    return {"tip_position_m": in_base_frame(base, q[-6:-3]).tolist(),
+            "centerline_m": in_base_frame(base, line.points).tolist()}
+
+
+def write_json(path: Path | None, result: dict) -> None:
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(result, indent=1))
+
+
+def figure(n_axes: int = 1, size=(7.0, 4.5)):
+    """A matplotlib figure on the Agg backend (no display needed)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(n_axes, 1, figsize=size, squeeze=False)
+    return fig, axes[:, 0]
+
+
+def save_figure(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

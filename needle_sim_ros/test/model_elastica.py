@@ -1,0 +1,42 @@
+"""Independent reference solutions for the needle tests (no needle_sim_ros code).
+
+Exact inextensible elastica of a horizontal cantilever under a uniform vertical load w [N/m] (own weight) and a
+vertical tip load P [N], both downwards: with theta(s) the tangent angle,
+    EI theta'' = (P + w (L - s)) cos(theta),  theta(0) = 0,  theta'(L) = 0,  x' = cos(theta),  z' = sin(theta),
+solved by shooting on theta'(0) (DOP853, tolerances 1e-12) with Brent's method.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
+
+
+def elastica_tip(EI: float, length: float, w: float, P: float) -> np.ndarray:
+    """Tip position (x, z) [m] of the exact elastica."""
+    def rhs(s, y):
+        theta, curvature, _, _ = y
+        return [curvature, (P + w * (length - s)) * np.cos(theta) / EI, np.cos(theta), np.sin(theta)]
+
+    def end(initial_curvature: float) -> np.ndarray:
+        solution = solve_ivp(rhs, (0.0, length), [0.0, initial_curvature, 0.0, 0.0], method="DOP853",
+                             rtol=1e-12, atol=1e-14)
+        return solution.y[:, -1]
+
+    if P == 0.0 and w == 0.0:
+        return np.array([length, 0.0])
+    # the root moment is bounded by that of the loads on the undeformed needle
+    bound = (P * length + 0.5 * w * length**2) / EI
+    root = brentq(lambda k: end(k)[1], -1.001 * bound, 0.0, xtol=1e-15, rtol=1e-14)
+    return end(root)[2:]
+
+
+def linear_cantilever_tip_deflection(EI: float, length: float, w: float, P: float) -> float:
+    """Euler-Bernoulli small-deflection tip deflection (downwards positive) [m]."""
+    return P * length**3 / (3.0 * EI) + w * length**4 / (8.0 * EI)
+
+
+def cantilever_beta_l(n_modes: int) -> list[float]:
+    """Euler-Bernoulli clamped-free eigenvalues beta_n L: roots of cos(x) cosh(x) = -1."""
+    return [brentq(lambda x: np.cos(x) * np.cosh(x) + 1.0, (k + 0.3) * np.pi, (k + 0.7) * np.pi, xtol=1e-14)
+            for k in range(n_modes)]

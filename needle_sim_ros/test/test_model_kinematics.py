@@ -1,0 +1,124 @@
+"""Base kinematics (flange offset, prescribed coordinates q_c), fixtures and the partition (eqs. 18-19), and the
+geometric outputs (centerline, tip pose)."""
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, NeedleProperties, PointLoad, build_model, centerline,
+                                  solve_static, tip_pose)
+from needle_sim_ros.model.partition import hermite_quintic
+
+NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
+AXIS = np.array([0.36, -0.48, 0.8])
+OFFSET = (np.array([0.02, -0.01, 0.15]), Rotation.from_euler("zyx", [0.3, -0.2, 0.5]))
+
+
+def flange_pose(t):
+    """Flange moving along a parabola and turning about a fixed axis by phi(t) = 0.4 t + 0.9 t^2."""
+    position = np.array([0.1, 0.2, 0.3]) + np.array([0.5, -0.2, 0.1]) * t + np.array([0.3, 0.4, -0.6]) * t**2
+    return position, Rotation.from_rotvec(AXIS * (0.4 * t + 0.9 * t**2)) * Rotation.from_euler("x", 0.7)
+
+
+def flange_motion(t):
+    position, rotation = flange_pose(t)
+    rate, acceleration = 0.4 + 1.8 * t, 1.8
+    return BaseMotion.from_flange(position, rotation.as_quat(), OFFSET[0], OFFSET[1].as_quat(),
+                                  np.array([0.5, -0.2, 0.1]) + 2 * np.array([0.3, 0.4, -0.6]) * t, AXIS * rate,
+                                  2 * np.array([0.3, 0.4, -0.6]), AXIS * acceleration)
+
+
+def test_flange_offset_kinematics_match_finite_differences():
+    """The clamp point A = flange + R_f offset: velocity and acceleration by central differences of its path."""
+    t, h = 0.37, 1e-4
+    motion = flange_motion(t)
+    def clamp(t):
+        position, rotation = flange_pose(t)
+        return position + rotation.apply(OFFSET[0])
+    # central differences: O(h^2) truncation on a smooth path, ~1e-8 here
+    assert np.allclose(motion.position, clamp(t), atol=1e-14)
+    assert np.allclose(motion.linear_velocity, (clamp(t + h) - clamp(t - h)) / (2 * h), atol=1e-7)
+    assert np.allclose(motion.linear_acceleration, (clamp(t + h) - 2 * clamp(t) + clamp(t - h)) / h**2, atol=1e-5)
+    expected = (flange_pose(t)[1] * OFFSET[1]).as_matrix()
+    assert np.allclose(motion.rotation, expected, atol=1e-14)
+
+
+def test_straight_state_prescribes_the_base_coordinates_and_rigid_rates():
+    """q_c = [r_A, r_xA = unit axis]; every node moves rigidly: compare with differences of the node paths."""
+    model = build_model(NEEDLE, element_lengths=[0.1, 0.07, 0.1])
+    t, h = 0.21, 1e-4
+    state = model.straight_state(flange_motion(t), t)
+    path = lambda t: model.straight_state(flange_motion(t), t).q
+    assert np.allclose(state.q[:3], flange_motion(t).position) and np.allclose(state.q[3:6], flange_motion(t).axis)
+    assert np.allclose(np.linalg.norm(state.q.reshape(-1, 2, 3)[:, 1], axis=1), 1.0)
+    assert np.allclose(state.qd, (path(t + h) - path(t - h)) / (2 * h), atol=1e-7)
+    assert np.allclose(state.qdd, (path(t + h) - 2 * path(t) + path(t - h)) / h**2, atol=1e-5)
+
+
+def test_base_motion_rejects_bad_input():
+    with pytest.raises(ValueError, match="orientation"):
+        BaseMotion((0, 0, 0), (0, 0, 0, 2))
+    with pytest.raises(ValueError, match="position"):
+        BaseMotion((0, 0), (0, 0, 0, 1))
+    with pytest.raises(ValueError, match="angular_velocity"):
+        BaseMotion((0, 0, 0), (0, 0, 0, 1), angular_velocity=(0, math.nan, 0))
+
+
+def test_fixtures_partition_and_validation():
+    model = build_model(NEEDLE, 10, fixtures=[Fixture(interval=(0.162, 0.27)), Fixture(nodes=(2,), frame="base")])
+    clamped_nodes = sorted(set(model.constrained_dofs // 6))
+    assert clamped_nodes == [0, 2, 6, 7, 8, 9, 10]
+    assert model.active_dofs.size == model.n_dof - 6 * 7
+    with pytest.raises(ValueError, match="not a mesh node"):
+        build_model(NEEDLE, 10, fixtures=[Fixture(interval=(0.15, 0.27))])
+    with pytest.raises(ValueError, match="clamped twice"):
+        build_model(NEEDLE, 4, fixtures=[Fixture(nodes=(0,))])
+    with pytest.raises(ValueError, match="node index"):
+        build_model(NEEDLE, 4, fixtures=[Fixture(nodes=(5,))])
+    with pytest.raises(ValueError, match="frame"):
+        Fixture(nodes=(1,), frame="tool")
+
+
+def test_fixture_on_a_moving_frame_carries_its_nodes():
+    """A tip clamp on a frame that translates: the static equilibrium has the tip where the frame put it."""
+    shift = np.array([0.0, 0.0, -0.02])
+    frame = lambda t: BaseMotion(shift * t, (0.0, 0.0, 0.0, 1.0), shift)
+    model = build_model(NEEDLE, 6, fixtures=[Fixture(nodes=(-1,), frame=frame)])
+    state = solve_static(model, BaseMotion((0, 0, 0), (0, 0, 0, 1)), [Gravity()], t=1.0).state
+    assert np.allclose(state.q[-6:], [NEEDLE.length, 0.0, -0.02, 1.0, 0.0, 0.0], atol=1e-15)
+    assert np.allclose(model.straight_state(BaseMotion((0, 0, 0), (0, 0, 0, 1)), 1.0).qd[-6:-3], shift)
+
+
+def test_quintic_interpolation_of_prescribed_coordinates():
+    """Sub-steps interpolate q_c from values, rates and accelerations at both ends: exact for quintics."""
+    c = np.array([0.3, -1.0, 2.0, 0.5, -0.7, 1.1])
+    y = lambda t: np.polyval(c, t)
+    dy, ddy = np.polyder(c), np.polyder(c, 2)
+    state = lambda t: np.array([[y(t)], [np.polyval(dy, t)], [np.polyval(ddy, t)]])
+    t0, h = 0.4, 0.3
+    for theta in (0.25, 0.5, 0.8):
+        assert np.allclose(hermite_quintic(state(t0), state(t0 + h), h, theta), state(t0 + theta * h), atol=1e-12)
+
+
+def test_centerline_and_tip_pose_of_a_planar_bend():
+    """Cantilever with a tip load in the x-z plane: tangents are unit, arc length ~ L (inextensible to 1e-5),
+    the tip frame is the base frame turned about y by the tip angle."""
+    model = build_model(NEEDLE, 10)
+    base = BaseMotion((0, 0, 0), (0, 0, 0, 1))
+    state = solve_static(model, base, [Gravity(), PointLoad(NEEDLE.length, (0, 0, -0.3))]).state
+    line = centerline(model, state.q, 201)
+    assert np.allclose(np.linalg.norm(line.tangents, axis=1), 1.0)
+    assert line.arc_length[-1] == pytest.approx(NEEDLE.length, rel=1e-5)  # axial strain < 1e-5 under 0.3 N
+    assert np.allclose(line.points[-1], state.q[-6:-3])
+    position, orientation = tip_pose(model, state.q)
+    tangent = state.q[-3:] / np.linalg.norm(state.q[-3:])
+    angle = math.atan2(-tangent[2], tangent[0])
+    assert np.allclose(Rotation.from_quat(orientation).as_matrix(),
+                       Rotation.from_euler("y", angle).as_matrix(), atol=1e-9)
+    rolled = Rotation.from_euler("x", 0.3)
+    _, with_base = tip_pose(model, state.q, base_orientation=rolled.as_quat())
+    assert np.allclose(Rotation.from_quat(with_base).as_matrix(),
+                       (Rotation.from_euler("y", angle) * rolled).as_matrix(), atol=1e-9)
+    with pytest.raises(ValueError, match="n_samples"):
+        centerline(model, state.q, 1)
