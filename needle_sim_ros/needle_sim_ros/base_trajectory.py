@@ -17,7 +17,8 @@ from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from needle_sim_ros import quaternion
 
 
 class PoseVerdict(Enum):
@@ -107,8 +108,8 @@ class BaseTrajectory:
 
     def _deviation(self, reference: BaseKinematics | PoseSample, sample: PoseSample) -> tuple[float, float]:
         dp = float(np.linalg.norm(sample.position - reference.position))
-        rel = Rotation.from_quat(reference.orientation).inv() * Rotation.from_quat(sample.orientation)
-        return dp, float(np.linalg.norm(rel.as_rotvec()))
+        relative = quaternion.multiply(quaternion.conjugate(reference.orientation), sample.orientation)
+        return dp, float(np.linalg.norm(quaternion.to_rotation_vector(relative)))
 
     def _within_limits(self, deviation: tuple[float, float]) -> bool:
         return deviation[0] <= self.limits.max_position_jump and deviation[1] <= self.limits.max_orientation_jump
@@ -149,18 +150,17 @@ class BaseTrajectory:
             # Too few samples for derivatives: the newest pose, at rest.
             zero = np.zeros(3)
             return BaseKinematics(newest.position.copy(), newest.orientation.copy(), zero, zero, zero, zero, extrapolated)
-        reference = Rotation.from_quat(newest.orientation)
         tau = t_eval - newest.t
         value = coeffs[0] + coeffs[1] * tau + coeffs[2] * tau**2
         rate = coeffs[1] + 2.0 * coeffs[2] * tau
         accel = 2.0 * coeffs[2]
-        orientation = (reference * Rotation.from_rotvec(value[3:])).as_quat()
+        orientation = quaternion.multiply(newest.orientation, quaternion.from_rotation_vector(value[3:]))
         if held:
             zero = np.zeros(3)
             return BaseKinematics(value[:3], orientation, zero, zero, zero, zero, True)
         # Within a 20 ms window the relative rotation is small, so the world angular velocity is R_ref * d(phi)/dt
         # up to O(|phi|) terms (the exact map is the right Jacobian of SO(3), identity at phi = 0).
-        r = reference.as_matrix()
+        r = quaternion.to_matrix(newest.orientation)
         return BaseKinematics(value[:3], orientation, rate[:3], r @ rate[3:], accel[:3], r @ accel[3:], extrapolated)
 
     def _fit_window(self, newest: PoseSample) -> np.ndarray:
@@ -169,10 +169,12 @@ class BaseTrajectory:
         if len(window) < 3:
             return np.zeros((0, 6))
         times = np.array([s.t for s in window]) - newest.t
-        reference = Rotation.from_quat(newest.orientation)
-        rotvecs = (reference.inv() * Rotation.from_quat([s.orientation for s in window])).as_rotvec()
+        relative = quaternion.multiply(quaternion.conjugate(newest.orientation), np.array([s.orientation for s in window]))
+        rotvecs = quaternion.to_rotation_vector(relative)
         positions = np.array([s.position for s in window])
-        # tau stays within the window, so the Vandermonde system is well conditioned.
-        design = np.stack([np.ones_like(times), times, times**2], axis=1)
-        coeffs, *_ = np.linalg.lstsq(design, np.hstack([positions, rotvecs]), rcond=None)
-        return coeffs
+        # Normal equations of the least-squares fit, in tau scaled by the window: well conditioned (3 x 3).
+        scale = max(self.limits.window, 1e-9)
+        x = times / scale
+        design = np.stack([np.ones_like(x), x, x * x], axis=1)
+        coeffs = np.linalg.solve(design.T @ design, design.T @ np.hstack([positions, rotvecs]))
+        return coeffs / np.array([1.0, scale, scale * scale])[:, None]
