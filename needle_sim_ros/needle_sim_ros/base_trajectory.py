@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
+from numba import njit
 
 from needle_sim_ros import quaternion
 
@@ -170,11 +171,22 @@ class BaseTrajectory:
             return np.zeros((0, 6))
         times = np.array([s.t for s in window]) - newest.t
         relative = quaternion.multiply(quaternion.conjugate(newest.orientation), np.array([s.orientation for s in window]))
-        rotvecs = quaternion.to_rotation_vector(relative)
-        positions = np.array([s.position for s in window])
-        # Normal equations of the least-squares fit, in tau scaled by the window: well conditioned (3 x 3).
-        scale = max(self.limits.window, 1e-9)
-        x = times / scale
-        design = np.stack([np.ones_like(x), x, x * x], axis=1)
-        coeffs = np.linalg.solve(design.T @ design, design.T @ np.hstack([positions, rotvecs]))
-        return coeffs / np.array([1.0, scale, scale * scale])[:, None]
+        values = np.hstack([np.array([s.position for s in window]), quaternion.to_rotation_vector(relative)])
+        return _quadratic_fit(times, values, max(self.limits.window, 1e-9))
+
+
+@njit(cache=True)
+def _quadratic_fit(times: np.ndarray, values: np.ndarray, scale: float) -> np.ndarray:
+    """Coefficients c (3, m) of the least-squares quadratic values ~ c0 + c1 tau + c2 tau^2.
+
+    Normal equations in tau / scale (scale = window length), so the 3 x 3 system is well conditioned.
+    """
+    x = times / scale
+    design = np.empty((x.size, 3))
+    design[:, 0] = 1.0
+    design[:, 1] = x
+    design[:, 2] = x * x
+    coeffs = np.linalg.solve(design.T @ design, design.T @ values)
+    coeffs[1] /= scale
+    coeffs[2] /= scale * scale
+    return coeffs
