@@ -91,7 +91,7 @@ def simulator(ros_env, tmp_path):
         process = subprocess.Popen(simulator_command() + ["--ros-args", "--params-file", str(write_params(tmp_path, **overrides))],
                                    env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         processes.append(process)
-        deadline = time.monotonic() + 60.0  # first start compiles numba kernels
+        deadline = time.monotonic() + 180.0  # a first start on a fresh machine compiles the numba kernels (~50 s)
         while driver.pose_pub.get_subscription_count() == 0:
             assert process.poll() is None, process.stdout.read()
             assert time.monotonic() < deadline, "simulator did not come up"

@@ -22,8 +22,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("bag", default_value="", description="rosbag2 MCAP to replay (empty: live)"),
         DeclareLaunchArgument("log", default_value="needle_compare.mcap", description="MCAP log of the comparison"),
         DeclareLaunchArgument("stereo", default_value="true", description="run the stereo reconstruction"),
+        # The wrench is offered reliably so that needle_compare (a reliable subscriber) can record it.
         Node(package="needle_sim_ros", executable="needle_simulator", name="needle_simulator", output="screen",
-             parameters=[PathJoinSubstitution([config, "needle_simulator.yaml"]), common]),
+             parameters=[PathJoinSubstitution([config, "needle_simulator.yaml"]), common, {"qos.wrench": "reliable"}]),
         Node(package="needle_vision", executable="needle_stereo", name="needle_stereo", output="screen",
              condition=IfCondition(LaunchConfiguration("stereo")),
              parameters=[PathJoinSubstitution([config, "needle_stereo.yaml"]), common]),

@@ -103,6 +103,7 @@ class NeedleSimulation:
         self.twist: tuple[float, np.ndarray, np.ndarray] | None = None
         self.clamp_interval = clamp_interval
         self.model_builder = model_builder
+        self.after_step: Callable[[StepRecord], None] | None = None  # called with the state of each accepted step
         self.point_loads: dict[str, PointLoad] = {}
         self.state: State | None = None
         self.base: BaseMotion | None = None
@@ -229,7 +230,10 @@ class NeedleSimulation:
         stats.steps += 1
         stats.max_newton_iterations = max(stats.max_newton_iterations, iterations)
         stats.step_wall_times.append(wall)
-        return StepRecord(self.state.t, wrench, iterations, substeps, wall)
+        record = StepRecord(self.state.t, wrench, iterations, substeps, wall)
+        if self.after_step is not None:
+            self.after_step(record)
+        return record
 
     # -- outputs --------------------------------------------------------------------------------------------
     def shape(self, n_samples: int):

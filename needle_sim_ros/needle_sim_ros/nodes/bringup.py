@@ -38,20 +38,20 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def ros_arguments(args: argparse.Namespace) -> tuple[list[str], bool]:
-    """Extra ROS arguments (parameter files, the comparison's remaps) and whether the stereo node runs."""
-    extra: list[str] = []
+def rcl_arguments(argv: list[str], args: argparse.Namespace) -> tuple[list[str], bool]:
+    """The arguments for rclpy.init and whether the stereo node runs. The experiment's parameter files come
+    before the command line's ROS arguments (later parameter values win), the comparison's remaps after them (the
+    first matching rule wins), so the command line overrides both."""
+    files: list[str] = []
     stereo = not args.no_stereo
     if args.experiment is not None:
         from needle_sim_ros.offline.parameters import load_experiment
         experiment = load_experiment(args.experiment)
-        files = dict.fromkeys(path for node_files in experiment.files.values() for path in node_files)
-        for path in files:
-            extra += ["--params-file", str(path)]
+        for path in dict.fromkeys(p for node_files in experiment.files.values() for p in node_files):
+            files += ["--params-file", str(path)]
         stereo = stereo and experiment.settings.stereo
-    for rule in COMPARE_REMAPS:
-        extra += ["-r", rule]
-    return ["--ros-args", *extra], stereo
+    remaps = [a for rule in COMPARE_REMAPS for a in ("-r", rule)]
+    return [argv[0], "--ros-args", *files, "--", *argv[1:], "--ros-args", *remaps], stereo
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,11 +59,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_arguments(remove_ros_args(argv)[1:])
     logger = rclpy.logging.get_logger(NAME)
     try:
-        extra, stereo = ros_arguments(args)
+        rcl_args, stereo = rcl_arguments(argv, args)
     except ValueError as error:
         logger.fatal(str(error))
         return EXIT_BAD_PARAMETER
-    rclpy.init(args=[*argv, *extra])  # the command line's own remaps come first and win
+    rclpy.init(args=rcl_args)
     from needle_vision.parameters import ParameterError as StereoParameterError
     from needle_vision.stereo_node import NeedleStereoNode
 
@@ -79,19 +79,20 @@ def main(argv: list[str] | None = None) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
         return EXIT_BAD_PARAMETER
-    simulator, compare = nodes[0], nodes[-1]
     executor = MultiThreadedExecutor(num_threads=len(nodes) + 1)
     for node in nodes:
         executor.add_node(node)
-    simulator.start()
+        if hasattr(node, "start"):  # the hooks of needle_sim_ros.nodes.runner.run_node
+            node.start()
     logger.info(f"running {', '.join(node.get_name() for node in nodes)} in one process")
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        simulator.stop()
-        compare.finish()
+        for node in nodes:
+            if hasattr(node, "finish"):
+                node.finish()
         executor.shutdown()
         for node in nodes:
             node.destroy_node()

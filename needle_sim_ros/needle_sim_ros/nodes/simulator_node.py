@@ -81,6 +81,10 @@ class NeedleSimulatorNode(Node):
         self.create_service(ClearPointLoads, "~/clear_point_loads", self.on_clear_point_loads)
         guard_dynamic_updates(self, SIMULATOR_PARAMETERS, self.on_parameters_changed)
         self._next_output = {"shape": 0.0, "visualization": 0.0, "diagnostics": 0.0}
+        if self.use_sim_time:
+            # Simulated time: one shape per step that crosses the 1/shape_hz grid, stamped with that step's time,
+            # so a replay yields every shape whatever the machine load (the output thread then only visualizes).
+            self.sim.after_step = self.publish_shape_on_grid
         self._loop = threading.Thread(target=self.run_loop, name="needle_integration", daemon=True)
         self._outputs = threading.Thread(target=self.run_outputs, name="needle_outputs", daemon=True)
         # The output thread builds large messages (the marker tube: ~5 ms); a short GIL switch interval lets the
@@ -278,31 +282,50 @@ class NeedleSimulatorNode(Node):
         self._next_output[key] = now + 1.0 / rate
         return True
 
+    def publish_shape_on_grid(self, record) -> None:
+        """Integration thread, lock held: publish the shape of a step that reached the next shape time."""
+        rate = self.p["rates.shape_hz"]
+        if record.t + 1e-9 < self._next_output["shape"] and record.t > self._next_output["shape"] - 2.0 / rate:
+            return
+        self._next_output["shape"] = (np.floor(record.t * rate + 1e-6) + 1.0) / rate
+        self.publish_shape(self.snapshot())
+
+    def snapshot(self) -> dict:
+        """Everything the shape and visualization outputs need, taken under the lock."""
+        kinetic, elastic = self.sim.energies()
+        position, orientation = self.sim.tip()
+        return {"t": self.sim.state.t, "line": self.sim.shape(self.p["output.shape_samples"]), "tip": (position, orientation),
+                "energies": (kinetic, elastic), "readout": self.tissue_readout()}
+
+    def publish_shape(self, snap: dict) -> None:
+        header = self.header(snap["t"], self.p["frames.world"])
+        line = snap["line"]
+        self.shape_pub.publish(needle_shape_msg(header, NeedleShape.SOURCE_MODEL, line.points, line.tangents,
+                                                line.arc_length, *snap["tip"]))
+        kinetic, elastic = snap["energies"]
+        state = NeedleState(header=header, kinetic_energy=float(kinetic), elastic_energy=float(elastic))
+        readout = snap["readout"]
+        if readout is not None:
+            state.insertion_depth = float(readout.insertion_depth)
+            state.inserted_length = float(readout.inserted_length)
+            state.tip_force.x, state.tip_force.y, state.tip_force.z = (float(x) for x in readout.tip_force)
+            state.axial_force = float(readout.axial_force)
+        self.state_pub.publish(state)
+
     def publish_periodic_outputs(self, now: float) -> None:
-        shape_due = self.due("shape", now, self.p["rates.shape_hz"])
+        shape_due = not self.use_sim_time and self.due("shape", now, self.p["rates.shape_hz"])
         visualization_due = self.due("visualization", now, self.p["rates.visualization_hz"])
         if not (shape_due or visualization_due):
             return
         with self._lock:
             if not self.sim.started:
                 return
-            t = self.sim.state.t
-            line = self.sim.shape(self.p["output.shape_samples"])
-            tip_position, tip_orientation = self.sim.tip()
-            kinetic, elastic = self.sim.energies()
-            readout = self.tissue_readout()
-        header = self.header(t, self.p["frames.world"])
+            snap = self.snapshot()
         if shape_due:
-            self.shape_pub.publish(needle_shape_msg(header, NeedleShape.SOURCE_MODEL, line.points, line.tangents,
-                                                    line.arc_length, tip_position, tip_orientation))
-            state = NeedleState(header=header, kinetic_energy=float(kinetic), elastic_energy=float(elastic))
-            if readout is not None:
-                state.insertion_depth = float(readout.insertion_depth)
-                state.inserted_length = float(readout.inserted_length)
-                state.tip_force.x, state.tip_force.y, state.tip_force.z = (float(x) for x in readout.tip_force)
-                state.axial_force = float(readout.axial_force)
-            self.state_pub.publish(state)
+            self.publish_shape(snap)
         if visualization_due:
+            header = self.header(snap["t"], self.p["frames.world"])
+            line = snap["line"]
             self.path_pub.publish(path_msg(header, line.points, line.tangents))
             self.pose_array_pub.publish(pose_array_msg(header, line.points, line.tangents))
             self.marker_pub.publish(tube_marker_msg(header, line.points, line.tangents, self.props.radius))

@@ -1,0 +1,119 @@
+"""``needle_offline``: the whole pipeline (simulator + stereo + comparison) over a bag, as fast as possible.
+
+    needle_offline bags/dynamic_pitch.mcap                        # parameters: config/experiments/dynamic_pitch.yaml
+    needle_offline BAG --duration 2.6 --set needle_simulator:needle.youngs_modulus=250e9 --output-dir out/wrong_e
+
+Writes into the output directory (default ``out/<bag>/offline``): ``pipeline.mcap`` (what ``needle_compare`` records
+live: model and measured shapes, ShapeError, base pose, wrench), ``summary.json`` (RMSE statistics, counts, the
+simulator's effort, wall time and real-time factor, and for synthetic bags the model's and the measurement's own
+error against the ground truth) and ``plots/`` (centerlines at the experiment's instants, error and wrench vs time).
+Exit status: 0 done, 1 the run failed, 2 bad arguments, parameters or input.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+from tqdm import tqdm
+
+from needle_sim_ros.nodes.parameters import ParameterError
+from needle_sim_ros.offline.parameters import NODES, ExperimentConfigError, experiment_for_bag, load_experiment
+from needle_sim_ros.offline.pipeline import OfflinePipeline
+from needle_sim_ros.offline.plots import write_plots
+from needle_sim_ros.offline.results import read_pipeline_log, versus_ground_truth
+from needle_sim_ros.recording import BagReader, BagReadError, RecordingError
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``node:name=value`` -> (node, name, value parsed as YAML)."""
+    node, sep, rest = text.partition(":")
+    name, equals, value = rest.partition("=")
+    if not (sep and equals and node in NODES and name):
+        raise argparse.ArgumentTypeError(f"'{text}': expected NODE:PARAMETER=VALUE with NODE one of {', '.join(NODES)}")
+    return node, name, yaml.safe_load(value)
+
+
+def summary_lines(summary: dict[str, Any]) -> list[str]:
+    """Human-readable lines of a run summary (offline or live)."""
+    c = summary["comparison"]
+    mm = (lambda v: f"{v * 1e3:.3f} mm" if v is not None else "n/a")
+    lines = [f"compared {c['compared']} measurement(s), unpaired {c['unpaired_measurements']}, "
+             f"rejected {sum(c['rejected_inputs'].values())}",
+             f"RMSE mean {mm(c['rmse_mean_m'])}, max {mm(c['rmse_max_m'])}; tip error mean "
+             f"{mm(c['tip_error_mean_m'])}; largest sample error {mm(c['max_error_m'])}"]
+    truth = summary.get("versus_ground_truth")
+    if truth and truth["instants"]:
+        lines.append(f"against the ground truth: model {mm(truth['model_rmse_mean_m'])}, measurement "
+                     f"{mm(truth['measurement_rmse_mean_m'])} (RMS over {truth['instants']} instants)")
+    timing = summary.get("timing")
+    if timing and timing.get("real_time_factor"):
+        lines.append(f"{timing['simulated_s']:.2f} s of bag in {timing['wall_s']:.2f} s wall: "
+                     f"{timing['real_time_factor']:.2f}x real time")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="needle_offline", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    parser.add_argument("bag", type=Path, help="rosbag2 MCAP recording (.mcap file or bag directory)")
+    parser.add_argument("--experiment", type=Path, help="experiment params file (default: "
+                        "config/experiments/<bag name>.yaml)")
+    parser.add_argument("--output-dir", type=Path, help="output directory (default: out/<bag name>/offline)")
+    parser.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds of the bag")
+    parser.add_argument("--duration", type=float, help="process only S seconds (default: to the end)")
+    parser.add_argument("--set", dest="overrides", action="append", type=parse_override, default=[],
+                        metavar="NODE:PARAM=VALUE", help="override a node parameter (repeatable)")
+    parser.add_argument("--instants", type=float, nargs="+", help="centerline plot instants [s from the bag start]")
+    parser.add_argument("--no-stereo", action="store_true", help="compare a recorded needle/measured_shape instead")
+    parser.add_argument("--no-plots", action="store_true", help="do not write plots")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    if args.start_offset < 0 or (args.duration is not None and args.duration <= 0):
+        parser.error("--start-offset must be >= 0 and --duration > 0")
+    overrides: dict[str, dict[str, Any]] = {}
+    for node, name, value in args.overrides:
+        overrides.setdefault(node, {})[name] = value
+    name = args.bag.stem
+    output_dir = args.output_dir or Path("out") / name / "offline"
+    try:
+        experiment = load_experiment(args.experiment) if args.experiment else experiment_for_bag(args.bag)
+        pipeline = OfflinePipeline(experiment, overrides, stereo=False if args.no_stereo else None)
+        output_dir.mkdir(parents=True, exist_ok=True)
+        reader = BagReader(args.bag)
+        total = (reader.end_time_ns - reader.start_time_ns) / 1e9 - args.start_offset
+        total = min(total, args.duration) if args.duration is not None else total
+        with tqdm(total=round(total, 3), unit="s", desc=f"needle_offline {name}", disable=args.quiet,
+                  bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s of bag [{elapsed}<{remaining}]") as bar:
+            def progress(done: float) -> None:
+                bar.update(min(round(done, 3), bar.total) - bar.n)
+            run = pipeline.run(args.bag, output_dir / "pipeline.mcap", args.start_offset, args.duration, progress)
+    except (ExperimentConfigError, ParameterError, BagReadError, ValueError) as error:
+        print(f"needle_offline: error: {error}", file=sys.stderr)
+        return 2
+    except RecordingError as error:
+        print(f"needle_offline: error: {error}", file=sys.stderr)
+        return 1
+    summary = run.summary
+    for warning in summary["warnings"]:
+        print(f"[needle_offline] note: {warning}", file=sys.stderr)
+    log = read_pipeline_log(run.log_path, args.bag)
+    summary["versus_ground_truth"] = versus_ground_truth(log)
+    if not args.no_plots:
+        instants = args.instants or experiment.settings.plot_instants
+        summary["plots"] = [str(p) for p in write_plots(log, output_dir / "plots", instants, name)]
+    summary["log"] = str(run.log_path)
+    (output_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    for line in summary_lines(summary):
+        print(f"[needle_offline] {line}")
+    print(f"[needle_offline] MCAP log: {run.log_path}\n[needle_offline] summary: {output_dir / 'summary.json'}")
+    if not args.no_plots:
+        print(f"[needle_offline] plots: {output_dir / 'plots'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

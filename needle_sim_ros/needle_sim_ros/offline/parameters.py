@@ -1,0 +1,104 @@
+"""Parameters of the three pipeline nodes and of an experiment, read from ROS 2 params files without ROS.
+
+An experiment file (``config/experiments/<bag>.yaml``) is an ordinary ROS 2 params file with one section per node
+(``needle_simulator``, ``needle_stereo``, ``needle_compare``: per-bag overrides) and a ``needle_pipeline`` section
+that only the pipeline tools read (the bag, whether images are measured, plot instants). The nodes get the node
+config files (``config/needle_<node>.yaml``) and then the experiment file, later files overriding earlier ones, as
+``--params-file`` does; the offline pipeline reads the same files in the same order.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from needle_vision.parameters import load_params_file
+
+NODES = ("needle_simulator", "needle_stereo", "needle_compare")
+PIPELINE_SECTION = "needle_pipeline"
+
+
+class ExperimentConfigError(ValueError):
+    """The experiment file is unusable; the message names the file and key."""
+
+
+def default_config_dir() -> Path:
+    """``config/`` of the working directory (the repository root, where the nodes resolve their relative paths),
+    else of the source tree, else the installed share directory of needle_sim_ros."""
+    source = Path(__file__).resolve().parents[3] / "config"
+    for candidate in (Path.cwd() / "config", source):
+        if candidate.is_dir():
+            return candidate
+    from ament_index_python.packages import get_package_share_directory
+    return Path(get_package_share_directory("needle_sim_ros")) / "config"
+
+
+def node_config_files(config_dir: Path) -> dict[str, list[Path]]:
+    """The node config files that exist, per node (``config/needle_simulator.yaml`` etc.)."""
+    return {node: [p for p in (config_dir / f"{node}.yaml",) if p.is_file()] for node in NODES}
+
+
+def node_values(files: Sequence[Path], node: str) -> dict[str, Any]:
+    """Parameter values for ``node`` from params files applied in order (``/**`` and the node's own section)."""
+    values: dict[str, Any] = {}
+    for path in files:
+        values.update(load_params_file(path, node))
+    return values
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """The ``needle_pipeline`` section: bag (a relative path is taken from the directory holding ``config/``),
+    stereo on/off, plot instants [s from the bag start] (empty: spread over the measurements)."""
+
+    bag: Path
+    stereo: bool = True
+    plot_instants: tuple[float, ...] = ()
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """Everything an experiment run needs: its file, the pipeline settings and each node's parameter files."""
+
+    path: Path
+    settings: PipelineSettings
+    files: dict[str, list[Path]] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.path.stem
+
+    def values(self, node: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Raw parameter values of ``node`` (node config, experiment file, then ``overrides``)."""
+        return {**node_values(self.files[node], node), **(overrides or {})}
+
+
+def load_experiment(path: str | Path, config_dir: Path | None = None) -> ExperimentConfig:
+    """Read an experiment file (``<root>/config/experiments/<name>.yaml``) with the node config files of
+    ``config_dir`` (default: :func:`default_config_dir`); raises ExperimentConfigError naming the problem."""
+    path = Path(path).resolve()
+    config_dir = config_dir or default_config_dir()
+    if not path.is_file():
+        raise ExperimentConfigError(f"experiment file '{path}' does not exist")
+    raw = load_params_file(path, PIPELINE_SECTION)
+    if "bag" not in raw:
+        raise ExperimentConfigError(f"'{path}': section {PIPELINE_SECTION}.ros__parameters needs 'bag'")
+    instants = raw.get("plot_instants", [])
+    if not isinstance(instants, list) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in instants):
+        raise ExperimentConfigError(f"'{path}': {PIPELINE_SECTION}.plot_instants must be a list of numbers [s]")
+    bag = Path(raw["bag"])
+    settings = PipelineSettings(bag if bag.is_absolute() else path.parents[2] / bag, bool(raw.get("stereo", True)),
+                                tuple(float(v) for v in instants), str(raw.get("description", "")))
+    files = {node: [*node_config_files(config_dir)[node], path] for node in NODES}
+    return ExperimentConfig(path, settings, files)
+
+
+def experiment_for_bag(bag: str | Path, config_dir: Path | None = None) -> ExperimentConfig:
+    """The experiment file of a bundled bag: ``config/experiments/<bag stem>.yaml``."""
+    config_dir = config_dir or default_config_dir()
+    path = config_dir / "experiments" / f"{Path(bag).stem}.yaml"
+    if not path.is_file():
+        raise ExperimentConfigError(f"no experiment file for bag '{bag}': expected '{path}'")
+    return load_experiment(path, config_dir)

@@ -1,0 +1,205 @@
+"""Offline batch mode: simulator + stereo + comparison over a bag, as fast as the model steps and deterministic.
+
+The bag's messages are taken in log-time order; the log time is the clock. Before a message is delivered the
+simulator integrates up to it (deterministically: never past the newest pose), and every produced message goes
+through the stages that would receive it in the live pipeline::
+
+    /base_pose, /tip_load ──> SimulatorStage ──> /wrench, /needle/shape ──────────┐
+    /left|right/image_raw ──> StereoStage ──> /needle/measured_shape ──> ComparisonStage ──> /shape_error
+    (or a recorded /needle/measured_shape, e.g. a shape-sensing needle) ───────────┘
+
+The output MCAP holds what ``needle_compare`` records in the live pipeline (``/needle/shape``,
+``/needle/measured_shape``, ``/shape_error``, ``/base_pose``, ``/wrench``), with the same topic names, so the
+plots and reports read either. Nothing here depends on wall time: the same bag and parameters give the same file.
+"""
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from needle_interfaces.msg import NeedleShape, ShapeError
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import CameraInfo, Image
+
+from needle_sim_ros.offline.parameters import ExperimentConfig
+from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
+                                           simulator_values, stereo_values)
+from needle_sim_ros.recording import BagReader, McapBagWriter, OfferedQos, WriterOptions
+
+NS = 1_000_000_000
+# Output topics (as the live pipeline names them) -> (type, offered QoS of the live publisher).
+OUTPUT_TOPICS = {
+    "/needle/shape": ("needle_interfaces/msg/NeedleShape", OfferedQos(depth=10)),
+    "/needle/measured_shape": ("needle_interfaces/msg/NeedleShape", OfferedQos(depth=10)),
+    "/shape_error": ("needle_interfaces/msg/ShapeError", OfferedQos(depth=10)),
+    "/base_pose": ("geometry_msgs/msg/PoseStamped", OfferedQos(depth=10)),
+    "/wrench": ("geometry_msgs/msg/WrenchStamped", OfferedQos(depth=100)),  # QoS: as the simulator's qos.wrench
+}
+INPUT_TYPES = {"/base_pose": PoseStamped, "/tip_load": WrenchStamped, "/left/image_raw": Image,
+               "/right/image_raw": Image, "/left/camera_info": CameraInfo, "/right/camera_info": CameraInfo,
+               "/needle/measured_shape": NeedleShape}
+
+
+@dataclass
+class OfflineRun:
+    """Result of one offline run: the summary written as JSON and the output files."""
+
+    summary: dict[str, Any]
+    log_path: Path | None
+    errors: list[ShapeError] = field(default_factory=list)
+
+
+class OfflinePipeline:
+    """One run of the three stages over a bag with an experiment's parameters (+ per-node ``overrides``)."""
+
+    def __init__(self, experiment: ExperimentConfig, overrides: dict[str, dict[str, Any]] | None = None,
+                 stereo: bool | None = None) -> None:
+        overrides = overrides or {}
+        self.experiment = experiment
+        self.warnings: list[str] = []
+        sim_values, unknown = simulator_values(experiment.values("needle_simulator", overrides.get("needle_simulator")))
+        self.warnings += unknown
+        cmp_values, unknown = compare_values(experiment.values("needle_compare", overrides.get("needle_compare")))
+        self.warnings += unknown
+        self.parameters = {"needle_simulator": sim_values, "needle_compare": cmp_values}
+        self.simulator = SimulatorStage(sim_values)
+        self.comparison = ComparisonStage(cmp_values)
+        self.use_stereo = experiment.settings.stereo if stereo is None else stereo
+        self.stereo = None
+        if self.use_stereo:
+            values = stereo_values(experiment.values("needle_stereo", overrides.get("needle_stereo")))
+            self.parameters["needle_stereo"] = values
+            self.stereo = StereoStage(values)
+
+    def input_topics(self, reader: BagReader) -> list[str]:
+        topics = ["/base_pose", "/tip_load"]
+        topics += ["/left/image_raw", "/right/image_raw", "/left/camera_info", "/right/camera_info"] if self.use_stereo \
+            else ["/needle/measured_shape"]
+        return [t for t in topics if t in reader.topics]
+
+    def run(self, bag: Path, output: Path | None, start_offset: float = 0.0, duration: float | None = None,
+            progress: Callable[[float], None] | None = None) -> OfflineRun:
+        """Process the bag slice [start + start_offset, + duration] (s); write the log to ``output`` (.mcap).
+        ``progress(seconds)`` is told the bag time processed so far, about every 0.1 s of it."""
+        reader = BagReader(bag)
+        topics = self.input_topics(reader)
+        if "/base_pose" not in topics:
+            raise ValueError(f"bag '{bag}' has no /base_pose topic: nothing drives the simulator")
+        begin = reader.start_time_ns + int(round(start_offset * NS))
+        end = reader.end_time_ns if duration is None else min(reader.end_time_ns, begin + int(round(duration * NS)))
+        if start_offset > 0 and len(self.parameters["needle_simulator"]["fixtures.clamp_interval"]) == 2:
+            self.warnings.append("the clamp interval is fixed where the needle lies at the first pose played: a slice "
+                                 "that starts late clamps the needle elsewhere than the recording did")
+        self.writer = None
+        if output is not None:
+            self.writer = McapBagWriter(output, WriterOptions(overwrite=True))
+            wrench_qos = OfferedQos(depth=100, reliability="reliable" if self.parameters["needle_simulator"][
+                "qos.wrench"] == "reliable" else "best_effort")
+            for topic, (type_name, qos) in {**OUTPUT_TOPICS, "/wrench": (OUTPUT_TOPICS["/wrench"][0], wrench_qos)}.items():
+                self.writer.add_topic(topic, type_name, (qos,))
+        self.errors = []
+        self.seconds = dict.fromkeys(("simulator", "stereo", "comparison"), 0.0)
+        wall_start = time.perf_counter()
+        if self.stereo is not None and begin > reader.start_time_ns:
+            self._prime_stereo(reader, begin)
+        last_progress = begin
+        try:
+            for message in reader.messages(topics, start_time_ns=begin):
+                now = message.log_time_ns
+                if now > end:
+                    break
+                self._advance(now)
+                msg = deserialize_message(message.data, INPUT_TYPES[message.topic])
+                if message.topic in ("/base_pose", "/tip_load"):
+                    with self._timed("simulator"):
+                        if message.topic == "/base_pose":
+                            self.simulator.on_pose(msg, now)
+                        else:
+                            self.simulator.on_tip_load(msg)
+                    if message.topic == "/base_pose":
+                        self._write("/base_pose", message.data, now)
+                elif message.topic == "/needle/measured_shape":
+                    self._measured(msg, now)
+                elif message.topic.endswith("camera_info"):
+                    self.stereo.on_camera_info(message.topic.split("/")[1], msg)
+                else:
+                    with self._timed("stereo"):
+                        shapes = self.stereo.on_image(message.topic.split("/")[1], msg)
+                    for shape in shapes:
+                        self._measured(shape, now)
+                if progress is not None and now - last_progress >= NS // 10:
+                    progress((now - begin) / NS)
+                    last_progress = now
+            self._advance(end)
+            if progress is not None:
+                progress((end - begin) / NS)
+        finally:
+            if self.writer is not None:
+                self.writer.close()
+        wall = time.perf_counter() - wall_start
+        simulated = (end - begin) / NS
+        stages = {f"{k}_s": v for k, v in self.seconds.items()}
+        stages["simulator_core_s"] = self.simulator.core_seconds  # of simulator_s: NeedleSimulation.advance
+        summary = {
+            "bag": str(bag), "experiment": str(self.experiment.path), "start_offset_s": start_offset,
+            "duration_s": simulated, "comparison": self.comparison.finish(),
+            "simulator": self.simulator.statistics(),
+            "stereo": self.stereo.statistics() if self.stereo is not None else None,
+            "timing": {"wall_s": wall, "simulated_s": simulated,
+                       "real_time_factor": simulated / wall if wall > 0 else None,
+                       **stages, "messages_and_io_s": wall - sum(self.seconds.values())},
+            "warnings": self.warnings,
+        }
+        return OfflineRun(summary, output, self.errors)
+
+    @contextmanager
+    def _timed(self, stage: str) -> Iterator[None]:
+        start = time.perf_counter()
+        yield
+        self.seconds[stage] += time.perf_counter() - start
+
+    def _write(self, topic: str, data: bytes | Any, now_ns: int) -> None:
+        if self.writer is not None:
+            self.writer.write(topic, data if isinstance(data, bytes) else serialize_message(data), now_ns)
+
+    def _compared(self, errors: list[ShapeError], now_ns: int) -> None:
+        for error in errors:
+            self.errors.append(error)
+            self._write("/shape_error", error, now_ns)
+
+    def _measured(self, msg: NeedleShape, now_ns: int) -> None:
+        self._write("/needle/measured_shape", msg, now_ns)
+        with self._timed("comparison"):
+            errors = self.comparison.on_measured(msg)
+        self._compared(errors, now_ns)
+
+    def _advance(self, now: int) -> None:
+        """The simulator integrates up to the clock ``now``; its shapes go to the comparison."""
+        with self._timed("simulator"):
+            outputs = self.simulator.advance(now)
+        for kind, msg in outputs:
+            if kind == "wrench":
+                self._write("/wrench", msg, now)
+                continue
+            self._write("/needle/shape", msg.cdr(), now)
+            with self._timed("comparison"):
+                errors = self.comparison.on_model(msg)
+            self._compared(errors, now)
+
+    def _prime_stereo(self, reader: BagReader, begin: int) -> None:
+        """A slice that starts late still needs the needle-free background pairs from the bag's start."""
+        topics = [t for t in ("/left/camera_info", "/right/camera_info", "/left/image_raw", "/right/image_raw")
+                  if t in reader.topics]
+        for message in reader.messages(topics):
+            if message.log_time_ns >= begin or self.stereo.has_background:
+                return
+            msg = deserialize_message(message.data, INPUT_TYPES[message.topic])
+            side = message.topic.split("/")[1]
+            if message.topic.endswith("camera_info"):
+                self.stereo.on_camera_info(side, msg)
+            else:
+                self.stereo.on_image(side, msg)

@@ -1,0 +1,130 @@
+"""Reading a pipeline log back (the live ``needle_compare`` recording or an offline run's MCAP) with the ``mcap``
+ROS 2 decoder (no rclpy), plus the ground truth of a synthetic bag, as plain arrays for plots and reports.
+
+The comparison's error against the measurement mixes two errors; for the synthetic bags the ground truth separates
+them: :func:`versus_ground_truth` measures the model and the measurement each against the true centerline at the
+measurement instants (same distance as the comparison: RMS of point-to-centerline distances).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from needle_sim_ros.comparison import Centerline, compare_centerlines
+
+NS = 1_000_000_000
+MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC = "/needle/shape", "/needle/measured_shape", "/shape_error", "/wrench"
+TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC = "/ground_truth/shape", "/ground_truth/wrench"
+
+
+def _time_ns(time) -> int:
+    return int(time.sec) * NS + int(time.nanosec)
+
+
+def _stamp(header) -> int:
+    return _time_ns(header.stamp)
+
+
+def _points(shape) -> np.ndarray:
+    return np.array([[p.x, p.y, p.z] for p in shape.points], dtype=float).reshape(-1, 3)
+
+
+@dataclass
+class WrenchSeries:
+    times: np.ndarray  # [ns] header stamps
+    force: np.ndarray  # (n, 3) [N]
+    torque: np.ndarray  # (n, 3) [N m]
+
+
+@dataclass
+class PipelineLog:
+    """Shapes by stamp [ns] ((n, 3) points [m]), the ShapeError series and the wrench of a pipeline log, plus the
+    ground truth of the bag when it has one. ``start_ns``: the bag's start (time origin of the plots)."""
+
+    start_ns: int
+    model_shapes: dict[int, np.ndarray] = field(default_factory=dict)
+    measured_shapes: dict[int, np.ndarray] = field(default_factory=dict)
+    truth_shapes: dict[int, np.ndarray] = field(default_factory=dict)
+    error_times: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # measurement stamps [ns]
+    model_times: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # paired model stamps [ns]
+    rmse: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    max_error: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    tip_error: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    wrench: WrenchSeries | None = None
+    truth_wrench: WrenchSeries | None = None
+
+    def seconds(self, stamps_ns) -> np.ndarray:
+        return (np.asarray(stamps_ns, dtype=np.int64) - self.start_ns) / NS
+
+
+def _decoded(path: Path, topics: set[str]):
+    with open(path, "rb") as stream:
+        yield from make_reader(stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=topics)
+
+
+def _wrench(messages: list) -> WrenchSeries | None:
+    if not messages:
+        return None
+    return WrenchSeries(np.array([_stamp(m.header) for m in messages], dtype=np.int64),
+                        np.array([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for m in messages]),
+                        np.array([[m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z] for m in messages]))
+
+
+def read_pipeline_log(log: str | Path, bag: str | Path | None = None) -> PipelineLog:
+    """Decode ``log`` (model/measured shapes, errors, wrench) and, if given, the bag's ground truth and start."""
+    start = None
+    if bag is not None:
+        with open(bag, "rb") as stream:
+            statistics = make_reader(stream).get_summary().statistics
+        start = statistics.message_start_time
+    result = PipelineLog(start_ns=0)
+    wrenches, truth_wrenches, errors = [], [], []
+    for _, channel, _, msg in _decoded(Path(log), {MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC}):
+        if channel.topic == MODEL_TOPIC:
+            result.model_shapes[_stamp(msg.header)] = _points(msg)
+        elif channel.topic == MEASURED_TOPIC:
+            result.measured_shapes[_stamp(msg.header)] = _points(msg)
+        elif channel.topic == ERROR_TOPIC:
+            errors.append(msg)
+        else:
+            wrenches.append(msg)
+    if bag is not None:
+        for _, channel, _, msg in _decoded(Path(bag), {TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC}):
+            if channel.topic == TRUTH_SHAPE_TOPIC:
+                result.truth_shapes[_stamp(msg.header)] = _points(msg)
+            else:
+                truth_wrenches.append(msg)
+    result.start_ns = start if start is not None else min(
+        [*result.model_shapes, *result.measured_shapes], default=0)
+    errors.sort(key=lambda m: _stamp(m.header))
+    result.error_times = np.array([_time_ns(m.measurement_stamp) for m in errors], dtype=np.int64)
+    result.model_times = np.array([_time_ns(m.model_stamp) for m in errors], dtype=np.int64)
+    result.rmse = np.array([m.rmse for m in errors])
+    result.max_error = np.array([m.max_error for m in errors])
+    result.tip_error = np.array([m.tip_error for m in errors])
+    result.wrench, result.truth_wrench = _wrench(wrenches), _wrench(truth_wrenches)
+    return result
+
+
+def _rms_distance(reference: np.ndarray, points: np.ndarray) -> float:
+    return compare_centerlines(Centerline(reference), Centerline(points)).rmse
+
+
+def versus_ground_truth(log: PipelineLog) -> dict[str, float | int | None]:
+    """Mean RMS distance [m] of the paired model shapes and of the measurements to the true centerline, at the
+    compared instants whose stamp has a ground-truth shape."""
+    model, measured = [], []
+    for measurement_ns, model_ns in zip(log.error_times, log.model_times):
+        truth = log.truth_shapes.get(int(measurement_ns))
+        if truth is None:
+            continue
+        if int(model_ns) in log.model_shapes:
+            model.append(_rms_distance(truth, log.model_shapes[int(model_ns)]))
+        if int(measurement_ns) in log.measured_shapes:
+            measured.append(_rms_distance(truth, log.measured_shapes[int(measurement_ns)]))
+    mean = (lambda values: float(np.mean(values)) if values else None)
+    return {"instants": len(model), "model_rmse_mean_m": mean(model), "measurement_rmse_mean_m": mean(measured)}

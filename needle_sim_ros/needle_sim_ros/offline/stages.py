@@ -1,0 +1,313 @@
+"""The three pipeline nodes as message-in/message-out stages for the offline pipeline (no executor, no threads).
+
+Each stage holds the same ROS-free core as its node and translates messages exactly as the node does:
+
+* :class:`SimulatorStage` — ``needle_simulator`` in simulated time: :class:`NeedleSimulation` advanced
+  deterministically (up to min(clock, newest pose stamp)), a ``wrench`` per step (base frame) and a ``needle/shape``
+  at ``rates.shape_hz``. The node publishes shapes when its clock passes the due time; here they are due on the same
+  rate counted in integration steps from the first pose, so that a measurement stamped on that grid meets a model
+  shape of the very same instant. The two high-rate outputs are serialized straight from arrays (:mod:`.cdr`).
+* :class:`StereoStage` — ``needle_stereo``: left/right pairing by stamp and
+  :class:`needle_vision.pipeline.StereoNeedlePipeline`, publishing ``needle/measured_shape``.
+* :class:`ComparisonStage` — ``needle_compare``: stamp pairing, extrinsic and centerline distances
+  (:mod:`needle_sim_ros.comparison`), publishing ``shape_error``.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from needle_interfaces.msg import NeedleShape, ShapeError
+from scipy.spatial.transform import RigidTransform, Rotation
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
+
+from needle_vision.calibration import (CalibrationError, StereoRig, calibration_from_camera_info,
+                                       load_camera_calibration)
+from needle_vision.image_codec import ImageFormatError, image_message_to_gray
+from needle_vision.pairing import StampPairer as FramePairer
+from needle_vision.parameters import output_from_left, stereo_config, validate_all
+from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
+from needle_vision.transform import quaternion_from_x_axis
+
+from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
+from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
+from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
+from needle_sim_ros.nodes.shape_messages import needle_shape_msg, shape_arrays, time_msg
+from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.offline import cdr
+from needle_sim_ros.simulation import TIP_LOAD_TOPIC, StepRecord, simulation_from_parameters
+
+NS = 1_000_000_000
+
+
+def stamp_ns(header: Header) -> int:
+    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
+
+
+def validated(specs: list[ParamSpec], values: dict[str, Any], node: str) -> tuple[dict[str, Any], list[str]]:
+    """Defaults overridden by ``values``, each checked like the node checks it; also the names the node does not
+    declare (a node ignores them)."""
+    by_name = {spec.name: spec for spec in specs}
+    result = {spec.name: spec.default for spec in specs}
+    for name, value in values.items():
+        if name in by_name:
+            result[name] = by_name[name].validate(value)
+    unknown = sorted(set(values) - set(by_name) - {"use_sim_time"})
+    return result, [f"{node}: parameter '{name}' is not declared by the node (ignored)" for name in unknown]
+
+
+@dataclass(frozen=True)
+class ModelShape:
+    """A model centerline as the node's ``needle/shape`` message holds it (``needle_shape_msg``), as arrays."""
+
+    header: Header
+    points: np.ndarray
+    tangents: np.ndarray
+    arc_length: np.ndarray
+    tip_position: np.ndarray
+    tip_orientation: np.ndarray
+
+    def cdr(self) -> bytes:
+        """The serialized NeedleShape (source ``model``)."""
+        stamp = self.header.stamp
+        return cdr.needle_shape(stamp.sec, stamp.nanosec, self.header.frame_id, NeedleShape.SOURCE_MODEL,
+                                self.points, self.tangents, self.arc_length, self.tip_position, self.tip_orientation)
+
+
+class SimulatorStage:
+    """``needle_simulator`` (:mod:`needle_sim_ros.nodes.simulator_node`) on recorded input, deterministically.
+
+    The simulator is built by :func:`needle_sim_ros.simulation.simulation_from_parameters`, as in the node; only
+    ``loop.max_catch_up`` does not apply: offline, every step is integrated.
+    """
+
+    def __init__(self, p: dict[str, Any]) -> None:
+        self.p = p
+        self.sim = simulation_from_parameters(p)
+        self.sim.max_catch_up = math.inf
+        self.props = self.sim.model.props
+        self.shape_every = max(1, int(round(1.0 / (p["rates.shape_hz"] * p["integrator.dt"]))))
+        self.rejected: dict[str, int] = {}
+        self.core_seconds = 0.0  # wall time in NeedleSimulation.advance (base trajectory, steps, reaction wrench)
+        self._steps_since_start = 0
+
+    def _reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+
+    # --- inputs (as NeedleSimulatorNode.on_pose / on_tip_load in simulated time) ------------------------------
+    def on_pose(self, msg: PoseStamped, now_ns: int) -> None:
+        if msg.header.frame_id not in ("", self.p["frames.world"]):
+            self._reject("base pose in another frame")
+            return
+        stamp = stamp_ns(msg.header) or now_ns
+        p, q = msg.pose.position, msg.pose.orientation
+        started = self.sim.started
+        verdict = self.sim.offer_pose(stamp * 1e-9, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+        if not started and self.sim.started:
+            self._steps_since_start = 0
+        if verdict.name not in ("ACCEPTED", "NORMALIZED", "REANCHORED"):
+            self._reject(f"base pose {verdict.value}")
+
+    def on_tip_load(self, msg: WrenchStamped) -> None:
+        f = msg.wrench.force
+        force = np.array([f.x, f.y, f.z])
+        frame = msg.header.frame_id or self.p["frames.world"]
+        if not np.all(np.isfinite(force)) or frame not in (self.p["frames.world"], self.p["frames.base"]):
+            self._reject("tip load not finite or in an unknown frame")
+            return
+        if frame == self.p["frames.base"] and self.sim.base is not None:
+            force = Rotation.from_quat(self.sim.base.orientation).apply(force)
+        self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+
+    # --- outputs ---------------------------------------------------------------------------------------------
+    def advance(self, now_ns: int) -> list[tuple[str, Any]]:
+        """Integrate up to the clock ``now_ns`` (deterministic rule); returns, in time order, ('wrench', CDR bytes of
+        the WrenchStamped) per step and ('shape', :class:`ModelShape`) per shape period."""
+        if not self.sim.started:
+            return []
+        outputs: list[tuple[str, Any]] = []
+        start = time.perf_counter()
+        records = self.sim.advance(now_ns * 1e-9, deterministic=True)
+        self.core_seconds += time.perf_counter() - start
+        for record in records:
+            outputs.append(("wrench", self.wrench_cdr(record)))
+            self._steps_since_start += 1
+            if self._steps_since_start % self.shape_every == 0:
+                outputs.append(("shape", self.shape()))
+        return outputs
+
+    def wrench_cdr(self, record: StepRecord) -> bytes:
+        """The node's wrench message (base frame, stamped with the step's end time), serialized."""
+        stamp = time_msg(record.t)
+        return cdr.wrench_stamped(stamp.sec, stamp.nanosec, self.p["frames.base"], record.wrench.force_base,
+                                  record.wrench.torque_base)
+
+    def shape(self) -> "ModelShape":
+        line = self.sim.shape(self.p["output.shape_samples"])
+        tip_position, tip_orientation = self.sim.tip()
+        header = Header(stamp=time_msg(self.sim.state.t), frame_id=self.p["frames.world"])
+        return ModelShape(header, line.points, line.tangents, line.arc_length, tip_position, tip_orientation)
+
+    def statistics(self) -> dict[str, Any]:
+        stats = self.sim.statistics
+        times = stats.take_step_times()
+        return {"steps": stats.steps, "failed_steps": stats.failed_steps, "skipped_time_s": stats.skipped_time,
+                "max_newton_iterations": stats.max_newton_iterations,
+                "step_time_mean_ms": float(times.mean() * 1e3) if times.size else None,
+                "step_time_max_ms": float(times.max() * 1e3) if times.size else None,
+                "rejected_inputs": dict(self.rejected)}
+
+
+class StereoStage:
+    """``needle_stereo`` (:mod:`needle_vision.stereo_node`) on recorded images."""
+
+    def __init__(self, values: dict[str, Any]) -> None:
+        self.values = values
+        self.config = stereo_config(values)
+        self.output_from_left = output_from_left(values)
+        self.pairer = FramePairer(values["sync_tolerance"])
+        self.camera_infos: dict[str, CameraInfo] = {}
+        self.pipeline = None
+        if values["left_calibration_file"]:
+            rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
+                                                     load_camera_calibration(values["right_calibration_file"]))
+            self.pipeline = self._pipeline(rig)
+        self.outcomes: dict[str, int] = {}
+
+    def _pipeline(self, rig):
+        return StereoNeedlePipeline(rig, self.config, self.output_from_left)
+
+    @property
+    def has_background(self) -> bool:
+        return self.pipeline is not None and self.pipeline.backgrounds is not None
+
+    def _count(self, outcome: str) -> None:
+        self.outcomes[outcome] = self.outcomes.get(outcome, 0) + 1
+
+    def on_camera_info(self, side: str, msg: CameraInfo) -> None:
+        """As the node: (re)build the pipeline when both cameras' calibrations are known and one changed."""
+        if self.values["left_calibration_file"]:
+            return  # the node does not subscribe camera_info when calibration files are given
+        previous = self.camera_infos.get(side)
+        if previous is not None and all(np.array_equal(getattr(previous, k), getattr(msg, k))
+                                        for k in ("width", "height", "k", "d", "r", "p")):
+            return
+        self.camera_infos[side] = msg
+        if len(self.camera_infos) == 2:
+            try:
+                self.pipeline = self._pipeline(StereoRig.from_camera_calibrations(
+                    calibration_from_camera_info(self.camera_infos["left"], "left"),
+                    calibration_from_camera_info(self.camera_infos["right"], "right")))
+            except CalibrationError:
+                self.pipeline = None
+                self._count("camera_info unusable")
+
+    def on_image(self, side: str, msg: Image) -> list[NeedleShape]:
+        pair = self.pairer.push(side, msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, msg)
+        if pair is None:
+            return []
+        if self.pipeline is None:
+            self._count("skipped: no calibration yet")
+            return []
+        try:
+            images = [image_message_to_gray(pair.left), image_message_to_gray(pair.right)]
+        except ImageFormatError:
+            self._count("skipped: image format")
+            return []
+        result = self.pipeline.process(pair.stamp, *images)
+        self._count(result.status.value if result.status is not FrameStatus.REJECTED else f"rejected: {result.reason}")
+        if result.status is not FrameStatus.MEASURED:
+            return []
+        m = result.measurement
+        header = Header(stamp=pair.left.header.stamp, frame_id=self.values["output_frame"] or pair.left.header.frame_id)
+        return [needle_shape_msg(header, NeedleShape.SOURCE_STEREO, m.points, m.tangents, m.arc_length, m.points[-1],
+                                 quaternion_from_x_axis(m.tangents[-1]), m.uncertainty)]
+
+    def statistics(self) -> dict[str, Any]:
+        return {"pairs": dict(self.outcomes), "unpaired_frames": self.pairer.dropped}
+
+
+class ComparisonStage:
+    """``needle_compare`` (:mod:`needle_sim_ros.nodes.compare_node`) on the model and measured shapes."""
+
+    def __init__(self, v: dict[str, Any]) -> None:
+        if v["measured_input"] != "shape":
+            raise ParameterError("needle_compare: the offline pipeline compares measured/shape only "
+                                 "(parameter 'measured_input' must be 'shape')")
+        self.values = v
+        rotation = Rotation.from_quat(np.asarray(v["extrinsic.rotation"]) / np.linalg.norm(v["extrinsic.rotation"]))
+        self.model_from_camera = RigidTransform.from_components(v["extrinsic.translation"], rotation)
+        self.max_match_distance = v["max_match_distance"] or math.inf
+        self.pairer = StampPairer(int(round(v["tolerance"] * 1e9)), model_buffer=v["model_buffer"])
+        self.summary = ErrorSummary()
+
+    def _centerline(self, what: str, header: Header, points: np.ndarray, arc_length: np.ndarray, frame: str,
+                    minimum: int) -> Centerline | None:
+        """As the node: wrong frame, bad samples or too few samples reject the shape (counted)."""
+        if frame and header.frame_id != frame:
+            self.summary.reject(what)
+            return None
+        try:
+            centerline = Centerline(points, arc_length)
+            if len(points) < minimum:
+                raise ComparisonError("needs at least two samples")
+        except ComparisonError:
+            self.summary.reject(what)
+            return None
+        return centerline
+
+    def on_model(self, shape: ModelShape) -> list[ShapeError]:
+        centerline = self._centerline("model shape", shape.header, shape.points, shape.arc_length,
+                                      self.values["model_frame"], 2)
+        if centerline is None:
+            return []
+        return self.compare(self.pairer.add_model(stamp_ns(shape.header), (shape.header, centerline)))
+
+    def on_measured(self, msg: NeedleShape) -> list[ShapeError]:
+        points, arc_length, _ = shape_arrays(msg)
+        centerline = self._centerline("measured shape", msg.header, points, arc_length,
+                                      self.values["measured_frame"], 1)
+        if centerline is None:
+            return []
+        return self.compare(self.pairer.add_measurement(stamp_ns(msg.header), (msg.header, centerline)))
+
+    def compare(self, pairs) -> list[ShapeError]:
+        errors = []
+        for pair in pairs:
+            (model_header, model), (measured_header, measured) = pair.model, pair.measurement
+            try:
+                result = compare_centerlines(model, measured, self.model_from_camera, self.max_match_distance)
+            except ComparisonError:
+                self.summary.reject("shape pair")
+                continue
+            self.summary.add(result)
+            msg = ShapeError(rmse=result.rmse, max_error=result.max_error, tip_error=result.tip_error,
+                             matched_samples=result.matched_samples, errors=result.errors.tolist(),
+                             arc_length=result.arc_length.tolist())
+            msg.header.stamp = measured_header.stamp
+            msg.header.frame_id = model_header.frame_id
+            msg.model_stamp = model_header.stamp
+            msg.measurement_stamp = measured_header.stamp
+            errors.append(msg)
+        return errors
+
+    def finish(self) -> dict[str, Any]:
+        self.summary.unpaired_measurements = self.pairer.unpaired
+        return self.summary.as_dict()
+
+
+def simulator_values(values: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    return validated(SIMULATOR_PARAMETERS, values, "needle_simulator")
+
+
+def compare_values(values: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    return validated(COMPARE_PARAMETERS, values, "needle_compare")
+
+
+def stereo_values(values: dict[str, Any]) -> dict[str, Any]:
+    return validate_all({k: v for k, v in values.items() if k != "use_sim_time"})
