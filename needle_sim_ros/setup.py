@@ -23,7 +23,6 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "needle_talker_demo = needle_sim_ros.nodes.smoke_demo:main",
             "needle_simulator = needle_sim_ros.nodes.simulator_node:main",
             "needle_scenario = needle_sim_ros.scenarios.cli:main",
             "needle_compare = needle_sim_ros.nodes.compare_node:main",
