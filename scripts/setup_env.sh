@@ -70,7 +70,7 @@ export AMENT_PREFIX_PATH="$VENV\${AMENT_PREFIX_PATH:+:\$AMENT_PREFIX_PATH}"
 export RMW_IMPLEMENTATION="\${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 export PYTHONNOUSERSITE=1
 export NUMBA_CACHE_DIR="$REPO/build/numba_cache"
-# The installed executables (where `ros2 run` looks), runnable by name without ros2cli:
+# The installed executables (where ros2 run looks), runnable by name without ros2cli:
 export PATH="$REPO/install/needle_sim_ros/lib/needle_sim_ros:$REPO/install/needle_vision/lib/needle_vision:\$PATH"
 if [ -f "$REPO/install/setup.bash" ]; then
   case \$- in *u*) _needle_nounset=1; set +u;; *) _needle_nounset=;; esac

@@ -27,7 +27,7 @@ from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary,
 from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec, declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
 from needle_sim_ros.nodes.runner import run_node
-from needle_sim_ros.nodes.shape_messages import shape_arrays
+from needle_sim_ros.nodes.shape_messages import shape_arrays, shape_error_msg
 from needle_sim_ros.recording import RecordingError, WriterOptions
 
 NODE_NAME = "needle_compare"
@@ -214,13 +214,7 @@ class CompareNode(Node):
                 self.reject("shape pair", str(error))
                 continue
             self.summary.add(result)
-            msg = ShapeError(rmse=result.rmse, max_error=result.max_error, tip_error=result.tip_error,
-                             matched_samples=result.matched_samples, errors=result.errors.tolist(),
-                             arc_length=result.arc_length.tolist())
-            msg.header.stamp = measured_header.stamp
-            msg.header.frame_id = model_header.frame_id
-            msg.model_stamp = model_header.stamp
-            msg.measurement_stamp = measured_header.stamp
+            msg = shape_error_msg(result, model_header, measured_header)
             self.error_publisher.publish(msg)
             self.log("shape_error", msg, ShapeError, self.error_qos)
 

@@ -5,7 +5,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion, Vector3
 from nav_msgs.msg import Path
-from needle_interfaces.msg import NeedleShape
+from needle_interfaces.msg import NeedleShape, ShapeError
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
@@ -95,3 +95,12 @@ def tube_marker_msg(header: Header, points: np.ndarray, tangents: np.ndarray, ra
 def time_msg(seconds: float) -> Time:
     sec = int(np.floor(seconds))
     return Time(sec=sec, nanosec=min(int(round((seconds - sec) * 1e9)), 999_999_999))
+
+
+def shape_error_msg(result, model_header: Header, measured_header: Header) -> ShapeError:
+    """ShapeError of one comparison (needle_sim_ros.comparison.ShapeComparison), stamped with the measurement."""
+    return ShapeError(header=Header(stamp=measured_header.stamp, frame_id=model_header.frame_id),
+                      model_stamp=model_header.stamp, measurement_stamp=measured_header.stamp,
+                      rmse=result.rmse, max_error=result.max_error, tip_error=result.tip_error,
+                      matched_samples=result.matched_samples, errors=result.errors.tolist(),
+                      arc_length=result.arc_length.tolist())

@@ -37,7 +37,7 @@ from needle_vision.transform import quaternion_from_x_axis
 from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
 from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
 from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
-from needle_sim_ros.nodes.shape_messages import needle_shape_msg, shape_arrays, time_msg
+from needle_sim_ros.nodes.shape_messages import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.offline import cdr
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, StepRecord, simulation_from_parameters
@@ -286,13 +286,7 @@ class ComparisonStage:
                 self.summary.reject("shape pair")
                 continue
             self.summary.add(result)
-            msg = ShapeError(rmse=result.rmse, max_error=result.max_error, tip_error=result.tip_error,
-                             matched_samples=result.matched_samples, errors=result.errors.tolist(),
-                             arc_length=result.arc_length.tolist())
-            msg.header.stamp = measured_header.stamp
-            msg.header.frame_id = model_header.frame_id
-            msg.model_stamp = model_header.stamp
-            msg.measurement_stamp = measured_header.stamp
+            msg = shape_error_msg(result, model_header, measured_header)
             errors.append(msg)
         return errors
 
