@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from conftest import SHAPES
+from vision_shapes import SHAPES
 from needle_vision.background import BackgroundModel, ContrastThreshold
 from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
 from needle_vision.render import NEEDLE_RADIUS, make_scene, project_points, render_background_pair, render_stereo_pair

@@ -14,7 +14,7 @@ rclpy = pytest.importorskip("rclpy", reason="the node test needs ROS 2 (rclpy)")
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 
-from conftest import SHAPES, distance_to_curve  # noqa: E402
+from vision_shapes import SHAPES, distance_to_curve  # noqa: E402
 from needle_interfaces.msg import NeedleShape  # noqa: E402
 from needle_vision.calibration import camera_info_fields  # noqa: E402
 from needle_vision.image_codec import image_fields  # noqa: E402

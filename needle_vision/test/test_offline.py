@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import SHAPES, distance_to_curve
+from vision_shapes import SHAPES, distance_to_curve
 from needle_vision.calibration import camera_info_fields
 from needle_vision.image_codec import image_fields
 from needle_vision.offline import main

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from conftest import SHAPES, distance_to_curve
+from vision_shapes import SHAPES, distance_to_curve
 from needle_vision.background import BackgroundModel, ContrastThreshold
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline
 from needle_vision.render import NEEDLE_RADIUS, render_stereo_pair

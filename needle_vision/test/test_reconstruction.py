@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from conftest import SHAPES, distance_to_curve
+from vision_shapes import SHAPES, distance_to_curve
 from needle_vision.centerline import extract_centerline
 from needle_vision.correspondence import MatchingConfig
 from needle_vision.reconstruction import ReconstructionConfig, reconstruct_centerline

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from conftest import SHAPES
+from vision_shapes import SHAPES
 from needle_vision.render import (NEEDLE_RADIUS, Imaging, needle_coverage, project_points, render_background_pair,
                                   render_stereo_pair, world_from_camera)
 
