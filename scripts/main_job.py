@@ -39,7 +39,7 @@ EXECUTABLES = {  # name -> (package, module run with ``python -m`` when not inst
     "needle_bringup": ("needle_sim_ros", "needle_sim_ros.nodes.bringup"),
 }
 CLOCK_HZ = 100.0  # /clock rate of the replay: the nodes' simulated time advances in 10 ms ticks
-START_TIMEOUT = 90.0  # [s] for the nodes to come up (the first start loads or compiles numba kernels)
+START_TIMEOUT = 180.0  # [s] for the nodes to come up (a first start on a fresh machine compiles numba kernels)
 DRAIN_TIMEOUT = 15.0  # [s] after the bag for the last comparisons
 STOP_TIMEOUT = 15.0  # [s] for a node to exit after SIGINT
 

@@ -165,9 +165,9 @@ def test_live_pipeline_of_node_processes_driven_by_replay(ros_env, tmp_path):
     """The main job: simulator, stereo and comparison in separate processes with use_sim_time, needle_replay
     playing a 2.6 s slice. Played at half speed so that a loaded test machine keeps up; bench/bench_pipeline.py
     measures 1x."""
-    result = subprocess.run([sys.executable, str(REPO / "scripts" / "main_job.py"), "--from-source", "--bag",
+    result = subprocess.run([sys.executable, str(REPO / "scripts" / "main_job.py"), "--bag",
                              str(DYNAMIC), "--duration", str(DYNAMIC_SLICE), "--rate", "0.5", "--skip-offline",
-                             "--output-dir", str(tmp_path)], env=ros_env, capture_output=True, text=True, timeout=240)
+                             "--output-dir", str(tmp_path)], env=ros_env, capture_output=True, text=True, timeout=400)
     out = tmp_path / "live"
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     summary = json.loads((out / "summary.json").read_text())

@@ -300,3 +300,18 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
 
 TIP_FORCE_PARAMETER = "tip_force_parameter"  # name of the point load set by the `loads.tip_force` parameter
 TIP_LOAD_TOPIC = "tip_load_topic"  # name of the point load set from the `tip_load` topic
+
+
+def compile_kernels(p: dict) -> float:
+    """Run a scratch simulation for a few steps so that every numba kernel on the step path is compiled or loaded
+    from the cache now (up to ~50 s on a fresh machine) rather than at the first real pose. Returns the wall time."""
+    start = time.perf_counter()
+    scratch = simulation_from_parameters(p)
+    dt = scratch.dt
+    for k in range(4):
+        scratch.offer_pose(k * dt, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+    scratch.advance(6 * dt, deterministic=False)
+    scratch.shape(10)
+    scratch.tip()
+    scratch.energies()
+    return time.perf_counter() - start

@@ -36,7 +36,8 @@ from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.shape_messages import (
     needle_shape_msg, path_msg, pose_array_msg, time_msg, tube_marker_msg)
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
-from needle_sim_ros.simulation import TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, model_builder_from_parameters, simulation_from_parameters
+from needle_sim_ros.simulation import (
+    TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters, simulation_from_parameters)
 from needle_sim_ros.tissue import tissue_readout
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
@@ -59,6 +60,8 @@ class NeedleSimulatorNode(Node):
         except ValueError as error:
             raise ParameterError(f"tissue parameters: {error}") from error
         self.props = self.sim.model.props
+        # Before any topic exists: once the node is visible in the graph it steps at full speed from the first pose.
+        self.get_logger().info(f"compiled/loaded the numerical kernels in {compile_kernels(self.p):.1f} s")
         self.use_sim_time = self.get_parameter("use_sim_time").value
         self.counters = {verdict: 0 for verdict in PoseVerdict}
         self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0}
