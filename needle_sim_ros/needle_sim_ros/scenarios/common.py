@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -83,3 +85,22 @@ def save_figure(fig, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def integrate_sampled(integrator, state, dt: float, n_steps: int, every: int, base_at: Callable[[float], BaseMotion],
+                      forces, record: Callable) -> tuple:
+    """Integrate n_steps fixed steps with the base at ``base_at(t)``, calling ``record(state, base)`` at the start,
+    every ``every`` steps and at the end. Returns (state, integration wall time [s] excluding recording, Newton
+    iterations in all)."""
+    base = base_at(state.t)
+    record(state, base)
+    integration_wall, iterations = 0.0, 0
+    for k in range(1, n_steps + 1):
+        tick = time.perf_counter()
+        base = base_at(k * dt)
+        result = integrator.step(state, dt, base, forces)
+        integration_wall += time.perf_counter() - tick
+        state, iterations = result.state, iterations + result.newton_iterations
+        if k % every == 0 or k == n_steps:
+            record(state, base)
+    return state, integration_wall, iterations

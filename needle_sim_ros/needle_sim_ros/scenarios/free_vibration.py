@@ -17,8 +17,8 @@ import numpy as np
 from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, PointLoad, build_model, elastic_energy,
                                   gravitational_energy, kinetic_energy, reaction_wrench, solve_static)
 
-from .common import (IDENTITY, add_needle_arguments, figure, material, needle_configuration, save_figure,
-                     shape_json, wrench_json, write_json)
+from .common import (IDENTITY, add_needle_arguments, figure, integrate_sampled, material, needle_configuration,
+                     save_figure, shape_json, wrench_json, write_json)
 
 
 def simulate_release(props, build: dict, integrator_kwargs: dict, tip_mass: float, dt: float, duration: float,
@@ -38,9 +38,9 @@ def simulate_release(props, build: dict, integrator_kwargs: dict, tip_mass: floa
     state = solve_static(model, base, [*forces, PointLoad(props.length, (0.0, 0.0, -g * tip_mass))]).state
     n_steps = int(round(duration / dt))
     every = max(1, int(round(sample_interval / dt)))
-    samples, integration_wall, iterations = [], 0.0, 0
+    samples = []
 
-    def record() -> None:
+    def record(state, base) -> None:
         energies = {"kinetic_energy_j": kinetic_energy(model, state.qd),
                     "elastic_energy_j": elastic_energy(model, state.q),
                     "gravitational_energy_j": gravitational_energy(model, state.q)}
@@ -48,14 +48,8 @@ def simulate_release(props, build: dict, integrator_kwargs: dict, tip_mass: floa
                         "total_energy_j": sum(energies.values()),
                         "base_wrench": wrench_json(reaction_wrench(model, state, base, forces))})
 
-    record()
-    for k in range(1, n_steps + 1):
-        tick = time.perf_counter()
-        result = integrator.step(state, dt, base, forces)
-        integration_wall += time.perf_counter() - tick
-        state, iterations = result.state, iterations + result.newton_iterations
-        if k % every == 0 or k == n_steps:
-            record()
+    state, integration_wall, iterations = integrate_sampled(integrator, state, dt, n_steps, every, lambda t: base,
+                                                            forces, record)
     final = samples[-1]
     return {"scenario": "free_vibration", "elements": model.n_elements, "material": material(props),
             "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss,

@@ -17,8 +17,8 @@ import numpy as np
 from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, Integrator, build_model, centerline,
                                   reaction_wrench, solve_static)
 
-from .common import (add_needle_arguments, figure, material, needle_configuration, save_figure, shape_json,
-                     wrench_json, write_json)
+from .common import (add_needle_arguments, figure, integrate_sampled, material, needle_configuration, save_figure,
+                     shape_json, wrench_json, write_json)
 
 
 def pitch_motion(amplitude: float, frequency: float):
@@ -66,23 +66,16 @@ def simulate_pitch(props, build: dict, integrator_kwargs: dict, dt: float, ampli
     state = solve_static(model, base, forces).state
     n_steps = int(round(periods / frequency / dt))
     every = max(1, int(round(sample_interval / dt)))
-    samples, integration_wall, iterations = [], 0.0, 0
+    samples = []
 
-    def record() -> None:
+    def record(state, base) -> None:
         angle = amplitude * math.sin(2.0 * math.pi * frequency * state.t)
         samples.append({"t_s": state.t, "base_pitch_rad": angle, **shape_json(model, state.q, base, n_samples),
                         "centerline_world_m": centerline(model, state.q, n_samples).points.tolist(),
                         "base_wrench": wrench_json(reaction_wrench(model, state, base, forces))})
 
-    record()
-    for k in range(1, n_steps + 1):
-        tick = time.perf_counter()
-        base = motion(k * dt)
-        result = integrator.step(state, dt, base, forces)
-        integration_wall += time.perf_counter() - tick
-        state, iterations = result.state, iterations + result.newton_iterations
-        if k % every == 0 or k == n_steps:
-            record()
+    state, integration_wall, iterations = integrate_sampled(integrator, state, dt, n_steps, every, motion, forces,
+                                                            record)
     final = samples[-1]
     return {"scenario": "pitch", "elements": model.n_elements, "material": material(props),
             "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss,
