@@ -21,7 +21,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from needle_sim_ros.experiments.protocols import EXPERIMENTS
-from needle_sim_ros.offline import cdr
+from needle_sim_ros import cdr
 from needle_sim_ros.offline.cli import main as offline_main
 from needle_sim_ros.offline.parameters import experiment_for_bag
 from needle_sim_ros.offline.pipeline import OfflinePipeline
@@ -115,12 +115,70 @@ def test_fast_cdr_encoders_decode_to_the_nodes_messages():
         data = cdr.needle_shape(stamp.sec, stamp.nanosec, frame, "model", points, tangents, arc, tip, quaternion,
                                 uncertainty)
         assert deserialize_message(data, NeedleShape) == expected
-    force, torque = rng.random(3), rng.random(3)
-    wrench = deserialize_message(cdr.wrench_stamped(stamp.sec, stamp.nanosec, "needle_base", force, torque),
-                                 WrenchStamped)
-    assert wrench.header == Header(stamp=stamp, frame_id="needle_base")
-    assert [wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z] == force.tolist()
-    assert [wrench.wrench.torque.x, wrench.wrench.torque.y, wrench.wrench.torque.z] == torque.tolist()
+    times = np.array([1_700_000_001.2345, 12.9999999999, 0.0, 3.0000000004])
+    wrenches = rng.random((times.size, 6))
+    for t, data, values in zip(times, cdr.wrench_stamped_many(times, "needle_base", wrenches), wrenches):
+        wrench = deserialize_message(data, WrenchStamped)
+        assert wrench.header == Header(stamp=time_msg(t), frame_id="needle_base")
+        assert [wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z] == values[:3].tolist()
+        assert [wrench.wrench.torque.x, wrench.wrench.torque.y, wrench.wrench.torque.z] == values[3:].tolist()
+
+
+def test_visualization_encoders_decode_to_rclpy_built_messages():
+    # The simulator publishes Path, PoseArray and the Marker tube as CDR bytes; rclpy must read back the messages
+    # one would build field by field.
+    from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion
+    from nav_msgs.msg import Path as PathMsg
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import ColorRGBA, Header
+    from visualization_msgs.msg import Marker
+
+    from needle_sim_ros.nodes.shape_messages import time_msg
+    rng = np.random.default_rng(5)
+    stamp = time_msg(42.125)
+    for count, frame in ((50, "world"), (3, "w"), (1, "abcdefgh")):
+        points, quaternions = rng.random((count, 3)), rng.random((count, 4))
+        header = Header(stamp=stamp, frame_id=frame)
+        poses = [Pose(position=Point(x=p[0], y=p[1], z=p[2]), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
+                 for p, q in zip(points, quaternions)]
+        assert deserialize_message(cdr.pose_array(stamp.sec, stamp.nanosec, frame, points, quaternions),
+                                   PoseArray) == PoseArray(header=header, poses=poses)
+        assert deserialize_message(cdr.path(stamp.sec, stamp.nanosec, frame, points, quaternions), PathMsg) == \
+            PathMsg(header=header, poses=[PoseStamped(header=header, pose=pose) for pose in poses])
+        vertices = rng.random((3 * count, 3))
+        marker = Marker(header=header, ns="needle", id=7, type=Marker.TRIANGLE_LIST, action=Marker.ADD,
+                        color=ColorRGBA(r=0.75, g=0.75, b=0.8, a=1.0),
+                        points=[Point(x=v[0], y=v[1], z=v[2]) for v in vertices])
+        marker.pose.orientation.w = 1.0
+        marker.scale.x = marker.scale.y = marker.scale.z = 1.0
+        encoded = cdr.triangle_list_marker(stamp.sec, stamp.nanosec, frame, "needle", 7, vertices,
+                                           (0.75, 0.75, 0.8, 1.0))
+        # (compared after rclpy's own round trip: the color is float32 on the wire)
+        assert deserialize_message(encoded, Marker) == deserialize_message(serialize_message(marker), Marker)
+
+
+def test_image_and_pose_decoders_read_rclpy_serialized_messages():
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import Image
+    from std_msgs.msg import Header
+
+    from needle_sim_ros.nodes.shape_messages import time_msg
+    pixels = np.random.default_rng(2).integers(0, 255, size=(5, 7, 3), dtype=np.uint8)
+    for frame, encoding in (("left_camera_optical_frame", "rgb8"), ("l", "bgr8"), ("", "mono16")):
+        message = Image(header=Header(stamp=time_msg(12.5), frame_id=frame), height=5, width=7, encoding=encoding,
+                        is_bigendian=0, step=24, data=np.pad(pixels.reshape(5, 21), ((0, 0), (0, 3))).tobytes())
+        decoded = cdr.image(serialize_message(message))
+        assert decoded.header == message.header
+        assert (decoded.height, decoded.width, decoded.encoding, decoded.step) == (5, 7, encoding, 24)
+        assert decoded.data.tobytes() == bytes(message.data) and not decoded.data.flags.owndata
+    from geometry_msgs.msg import PoseStamped
+    for frame in ("", "w", "world", "base_link_x"):
+        pose = PoseStamped(header=Header(stamp=time_msg(3.25), frame_id=frame))
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = 0.1, -0.2, 0.3
+        pose.pose.orientation.x, pose.pose.orientation.y, pose.pose.orientation.z, pose.pose.orientation.w = 0.5, 0.5, -0.5, 0.5
+        decoded = cdr.pose_stamped(serialize_message(pose))
+        assert decoded.stamp_ns == 3_250_000_000 and decoded.frame_id == frame
+        assert decoded.position.tolist() == [0.1, -0.2, 0.3] and decoded.orientation.tolist() == [0.5, 0.5, -0.5, 0.5]
 
 
 def decode_with_rosbags(path: Path) -> dict[str, list]:

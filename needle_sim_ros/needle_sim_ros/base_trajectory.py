@@ -12,7 +12,6 @@ ROS-free: the node converts messages into :class:`PoseSample` and asks :meth:`Ba
 """
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 
@@ -20,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros import quaternion
+from needle_sim_ros.model.kinematics import quaternion_matrix
 
 
 class PoseVerdict(Enum):
@@ -73,26 +73,45 @@ class BaseTrajectory:
 
     def __init__(self, limits: TrajectoryLimits = TrajectoryLimits(), capacity: int = 256) -> None:
         self.limits = limits
-        self._samples: deque[PoseSample] = deque(maxlen=capacity)
+        # The newest samples (at least ``capacity``, at most twice that) as arrays, oldest first, for the fit.
+        self._capacity = capacity
+        self._times = np.empty(2 * capacity)
+        self._positions = np.empty((2 * capacity, 3))
+        self._orientations = np.empty((2 * capacity, 4))
+        self._count = 0
+        self._latest: PoseSample | None = None
         self._rejected: list[PoseSample] = []
         self._fit: np.ndarray | None = None  # quadratic coefficients, recomputed only when a sample arrives
 
     @property
     def latest(self) -> PoseSample | None:
-        return self._samples[-1] if self._samples else None
+        return self._latest
 
     def clear(self) -> None:
-        self._samples.clear()
+        self._count = 0
+        self._latest = None
         self._rejected.clear()
+        self._fit = None
+
+    def _append(self, sample: PoseSample) -> None:
+        if self._count == self._times.size:  # full: keep the newest half
+            keep = slice(self._count - self._capacity, self._count)
+            for array in (self._times, self._positions, self._orientations):
+                array[:self._capacity] = array[keep]
+            self._count = self._capacity
+        i = self._count
+        self._times[i], self._positions[i], self._orientations[i] = sample.t, sample.position, sample.orientation
+        self._count += 1
+        self._latest = sample
         self._fit = None
 
     def offer(self, t: float, position, orientation) -> PoseVerdict:
         """Validate a pose sample and add it to the buffer; the verdict says what happened and why."""
         position = np.asarray(position, dtype=float)
         orientation = np.asarray(orientation, dtype=float)
-        if not (np.isfinite(t) and np.all(np.isfinite(position)) and np.all(np.isfinite(orientation))):
+        norm = _quaternion_norm(float(t), position, orientation)
+        if not norm >= 0.0:
             return PoseVerdict.NOT_FINITE
-        norm = float(np.linalg.norm(orientation))
         if norm < 1e-9:
             return PoseVerdict.ZERO_QUATERNION
         verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance else PoseVerdict.NORMALIZED
@@ -103,14 +122,11 @@ class BaseTrajectory:
         if latest is not None and self._is_jump(sample):
             return self._handle_jump(sample)
         self._rejected.clear()
-        self._samples.append(sample)
-        self._fit = None
+        self._append(sample)
         return verdict
 
-    def _deviation(self, reference: BaseKinematics | PoseSample, sample: PoseSample) -> tuple[float, float]:
-        dp = float(np.linalg.norm(sample.position - reference.position))
-        relative = quaternion.multiply(quaternion.conjugate(reference.orientation), sample.orientation)
-        return dp, float(np.linalg.norm(quaternion.to_rotation_vector(relative)))
+    def _deviation(self, reference: PoseSample, sample: PoseSample) -> tuple[float, float]:
+        return _pose_deviation(reference.position, reference.orientation, sample.position, sample.orientation)
 
     def _within_limits(self, deviation: tuple[float, float]) -> bool:
         return deviation[0] <= self.limits.max_position_jump and deviation[1] <= self.limits.max_orientation_jump
@@ -125,54 +141,97 @@ class BaseTrajectory:
         self._rejected.append(sample)
         if len(self._rejected) < self.limits.reanchor_after:
             return PoseVerdict.JUMP
-        self._samples.clear()
-        self._samples.extend(self._rejected)
-        self._rejected.clear()
-        self._fit = None
+        rejected = list(self._rejected)
+        self.clear()
+        for kept in rejected:
+            self._append(kept)
         return PoseVerdict.REANCHORED
 
     def motion_at(self, t: float) -> BaseKinematics | None:
-        """Smoothed pose, velocity and acceleration at time t; None before the first sample.
+        """Smoothed pose, velocity and acceleration at time t; None before the first sample (see :meth:`motions_at`)."""
+        if self._latest is None:
+            return None
+        m = self.motions_at(np.array([t], dtype=float))[0]
+        return BaseKinematics(m[0:3], m[3:7], m[7:10], m[10:13], m[13:16], m[16:19], t > self._latest.t)
+
+    def motions_at(self, times: np.ndarray) -> np.ndarray:
+        """Smoothed motion at each of the given times (k,), packed (k, 19) as [position, orientation (x, y, z, w),
+        linear velocity, angular velocity, linear acceleration, angular acceleration] (world frame, SI).
 
         Within the window the quadratic least-squares fit is evaluated (interpolation). Beyond the newest sample
         the fit is extrapolated for at most ``max_extrapolation``; after that the pose is held with zero velocity
-        and acceleration.
+        and acceleration. With fewer than 3 samples in the window: the newest pose, at rest.
         """
-        if not self._samples:
-            return None
-        newest = self._samples[-1]
-        extrapolated = t > newest.t
-        held = t > newest.t + self.limits.max_extrapolation
-        t_eval = min(t, newest.t + self.limits.max_extrapolation)
+        newest = self._latest
+        if newest is None:
+            raise ValueError("no base pose sample yet")
         if self._fit is None:
             self._fit = self._fit_window(newest)
-        coeffs = self._fit
-        if coeffs.shape[0] < 3:
-            # Too few samples for derivatives: the newest pose, at rest.
-            zero = np.zeros(3)
-            return BaseKinematics(newest.position.copy(), newest.orientation.copy(), zero, zero, zero, zero, extrapolated)
-        tau = t_eval - newest.t
-        value = coeffs[0] + coeffs[1] * tau + coeffs[2] * tau**2
-        rate = coeffs[1] + 2.0 * coeffs[2] * tau
-        accel = 2.0 * coeffs[2]
-        orientation = quaternion.multiply(newest.orientation, quaternion.from_rotation_vector(value[3:]))
-        if held:
-            zero = np.zeros(3)
-            return BaseKinematics(value[:3], orientation, zero, zero, zero, zero, True)
-        # Within a 20 ms window the relative rotation is small, so the world angular velocity is R_ref * d(phi)/dt
-        # up to O(|phi|) terms (the exact map is the right Jacobian of SO(3), identity at phi = 0).
-        r = quaternion.to_matrix(newest.orientation)
-        return BaseKinematics(value[:3], orientation, rate[:3], r @ rate[3:], accel[:3], r @ accel[3:], extrapolated)
+        out = np.empty((len(times), 19))
+        _evaluate_fit(self._fit, newest.t, newest.position, newest.orientation, self.limits.max_extrapolation,
+                      np.asarray(times, dtype=float), out)
+        return out
 
     def _fit_window(self, newest: PoseSample) -> np.ndarray:
         """Quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest."""
-        window = [s for s in self._samples if s.t >= newest.t - self.limits.window]
-        if len(window) < 3:
+        n = self._count
+        first = int(np.searchsorted(self._times[:n], newest.t - self.limits.window))
+        if n - first < 3:
             return np.zeros((0, 6))
-        times = np.array([s.t for s in window]) - newest.t
-        relative = quaternion.multiply(quaternion.conjugate(newest.orientation), np.array([s.orientation for s in window]))
-        values = np.hstack([np.array([s.position for s in window]), quaternion.to_rotation_vector(relative)])
-        return _quadratic_fit(times, values, max(self.limits.window, 1e-9))
+        return _fit_samples(self._times[first:n] - newest.t, self._positions[first:n], self._orientations[first:n],
+                            newest.orientation, max(self.limits.window, 1e-9))
+
+
+@njit(cache=True)
+def _quaternion_norm(t: float, position: np.ndarray, orientation: np.ndarray) -> float:
+    """|orientation|, or NaN if any of t, position, orientation is not finite."""
+    nan_if_not_finite = (t + np.sum(position) + np.sum(orientation)) * 0.0  # inf * 0 and NaN * 0 are NaN
+    return np.sqrt(np.sum(orientation ** 2)) + nan_if_not_finite
+
+
+@njit(cache=True)
+def _pose_deviation(p_ref: np.ndarray, q_ref: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[float, float]:
+    """(distance [m], rotation angle [rad]) between two poses."""
+    rotation = quaternion.to_rotation_vector(quaternion.multiply(quaternion.conjugate(q_ref), q))
+    return np.sqrt(np.sum((p - p_ref) ** 2)), np.sqrt(np.sum(rotation ** 2))
+
+
+@njit(cache=True)
+def _fit_samples(tau: np.ndarray, positions: np.ndarray, orientations: np.ndarray, reference: np.ndarray,
+                 scale: float) -> np.ndarray:
+    """Fit of [position, rotation vector relative to ``reference``] at times tau (see :func:`_quadratic_fit`)."""
+    values = np.empty((tau.size, 6))
+    inverse = quaternion.conjugate(reference)
+    for k in range(tau.size):
+        values[k, :3] = positions[k]
+        values[k, 3:] = quaternion.to_rotation_vector(quaternion.multiply(inverse, orientations[k]))
+    return _quadratic_fit(tau, values, scale)
+
+
+@njit(cache=True)
+def _evaluate_fit(coeffs: np.ndarray, t_newest: float, p_newest: np.ndarray, q_newest: np.ndarray,
+                  max_extrapolation: float, times: np.ndarray, out: np.ndarray) -> None:
+    """Packed motions (BaseTrajectory.motions_at) from the fit coefficients (3, 6) or (0, 6)."""
+    out[:, :] = 0.0
+    rotation = quaternion_matrix(q_newest)
+    for i in range(times.size):
+        if coeffs.shape[0] < 3:
+            out[i, 0:3] = p_newest
+            out[i, 3:7] = q_newest
+            continue
+        tau = min(times[i], t_newest + max_extrapolation) - t_newest
+        value = coeffs[0] + coeffs[1] * tau + coeffs[2] * tau * tau
+        out[i, 0:3] = value[:3]
+        out[i, 3:7] = quaternion.multiply(q_newest, quaternion.from_rotation_vector(value[3:]))
+        if times[i] > t_newest + max_extrapolation:
+            continue  # held: at rest
+        rate = coeffs[1] + 2.0 * coeffs[2] * tau
+        # Within a 20 ms window the relative rotation is small, so the world angular velocity is R_ref d(phi)/dt up
+        # to O(|phi|) terms (the exact map is the right Jacobian of SO(3), identity at phi = 0).
+        out[i, 7:10] = rate[:3]
+        out[i, 10:13] = rotation @ rate[3:]
+        out[i, 13:16] = 2.0 * coeffs[2, :3]
+        out[i, 16:19] = rotation @ (2.0 * coeffs[2, 3:])
 
 
 @njit(cache=True)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -38,11 +38,11 @@ from needle_sim_ros.model import (
     reaction_wrench,
     tip_pose,
 )
+from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
 from needle_sim_ros.tissue import build_tissue_forces
 
 
-@dataclass
-class StepRecord:
+class StepRecord(NamedTuple):
     """What one accepted step produced: its end time, the base wrench and the integrator's effort."""
 
     t: float
@@ -94,7 +94,8 @@ class NeedleSimulation:
         self.integrator = integrator
         self.dt = dt
         self.trajectory = trajectory
-        self.flange_offset = flange_offset
+        self._offset_position = np.asarray(flange_offset[0], dtype=float)
+        self._offset_rotation = quaternion_matrix(unit_quaternion(flange_offset[1], "flange_offset.orientation"))
         self.extra_forces_builder = extra_forces_builder
         self.extra_forces: list = []
         self.max_catch_up = max_catch_up
@@ -147,12 +148,20 @@ class NeedleSimulation:
 
     def base_motion_at(self, t: float) -> BaseMotion:
         """Motion of the clamp point A at time t from the flange trajectory, the offset and the optional twist."""
-        k = self.trajectory.motion_at(t)
-        linear, angular = k.linear_velocity, k.angular_velocity
-        if self.twist is not None and abs(t - self.twist[0]) <= self.twist_timeout:
-            linear, angular = self.twist[1], self.twist[2]
-        return BaseMotion.from_flange(k.position, k.orientation, *self.flange_offset,
-                                      linear, angular, k.linear_acceleration, k.angular_acceleration)
+        values, rotations = self.base_motions(np.array([t], dtype=float))
+        return BaseMotion.from_packed(values[0], rotations[0])
+
+    def base_motions(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Motions of the clamp point A at the given times (k,), packed (k, 19) as :meth:`BaseMotion.from_packed`
+        takes them, and their rotations (k, 3, 3)."""
+        flange = self.trajectory.motions_at(times)
+        if self.twist is not None:
+            fresh = np.abs(times - self.twist[0]) <= self.twist_timeout
+            flange[fresh, 7:10] = self.twist[1]
+            flange[fresh, 10:13] = self.twist[2]
+        values, rotations = np.empty_like(flange), np.empty((len(times), 3, 3))
+        compose_offsets(flange, self._offset_position, self._offset_rotation, values, rotations)
+        return values, rotations
 
     def pose_age(self, now: float) -> float:
         latest = self.trajectory.latest
@@ -189,13 +198,14 @@ class NeedleSimulation:
         if self.state is not None and now < self.state.t - self.pose_timeout:
             self.trajectory.clear()
             self.discard_state()
-        return self.advance_to(self.target_time(now, deterministic), self.base_motion_at)
+        return self.advance_to(self.target_time(now, deterministic))
 
-    def advance_to(self, t_target: float, base_at: Callable[[float], BaseMotion]) -> list[StepRecord]:
+    def advance_to(self, t_target: float) -> list[StepRecord]:
         """Integrate with fixed steps of dt until the next step would pass t_target.
 
         If the simulation lags more than ``max_catch_up`` behind, the skipped interval is not integrated: the
-        state jumps forward in time (shape and velocities kept) and the skipped time is counted.
+        state jumps forward in time (shape and velocities kept) and the skipped time is counted. Runs of steps go
+        through the integrator's compiled sequence where it applies (:meth:`Integrator.supports_sequence`).
         """
         records: list[StepRecord] = []
         if self.state is None:
@@ -205,9 +215,45 @@ class NeedleSimulation:
             skip = np.floor((lag - self.max_catch_up) / self.dt) * self.dt
             self.state = replace(self.state, t=self.state.t + skip)
             self.statistics.skipped_time += skip
-        while self.state.t + self.dt <= t_target + 1e-9 * self.dt:
-            records.append(self.step(base_at(self.state.t + self.dt)))
+        count = int(np.floor((t_target - self.state.t) / self.dt + 1e-9))
+        while count > 0:
+            times = self.state.t + self.dt * np.arange(1, count + 1)
+            motions, rotations = self.base_motions(times)
+            done = 0
+            if self.state.aux is not None and self.integrator.supports_sequence(self.forces):
+                done = self._step_sequence(times, motions, rotations, records)
+            if done < count:
+                records.append(self.step(BaseMotion.from_packed(motions[done], rotations[done])))
+                done += 1
+            count -= done
         return records
+
+    def _step_sequence(self, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
+                       records: list[StepRecord]) -> int:
+        """Steps at the given times in one compiled run (see :meth:`advance_to`); returns how many were done."""
+        start = time.perf_counter()
+        result = self.integrator.step_sequence(self.state, self.dt, motions, rotations, self.forces)
+        wall = (time.perf_counter() - start) / max(result.done, 1)
+        stats = self.statistics
+        done = result.done
+        for i in range(done):
+            w = result.wrenches[i]
+            record = StepRecord(float(times[i]), BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]),
+                                int(result.iterations[i]), 1, wall)
+            records.append(record)
+            if self.after_step is not None:  # the hook reads the state of its step
+                self._set_state(result.states[i], times[i], motions[i], rotations[i])
+                self.after_step(record)
+        if done:
+            self._set_state(result.states[done - 1], times[done - 1], motions[done - 1], rotations[done - 1])
+            stats.steps += done
+            stats.step_wall_times.extend([wall] * done)
+            stats.max_newton_iterations = max(stats.max_newton_iterations, int(result.iterations.max()))
+        return result.done
+
+    def _set_state(self, rows: np.ndarray, t: float, motion: np.ndarray, rotation: np.ndarray) -> None:
+        self.base = BaseMotion.from_packed(motion, rotation)
+        self.state = State(rows[0], rows[1], rows[2], float(t), rows[3], self.base)
 
     def step(self, base_next: BaseMotion) -> StepRecord:
         start = time.perf_counter()

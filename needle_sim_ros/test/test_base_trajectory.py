@@ -96,3 +96,13 @@ def test_consistent_jumped_poses_reanchor_the_trajectory():
     verdicts = [trajectory.offer(0.001 * (k + 1), [0.5, 0, 0], [0, 0, 0, 1]) for k in range(5)]
     assert verdicts[:4] == [PoseVerdict.JUMP] * 4 and verdicts[4] is PoseVerdict.REANCHORED
     np.testing.assert_allclose(trajectory.motion_at(0.005).position, [0.5, 0, 0])
+
+
+def test_a_small_buffer_wraps_around_without_losing_the_window():
+    trajectory = BaseTrajectory(TrajectoryLimits(window=0.02), capacity=8)
+    for k in range(100):  # the buffer holds 8 to 16 samples: the 20 ms window at 1 kHz is cut to the newest ones
+        p, q = pose(k * 1e-3)
+        assert trajectory.offer(k * 1e-3, p, q) is PoseVerdict.ACCEPTED
+    m = trajectory.motion_at(0.0985)
+    np.testing.assert_allclose(m.position, pose(0.0985)[0], atol=1e-12)
+    np.testing.assert_allclose(m.linear_acceleration, ACCEL, atol=1e-6)

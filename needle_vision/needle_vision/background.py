@@ -41,7 +41,7 @@ class BackgroundModel:
         if image.ndim != 2:
             raise ValueError("background image must be single-channel")
         self.threshold = threshold
-        self.image = np.asarray(image, dtype=np.float32).copy()
+        self.image = np.array(image, dtype=np.float32)  # a copy: update() changes it in place
         self._refresh_coarse()
 
     def _refresh_coarse(self) -> None:
@@ -67,12 +67,13 @@ class BackgroundModel:
         frames = list(frames)
         if not frames:
             raise ValueError("no background frames")
-        total = np.zeros(frames[0].shape, np.float64)
+        total = np.zeros(frames[0].shape, np.float32)  # exact sums of up to 65536 8-bit frames
         for frame in frames:
             if frame.shape != total.shape:
                 raise ValueError(f"background frames differ in size: {frame.shape} vs {total.shape}")
             total += frame
-        return cls(total / len(frames), threshold)
+        total /= len(frames)
+        return cls(total, threshold)
 
     @classmethod
     def from_needle_frame(cls, frame: np.ndarray, threshold: ContrastThreshold,

@@ -32,6 +32,7 @@ from .model import NeedleModel, State
 from .newton import CONVERGED, PREDICT_ACCELERATION, PREDICT_POSITION, NewtonSolver, assemble_system
 from .banded import ELEMENT_BANDWIDTH, band_cholesky, cholesky_solve
 from .partition import hermite_quintic
+from .sequence import EXTRAPOLATE, SequenceBuffers, integrate_sequence
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
 # Newton iterations granted to the extrapolating predictor before restarting from q_n: smooth motion converges in
@@ -42,6 +43,16 @@ EXTRAPOLATION_ITERATIONS = 3
 
 class StepFailed(RuntimeError):
     """The integrator could not advance the state, even with sub-stepping."""
+
+
+class SequenceResult(NamedTuple):
+    """Steps done by :meth:`Integrator.step_sequence` and, per step, the rows [q, q', q'', a] (done, 4, n_dof),
+    the wrench on the holder [force, torque world; force, torque base frame] (done, 12) and Newton corrections."""
+
+    done: int
+    states: np.ndarray
+    wrenches: np.ndarray
+    iterations: np.ndarray
 
 
 class StepResult(NamedTuple):
@@ -113,6 +124,7 @@ class Integrator:
         self._constant_cache: tuple[tuple, np.ndarray] = ((), np.zeros(model.n_dof))
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
         self._extrapolate = True
+        self._sequence: SequenceBuffers | None = None
 
     def initial_accelerations(self, state: State, forces=(), base: BaseMotion | None = None) -> np.ndarray:
         """q'' consistent with the equations of motion at the state (eq. 19), prescribed q''_c kept."""
@@ -141,6 +153,8 @@ class Integrator:
         Force ``advance`` hooks are the caller's job (once per accepted step)."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be finite and > 0, got {dt!r}")
+        if self._sequence is not None:
+            self._sequence.invalidate()  # the sequence's kept factorization is of another motion now
         model = self.model
         n = model.n_dof
         constant, varying = split_forces(forces)
@@ -166,6 +180,42 @@ class Integrator:
             return StepResult(new_state, iterations, n_sub, True, norm)
         raise StepFailed(f"step {state.t:.6g} -> {t_next:.6g} s failed with up to {2**self.max_substep_halvings} "
                          f"sub-steps ({self.method}, dt = {dt:g} s): {failure}")
+
+    def supports_sequence(self, forces) -> bool:
+        """Whether :meth:`step_sequence` applies: the constrained coordinates follow the base or are fixed in the
+        world, and every force is state-independent and time-invariant (gravity, world-frame point loads)."""
+        return self._sequence_buffers().supported and all(
+            getattr(force, "state_independent", False) and getattr(force, "time_invariant", False)
+            and not hasattr(force, "advance") for force in forces)
+
+    def step_sequence(self, state: State, dt: float, motions: np.ndarray, rotations: np.ndarray,
+                      forces=()) -> SequenceResult:
+        """Up to k steps of dt from ``state`` (which must carry ``aux``), the base at each step's end given packed
+        (k, 19) with rotations (k, 3, 3) (:meth:`BaseMotion.from_packed`); compiled, see
+        :mod:`needle_sim_ros.model.sequence`. Only where :meth:`supports_sequence`. The run ends early at a step
+        that does not converge: integrate that one with :meth:`step`."""
+        buffers = self._sequence_buffers()
+        if buffers.h != dt:
+            buffers.h = dt
+            buffers.invalidate()
+        buffers.control[EXTRAPOLATE] = int(self._extrapolate)
+        k, n = motions.shape[0], self.model.n_dof
+        states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)
+        history = np.stack([state.q, state.qd, state.qdd, state.aux])
+        ext_Q = self._constant_force(list(forces), state.t + dt, None)
+        done = integrate_sequence(history, motions, rotations, self._coefficients(dt), ext_Q, self.newton_tol,
+                                  self.max_newton_iterations, EXTRAPOLATION_ITERATIONS, buffers.prescribed,
+                                  buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
+                                  buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, buffers.band,
+                                  buffers.pivots, buffers.factorization, ELEMENT_BANDWIDTH, buffers.control, states,
+                                  wrenches, iterations)
+        self._extrapolate = bool(buffers.control[EXTRAPOLATE])
+        return SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
+
+    def _sequence_buffers(self) -> SequenceBuffers:
+        if self._sequence is None:
+            self._sequence = SequenceBuffers(self.model)
+        return self._sequence
 
     def _predictors(self) -> tuple[int, ...]:
         """Extrapolation first while it works; after it failed, start from q_n until that converges quickly."""

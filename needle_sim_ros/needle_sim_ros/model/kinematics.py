@@ -122,6 +122,16 @@ class BaseMotion:
         return self.rotation[:, 0]
 
     @classmethod
+    def from_packed(cls, values: np.ndarray, rotation: np.ndarray) -> BaseMotion:
+        """From already validated packed fields (19,) [position, orientation, v, w, a, alpha] and the matching
+        rotation matrix, without copying or checking (the compiled paths produce these)."""
+        motion = object.__new__(cls)
+        for name, part in _FIELDS:
+            object.__setattr__(motion, name, values[part])
+        object.__setattr__(motion, "rotation", rotation)
+        return motion
+
+    @classmethod
     def from_flange(cls, flange_position, flange_orientation, offset_position=_ZERO3,
                     offset_orientation=(0.0, 0.0, 0.0, 1.0), linear_velocity=_ZERO3, angular_velocity=_ZERO3,
                     linear_acceleration=_ZERO3, angular_acceleration=_ZERO3) -> BaseMotion:
@@ -131,16 +141,10 @@ class BaseMotion:
                      angular_acceleration)
         offset = _vector(offset_position, "offset_position")
         offset_rotation = quaternion_matrix(unit_quaternion(offset_orientation, "offset_orientation"))
-        values = np.empty(19)
-        rotation = np.empty((3, 3))
-        compose_offset(flange.position, flange.rotation, flange.linear_velocity, flange.angular_velocity,
-                       flange.linear_acceleration, flange.angular_acceleration, offset, offset_rotation, values,
-                       rotation)
-        motion = object.__new__(cls)
-        for name, part in _FIELDS:
-            object.__setattr__(motion, name, values[part])
-        object.__setattr__(motion, "rotation", rotation)
-        return motion
+        packed = np.concatenate([getattr(flange, name) for name, _ in _FIELDS])[None, :]
+        values, rotations = np.empty((1, 19)), np.empty((1, 3, 3))
+        compose_offsets(packed, offset, offset_rotation, values, rotations)
+        return cls.from_packed(values[0], rotations[0])
 
     def impose_nodes(self, local_r: np.ndarray, local_rx: np.ndarray, nodes: np.ndarray, target: np.ndarray) -> None:
         """Write [q, qd, qdd] of the given nodes, carried with frame coordinates rho = local_r, tau = local_rx
@@ -153,7 +157,7 @@ STATIC_WORLD = BaseMotion(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 
 
 @njit(cache=True)
-def _cross(a, b):
+def cross(a, b):
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
@@ -164,25 +168,30 @@ def rigid_node_kinematics(p, rotation, v, w, a, alpha, local_r, local_rx, nodes,
         first = 6 * nodes[k]
         d = rotation @ local_r[k]
         t = rotation @ local_rx[k]
-        wd = _cross(w, d)
-        wt = _cross(w, t)
+        wd = cross(w, d)
+        wt = cross(w, t)
         target[0, first:first + 3] = p + d
         target[0, first + 3:first + 6] = t
         target[1, first:first + 3] = v + wd
         target[1, first + 3:first + 6] = wt
-        target[2, first:first + 3] = a + _cross(alpha, d) + _cross(w, wd)
-        target[2, first + 3:first + 6] = _cross(alpha, t) + _cross(w, wt)
+        target[2, first:first + 3] = a + cross(alpha, d) + cross(w, wd)
+        target[2, first + 3:first + 6] = cross(alpha, t) + cross(w, wt)
 
 
 @njit(cache=True)
-def compose_offset(p, rotation, v, w, a, alpha, offset, offset_rotation, values, out_rotation):
-    """Motion of a frame rigidly offset from a moving frame (offset in that frame), packed as BaseMotion fields."""
-    d = rotation @ offset
-    wd = _cross(w, d)
-    out_rotation[:, :] = rotation @ offset_rotation
-    values[0:3] = p + d
-    values[3:7] = matrix_quaternion(out_rotation)
-    values[7:10] = v + wd
-    values[10:13] = w
-    values[13:16] = a + _cross(alpha, d) + _cross(w, wd)
-    values[16:19] = alpha
+def compose_offsets(flange, offset, offset_rotation, values, rotations):
+    """Motions (k, 19) and rotations (k, 3, 3) of a frame rigidly offset (offset, offset_rotation in the moving
+    frame) from the moving frames packed in flange (k, 19) as BaseMotion fields."""
+    for i in range(flange.shape[0]):
+        m = flange[i]
+        rotation = quaternion_matrix(m[3:7])
+        w, alpha = m[10:13], m[16:19]
+        d = rotation @ offset
+        wd = cross(w, d)
+        rotations[i] = rotation @ offset_rotation
+        values[i, 0:3] = m[0:3] + d
+        values[i, 3:7] = matrix_quaternion(rotations[i])
+        values[i, 7:10] = m[7:10] + wd
+        values[i, 10:13] = w
+        values[i, 13:16] = m[13:16] + cross(alpha, d) + cross(w, wd)
+        values[i, 16:19] = alpha

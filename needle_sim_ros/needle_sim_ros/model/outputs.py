@@ -9,7 +9,7 @@ from numba import njit
 
 from .elastic import elastic_energy
 from .forces import Gravity
-from .kinematics import matrix_quaternion, quaternion_matrix, unit_quaternion
+from .kinematics import cross, matrix_quaternion, quaternion_matrix, unit_quaternion
 from .mesh import Interpolation
 from .model import NeedleModel
 
@@ -101,8 +101,9 @@ def tip_pose(model: NeedleModel, q: np.ndarray, base_orientation=None,
     parallel-transported along the centerline (a torsion-free cable's cross sections do not twist).
     Without base_orientation the base frame is the minimal rotation of the world frame onto r_xA."""
     q = np.asarray(q, dtype=float)
-    line = centerline(model, q, samples_per_element * model.n_elements + 1)
-    t0 = line.tangents[0]
+    gradients = _sampling(model, samples_per_element * model.n_elements + 1)[0].gradients(q)
+    tangents = gradients / np.sqrt(np.einsum("ki,ki->k", gradients, gradients))[:, None]
+    t0 = tangents[0]
     if base_orientation is not None:
         normal = quaternion_matrix(unit_quaternion(base_orientation, "base_orientation"))[:, 1]
     elif t0[0] > -1.0 + 1e-12:
@@ -110,9 +111,9 @@ def tip_pose(model: NeedleModel, q: np.ndarray, base_orientation=None,
         normal = np.array([-t0[1], 1.0 - t0[1] ** 2 / (1.0 + t0[0]), -t0[1] * t0[2] / (1.0 + t0[0])])
     else:
         normal = np.array([0.0, 1.0, 0.0])
-    x_axis = line.tangents[-1]
-    y_axis = _transport(line.tangents, normal - (normal @ t0) * t0)
+    x_axis = tangents[-1]
+    y_axis = _transport(tangents, normal - (normal @ t0) * t0)
     y_axis = y_axis - (y_axis @ x_axis) * x_axis
     y_axis /= np.linalg.norm(y_axis)
-    rotation = np.column_stack([x_axis, y_axis, np.cross(x_axis, y_axis)])
+    rotation = np.column_stack([x_axis, y_axis, cross(x_axis, y_axis)])
     return q[-6:-3].copy(), matrix_quaternion(rotation)

@@ -12,20 +12,19 @@ A gradient-deficient cable has no torsional degree of freedom, so the moment abo
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from .damping import add_axial_damping
 from .elastic import ElasticTables, add_elastic
-from .kinematics import BaseMotion
+from .kinematics import BaseMotion, cross
 from .model import NeedleModel, State
 
 
-@dataclass(frozen=True)
-class BaseWrench:
+class BaseWrench(NamedTuple):
     """Force [N] and moment about A [N m] of the needle on its holder, in the world and in the base frame."""
 
     force_world: np.ndarray
@@ -35,7 +34,7 @@ class BaseWrench:
 
 
 @lru_cache(maxsize=32)
-def _base_rows(model: NeedleModel) -> tuple:
+def base_rows(model: NeedleModel) -> tuple:
     """Element 0 (the only one acting on the base node): its quadrature tables and the base rows of the mass and
     damping slot matrices (slots 0-3)."""
     first = ElasticTables(*(np.ascontiguousarray(table[:1]) for table in model.elastic))
@@ -71,12 +70,20 @@ def base_constraint_force(model: NeedleModel, state: State, base: BaseMotion, fo
     for force in forces:
         external += np.asarray(force.evaluate(model, state.q, state.qd, state.t, base).Q)[:6]
     return base_constraint_kernel(np.ascontiguousarray(state.q[:12]), np.ascontiguousarray(state.qd[:12]),
-                                  np.ascontiguousarray(state.qdd[:12]), *_base_rows(model),
+                                  np.ascontiguousarray(state.qdd[:12]), *base_rows(model),
                                   np.ascontiguousarray(base.axis), external)
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+@njit(cache=True)
+def holder_wrench(r_xA: np.ndarray, constraint: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """[force, torque about A] of the needle on its holder in the world frame, then in the base frame (12,), from
+    the constraint force Q_cc (6,) on [r_A, r_xA]: F = -Q_r, M = -r_xA x Q_rx (module docstring)."""
+    result = np.empty(12)
+    result[0:3] = -constraint[:3]
+    result[3:6] = -cross(r_xA, constraint[3:6])
+    result[6:9] = rotation.T @ result[0:3]
+    result[9:12] = rotation.T @ result[3:6]
+    return result
 
 
 def reaction_wrench(model: NeedleModel, state: State, base: BaseMotion | None = None, forces=()) -> BaseWrench:
@@ -85,7 +92,5 @@ def reaction_wrench(model: NeedleModel, state: State, base: BaseMotion | None = 
     if base is None:
         raise ValueError("reaction_wrench needs the base motion (argument base or state.base)")
     constraint = base_constraint_force(model, state, base, forces)
-    force = -constraint[:3]
-    torque = -_cross(state.q[3:6], constraint[3:6])
-    rotation = base.rotation
-    return BaseWrench(force, torque, rotation.T @ force, rotation.T @ torque)
+    w = holder_wrench(np.ascontiguousarray(state.q[3:6]), constraint, base.rotation)
+    return BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12])

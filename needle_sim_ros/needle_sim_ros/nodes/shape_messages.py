@@ -1,13 +1,13 @@
-"""Needle centerline <-> ROS messages: NeedleShape, nav_msgs/Path, geometry_msgs/PoseArray and a Marker tube."""
+"""Needle centerline <-> ROS message objects (NeedleShape, ShapeError) and the geometry of the shape outputs
+(pose orientations along the centerline, the tube's triangles); :mod:`needle_sim_ros.cdr` encodes the simulator's
+high-rate outputs directly."""
 from __future__ import annotations
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion, Vector3
-from nav_msgs.msg import Path
+from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from needle_interfaces.msg import NeedleShape, ShapeError
-from std_msgs.msg import ColorRGBA, Header
-from visualization_msgs.msg import Marker
+from std_msgs.msg import Header
 
 
 def quaternions_from_tangents(tangents: np.ndarray) -> np.ndarray:
@@ -47,17 +47,6 @@ def shape_arrays(msg: NeedleShape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return points, np.asarray(msg.arc_length, dtype=float), np.asarray(msg.uncertainty, dtype=float)
 
 
-def pose_array_msg(header: Header, points: np.ndarray, tangents: np.ndarray) -> PoseArray:
-    """Shape as PoseArray (SmartNeedle `current_shape` convention, but in metres): x axis along the tangent."""
-    quats = quaternions_from_tangents(tangents)
-    return PoseArray(header=header, poses=[_pose(p, q) for p, q in zip(points, quats)])
-
-
-def path_msg(header: Header, points: np.ndarray, tangents: np.ndarray) -> Path:
-    quats = quaternions_from_tangents(tangents)
-    return Path(header=header, poses=[PoseStamped(header=header, pose=_pose(p, q)) for p, q in zip(points, quats)])
-
-
 def tube_triangles(points: np.ndarray, tangents: np.ndarray, radius: float, sides: int = 8) -> np.ndarray:
     """Triangle-list vertices (m, 3) of a tube of the given radius around a centerline.
 
@@ -80,16 +69,6 @@ def tube_triangles(points: np.ndarray, tangents: np.ndarray, radius: float, side
     a_next, b_next = np.roll(a, -1, axis=1), np.roll(b, -1, axis=1)
     quads = np.stack([a, b, b_next, a, b_next, a_next], axis=2)  # two triangles per quad
     return quads.reshape(-1, 3)
-
-
-def tube_marker_msg(header: Header, points: np.ndarray, tangents: np.ndarray, radius: float,
-                    color=(0.75, 0.75, 0.8, 1.0), namespace: str = "needle") -> Marker:
-    marker = Marker(header=header, ns=namespace, id=0, type=Marker.TRIANGLE_LIST, action=Marker.ADD)
-    marker.pose.orientation.w = 1.0
-    marker.scale = Vector3(x=1.0, y=1.0, z=1.0)
-    marker.color = ColorRGBA(r=color[0], g=color[1], b=color[2], a=color[3])
-    marker.points = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in tube_triangles(points, tangents, radius)]
-    return marker
 
 
 def time_msg(seconds: float) -> Time:

@@ -1,9 +1,10 @@
 """`needle_simulator`: the ANCF needle in real time, driven by base-pose topics, publishing wrench and shape.
 
 Thin ROS layer over :class:`needle_sim_ros.simulation.NeedleSimulation` and
-:class:`needle_sim_ros.base_trajectory.BaseTrajectory`. A dedicated thread runs the fixed-rate loop and advances
-the model by elapsed clock time (not by counting wake-ups, which a loaded machine skips); the executor thread only
-receives poses and serves services and parameters.
+:class:`needle_sim_ros.base_trajectory.BaseTrajectory`. A dedicated thread runs the fixed-rate loop: at each tick it
+takes the poses that arrived (polled subscriptions, :mod:`needle_sim_ros.nodes.polling`) and advances the model by
+elapsed clock time (not by counting wake-ups, which a loaded machine skips); the executor thread serves the tip
+load topic, services and parameters; an output thread publishes shapes, visualization and diagnostics.
 
 Time: with ``use_sim_time`` the node follows ``/clock`` and integrates deterministically up to
 min(clock, newest pose stamp) — poses are interpolated, never extrapolated — unless the pose input timed out.
@@ -12,6 +13,7 @@ In wall-clock mode it integrates up to now, extrapolating the newest pose for at
 """
 from __future__ import annotations
 
+import gc
 import sys
 import threading
 import time
@@ -32,20 +34,24 @@ from visualization_msgs.msg import Marker
 
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.nodes.parameters import ParameterError, declare_all, guard_dynamic_updates
+from needle_sim_ros.nodes.polling import PolledCallbackGroup, drain
 from needle_sim_ros.nodes.runner import run_node
-from needle_sim_ros.nodes.shape_messages import (
-    needle_shape_msg, path_msg, pose_array_msg, time_msg, tube_marker_msg)
+from needle_sim_ros import cdr
+from needle_sim_ros.nodes.shape_messages import quaternions_from_tangents, time_msg, tube_triangles
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
     TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters, simulation_from_parameters)
 from needle_sim_ros.tissue import tissue_readout
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
+TUBE_COLOR = (0.75, 0.75, 0.8, 1.0)  # RGBA of the needle's Marker tube
 
 
 def qos_profile(name: str, depth: int = 10) -> QoSProfile:
+    """``sensor_data`` (best effort, volatile) or ``reliable``, keeping the last ``depth`` messages."""
     if name == "sensor_data":
-        return qos_profile_sensor_data
+        return QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
+                          durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
     return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
 
 
@@ -76,8 +82,13 @@ class NeedleSimulatorNode(Node):
         self.pose_array_pub = self.create_publisher(PoseArray, topics["pose_array"], 10)
         self.state_pub = self.create_publisher(NeedleState, topics["state"], 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(PoseStamped, topics["base_pose"], self.on_pose, qos_profile(self.p["qos.base_pose"], 100))
-        self.create_subscription(TwistStamped, topics["base_twist"], self.on_twist, qos_profile(self.p["qos.base_pose"], 100))
+        # Poses and twists are taken by the integration loop itself at each tick (see nodes.polling).
+        polled = PolledCallbackGroup()
+        self._polled = [
+            self.create_subscription(PoseStamped, topics["base_pose"], self.on_pose,
+                                     qos_profile(self.p["qos.base_pose"], 100), callback_group=polled, raw=True),
+            self.create_subscription(TwistStamped, topics["base_twist"], self.on_twist,
+                                     qos_profile(self.p["qos.base_pose"], 100), callback_group=polled)]
         self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_service(ApplyPointLoad, "~/apply_point_load", self.on_apply_point_load)
@@ -90,9 +101,13 @@ class NeedleSimulatorNode(Node):
             self.sim.after_step = self.publish_shape_on_grid
         self._loop = threading.Thread(target=self.run_loop, name="needle_integration", daemon=True)
         self._outputs = threading.Thread(target=self.run_outputs, name="needle_outputs", daemon=True)
-        # The output thread builds large messages (the marker tube: ~5 ms); a short GIL switch interval lets the
-        # integration thread take over within 0.2 ms instead of Python's default 5 ms.
+        # The output thread's work comes in pieces of up to ~1 ms; a short GIL switch interval lets the integration
+        # thread take over within 0.2 ms instead of Python's default 5 ms.
         sys.setswitchinterval(2e-4)
+        # Everything built so far (modules, compiled kernels, the model) lives until exit: keep it out of the
+        # garbage collector's full passes, which would otherwise stall the loop for milliseconds now and then.
+        gc.collect()
+        gc.freeze()
         self.get_logger().info(
             f"needle_simulator ready: {self.p['needle.elements']} elements, dt = {self.p['integrator.dt'] * 1e3:g} ms, "
             f"{'simulated' if self.use_sim_time else 'wall-clock'} time; waiting for poses on "
@@ -112,26 +127,29 @@ class NeedleSimulatorNode(Node):
             self.get_logger().warning(message)
 
     def now_seconds(self) -> float:
+        if not self.use_sim_time:
+            return time.time()  # the ROS clock without simulated time is the system clock; 10x cheaper
         return self.get_clock().now().nanoseconds * 1e-9
 
     # -- inputs ----------------------------------------------------------------------------------------------
-    def on_pose(self, msg: PoseStamped) -> None:
+    def on_pose(self, data: bytes) -> None:
+        """A serialized PoseStamped (the subscription is raw: decoding it is ~10x cheaper than rclpy's objects)."""
+        pose = cdr.pose_stamped(data)
         world = self.p["frames.world"]
-        if msg.header.frame_id not in ("", world):
+        if pose.frame_id not in ("", world):
             self.counters_other["wrong_frame"] += 1
-            self.warn_throttled("frame", f"ignoring base pose in frame '{msg.header.frame_id}': expected '{world}'")
+            self.warn_throttled("frame", f"ignoring base pose in frame '{pose.frame_id}': expected '{world}'")
             return
         received = self.now_seconds()
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        stamp = pose.stamp_ns * 1e-9
         if stamp == 0.0 or (not self.use_sim_time and abs(stamp - received) > self.p["pose_input.max_stamp_offset"]):
             self.counters_other["stamp_replaced"] += 1
             self.warn_throttled("stamp", f"base pose stamp {stamp:.3f} s is unset or {stamp - received:+.3f} s from now: "
                                          "using the receive time instead")
             stamp = received
-        p, q = msg.pose.position, msg.pose.orientation
         with self._lock:
             started = self.sim.started
-            verdict = self.sim.offer_pose(stamp, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+            verdict = self.sim.offer_pose(stamp, pose.position, pose.orientation)
             self.counters[verdict] += 1
         if self.sim.started and not started:
             self.get_logger().info("first base pose received: needle initialised straight at it")
@@ -234,6 +252,10 @@ class NeedleSimulatorNode(Node):
                 self.warn_throttled("outputs", f"publishing outputs failed: {error!r}")
 
     def run_loop(self) -> None:
+        """Ticks until shutdown. In wall-clock time each tick is timed to the moment the next step's end time
+        passes, so a tick integrates exactly one step and publishes its wrench at once (a tick that has to
+        integrate more is a deadline miss); in simulated time (no relation to this process's clock) ticks come
+        every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
         deadline = time.perf_counter()
@@ -244,7 +266,11 @@ class NeedleSimulatorNode(Node):
                 if self._stop.is_set() or not rclpy.ok():
                     break
                 self.warn_throttled("loop", f"integration loop iteration failed: {error!r}")
-            deadline += period
+            state = self.sim.state
+            if not self.use_sim_time and state is not None:
+                deadline = time.perf_counter() + (state.t + period - self.now_seconds())
+            else:
+                deadline += period
             remaining = deadline - time.perf_counter()
             if remaining < -10 * period:  # far behind (e.g. suspended): re-phase instead of bursting
                 deadline = time.perf_counter()
@@ -254,7 +280,9 @@ class NeedleSimulatorNode(Node):
                 pass
 
     def loop_iteration(self) -> None:
-        """One tick: integrate up to the clock and publish the wrench of every step."""
+        """One tick: take the poses that arrived, integrate up to the clock, publish the wrench of every step."""
+        for subscription in self._polled:
+            drain(subscription)
         now = self.now_seconds()
         with self._lock:
             started = self.sim.started
@@ -263,19 +291,20 @@ class NeedleSimulatorNode(Node):
             self.get_logger().warning(f"clock jumped back to {now:.3f} s: waiting for a new first pose")
         if len(records) > 1:
             self.deadline_misses += len(records) - 1
-        for record in records:
-            self.publish_wrench(record)
+        if records:
+            self.publish_wrenches(records)
 
     # -- outputs ---------------------------------------------------------------------------------------------
     def header(self, t: float, frame: str) -> Header:
         return Header(stamp=time_msg(t), frame_id=frame)
 
-    def publish_wrench(self, record) -> None:
-        w = record.wrench
-        msg = WrenchStamped(header=self.header(record.t, self.p["frames.base"]))
-        msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = (float(x) for x in w.force_base)
-        msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = (float(x) for x in w.torque_base)
-        self.wrench_pub.publish(msg)
+    def publish_wrenches(self, records) -> None:
+        """The wrench of each step on the holder, base frame, stamped with the step's end time (as CDR bytes)."""
+        values = np.empty((len(records), 6))
+        for row, record in zip(values, records):
+            row[:3], row[3:] = record.wrench.force_base, record.wrench.torque_base
+        for data in cdr.wrench_stamped_many(np.array([r.t for r in records]), self.p["frames.base"], values):
+            self.wrench_pub.publish(data)
 
     def due(self, key: str, now: float, rate: float) -> bool:
         """True once per 1/rate of clock time (also after the clock jumped backwards, e.g. a looping bag)."""
@@ -303,7 +332,8 @@ class NeedleSimulatorNode(Node):
     def publish_shape(self, snap: dict) -> None:
         header = self.header(snap["t"], self.p["frames.world"])
         line = snap["line"]
-        self.shape_pub.publish(needle_shape_msg(header, NeedleShape.SOURCE_MODEL, line.points, line.tangents,
+        self.shape_pub.publish(cdr.needle_shape(header.stamp.sec, header.stamp.nanosec, header.frame_id,
+                                                NeedleShape.SOURCE_MODEL, line.points, line.tangents,
                                                 line.arc_length, *snap["tip"]))
         kinetic, elastic = snap["energies"]
         state = NeedleState(header=header, kinetic_energy=float(kinetic), elastic_energy=float(elastic))
@@ -327,11 +357,13 @@ class NeedleSimulatorNode(Node):
         if shape_due:
             self.publish_shape(snap)
         if visualization_due:
-            header = self.header(snap["t"], self.p["frames.world"])
-            line = snap["line"]
-            self.path_pub.publish(path_msg(header, line.points, line.tangents))
-            self.pose_array_pub.publish(pose_array_msg(header, line.points, line.tangents))
-            self.marker_pub.publish(tube_marker_msg(header, line.points, line.tangents, self.props.radius))
+            stamp, frame, line = time_msg(snap["t"]), self.p["frames.world"], snap["line"]
+            orientations = quaternions_from_tangents(line.tangents)
+            self.path_pub.publish(cdr.path(stamp.sec, stamp.nanosec, frame, line.points, orientations))
+            self.pose_array_pub.publish(cdr.pose_array(stamp.sec, stamp.nanosec, frame, line.points, orientations))
+            self.marker_pub.publish(cdr.triangle_list_marker(
+                stamp.sec, stamp.nanosec, frame, "needle", 0,
+                tube_triangles(line.points, line.tangents, self.props.radius), TUBE_COLOR))
 
     def tissue_readout(self):
         if not self.sim.extra_forces:

@@ -20,15 +20,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.serialization import deserialize_message, serialize_message
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo
 
+from needle_sim_ros import cdr
 from needle_sim_ros.offline.parameters import ExperimentConfig
 from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
                                            simulator_values, stereo_values)
-from needle_sim_ros.recording import BagReader, McapBagWriter, OfferedQos, WriterOptions
+from needle_sim_ros.recording import BagReader, OfferedQos, WriterOptions
+from needle_sim_ros.recording.bag_reader import read_ahead
+from needle_sim_ros.recording.background_writer import BackgroundBagWriter
 
 NS = 1_000_000_000
 # Output topics (as the live pipeline names them) -> (type, offered QoS of the live publisher).
@@ -39,9 +42,17 @@ OUTPUT_TOPICS = {
     "/base_pose": ("geometry_msgs/msg/PoseStamped", OfferedQos(depth=10)),
     "/wrench": ("geometry_msgs/msg/WrenchStamped", OfferedQos(depth=100)),  # QoS: as the simulator's qos.wrench
 }
-INPUT_TYPES = {"/base_pose": PoseStamped, "/tip_load": WrenchStamped, "/left/image_raw": Image,
-               "/right/image_raw": Image, "/left/camera_info": CameraInfo, "/right/camera_info": CameraInfo,
-               "/needle/measured_shape": NeedleShape}
+INPUT_TYPES = {"/tip_load": WrenchStamped, "/left/camera_info": CameraInfo, "/right/camera_info": CameraInfo,
+               "/needle/measured_shape": NeedleShape}  # besides images and poses (see decode)
+
+
+def decode(topic: str, data: bytes) -> Any:
+    """An input message from its serialized bytes (images and poses decoded directly: :mod:`cdr`)."""
+    if topic.endswith("image_raw"):
+        return cdr.image(data)
+    if topic == "/base_pose":
+        return cdr.pose_stamped(data)
+    return deserialize_message(data, INPUT_TYPES[topic])
 
 
 @dataclass
@@ -96,7 +107,7 @@ class OfflinePipeline:
                                  "that starts late clamps the needle elsewhere than the recording did")
         self.writer = None
         if output is not None:
-            self.writer = McapBagWriter(output, WriterOptions(overwrite=True))
+            self.writer = BackgroundBagWriter(output, WriterOptions(overwrite=True))
             wrench_qos = OfferedQos(depth=100, reliability="reliable" if self.parameters["needle_simulator"][
                 "qos.wrench"] == "reliable" else "best_effort")
             for topic, (type_name, qos) in {**OUTPUT_TOPICS, "/wrench": (OUTPUT_TOPICS["/wrench"][0], wrench_qos)}.items():
@@ -108,12 +119,12 @@ class OfflinePipeline:
             self._prime_stereo(reader, begin)
         last_progress = begin
         try:
-            for message in reader.messages(topics, start_time_ns=begin):
+            for message in read_ahead(reader.messages(topics, start_time_ns=begin)):
                 now = message.log_time_ns
                 if now > end:
                     break
                 self._advance(now)
-                msg = deserialize_message(message.data, INPUT_TYPES[message.topic])
+                msg = decode(message.topic, message.data)
                 if message.topic in ("/base_pose", "/tip_load"):
                     with self._timed("simulator"):
                         if message.topic == "/base_pose":
@@ -197,7 +208,7 @@ class OfflinePipeline:
         for message in reader.messages(topics):
             if message.log_time_ns >= begin or self.stereo.has_background:
                 return
-            msg = deserialize_message(message.data, INPUT_TYPES[message.topic])
+            msg = decode(message.topic, message.data)
             side = message.topic.split("/")[1]
             if message.topic.endswith("camera_info"):
                 self.stereo.on_camera_info(side, msg)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
 from scipy.spatial.transform import RigidTransform, Rotation
 from sensor_msgs.msg import CameraInfo, Image
@@ -39,8 +39,8 @@ from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
 from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
 from needle_sim_ros.nodes.shape_messages import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
-from needle_sim_ros.offline import cdr
-from needle_sim_ros.simulation import TIP_LOAD_TOPIC, StepRecord, simulation_from_parameters
+from needle_sim_ros import cdr
+from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters
 
 NS = 1_000_000_000
 
@@ -100,14 +100,12 @@ class SimulatorStage:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
     # --- inputs (as NeedleSimulatorNode.on_pose / on_tip_load in simulated time) ------------------------------
-    def on_pose(self, msg: PoseStamped, now_ns: int) -> None:
-        if msg.header.frame_id not in ("", self.p["frames.world"]):
+    def on_pose(self, pose: cdr.DecodedPose, now_ns: int) -> None:
+        if pose.frame_id not in ("", self.p["frames.world"]):
             self._reject("base pose in another frame")
             return
-        stamp = stamp_ns(msg.header) or now_ns
-        p, q = msg.pose.position, msg.pose.orientation
         started = self.sim.started
-        verdict = self.sim.offer_pose(stamp * 1e-9, [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+        verdict = self.sim.offer_pose((pose.stamp_ns or now_ns) * 1e-9, pose.position, pose.orientation)
         if not started and self.sim.started:
             self._steps_since_start = 0
         if verdict.name not in ("ACCEPTED", "NORMALIZED", "REANCHORED"):
@@ -134,18 +132,18 @@ class SimulatorStage:
         start = time.perf_counter()
         records = self.sim.advance(now_ns * 1e-9, deterministic=True)
         self.core_seconds += time.perf_counter() - start
-        for record in records:
-            outputs.append(("wrench", self.wrench_cdr(record)))
+        if not records:
+            return outputs
+        values = np.empty((len(records), 6))
+        for row, record in zip(values, records):
+            row[:3], row[3:] = record.wrench.force_base, record.wrench.torque_base
+        wrenches = cdr.wrench_stamped_many(np.array([r.t for r in records]), self.p["frames.base"], values)
+        for data in wrenches:
+            outputs.append(("wrench", data))
             self._steps_since_start += 1
             if self._steps_since_start % self.shape_every == 0:
                 outputs.append(("shape", self.shape()))
         return outputs
-
-    def wrench_cdr(self, record: StepRecord) -> bytes:
-        """The node's wrench message (base frame, stamped with the step's end time), serialized."""
-        stamp = time_msg(record.t)
-        return cdr.wrench_stamped(stamp.sec, stamp.nanosec, self.p["frames.base"], record.wrench.force_base,
-                                  record.wrench.torque_base)
 
     def shape(self) -> "ModelShape":
         line = self.sim.shape(self.p["output.shape_samples"])

@@ -5,10 +5,12 @@ files in split order. Messages come in log-time order within each file and files
 """
 from __future__ import annotations
 
+import queue
 import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Iterable, Iterator, TypeVar
 
 import yaml
 from mcap.exceptions import McapError
@@ -103,10 +105,60 @@ class BagReader:
 
     def messages(self, topics: Iterable[str] | None = None, start_time_ns: int | None = None
                  ) -> Iterator[RecordedMessage]:
-        """Messages of ``topics`` (all if None) logged at or after ``start_time_ns``, in log-time order."""
+        """Messages of ``topics`` (all if None) logged at or after ``start_time_ns``, in log-time order
+        (wrap in :func:`read_ahead` to read and decompress on another thread)."""
         selected = None if topics is None else list(topics)
         for file in self.files:
             with open(file, "rb") as stream:
                 for _, channel, message in make_reader(stream).iter_messages(
                         topics=selected, starting_at=start_time_ns, log_time_order=True):
                     yield RecordedMessage(channel.topic, message.log_time, message.data)
+
+
+Item = TypeVar("Item")
+_END = object()
+
+
+def read_ahead(items: Iterator[Item], batch: int = 64, depth: int = 32) -> Iterator[Item]:
+    """The items of ``items``, produced on a background thread up to ``depth`` batches ahead, so that reading
+    and decompressing (zstd and file reads release the GIL) overlap the consumer's work. Exceptions of the
+    producer are raised in the consumer; closing the generator stops the producer."""
+    buffer: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                buffer.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        chunk: list = []
+        try:
+            for item in items:
+                chunk.append(item)
+                if len(chunk) >= batch:
+                    if not put(chunk):
+                        return
+                    chunk = []
+            put(chunk)
+            put(_END)
+        except BaseException as error:  # noqa: BLE001 - handed to the consumer
+            put(error)
+
+    thread = threading.Thread(target=produce, name="bag-read-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            chunk = buffer.get()
+            if chunk is _END:
+                return
+            if isinstance(chunk, BaseException):
+                raise chunk
+            yield from chunk
+    finally:
+        stop.set()
+        thread.join(timeout=1.0)

@@ -1,0 +1,103 @@
+"""A run of time steps in one compiled call: the fast path of the simulator's fixed-rate loop.
+
+For the common case -- the constrained coordinates driven by the base frame (eqs. 18-19) or fixed in the world,
+and only state-independent, time-invariant external forces (gravity, world-frame point loads) -- a sequence of k
+steps needs no Python between the steps: per step the base node kinematics are imposed from the packed base
+motion, Newton runs as in :meth:`needle_sim_ros.model.integrators.Integrator.step` (predictor choice and budgets
+alike), and the base reaction wrench (eq. 20) is evaluated. The iteration matrix is kept across steps (modified
+Newton): while the steps converge in a single correction no matrix is assembled or factored at all; the
+convergence control refactors as soon as corrections contract too slowly. A step that does not converge ends the
+run; the caller integrates it with the general path (sub-stepping) and continues.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .banded import ELEMENT_BANDWIDTH, band_width_columns
+from .kinematics import rigid_node_kinematics
+from .newton import CONVERGED, PREDICT_ACCELERATION, PREDICT_POSITION, model_tables, newton_solve
+from .reaction import base_constraint_kernel, base_rows, holder_wrench
+
+EXTRAPOLATE, FACTORED = 0, 1  # entries of the control flags
+
+
+class SequenceBuffers:
+    """Work arrays of the compiled step sequence of one model, including the factorization kept across steps."""
+
+    def __init__(self, model) -> None:
+        n = model.n_dof
+        self.tables = model_tables(model)
+        self.base_rows = base_rows(model)
+        self.active = model.partition.active
+        self.scale = model.increment_scale
+        self.residual = np.empty(n)
+        self.band = np.zeros((n, band_width_columns(ELEMENT_BANDWIDTH)))
+        self.pivots = np.empty(n, dtype=np.int64)
+        self.factorization = np.zeros(1, dtype=np.int64)
+        self.control = np.array([1, 0], dtype=np.int64)  # [extrapolate, factorization in band valid]
+        self.h = 0.0
+        groups = model.partition.groups
+        self.supported = all(g.fixed is not None or g.frame == "base" for g in groups)
+        moving = [g for g in groups if g.fixed is None]
+        self.base_nodes = np.concatenate([g.nodes for g in moving]).astype(np.int64)
+        self.base_local_r = np.ascontiguousarray(np.concatenate([g.local_r for g in moving]))
+        self.base_local_rx = np.ascontiguousarray(np.concatenate([g.local_rx for g in moving]))
+        self.prescribed = np.zeros((3, n))  # world-fixed coordinates once; the base nodes are written per step
+        for group in groups:
+            if group.fixed is not None:
+                self.prescribed[:, group.dofs] = group.fixed
+
+    def invalidate(self) -> None:
+        """The factorization no longer belongs to this model's current motion (e.g. after a general step)."""
+        self.control[FACTORED] = 0
+
+
+@njit(cache=True)
+def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterations, extrapolation_iterations,
+                       prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables, rows, residual,
+                       band, pivots, factorization, kl, control, states, wrenches, iterations):
+    """Integrate from history (rows q, q', q'', a at t_n) one step per packed base motion (k, 19) with rotations
+    (k, 3, 3). Writes each step's rows into states (k, 4, n), its wrench on the holder [force, torque in the world
+    frame, force, torque in the base frame] into wrenches (k, 12) and its Newton corrections into iterations (k,).
+    Returns the number of steps done: k, or the index of the first step that did not converge."""
+    values = np.empty_like(history)
+    current = history.copy()
+    (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, strain_rate_weights, mass_rows,
+     isotropic_rows, transverse_rows) = rows
+    external = ext_Q[:6].copy()
+    for i in range(motions.shape[0]):
+        m = motions[i]
+        rotation = rotations[i]
+        rigid_node_kinematics(m[0:3], rotation, m[7:10], m[10:13], m[13:16], m[16:19], base_local_r,
+                              base_local_rx, base_nodes, prescribed)
+        axis = rotation[:, 0].copy()
+        total = 0
+        status = -1
+        for attempt in range(2):
+            first_choice = PREDICT_ACCELERATION if control[EXTRAPOLATE] == 1 else PREDICT_POSITION
+            second_choice = PREDICT_POSITION if control[EXTRAPOLATE] == 1 else PREDICT_ACCELERATION
+            predictor = first_choice if attempt == 0 else second_choice
+            budget = max_iterations
+            if predictor == PREDICT_ACCELERATION:
+                budget = min(extrapolation_iterations, budget)
+            status, used, norm = newton_solve(values, current, prescribed, coef, True, predictor, active, scale,
+                                              tables, axis, ext_Q, residual, band, pivots, factorization, kl, tol,
+                                              budget, False, control[FACTORED] == 0)
+            total += used
+            control[FACTORED] = 1 if status != -1 else 0
+            if status == CONVERGED:
+                control[EXTRAPOLATE] = 1 if (predictor == PREDICT_ACCELERATION or used <= 2) else 0
+                break
+        if status != CONVERGED:
+            control[FACTORED] = 0
+            return i
+        current[:, :] = values
+        states[i] = values
+        iterations[i] = total
+        constraint = base_constraint_kernel(values[0, :12].copy(), values[1, :12].copy(), values[2, :12].copy(),
+                                            axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
+                                            strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, axis,
+                                            external)
+        wrenches[i] = holder_wrench(values[0, 3:6].copy(), constraint, rotation)
+    return motions.shape[0]
