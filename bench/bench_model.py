@@ -5,6 +5,8 @@
 * start-up: numba compilation with an empty cache (first run after install) and loading from the cache;
 * integration step at dt = 1 ms for 5/10/20/40 elements: the base moves (5 mm/s insertion, 5 deg pitch at
   0.2 Hz), gravity, Rayleigh beta = 1e-4, generalized-alpha (rho_inf = 0.8); real-time factor = dt / step time;
+  one step at a time (Integrator.step, full Newton) and as compiled runs of 10 steps with the reaction wrench
+  (Integrator.step_sequence, modified Newton: the simulator's path without tissue);
   again with a 20-point MaterialPointForce (a tissue-like lateral spring-damper on the distal half, the path tissue
   models take); plus reaction wrench (eq. 20), a 50-point centerline and BaseMotion.from_flange;
 * static equilibrium under weight + 80 g tip mass from the straight needle (10 elements).
@@ -24,7 +26,8 @@ import time
 import numpy as np
 
 from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, MaterialPointForce, NeedleProperties,
-                                  PointForces, PointLoad, build_model, centerline, reaction_wrench, solve_static)
+                                  PointForces, PointLoad, State, build_model, centerline, reaction_wrench,
+                                  solve_static)
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
 DT = 1e-3
@@ -111,6 +114,29 @@ def step_benchmark(n_elements: int, forces: list, steps: int, repeats: int) -> t
     return best, iterations / steps
 
 
+def sequence_benchmark(n_elements: int, steps: int, repeats: int, batch: int = 10) -> float:
+    """Best mean wall time per step [s] of Integrator.step_sequence (compiled runs of ``batch`` steps, reaction
+    wrench included; the simulator's path for gravity and world-frame loads)."""
+    model = build_model(NEEDLE, n_elements, rayleigh_beta=1e-4)
+    integrator = Integrator(model)
+    bases = [base_motion(k * DT) for k in range((repeats + 1) * steps + 1)]
+    packed = np.array([np.concatenate([b.position, b.orientation, b.linear_velocity, b.angular_velocity,
+                                       b.linear_acceleration, b.angular_acceleration]) for b in bases])
+    rotations = np.array([b.rotation for b in bases])
+    state = integrator.step(model.straight_state(bases[0]), DT, bases[1], [Gravity()]).state
+    best, forces = np.inf, [Gravity()]
+    for r in range(repeats + 1):  # the first round warms up
+        start = time.perf_counter()
+        for first in range(r * steps + 2, (r + 1) * steps + 2, batch):
+            result = integrator.step_sequence(state, DT, packed[first:first + batch], rotations[first:first + batch],
+                                              forces)
+            rows = result.states[-1]
+            state = State(rows[0], rows[1], rows[2], state.t + DT * result.done, rows[3])
+        if r:
+            best = min(best, (time.perf_counter() - start) / steps)
+    return best
+
+
 def output_times(n_elements: int, repeats: int) -> tuple[float, float]:
     model = build_model(NEEDLE, n_elements, rayleigh_beta=1e-4)
     base, forces = base_motion(0.1), [Gravity()]
@@ -130,14 +156,17 @@ def main() -> None:
         print("| start-up (import, build, steps, static solve, outputs) | seconds |\n|---|---|")
         print(f"| empty numba cache (compilation) | {cold:.1f} |\n| numba cache filled (cache=True) | {warm:.2f} |\n")
 
-    print("| elements | step [us] | real-time factor | step + 20-pt MaterialPointForce [us] | real-time factor "
+    print("| elements | step [us] | real-time factor | compiled sequence, step + wrench [us] | real-time factor "
+          "| step + 20-pt MaterialPointForce [us] | real-time factor "
           "| Newton its/step (plain / with force) | reaction wrench [us] | centerline 50 pts [us] |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n_elements in (5, 10, 20, 40):
         plain, plain_its = step_benchmark(n_elements, [Gravity()], steps, repeats)
+        sequence = sequence_benchmark(n_elements, steps, repeats)
         tissue, tissue_its = step_benchmark(n_elements, [Gravity(), tissue_like_force()], steps, repeats)
         wrench, line = output_times(n_elements, repeats)
-        print(f"| {n_elements} | {plain * 1e6:.0f} | {DT / plain:.1f} | {tissue * 1e6:.0f} | {DT / tissue:.1f} "
+        print(f"| {n_elements} | {plain * 1e6:.0f} | {DT / plain:.1f} | {sequence * 1e6:.0f} | {DT / sequence:.1f} "
+              f"| {tissue * 1e6:.0f} | {DT / tissue:.1f} "
               f"| {plain_its:.2f} / {tissue_its:.2f} | {wrench * 1e6:.0f} | {line * 1e6:.0f} |")
 
     flange = best_time(lambda: BaseMotion.from_flange((0.1, 0.2, 0.3), (0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.1),

@@ -16,7 +16,9 @@ Usage: python bench/bench_simulator_latency.py [--duration 60] [--elements 10]
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import struct
 import subprocess
 import sys
 import tempfile
@@ -31,9 +33,15 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
-from scipy.spatial.transform import Rotation
+from rclpy.serialization import serialize_message
+from std_msgs.msg import Header
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def stamp_seconds(data: bytes) -> float:
+    sec, nanosec = struct.unpack_from("<iI", data, 4)
+    return sec + nanosec * 1e-9
 
 
 def main() -> int:
@@ -41,12 +49,15 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=60.0, help="measurement time [s]")
     parser.add_argument("--elements", type=int, default=10)
     parser.add_argument("--rate", type=float, default=1000.0, help="pose rate [Hz]")
+    parser.add_argument("--realtime-priority", type=int, default=0,
+                        help="the node's loop.realtime_priority (0: normal scheduling, the default)")
     args = parser.parse_args()
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     os.environ.update(ROS_DOMAIN_ID=env["ROS_DOMAIN_ID"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     params = Path(tempfile.mkdtemp()) / "bench.yaml"
-    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"needle.elements": args.elements, "integrator.dt": 0.001}}}))
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
+        "needle.elements": args.elements, "integrator.dt": 0.001, "loop.realtime_priority": args.realtime_priority}}}))
     executable = REPO / "install/needle_sim_ros/lib/needle_sim_ros/needle_simulator"
     simulator = subprocess.Popen([str(executable), "--ros-args", "--params-file", str(params)], env=env)
 
@@ -56,20 +67,22 @@ def main() -> int:
     # (stamp, middleware receive time, callback time) of every wrench
     wrenches: list[tuple[float, float, float]] = []
     diagnostics: list[dict] = []
-    node.create_subscription(WrenchStamped, "wrench", lambda m, info: wrenches.append(
-        (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, info["received_timestamp"] * 1e-9, time.time())),
-        qos_profile_sensor_data)
+    # raw: only the stamp is needed (bytes 4-12 of the CDR payload); no Python message objects
+    node.create_subscription(WrenchStamped, "wrench", lambda data, info: wrenches.append(
+        (stamp_seconds(data), info["received_timestamp"] * 1e-9, time.time())), qos_profile_sensor_data, raw=True)
     node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diagnostics.append(
         {kv.key: kv.value for kv in m.status[0].values}) if m.status else None, 10)
     # Receiving runs on its own thread, blocked in the wait set between messages; the publishing loop sleeps
-    # between poses (a real driver's publisher costs microseconds; a busy Python loop would take a whole core
-    # from the two this machine has).
+    # between poses and sends ready-made CDR bytes. A robot driver's publisher costs microseconds; this process
+    # stands in for it, so it should take as little as possible of the two cores the node runs on as well.
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     threading.Thread(target=executor.spin, daemon=True).start()
     while pub.get_subscription_count() == 0:
         time.sleep(0.1)
 
+    template = bytearray(serialize_message(PoseStamped(header=Header(frame_id="world"))))
+    pose_offset = len(template) - 56  # the pose's 7 doubles end the message
     pose_stamps = []
     period = 1.0 / args.rate
     start = time.perf_counter()
@@ -80,15 +93,13 @@ def main() -> int:
         remaining = target - time.perf_counter()
         if remaining > 0:
             time.sleep(remaining)
-        now = node.get_clock().now()
-        t = now.nanoseconds * 1e-9
-        msg = PoseStamped()
-        msg.header.stamp = now.to_msg()
-        msg.header.frame_id = "world"
-        msg.pose.position.x, msg.pose.position.z = 0.4, 0.3
-        o = Rotation.from_euler("y", 5.0 * np.sin(2 * np.pi * 0.2 * t), degrees=True).as_quat()
-        msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, msg.pose.orientation.w = o
-        pub.publish(msg)
+        t = time.time()
+        half_pitch = 0.5 * math.radians(5.0 * math.sin(2 * math.pi * 0.2 * t))  # about world y
+        sec = math.floor(t)
+        struct.pack_into("<iI", template, 4, sec, min(round((t - sec) * 1e9), 999_999_999))
+        struct.pack_into("<7d", template, pose_offset, 0.4, 0.0, 0.3, 0.0, math.sin(half_pitch), 0.0,
+                         math.cos(half_pitch))
+        pub.publish(bytes(template))
         if time.perf_counter() - start > warmup:
             pose_stamps.append(t)
         k += 1
@@ -113,7 +124,8 @@ def main() -> int:
     step_mean = [float(d["step_time_mean_ms"]) for d in diagnostics if "step_time_mean_ms" in d]
     miss_rate = (misses[-1] - misses[0]) / max(steps[-1] - steps[0], 1) if len(steps) > 1 else float("nan")
 
-    print(f"\nneedle_simulator, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s")
+    print(f"\nneedle_simulator, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
+          f"loop.realtime_priority {args.realtime_priority}")
     print("| metric | value | target |")
     print("|---|---|---|")
     print(f"| latency p50 | {np.percentile(latency, 50):.3f} ms | |")

@@ -115,6 +115,13 @@ def test_fast_cdr_encoders_decode_to_the_nodes_messages():
         data = cdr.needle_shape(stamp.sec, stamp.nanosec, frame, "model", points, tangents, arc, tip, quaternion,
                                 uncertainty)
         assert deserialize_message(data, NeedleShape) == expected
+    from needle_interfaces.msg import NeedleState
+    values = rng.random(8)
+    state = NeedleState(header=Header(stamp=stamp, frame_id="world"), insertion_depth=values[0],
+                        inserted_length=values[1], axial_force=values[5], kinetic_energy=values[6],
+                        elastic_energy=values[7])
+    state.tip_force.x, state.tip_force.y, state.tip_force.z = values[2:5]
+    assert deserialize_message(cdr.needle_state(stamp.sec, stamp.nanosec, "world", *values), NeedleState) == state
     times = np.array([1_700_000_001.2345, 12.9999999999, 0.0, 3.0000000004])
     wrenches = rng.random((times.size, 6))
     for t, data, values in zip(times, cdr.wrench_stamped_many(times, "needle_base", wrenches), wrenches):

@@ -149,6 +149,17 @@ def triangle_list_marker(sec: int, nanosec: int, frame_id: str, namespace: str, 
     return buffer.bytes()
 
 
+def needle_state(sec: int, nanosec: int, frame_id: str, insertion_depth: float, inserted_length: float,
+                 tip_force_x: float, tip_force_y: float, tip_force_z: float, axial_force: float,
+                 kinetic_energy: float, elastic_energy: float) -> bytes:
+    """needle_interfaces/msg/NeedleState."""
+    buffer = _Buffer()
+    _header(buffer, sec, nanosec, frame_id)
+    buffer.doubles(np.array([insertion_depth, inserted_length, tip_force_x, tip_force_y, tip_force_z, axial_force,
+                             kinetic_energy, elastic_energy]))
+    return buffer.bytes()
+
+
 def needle_shape(sec: int, nanosec: int, frame_id: str, source: str, points: np.ndarray, tangents: np.ndarray,
                  arc_length: np.ndarray, tip_position: np.ndarray, tip_orientation: np.ndarray,
                  uncertainty: np.ndarray | None = None) -> bytes:

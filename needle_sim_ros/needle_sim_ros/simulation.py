@@ -107,6 +107,7 @@ class NeedleSimulation:
         self.after_step: Callable[[StepRecord], None] | None = None  # called with the state of each accepted step
         self.point_loads: dict[str, PointLoad] = {}
         self.state: State | None = None
+        self._grid_origin, self._step_index = 0.0, 0  # steps end at origin + index dt (set at each reset)
         self.base: BaseMotion | None = None
         self.statistics = LoopStatistics()
         self._gravity = Gravity()
@@ -188,6 +189,7 @@ class NeedleSimulation:
             self.extra_forces = list(self.extra_forces_builder(self.model))
         self.base = base
         self.state = self.model.straight_state(base, t)
+        self._grid_origin, self._step_index = float(t), 0
 
     def discard_state(self) -> None:
         """Forget the state (e.g. the clock jumped back); the next :meth:`reset` starts again."""
@@ -212,21 +214,31 @@ class NeedleSimulation:
             return records
         lag = t_target - self.state.t
         if lag > self.max_catch_up:
-            skip = np.floor((lag - self.max_catch_up) / self.dt) * self.dt
-            self.state = replace(self.state, t=self.state.t + skip)
-            self.statistics.skipped_time += skip
-        count = int(np.floor((t_target - self.state.t) / self.dt + 1e-9))
+            skip = int(np.floor((lag - self.max_catch_up) / self.dt))
+            self._step_index += skip
+            self.state = replace(self.state, t=self._grid_time(self._step_index))
+            self.statistics.skipped_time += skip * self.dt
+        # steps whose end time reaches t_target up to the float resolution of the times (0.24 us at epoch times)
+        slack = 4.0 * np.spacing(abs(t_target)) + 1e-9 * self.dt
+        count = int(np.floor((t_target + slack - self._grid_origin) / self.dt)) - self._step_index
         while count > 0:
-            times = self.state.t + self.dt * np.arange(1, count + 1)
+            times = self._grid_time(self._step_index + np.arange(1, count + 1))
             motions, rotations = self.base_motions(times)
             done = 0
             if self.state.aux is not None and self.integrator.supports_sequence(self.forces):
                 done = self._step_sequence(times, motions, rotations, records)
+                self._step_index += done
             if done < count:
-                records.append(self.step(BaseMotion.from_packed(motions[done], rotations[done])))
+                records.append(self.step(BaseMotion.from_packed(motions[done], rotations[done]), times[done]))
+                self._step_index += 1
                 done += 1
             count -= done
         return records
+
+    def _grid_time(self, index):
+        """End time of step ``index`` since the (re)start: origin + index dt, rounded once (no accumulation: at
+        epoch times a sum of 1 ms steps would drift by 70 ns per step)."""
+        return self._grid_origin + self.dt * index
 
     def _step_sequence(self, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                        records: list[StepRecord]) -> int:
@@ -255,15 +267,17 @@ class NeedleSimulation:
         self.base = BaseMotion.from_packed(motion, rotation)
         self.state = State(rows[0], rows[1], rows[2], float(t), rows[3], self.base)
 
-    def step(self, base_next: BaseMotion) -> StepRecord:
+    def step(self, base_next: BaseMotion, t_next: float) -> StepRecord:
+        """One step with the general integrator path (sub-stepping, state-dependent forces) to t_next."""
         start = time.perf_counter()
         forces = self.forces
         try:
             result = self.integrator.step(self.state, self.dt, base_next, forces)
             self.state, iterations, substeps = result.state, result.newton_iterations, result.substeps
+            self.state.t = float(t_next)
         except StepFailed:
             self.statistics.failed_steps += 1
-            self.state = self.model.straight_state(base_next, self.state.t + self.dt)
+            self.state = self.model.straight_state(base_next, float(t_next))
             iterations, substeps = 0, 0
         for force in forces:
             advance = getattr(force, "advance", None)

@@ -98,7 +98,7 @@ def run_ground_truth(experiment: Experiment, truth: TruthModel, shape_times, wre
         t = k * dt
         if loaded:
             simulation.set_point_load(TIP_WEIGHT, truth.props.length, experiment.tip_force(t))
-        record = simulation.step(experiment.base(t))
+        record = simulation.step(experiment.base(t), t)
         if simulation.statistics.failed_steps:
             raise RuntimeError(f"ground truth of '{experiment.name}': step at t = {t:.4f} s failed")
         if k % wrench_every == 0:

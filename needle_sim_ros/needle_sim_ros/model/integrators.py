@@ -201,7 +201,8 @@ class Integrator:
         buffers.control[EXTRAPOLATE] = int(self._extrapolate)
         k, n = motions.shape[0], self.model.n_dof
         states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)
-        history = np.stack([state.q, state.qd, state.qdd, state.aux])
+        history = buffers.history
+        history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
         ext_Q = self._constant_force(list(forces), state.t + dt, None)
         done = integrate_sequence(history, motions, rotations, self._coefficients(dt), ext_Q, self.newton_tol,
                                   self.max_newton_iterations, EXTRAPOLATION_ITERATIONS, buffers.prescribed,

@@ -31,6 +31,7 @@ class SequenceBuffers:
         self.base_rows = base_rows(model)
         self.active = model.partition.active
         self.scale = model.increment_scale
+        self.history = np.empty((4, n))  # rows q, q', q'', a of the start state
         self.residual = np.empty(n)
         self.band = np.zeros((n, band_width_columns(ELEMENT_BANDWIDTH)))
         self.pivots = np.empty(n, dtype=np.int64)

@@ -14,6 +14,7 @@ In wall-clock mode it integrates up to now, extrapolating the newest pose for at
 from __future__ import annotations
 
 import gc
+import os
 import sys
 import threading
 import time
@@ -33,6 +34,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
 from needle_sim_ros.base_trajectory import PoseVerdict
+from needle_sim_ros.model import State, centerline, elastic_energy, kinetic_energy, tip_pose
 from needle_sim_ros.nodes.parameters import ParameterError, declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import PolledCallbackGroup, drain
 from needle_sim_ros.nodes.runner import run_node
@@ -258,6 +260,7 @@ class NeedleSimulatorNode(Node):
         every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
+        self.request_realtime_priority(self.p["loop.realtime_priority"])
         deadline = time.perf_counter()
         while not self._stop.is_set() and rclpy.ok():
             try:
@@ -279,6 +282,18 @@ class NeedleSimulatorNode(Node):
             while time.perf_counter() < deadline:
                 pass
 
+    def request_realtime_priority(self, priority: int) -> None:
+        """Put the calling (integration) thread under SCHED_FIFO with the given priority, if asked and allowed."""
+        if priority <= 0:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))  # 0: the calling thread on Linux
+        except (OSError, AttributeError) as error:
+            self.get_logger().warning(f"loop.realtime_priority {priority}: SCHED_FIFO not permitted ({error}); "
+                                      "running with normal scheduling (grant rtprio, e.g. the 'realtime' group)")
+            return
+        self.get_logger().info(f"integration thread runs with SCHED_FIFO priority {priority}")
+
     def loop_iteration(self) -> None:
         """One tick: take the poses that arrived, integrate up to the clock, publish the wrench of every step."""
         for subscription in self._polled:
@@ -295,9 +310,6 @@ class NeedleSimulatorNode(Node):
             self.publish_wrenches(records)
 
     # -- outputs ---------------------------------------------------------------------------------------------
-    def header(self, t: float, frame: str) -> Header:
-        return Header(stamp=time_msg(t), frame_id=frame)
-
     def publish_wrenches(self, records) -> None:
         """The wrench of each step on the holder, base frame, stamped with the step's end time (as CDR bytes)."""
         values = np.empty((len(records), 6))
@@ -320,30 +332,28 @@ class NeedleSimulatorNode(Node):
         if record.t + 1e-9 < self._next_output["shape"] and record.t > self._next_output["shape"] - 2.0 / rate:
             return
         self._next_output["shape"] = (np.floor(record.t * rate + 1e-6) + 1.0) / rate
-        self.publish_shape(self.snapshot())
+        self.publish_shape(self.snapshot(*self.take_state()))
 
-    def snapshot(self) -> dict:
-        """Everything the shape and visualization outputs need, taken under the lock."""
-        kinetic, elastic = self.sim.energies()
-        position, orientation = self.sim.tip()
-        return {"t": self.sim.state.t, "line": self.sim.shape(self.p["output.shape_samples"]), "tip": (position, orientation),
-                "energies": (kinetic, elastic), "readout": self.tissue_readout()}
+    def take_state(self) -> tuple:
+        """(model, a copy of the state, tissue readout): all the outputs need, taken with the lock held."""
+        state = self.sim.state
+        return self.sim.model, State(state.q.copy(), state.qd.copy(), state.qdd, state.t), self.tissue_readout()
+
+    def snapshot(self, model, state: State, readout) -> dict:
+        """Centerline, tip pose and energies of a state copy (computed outside the lock)."""
+        return {"t": state.t, "line": centerline(model, state.q, self.p["output.shape_samples"]),
+                "tip": tip_pose(model, state.q), "energies": (kinetic_energy(model, state.qd),
+                                                              elastic_energy(model, state.q)),
+                "readout": readout}
 
     def publish_shape(self, snap: dict) -> None:
-        header = self.header(snap["t"], self.p["frames.world"])
-        line = snap["line"]
-        self.shape_pub.publish(cdr.needle_shape(header.stamp.sec, header.stamp.nanosec, header.frame_id,
-                                                NeedleShape.SOURCE_MODEL, line.points, line.tangents,
-                                                line.arc_length, *snap["tip"]))
-        kinetic, elastic = snap["energies"]
-        state = NeedleState(header=header, kinetic_energy=float(kinetic), elastic_energy=float(elastic))
+        stamp, frame, line = time_msg(snap["t"]), self.p["frames.world"], snap["line"]
+        self.shape_pub.publish(cdr.needle_shape(stamp.sec, stamp.nanosec, frame, NeedleShape.SOURCE_MODEL,
+                                                line.points, line.tangents, line.arc_length, *snap["tip"]))
         readout = snap["readout"]
-        if readout is not None:
-            state.insertion_depth = float(readout.insertion_depth)
-            state.inserted_length = float(readout.inserted_length)
-            state.tip_force.x, state.tip_force.y, state.tip_force.z = (float(x) for x in readout.tip_force)
-            state.axial_force = float(readout.axial_force)
-        self.state_pub.publish(state)
+        tissue = (np.zeros(6) if readout is None else
+                  np.array([readout.insertion_depth, readout.inserted_length, *readout.tip_force, readout.axial_force]))
+        self.state_pub.publish(cdr.needle_state(stamp.sec, stamp.nanosec, frame, *tissue, *snap["energies"]))
 
     def publish_periodic_outputs(self, now: float) -> None:
         shape_due = not self.use_sim_time and self.due("shape", now, self.p["rates.shape_hz"])
@@ -353,7 +363,8 @@ class NeedleSimulatorNode(Node):
         with self._lock:
             if not self.sim.started:
                 return
-            snap = self.snapshot()
+            taken = self.take_state()
+        snap = self.snapshot(*taken)
         if shape_due:
             self.publish_shape(snap)
         if visualization_due:

@@ -1,0 +1,102 @@
+"""The simulator core (NeedleSimulation) and its compiled step sequences: equilibrium at rest, agreement with the
+one-step integrator under motion, and the fall-back to the general step."""
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from needle_sim_ros.model import BaseMotion, Gravity, Integrator, PointLoad
+from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.simulation import simulation_from_parameters
+
+PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
+
+
+def pitching(t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Flange pose: 10 deg pitch at 0.5 Hz about world y plus a slow 5 mm/s advance along x."""
+    angle = math.radians(10.0) * math.sin(2 * math.pi * 0.5 * t)
+    return np.array([0.4 + 0.005 * t, 0.0, 0.3]), Rotation.from_rotvec([0.0, angle, 0.0]).as_quat()
+
+
+def test_wrench_at_rest_is_the_weight_plus_the_tip_load_through_the_compiled_path():
+    tip_force = np.array([0.0, 0.05, -0.2])
+    sim = simulation_from_parameters({**PARAMETERS, "loads.tip_force": tip_force.tolist(),
+                                      "damping.rayleigh_beta": 1e-3})
+    records = []
+    for k in range(3000):  # 3 s of poses at 1 kHz, integrated as they come (deterministic rule)
+        sim.offer_pose(k * 1e-3, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+        records += sim.advance(k * 1e-3, deterministic=True)
+    assert sim.statistics.failed_steps == 0 and len(records) == 2999
+    assert all(r.substeps == 1 for r in records[10:])  # after the first step: compiled sequences
+    props = sim.model.props
+    weight = props.mass_per_length * props.length * np.asarray(props.gravity)
+    force = records[-1].wrench.force_world
+    # the needle pulls its holder with its weight and the tip load (the swing decays with beta = 1e-3)
+    np.testing.assert_allclose(force, weight + tip_force, atol=2e-3 * np.linalg.norm(weight + tip_force))
+    # moment about A of the loads on the deflected needle: tip load at the tip, weight along the centerline
+    line = sim.shape(401)
+    segment = np.diff(line.reference_arc_length)
+    midpoints = 0.5 * (line.points[1:] + line.points[:-1]) - line.points[0]
+    moment = np.cross(line.points[-1] - line.points[0], tip_force) + np.sum(
+        np.cross(midpoints, props.mass_per_length * segment[:, None] * np.asarray(props.gravity)), axis=0)
+    np.testing.assert_allclose(records[-1].wrench.torque_world, moment, atol=2e-3 * np.linalg.norm(moment))
+
+
+def test_compiled_sequence_agrees_with_one_step_at_a_time():
+    """The sequence keeps the iteration matrix across steps (modified Newton); both converge to the same
+    solution of each step's equations within the Newton tolerance."""
+    sim = simulation_from_parameters({**PARAMETERS, "integrator.newton_tolerance": 1e-9})
+    for k in range(40):
+        sim.offer_pose(k * 1e-3, *pitching(k * 1e-3))
+    sim.advance(0.002, deterministic=True)  # the first step (consistent accelerations) takes the general path
+    start = sim.state
+    times = start.t + 1e-3 * np.arange(1, 31)
+    motions, rotations = sim.base_motions(times)
+    forces = [Gravity()]
+    reference = Integrator(sim.model, rho_inf=PARAMETERS["integrator.rho_inf"], newton_tol=1e-9)
+    result = sim.integrator.step_sequence(start, 1e-3, motions, rotations, forces)
+    assert result.done == len(times)
+    state = start
+    for i in range(len(times)):
+        state = reference.step(state, 1e-3, BaseMotion.from_packed(motions[i], rotations[i]), forces).state
+        np.testing.assert_allclose(result.states[i, 0], state.q, atol=1e-9 * sim.model.props.length)
+        np.testing.assert_allclose(result.states[i, 1], state.qd, atol=1e-5)
+
+
+def test_base_motions_of_a_sequence_equal_the_single_evaluations():
+    sim = simulation_from_parameters({**PARAMETERS, "flange_offset.position": [0.01, 0.0, 0.02],
+                                      "flange_offset.orientation": [0.0, 0.0, 0.38268343, 0.92387953]})
+    for k in range(30):
+        sim.offer_pose(k * 1e-3, *pitching(k * 1e-3))
+    sim.set_twist(0.0255, np.array([0.01, 0.0, 0.0]), np.array([0.0, 0.1, 0.0]))
+    times = np.array([0.0201, 0.025, 0.029, 0.031, 0.045])  # interpolated, twist fed forward, extrapolated, held
+    motions, rotations = sim.base_motions(times)
+    for t, packed, rotation in zip(times, motions, rotations):
+        single = sim.base_motion_at(t)
+        np.testing.assert_array_equal(single.rotation, rotation)
+        for name, value in (("position", packed[0:3]), ("orientation", packed[3:7]),
+                            ("linear_velocity", packed[7:10]), ("angular_velocity", packed[10:13])):
+            np.testing.assert_array_equal(getattr(single, name), value)
+    np.testing.assert_allclose(motions[1, 10:13], [0.0, 0.1, 0.0])  # the fresh twist replaced the estimate
+    np.testing.assert_allclose(rotations[0] @ rotations[0].T, np.eye(3), atol=1e-12)
+
+
+def test_a_step_the_sequence_cannot_converge_is_left_to_the_general_path():
+    sim = simulation_from_parameters(PARAMETERS)
+    for k in range(20):
+        sim.offer_pose(k * 1e-3, *pitching(k * 1e-3))
+    sim.advance(0.002, deterministic=True)
+    start = sim.state
+    impatient = Integrator(sim.model, newton_tol=1e-14, max_newton_iterations=1, max_substep_halvings=0)
+    motions, rotations = sim.base_motions(start.t + 1e-3 * np.arange(1, 6))
+    result = impatient.step_sequence(start, 1e-3, motions, rotations, [Gravity()])
+    assert result.done == 0 and result.states.shape[0] == 0
+    np.testing.assert_array_equal(sim.state.q, start.q)  # the start state is untouched
+
+
+@pytest.mark.parametrize("forces, expected", [([Gravity(), PointLoad(0.27, (0.0, 0.0, -0.1))], True),
+                                              ([PointLoad(0.27, (0.0, 0.0, -0.1), frame="base")], False)])
+def test_the_sequence_applies_to_constant_world_loads_only(forces, expected):
+    sim = simulation_from_parameters(PARAMETERS)
+    assert sim.integrator.supports_sequence(forces) is expected
