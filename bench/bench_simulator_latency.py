@@ -1,7 +1,9 @@
 """Cross-process latency and deadline misses of `needle_simulator` at 1 kHz (issue 4 benchmark).
 
-Starts the simulator in its own process (10 elements, dt = 1 ms, wall-clock time), publishes base poses at
-1 kHz from this process (a slow sinusoidal pitch, like a robot driver would), and measures
+Starts the simulator in its own process (10 elements, dt = 1 ms, wall-clock time, its default configuration:
+integration thread at SCHED_FIFO priority 50 if permitted), publishes base poses at 1 kHz from this process (a
+slow sinusoidal pitch, like a robot driver would; publish times jittered by +-0.4 ms so that the poses meet the
+node's step grid at every phase), and measures
 
 * latency: from publishing a pose (its stamp) to receiving the first wrench whose step time is at or after that
   stamp, i.e. the first wrench integrated up to the pose's instant (pose transport + wait for the next tick +
@@ -11,7 +13,7 @@ Starts the simulator in its own process (10 elements, dt = 1 ms, wall-clock time
 * deadline misses: the node's own counter from /diagnostics (periods in which the loop had to integrate more
   than one step to catch up), relative to the steps taken.
 
-Usage: python bench/bench_simulator_latency.py [--duration 60] [--elements 10]
+Usage: python bench/bench_simulator_latency.py [--duration 60] [--elements 10] [--jitter 0.8] [--realtime-priority 0]
 """
 from __future__ import annotations
 
@@ -49,15 +51,18 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=60.0, help="measurement time [s]")
     parser.add_argument("--elements", type=int, default=10)
     parser.add_argument("--rate", type=float, default=1000.0, help="pose rate [Hz]")
-    parser.add_argument("--realtime-priority", type=int, default=0,
-                        help="the node's loop.realtime_priority (0: normal scheduling, the default)")
+    parser.add_argument("--jitter", type=float, default=0.8, help="pose timing jitter, peak to peak [periods]")
+    parser.add_argument("--realtime-priority", type=int, default=None,
+                        help="override the node's loop.realtime_priority (default 50; 0: normal scheduling)")
     args = parser.parse_args()
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     os.environ.update(ROS_DOMAIN_ID=env["ROS_DOMAIN_ID"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     params = Path(tempfile.mkdtemp()) / "bench.yaml"
-    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
-        "needle.elements": args.elements, "integrator.dt": 0.001, "loop.realtime_priority": args.realtime_priority}}}))
+    overrides = {"needle.elements": args.elements, "integrator.dt": 0.001}
+    if args.realtime_priority is not None:
+        overrides["loop.realtime_priority"] = args.realtime_priority
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": overrides}}))
     executable = REPO / "install/needle_sim_ros/lib/needle_sim_ros/needle_simulator"
     simulator = subprocess.Popen([str(executable), "--ros-args", "--params-file", str(params)], env=env)
 
@@ -85,11 +90,13 @@ def main() -> int:
     pose_offset = len(template) - 56  # the pose's 7 doubles end the message
     pose_stamps = []
     period = 1.0 / args.rate
+    # publish times jittered by up to +-jitter/2 periods: the poses meet the node's 1 ms step grid at every phase
+    phase = np.random.default_rng(0).uniform(-0.5, 0.5, 100_000) * args.jitter
     start = time.perf_counter()
     warmup = 3.0
     k = 0
     while time.perf_counter() - start < warmup + args.duration:
-        target = start + k * period
+        target = start + (k + phase[k % phase.size]) * period
         remaining = target - time.perf_counter()
         if remaining > 0:
             time.sleep(remaining)
@@ -125,7 +132,7 @@ def main() -> int:
     miss_rate = (misses[-1] - misses[0]) / max(steps[-1] - steps[0], 1) if len(steps) > 1 else float("nan")
 
     print(f"\nneedle_simulator, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
-          f"loop.realtime_priority {args.realtime_priority}")
+          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}")
     print("| metric | value | target |")
     print("|---|---|---|")
     print(f"| latency p50 | {np.percentile(latency, 50):.3f} ms | |")

@@ -240,12 +240,24 @@ def _quadratic_fit(times: np.ndarray, values: np.ndarray, scale: float) -> np.nd
 
     Normal equations in tau / scale (scale = window length), so the 3 x 3 system is well conditioned.
     """
+    # normal matrix [[s0, s1, s2], [s1, s2, s3], [s2, s3, s4]] (s_k = sum x^k) and right-hand sides
     x = times / scale
-    design = np.empty((x.size, 3))
-    design[:, 0] = 1.0
-    design[:, 1] = x
-    design[:, 2] = x * x
-    coeffs = np.linalg.solve(design.T @ design, design.T @ values)
+    s = np.zeros(5)
+    rhs = np.zeros((3, values.shape[1]))
+    for k in range(x.size):
+        power = 1.0
+        for p in range(5):
+            s[p] += power
+            if p < 3:
+                rhs[p] += power * values[k]
+            power *= x[k]
+    # symmetric 3 x 3 inverse by cofactors (the normal matrix of >= 3 distinct times is positive definite)
+    a, b, c, d, e = s[0], s[1], s[2], s[3], s[4]
+    inverse = np.array([[c * e - d * d, c * d - b * e, b * d - c * c],
+                        [c * d - b * e, a * e - c * c, b * c - a * d],
+                        [b * d - c * c, b * c - a * d, a * c - b * b]])
+    determinant = a * inverse[0, 0] + b * inverse[1, 0] + c * inverse[2, 0]
+    coeffs = (inverse / determinant) @ rhs
     coeffs[1] /= scale
     coeffs[2] /= scale * scale
     return coeffs

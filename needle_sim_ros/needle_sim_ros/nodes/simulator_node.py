@@ -260,7 +260,8 @@ class NeedleSimulatorNode(Node):
         every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
-        self.request_realtime_priority(self.p["loop.realtime_priority"])
+        if not self.use_sim_time:  # simulated time needs no tick accuracy
+            self.request_realtime_priority(self.p["loop.realtime_priority"])
         deadline = time.perf_counter()
         while not self._stop.is_set() and rclpy.ok():
             try:

@@ -78,7 +78,7 @@ SIMULATOR_PARAMETERS = [
     # Real-time loop.
     ParamSpec("loop.max_catch_up", 0.05, "Largest lag [s] the loop integrates to catch up; beyond it time is skipped.", 1e-3, 10.0),
     ParamSpec("loop.busy_wait", 0.0002, "Spin the last part of each period instead of sleeping, for tick accuracy [s].", 0.0, 0.01),
-    ParamSpec("loop.realtime_priority", 0, "SCHED_FIFO priority of the integration thread (1-99; 0 = normal scheduling). Needs the rtprio limit (e.g. the 'realtime' group); without it the node warns and runs normally.", 0, 99),
+    ParamSpec("loop.realtime_priority", 50, "SCHED_FIFO priority of the integration thread in wall-clock time (1-99; 0 = normal scheduling). Needs the rtprio limit (e.g. the 'realtime' group); without it the node warns and runs with normal scheduling.", 0, 99),
     # Needle-tissue interaction (needle_sim_ros.tissue; config/tissue.yaml): checked together when enabled.
     *(ParamSpec(name, default, meaning[:1].upper() + meaning[1:] + ".", allow_infinite=True)
       for name, (default, meaning) in TISSUE_PARAMETERS.items()),

@@ -13,6 +13,7 @@ import pickle
 import select
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from typing import Any, BinaryIO, Sequence
 
@@ -72,8 +73,8 @@ class BackgroundBagWriter:
         self._pending.append(("close", ()))
         self._send()
         self._closed = True
-        files = self._expect("closed")
-        self._process.wait()  # it exits right after the reply (a timeout here would poll in 50 ms sleeps)
+        files = self._expect("closed")  # the file is complete now; the child only has to exit (~20 ms)
+        threading.Thread(target=self._process.wait, name="mcap-writer-reaper", daemon=True).start()
         return [Path(p) for p in files]
 
     def _call(self, call: str, arguments: tuple) -> None:
