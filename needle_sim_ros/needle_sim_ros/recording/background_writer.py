@@ -109,4 +109,6 @@ class BackgroundBagWriter:
 
 
 if __name__ == "__main__":
-    serve(sys.stdin.buffer, sys.stdout.buffer)
+    replies = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())  # anything else printed must not corrupt the replies
+    serve(sys.stdin.buffer, replies)
