@@ -74,7 +74,7 @@ def live_rows(rates: list[float], directory: Path, from_source: bool) -> list[st
         expected = summary["expected_measurements"]
         rmse = f"{c['rmse_mean_m'] * 1e3:.3f}" if c["rmse_mean_m"] is not None else "n/a"
         rows.append(f"| {rate:g} | {c['compared']} / {expected} | {expected - c['compared']} | "
-                    f"{d.get('skipped_time_s', '?')} | {d.get('step_time_mean_ms', '?')} | {rmse} | "
+                    f"{d.get('skipped_time_s', '?')} | {float(d.get('step_time_mean_ms', 'nan')):.3f} | {rmse} | "
                     + " / ".join(f"{cpu.get(n) or 0:.1f}" for n in ("needle_simulator", "needle_stereo", "needle_compare"))
                     + " |")
     return rows
