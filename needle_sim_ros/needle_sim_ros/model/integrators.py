@@ -13,7 +13,7 @@ the returned q'' is the true acceleration of the step and eq. 20 gives a consist
   systems identical to Hilber-Hughes-Taylor).
 * ``backward_euler``: q' = q'_n + h q'', q = q_n + h q' -- first order, strongly dissipative, the robust fallback.
 Newton starts from the constant-acceleration predictor and, if that has not converged after
-``EXTRAPOLATION_ITERATIONS``, once more from q_{n+1} = q_n (robust when unresolved high-frequency content makes
+``newton.EXTRAPOLATION_ITERATIONS``, once more from q_{n+1} = q_n (robust when unresolved high-frequency content makes
 extrapolation useless); after such a fallback the following steps start from q_n until it converges within two
 iterations again.  A step that still fails (Newton not converged within ``max_newton_iterations``, singular
 matrix, non-finite values) is retried as 2, 4, ... sub-steps (prescribed coordinates interpolated by quintic Hermite
@@ -29,16 +29,13 @@ import numpy as np
 
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
-from .newton import CONVERGED, PREDICT_ACCELERATION, PREDICT_POSITION, NewtonSolver, assemble_system
+from .newton import (CONVERGED, NewtonSolver, assemble_system, keeps_extrapolating, predictor_budget,
+                     predictor_for_attempt)
 from .banded import ELEMENT_BANDWIDTH, band_cholesky, cholesky_solve
 from .partition import hermite_quintic
 from .sequence import EXTRAPOLATE, SequenceBuffers, integrate_sequence
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
-# Newton iterations granted to the extrapolating predictor before restarting from q_n: smooth motion converges in
-# 1-2; after a sudden load change the consistent accelerations are dominated by unresolved modes and extrapolation
-# is useless (measured: no convergence in 25 iterations where q_n converges in 6).
-EXTRAPOLATION_ITERATIONS = 3
 
 
 class StepFailed(RuntimeError):
@@ -205,7 +202,7 @@ class Integrator:
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
         ext_Q = self._constant_force(list(forces), state.t + dt, None)
         done = integrate_sequence(history, motions, rotations, self._coefficients(dt), ext_Q, self.newton_tol,
-                                  self.max_newton_iterations, EXTRAPOLATION_ITERATIONS, buffers.prescribed,
+                                  self.max_newton_iterations, buffers.prescribed,
                                   buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
                                   buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, buffers.band,
                                   buffers.pivots, buffers.factorization, ELEMENT_BANDWIDTH, buffers.control, states,
@@ -217,12 +214,6 @@ class Integrator:
         if self._sequence is None:
             self._sequence = SequenceBuffers(self.model)
         return self._sequence
-
-    def _predictors(self) -> tuple[int, ...]:
-        """Extrapolation first while it works; after it failed, start from q_n until that converges quickly."""
-        if self._extrapolate:
-            return PREDICT_ACCELERATION, PREDICT_POSITION
-        return PREDICT_POSITION, PREDICT_ACCELERATION
 
     def _coefficients(self, h: float) -> np.ndarray:
         if self._coef_cache[0] != h:
@@ -253,10 +244,9 @@ class Integrator:
                 prescribed[:, constrained] = hermite_quintic(history[:3, constrained], end[:, constrained], dt,
                                                              k / n_sub)
             ext_Q = self._constant_force(constant, t, base)
-            for predictor in self._predictors():
-                budget = self.max_newton_iterations
-                if predictor == PREDICT_ACCELERATION:
-                    budget = min(EXTRAPOLATION_ITERATIONS, budget)
+            for attempt in range(2):
+                predictor = predictor_for_attempt(attempt, self._extrapolate)
+                budget = predictor_budget(predictor, self.max_newton_iterations)
                 values = np.empty_like(history)
                 status, iterations, norm = self.solver.solve(values, current, prescribed, coef, True, axis, ext_Q,
                                                              varying, t, base, self.newton_tol, budget, False,
@@ -264,7 +254,7 @@ class Integrator:
                 total += iterations
                 if status == CONVERGED:
                     # extrapolate again once q_n converges quickly (smooth motion); keep q_n after a failure
-                    self._extrapolate = predictor == PREDICT_ACCELERATION or iterations <= 2
+                    self._extrapolate = keeps_extrapolating(predictor, iterations)
                     break
             if status != CONVERGED:
                 reason = "singular or non-finite" if status < 0 else f"no convergence in {iterations} iterations"

@@ -16,7 +16,8 @@ from numba import njit
 
 from .banded import ELEMENT_BANDWIDTH, band_width_columns
 from .kinematics import rigid_node_kinematics
-from .newton import CONVERGED, PREDICT_ACCELERATION, PREDICT_POSITION, model_tables, newton_solve
+from .newton import (CONVERGED, keeps_extrapolating, model_tables, newton_solve, predictor_budget,
+                     predictor_for_attempt)
 from .reaction import base_constraint_kernel, base_rows, holder_wrench
 
 EXTRAPOLATE, FACTORED = 0, 1  # entries of the control flags
@@ -55,8 +56,7 @@ class SequenceBuffers:
 
 
 @njit(cache=True)
-def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterations, extrapolation_iterations,
-                       prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables, rows, residual,
+def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables, rows, residual,
                        band, pivots, factorization, kl, control, states, wrenches, iterations):
     """Integrate from history (rows q, q', q'', a at t_n) one step per packed base motion (k, 19) with rotations
     (k, 3, 3). Writes each step's rows into states (k, 4, n), its wrench on the holder [force, torque in the world
@@ -76,19 +76,15 @@ def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterat
         total = 0
         status = -1
         for attempt in range(2):
-            first_choice = PREDICT_ACCELERATION if control[EXTRAPOLATE] == 1 else PREDICT_POSITION
-            second_choice = PREDICT_POSITION if control[EXTRAPOLATE] == 1 else PREDICT_ACCELERATION
-            predictor = first_choice if attempt == 0 else second_choice
-            budget = max_iterations
-            if predictor == PREDICT_ACCELERATION:
-                budget = min(extrapolation_iterations, budget)
+            predictor = predictor_for_attempt(attempt, control[EXTRAPOLATE] == 1)
+            budget = predictor_budget(predictor, max_iterations)
             status, used, norm = newton_solve(values, current, prescribed, coef, True, predictor, active, scale,
                                               tables, axis, ext_Q, residual, band, pivots, factorization, kl, tol,
                                               budget, False, control[FACTORED] == 0)
             total += used
             control[FACTORED] = 1 if status != -1 else 0
             if status == CONVERGED:
-                control[EXTRAPOLATE] = 1 if (predictor == PREDICT_ACCELERATION or used <= 2) else 0
+                control[EXTRAPOLATE] = 1 if keeps_extrapolating(predictor, used) else 0
                 break
         if status != CONVERGED:
             control[FACTORED] = 0
