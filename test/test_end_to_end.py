@@ -124,7 +124,8 @@ def test_fast_cdr_encoders_decode_to_the_nodes_messages():
     assert deserialize_message(cdr.needle_state(stamp.sec, stamp.nanosec, "world", *values), NeedleState) == state
     times = np.array([1_700_000_001.2345, 12.9999999999, 0.0, 3.0000000004])
     wrenches = rng.random((times.size, 6))
-    for t, data, values in zip(times, cdr.wrench_stamped_many(times, "needle_base", wrenches), wrenches):
+    encoded = cdr.wrench_stamped_many("needle_base", zip(times, wrenches[:, :3], wrenches[:, 3:]))
+    for t, data, values in zip(times, encoded, wrenches):
         wrench = deserialize_message(data, WrenchStamped)
         assert wrench.header == Header(stamp=time_msg(t), frame_id="needle_base")
         assert [wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z] == values[:3].tolist()

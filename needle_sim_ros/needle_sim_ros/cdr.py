@@ -84,16 +84,17 @@ def _wrench_header(frame_id: str) -> bytes:
     return ENCAPSULATION + b"".join(prefix.parts)
 
 
-def wrench_stamped_many(times: np.ndarray, frame_id: str, wrenches: np.ndarray) -> list[bytes]:
-    """geometry_msgs/msg/WrenchStamped for k steps at once: stamps from the times [s] (k,) as ``time_msg`` makes
-    them, [force, torque] from wrenches (k, 6). One template per frame, filled in place (~1 us per message)."""
+def wrench_stamped_many(frame_id: str, wrenches) -> list[bytes]:
+    """geometry_msgs/msg/WrenchStamped of each (time [s], force (3,), torque (3,)) in ``wrenches``, stamped as
+    ``time_msg`` stamps the time. One template per frame, filled in place (~1 us per message)."""
     head = _wrench_header(frame_id)
     template = bytearray(head + bytes(48))
     messages = []
-    for t, values in zip(np.asarray(times, dtype=float).tolist(), np.asarray(wrenches, dtype=float).tolist()):
+    for t, force, torque in wrenches:
+        t = float(t)
         sec = math.floor(t)
         struct.pack_into("<iI", template, 4, sec, min(round((t - sec) * 1e9), 999_999_999))
-        struct.pack_into("<6d", template, len(head), *values)
+        struct.pack_into("<6d", template, len(head), *force, *torque)
         messages.append(bytes(template))
     return messages
 

@@ -52,6 +52,12 @@ class StepRecord(NamedTuple):
     wall_time: float
 
 
+def step_wrenches(records: Sequence[StepRecord]):
+    """(end time, force, torque) of each step's wrench on the holder in the base frame: what the simulator
+    publishes on ``wrench``."""
+    return ((record.t, record.wrench.force_base, record.wrench.torque_base) for record in records)
+
+
 @dataclass
 class LoopStatistics:
     """Counters reported in diagnostics."""

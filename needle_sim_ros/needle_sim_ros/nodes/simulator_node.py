@@ -42,7 +42,8 @@ from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.shape_messages import quaternions_from_tangents, time_msg, tube_triangles
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
-    TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters, simulation_from_parameters)
+    TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters, simulation_from_parameters,
+    step_wrenches)
 from needle_sim_ros.tissue import tissue_readout
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
@@ -313,10 +314,7 @@ class NeedleSimulatorNode(Node):
     # -- outputs ---------------------------------------------------------------------------------------------
     def publish_wrenches(self, records) -> None:
         """The wrench of each step on the holder, base frame, stamped with the step's end time (as CDR bytes)."""
-        values = np.empty((len(records), 6))
-        for row, record in zip(values, records):
-            row[:3], row[3:] = record.wrench.force_base, record.wrench.torque_base
-        for data in cdr.wrench_stamped_many(np.array([r.t for r in records]), self.p["frames.base"], values):
+        for data in cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records)):
             self.wrench_pub.publish(data)
 
     def due(self, key: str, now: float, rate: float) -> bool:

@@ -40,7 +40,7 @@ from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
 from needle_sim_ros.nodes.shape_messages import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros import cdr
-from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters
+from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
 
 NS = 1_000_000_000
 
@@ -134,11 +134,7 @@ class SimulatorStage:
         self.core_seconds += time.perf_counter() - start
         if not records:
             return outputs
-        values = np.empty((len(records), 6))
-        for row, record in zip(values, records):
-            row[:3], row[3:] = record.wrench.force_base, record.wrench.torque_base
-        wrenches = cdr.wrench_stamped_many(np.array([r.t for r in records]), self.p["frames.base"], values)
-        for data in wrenches:
+        for data in cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records)):
             outputs.append(("wrench", data))
             self._steps_since_start += 1
             if self._steps_since_start % self.shape_every == 0:
