@@ -18,7 +18,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "needle_sim_ros"))
 
 from needle_sim_ros.model import load_needle_config  # noqa: E402
-from needle_sim_ros.scenarios.insertion import DEFAULT_TISSUE_CONFIG, simulate_insertion  # noqa: E402
+from needle_sim_ros.scenarios.insertion import InsertionMotion, simulate_insertion  # noqa: E402
+from needle_sim_ros.tissue.factory import flatten_tissue_config  # noqa: E402
 
 NEEDLE, BUILD, INTEGRATOR = load_needle_config({})        # the simulator node's defaults (seed 000 needle)
 
@@ -60,31 +61,22 @@ def main() -> int:
     parser.add_argument("--dt", type=float, default=1e-3)
     args = parser.parse_args()
 
-    import yaml
-    tissue = {"tissue": yaml.safe_load(DEFAULT_TISSUE_CONFIG.read_text())["/**"]["ros__parameters"]["tissue"]}
+    tissue = flatten_tissue_config(REPO / "config" / "tissue.yaml")
     print(f"{args.elements} elements, dt = {args.dt * 1e3:g} ms, {args.depth * 1e3:g} mm at {args.speed * 1e3:g} mm/s")
     print(f"{'case':34s} {'sim time':>9s} {'wall':>8s} {'RT factor':>10s} {'mean step':>10s} {'tip y, z [mm]':>16s}")
     baseline = baseline_real_time_factor(args.elements, args.dt, 3.0)
     print(f"{'no tissue (gravity only, 3 s)':34s} {3.0:8.2f}s {3.0 / baseline:7.2f}s {baseline:10.2f} "
           f"{args.dt / baseline * 1e3:8.3f}ms {'':>10s}")
     for name, overrides in CASES.items():
-        config = {**_flatten(tissue), **overrides}
-        result = simulate_insertion(NEEDLE, config, args.speed, args.depth, dt=args.dt, sample_every=100,
-                                    build={**BUILD, "n_elements": args.elements}, integrator_kwargs=INTEGRATOR)
+        result = simulate_insertion(NEEDLE, {**tissue, **overrides}, InsertionMotion((args.depth,), args.speed),
+                                    dt=args.dt, sample_every=100, build={**BUILD, "n_elements": args.elements},
+                                    integrator_kwargs=INTEGRATOR)
         steps = result["simulated_time_s"] / args.dt
-        y, z = (1e3 * x for x in result["samples"][-1]["tip_deflection_m"])
+        y, z = (1e3 * x for x in result["tip_offset_m"][-1])
         print(f"{name:34s} {result['simulated_time_s']:8.2f}s {result['integration_wall_time_s']:7.2f}s "
               f"{result['real_time_factor']:10.2f} {result['integration_wall_time_s'] / steps * 1e3:8.3f}ms "
               f"{y:7.3f}, {z:7.3f}")
     return 0
-
-
-def _flatten(nested: dict, prefix: str = "") -> dict:
-    flat = {}
-    for key, value in nested.items():
-        name = f"{prefix}.{key}" if prefix else key
-        flat.update(_flatten(value, name) if isinstance(value, dict) else {name: value})
-    return flat
 
 
 if __name__ == "__main__":

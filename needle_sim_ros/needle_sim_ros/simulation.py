@@ -27,7 +27,7 @@ from needle_sim_ros.model import (
     Gravity,
     Integrator,
     NeedleModel,
-    NeedleProperties,
+    needle_properties,
     PointLoad,
     State,
     StepFailed,
@@ -314,9 +314,7 @@ class NeedleSimulation:
 
 def model_builder_from_parameters(p: dict) -> ModelBuilder:
     """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them."""
-    props = NeedleProperties(length=p["needle.length"], radius=p["needle.radius"],
-                             youngs_modulus=p["needle.youngs_modulus"], density=p["needle.density"],
-                             gravity=tuple(p["needle.gravity"]))
+    props = needle_properties(p)
 
     def model_builder(fixtures: tuple = ()) -> tuple[NeedleModel, Integrator]:
         model = build_model(props, n_elements=p["needle.elements"], axial_gauss=p["needle.axial_gauss_points"],

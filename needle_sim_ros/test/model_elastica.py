@@ -14,6 +14,11 @@ from scipy.optimize import brentq
 
 def elastica_tip(EI: float, length: float, w: float, P: float) -> np.ndarray:
     """Tip position (x, z) [m] of the exact elastica."""
+    return elastica(EI, length, w, P)[0]
+
+
+def elastica(EI: float, length: float, w: float, P: float) -> tuple[np.ndarray, float]:
+    """Tip position (x, z) [m] and root bending moment EI theta'(0) [N m] of the exact elastica."""
     def rhs(s, y):
         theta, curvature, _, _ = y
         return [curvature, (P + w * (length - s)) * np.cos(theta) / EI, np.cos(theta), np.sin(theta)]
@@ -24,11 +29,11 @@ def elastica_tip(EI: float, length: float, w: float, P: float) -> np.ndarray:
         return solution.y[:, -1]
 
     if P == 0.0 and w == 0.0:
-        return np.array([length, 0.0])
+        return np.array([length, 0.0]), 0.0
     # the root moment is bounded by that of the loads on the undeformed needle
     bound = (P * length + 0.5 * w * length**2) / EI
     root = brentq(lambda k: end(k)[1], -1.001 * bound, 0.0, xtol=1e-15, rtol=1e-14)
-    return end(root)[2:]
+    return end(root)[2:], EI * root
 
 
 def linear_cantilever_tip_deflection(EI: float, length: float, w: float, P: float) -> float:

@@ -1,7 +1,7 @@
 """ROS-free 3D ANCF needle model of seed 000 (Sec. II, eqs. 1-20): gradient-deficient cable elements, consistent
 mass, exact-curvature elastic forces with analytic Jacobian, Rayleigh damping, general external forces, a rigid
 base driving the constrained coordinates, fixtures, implicit integrators, statics and the base reaction wrench."""
-from .config import load_needle_config, needle_parameters
+from .config import load_needle_config, needle_parameters, needle_properties
 from .damping import damping_force, damping_matrix, reference_stiffness
 from .elastic import elastic_energy, elastic_forces, tangent_stiffness
 from .fixtures import Fixture
@@ -24,5 +24,5 @@ __all__ = [
     "reaction_wrench", "base_constraint_force", "BaseWrench", "centerline", "Centerline", "tip_pose",
     "axial_strain", "curvature", "kinetic_energy", "elastic_energy", "gravitational_energy", "elastic_forces",
     "tangent_stiffness", "damping_force", "damping_matrix", "reference_stiffness", "load_needle_config",
-    "needle_parameters",
+    "needle_parameters", "needle_properties",
 ]

@@ -21,12 +21,13 @@ GROUPS = ("needle", "damping", "integrator", "fixtures")
 DEFAULTS: dict[str, Any] = {
     "needle.length": 0.27,
     "needle.radius": 0.635e-3,
+    "needle.inner_radius": 0.0,
     "needle.youngs_modulus": 193e9,
     "needle.density": 8000.0,
     "needle.elements": 10,
     "needle.element_lengths": None,
     "needle.gravity": [0.0, 0.0, -9.81],
-    "needle.axial_gauss_points": 5,
+    "needle.axial_gauss_points": 2,   # reduced axial integration: locking-free (README "Needle model")
     "needle.bending_gauss_points": 3,
     "damping.rayleigh_alpha": 0.0,
     "damping.rayleigh_beta": 1e-4,
@@ -57,7 +58,7 @@ def _flatten(tree: Mapping, prefix: str = "") -> dict[str, Any]:
     return flat
 
 
-def _parameter_tree(source) -> Mapping:
+def parameter_tree(source) -> Mapping:
     """The (merged) ros__parameters of a params file / dict, or the dict itself if it has none."""
     if isinstance(source, (str, Path)):
         path = Path(source)
@@ -75,14 +76,19 @@ def _parameter_tree(source) -> Mapping:
     return merged
 
 
-def needle_parameters(source) -> dict[str, Any]:
-    """All needle/damping/integrator/fixtures parameters (flat dotted names), defaults filled in."""
-    flat = _flatten(_parameter_tree(source))
+def explicit_parameters(source) -> dict[str, Any]:
+    """The needle/damping/integrator/fixtures parameters that ``source`` sets (flat dotted names)."""
+    flat = _flatten(parameter_tree(source))
     ours = {k: v for k, v in flat.items() if k.split(".", 1)[0] in GROUPS}
     unknown = sorted(set(ours) - set(DEFAULTS))
     if unknown:
         raise ValueError(f"unknown needle config key(s) {unknown}; known: {sorted(DEFAULTS)}")
-    return {**DEFAULTS, **ours}
+    return ours
+
+
+def needle_parameters(source) -> dict[str, Any]:
+    """All needle/damping/integrator/fixtures parameters (flat dotted names), defaults filled in."""
+    return {**DEFAULTS, **explicit_parameters(source)}
 
 
 def _fixtures(p: Mapping[str, Any]) -> tuple[Fixture, ...]:
@@ -97,15 +103,20 @@ def _fixtures(p: Mapping[str, Any]) -> tuple[Fixture, ...]:
                  for a, b in values.reshape(-1, 2))
 
 
+def needle_properties(p: Mapping[str, Any]) -> NeedleProperties:
+    """NeedleProperties from the flat ``needle.*`` parameters."""
+    return NeedleProperties(length=p["needle.length"], radius=p["needle.radius"],
+                            youngs_modulus=p["needle.youngs_modulus"], density=p["needle.density"],
+                            gravity=tuple(p["needle.gravity"]), inner_radius=p["needle.inner_radius"])
+
+
 def load_needle_config(source) -> tuple[NeedleProperties, dict[str, Any], dict[str, Any]]:
     """(NeedleProperties, build_model kwargs incl. n_elements, Integrator kwargs) from a params file or dict.
     The time step is ``needle_parameters(source)["integrator.dt"]``."""
     p = needle_parameters(source)
     if p["integrator.method"] not in METHODS:
         raise ValueError(f"integrator.method must be one of {METHODS}, got {p['integrator.method']!r}")
-    props = NeedleProperties(length=p["needle.length"], radius=p["needle.radius"],
-                             youngs_modulus=p["needle.youngs_modulus"], density=p["needle.density"],
-                             gravity=tuple(p["needle.gravity"]))
+    props = needle_properties(p)
     build = {"n_elements": int(p["needle.elements"]), "axial_gauss": int(p["needle.axial_gauss_points"]),
              "bending_gauss": int(p["needle.bending_gauss_points"]),
              "rayleigh_alpha": float(p["damping.rayleigh_alpha"]), "rayleigh_beta": float(p["damping.rayleigh_beta"]),

@@ -100,7 +100,7 @@ class NeedleModel:
         return State(q, qd, qdd, float(t), None, base)
 
 
-def build_model(props: NeedleProperties, n_elements: int = 10, element_lengths=None, axial_gauss: int = 5,
+def build_model(props: NeedleProperties, n_elements: int = 10, element_lengths=None, axial_gauss: int = 2,
                 bending_gauss: int = 3, rayleigh_alpha: float = 0.0, rayleigh_beta: float = 0.0,
                 fixtures=()) -> NeedleModel:
     """Discretize the needle into cable elements (uniform, or with the given element lengths [m])."""

@@ -1,4 +1,5 @@
-"""Material and cross-section of the needle (seed 000 Sec. II-B, Sec. III: homogeneous solid circular section)."""
+"""Material and cross-section of the needle: a homogeneous circular section, solid as in seed 000 (Sec. II-B,
+Sec. III) or a tube (a hollow needle, e.g. 18 G brachytherapy: outer radius 0.635 mm, inner radius 0.419 mm)."""
 from __future__ import annotations
 
 import math
@@ -9,10 +10,10 @@ import numpy as np
 
 @dataclass(frozen=True)
 class NeedleProperties:
-    """Homogeneous needle with a solid circular cross-section.
+    """Homogeneous needle with a circular (solid or annular) cross-section.
 
-    length [m] from the clamp point A to the tip; radius [m]; youngs_modulus E [Pa]; density rho [kg/m^3];
-    gravity [m/s^2], world frame (z up).
+    length [m] from the clamp point A to the tip; radius [m] (outer); youngs_modulus E [Pa]; density rho [kg/m^3];
+    gravity [m/s^2], world frame (z up); inner_radius [m] of the bore (0: solid, seed 000).
     """
 
     length: float
@@ -20,6 +21,7 @@ class NeedleProperties:
     youngs_modulus: float
     density: float
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    inner_radius: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("length", "radius", "youngs_modulus", "density"):
@@ -30,18 +32,23 @@ class NeedleProperties:
         if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
             raise ValueError(f"NeedleProperties.gravity must be 3 finite numbers [m/s^2], got {self.gravity!r}")
         object.__setattr__(self, "gravity", tuple(float(g) for g in gravity))
+        inner = self.inner_radius
+        if not (isinstance(inner, (int, float, np.floating, np.integer)) and 0.0 <= inner < self.radius):
+            raise ValueError(f"NeedleProperties.inner_radius must be >= 0 and < radius ({self.radius!r} m), "
+                             f"got {inner!r}")
+        object.__setattr__(self, "inner_radius", float(inner))
         for name in ("length", "radius", "youngs_modulus", "density"):
             object.__setattr__(self, name, float(getattr(self, name)))
 
     @property
     def area(self) -> float:
-        """Cross-section area A = pi r^2 [m^2]."""
-        return math.pi * self.radius**2
+        """Cross-section area A = pi (r^2 - r_i^2) [m^2]."""
+        return math.pi * (self.radius**2 - self.inner_radius**2)
 
     @property
     def second_moment(self) -> float:
-        """Second moment of area I = I_y = I_z = pi r^4 / 4 [m^4] (seed 000 assumes I_y = I_z)."""
-        return math.pi * self.radius**4 / 4.0
+        """Second moment of area I = I_y = I_z = pi (r^4 - r_i^4) / 4 [m^4] (seed 000 assumes I_y = I_z)."""
+        return math.pi * (self.radius**4 - self.inner_radius**4) / 4.0
 
     @property
     def mass_per_length(self) -> float:

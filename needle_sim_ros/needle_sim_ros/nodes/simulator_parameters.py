@@ -21,12 +21,13 @@ QOS_CHOICES = ("sensor_data", "reliable")
 SIMULATOR_PARAMETERS = [
     # Needle (seed 000, Sec. III: stainless steel, r = 0.635 mm, L = 0.27 m).
     ParamSpec("needle.length", MODEL_DEFAULTS["needle.length"], "Needle length L [m] from the clamp point A to the tip.", 1e-3, 10.0),
-    ParamSpec("needle.radius", MODEL_DEFAULTS["needle.radius"], "Radius of the solid circular cross-section [m].", 1e-6, 0.05),
+    ParamSpec("needle.radius", MODEL_DEFAULTS["needle.radius"], "Outer radius of the circular cross-section [m].", 1e-6, 0.05),
+    ParamSpec("needle.inner_radius", MODEL_DEFAULTS["needle.inner_radius"], "Inner radius of a hollow needle [m] (0 = solid; must be < needle.radius).", 0.0, 0.05),
     ParamSpec("needle.youngs_modulus", MODEL_DEFAULTS["needle.youngs_modulus"], "Young's modulus E [Pa].", 1e6, 1e12),
     ParamSpec("needle.density", MODEL_DEFAULTS["needle.density"], "Density rho [kg/m^3].", 1.0, 1e5),
     ParamSpec("needle.elements", MODEL_DEFAULTS["needle.elements"], "Number of ANCF cable elements.", 1, 200),
     ParamSpec("needle.gravity", MODEL_DEFAULTS["needle.gravity"], "Gravitational acceleration in the world frame [m/s^2].", -100.0, 100.0, length=3),
-    ParamSpec("needle.axial_gauss_points", MODEL_DEFAULTS["needle.axial_gauss_points"], "Gauss points per element for the axial strain integral (eq. 12).", 1, 10),
+    ParamSpec("needle.axial_gauss_points", MODEL_DEFAULTS["needle.axial_gauss_points"], "Gauss points per element for the axial strain integral (eq. 12); 2 = reduced, locking-free (default), 5 = the paper's.", 1, 10),
     ParamSpec("needle.bending_gauss_points", MODEL_DEFAULTS["needle.bending_gauss_points"], "Gauss points per element for the bending integral (eq. 13).", 1, 10),
     # alpha M damps absolute velocities (a drag alpha m v on a rigidly moving needle, felt at the holder), so it is
     # zero by default; beta K_0 acts on strain rates in a rotation-safe form (needle_sim_ros.model.damping).

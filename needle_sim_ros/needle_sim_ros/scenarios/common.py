@@ -12,14 +12,15 @@ import numpy as np
 
 from needle_sim_ros.model import (BaseMotion, BaseWrench, NeedleModel, NeedleProperties, centerline,
                                   load_needle_config, needle_parameters)
+from needle_sim_ros.model.config import explicit_parameters
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
 def add_needle_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, default=None,
-                        help="ROS 2 params file with needle.*, damping.*, integrator.* (default: built-in defaults, "
-                             "the seed 000 needle)")
+    parser.add_argument("--params", type=Path, action="append", default=[], metavar="FILE",
+                        help="ROS 2 params file (e.g. the simulator's) with needle.*, damping.*, integrator.* "
+                             "(repeatable, applied in order; default: built-in defaults, the seed 000 needle)")
     parser.add_argument("--elements", type=int, default=None, help="number of ANCF elements (overrides config)")
     parser.add_argument("--axial-gauss", type=int, default=None,
                         help="Gauss points of the axial integral, eq. 12 (overrides config; seed 000: 5)")
@@ -29,10 +30,9 @@ def add_needle_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def needle_configuration(args: argparse.Namespace) -> tuple[NeedleProperties, dict, dict, dict]:
-    """(props, build_model kwargs, Integrator kwargs, flat parameters) from --config and the command line."""
-    source = args.config if args.config is not None else {}
-    props, build, integrator = load_needle_config(source)
-    parameters = needle_parameters(source)
+    """(props, build_model kwargs, Integrator kwargs, flat parameters) from --params files and the command line."""
+    parameters = needle_parameters(merged_parameters(args.params))
+    props, build, integrator = load_needle_config(parameters)
     if args.elements is not None:
         build["n_elements"] = args.elements
         build.pop("element_lengths", None)
@@ -41,9 +41,17 @@ def needle_configuration(args: argparse.Namespace) -> tuple[NeedleProperties, di
     return props, build, integrator, parameters
 
 
+def merged_parameters(files: list[Path]) -> dict:
+    """The needle.*, damping.*, integrator.* and fixtures.* parameters that params files set, applied in order."""
+    merged: dict = {}
+    for path in files:
+        merged.update(explicit_parameters(path))
+    return merged
+
+
 def material(props: NeedleProperties) -> dict:
     return {"youngs_modulus_pa": props.youngs_modulus, "density_kg_m3": props.density, "radius_m": props.radius,
-            "length_m": props.length, "gravity_m_s2": list(props.gravity)}
+            "inner_radius_m": props.inner_radius, "length_m": props.length, "gravity_m_s2": list(props.gravity)}
 
 
 def wrench_json(wrench: BaseWrench) -> dict:
@@ -90,17 +98,20 @@ def save_figure(fig, path: Path) -> None:
 def integrate_sampled(integrator, state, dt: float, n_steps: int, every: int, base_at: Callable[[float], BaseMotion],
                       forces, record: Callable) -> tuple:
     """Integrate n_steps fixed steps with the base at ``base_at(t)``, calling ``record(state, base)`` at the start,
-    every ``every`` steps and at the end. Returns (state, integration wall time [s] excluding recording, Newton
-    iterations in all)."""
+    every ``every`` steps and at the end; contributions with per-step state (tissue) advance after each step.
+    Returns (state, integration wall time [s] excluding recording, Newton iterations in all)."""
     base = base_at(state.t)
     record(state, base)
+    advancing = [force for force in forces if hasattr(force, "advance")]
     integration_wall, iterations = 0.0, 0
     for k in range(1, n_steps + 1):
         tick = time.perf_counter()
         base = base_at(k * dt)
         result = integrator.step(state, dt, base, forces)
-        integration_wall += time.perf_counter() - tick
         state, iterations = result.state, iterations + result.newton_iterations
+        for force in advancing:
+            force.advance(integrator.model, state, base)
+        integration_wall += time.perf_counter() - tick
         if k % every == 0 or k == n_steps:
             record(state, base)
     return state, integration_wall, iterations

@@ -1,12 +1,12 @@
-"""Scenario ``insertion``: insert the needle at constant speed into a configured tissue (ROS-free).
+"""Scenario ``insertion``: insert the needle into a configured tissue (ROS-free).
 
-The base (clamp point A) starts at the world origin with the needle along world x, rolled by ``roll`` about its
-axis, with the needle in static equilibrium under gravity and its tip ``gap`` in front of the entry surface (the
-configured entry point is moved along its normal to x = L + gap; the normal must be world +x), and moves along x
-at ``speed`` until the tip is ``depth`` below the surface.  Written: tip trajectory, base force and torque
-(eq. 20, the needle on its holder, base frame), the tissue readout versus depth, and a plot of the tip deflection
-toward the bevel side versus insertion depth in the style of seed 001 Fig. 4; ``final`` holds the final tip and
-centerline in the base frame.
+The base (clamp point A) starts at the world origin with the needle along world x, in static equilibrium under
+gravity, its tip ``gap`` in front of the entry surface (the configured entry point is moved along its normal to
+x = L + gap; the normal must be world +x).  It then follows an ``InsertionMotion``: tip depths reached in turn at a
+constant speed (insert, retract, re-insert), a roll that turns the bevel, duty-cycled spinning.  Written (SI):
+time, insertion depth, the tip's lateral deflection (distance from the entry axis, perpendicular to it), tip
+position, its offset (y, z) from the axis and unit tangent, base roll, base force and torque (eq. 20, the needle on its holder, base frame), the tissue readout, the
+parameters used, and a seed 001 Fig. 4 style plot of the deflection versus depth.
 """
 from __future__ import annotations
 
@@ -16,19 +16,23 @@ from pathlib import Path
 
 import numpy as np
 
-from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, NeedleProperties, State, build_model,
-                                  load_needle_config, reaction_wrench, solve_static, tip_pose)
-from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, tissue_readout
+from needle_sim_ros.model import (Gravity, Integrator, NeedleProperties, State, build_model, load_needle_config,
+                                  reaction_wrench, solve_static)
+from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, flatten_tissue_config, tissue_readout
 
-from .common import (add_needle_arguments, figure, material, needle_configuration, save_figure, shape_json,
-                     write_json)
+from .common import (add_needle_arguments, figure, integrate_sampled, material, needle_configuration, save_figure,
+                     shape_json, write_json)
+from .insertion_motion import InsertionMotion
 
-DEFAULT_TISSUE_CONFIG = Path(__file__).resolve().parents[3] / "config" / "tissue.yaml"
 
-
-def roll_quaternion(roll: float) -> np.ndarray:
-    """Rotation by ``roll`` [rad] about world x, (x, y, z, w)."""
-    return np.array([np.sin(0.5 * roll), 0.0, 0.0, np.cos(0.5 * roll)])
+def shipped_tissue_config() -> Path:
+    """``config/tissue.yaml`` in the installed share directory of needle_sim_ros (found through the ament index)."""
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    try:
+        return Path(get_package_share_directory("needle_sim_ros")) / "config" / "tissue.yaml"
+    except PackageNotFoundError:
+        raise FileNotFoundError("needle_sim_ros is not installed in an ament prefix (source its setup.bash), so "
+                                "the shipped tissue config cannot be found; give --params FILE") from None
 
 
 def _json_value(value):
@@ -40,24 +44,21 @@ def _json_value(value):
     return value
 
 
-def simulate_insertion(props: NeedleProperties, tissue_config, speed: float, depth: float, gap: float = 2e-3,
-                       roll: float = 0.0, dt: float = 1e-3, sample_every: int = 10, build: dict | None = None,
-                       integrator_kwargs: dict | None = None, centerline_samples: int = 41) -> dict:
+def simulate_insertion(props: NeedleProperties, tissue_config, motion: InsertionMotion, dt: float = 1e-3,
+                       sample_every: int = 10, build: dict | None = None, integrator_kwargs: dict | None = None,
+                       centerline_samples: int = 41) -> dict:
     """Run the insertion and return the JSON-ready result (see module docstring).
 
     build / integrator_kwargs: ``build_model`` / ``Integrator`` keyword arguments; None = the simulator node's
     defaults (10 elements, Rayleigh beta 1e-4 s, generalized-alpha).
     """
-    for name, value in (("speed", speed), ("depth", depth), ("dt", dt)):
-        if not (np.isfinite(value) and value > 0.0):
-            raise ValueError(f"insertion scenario: {name} must be > 0, got {value!r}")
-    if gap < 0.0 or sample_every < 1:
-        raise ValueError("insertion scenario: gap must be >= 0 and sample_every >= 1")
+    if not (np.isfinite(dt) and dt > 0.0) or sample_every < 1:
+        raise ValueError(f"insertion scenario: dt must be > 0 and sample_every >= 1, got {dt!r}, {sample_every!r}")
     config = dict(TissueConfig.from_any(tissue_config).values)
     normal = np.asarray(config["tissue.entry_normal"], dtype=float)
     if np.linalg.norm(np.cross(normal, [1.0, 0.0, 0.0])) > 1e-9 * np.linalg.norm(normal) or normal[0] <= 0:
         raise ValueError("insertion scenario: tissue.entry_normal must be world +x (the insertion direction)")
-    config["tissue.entry_point"] = [props.length + gap, 0.0, 0.0]
+    config["tissue.entry_point"] = [props.length + motion.gap, 0.0, 0.0]
     config["tissue.enable"] = True
     if build is None or integrator_kwargs is None:
         _, default_build, default_integrator = load_needle_config({})
@@ -68,45 +69,33 @@ def simulate_insertion(props: NeedleProperties, tissue_config, speed: float, dep
     integrator = Integrator(model, **integrator_kwargs)
     tissue = build_tissue_forces(config, model)
     forces = [Gravity(), *tissue]
-    orientation = roll_quaternion(roll)
-    velocity = np.array([speed, 0.0, 0.0])
-
-    def base_at(t: float) -> BaseMotion:
-        return BaseMotion(velocity * t, orientation, linear_velocity=velocity)
-
-    base = base_at(0.0)
+    base = motion.base_at(0.0)
     moving = model.straight_state(base, 0.0)       # rigid translation with the base: the needle's velocities
     sagged = solve_static(model, base, forces=[Gravity()]).state
     state = State(sagged.q, moving.qd, np.zeros(model.n_dof), 0.0)     # start in equilibrium under gravity
-    n_steps = int(np.ceil((gap + depth) / speed / dt))
-    samples = []
-    integration_wall = 0.0
+    n_steps = int(np.ceil(motion.duration / dt))
+    series: dict[str, list] = {key: [] for key in (
+        "time_s", "insertion_depth_m", "tip_lateral_deflection_m", "tip_position_m", "tip_offset_m", "tip_tangent",
+        "roll_rad",
+        "inserted_length_m", "base_force_n", "base_torque_nm", "tissue_tip_force_n", "tissue_axial_force_n")}
+
+    def record(state: State, base) -> None:
+        tip, tip_gradient = state.q[-6:-3], state.q[-3:]
+        wrench = reaction_wrench(model, state, base, forces)
+        readout = tissue_readout(tissue, model, state, base)
+        values = (state.t, readout.insertion_depth, float(np.hypot(tip[1], tip[2])), tip.tolist(),
+                  [float(tip[1]), float(tip[2])], (tip_gradient / np.linalg.norm(tip_gradient)).tolist(),
+                  motion.roll_at(state.t)[0], readout.inserted_length,
+                  wrench.force_base.tolist(), wrench.torque_base.tolist(), readout.tip_force.tolist(),
+                  readout.axial_force)
+        for key, value in zip(series, values):
+            series[key].append(value)
+
     start = time.perf_counter()
-    for k in range(1, n_steps + 1):
-        base = base_at(k * dt)
-        tick = time.perf_counter()
-        state = integrator.step(state, dt, base, forces).state
-        for force in forces:
-            advance = getattr(force, "advance", None)
-            if advance is not None:
-                advance(model, state, base)
-        integration_wall += time.perf_counter() - tick
-        if k % sample_every == 0 or k == n_steps:
-            tip_position, _ = tip_pose(model, state.q)
-            wrench = reaction_wrench(model, state, base, forces)
-            readout = tissue_readout(tissue, model, state, base)
-            samples.append({
-                "t_s": state.t,
-                "insertion_depth_m": readout.insertion_depth,
-                "inserted_length_m": readout.inserted_length,
-                "tip_position_m": tip_position.tolist(),
-                "tip_deflection_m": [float(tip_position[1]), float(tip_position[2])],
-                "base_force_n": np.asarray(wrench.force_base).tolist(),
-                "base_torque_nm": np.asarray(wrench.torque_base).tolist(),
-                "tissue_tip_force_n": readout.tip_force.tolist(),
-                "tissue_axial_force_n": readout.axial_force,
-            })
+    state, integration_wall, _ = integrate_sampled(integrator, state, dt, n_steps, sample_every, motion.base_at,
+                                                   forces, record)
     wall = time.perf_counter() - start
+    winkler = np.asarray(config["tissue.layers.lateral_stiffness"], dtype=float)
     return {
         "scenario": "insertion",
         "elements": model.n_elements,
@@ -117,31 +106,47 @@ def simulate_insertion(props: NeedleProperties, tissue_config, speed: float, dep
         "integration_wall_time_s": integration_wall,
         "wall_time_s": wall,
         "real_time_factor": n_steps * dt / integration_wall,
-        "speed_m_s": speed,
-        "target_depth_m": depth,
-        "gap_m": gap,
-        "roll_rad": roll,
-        "tissue": {k: _json_value(v) for k, v in config.items()},
-        "final": shape_json(model, state.q, base, centerline_samples),
-        "samples": samples,
+        "motion": {"depths_m": list(motion.waypoints), "speed_m_s": motion.speed, "gap_m": motion.gap,
+                   "roll_rad": motion.roll, "spin_rate_rad_s": motion.spin_rate, "duty_cycle": motion.duty_cycle},
+        "parameters": {"needle": {**material(props), "elements": model.n_elements,
+                                  "axial_gauss_points": model.axial_gauss,
+                                  "bending_gauss_points": model.bending_gauss},
+                       "tissue": {k: _json_value(v) for k, v in config.items()},
+                       "winkler_modulus_n_m2": _json_value(winkler)},
+        **series,
+        "final": shape_json(model, state.q, motion.base_at(state.t), centerline_samples),
     }
 
 
-def plot_deflection(result: dict, path: Path, bevel_side_world: np.ndarray) -> None:
-    """Tip deflection toward the bevel side (and perpendicular to it) [mm] versus insertion depth [mm] while the
-    tip is in the tissue (seed 001 Fig. 4 style)."""
-    inside = [s for s in result["samples"] if s["insertion_depth_m"] > 0.0]
-    depth = np.array([s["insertion_depth_m"] for s in inside]) * 1e3
-    lateral = np.array([s["tip_deflection_m"] for s in inside]).reshape(-1, 2) * 1e3
-    side = np.asarray(bevel_side_world, dtype=float)[1:]
+def bevel_side_world(result: dict, t: float) -> np.ndarray:
+    """The configured bevel side (base frame) in the world at time t of a result."""
+    side = np.asarray(result["parameters"]["tissue"]["tissue.bevel_tip.side"], dtype=float)
+    roll = float(np.interp(t, result["time_s"], result["roll_rad"]))
+    c, s = np.cos(roll), np.sin(roll)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) @ side
+
+
+def plot_deflection(result: dict, path: Path, reference: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    """Tip deflection toward the initial bevel side and perpendicular to it [mm] versus insertion depth [mm] while
+    the tip is in the tissue (seed 001 Fig. 4 style); ``reference``: (depth [m], deflection [m]) of another
+    solution, drawn for comparison."""
+    depth = np.asarray(result["insertion_depth_m"])
+    inside = depth > 0.0
+    offset = np.asarray(result["tip_offset_m"])[inside] * 1e3
+    side = bevel_side_world(result, 0.0)[1:]
     side = side / np.linalg.norm(side)
     fig, (ax,) = figure(1, size=(6.0, 4.0))
-    ax.plot(depth, lateral @ side, label="toward the bevel side (ANCF + tissue)")
-    ax.plot(depth, lateral @ np.array([-side[1], side[0]]), "--", label="perpendicular (gravity sag if vertical)")
+    ax.plot(depth[inside] * 1e3, offset @ side, label="ANCF + tissue, toward the bevel side")
+    ax.plot(depth[inside] * 1e3, offset @ np.array([-side[1], side[0]]), "--",
+            label="ANCF + tissue, perpendicular (gravity sag if vertical)")
+    if reference is not None:
+        ax.plot(np.asarray(reference[0]) * 1e3, np.asarray(reference[1]) * 1e3, ":", color="k", lw=2,
+                label="reference: Euler-Bernoulli beam on Winkler foundation")
+    motion = result["motion"]
     ax.set_xlabel("insertion depth [mm]")
     ax.set_ylabel("tip deflection from the insertion axis [mm]")
-    ax.set_title(f"needle insertion at {result['speed_m_s'] * 1e3:.1f} mm/s, "
-                 f"roll {np.degrees(result['roll_rad']):.0f} deg")
+    ax.set_title(f"insertion at {motion['speed_m_s'] * 1e3:.1f} mm/s, roll {np.degrees(motion['roll_rad']):.0f} deg"
+                 + (f", duty cycle {motion['duty_cycle']:.2f}" if motion["duty_cycle"] else ""))
     ax.grid(True)
     ax.legend(fontsize=8)
     save_figure(fig, path)
@@ -151,12 +156,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser("insertion", help="insert the needle into a configured tissue",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_needle_arguments(parser)
-    parser.add_argument("--tissue-config", type=Path, default=DEFAULT_TISSUE_CONFIG,
-                        help="ROS 2 params file with tissue.* (default: config/tissue.yaml)")
     parser.add_argument("--speed", type=float, default=0.006, help="insertion speed [m/s] (seed 001: 6 mm/s)")
     parser.add_argument("--depth", type=float, default=0.09, help="final insertion depth [m] (seed 001: 90 mm)")
+    parser.add_argument("--retract-to", type=float, default=None,
+                        help="after reaching --depth, retract the tip to this depth [m]")
     parser.add_argument("--gap", type=float, default=2e-3, help="initial tip distance to the surface [m]")
     parser.add_argument("--roll-deg", type=float, default=0.0, help="axial rotation of the base [deg]")
+    parser.add_argument("--spin-rate", type=float, default=0.0, help="duty-cycled spinning rate [rad/s]")
+    parser.add_argument("--duty-cycle", type=float, default=0.0,
+                        help="fraction of each period spent spinning one turn at --spin-rate [0, 1]")
     parser.add_argument("--dt", type=float, default=None, help="time step [s] (default: integrator.dt of config)")
     parser.add_argument("--sample-every", type=int, default=10, help="record every n-th step")
     return parser
@@ -165,18 +173,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     props, build, integrator_kwargs, parameters = needle_configuration(args)
     dt = args.dt if args.dt is not None else float(parameters["integrator.dt"])
-    tissue_config = args.tissue_config if args.tissue_config.exists() else {}
-    if not args.tissue_config.exists():
-        print(f"insertion: {args.tissue_config} not found, using the default tissue parameters")
-    roll = np.radians(args.roll_deg)
-    result = simulate_insertion(props, tissue_config, args.speed, args.depth, args.gap, roll, dt, args.sample_every,
-                                build, integrator_kwargs, args.centerline_samples)
+    tissue = {}
+    for path in [shipped_tissue_config(), *args.params]:
+        tissue.update(flatten_tissue_config(path))
+    depths = (args.depth,) if args.retract_to is None else (args.depth, args.retract_to)
+    motion = InsertionMotion(depths, args.speed, args.gap, np.radians(args.roll_deg), args.spin_rate,
+                             args.duty_cycle)
+    result = simulate_insertion(props, tissue, motion, dt, args.sample_every, build, integrator_kwargs,
+                                args.centerline_samples)
     write_json(args.json, result)
     if args.plot is not None:
-        side_base = np.asarray(result["tissue"]["tissue.bevel_tip.side"], dtype=float)
-        plot_deflection(result, args.plot, BaseMotion(np.zeros(3), roll_quaternion(roll)).rotation @ side_base)
-    last = result["samples"][-1]
-    print(f"insertion: {result['steps']} steps of {dt * 1e3:g} ms, depth {last['insertion_depth_m'] * 1e3:.1f} mm, "
-          f"tip off-axis (y, z) ({last['tip_deflection_m'][0] * 1e3:.3f}, {last['tip_deflection_m'][1] * 1e3:.3f}) mm, "
+        plot_deflection(result, args.plot)
+    print(f"insertion: {result['steps']} steps of {dt * 1e3:g} ms, depth {result['insertion_depth_m'][-1] * 1e3:.1f} "
+          f"mm, tip lateral deflection {result['tip_lateral_deflection_m'][-1] * 1e3:.3f} mm (y, z: "
+          f"{result['tip_offset_m'][-1][0] * 1e3:.3f}, {result['tip_offset_m'][-1][1] * 1e3:.3f} mm), "
           f"real-time factor {result['real_time_factor']:.2f}")
     return 0

@@ -3,11 +3,12 @@
 * ``TissueContact``: per-step state shared by the contributions: tip depth and axial speed, capsule puncture,
   the track cut by the tip.  Updated once per accepted step (idempotent, keyed on the state time) from the
   ``advance`` hook of whichever contribution runs first.
-* ``ShaftSupport``: shaft points along the needle, each anchored to the track once inside it.  Lateral Winkler
-  springs and dampers (per unit length) act perpendicular to the track; along it acts the selected axial law of
-  ``shaft_laws`` (stick-slip).  Anchors, their track points and tangents and the layer parameters are frozen
-  during a step (explicit in the hook, implicit in the forces).  Assembled like ``MaterialPointForce``, with its
-  kernel, over the inserted points only.
+* ``ShaftSupport``: lateral Winkler springs and dampers (per unit length) perpendicular to the needle on the part
+  of it that lies in tissue the tip has already cut (path memory, ``track``; the cut front holds nothing
+  laterally), integrated by Gauss quadrature; along the needle, the selected axial law of ``shaft_laws`` on
+  material shaft points anchored to the track (stick-slip; without a law the needle slides freely).  Rest points,
+  anchors, tangents and layer parameters are frozen during a step (explicit in the hook, implicit in the
+  forces).  Assembled with the kernel of ``MaterialPointForce`` over the inserted part only.
 * ``BevelTipForce``: P and Q of seed 001 eqs. 4-5 at the tip, in the bevel frame rolled with the base, while the
   tip is at the cut front (cutting or resting on it) below the punctured surface, ramped in over the bevel length.
 * ``TipResistance``: seed 002 at the tip: the capsule stiffness force a1 x + a2 x^2 along the entry normal before
@@ -86,24 +87,28 @@ class TissueContact:
             entry = r_tip - (tangent * self.tip_depth / along if along > 1e-3 else normal * self.tip_depth)
             self.track.start(entry, tangent)
         if self.track.started:
-            self.track.cut(r_tip, tangent)
+            self.track.cut(r_tip)
             self.at_front = (self.tip_depth > 0.0
                              and self.track.coordinate_ahead(r_tip) >= self.track.length - self.track.spacing)
         else:
             self.at_front = False
 
 
+LATERAL_GAUSS_POINTS = 3
+_GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(LATERAL_GAUSS_POINTS)
+
+
 @dataclass(frozen=True)
 class _Frozen:
     """Per-step frozen data of the active shaft points (n_active entries each)."""
 
-    index: np.ndarray              # indices of the active points
+    index: np.ndarray              # indices of the active material points (after the lateral quadrature points)
     weights: np.ndarray            # length share [m] times the share below the surface
     slots: np.ndarray              # interpolation tables of the active points (model.interpolation)
     S: np.ndarray
     S_x: np.ndarray
     anchor_points: np.ndarray      # (n, 3) stick anchors on the track
-    tangents: np.ndarray           # (n, 3) track tangents there
+    tangents: np.ndarray           # (n, 3) needle tangents at the points (frozen)
     anchor_depth: np.ndarray       # (n,)
     lateral_stiffness: np.ndarray  # (n,) [N/m^2]
     lateral_damping: np.ndarray    # (n,) [N s/m^2]
@@ -145,6 +150,14 @@ def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_dampi
     return force, d_dr, d_dv
 
 
+def needle_points(S: np.ndarray, S_x: np.ndarray, slots: np.ndarray, q: np.ndarray):
+    """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
+    elements = q.reshape(-1, 3)[slots]
+    gradients = np.einsum("ka,kai->ki", S_x, elements)
+    return (np.einsum("ka,kai->ki", S, elements),
+            gradients / np.linalg.norm(gradients, axis=1)[:, None])
+
+
 @njit(cache=True)
 def entry_coverage(arc_lengths, depth, inside):
     """Share of each shaft point's length (trapezoid segment) that lies below the entry surface, for consecutive
@@ -169,13 +182,16 @@ def entry_coverage(arc_lengths, depth, inside):
 
 
 class ShaftSupport:
-    """Winkler lateral support and an axial stick-slip law along the track, on shaft points at ``arc_lengths``.
+    """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle.
 
-    arc_lengths: (k,) reference arc lengths of the shaft points, base to tip; weights: (k,) their length shares
-    [m].  lateral: enable the lateral springs/dampers (per-layer ``lateral_stiffness``, ``lateral_damping``).
-    axial_law: one of ``shaft_laws`` or None (no axial force).  Only the points inside the tissue are evaluated
-    (``Q = sum_k w_k S_k^T F_k`` with the model's MaterialPointForce assembly kernel), so the cost grows with the
-    inserted length, not the needle length.
+    Lateral (``lateral``: per-layer ``lateral_stiffness``, ``lateral_damping`` per unit length): springs and
+    dampers perpendicular to the track on the needle's arc interval lying in tissue the tip has already cut (path
+    memory), integrated with LATERAL_GAUSS_POINTS Gauss points on each element's share of that interval, so the
+    support is exact from the first cut millimetre on, whatever the shaft point spacing.
+    Axial (``axial_law``: one of ``shaft_laws``, or None for none): on the material shaft points at
+    ``arc_lengths`` (k,), base to tip, with length shares ``weights`` (k,) [m], each anchored to the track once
+    inside the tissue (stick-slip); without a law the needle slides freely.  Both are assembled with the model's
+    MaterialPointForce kernel over the points inside the tissue only, so the cost grows with the inserted length.
     """
 
     def __init__(self, contact: TissueContact, arc_lengths: np.ndarray, weights: np.ndarray, lateral: bool,
@@ -191,8 +207,9 @@ class ShaftSupport:
         self.anchor = np.zeros(k)                          # track coordinate of each point's stick anchor
         self.active = np.zeros(k, dtype=bool)
         self._coverage = np.zeros(0)                       # share below the surface of each active point
+        self._lateral = _Frozen.inactive()                 # the lateral quadrature points of the next step
+        self._parts = (self._lateral, _Frozen.inactive())  # the next step's lateral and axial points
         self._margin = 2.0 * float(np.max(np.diff(self.arc_lengths), initial=0.0))
-        self._frozen = _Frozen.inactive()
         self._table = None
 
     def _tables(self, model):
@@ -201,47 +218,45 @@ class ShaftSupport:
         return self._table
 
     # -- forces ----------------------------------------------------------------------------------------------
-    def law(self, r, v):
-        """Force per unit length (n, 3) on the active points and dF/dr, dF/dv (n, 3, 3) (anchors frozen)."""
-        fz = self._frozen
+    @staticmethod
+    def _kinematics(fz: "_Frozen", q, qd):
+        """Positions and velocities (k, 3) of a part's points."""
+        return (np.einsum("ka,kai->ki", fz.S, q.reshape(-1, 3)[fz.slots]),
+                np.einsum("ka,kai->ki", fz.S, qd.reshape(-1, 3)[fz.slots]))
+
+    @staticmethod
+    def _law(fz: "_Frozen", r, v):
+        """Force per unit length (k, 3) on a part's points and dF/dr, dF/dv (k, 3, 3) (anchors frozen)."""
         return shaft_point_forces(r, v, fz.anchor_points, fz.tangents, fz.lateral_stiffness, fz.lateral_damping,
                                   fz.stick_stiffness, *fz.axial)
 
-    def _active_kinematics(self, q, qd):
-        fz = self._frozen
-        elements_q = q.reshape(-1, 3)[fz.slots]
-        elements_qd = qd.reshape(-1, 3)[fz.slots]
-        return np.einsum("ka,kai->ki", fz.S, elements_q), np.einsum("ka,kai->ki", fz.S, elements_qd)
-
     def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
         n = q.size
-        fz = self._frozen
-        if fz.index.size == 0:   # zero Jacobian given explicitly: the model's Newton needs one non-None (see report)
-            return GeneralizedForce(np.zeros(n), np.zeros((n, n)))
-        force, d_dr, d_dv = self.law(*self._active_kinematics(q, qd))
         Q, dQ_dq, dQ_dqd = np.zeros(n), np.zeros((n, n)), np.zeros((n, n))
-        assemble_point_forces(fz.slots, fz.S, fz.S_x, fz.weights, force, d_dr, np.zeros_like(d_dr), d_dv,
-                              Q, dQ_dq, dQ_dqd)
+        for fz in self._parts:
+            if fz.weights.size:
+                force, d_dr, d_dv = self._law(fz, *self._kinematics(fz, q, qd))
+                assemble_point_forces(fz.slots, fz.S, fz.S_x, fz.weights, force, d_dr, np.zeros_like(d_dr), d_dv,
+                                      Q, dQ_dq, dQ_dqd)
         return GeneralizedForce(Q, dQ_dq, dQ_dqd)
 
     def total_force(self, model, q, qd, t, base) -> np.ndarray:
         """World resultant [N] of the shaft forces at (q, qd)."""
-        if self._frozen.index.size == 0:
-            return np.zeros(3)
-        return self._frozen.weights @ self.law(*self._active_kinematics(q, qd))[0]
+        return sum((fz.weights @ self._law(fz, *self._kinematics(fz, q, qd))[0] for fz in self._parts
+                    if fz.weights.size), np.zeros(3))
 
     def elastic_energy(self, model, q) -> float:
         """Energy [J] stored in the lateral springs and the sticking axial anchors (stick band |u| <= C/k_a)."""
-        fz = self._frozen
-        if fz.index.size == 0:
-            return 0.0
-        r, _ = self._active_kinematics(q, np.zeros_like(q))
-        offset = r - fz.anchor_points
-        u = np.einsum("ki,ki->k", offset, fz.tangents)
-        density = 0.5 * fz.lateral_stiffness * np.sum((offset - u[:, None] * fz.tangents) ** 2, axis=1)
-        band = fz.axial.coulomb / fz.stick_stiffness
-        density = density + 0.5 * fz.stick_stiffness * np.clip(u, -band, band) ** 2
-        return float(fz.weights @ density)
+        energy = 0.0
+        for fz in self._parts:
+            if fz.weights.size:
+                offset = self._kinematics(fz, q, np.zeros_like(q))[0] - fz.anchor_points
+                u = np.einsum("ki,ki->k", offset, fz.tangents)
+                density = 0.5 * fz.lateral_stiffness * np.sum((offset - u[:, None] * fz.tangents) ** 2, axis=1)
+                band = fz.axial.coulomb / fz.stick_stiffness
+                density = density + 0.5 * fz.stick_stiffness * np.clip(u, -band, band) ** 2
+                energy += float(fz.weights @ density)
+        return energy
 
     # -- per-step update -------------------------------------------------------------------------------------
     def advance(self, model, state, base) -> None:
@@ -253,61 +268,85 @@ class ShaftSupport:
         track = contact.track
         was_active = self.active.copy()
         self.active[:] = False
+        self._lateral = _Frozen.inactive()
+        if not track.started:
+            self._parts = (self._lateral, _Frozen.inactive())
+            return
+        if self.lateral:
+            self._lateral = self._lateral_support(model, state.q)
         # a point an arc length a behind the tip is at most a shallower than the tip, so only points closer to the
         # tip than its depth can be inside; one more spacing gives the outer neighbours for entry_coverage
         candidates = np.flatnonzero(self.arc_lengths > self.arc_lengths[-1] - contact.tip_depth - self._margin)
-        if not track.started or candidates.size == 0:
-            self._frozen = _Frozen.inactive()
+        if self.axial_law is None or candidates.size == 0:
+            self._freeze(model)
             return
         table = self._tables(model)
-        elements = state.q.reshape(-1, 3)[table.slots[candidates]]
-        r = np.einsum("ka,kai->ki", table.S[candidates], elements)
+        r, tangents = needle_points(table.S[candidates], table.S_x[candidates], table.slots[candidates], state.q)
         depth = contact.block.depth(r)
         inside = contact.block.inside(depth)
         self._coverage = entry_coverage(self.arc_lengths[candidates], depth, inside)[inside]
-        index, r = candidates[inside], r[inside]
-        entering = ~was_active[index]
-        if np.any(entering):
-            self.anchor[index[entering]] = track.project(r[entering])[0]
+        index, r, tangents = candidates[inside], r[inside], tangents[inside]
         self.active[index] = True
         if index.size == 0:
-            self._frozen = _Frozen.inactive()
+            self._freeze(model)
             return
-        points, tangents = track.locate(self.anchor[index])
+        entering = ~was_active[index]
+        if np.any(entering):                                 # an entering point anchors where it is
+            self.anchor[index[entering]] = track.project(r[entering])[0]
+        points = track.locate(self.anchor[index])[0]
         depth = contact.block.depth(points)
-        axial = None
-        if self.axial_law is not None:             # plastic slip of the anchors along the track
-            u = np.einsum("ki,ki->k", r - points, tangents)
-            axial = self.axial_law.coefficients(depth, contact.tip_depth)
-            band = axial.coulomb / self.axial_law.stick_stiffness
-            slip = u - np.clip(u, -band, band)
-            self.anchor[index] += slip
-            points = points + slip[:, None] * tangents     # same segment to first order; relocated next step
+        # plastic slip of the anchors along the track
+        u = np.einsum("ki,ki->k", r - points, tangents)
+        axial = self.axial_law.coefficients(depth, contact.tip_depth)
+        band = axial.coulomb / self.axial_law.stick_stiffness
+        slip = u - np.clip(u, -band, band)
+        self.anchor[index] += slip
+        points = points + slip[:, None] * tangents         # same segment to first order; relocated next step
         self._freeze(model, points, tangents, depth, axial)
 
-    def _freeze(self, model, points=None, tangents=None, depth=None, axial=None) -> None:
-        """Freeze anchors, tangents, layer and law coefficients and weights of the active points for the next
-        step (located on the track and looked up unless given)."""
-        index = np.flatnonzero(self.active)
-        if index.size == 0:
-            self._frozen = _Frozen.inactive()
-            return
+    def _lateral_support(self, model, q: np.ndarray) -> "_Frozen":
+        """Gauss points, weights, frozen rest points on the track (each point's own projection) and needle tangents,
+        layer stiffness and damping of the needle's arc interval in cut tissue: from where the needle crosses the
+        entry surface (s_tip - the tip's track coordinate) to where it leaves the cut track (s_tip - the tip's
+        distance beyond the track's end).  Reference arc lengths: the cable is practically inextensible."""
         track, block = self.contact.track, self.contact.block
+        s_tip = float(self.arc_lengths[-1])
+        tip_coordinate = float(track.project(q[-6:-3][None])[0][0])
+        upper = s_tip - max(tip_coordinate - track.length, 0.0)
+        lower = max(s_tip - tip_coordinate, 0.0)
+        if not upper > lower:
+            return _Frozen.inactive()
+        nodes = model.mesh.node_arc_length
+        start, end = np.maximum(nodes[:-1], lower), np.minimum(nodes[1:], upper)
+        keep = end > start
+        half = 0.5 * (end[keep] - start[keep])
+        arc = ((start[keep] + half)[:, None] + half[:, None] * _GAUSS_XI[None]).ravel()
+        weights = (half[:, None] * _GAUSS_W[None]).ravel()
+        table = model.interpolation(arc)
+        r, tangents = needle_points(table.S, table.S_x, table.slots, q)
+        points = track.locate(track.project(r)[0])[0]
+        depth = block.depth(points)
+        stiffness, damping = block.layer_values(("lateral_stiffness", "lateral_damping"), depth)
+        zero = np.zeros(arc.size)
+        return _Frozen(np.zeros(0, dtype=int), weights, table.slots, table.S, table.S_x, points, tangents, depth,
+                       stiffness, damping, AxialCoefficients(zero, zero, 0.0, 0.0, 0.0), 1.0)
+
+    def _freeze(self, model, points=None, tangents=None, depth=None, axial=None) -> None:
+        """Freeze the next step's data: the lateral quadrature points and the active material points' anchors,
+        tangents, axial law coefficients and weights (located on the track and looked up unless given)."""
+        index = np.flatnonzero(self.active)
+        if index.size == 0 or self.axial_law is None:
+            self._parts = (self._lateral, _Frozen.inactive())
+            return
         table = self._tables(model)
         if points is None:
-            points, tangents = track.locate(self.anchor[index])
-            depth = block.depth(points)
-        stiffness, damping = block.layer_values(("lateral_stiffness", "lateral_damping"), depth)
-        lateral = float(self.lateral)
-        if self.axial_law is None:
-            zero = np.zeros(index.size)
-            axial, stick_stiffness = AxialCoefficients(zero, zero, 0.0, 0.0, 0.0), 1.0
-        else:
-            axial = axial if axial is not None else self.axial_law.coefficients(depth, self.contact.tip_depth)
-            stick_stiffness = self.axial_law.stick_stiffness
-        self._frozen = _Frozen(index, self.weights[index] * self._coverage, table.slots[index], table.S[index],
-                               table.S_x[index], points, tangents, depth, lateral * stiffness, lateral * damping,
-                               axial, float(stick_stiffness))
+            points, tangents = self.contact.track.locate(self.anchor[index])
+            depth = self.contact.block.depth(points)
+        axial = axial if axial is not None else self.axial_law.coefficients(depth, self.contact.tip_depth)
+        zero = np.zeros(index.size)
+        self._parts = (self._lateral, _Frozen(
+            index, self.weights[index] * self._coverage, table.slots[index], table.S[index], table.S_x[index],
+            points, tangents, depth, zero, zero, axial, float(self.axial_law.stick_stiffness)))
 
 
 class BevelTipForce:

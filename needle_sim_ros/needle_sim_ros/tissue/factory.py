@@ -6,14 +6,13 @@ Per-layer parameters are parallel arrays under ``tissue.layers.`` (one entry per
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-import yaml
+
+from needle_sim_ros.model import centerline
+from needle_sim_ros.model.config import parameter_tree
 
 from .bevel_tip import BevelTip
-from needle_sim_ros.model import centerline
-
 from .coupling import BevelTipForce, ShaftSupport, TipResistance, TissueContact, tip_coordinates
 from .geometry import LAYER_PARAMETERS, TissueBlock, TissueLayer, inserted_interval
 from .insertion_profile import InsertionForceProfile
@@ -34,8 +33,8 @@ TISSUE_PARAMETERS: dict[str, tuple[object, str]] = {
     "tissue.shaft.axial_model": ("karnopp", f"axial law along the shaft: one of {AXIAL_MODELS}"),
     "tissue.shaft.stick_stiffness": (2.0e4, "axial stiffness of the stick anchors per unit length k_a [N/m^2]; "
                                             "stick band = C_n / k_a"),
-    "tissue.track.spacing": (0.5e-3, "the tip extends its track after advancing this far into uncut tissue [m]"),
-    "tissue.track.cutting_length": (2.0e-3, "length over which the cut direction turns to the tip direction [m]"),
+    "tissue.track.spacing": (1.0e-4, "the tip extends its track (path memory: to where it is) after advancing this "
+                                     "far into uncut tissue [m]"),
     "tissue.bevel_tip.enable": (True, "bevel-tip forces P, Q (seed 001 eqs. 4-5) at the tip"),
     "tissue.bevel_tip.bevel_angle": (np.deg2rad(30.0), "bevel angle lambda [rad] (seed 001: 30 deg)"),
     "tissue.bevel_tip.acting_fraction": (0.2, "beta / lambda, acting-point angle fraction (seed 001: 0.2)"),
@@ -64,15 +63,7 @@ TISSUE_PARAMETERS: dict[str, tuple[object, str]] = {
 
 def flatten_tissue_config(config) -> dict:
     """Dotted ``tissue.*`` keys from a flat dict, a nested dict, a ROS 2 params-file dict or a YAML path."""
-    if isinstance(config, (str, Path)):
-        with open(config, encoding="utf-8") as stream:
-            config = yaml.safe_load(stream) or {}
-    if not isinstance(config, dict):
-        raise ValueError(f"tissue config must be a dict or a YAML path, got {type(config).__name__}")
-    if len(config) == 1 and "tissue" not in config:                 # params file: {node or /**: {ros__parameters}}
-        inner = next(iter(config.values()))
-        if isinstance(inner, dict) and "ros__parameters" in inner:
-            config = inner["ros__parameters"]
+    config = parameter_tree(config)         # params file: the merged ros__parameters of its sections
     flat: dict = {}
 
     def walk(prefix: str, value) -> None:
@@ -159,7 +150,7 @@ def build_tissue_forces(config, model) -> list:
         raise ValueError(f"tissue.shaft.axial_model must be one of {AXIAL_MODELS}, got {axial_model!r}")
     profile_enabled = bool(cfg["tissue.insertion_profile.enable"])
     profile = cfg.profile() if profile_enabled or axial_model == "insertion_profile" else None
-    track = Track(float(cfg["tissue.track.spacing"]), float(cfg["tissue.track.cutting_length"]))
+    track = Track(float(cfg["tissue.track.spacing"]))
     contact = TissueContact(block, track, profile.puncture_depth if profile_enabled else None)
     stick_stiffness = float(cfg["tissue.shaft.stick_stiffness"])
     axial_law = {"karnopp": lambda: KarnoppShaftFriction(block, stick_stiffness),

@@ -1,10 +1,11 @@
 """The track cut by the advancing needle tip: a polyline in the world frame, parameterised by its arc length.
 
-The track starts where the tip crossed the entry surface and grows a segment whenever the tip has advanced
-``spacing`` beyond its end (the tip cuts new tissue), turned toward the tip's direction (see ``Track.cut``); the
-shaft behind the tip then lies in it (seed 001 Sec. II:
-forces act "at the nodes in contact with the tissue nodes that are previously cut by the needle").  Retracting
-leaves the track in place, so a re-insertion follows it until the tip passes its end.
+Path memory (Glozman & Shoham's virtual springs, seed 001 Sec. II: forces act "at the nodes in contact with the
+tissue nodes that are previously cut by the needle"): the track starts where the tip crossed the entry surface
+and, whenever the tip has advanced ``spacing`` beyond its end, grows a vertex AT THE TIP: each tissue point's rest
+position is where the tip passed when it cut that point.  Tissue beyond the end is uncut and holds nothing
+laterally (the cut front carries no spring).  Retracting leaves the track in place, so a re-insertion follows it
+until the tip passes its end, then cuts new tissue.
 """
 from __future__ import annotations
 
@@ -15,17 +16,14 @@ from numba import njit
 class Track:
     """Mutable polyline from the entry point; ``length`` is its arc length [m] (0 right after the entry).
 
-    Beyond its end the track continues straight along its end tangent (the initial direction while it has one
-    vertex): that is where the tip is heading, and points ahead of the last vertex are supported relative to it.
+    Coordinates beyond its end are measured along its end tangent (the initial direction while it has one
+    vertex); they lie in uncut tissue.
     """
 
-    def __init__(self, spacing: float, cutting_length: float, capacity: int = 256) -> None:
+    def __init__(self, spacing: float, capacity: int = 256) -> None:
         if not spacing > 0.0:
             raise ValueError(f"tissue.track.spacing must be > 0, got {spacing!r}")
-        if not cutting_length > 0.0:
-            raise ValueError(f"tissue.track.cutting_length must be > 0, got {cutting_length!r}")
         self.spacing = spacing
-        self.cutting_length = cutting_length
         self._vertices = np.zeros((capacity, 3))
         self._arc = np.zeros(capacity)
         self._count = 0
@@ -72,27 +70,11 @@ class Track:
         """Track coordinate of a point near the end, measured along the end tangent (may exceed ``length``)."""
         return self.length + float((point - self._vertices[self._count - 1]) @ self.end_tangent())
 
-    def cut(self, tip_position: np.ndarray, tip_tangent: np.ndarray) -> bool:
-        """Extend the track when the tip is more than ``spacing`` beyond its end; True if it grew.
-
-        The tip cuts along its own direction, which the bevel forces turn: the new segment, as long as the tip
-        advanced (Delta), turns from the end tangent toward the tip tangent by the fraction
-        min(Delta / cutting_length, 1) of the angle between them (slerp).  This is the discrete form of
-        d(track direction)/ds = (tip direction - track direction) / cutting_length, so the path does not depend
-        on ``spacing``; the tip's elastic offset from the track stays elastic.
-        """
-        advance = self.coordinate_ahead(tip_position) - self.length
-        if advance < self.spacing:
+    def cut(self, tip_position: np.ndarray) -> bool:
+        """Extend the track to the tip when it is ``spacing`` or more beyond the end; True if it grew."""
+        if self.coordinate_ahead(tip_position) - self.length < self.spacing:
             return False
-        a = self.end_tangent()
-        b = np.asarray(tip_tangent, dtype=float) / np.linalg.norm(tip_tangent)
-        fraction = min(advance / self.cutting_length, 1.0)
-        angle = np.arccos(np.clip(a @ b, -1.0, 1.0))
-        if angle < 1e-8:
-            direction = a + fraction * (b - a)
-        else:
-            direction = (np.sin((1.0 - fraction) * angle) * a + np.sin(fraction * angle) * b) / np.sin(angle)
-        self._append(self._vertices[self._count - 1] + advance * direction / np.linalg.norm(direction))
+        self._append(np.asarray(tip_position, dtype=float))
         return True
 
     def locate(self, coordinate) -> tuple[np.ndarray, np.ndarray]:
