@@ -337,4 +337,10 @@ def reference_table(case: ValidationCase, depths: tuple[float, ...] = (0.03, 0.0
 
 
 if __name__ == "__main__":
-    print(reference_table(validation_case()))
+    import sys
+
+    CASE = validation_case()
+    print(reference_table(CASE))
+    if len(sys.argv) > 1:  # optional PNG path for the Fig. 4-style plot of the engaged-bevel reference
+        RUN = reference_insertion(CASE)
+        plot_tip_deflection(sys.argv[1], RUN.depth, RUN.tip_distance)
