@@ -327,7 +327,8 @@ def reference_table(case: ValidationCase, depths: tuple[float, ...] = (0.03, 0.0
              f"lambda_w = {(case.winkler_modulus / (4 * case.bending_stiffness)) ** 0.25:.4g} 1/m",
              f"a = {case.edge_a * 1e3:.4f} mm, b = {case.edge_b * 1e3:.4f} mm, beta = "
              f"{np.rad2deg(case.acting_fraction * case.bevel_angle):.3g} deg, "
-             f"P (eq. 4) = {case.axial_bevel_force * 1e3:.4f} mN, Q (eq. 5) = {case.transverse_bevel_force * 1e3:.4f} mN",
+             f"P (eq. 4) = {case.axial_bevel_force * 1e3:.4f} mN, "
+             f"Q (eq. 5) = {case.transverse_bevel_force * 1e3:.4f} mN",
              "tip lateral deflection [mm] (signed, along the initial bevel side)",
              f"{'depth [mm]':>10} | " + " | ".join(f"{name:>17}" for name in runs)]
     for depth in depths:
