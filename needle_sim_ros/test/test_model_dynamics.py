@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
-from model_elastica import cantilever_beta_l
+from needle_sim_ros.experiments.elastica import cantilever_beta_l
 from scipy.integrate import simpson
 from scipy.spatial.transform import Rotation
 

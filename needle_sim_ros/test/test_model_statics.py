@@ -2,7 +2,7 @@
 wrench (test 2), mesh convergence (test 6), fixtures and load stepping."""
 import numpy as np
 import pytest
-from model_elastica import elastica, elastica_tip, linear_cantilever_tip_deflection
+from needle_sim_ros.experiments.elastica import elastica, elastica_tip, linear_cantilever_tip_deflection
 from scipy.integrate import simpson
 
 from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, LineLoad, NeedleProperties, NodalLoad, PointLoad,

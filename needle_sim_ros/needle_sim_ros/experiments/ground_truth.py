@@ -1,8 +1,10 @@
-"""Ground truth of the sample bags: a finer, differently damped run of the same ANCF model (seed 000, eqs. 1-20).
+"""Ground truth of the sample bags: a converged run of the ANCF model (seed 000, eqs. 1-20) with its own damping.
 
-The "real needle" of the synthetic experiments is the simulator's own model with other discretization and damping
-settings (:class:`TruthModel`), driven by the exact base motion of the protocol (analytic pose, velocity and
-acceleration, not the recorded poses) and, for the insertion, by the tissue models with their default parameters.
+The "real needle" of the synthetic experiments is the ANCF model discretized far beyond the simulator's settings
+(:class:`TruthModel`: 8x the elements, a 10x smaller step), checked against the exact elastica at rest
+(:func:`static_check`), with its own damping, driven by the exact base motion of the protocol (analytic pose,
+velocity and acceleration, not the recorded poses) and, for the insertions, by the tissue models with their default
+parameters.
 It is stepped by :class:`needle_sim_ros.simulation.NeedleSimulation`, like the simulator node, so fixtures and the
 tissue models' per-step hooks behave the same. Unlike the node, it starts from static equilibrium (the real needle
 hangs at rest when the recording starts) when the protocol says so.
@@ -17,7 +19,9 @@ import numpy as np
 
 from needle_sim_ros.base_trajectory import BaseTrajectory
 from needle_sim_ros.experiments.protocols import Experiment
-from needle_sim_ros.model import Centerline, Integrator, NeedleProperties, build_model, solve_static
+from needle_sim_ros.experiments.elastica import elastica_tip
+from needle_sim_ros.model import (BaseMotion, Centerline, Gravity, Integrator, NeedleProperties, PointLoad,
+                                  build_model, solve_static)
 from needle_sim_ros.simulation import NeedleSimulation
 
 TIP_WEIGHT = "tip_weight"
@@ -26,14 +30,30 @@ TIP_WEIGHT = "tip_weight"
 @dataclass(frozen=True)
 class TruthModel:
     """How the ground truth differs from the pipeline's model (config/needle_simulator.yaml: 10 elements, Rayleigh
-    alpha = 0, beta = 1e-4 s, dt = 1 ms, rho_inf = 0.8): twice the elements, other (mass-proportional) damping,
-    half the step, less numerical damping."""
+    alpha = 0, beta = 1e-4 s, dt = 1 ms, rho_inf = 0.8): 8x the elements, a 10x smaller step (converged: see
+    ``static_check`` and bags/README.md), other (mass-proportional) damping, less numerical damping."""
 
     props: NeedleProperties = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
-    n_elements: int = 20
+    n_elements: int = 80
     rayleigh_alpha: float = 1.0  # [1/s]
-    dt: float = 5e-4  # [s]
+    dt: float = 1e-4  # [s]
     rho_inf: float = 0.9
+
+
+def static_check(truth: TruthModel, tip_masses=(0.0, 0.04, 0.08)) -> dict[str, float]:
+    """Largest distance [m] of the truth model's tip at rest (own weight and tip masses [kg]) from the exact
+    inextensible elastica (``experiments.elastica``, no ANCF code)."""
+    props = truth.props
+    model = build_model(props, n_elements=truth.n_elements)
+    base = BaseMotion(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+    g = -props.gravity[2]
+    errors, previous = [], None
+    for mass in tip_masses:
+        forces = [Gravity(), PointLoad(props.length, (0.0, 0.0, -g * mass))]
+        previous = solve_static(model, base, forces, initial=previous).state
+        exact = elastica_tip(props.EI, props.length, props.mass_per_length * g, g * mass)
+        errors.append(float(np.linalg.norm(previous.q[[-6, -4]] - exact)))
+    return {"tip_masses_kg": list(tip_masses), "tip_error_m": errors}
 
 
 @dataclass

@@ -20,6 +20,7 @@ Stamps are the log times, starting at 1 700 000 000 s. Everything is seeded: the
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 import zlib
@@ -35,7 +36,7 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, run_ground_truth
+from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, run_ground_truth, static_check
 from needle_sim_ros.experiments.protocols import EXPERIMENTS, Experiment
 from needle_sim_ros.model import BaseMotion
 from needle_sim_ros.nodes.shape_messages import needle_shape_msg
@@ -209,6 +210,7 @@ def write_bag(experiment: Experiment, path: Path, truth_model: TruthModel = Trut
         writer.add_metadata("needle_sim/experiment", {
             "name": experiment.name, "description": experiment.description, "synthetic": "true",
             "ground_truth": ", ".join(f"{k}={v}" for k, v in asdict(truth_model).items()),
+            "ground_truth_static_check": json.dumps(static_check(truth_model)),
             "rendering": ", ".join(f"{k}={v}" for k, v in asdict(rendering).items()) if experiment.has_images else "",
             "generator": "needle_make_bags (needle_sim_ros.experiments)", "seed": str(seed)})
         for topic, (type_name, qos) in content.topics().items():

@@ -15,6 +15,8 @@ the stereo cameras look at the needle from +y.
 * ``insertion``: after 1 s at rest the base moves along +x into a tissue block whose surface is 10 mm in front of
   the tip (the tissue models' defaults), accelerating to 10 mm/s over 0.5 s, 40 mm in total; a fibre-Bragg-grating
   shape sensor in the needle reports the centerline at 20 Hz (no images).
+* ``steering_insertion``: as ``insertion`` at 6 mm/s, 60 mm, with a 180° roll of the base (cosine ramp over 1 s)
+  halfway: the bevel turns and the path bends back.
 """
 from __future__ import annotations
 
@@ -134,6 +136,29 @@ def no_tip_force(t: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class RolledInsertion:
+    """A ``LinearInsertion`` whose base rolls about its axis (world x) by ``roll`` [rad] with a cosine ramp over
+    [roll_start, roll_start + roll_duration]: the bevel turns with it (exact angular velocity and acceleration)."""
+
+    insertion: LinearInsertion
+    roll: float  # [rad]
+    roll_start: float  # [s]
+    roll_duration: float  # [s]
+
+    @property
+    def end(self) -> float:
+        return max(self.insertion.end, self.roll_start + self.roll_duration)
+
+    def __call__(self, t: float) -> BaseMotion:
+        travel = self.insertion(t)
+        value, rate, acceleration = cosine_ramp(t, self.roll_start, self.roll_duration)
+        angle = self.roll * value
+        orientation = np.array([np.sin(0.5 * angle), 0.0, 0.0, np.cos(0.5 * angle)])
+        return BaseMotion(travel.position, orientation, travel.linear_velocity, np.array([self.roll * rate, 0, 0]),
+                          travel.linear_acceleration, np.array([self.roll * acceleration, 0.0, 0.0]))
+
+
+@dataclass(frozen=True)
 class Experiment:
     """One sample bag: robot motion, loads, fixtures and sensor schedules (times [s] from the bag start)."""
 
@@ -186,5 +211,18 @@ def insertion() -> Experiment:
         duration=round(motion.end + 0.5, 6), base=motion, tissue=True, shape_sensor_rate=20.0)
 
 
+def steering_insertion() -> Experiment:
+    travel = LinearInsertion(speed=0.006, distance=0.06, start=1.0, ramp=0.5)
+    halfway = travel.start + 0.5 * (travel.end - travel.start)
+    motion = RolledInsertion(travel, roll=np.pi, roll_start=halfway - 0.5, roll_duration=1.0)
+    return Experiment(
+        name="steering_insertion",
+        description="bevel-tip steering: insertion into the default tissue block at 6 mm/s, 60 mm after 1 s at "
+                    "rest, the base rolled by 180° over 1 s halfway (the path bends back); FBG shape sensor at "
+                    "20 Hz, no images",
+        duration=round(motion.end + 0.5, 6), base=motion, tissue=True, shape_sensor_rate=20.0)
+
+
 EXPERIMENTS: dict[str, Callable[[], Experiment]] = {
-    "static_tip_load": static_tip_load, "dynamic_pitch": dynamic_pitch, "insertion": insertion}
+    "static_tip_load": static_tip_load, "dynamic_pitch": dynamic_pitch, "insertion": insertion,
+    "steering_insertion": steering_insertion}

@@ -49,6 +49,11 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
     if truth and truth["instants"]:
         lines.append(f"against the ground truth: model {mm(truth['model_rmse_mean_m'])}, measurement "
                      f"{mm(truth['measurement_rmse_mean_m'])} (RMS over {truth['instants']} instants)")
+    if truth and truth.get("wrench_samples"):
+        lines.append(f"wrench against the reference: force RMS {truth['wrench_force_rms_n']:.4f} N, max "
+                     f"{truth['wrench_force_max_n']:.4f} N (reference RMS {truth['wrench_reference_rms_n']:.4f} N); "
+                     f"torque RMS {truth['wrench_torque_rms_nm']:.5f} N m, max {truth['wrench_torque_max_nm']:.5f} N m "
+                     f"({truth['wrench_samples']} samples)")
     timing = summary.get("timing")
     if timing and timing.get("real_time_factor"):
         lines.append(f"{timing['simulated_s']:.2f} s of bag in {timing['wall_s']:.2f} s wall: "

@@ -127,4 +127,34 @@ def versus_ground_truth(log: PipelineLog) -> dict[str, float | int | None]:
         if int(measurement_ns) in log.measured_shapes:
             measured.append(_rms_distance(truth, log.measured_shapes[int(measurement_ns)]))
     mean = (lambda values: float(np.mean(values)) if values else None)
-    return {"instants": len(model), "model_rmse_mean_m": mean(model), "measurement_rmse_mean_m": mean(measured)}
+    return {"instants": len(model), "model_rmse_mean_m": mean(model), "measurement_rmse_mean_m": mean(measured),
+            **wrench_versus_reference(log)}
+
+
+def wrench_versus_reference(log: PipelineLog) -> dict[str, float | int | None]:
+    """RMS and largest error of the simulator's wrench against the bag's reference wrench (``/ground_truth/
+    wrench``): force [N] and torque [N m] error magnitudes at the reference stamps inside the simulated span, the
+    simulator's wrench interpolated linearly between its steps; ``wrench_reference_rms_n`` is the reference
+    force's own RMS magnitude, for scale.  None where either series is missing."""
+    model, truth = log.wrench, log.truth_wrench
+    keys = ("wrench_force_rms_n", "wrench_force_max_n", "wrench_torque_rms_nm", "wrench_torque_max_nm",
+            "wrench_reference_rms_n")
+    if model is None or truth is None or model.times.size < 2:
+        return {"wrench_samples": 0, **dict.fromkeys(keys)}
+    order = np.argsort(model.times)
+    times = model.times[order]
+    inside = (truth.times >= times[0]) & (truth.times <= times[-1])
+    at = truth.times[inside].astype(float)
+
+    def error(model_values: np.ndarray, truth_values: np.ndarray) -> np.ndarray:
+        interpolated = np.column_stack([np.interp(at, times.astype(float), model_values[order, i]) for i in range(3)])
+        return np.linalg.norm(interpolated - truth_values[inside], axis=1)
+
+    force, torque = error(model.force, truth.force), error(model.torque, truth.torque)
+    if force.size == 0:
+        return {"wrench_samples": 0, **dict.fromkeys(keys)}
+    rms = (lambda values: float(np.sqrt(np.mean(values**2))))
+    return {"wrench_samples": int(force.size), "wrench_force_rms_n": rms(force),
+            "wrench_force_max_n": float(force.max()), "wrench_torque_rms_nm": rms(torque),
+            "wrench_torque_max_nm": float(torque.max()),
+            "wrench_reference_rms_n": rms(np.linalg.norm(truth.force[inside], axis=1))}

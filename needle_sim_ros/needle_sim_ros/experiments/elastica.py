@@ -1,4 +1,5 @@
-"""Independent reference solutions for the needle tests (no needle_sim_ros code).
+"""Independent reference solutions (no ANCF code) for the tests and the bag generator: the exact elastica of a
+cantilever, linear beam theory and the clamped-free Euler-Bernoulli eigenvalues.
 
 Exact inextensible elastica of a horizontal cantilever under a uniform vertical load w [N/m] (own weight) and a
 vertical tip load P [N], both downwards: with theta(s) the tangent angle,
