@@ -16,7 +16,7 @@ def test_static_single_and_sweep(tmp_path):
     for key in ("elements", "material", "tip_mass_kg", "tip_position_m", "base_wrench", "centerline_m",
                 "wall_time_s"):
         assert key in result
-    assert set(result["material"]) == {"youngs_modulus_pa", "density_kg_m3", "radius_m", "length_m",
+    assert set(result["material"]) == {"youngs_modulus_pa", "density_kg_m3", "radius_m", "inner_radius_m", "length_m",
                                        "gravity_m_s2"}
     tip = np.array(result["tip_position_m"])
     assert 0.2 < tip[0] < 0.23 and -0.15 < tip[2] < -0.14  # seed 000 Fig. 7 range at 80 g (elastica: 217, -146 mm)

@@ -10,22 +10,35 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 def shape_functions(xi: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """S_a, dS_a/dx, d2S_a/dx2 (each (..., 4)) at local coordinates xi = 2 x / l - 1 of elements of length l (eq. 4)."""
     xi = np.asarray(xi, dtype=float)
     l = np.broadcast_to(np.asarray(length, dtype=float), xi.shape)
-    s = np.stack([0.5 - 0.75 * xi + 0.25 * xi**3,
-                  l / 8.0 * (1.0 - xi - xi**2 + xi**3),
-                  0.5 + 0.75 * xi - 0.25 * xi**3,
-                  l / 8.0 * (-1.0 - xi + xi**2 + xi**3)], axis=-1)
-    s_x = np.stack([(-1.5 + 1.5 * xi**2) / l,
-                    0.25 * (-1.0 - 2.0 * xi + 3.0 * xi**2),
-                    (1.5 - 1.5 * xi**2) / l,
-                    0.25 * (-1.0 + 2.0 * xi + 3.0 * xi**2)], axis=-1)
-    s_xx = np.stack([6.0 * xi / l**2, (-1.0 + 3.0 * xi) / l, -6.0 * xi / l**2, (1.0 + 3.0 * xi) / l], axis=-1)
-    return s, s_x, s_xx
+    tables = np.empty((3, xi.size, 4))
+    hermite_shapes(np.ascontiguousarray(xi).ravel(), np.ascontiguousarray(l).ravel(), *tables)
+    return tuple(table.reshape(*xi.shape, 4) for table in tables)
+
+
+@njit(cache=True)
+def hermite_shapes(xi, length, S, S_x, S_xx):
+    """Fill S, S_x, S_xx (k, 4) of eq. 4 at local coordinates xi (k,) of elements of lengths ``length`` (k,)."""
+    for k in range(xi.size):
+        x, l = xi[k], length[k]
+        S[k, 0] = 0.5 - 0.75 * x + 0.25 * x**3
+        S[k, 1] = l / 8.0 * (1.0 - x - x**2 + x**3)
+        S[k, 2] = 0.5 + 0.75 * x - 0.25 * x**3
+        S[k, 3] = l / 8.0 * (-1.0 - x + x**2 + x**3)
+        S_x[k, 0] = (-1.5 + 1.5 * x**2) / l
+        S_x[k, 1] = 0.25 * (-1.0 - 2.0 * x + 3.0 * x**2)
+        S_x[k, 2] = (1.5 - 1.5 * x**2) / l
+        S_x[k, 3] = 0.25 * (-1.0 + 2.0 * x + 3.0 * x**2)
+        S_xx[k, 0] = 6.0 * x / l**2
+        S_xx[k, 1] = (-1.0 + 3.0 * x) / l
+        S_xx[k, 2] = -6.0 * x / l**2
+        S_xx[k, 3] = (1.0 + 3.0 * x) / l
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from numba import njit
 
 from needle_sim_ros.model import GeneralizedForce
 from needle_sim_ros.model.forces import assemble_point_forces
+from needle_sim_ros.model.mesh import hermite_shapes
 
 from .bevel_tip import BevelTip
 from .geometry import TissueBlock
@@ -156,6 +157,40 @@ def needle_points(S: np.ndarray, S_x: np.ndarray, slots: np.ndarray, q: np.ndarr
     gradients = np.einsum("ka,kai->ki", S_x, elements)
     return (np.einsum("ka,kai->ki", S, elements),
             gradients / np.linalg.norm(gradients, axis=1)[:, None])
+
+
+@njit(cache=True)
+def cut_quadrature(node_arc, element_lengths, lower, upper, xi, w, q):
+    """Gauss points (xi, w on [-1, 1]) on each element's share of the arc interval [lower, upper]: weights (m,) [m],
+    q slots (m, 4), S and S_x (m, 4) of eq. 4, and the needle's positions and unit tangents (m, 3) at q."""
+    starts = np.maximum(node_arc[:-1], lower)
+    ends = np.minimum(node_arc[1:], upper)
+    cut = np.flatnonzero(ends > starts)
+    m = cut.size * xi.size
+    weights, local, lengths = np.empty(m), np.empty(m), np.empty(m)
+    slots = np.empty((m, 4), dtype=np.int64)
+    k = 0
+    for e in cut:
+        half, middle = 0.5 * (ends[e] - starts[e]), 0.5 * (ends[e] + starts[e])
+        for g in range(xi.size):
+            weights[k] = half * w[g]
+            lengths[k] = element_lengths[e]
+            local[k] = 2.0 * (middle + half * xi[g] - node_arc[e]) / element_lengths[e] - 1.0
+            for a in range(4):
+                slots[k, a] = 2 * e + a
+            k += 1
+    S, S_x, S_xx = np.empty((m, 4)), np.empty((m, 4)), np.empty((m, 4))
+    hermite_shapes(local, lengths, S, S_x, S_xx)
+    r, tangents = np.zeros((m, 3)), np.zeros((m, 3))
+    for k in range(m):
+        for a in range(4):
+            for i in range(3):
+                r[k, i] += S[k, a] * q[3 * slots[k, a] + i]
+                tangents[k, i] += S_x[k, a] * q[3 * slots[k, a] + i]
+        norm = np.sqrt(tangents[k, 0] ** 2 + tangents[k, 1] ** 2 + tangents[k, 2] ** 2)
+        for i in range(3):
+            tangents[k, i] /= norm
+    return weights, slots, S, S_x, r, tangents
 
 
 @njit(cache=True)
@@ -316,19 +351,13 @@ class ShaftSupport:
         lower = max(s_tip - tip_coordinate, 0.0)
         if not upper > lower:
             return _Frozen.inactive()
-        nodes = model.mesh.node_arc_length
-        start, end = np.maximum(nodes[:-1], lower), np.minimum(nodes[1:], upper)
-        keep = end > start
-        half = 0.5 * (end[keep] - start[keep])
-        arc = ((start[keep] + half)[:, None] + half[:, None] * _GAUSS_XI[None]).ravel()
-        weights = (half[:, None] * _GAUSS_W[None]).ravel()
-        table = model.interpolation(arc)
-        r, tangents = needle_points(table.S, table.S_x, table.slots, q)
+        weights, slots, S, S_x, r, tangents = cut_quadrature(model.mesh.node_arc_length, model.mesh.element_lengths,
+                                                             lower, upper, _GAUSS_XI, _GAUSS_W, q)
         points = track.locate(track.project(r)[0])[0]
         depth = block.depth(points)
         stiffness, damping = block.layer_values(("lateral_stiffness", "lateral_damping"), depth)
-        zero = np.zeros(arc.size)
-        return _Frozen(np.zeros(0, dtype=int), weights, table.slots, table.S, table.S_x, points, tangents, depth,
+        zero = np.zeros(weights.size)
+        return _Frozen(np.zeros(0, dtype=int), weights, slots, S, S_x, points, tangents, depth,
                        stiffness, damping, AxialCoefficients(zero, zero, 0.0, 0.0, 0.0), 1.0)
 
     def _freeze(self, model, points=None, tangents=None, depth=None, axial=None) -> None:

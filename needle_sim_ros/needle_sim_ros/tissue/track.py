@@ -38,6 +38,11 @@ class Track:
         return self._vertices[: self._count]
 
     @property
+    def arc(self) -> np.ndarray:
+        """Cumulative arc length [m] at the vertices."""
+        return self._arc[: self._count]
+
+    @property
     def length(self) -> float:
         return float(self._arc[self._count - 1]) if self._count else 0.0
 
@@ -85,25 +90,46 @@ class Track:
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest track coordinate (k,) and distance (k,) of points (k, 3), over the segments and the straight
-        continuation beyond the end (vectorised)."""
-        points = np.asarray(points, dtype=float)
-        end = self._vertices[self._count - 1]
-        beyond = np.maximum((points - end) @ self.end_tangent(), 0.0)
-        coordinate = self.length + beyond
-        distance = np.linalg.norm(points - (end + beyond[:, None] * self.end_tangent()), axis=1)
-        if self._count >= 2:
-            starts, ends = self._vertices[: self._count - 1], self._vertices[1: self._count]
-            d = ends - starts
-            seg_length = np.linalg.norm(d, axis=1)
-            rel = points[:, None, :] - starts[None]
-            fraction = np.clip(np.einsum("kij,ij->ki", rel, d) / seg_length**2, 0.0, 1.0)
-            seg_distance = np.linalg.norm(rel - fraction[..., None] * d[None], axis=2)
-            best = np.argmin(seg_distance, axis=1)
-            rows = np.arange(best.size)
-            closer = seg_distance[rows, best] < distance
-            coordinate = np.where(closer, self._arc[best] + fraction[rows, best] * seg_length[best], coordinate)
-            distance = np.where(closer, seg_distance[rows, best], distance)
-        return coordinate, distance
+        continuation beyond the end (compiled)."""
+        points = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
+        return project_on_polyline(self._vertices[: self._count], self._arc[: self._count], self.end_tangent(),
+                                   points)
+
+
+@njit(cache=True)
+def project_on_polyline(vertices, arc, end_tangent, points):
+    """Closest coordinate (k,) and distance (k,) of points on the polyline (vertices, cumulative arc) and on its
+    straight continuation beyond the end along end_tangent."""
+    count = arc.size
+    n = points.shape[0]
+    coordinate = np.empty(n)
+    distance = np.empty(n)
+    end = vertices[count - 1]
+    for k in range(n):
+        p = points[k]
+        beyond = max((p[0] - end[0]) * end_tangent[0] + (p[1] - end[1]) * end_tangent[1]
+                     + (p[2] - end[2]) * end_tangent[2], 0.0)
+        best, best_coordinate = 0.0, arc[count - 1] + beyond
+        for i in range(3):
+            d = p[i] - end[i] - beyond * end_tangent[i]
+            best += d * d
+        for j in range(count - 1):
+            a, b = vertices[j], vertices[j + 1]
+            length2 = 0.0
+            along = 0.0
+            for i in range(3):
+                length2 += (b[i] - a[i]) ** 2
+                along += (p[i] - a[i]) * (b[i] - a[i])
+            fraction = min(max(along / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
+            d2 = 0.0
+            for i in range(3):
+                d = p[i] - a[i] - fraction * (b[i] - a[i])
+                d2 += d * d
+            if d2 < best:
+                best, best_coordinate = d2, arc[j] + fraction * (arc[j + 1] - arc[j])
+        coordinate[k] = best_coordinate
+        distance[k] = np.sqrt(best)
+    return coordinate, distance
 
 
 @njit(cache=True)
