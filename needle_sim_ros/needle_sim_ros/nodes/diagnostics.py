@@ -41,7 +41,7 @@ class HealthMonitor:
         ``rejected_<input>`` counts; ``pose_age`` [s] of the newest base pose."""
         causes: list[tuple[int, str]] = []
         failed = self.increase(counters, "failed_steps")
-        if failed:
+        if failed > 0:
             causes.append((ERROR, f"{failed:.0f} step(s) failed: needle reset to the straight state"))
         if not active:
             causes.append((OK, "inactive (lifecycle): holding, not integrating"))
@@ -51,7 +51,7 @@ class HealthMonitor:
             causes.append((WARN, f"no base pose for {pose_age:.2f} s: holding the last pose"))
         rejected = {key[len("rejected_"):]: self.increase(counters, key)
                     for key in sorted(counters) if key.startswith("rejected_")}
-        rejected = {name: count for name, count in rejected.items() if count}
+        rejected = {name: count for name, count in rejected.items() if count > 0}
         if rejected:
             causes.append((WARN, "rejected input: " + ", ".join(f"{n:.0f} {name.replace('_', ' ')}"
                                                                   for name, n in rejected.items())))
