@@ -19,7 +19,7 @@ import yaml
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from scipy.spatial.transform import RigidTransform, Rotation
 from sensor_msgs.msg import PointCloud2, PointField
 
@@ -57,6 +57,10 @@ PARAMETERS = [
               "outliers and not matched; 0 matches all.", low=0.0, high=10.0),
     ParamSpec("model_buffer", 200, "Model shapes kept for pairing [count]; must cover the measurement latency "
               "times the model rate.", low=1, high=100000),
+    ParamSpec("qos.inputs", "sensor_data", "QoS of the recorded base_pose and wrench subscriptions: sensor_data "
+              "(best effort: matches the simulator's default best-effort wrench and reliable publishers) or "
+              "reliable (every message of a reliable publisher, e.g. qos.wrench: reliable in a replay).",
+              choices=("reliable", "sensor_data")),
     ParamSpec("summary_path", "", "JSON file written at shutdown with mean/max RMSE and counts. Empty: none."),
     ParamSpec("log.path", "", "MCAP recording: a '.mcap' file, or a rosbag2 bag directory (any other path; may be "
               "split). Empty: no recording."),
@@ -130,11 +134,13 @@ class CompareNode(Node):
             self.create_subscription(NeedleShape, "measured/shape", self.on_measured_shape, QoSProfile(depth=10))
         else:
             self.create_subscription(PointCloud2, "measured/points", self.on_measured_points, QoSProfile(depth=10))
+        input_qos = QoSProfile(depth=100) if v["qos.inputs"] == "reliable" else QoSProfile(
+            depth=100, reliability=qos_profile_sensor_data.reliability)
         for topic, message_type in (("base_pose", PoseStamped), ("wrench", WrenchStamped)):
             if self.resolve_topic_name(topic) in self.logged:
                 self.create_subscription(message_type, topic,
                                          lambda data, t=topic, m=message_type: self.log(t, data, m),
-                                         QoSProfile(depth=100), raw=True)
+                                         input_qos, raw=True)
 
     def _open_recording(self) -> TopicRecorder:
         v = self.values
