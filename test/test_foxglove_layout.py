@@ -82,7 +82,8 @@ def test_the_logged_tubes_surround_the_logged_centerlines(pipeline_log):
     for kind in ("model", "measured"):
         path, marker = messages[f"/compare/{kind}/path"][-1], messages[f"/compare/{kind}/marker"][-1]
         assert marker.type == Marker.TRIANGLE_LIST
-        assert (marker.header.stamp.sec, marker.header.stamp.nanosec) == (path.header.stamp.sec, path.header.stamp.nanosec)
+        stamps = [(m.header.stamp.sec, m.header.stamp.nanosec) for m in (marker, path)]
+        assert stamps[0] == stamps[1]
         line = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in path.poses])
         vertices = np.array([[p.x, p.y, p.z] for p in marker.points])
         distance = np.min(np.linalg.norm(vertices[:, None, :] - line[None, :, :], axis=2), axis=1)

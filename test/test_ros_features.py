@@ -20,7 +20,7 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from rosgraph_msgs.msg import Clock
 from scipy.spatial.transform import Rotation
 
-from test_simulator_node import LENGTH, REPO, Driver, simulator_command, write_params
+from test_simulator_node import LENGTH, REPO, Driver, simulator_command, stop, write_params
 from tf2_msgs_workspace import build_tf2_msgs, environment_with
 
 E, RADIUS, DENSITY, G = 193e9, 0.635e-3, 8000.0, 9.81
@@ -43,12 +43,7 @@ def driver(ros_env):
     drv.node.create_subscription(DiagnosticArray, "/diagnostics", drv.diagnostics.append, 10)
     drv.processes = []
     yield drv
-    for process in drv.processes:
-        process.terminate()
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            process.kill()
+    stop(drv.processes)
     drv.node.destroy_node()
     rclpy.shutdown()
 
@@ -66,7 +61,7 @@ def wait_for(drv, condition, process, timeout=180.0, what="condition", **pose):
     while not condition():
         assert process.poll() is None, process.stdout.read()
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        drv.hold(0.05, **pose) if pose is not None else rclpy.spin_once(drv.node, timeout_sec=0.05)
+        drv.hold(0.05, **pose)
 
 
 def listen_tf(env, seconds):
@@ -190,13 +185,15 @@ def diagnostic(drv):
         {kv.key: kv.value for kv in status.values}
 
 
-def wait_for_diagnostic(drv, process, predicate, what, timeout=20.0, **pose):
+def wait_for_diagnostic(drv, process, predicate, what, timeout=20.0, send=True):
+    """Spin (sending poses if ``send``) until a new diagnostics report satisfies predicate(level, message, values)."""
     seen = len(drv.diagnostics)
     deadline = time.monotonic() + timeout
     while True:
         assert process.poll() is None, process.stdout.read()
-        assert time.monotonic() < deadline, f"no diagnostics with {what}: last {diagnostic(drv) if drv.diagnostics else None}"
-        drv.hold(0.05, **pose) if pose.get("send", True) else rclpy.spin_once(drv.node, timeout_sec=0.05)
+        last = diagnostic(drv) if drv.diagnostics else None
+        assert time.monotonic() < deadline, f"no diagnostics with {what}: last {last}"
+        drv.hold(0.05) if send else rclpy.spin_once(drv.node, timeout_sec=0.05)
         if len(drv.diagnostics) > seen and predicate(*diagnostic(drv)):
             return diagnostic(drv)
 
