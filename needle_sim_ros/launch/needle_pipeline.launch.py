@@ -10,6 +10,7 @@ from PyPI), ``needle_bringup`` composes the same nodes in one process.
 """
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription
+from launch.launch_description_sources import PythonLaunchDescriptionSource
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, PythonExpression
 from launch_ros.substitutions import FindPackageShare
 
@@ -30,6 +31,7 @@ def generate_launch_description() -> LaunchDescription:
         *(DeclareLaunchArgument(name, default_value=default, description=text)
           for name, (default, text) in FORWARDED.items()),
         IncludeLaunchDescription(
-            PathJoinSubstitution([FindPackageShare("needle_sim_ros"), "launch", "bringup.launch.py"]),
+            PythonLaunchDescriptionSource(
+                PathJoinSubstitution([FindPackageShare("needle_sim_ros"), "launch", "bringup.launch.py"])),
             launch_arguments={**arguments, "mode": mode, "compare": "true"}.items()),
     ])
