@@ -119,10 +119,9 @@ class NeedleSimulatorNode(LifecycleNode):
 
     # -- lifecycle -------------------------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
-        """Validate the parameters together and build the model (compiling the numerical kernels)."""
+        """Load the parameters in force, check them together and build the model (compiling the kernels)."""
         try:
-            for spec in SIMULATOR_PARAMETERS:
-                spec.validate(self.p[spec.name])
+            self.p = {spec.name: spec.validate(self.get_parameter(spec.name).value) for spec in SIMULATOR_PARAMETERS}
             sim = simulation_from_parameters(self.p)
         except (ParameterError, ValueError) as error:
             self.configure_error = f"tissue parameters: {error}" if not isinstance(error, ParameterError) else str(error)
