@@ -13,6 +13,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         # Parameter files live at the repository root (config/) and are installed with this package.
         ("share/" + package_name + "/config", glob("../config/*.yaml")),
+        ("share/" + package_name + "/config/foxglove", glob("../config/foxglove/*.json")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     install_requires=["setuptools"],

@@ -104,14 +104,19 @@ def simulator(ros_env, tmp_path):
 
     driver.start = start
     yield driver
+    stop(processes)
+    driver.node.destroy_node()
+    rclpy.shutdown()
+
+
+def stop(processes) -> None:
+    """Terminate the processes, killing any that does not exit within 10 s."""
     for process in processes:
         process.terminate()
         try:
             process.wait(timeout=10)
         except subprocess.TimeoutExpired:
             process.kill()
-    driver.node.destroy_node()
-    rclpy.shutdown()
 
 
 def test_wrench_at_rest_is_the_weight_and_a_tip_load_adds_its_equilibrium(simulator):

@@ -86,6 +86,10 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("output_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "fixed pose of the raw left optical "
               "frame in output_frame: x, y, z [m], qx, qy, qz, qw", length=7,
               check=(_nonzero_quaternion, "quaternion must be non-zero")),
+    ParamSpec("left_optical_frame", "stereo_left_optical_frame", "TF frame of the raw left optical frame (z forward, "
+              "x right, y down; REP 103): child of output_frame on /tf_static, with output_transform"),
+    ParamSpec("right_optical_frame", "stereo_right_optical_frame", "TF frame of the raw right optical frame: child "
+              "of left_optical_frame on /tf_static, from the stereo calibration"),
     ParamSpec("base_point", [0.0, 0.0, 0.0], "point near the needle base (clamp point A) in output_frame [m]; "
               "the centerline end nearer to it is the base", length=3),
     ParamSpec("image_qos", "sensor_data", "QoS of the image and camera_info subscriptions: sensor_data (best "

@@ -30,6 +30,7 @@ from needle_vision.outputs import debug_image, pointcloud2_fields
 from needle_vision.pairing import StampPairer
 from needle_vision.parameters import SPECS, ParameterError, ParamSpec, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
+from needle_vision.tf_output import TfOutput, transform_stamped
 from needle_vision.transform import quaternion_from_x_axis
 
 
@@ -67,6 +68,7 @@ class NeedleStereoNode(Node):
         self.frame_id = self.values["output_frame"]
         self._last_warning: dict[str, float] = {}
         self._reported_drops = 0
+        self.tf = TfOutput(self)
         qos = qos_profile_sensor_data if self.values["image_qos"] == "sensor_data" else \
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         if self.values["left_calibration_file"]:
@@ -76,6 +78,7 @@ class NeedleStereoNode(Node):
             except CalibrationError as error:
                 raise ParameterError(f"parameter 'left_calibration_file'/'right_calibration_file': {error}") from error
             self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
+            self.send_camera_frames(rig)
         else:
             for side in ("left", "right"):
                 self.create_subscription(CameraInfo, f"{side}/camera_info",
@@ -88,6 +91,19 @@ class NeedleStereoNode(Node):
         source = "calibration files" if self.pipeline else "left/camera_info and right/camera_info"
         self.get_logger().info(f"needle_stereo ready: calibration from {source}, "
                                f"background from {self.config.background_frames} pairs")
+
+    def send_camera_frames(self, rig: StereoRig) -> None:
+        """/tf_static: output_frame -> left optical frame (output_transform; only with an output_frame) and
+        left -> right optical frame (the stereo calibration's extrinsics)."""
+        stamp = self.get_clock().now().to_msg()
+        left, right = self.values["left_optical_frame"], self.values["right_optical_frame"]
+        transforms = []
+        if self.frame_id:
+            pose = self.values["output_transform"]
+            transforms.append(transform_stamped(stamp, self.frame_id, left, pose[:3], pose[3:]))
+        right_in_left = rig.left_from_right.as_xyz_quaternion()
+        transforms.append(transform_stamped(stamp, left, right, right_in_left[:3], right_in_left[3:]))
+        self.tf.send_static(transforms)
 
     def warn(self, kind: str, text: str) -> None:
         """A warning, at most one per ``warning_period`` for each kind."""
@@ -112,6 +128,7 @@ class NeedleStereoNode(Node):
             self.warn("calibration", f"camera_info unusable, nothing is measured: {error}")
             return
         self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
+        self.send_camera_frames(rig)
         self.get_logger().info("stereo calibration received from camera_info; background model restarts")
 
     def on_image(self, side: str, msg: Image) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from pathlib import Path
+import pathlib
 from typing import Any
 
 import numpy as np
@@ -19,11 +19,14 @@ import yaml
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from scipy.spatial.transform import RigidTransform, Rotation
+from nav_msgs.msg import Path
 from sensor_msgs.msg import PointCloud2, PointField
+from visualization_msgs.msg import Marker
 
 from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
+from needle_sim_ros.nodes.centerline_display import DISPLAY_TOPICS, centerline_display
 from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec, declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
 from needle_sim_ros.nodes.runner import run_node
@@ -33,7 +36,8 @@ from needle_sim_ros.recording import RecordingError, WriterOptions
 NODE_NAME = "needle_compare"
 WARN_PERIOD = 5.0  # [s] between repeated warnings about bad input
 LOGGABLE = {"model/shape": NeedleShape, "measured/shape": NeedleShape, "measured/points": PointCloud2,
-            "shape_error": ShapeError, "base_pose": PoseStamped, "wrench": WrenchStamped}
+            "shape_error": ShapeError, "base_pose": PoseStamped, "wrench": WrenchStamped,
+            **{topic: Path if topic.endswith("path") else Marker for topic in DISPLAY_TOPICS}}
 
 
 def _unit_quaternion(q) -> bool:
@@ -57,7 +61,16 @@ PARAMETERS = [
               "outliers and not matched; 0 matches all.", low=0.0, high=10.0),
     ParamSpec("model_buffer", 200, "Model shapes kept for pairing [count]; must cover the measurement latency "
               "times the model rate.", low=1, high=100000),
+    ParamSpec("qos.inputs", "sensor_data", "QoS of the recorded base_pose and wrench subscriptions: sensor_data "
+              "(best effort: matches the simulator's default best-effort wrench and reliable publishers) or "
+              "reliable (every message of a reliable publisher, e.g. qos.wrench: reliable in a replay).",
+              choices=("reliable", "sensor_data")),
     ParamSpec("summary_path", "", "JSON file written at shutdown with mean/max RMSE and counts. Empty: none."),
+    ParamSpec("display.rate", 10.0, "Largest rate [Hz of measurement time] of the compared centerlines as "
+              "nav_msgs/Path and Marker tubes on compare/{model,measured}/{path,marker} (model frame); 0: none.",
+              low=0.0, high=1000.0),
+    ParamSpec("display.tube_radius", 0.000635, "Radius [m] of the Marker tubes (the needle's).", low=1e-6, high=0.1),
+    ParamSpec("log.tf", True, "Also record /tf and /tf_static (needs tf2_msgs; without it the log has no TF)."),
     ParamSpec("log.path", "", "MCAP recording: a '.mcap' file, or a rosbag2 bag directory (any other path; may be "
               "split). Empty: no recording."),
     ParamSpec("log.topics", list(LOGGABLE), "Topics recorded (relative to the node namespace), a subset of "
@@ -125,16 +138,22 @@ class CompareNode(Node):
         self.recorder = self._open_recording() if v["log.path"] else None
         self.logged = {self.resolve_topic_name(t): t for t in v["log.topics"]} if self.recorder else {}
 
+        self.display_publishers = {topic: self.create_publisher(LOGGABLE[topic], topic, 10) for topic in DISPLAY_TOPICS}
+        self._next_display_ns = 0
+        if self.recorder is not None and v["log.tf"]:
+            self._record_tf()
         self.create_subscription(NeedleShape, "model/shape", self.on_model, QoSProfile(depth=50))
         if v["measured_input"] == "shape":
             self.create_subscription(NeedleShape, "measured/shape", self.on_measured_shape, QoSProfile(depth=10))
         else:
             self.create_subscription(PointCloud2, "measured/points", self.on_measured_points, QoSProfile(depth=10))
+        input_qos = QoSProfile(depth=100) if v["qos.inputs"] == "reliable" else QoSProfile(
+            depth=100, reliability=qos_profile_sensor_data.reliability)
         for topic, message_type in (("base_pose", PoseStamped), ("wrench", WrenchStamped)):
             if self.resolve_topic_name(topic) in self.logged:
                 self.create_subscription(message_type, topic,
                                          lambda data, t=topic, m=message_type: self.log(t, data, m),
-                                         QoSProfile(depth=100), raw=True)
+                                         input_qos, raw=True)
 
     def _open_recording(self) -> TopicRecorder:
         v = self.values
@@ -150,6 +169,18 @@ class CompareNode(Node):
         recorder.add_parameters(NODE_NAME, flat, parameter_file(v))
         self.get_logger().info(f"recording to {v['log.path']}")
         return recorder
+
+    def _record_tf(self) -> None:
+        """Record /tf and /tf_static (static transforms arrive latched: transient local)."""
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            self.get_logger().warning("log.tf: tf2_msgs is not installed, the recording has no /tf and /tf_static")
+            return
+        for topic, durability in (("/tf", DurabilityPolicy.VOLATILE), ("/tf_static", DurabilityPolicy.TRANSIENT_LOCAL)):
+            self.logged[topic] = topic
+            self.create_subscription(TFMessage, topic, lambda data, t=topic: self.log(t, data, TFMessage),
+                                     QoSProfile(depth=100, durability=durability), raw=True)
 
     # --- input ------------------------------------------------------------------------------------------------
     def log(self, topic: str, message: Any, message_type: type, own_qos: QoSProfile | None = None) -> None:
@@ -217,6 +248,26 @@ class CompareNode(Node):
             msg = shape_error_msg(result, model_header, measured_header)
             self.error_publisher.publish(msg)
             self.log("shape_error", msg, ShapeError, self.error_qos)
+            self.display(model_header, model, measured, result)
+
+    def display(self, model_header, model: Centerline, measured: Centerline, result) -> None:
+        """The compared centerlines as Path and Marker tube (model frame), at most ``display.rate`` per second of
+        measurement time (a tube costs a few milliseconds)."""
+        rate = self.values["display.rate"]
+        now_ns = stamp_ns(model_header.stamp)
+        if rate <= 0.0 or self._next_display_ns - 2e9 / rate <= now_ns < self._next_display_ns:
+            return
+        self._next_display_ns = now_ns + int(1e9 / rate)
+        points = self.model_from_camera.apply(measured.points)[result.matched]
+        if not measured.ordered:  # a point cloud: order by the arc length of the closest model point
+            points = points[np.argsort(result.arc_length)]
+        stamp, frame, radius = model_header.stamp, model_header.frame_id, self.values["display.tube_radius"]
+        outputs = centerline_display(stamp.sec, stamp.nanosec, frame, "model", model.points, radius)
+        if len(points) >= 2:
+            outputs.update(centerline_display(stamp.sec, stamp.nanosec, frame, "measured", points, radius))
+        for topic, data in outputs.items():
+            self.display_publishers[topic].publish(data)
+            self.log(topic, data, LOGGABLE[topic])
 
     def finish(self) -> dict:
         """Finalize the recording; return (and write, if configured) the run summary."""
@@ -227,7 +278,7 @@ class CompareNode(Node):
         report = self.summary.as_dict()
         print(f"[{NODE_NAME}] summary: {json.dumps(report)}", flush=True)
         if self.values["summary_path"]:
-            path = Path(self.values["summary_path"])
+            path = pathlib.Path(self.values["summary_path"])
             try:
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_text(json.dumps(report, indent=2) + "\n")

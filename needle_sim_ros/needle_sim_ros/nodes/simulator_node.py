@@ -26,7 +26,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped, TwistStamped, WrenchStampe
 from nav_msgs.msg import Path
 from needle_interfaces.msg import NeedleShape, NeedleState
 from needle_interfaces.srv import ApplyPointLoad, ClearPointLoads
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
 from std_msgs.msg import Header
@@ -36,11 +36,14 @@ from visualization_msgs.msg import Marker
 from needle_sim_ros import cdr
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.model import State, centerline, elastic_energy, kinetic_energy, tip_pose
+from needle_sim_ros.nodes.diagnostics import HealthMonitor
+from needle_sim_ros.nodes.lifecycle import autostart, when_configured
 from needle_sim_ros.nodes.parameters import ParameterError, declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import PolledCallbackGroup, drain
 from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.shape_messages import quaternions_from_tangents, time_msg, tube_triangles
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.nodes.tf_output import SimulatorTf
 from needle_sim_ros.simulation import (
     TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters, simulation_from_parameters,
     step_wrenches)
@@ -58,23 +61,24 @@ def qos_profile(name: str, depth: int = 10) -> QoSProfile:
     return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
 
 
-class NeedleSimulatorNode(Node):
+class NeedleSimulatorNode(LifecycleNode):
+    """Managed node (:mod:`needle_sim_ros.nodes.lifecycle`): configure builds the model, activate starts integrating
+    from the next base pose, deactivate holds the last state, cleanup frees the model."""
+
     def __init__(self) -> None:
         super().__init__("needle_simulator")
         self.p = declare_all(self, SIMULATOR_PARAMETERS)
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        try:
-            self.sim = simulation_from_parameters(self.p)
-        except ValueError as error:
-            raise ParameterError(f"tissue parameters: {error}") from error
-        self.props = self.sim.model.props
-        # Before any topic exists: once the node is visible in the graph it steps at full speed from the first pose.
-        self.get_logger().info(f"compiled/loaded the numerical kernels in {compile_kernels(self.p):.1f} s")
+        self.sim = None
+        self.active = False
+        self.configure_error = ""
         self.use_sim_time = self.get_parameter("use_sim_time").value
         self.counters = {verdict: 0 for verdict in PoseVerdict}
-        self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0}
+        self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0, "twist_rejected": 0, "tip_load_rejected": 0}
         self.deadline_misses = 0
+        self.catch_up_steps = 0
+        self.health = HealthMonitor()
         self._warned_at: dict[str, float] = {}
 
         topics = {k.split(".", 1)[1]: v for k, v in self.p.items() if k.startswith("topics.")}
@@ -85,6 +89,7 @@ class NeedleSimulatorNode(Node):
         self.pose_array_pub = self.create_publisher(PoseArray, topics["pose_array"], 10)
         self.state_pub = self.create_publisher(NeedleState, topics["state"], 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.tf = SimulatorTf(self, self.p["frames.world"], self.p["frames.base"], self.p["frames.tip"])
         # Poses and twists are taken by the integration loop itself at each tick (see nodes.polling).
         polled = PolledCallbackGroup()
         self._polled = [
@@ -93,28 +98,74 @@ class NeedleSimulatorNode(Node):
             self.create_subscription(TwistStamped, topics["base_twist"], self.on_twist,
                                      qos_profile(self.p["qos.base_pose"], 100), callback_group=polled)]
         self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10)
-        self.create_service(Trigger, "~/reset", self.on_reset)
-        self.create_service(ApplyPointLoad, "~/apply_point_load", self.on_apply_point_load)
-        self.create_service(ClearPointLoads, "~/clear_point_loads", self.on_clear_point_loads)
+        configured = lambda: self.sim is not None  # noqa: E731
+        self.create_service(Trigger, "~/reset", when_configured(configured, self.on_reset))
+        self.create_service(ApplyPointLoad, "~/apply_point_load", when_configured(configured, self.on_apply_point_load))
+        self.create_service(ClearPointLoads, "~/clear_point_loads", when_configured(configured, self.on_clear_point_loads))
         guard_dynamic_updates(self, SIMULATOR_PARAMETERS, self.on_parameters_changed)
         self._next_output = {"shape": 0.0, "visualization": 0.0, "diagnostics": 0.0}
-        if self.use_sim_time:
-            # Simulated time: one shape per step that crosses the 1/shape_hz grid, stamped with that step's time,
-            # so a replay yields every shape whatever the machine load (the output thread then only visualizes).
-            self.sim.after_step = self.publish_shape_on_grid
         self._loop = threading.Thread(target=self.run_loop, name="needle_integration", daemon=True)
         self._outputs = threading.Thread(target=self.run_outputs, name="needle_outputs", daemon=True)
         # The output thread's work comes in pieces of up to ~1 ms; a short GIL switch interval lets the integration
         # thread take over within 0.2 ms instead of Python's default 5 ms.
         sys.setswitchinterval(2e-4)
-        # Everything built so far (modules, compiled kernels, the model) lives until exit: keep it out of the
+        if self.p["autostart"]:
+            autostart(self)
+        self.get_logger().info(
+            f"needle_simulator ready ({'active' if self.active else 'unconfigured: waiting for lifecycle transitions'}): "
+            f"{self.p['needle.elements']} elements, dt = {self.p['integrator.dt'] * 1e3:g} ms, "
+            f"{'simulated' if self.use_sim_time else 'wall-clock'} time; base poses on "
+            f"'{self.resolve_topic_name(topics['base_pose'])}'")
+
+    # -- lifecycle -------------------------------------------------------------------------------------------
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        """Load the parameters in force, check them together and build the model (compiling the kernels)."""
+        try:
+            self.p = {spec.name: spec.validate(self.get_parameter(spec.name).value) for spec in SIMULATOR_PARAMETERS}
+            sim = simulation_from_parameters(self.p)
+        except (ParameterError, ValueError) as error:
+            self.configure_error = f"tissue parameters: {error}" if not isinstance(error, ParameterError) else str(error)
+            self.get_logger().error(f"configure failed: {self.configure_error}")
+            return TransitionCallbackReturn.FAILURE
+        # Before any topic is active: once active the node steps at full speed from the first pose.
+        self.get_logger().info(f"compiled/loaded the numerical kernels in {compile_kernels(self.p):.1f} s")
+        with self._lock:
+            self.sim, self.props = sim, sim.model.props
+            if self.use_sim_time:
+                # Simulated time: one shape per step that crosses the 1/shape_hz grid, stamped with that step's
+                # time, so a replay yields every shape whatever the machine load (the output thread only visualizes).
+                self.sim.after_step = self.publish_shape_on_grid
+        # Everything built so far (modules, compiled kernels, the model) lives until cleanup: keep it out of the
         # garbage collector's full passes, which would otherwise stall the loop for milliseconds now and then.
         gc.collect()
         gc.freeze()
-        self.get_logger().info(
-            f"needle_simulator ready: {self.p['needle.elements']} elements, dt = {self.p['integrator.dt'] * 1e3:g} ms, "
-            f"{'simulated' if self.use_sim_time else 'wall-clock'} time; waiting for poses on "
-            f"'{self.resolve_topic_name(topics['base_pose'])}'")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        """Integrate again, starting straight at the next base pose (poses received while inactive are dropped)."""
+        with self._lock:
+            self.sim.trajectory.clear()
+            self.sim.discard_state()
+            self.active = True
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        """Hold: no more steps, wrenches or shapes; the last state stays (``~/reset`` and loads still work)."""
+        with self._lock:
+            self.active = False
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        with self._lock:
+            self.active, self.sim = False, None
+        gc.unfreeze()
+        gc.collect()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        with self._lock:
+            self.active = False
+        return TransitionCallbackReturn.SUCCESS
 
     # -- construction helpers --------------------------------------------------------------------------------
     def _apply_tip_force(self, force) -> None:
@@ -137,6 +188,8 @@ class NeedleSimulatorNode(Node):
     # -- inputs ----------------------------------------------------------------------------------------------
     def on_pose(self, data: bytes) -> None:
         """A serialized PoseStamped (the subscription is raw: decoding it is ~10x cheaper than rclpy's objects)."""
+        if not self.active:  # lifecycle: poses count from activation on
+            return
         pose = cdr.pose_stamped(data)
         world = self.p["frames.world"]
         if pose.frame_id not in ("", world):
@@ -164,9 +217,12 @@ class NeedleSimulatorNode(Node):
             self.warn_throttled(verdict.name, f"base pose {verdict.value}; keeping the previous trajectory")
 
     def on_twist(self, msg: TwistStamped) -> None:
+        if not self.active:
+            return
         v, w = msg.twist.linear, msg.twist.angular
         linear, angular = np.array([v.x, v.y, v.z]), np.array([w.x, w.y, w.z])
         if msg.header.frame_id not in ("", self.p["frames.world"]) or not (np.all(np.isfinite(linear)) and np.all(np.isfinite(angular))):
+            self.counters_other["twist_rejected"] += 1
             self.warn_throttled("twist", "ignoring base twist: not finite or not in the world frame")
             return
         with self._lock:
@@ -178,9 +234,12 @@ class NeedleSimulatorNode(Node):
         force = np.array([f.x, f.y, f.z])
         frame = msg.header.frame_id or self.p["frames.world"]
         if not np.all(np.isfinite(force)) or frame not in (self.p["frames.world"], self.p["frames.base"]):
+            self.counters_other["tip_load_rejected"] += 1
             self.warn_throttled("tip_load", f"ignoring tip load: not finite or frame '{frame}' unknown")
             return
         with self._lock:
+            if self.sim is None:
+                return
             if frame == self.p["frames.base"] and self.sim.base is not None:
                 force = Rotation.from_quat(self.sim.base.orientation).apply(force)
             self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
@@ -225,6 +284,8 @@ class NeedleSimulatorNode(Node):
     def on_parameters_changed(self, changed: dict) -> None:
         with self._lock:
             self.p.update(changed)
+            if self.sim is None:  # unconfigured: configure builds with the new values
+                return
             if {"damping.rayleigh_alpha", "damping.rayleigh_beta"} & changed.keys():
                 self.sim.rebuild_model(model_builder_from_parameters(self.p))
             if "loads.tip_force" in changed:
@@ -246,7 +307,7 @@ class NeedleSimulatorNode(Node):
         while not self._stop.wait(0.002) and rclpy.ok():
             try:
                 now = self.now_seconds()
-                if self.sim.started:
+                if self.active and self.sim.started:
                     self.publish_periodic_outputs(now)
                 self.publish_diagnostics_if_due(now)
             except Exception as error:  # noqa: BLE001 - outputs must outlive any single bad iteration
@@ -271,7 +332,7 @@ class NeedleSimulatorNode(Node):
                 if self._stop.is_set() or not rclpy.ok():
                     break
                 self.warn_throttled("loop", f"integration loop iteration failed: {error!r}")
-            state = self.sim.state
+            state = self.sim.state if self.active else None
             if not self.use_sim_time and state is not None:
                 deadline = time.perf_counter() + (state.t + period - self.now_seconds())
             else:
@@ -302,12 +363,17 @@ class NeedleSimulatorNode(Node):
             drain(subscription)
         now = self.now_seconds()
         with self._lock:
+            if not self.active:
+                return
             started = self.sim.started
             records = self.sim.advance(now, deterministic=self.use_sim_time) if started else []
         if started and not self.sim.started:
             self.get_logger().warning(f"clock jumped back to {now:.3f} s: waiting for a new first pose")
-        if len(records) > 1:
-            self.deadline_misses += len(records) - 1
+        if len(records) > 1:  # simulated time has no deadline: several steps per tick are its catch-up
+            if self.use_sim_time:
+                self.catch_up_steps += len(records) - 1
+            else:
+                self.deadline_misses += len(records) - 1
         if records:
             self.publish_wrenches(records)
 
@@ -336,12 +402,14 @@ class NeedleSimulatorNode(Node):
     def take_state(self) -> tuple:
         """(model, a copy of the state, tissue readout): all the outputs need, taken with the lock held."""
         state = self.sim.state
-        return self.sim.model, State(state.q.copy(), state.qd.copy(), state.qdd, state.t), self.tissue_readout()
+        return (self.sim.model, State(state.q.copy(), state.qd.copy(), state.qdd, state.t, base=self.sim.base),
+                self.tissue_readout())
 
     def snapshot(self, model, state: State, readout) -> dict:
         """Centerline, tip pose and energies of a state copy (computed outside the lock)."""
         return {"t": state.t, "line": centerline(model, state.q, self.p["output.shape_samples"]),
-                "tip": tip_pose(model, state.q), "energies": (kinetic_energy(model, state.qd),
+                "tip": tip_pose(model, state.q, None if state.base is None else state.base.orientation),
+                "base": state.base, "energies": (kinetic_energy(model, state.qd),
                                                               elastic_energy(model, state.q)),
                 "readout": readout}
 
@@ -353,6 +421,7 @@ class NeedleSimulatorNode(Node):
         tissue = (np.zeros(6) if readout is None else
                   np.array([readout.insertion_depth, readout.inserted_length, *readout.tip_force, readout.axial_force]))
         self.state_pub.publish(cdr.needle_state(stamp.sec, stamp.nanosec, frame, *tissue, *snap["energies"]))
+        self.tf.send(stamp, snap["base"], snap["tip"])
 
     def publish_periodic_outputs(self, now: float) -> None:
         shape_due = not self.use_sim_time and self.due("shape", now, self.p["rates.shape_hz"])
@@ -381,37 +450,44 @@ class NeedleSimulatorNode(Node):
         return tissue_readout(self.sim.extra_forces, self.sim.model, self.sim.state, self.sim.base)
 
     def publish_diagnostics_if_due(self, now: float) -> None:
+        """Counters of the loop and inputs, and a level with a message that clears when its cause does
+        (:mod:`needle_sim_ros.nodes.diagnostics`)."""
         if not self.due("diagnostics", now, self.p["rates.diagnostics_hz"]):
             return
         with self._lock:
-            stats = self.sim.statistics
-            step_times = stats.take_step_times()
-            pose_age = self.sim.pose_age(self.now_seconds())
-            values = {
-                "steps": stats.steps,
-                "step_time_mean_ms": float(step_times.mean() * 1e3) if step_times.size else 0.0,
-                "step_time_max_ms": float(step_times.max() * 1e3) if step_times.size else 0.0,
-                "max_newton_iterations": stats.max_newton_iterations,
-                "failed_steps": stats.failed_steps,
-                "deadline_misses": self.deadline_misses,
-                "skipped_time_s": stats.skipped_time,
-                "pose_age_s": pose_age,
-                "point_loads": len(self.sim.point_loads),
-                **{f"poses_{v.name.lower()}": n for v, n in self.counters.items()},
-                **{f"poses_{k}": n for k, n in self.counters_other.items()},
-            }
-            stats.max_newton_iterations = 0
-        level, message = DiagnosticStatus.OK, "running"
-        if not self.sim.started:
-            level, message = DiagnosticStatus.WARN, "waiting for the first base pose"
-        elif pose_age > self.p["pose_input.timeout"]:
-            level, message = DiagnosticStatus.WARN, f"no base pose for {pose_age:.2f} s: holding the last pose"
-        elif values["failed_steps"]:
-            level, message = DiagnosticStatus.WARN, f"{values['failed_steps']} failed steps (needle reset)"
-        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: integration", message=message,
-                                  hardware_id="needle_sim",
-                                  values=[KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v)) for k, v in values.items()])
-        self.diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+            sim = self.sim
+            values = {"lifecycle": "active" if self.active else ("inactive" if sim is not None else "unconfigured"),
+                      "deadline_misses": self.deadline_misses, "catch_up_steps": self.catch_up_steps,
+                      **{f"poses_{v.name.lower()}": n for v, n in self.counters.items()},
+                      **{f"poses_{k}" if k in ("wrong_frame", "stamp_replaced") else k: n
+                         for k, n in self.counters_other.items()}}
+            if sim is not None:
+                stats = sim.statistics
+                step_times = stats.take_step_times()
+                values.update({
+                    "steps": stats.steps,
+                    "step_time_mean_ms": float(step_times.mean() * 1e3) if step_times.size else 0.0,
+                    "step_time_max_ms": float(step_times.max() * 1e3) if step_times.size else 0.0,
+                    "max_newton_iterations": stats.max_newton_iterations,
+                    "failed_steps": stats.failed_steps,
+                    "skipped_time_s": stats.skipped_time,
+                    "pose_age_s": sim.pose_age(self.now_seconds()),
+                    "point_loads": len(sim.point_loads)})
+                stats.max_newton_iterations = 0
+            started = sim is not None and sim.started
+        rejected = {"rejected_poses": sum(n for v, n in self.counters.items()
+                                          if v.name in ("NOT_FINITE", "ZERO_QUATERNION", "OUT_OF_ORDER", "JUMP"))
+                    + self.counters_other["wrong_frame"],
+                    "rejected_twists": self.counters_other["twist_rejected"],
+                    "rejected_tip_loads": self.counters_other["tip_load_rejected"]}
+        health = self.health.assess({**values, **rejected}, started, values.get("pose_age_s", float("inf")),
+                                    self.p["pose_input.timeout"], active=self.active)
+        status = DiagnosticStatus(level=bytes([health.level]), name=f"{self.get_name()}: integration",
+                                  message=health.message, hardware_id="needle_sim",
+                                  values=[KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v))
+                                          for k, v in values.items()])
+        self.diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()),
+                                                     status=[status]))
 
 
 def main(args=None) -> int:

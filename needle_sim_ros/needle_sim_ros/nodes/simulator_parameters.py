@@ -46,6 +46,7 @@ SIMULATOR_PARAMETERS = [
     # Frames (REP 103/105).
     ParamSpec("frames.world", "world", "Fixed frame of base poses, wrench (world copy) and shapes.", check=(bool, "must not be empty")),
     ParamSpec("frames.base", "needle_base", "Frame of the needle base at the clamp point A, x along the needle.", check=(bool, "must not be empty")),
+    ParamSpec("frames.tip", "needle_tip", "Frame of the needle tip on TF (child of frames.base), x along the tip tangent.", check=(bool, "must not be empty")),
     ParamSpec("flange_offset.position", [0.0, 0.0, 0.0], "Clamp point A in the flange frame of the incoming pose [m].", -10.0, 10.0, length=3),
     ParamSpec("flange_offset.orientation", [0.0, 0.0, 0.0, 1.0], "Rotation flange -> needle base frame, quaternion (x, y, z, w).", -1.0, 1.0, length=4,
               check=(_unit_quaternion, "must be a unit quaternion")),
@@ -76,6 +77,8 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("pose_input.twist_timeout", 0.05, "A twist older than this is ignored [s].", 1e-3, 10.0),
     # External loads (e.g. the tip mass of seed 000 Fig. 7).
     ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: [0, 0, -9.81 m]).", -1e3, 1e3, length=3, dynamic=True),
+    # Lifecycle (needle_sim_ros.nodes.lifecycle).
+    ParamSpec("autostart", True, "Configure and activate at start (a plain node); false: wait for lifecycle transitions (managed, e.g. by a robot bringup)."),
     # Real-time loop.
     ParamSpec("loop.max_catch_up", 0.05, "Largest lag [s] the loop integrates to catch up; beyond it time is skipped.", 1e-3, 10.0),
     ParamSpec("loop.busy_wait", 0.0002, "Spin the last part of each period instead of sleeping, for tick accuracy [s].", 0.0, 0.01),

@@ -1,0 +1,37 @@
+"""Managed-node helpers (REP 2002 lifecycle, ``rclpy.lifecycle``) for the needle simulator.
+
+The simulator is a ``LifecycleNode``: a robot bringup sequences it with ``ros2 lifecycle set needle_simulator
+configure|activate|deactivate|cleanup``. With ``autostart`` (the default) it configures and activates itself at
+construction, so ``ros2 run`` behaves like a plain node.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from lifecycle_msgs.msg import State as StateMsg
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+
+from needle_sim_ros.nodes.parameters import ParameterError
+
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+PRIMARY_STATES = {StateMsg.PRIMARY_STATE_UNCONFIGURED: "unconfigured", StateMsg.PRIMARY_STATE_INACTIVE: "inactive",
+                  StateMsg.PRIMARY_STATE_ACTIVE: "active", StateMsg.PRIMARY_STATE_FINALIZED: "finalized"}
+
+
+def autostart(node: LifecycleNode) -> None:
+    """configure, then activate; a failed configure raises :class:`ParameterError` (the node exits with 2)."""
+    if node.trigger_configure() != SUCCESS:
+        raise ParameterError(getattr(node, "configure_error", "") or "configure failed (see the log)")
+    if node.trigger_activate() != SUCCESS:
+        raise ParameterError("activate failed (see the log)")
+
+
+def when_configured(is_configured: Callable[[], bool], callback: Callable) -> Callable:
+    """A service callback that answers ``success = False`` until the node is configured."""
+    def guarded(request, response):
+        if not is_configured():
+            response.success, response.message = False, "the node is not configured (lifecycle: configure it first)"
+            return response
+        return callback(request, response)
+
+    return guarded

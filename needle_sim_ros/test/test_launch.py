@@ -1,0 +1,107 @@
+"""The launch files (share/needle_sim_ros/launch): their arguments, the files and executables they name, and the
+launch-time choices (needle_sim_ros.launch_support).
+
+``launch``/``launch_ros`` are not on PyPI: the launch descriptions are loaded only where they are installed (a
+stock ROS 2 install); everywhere, the files are checked at the syntax-tree level against the installed package.
+"""
+import ast
+import re
+from pathlib import Path
+
+import pytest
+from ament_index_python.packages import get_package_prefix, get_package_share_directory
+
+from needle_sim_ros.launch_support import experiment_file, mode_settings, unique_log_path
+
+SHARE = Path(get_package_share_directory("needle_sim_ros"))
+LAUNCH_FILES = {"bringup.launch.py": {"mode", "bag", "experiment", "stereo", "compare", "log", "log_dir",
+                                      "pose_topic", "pose_frame", "wrench_topic", "namespace", "activate"},
+                "needle_pipeline.launch.py": {"bag", "experiment", "stereo", "log", "log_dir"}}
+SOURCE_CONFIG = Path(__file__).resolve().parents[2] / "config"
+
+
+def tree(name: str) -> ast.Module:
+    return ast.parse((SHARE / "launch" / name).read_text(), filename=name)
+
+
+def declared_arguments(module: ast.Module) -> set[str]:
+    """Names of the argument tables (ARGUMENTS/FORWARDED = {name: (default, description)}) turned into
+    DeclareLaunchArgument, and of literal DeclareLaunchArgument("name", ...) calls."""
+    names = set()
+    for node in ast.walk(module):
+        if isinstance(node, ast.Assign) and isinstance(node.value, ast.Dict) and \
+                any(isinstance(t, ast.Name) and t.id in ("ARGUMENTS", "FORWARDED") for t in node.targets):
+            names |= {key.value for key in node.value.keys}
+        if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "DeclareLaunchArgument" and \
+                node.args and isinstance(node.args[0], ast.Constant):
+            names.add(node.args[0].value)
+    return names
+
+
+@pytest.mark.parametrize("name", sorted(LAUNCH_FILES))
+def test_launch_file_declares_its_arguments_and_uses_current_api(name):
+    module = tree(name)
+    assert declared_arguments(module) == LAUNCH_FILES[name]
+    used = {n.id for n in ast.walk(module) if isinstance(n, ast.Name)} | \
+           {a.name for n in ast.walk(module) if isinstance(n, ast.ImportFrom) for a in n.names}
+    assert not used & {"LaunchConfigurationEquals", "LaunchConfigurationNotEquals"}, "deprecated conditions"
+    text = (SHARE / "launch" / name).read_text()
+    assert '"qos.wrench": "reliable"' not in text, "the wrench QoS comes from the config"
+
+
+@pytest.mark.parametrize("name", sorted(LAUNCH_FILES))
+def test_files_and_executables_named_by_a_launch_file_are_installed(name):
+    module = tree(name)
+    constants = [n.value for n in ast.walk(module) if isinstance(n, ast.Constant) and isinstance(n.value, str)]
+    for match in (re.search(r"([\w.]+\.(?:yaml|launch\.py))$", c) for c in constants):
+        if match:
+            folder = "config" if match.group(1).endswith(".yaml") else "launch"
+            assert (SHARE / folder / match.group(1)).is_file(), f"{name} names {match.group(1)}: not installed"
+    for call in (n for n in ast.walk(module) if isinstance(n, ast.Call)):
+        keywords = {k.arg: k.value.value for k in call.keywords if isinstance(k.value, ast.Constant)}
+        if "executable" in keywords:
+            package = keywords["package"]
+            executable = Path(get_package_prefix(package)) / "lib" / package / keywords["executable"]
+            assert executable.is_file(), f"{name}: {package} {keywords['executable']} is not installed"
+
+
+def test_launch_descriptions_load_where_launch_is_installed():
+    launch = pytest.importorskip("launch", reason="launch/launch_ros are not on PyPI: install ROS 2 Jazzy "
+                                 "(ros-jazzy-launch-ros) to load the launch descriptions")
+    pytest.importorskip("launch_ros", reason="launch_ros is not installed (ros-jazzy-launch-ros)")
+    from launch.actions import DeclareLaunchArgument
+    from launch.launch_description_sources import get_launch_description_from_python_launch_file
+    for name, arguments in LAUNCH_FILES.items():
+        description = get_launch_description_from_python_launch_file(str(SHARE / "launch" / name))
+        assert isinstance(description, launch.LaunchDescription)
+        declared = {e.name for e in description.entities if isinstance(e, DeclareLaunchArgument)}
+        assert declared == arguments
+
+
+def test_experiment_argument_takes_a_name_or_a_path(tmp_path):
+    assert experiment_file("", SOURCE_CONFIG) == ""
+    by_name = experiment_file("dynamic_pitch", SOURCE_CONFIG)
+    assert by_name == str((SOURCE_CONFIG / "experiments" / "dynamic_pitch.yaml").resolve())
+    assert experiment_file(by_name, SOURCE_CONFIG) == by_name
+    with pytest.raises(ValueError, match="launch argument 'experiment' = 'nope'.*bundled experiments: .*dynamic_pitch"):
+        experiment_file("nope", SOURCE_CONFIG)
+    with pytest.raises(ValueError, match="no file"):
+        experiment_file(str(tmp_path / "missing.yaml"), SOURCE_CONFIG)
+
+
+def test_every_launch_gets_a_new_log_name():
+    first = unique_log_path("", "/tmp/logs", stamp=0.0, pid=10)
+    assert first == "/tmp/logs/needle_compare_19700101_000000_10.mcap"
+    assert unique_log_path("", "/tmp/logs", stamp=0.0, pid=11) != first  # two launches in the same second
+    assert unique_log_path("", "/tmp/logs", stamp=1.0, pid=10) != first
+    assert unique_log_path("mine.mcap", "/tmp/logs") == "mine.mcap"
+
+
+def test_modes():
+    assert mode_settings("replay", "a.mcap") == {"use_sim_time": True, "player": True, "stereo": True,
+                                                 "compare": True}
+    assert not any(mode_settings("hil", "").values())
+    with pytest.raises(ValueError, match="mode:=replay needs bag"):
+        mode_settings("replay", "")
+    with pytest.raises(ValueError, match="must be one of sim, replay, hil"):
+        mode_settings("real", "")

@@ -1,0 +1,90 @@
+"""The shipped Foxglove layout (share/needle_sim_ros/config/foxglove/needle_compare.json) against a comparison log
+produced by the pipeline: every topic and frame the layout references is in the log (no browser needed)."""
+import json
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ament_index_python.packages import get_package_share_directory
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from visualization_msgs.msg import Marker
+
+from test_end_to_end import DYNAMIC, DYNAMIC_SLICE, REPO, main_job
+from tf2_msgs_workspace import build_tf2_msgs, environment_with
+
+LAYOUT = Path(get_package_share_directory("needle_sim_ros")) / "config" / "foxglove" / "needle_compare.json"
+
+
+def layout_references(layout: dict) -> tuple[set[str], set[str]]:
+    """(topics, frames) a Foxglove layout refers to: 3D panel topics, plot message paths, followed/grid frames."""
+    topics, frames = set(), set()
+    for panel_id, config in layout["configById"].items():
+        topics |= set(config.get("topics", {}))
+        topics |= {re.match(r"(/[^.\[{]+)", path["value"]).group(1) for path in config.get("paths", [])}
+        frames |= {config[key] for key in ("followTf",) if config.get(key)}
+        frames |= {layer["frameId"] for layer in config.get("layers", {}).values() if layer.get("frameId")}
+    return topics, frames
+
+
+@pytest.fixture(scope="module")
+def pipeline_log(ros_env, tmp_path_factory):
+    """needle_bringup on a slice of the dynamic bag, with tf2_msgs available (as on any ROS 2 install)."""
+    env = environment_with(build_tf2_msgs(), ros_env)
+    tmp = tmp_path_factory.mktemp("foxglove")
+    bag = main_job.slice_bag(DYNAMIC, tmp / "slice.mcap", 0.0, DYNAMIC_SLICE, background_frames=1)
+    log = tmp / "needle_compare.mcap"
+    bringup = subprocess.Popen([sys.executable, "-m", "needle_sim_ros.nodes.bringup", "--experiment",
+                                str(REPO / "config" / "experiments" / "dynamic_pitch.yaml"), "--ros-args",
+                                "-p", "use_sim_time:=true", "-p", f"log.path:={log}"],
+                               env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        replay = subprocess.run([sys.executable, "-m", "needle_sim_ros.nodes.replay_node", str(bag), "--clock", "200",
+                                 "--rate", "0.5", "--topics", "/base_pose", "/left/image_raw", "/right/image_raw",
+                                 "--wait-for-subscribers", "60", "--delay", "1.0"],
+                                env=env, capture_output=True, text=True, timeout=120)
+        assert replay.returncode == 0, replay.stdout + replay.stderr
+        time.sleep(2.0)
+    finally:
+        bringup.send_signal(signal.SIGINT)
+        output, _ = bringup.communicate(timeout=30)
+    assert bringup.returncode == 0, output
+    messages: dict[str, list] = {}
+    with open(log, "rb") as stream:
+        for _, channel, _, decoded in make_reader(stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            messages.setdefault(channel.topic, []).append(decoded)
+    return messages, output
+
+
+def test_every_topic_and_frame_of_the_layout_is_in_the_pipeline_log(pipeline_log):
+    messages, output = pipeline_log
+    layout = json.loads(LAYOUT.read_text())
+    topics, frames = layout_references(layout)
+    assert {"/shape_error", "/wrench", "/compare/model/marker", "/compare/measured/marker"} <= topics
+    missing = {t for t in topics if not messages.get(t)}
+    assert not missing, f"layout topics without messages in the log: {missing} (log has {sorted(messages)})\n{output}"
+    tf_frames = {name for topic in ("/tf", "/tf_static") for msg in messages.get(topic, [])
+                 for t in msg.transforms for name in (t.header.frame_id, t.child_frame_id)}
+    assert frames <= tf_frames, (frames, tf_frames)
+    # Every frame_id the log's display messages use is in its TF (Foxglove can place them).
+    used = {msg.header.frame_id for topic in topics for msg in messages[topic]}
+    assert used <= tf_frames, (used, tf_frames)
+
+
+def test_the_logged_tubes_surround_the_logged_centerlines(pipeline_log):
+    """Each tube vertex lies one tube radius from its centerline (Path), within the chord sag of the sampling."""
+    messages, _ = pipeline_log
+    for kind in ("model", "measured"):
+        path, marker = messages[f"/compare/{kind}/path"][-1], messages[f"/compare/{kind}/marker"][-1]
+        assert marker.type == Marker.TRIANGLE_LIST
+        stamps = [(m.header.stamp.sec, m.header.stamp.nanosec) for m in (marker, path)]
+        assert stamps[0] == stamps[1]
+        line = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in path.poses])
+        vertices = np.array([[p.x, p.y, p.z] for p in marker.points])
+        distance = np.min(np.linalg.norm(vertices[:, None, :] - line[None, :, :], axis=2), axis=1)
+        np.testing.assert_allclose(distance, 0.000635, rtol=0.02)
