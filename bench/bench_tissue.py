@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "needle_sim_ros"))
 
 from needle_sim_ros.model import load_needle_config  # noqa: E402
-from needle_sim_ros.scenarios.insertion import DEFAULT_TISSUE_CONFIG, simulate_insertion  # noqa: E402
+from needle_sim_ros.scenarios.insertion import default_tissue_config, simulate_insertion  # noqa: E402
 
 NEEDLE, BUILD, INTEGRATOR = load_needle_config({})        # the simulator node's defaults (seed 000 needle)
 
@@ -61,7 +61,7 @@ def main() -> int:
     args = parser.parse_args()
 
     import yaml
-    tissue = {"tissue": yaml.safe_load(DEFAULT_TISSUE_CONFIG.read_text())["/**"]["ros__parameters"]["tissue"]}
+    tissue = {"tissue": yaml.safe_load(default_tissue_config().read_text())["/**"]["ros__parameters"]["tissue"]}
     print(f"{args.elements} elements, dt = {args.dt * 1e3:g} ms, {args.depth * 1e3:g} mm at {args.speed * 1e3:g} mm/s")
     print(f"{'case':34s} {'sim time':>9s} {'wall':>8s} {'RT factor':>10s} {'mean step':>10s} {'tip y, z [mm]':>16s}")
     baseline = baseline_real_time_factor(args.elements, args.dt, 3.0)

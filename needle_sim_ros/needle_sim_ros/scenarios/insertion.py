@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from needle_vision.package_files import share_file
+
 from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, NeedleProperties, State, build_model,
                                   load_needle_config, reaction_wrench, solve_static, tip_pose)
 from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, tissue_readout
@@ -23,7 +25,11 @@ from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, tis
 from .common import (add_needle_arguments, figure, material, needle_configuration, save_figure, shape_json,
                      write_json)
 
-DEFAULT_TISSUE_CONFIG = Path(__file__).resolve().parents[3] / "config" / "tissue.yaml"
+
+
+def default_tissue_config() -> Path:
+    """The tissue params file needle_sim_ros installs (``share/needle_sim_ros/config/tissue.yaml``)."""
+    return share_file("needle_sim_ros", "config/tissue.yaml")
 
 
 def roll_quaternion(roll: float) -> np.ndarray:
@@ -151,8 +157,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser("insertion", help="insert the needle into a configured tissue",
                                    description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_needle_arguments(parser)
-    parser.add_argument("--tissue-config", type=Path, default=DEFAULT_TISSUE_CONFIG,
-                        help="ROS 2 params file with tissue.* (default: config/tissue.yaml)")
+    parser.add_argument("--tissue-config", type=Path, default=None,
+                        help="ROS 2 params file with tissue.* (default: share/needle_sim_ros/config/tissue.yaml)")
     parser.add_argument("--speed", type=float, default=0.006, help="insertion speed [m/s] (seed 001: 6 mm/s)")
     parser.add_argument("--depth", type=float, default=0.09, help="final insertion depth [m] (seed 001: 90 mm)")
     parser.add_argument("--gap", type=float, default=2e-3, help="initial tip distance to the surface [m]")
@@ -165,9 +171,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     props, build, integrator_kwargs, parameters = needle_configuration(args)
     dt = args.dt if args.dt is not None else float(parameters["integrator.dt"])
-    tissue_config = args.tissue_config if args.tissue_config.exists() else {}
-    if not args.tissue_config.exists():
-        print(f"insertion: {args.tissue_config} not found, using the default tissue parameters")
+    tissue_config = args.tissue_config or default_tissue_config()
+    if not tissue_config.is_file():
+        raise FileNotFoundError(f"--tissue-config '{tissue_config}' does not exist")
     roll = np.radians(args.roll_deg)
     result = simulate_insertion(props, tissue_config, args.speed, args.depth, args.gap, roll, dt, args.sample_every,
                                 build, integrator_kwargs, args.centerline_samples)
