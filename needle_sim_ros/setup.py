@@ -18,7 +18,6 @@ setup(
     ],
     install_requires=["setuptools"],
     extras_require={"test": ["pytest"]},
-    tests_require=["pytest"],
     zip_safe=True,
     maintainer="needle_sim developers",
     maintainer_email="dev@needle-sim.invalid",
