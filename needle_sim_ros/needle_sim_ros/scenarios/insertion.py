@@ -177,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
     roll = np.radians(args.roll_deg)
     result = simulate_insertion(props, tissue_config, args.speed, args.depth, args.gap, roll, dt, args.sample_every,
                                 build, integrator_kwargs, args.centerline_samples)
+    result["tissue_config"] = str(tissue_config.resolve())
     write_json(args.json, result)
     if args.plot is not None:
         side_base = np.asarray(result["tissue"]["tissue.bevel_tip.side"], dtype=float)
