@@ -17,8 +17,8 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-INSTALL = REPO / "install"
-VENV = REPO / ".venv"
+INSTALL = Path(os.environ.get("NEEDLE_INSTALL", REPO / "install"))  # set by .venv*/needle_env.sh
+VENV = Path(os.environ.get("VIRTUAL_ENV", REPO / ".venv"))
 SHARE = {package: INSTALL / package / "share" / package for package in ("needle_sim_ros", "needle_vision")}
 
 
