@@ -1,6 +1,6 @@
 """``needle_offline``: the whole pipeline (simulator + stereo + comparison) over a bag, as fast as possible.
 
-    needle_offline bags/dynamic_pitch.mcap                        # parameters: <share>/config/experiments/dynamic_pitch.yaml
+    needle_offline bags/dynamic_pitch.mcap            # parameters: <share>/config/experiments/dynamic_pitch.yaml
     needle_offline BAG --duration 2.6 --set needle_simulator:needle.youngs_modulus=250e9 --output-dir out/wrong_e
 
 Writes into the output directory (default ``out/<bag>/offline``): ``pipeline.mcap`` (what ``needle_compare`` records
