@@ -1,12 +1,10 @@
 #!/usr/bin/env bash
-# Set up everything (idempotent) and run the whole test suite against requirements.lock, then the noble subset
-# against requirements-noble.lock (Ubuntu 24.04's numpy 1.26, scipy 1.11, opencv 4.6, numba 0.59; .venv-noble,
-# install-noble/). NEEDLE_NOBLE=0 skips the noble run. Extra arguments go to pytest (both runs).
+# Set up everything (idempotent) and run the whole test suite twice: against requirements.lock (.venv, install/),
+# then against requirements-noble.lock — Ubuntu 24.04's numpy 1.26, scipy 1.11, opencv 4.6 and numba 0.59
+# (.venv-noble, install-noble/). NEEDLE_NOBLE=0 skips the noble run. Extra arguments go to pytest (both runs).
 set -euo pipefail
 cd "$(dirname "$0")"
-# The noble run: the package tests (numpy/scipy/opencv/numba cores, the nodes and the offline tools) and the
-# installed executables; the suite-level live-node tests run once, in the main environment.
-NOBLE_TESTS=(needle_sim_ros/test needle_vision/test test/test_installed.py test/test_packaging.py)
+TESTS=(needle_sim_ros/test needle_vision/test test)
 
 # Each run sources its environment in a child shell, so the two never mix.
 run() {  # run <lock: "" or noble> <title> <pytest args...>
@@ -15,10 +13,9 @@ run() {  # run <lock: "" or noble> <title> <pytest args...>
     "$title" "$@"
 }
 status=0
-run "" "running the test suite (package tests and suite-level tests)" \
-  needle_sim_ros/test needle_vision/test test "$@" || status=$?
+run "" "running the test suite (package tests and suite-level tests)" "${TESTS[@]}" "$@" || status=$?
 if [ "${NEEDLE_NOBLE:-1}" != 0 ]; then
-  run noble "running the package tests and installed-executable tests on noble's versions (requirements-noble.lock)" \
-    "${NOBLE_TESTS[@]}" "$@" || status=$((status ? status : $?))
+  run noble "running the test suite on Ubuntu 24.04's versions (requirements-noble.lock)" "${TESTS[@]}" "$@" \
+    || status=$((status ? status : $?))
 fi
 exit "$status"
