@@ -9,8 +9,8 @@ TESTS=(needle_sim_ros/test needle_vision/test test)
 # Each run sources its environment in a child shell, so the two never mix.
 run() {  # run <lock: "" or noble> <title> <pytest args...>
   local lock=$1 title=$2; shift 2
-  NEEDLE_LOCK=$lock bash -c 'source scripts/setup_env.sh && printf "\033[1m[test]\033[0m %s\n" "$0" && exec pytest "$@"' \
-    "$title" "$@"
+  NEEDLE_LOCK=$lock bash -c \
+    'source scripts/setup_env.sh && printf "\033[1m[test]\033[0m %s\n" "$0" && exec pytest "$@"' "$title" "$@"
 }
 status=0
 run "" "running the test suite (package tests and suite-level tests)" "${TESTS[@]}" "$@" || status=$?

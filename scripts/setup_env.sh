@@ -14,7 +14,8 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 case "${NEEDLE_LOCK:-}" in
   "") SUFFIX="" ;;
   noble) SUFFIX="-noble" ;;
-  *) printf '\033[31m[setup] error:\033[0m NEEDLE_LOCK must be empty or "noble", got "%s"\n' "$NEEDLE_LOCK" >&2; exit 2 ;;
+  *) printf '\033[31m[setup] error:\033[0m NEEDLE_LOCK must be empty or "noble", got "%s"\n' "$NEEDLE_LOCK" >&2
+     exit 2 ;;
 esac
 LOCK="$REPO/requirements$SUFFIX.lock"
 VENV="$REPO/.venv$SUFFIX"
@@ -103,7 +104,8 @@ if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INS
   (cd "$REPO" && colcon --log-base "$BUILD/colcon_log" build --build-base "$BUILD" --install-base "$INSTALL" \
       --base-paths needle_interfaces needle_sim_ros needle_vision \
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$PYTHON" --event-handlers console_cohesion+ summary+ \
-      > "$BUILD/colcon_build.log" 2>&1) || { tail -n 60 "$REPO/$BUILD/colcon_build.log" >&2; die "colcon build failed (full log: $BUILD/colcon_build.log)"; }
+      > "$BUILD/colcon_build.log" 2>&1) \
+    || { tail -n 60 "$REPO/$BUILD/colcon_build.log" >&2; die "colcon build failed (full log: $BUILD/colcon_build.log)"; }
   echo "$src_hash" > "$STAMPS/build"
   # shellcheck disable=SC1091
   source "$VENV/needle_env.sh"
