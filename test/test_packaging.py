@@ -123,3 +123,15 @@ def test_the_declaration_check_finds_an_undeclared_import(tmp_path):
     missing = undeclared(package)
     assert len(missing) == 3 and {"'python3-opencv'", "'tf2_msgs'", "'python3-pytest'"} == {
         m.split()[1] for m in missing}
+
+
+def test_the_repository_config_only_links_to_the_packages_config():
+    """One source of truth: config/ holds symbolic links into the packages' config directories, which setup.py
+    installs, and every file there is reachable from config/."""
+    package_dirs = [REPO / name / "config" for name in PYTHON_PACKAGES]
+    entries = list((REPO / "config").iterdir())
+    assert entries and all(entry.is_symlink() and entry.exists() for entry in entries)
+    assert all(any(d in entry.resolve().parents or d == entry.resolve().parent for d in package_dirs)
+               for entry in entries)
+    reachable = {p.resolve() for entry in entries for p in ([entry] if entry.is_file() else entry.rglob("*.yaml"))}
+    assert reachable == {p.resolve() for d in package_dirs for p in d.rglob("*.yaml")}
