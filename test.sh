@@ -1,7 +1,21 @@
 #!/usr/bin/env bash
-# Set up everything (idempotent) and run the whole test suite. Extra arguments go to pytest.
+# Set up everything (idempotent) and run the whole test suite twice: against requirements.lock (.venv, install/),
+# then against requirements-noble.lock — Ubuntu 24.04's numpy 1.26, scipy 1.11, opencv 4.6 and numba 0.59
+# (.venv-noble, install-noble/). NEEDLE_NOBLE=0 skips the noble run. Extra arguments go to pytest (both runs).
 set -euo pipefail
 cd "$(dirname "$0")"
-source scripts/setup_env.sh
-printf '\033[1m[test]\033[0m running the test suite (package tests and suite-level tests)\n'
-exec pytest needle_sim_ros/test needle_vision/test test "$@"
+TESTS=(needle_sim_ros/test needle_vision/test test)
+
+# Each run sources its environment in a child shell, so the two never mix.
+run() {  # run <lock: "" or noble> <title> <pytest args...>
+  local lock=$1 title=$2; shift 2
+  NEEDLE_LOCK=$lock bash -c \
+    'source scripts/setup_env.sh && printf "\033[1m[test]\033[0m %s\n" "$0" && exec pytest "$@"' "$title" "$@"
+}
+status=0
+run "" "running the test suite (package tests and suite-level tests)" "${TESTS[@]}" "$@" || status=$?
+if [ "${NEEDLE_NOBLE:-1}" != 0 ]; then
+  run noble "running the test suite on Ubuntu 24.04's versions (requirements-noble.lock)" "${TESTS[@]}" "$@" \
+    || status=$((status ? status : $?))
+fi
+exit "$status"

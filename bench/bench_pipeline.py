@@ -88,7 +88,6 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=5, help="offline runs per bag (best and median reported)")
     parser.add_argument("--from-source", action="store_true", help="live nodes from the source tree")
     args = parser.parse_args()
-    os.chdir(REPO)  # the nodes and the offline stereo read config/stereo/*.yaml relative to the repository
     with tempfile.TemporaryDirectory() as temporary:
         directory = Path(temporary)
         print(f"## Offline batch mode (whole bags, {os.cpu_count()} CPUs)\n")

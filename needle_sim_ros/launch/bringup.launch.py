@@ -48,6 +48,7 @@ def _flag(value: str, automatic: bool) -> bool:
 def _nodes(context):
     arg = {name: context.launch_configurations[name] for name in ARGUMENTS}
     config = FindPackageShare("needle_sim_ros").perform(context) + "/config"
+    stereo_config = FindPackageShare("needle_vision").perform(context) + "/config"
     settings = mode_settings(arg["mode"], arg["bag"])
     experiment = experiment_file(arg["experiment"], Path(config))
     extra = [experiment] if experiment else []
@@ -69,7 +70,7 @@ def _nodes(context):
     if _flag(arg["stereo"], settings["stereo"]):
         actions.append(Node(package="needle_vision", executable="needle_stereo", name="needle_stereo",
                             namespace=arg["namespace"], output="screen",
-                            parameters=[f"{config}/needle_stereo.yaml", *extra, common]))
+                            parameters=[f"{stereo_config}/needle_stereo.yaml", *extra, common]))
     if _flag(arg["compare"], settings["compare"]):
         actions.append(Node(
             package="needle_sim_ros", executable="needle_compare", name="needle_compare",

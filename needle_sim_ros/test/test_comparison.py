@@ -3,7 +3,9 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import RigidTransform, Rotation
+from scipy.spatial.transform import Rotation
+
+from needle_vision.transform import RigidTransform
 
 from needle_sim_ros.comparison import (Centerline, ComparisonError, ErrorSummary, StampPairer, calibrate_extrinsic,
                                        closest_points_on_polyline, compare_centerlines, kabsch)
@@ -12,8 +14,8 @@ from needle_sim_ros.comparison import centerline_distance
 # Round-off of a few float64 operations on metre-scale coordinates.
 EXACT = 1e-12
 
-CAMERA_TO_MODEL = RigidTransform.from_components([0.12, -0.30, 0.45], Rotation.from_euler("xyz", [170.0, -20.0, 35.0],
-                                                                                         degrees=True))
+CAMERA_TO_MODEL = RigidTransform(Rotation.from_euler("xyz", [170.0, -20.0, 35.0], degrees=True).as_matrix(),
+                                 [0.12, -0.30, 0.45])
 
 
 def arc(radius: float, length: float, count: int, plane_normal=(0.0, 0.0, 1.0)):
@@ -71,7 +73,7 @@ def test_measured_shape_offset_by_a_known_distance_in_the_camera_frame():
     normal = np.array([0.0, 0.0, 1.0])                   # the arc lies in z = 0: offsetting along z keeps distances
     offset = 0.002
     measured_model_frame = vertices[::4] + offset * normal
-    measured = Centerline(CAMERA_TO_MODEL.inv().apply(measured_model_frame))
+    measured = Centerline(CAMERA_TO_MODEL.inverse().apply(measured_model_frame))
     result = compare_centerlines(Centerline(vertices, s), measured, CAMERA_TO_MODEL)
     assert result.matched_samples == len(measured_model_frame)
     np.testing.assert_allclose(result.errors, offset, atol=1e-12)
@@ -172,15 +174,14 @@ def calibration_frames(ordered=True):
         vertices, s = arc(radius, 0.2, 21, tuple(np.asarray(normal) / np.linalg.norm(normal)))
         sample_s = np.linspace(0.003, 0.197, 17)
         on_polyline = np.column_stack([np.interp(sample_s, s, vertices[:, i]) for i in range(3)])
-        measured = Centerline(CAMERA_TO_MODEL.inv().apply(on_polyline), sample_s if ordered else None, ordered)
+        measured = Centerline(CAMERA_TO_MODEL.inverse().apply(on_polyline), sample_s if ordered else None, ordered)
         frames.append((Centerline(vertices, s), measured))
     return frames
 
 
 def transform_error(a: RigidTransform, b: RigidTransform) -> tuple[float, float]:
-    ta, ra = a.as_components()
-    tb, rb = b.as_components()
-    return float(np.linalg.norm(ta - tb)), float((ra.inv() * rb).magnitude())
+    relative = Rotation.from_matrix(a.rotation.T @ b.rotation)
+    return float(np.linalg.norm(a.translation - b.translation)), float(relative.magnitude())
 
 
 def test_kabsch_recovers_a_known_motion_exactly():
@@ -200,8 +201,8 @@ def test_calibration_from_arc_length_start_recovers_the_extrinsic():
 
 
 def test_calibration_from_a_perturbed_guess_with_unordered_samples():
-    nudge = RigidTransform.from_components([0.004, -0.003, 0.002], Rotation.from_rotvec(np.radians([3.0, -2.0, 4.0])))
-    result = calibrate_extrinsic(calibration_frames(ordered=False), initial=nudge * CAMERA_TO_MODEL,
+    nudge = RigidTransform(Rotation.from_rotvec(np.radians([3.0, -2.0, 4.0])).as_matrix(), [0.004, -0.003, 0.002])
+    result = calibrate_extrinsic(calibration_frames(ordered=False), initial=nudge.compose(CAMERA_TO_MODEL),
                                  max_iterations=500)
     translation, rotation = transform_error(result.model_from_camera, CAMERA_TO_MODEL)
     # ICP converges linearly; 1 um / 10 urad is far below any stereo measurement noise.
@@ -216,9 +217,9 @@ def test_calibration_rejects_a_straight_needle_in_one_pose():
 
 def test_parameter_file_lists_every_compare_node_parameter_with_a_valid_default():
     import yaml
-    from pathlib import Path
+    from needle_vision.package_files import share_file
     from needle_sim_ros.nodes.compare_node import PARAMETERS
-    config = Path(__file__).resolve().parents[2] / "config" / "needle_compare.yaml"
+    config = share_file("needle_sim_ros", "config/needle_compare.yaml")  # as installed
     values = yaml.safe_load(config.read_text())["/**"]["ros__parameters"]
     assert set(values) == {spec.name for spec in PARAMETERS}
     for spec in PARAMETERS:

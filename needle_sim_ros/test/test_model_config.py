@@ -1,12 +1,13 @@
 """Needle configuration from ROS 2 params files (config/needle_simulator.yaml and variants)."""
-from pathlib import Path
 
 import pytest
 import yaml
 
+from needle_vision.package_files import share_file
+
 from needle_sim_ros.model import Fixture, Integrator, build_model, load_needle_config, needle_parameters
 
-CONFIG = Path(__file__).resolve().parents[2] / "config" / "needle_simulator.yaml"
+CONFIG = share_file("needle_sim_ros", "config/needle_simulator.yaml")  # as installed
 
 
 def test_shipped_config_describes_the_seed_needle():

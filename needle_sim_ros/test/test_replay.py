@@ -17,14 +17,16 @@ from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
-from scipy.spatial.transform import RigidTransform, Rotation
+from scipy.spatial.transform import Rotation
+
+from needle_vision.transform import RigidTransform
 
 from needle_sim_ros.recording import McapBagWriter, OfferedQos, PlaybackSchedule
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 BAG_START_NS = 1_700_000_000_000_000_000
-CAMERA_TO_MODEL = RigidTransform.from_components([0.1, -0.2, 0.3], Rotation.from_euler("zyx", [30.0, 10.0, -5.0],
-                                                                                        degrees=True))
+CAMERA_TO_MODEL = RigidTransform(Rotation.from_euler("zyx", [30.0, 10.0, -5.0], degrees=True).as_matrix(),
+                                 [0.1, -0.2, 0.3])
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +123,7 @@ def shapes_bag(path: Path, count: int, offset: float) -> None:
     s = np.linspace(0.0, 0.15, 31)
     radius = 0.6
     model = np.column_stack([radius * np.sin(s / radius), radius * (1 - np.cos(s / radius)), np.zeros_like(s)])
-    camera = CAMERA_TO_MODEL.inv().apply(model[::3] + [0.0, 0.0, offset])
+    camera = CAMERA_TO_MODEL.inverse().apply(model[::3] + [0.0, 0.0, offset])
 
     def shape(points, arc, frame, stamp, source):
         msg = NeedleShape(source=source, arc_length=list(arc), points=[Point(x=p[0], y=p[1], z=p[2]) for p in points])
@@ -142,12 +144,11 @@ def shapes_bag(path: Path, count: int, offset: float) -> None:
 def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(node, ros_env, tmp_path):
     count, offset = 25, 0.0015
     shapes_bag(tmp_path / "shapes.mcap", count, offset)
-    translation, rotation = CAMERA_TO_MODEL.as_components()
     errors = []
     node.create_subscription(ShapeError, "/shape_error", errors.append, QoSProfile(depth=100))
     comparer = start(ros_env, "compare_node", "--ros-args",
-                     "-p", f"extrinsic.translation:={translation.tolist()}",
-                     "-p", f"extrinsic.rotation:={rotation.as_quat().tolist()}",
+                     "-p", f"extrinsic.translation:={CAMERA_TO_MODEL.translation.tolist()}",
+                     "-p", f"extrinsic.rotation:={CAMERA_TO_MODEL.as_xyz_quaternion()[3:]}",
                      "-p", "model_frame:=world", "-p", "measured_frame:=camera",
                      "-p", f"log.path:={tmp_path / 'log.mcap'}", "-p", f"summary_path:={tmp_path / 'summary.json'}")
     try:

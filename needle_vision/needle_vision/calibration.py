@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import yaml
 
+from needle_vision.package_files import resolve_path
 from needle_vision.transform import RigidTransform
 
 #: Distortion models of ``sensor_msgs/CameraInfo`` handled by OpenCV's standard camera model -> allowed lengths.
@@ -88,9 +89,10 @@ class CameraCalibration:
 # --- camera_calibration YAML and sensor_msgs/CameraInfo -----------------------------------------------------
 
 def load_camera_calibration(path: str | Path) -> CameraCalibration:
-    """Read a ``camera_calibration`` YAML file (``image_width``, ``camera_matrix: {rows, cols, data}``, ...)."""
-    path = Path(path)
+    """Read a ``camera_calibration`` YAML file (``image_width``, ``camera_matrix: {rows, cols, data}``, ...); the path
+    may be a ``package://<package>/<path>`` name (:mod:`.package_files`)."""
     try:
+        path = resolve_path(path)
         data = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as error:
         raise CalibrationError(f"cannot read calibration file '{path}': {error}") from error

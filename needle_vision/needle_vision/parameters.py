@@ -5,7 +5,6 @@ the offline command reads the same names from a ROS 2 params file.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -16,6 +15,7 @@ import yaml
 from needle_vision.background import ContrastThreshold
 from needle_vision.centerline import CenterlineConfig
 from needle_vision.correspondence import MatchingConfig
+from needle_vision.package_files import resolve_path
 from needle_vision.pipeline import StereoConfig
 from needle_vision.reconstruction import ReconstructionConfig
 from needle_vision.tracking import TrackingConfig
@@ -69,7 +69,12 @@ class ParamSpec:
 
 
 def _readable_file_or_empty(path: str) -> bool:
-    return path == "" or os.path.isfile(path)
+    if path == "":
+        return True
+    try:
+        return resolve_path(path).is_file()
+    except FileNotFoundError:
+        return False
 
 
 def _nonzero_quaternion(pose: list[float]) -> bool:
@@ -77,10 +82,12 @@ def _nonzero_quaternion(pose: list[float]) -> bool:
 
 
 SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("left_calibration_file", "", "camera_calibration YAML of the left camera; empty: calibration "
-              "from the left/camera_info topic", check=(_readable_file_or_empty, "file not found")),
-    ParamSpec("right_calibration_file", "", "camera_calibration YAML of the right camera; empty: calibration "
-              "from the right/camera_info topic", check=(_readable_file_or_empty, "file not found")),
+    ParamSpec("left_calibration_file", "", "camera_calibration YAML of the left camera (a path or "
+              "package://<package>/<path>); empty: calibration from the left/camera_info topic",
+              check=(_readable_file_or_empty, "file not found")),
+    ParamSpec("right_calibration_file", "", "camera_calibration YAML of the right camera (a path or "
+              "package://<package>/<path>); empty: calibration from the right/camera_info topic",
+              check=(_readable_file_or_empty, "file not found")),
     ParamSpec("output_frame", "", "frame_id of the published cloud and shape; empty: the left image's frame_id "
               "(raw left optical frame)"),
     ParamSpec("output_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "fixed pose of the raw left optical "

@@ -1,6 +1,5 @@
 """Calibration files and camera_info: round trips, recovery of the extrinsics from R/P, clear errors."""
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,8 +7,9 @@ import yaml
 
 from needle_vision.calibration import (CalibrationError, CameraCalibration, StereoRig, calibration_from_camera_info,
                                        camera_calibration_yaml, camera_info_fields, load_camera_calibration)
+from needle_vision.package_files import share_file
 
-CONFIG = Path(__file__).resolve().parents[2] / "config" / "stereo"
+CONFIG = share_file("needle_vision", "config/stereo")  # as installed
 
 
 def test_yaml_round_trip_is_exact(rig, tmp_path):

@@ -33,7 +33,8 @@ def start_node(ros_env: dict, *arguments: str) -> subprocess.Popen:
 @pytest.mark.parametrize("arguments, named", [
     (["-p", "sync_tolerance:=-1.0"], "sync_tolerance"),
     (["-p", "detection.downsample:=3"], "detection.downsample"),
-    (["-p", "left_calibration_file:=config/stereo/right.yaml", "-p", "right_calibration_file:=config/stereo/left.yaml"],
+    (["-p", "left_calibration_file:=package://needle_vision/config/stereo/right.yaml",
+      "-p", "right_calibration_file:=package://needle_vision/config/stereo/left.yaml"],
      "left_calibration_file"),
 ])
 def test_bad_parameter_stops_the_node_naming_it(ros_env, arguments, named):

@@ -12,8 +12,6 @@ from needle_vision.calibration import camera_info_fields
 from needle_vision.image_codec import image_fields
 from needle_vision.offline import main
 
-REPO = Path(__file__).resolve().parents[2]
-
 
 def params_file(tmp_path: Path, rig, **overrides) -> Path:
     parameters = {"background": {"frames": 3}, "output_frame": "world",
@@ -37,8 +35,8 @@ def test_image_folder(tmp_path, rig, background_frames, renders, capsys):
         cv2.imwrite(str(tmp_path / "frames" / side / "0003.png"), renders("planar")[index])
     output = tmp_path / "out.csv"
     code = main([str(tmp_path / "frames"), "--params", str(params_file(tmp_path, rig)), "--quiet",
-                 "--left-calibration", str(REPO / "config/stereo/left.yaml"),
-                 "--right-calibration", str(REPO / "config/stereo/right.yaml"), "--output", str(output)])
+                 "--left-calibration", "package://needle_vision/config/stereo/left.yaml",
+                 "--right-calibration", "package://needle_vision/config/stereo/right.yaml", "--output", str(output)])
     assert code == 0
     header, rows = read_rows(output)
     assert header == ["frame", "stamp", "sample", "arc_length", "x", "y", "z", "uncertainty"]

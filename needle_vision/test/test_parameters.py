@@ -1,12 +1,11 @@
 """Parameter table: validation with the parameter named, the sample params file, the pipeline settings."""
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from needle_vision.package_files import share_file
 from needle_vision.parameters import SPECS, ParameterError, load_params_file, stereo_config, validate_all
 
-CONFIG = Path(__file__).resolve().parents[2] / "config" / "needle_stereo.yaml"
+CONFIG = share_file("needle_vision", "config/needle_stereo.yaml")  # as installed
 
 
 def test_every_parameter_has_a_description_with_meaning():
@@ -15,8 +14,8 @@ def test_every_parameter_has_a_description_with_meaning():
         spec.validate(spec.default)  # defaults are valid
 
 
-def test_sample_params_file_is_complete_and_valid(monkeypatch):
-    monkeypatch.chdir(CONFIG.parents[1])  # calibration paths are relative to the repository root
+def test_sample_params_file_is_complete_and_valid(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # the calibration files are found through the package, from any directory
     values = load_params_file(CONFIG)
     assert set(values) == {spec.name for spec in SPECS}  # every parameter is documented in the sample
     validated = validate_all(values)

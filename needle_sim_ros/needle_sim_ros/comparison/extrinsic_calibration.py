@@ -15,7 +15,9 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy.spatial.transform import RigidTransform, Rotation
+from scipy.spatial.transform import Rotation
+
+from needle_vision.transform import RigidTransform
 
 from needle_sim_ros.comparison.centerline_distance import chord_arc_length, closest_points_on_polyline
 from needle_sim_ros.comparison.shape_error import Centerline, ComparisonError
@@ -38,7 +40,7 @@ def kabsch(source: np.ndarray, target: np.ndarray) -> RigidTransform:
     """Least-squares rigid motion with ``target ~ R source + t`` for corresponding points (n, 3), n >= 3."""
     source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
     rotation, _ = Rotation.align_vectors(target - target_mean, source - source_mean)
-    return RigidTransform.from_components(target_mean - rotation.apply(source_mean), rotation)
+    return RigidTransform(rotation.as_matrix(), target_mean - rotation.apply(source_mean))
 
 
 def _arc_length_guess(frames: Sequence[tuple[Centerline, Centerline]]) -> RigidTransform:

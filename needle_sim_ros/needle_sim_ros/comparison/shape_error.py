@@ -11,7 +11,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import RigidTransform
+
+from needle_vision.transform import RigidTransform
 
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
 
@@ -67,7 +68,7 @@ class ShapeComparison:
 
 
 def compare_centerlines(model: Centerline, measured: Centerline,
-                        model_from_measured: RigidTransform = RigidTransform.identity(),
+                        model_from_measured: RigidTransform = RigidTransform(),
                         max_match_distance: float = math.inf) -> ShapeComparison:
     """Compare a measured centerline (in its own frame) with the model centerline (in the model frame).
 

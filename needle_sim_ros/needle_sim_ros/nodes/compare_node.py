@@ -19,11 +19,13 @@ import yaml
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
-from scipy.spatial.transform import RigidTransform, Rotation
 from nav_msgs.msg import Path
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
+
+from needle_vision.transform import RigidTransform
 
 from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
 from needle_sim_ros.nodes.centerline_display import DISPLAY_TOPICS, centerline_display
@@ -128,8 +130,8 @@ class CompareNode(Node):
         if v["log.path"].endswith(".mcap") and (v["log.max_file_size"] or v["log.max_file_duration"]):
             raise ParameterError("parameters 'log.max_file_size'/'log.max_file_duration' split a recording and need "
                                  f"'log.path' to be a bag directory (no .mcap suffix), got '{v['log.path']}'")
-        rotation = Rotation.from_quat(np.asarray(v["extrinsic.rotation"]) / np.linalg.norm(v["extrinsic.rotation"]))
-        self.model_from_camera = RigidTransform.from_components(v["extrinsic.translation"], rotation)
+        extrinsic = [*v["extrinsic.translation"], *v["extrinsic.rotation"]]
+        self.model_from_camera = RigidTransform.from_xyz_quaternion(extrinsic)
         self.max_match_distance = v["max_match_distance"] or math.inf
         self.pairer = StampPairer(int(round(v["tolerance"] * 1e9)), model_buffer=v["model_buffer"])
         self.summary = ErrorSummary()

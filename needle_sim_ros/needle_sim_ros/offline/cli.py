@@ -1,6 +1,6 @@
 """``needle_offline``: the whole pipeline (simulator + stereo + comparison) over a bag, as fast as possible.
 
-    needle_offline bags/dynamic_pitch.mcap                        # parameters: config/experiments/dynamic_pitch.yaml
+    needle_offline bags/dynamic_pitch.mcap            # parameters: <share>/config/experiments/dynamic_pitch.yaml
     needle_offline BAG --duration 2.6 --set needle_simulator:needle.youngs_modulus=250e9 --output-dir out/wrong_e
 
 Writes into the output directory (default ``out/<bag>/offline``): ``pipeline.mcap`` (what ``needle_compare`` records
@@ -65,8 +65,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="needle_offline", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
     parser.add_argument("bag", type=Path, help="rosbag2 MCAP recording (.mcap file or bag directory)")
-    parser.add_argument("--experiment", type=Path, help="experiment params file (default: "
-                        "config/experiments/<bag name>.yaml)")
+    parser.add_argument("--experiment", type=Path, help="experiment params file (default: the installed "
+                        "share/needle_sim_ros/config/experiments/<bag name>.yaml)")
     parser.add_argument("--output-dir", type=Path, help="output directory (default: out/<bag name>/offline)")
     parser.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds of the bag")
     parser.add_argument("--duration", type=float, help="process only S seconds (default: to the end)")

@@ -1,10 +1,11 @@
 """Parameters of the three pipeline nodes and of an experiment, read from ROS 2 params files without ROS.
 
-An experiment file (``config/experiments/<bag>.yaml``) is an ordinary ROS 2 params file with one section per node
-(``needle_simulator``, ``needle_stereo``, ``needle_compare``: per-bag overrides) and a ``needle_pipeline`` section
-that only the pipeline tools read (the bag, whether images are measured, plot instants). The nodes get the node
-config files (``config/needle_<node>.yaml``) and then the experiment file, later files overriding earlier ones, as
-``--params-file`` does; the offline pipeline reads the same files in the same order.
+An experiment file (``share/needle_sim_ros/config/experiments/<bag>.yaml``) is an ordinary ROS 2 params file with
+one section per node (``needle_simulator``, ``needle_stereo``, ``needle_compare``: per-bag overrides) and a
+``needle_pipeline`` section that only the pipeline tools read (the bag, whether images are measured, plot instants).
+The nodes get the node config files (``share/<package>/config/<node>.yaml``) and then the experiment file, later
+files overriding earlier ones, as ``--params-file`` does; the offline pipeline reads the same files in the same
+order.
 """
 from __future__ import annotations
 
@@ -13,9 +14,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+from needle_vision.package_files import share_file
 from needle_vision.parameters import load_params_file
 
-NODES = ("needle_simulator", "needle_stereo", "needle_compare")
+#: The pipeline's nodes and the package whose share directory holds each node's config file.
+NODE_PACKAGES = {"needle_simulator": "needle_sim_ros", "needle_stereo": "needle_vision",
+                 "needle_compare": "needle_sim_ros"}
+NODES = tuple(NODE_PACKAGES)
 PIPELINE_SECTION = "needle_pipeline"
 
 
@@ -23,20 +28,12 @@ class ExperimentConfigError(ValueError):
     """The experiment file is unusable; the message names the file and key."""
 
 
-def default_config_dir() -> Path:
-    """``config/`` of the working directory (the repository root, where the nodes resolve their relative paths),
-    else of the source tree, else the installed share directory of needle_sim_ros."""
-    source = Path(__file__).resolve().parents[3] / "config"
-    for candidate in (Path.cwd() / "config", source):
-        if candidate.is_dir():
-            return candidate
-    from ament_index_python.packages import get_package_share_directory
-    return Path(get_package_share_directory("needle_sim_ros")) / "config"
-
-
-def node_config_files(config_dir: Path) -> dict[str, list[Path]]:
-    """The node config files that exist, per node (``config/needle_simulator.yaml`` etc.)."""
-    return {node: [p for p in (config_dir / f"{node}.yaml",) if p.is_file()] for node in NODES}
+def node_config_files(config_dir: Path | None = None) -> dict[str, list[Path]]:
+    """The node config files that exist, per node: ``<config_dir>/<node>.yaml``, by default the file the node's
+    package installs (``share/<package>/config/<node>.yaml``)."""
+    paths = {node: config_dir / f"{node}.yaml" if config_dir else share_file(package, f"config/{node}.yaml")
+             for node, package in NODE_PACKAGES.items()}
+    return {node: [path] if path.is_file() else [] for node, path in paths.items()}
 
 
 def node_values(files: Sequence[Path], node: str) -> dict[str, Any]:
@@ -77,9 +74,9 @@ class ExperimentConfig:
 
 def load_experiment(path: str | Path, config_dir: Path | None = None) -> ExperimentConfig:
     """Read an experiment file (``<root>/config/experiments/<name>.yaml``) with the node config files of
-    ``config_dir`` (default: :func:`default_config_dir`); raises ExperimentConfigError naming the problem."""
-    path = Path(path).resolve()
-    config_dir = config_dir or default_config_dir()
+    ``config_dir`` (default: the installed ones, :func:`node_config_files`); raises ExperimentConfigError naming
+    the problem. The path is not resolved through symbolic links: the bag is relative to ``<root>``."""
+    path = Path(path).absolute()
     if not path.is_file():
         raise ExperimentConfigError(f"experiment file '{path}' does not exist")
     raw = load_params_file(path, PIPELINE_SECTION)
@@ -96,9 +93,10 @@ def load_experiment(path: str | Path, config_dir: Path | None = None) -> Experim
 
 
 def experiment_for_bag(bag: str | Path, config_dir: Path | None = None) -> ExperimentConfig:
-    """The experiment file of a bundled bag: ``config/experiments/<bag stem>.yaml``."""
-    config_dir = config_dir or default_config_dir()
-    path = config_dir / "experiments" / f"{Path(bag).stem}.yaml"
+    """The experiment file of a bundled bag: ``<config_dir>/experiments/<bag stem>.yaml``, by default the one
+    needle_sim_ros installs (``share/needle_sim_ros/config/experiments/``)."""
+    experiments = config_dir / "experiments" if config_dir else share_file("needle_sim_ros", "config/experiments")
+    path = experiments / f"{Path(bag).stem}.yaml"
     if not path.is_file():
         raise ExperimentConfigError(f"no experiment file for bag '{bag}': expected '{path}'")
     return load_experiment(path, config_dir)

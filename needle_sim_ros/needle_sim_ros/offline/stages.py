@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
-from scipy.spatial.transform import RigidTransform, Rotation
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
@@ -32,7 +32,7 @@ from needle_vision.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.pairing import StampPairer as FramePairer
 from needle_vision.parameters import output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
-from needle_vision.transform import quaternion_from_x_axis
+from needle_vision.transform import RigidTransform, quaternion_from_x_axis
 
 from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
 from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
@@ -234,8 +234,8 @@ class ComparisonStage:
             raise ParameterError("needle_compare: the offline pipeline compares measured/shape only "
                                  "(parameter 'measured_input' must be 'shape')")
         self.values = v
-        rotation = Rotation.from_quat(np.asarray(v["extrinsic.rotation"]) / np.linalg.norm(v["extrinsic.rotation"]))
-        self.model_from_camera = RigidTransform.from_components(v["extrinsic.translation"], rotation)
+        extrinsic = [*v["extrinsic.translation"], *v["extrinsic.rotation"]]
+        self.model_from_camera = RigidTransform.from_xyz_quaternion(extrinsic)
         self.max_match_distance = v["max_match_distance"] or math.inf
         self.pairer = StampPairer(int(round(v["tolerance"] * 1e9)), model_buffer=v["model_buffer"])
         self.summary = ErrorSummary()

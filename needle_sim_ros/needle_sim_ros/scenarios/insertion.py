@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from needle_vision.package_files import share_file
+
 from needle_sim_ros.model import (Gravity, Integrator, NeedleProperties, State, build_model, load_needle_config,
                                   reaction_wrench, solve_static)
 from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, flatten_tissue_config, tissue_readout
@@ -26,13 +28,8 @@ from .insertion_motion import InsertionMotion
 
 
 def shipped_tissue_config() -> Path:
-    """``config/tissue.yaml`` in the installed share directory of needle_sim_ros (found through the ament index)."""
-    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-    try:
-        return Path(get_package_share_directory("needle_sim_ros")) / "config" / "tissue.yaml"
-    except PackageNotFoundError:
-        raise FileNotFoundError("needle_sim_ros is not installed in an ament prefix (source its setup.bash), so "
-                                "the shipped tissue config cannot be found; give --params FILE") from None
+    """The tissue params file needle_sim_ros installs (``share/needle_sim_ros/config/tissue.yaml``)."""
+    return share_file("needle_sim_ros", "config/tissue.yaml")
 
 
 def _json_value(value):
@@ -173,14 +170,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     props, build, integrator_kwargs, parameters = needle_configuration(args)
     dt = args.dt if args.dt is not None else float(parameters["integrator.dt"])
+    files = [shipped_tissue_config(), *args.params]
     tissue = {}
-    for path in [shipped_tissue_config(), *args.params]:
+    for path in files:
+        if not path.is_file():
+            raise FileNotFoundError(f"params file '{path}' does not exist")
         tissue.update(flatten_tissue_config(path))
     depths = (args.depth,) if args.retract_to is None else (args.depth, args.retract_to)
     motion = InsertionMotion(depths, args.speed, args.gap, np.radians(args.roll_deg), args.spin_rate,
                              args.duty_cycle)
     result = simulate_insertion(props, tissue, motion, dt, args.sample_every, build, integrator_kwargs,
                                 args.centerline_samples)
+    result["params_files"] = [str(path.resolve()) for path in files]
     write_json(args.json, result)
     if args.plot is not None:
         plot_deflection(result, args.plot)
