@@ -237,7 +237,7 @@ class CompareNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(CompareNode, NODE_NAME, args)
+    return run_node(CompareNode, NODE_NAME, args, PARAMETERS)
 
 
 if __name__ == "__main__":

@@ -415,7 +415,7 @@ class NeedleSimulatorNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(NeedleSimulatorNode, "needle_simulator", args)
+    return run_node(NeedleSimulatorNode, "needle_simulator", args, SIMULATOR_PARAMETERS)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from needle_sim_ros.model.config import DEFAULTS as MODEL_DEFAULTS
-from needle_sim_ros.nodes.parameters import ParamSpec
+from needle_vision.parameters import TOPIC_CHECK, ParamSpec
 from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
 
@@ -49,15 +49,15 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("flange_offset.orientation", [0.0, 0.0, 0.0, 1.0], "Rotation flange -> needle base frame, quaternion (x, y, z, w).", -1.0, 1.0, length=4,
               check=(_unit_quaternion, "must be a unit quaternion")),
     # Topics (relative, so they can be remapped and namespaced).
-    ParamSpec("topics.base_pose", "base_pose", "Input geometry_msgs/PoseStamped of the needle holder (flange).", check=(bool, "must not be empty")),
-    ParamSpec("topics.base_twist", "base_twist", "Optional input geometry_msgs/TwistStamped (world frame) for velocity feed-forward.", check=(bool, "must not be empty")),
-    ParamSpec("topics.tip_load", "tip_load", "Optional input geometry_msgs/WrenchStamped: force on the needle tip (world or base frame), e.g. a recorded tip mass.", check=(bool, "must not be empty")),
-    ParamSpec("topics.wrench", "wrench", "Output geometry_msgs/WrenchStamped: wrench of the needle on its holder, base frame.", check=(bool, "must not be empty")),
-    ParamSpec("topics.shape", "needle/shape", "Output needle_interfaces/NeedleShape (world frame).", check=(bool, "must not be empty")),
-    ParamSpec("topics.path", "needle/path", "Output nav_msgs/Path of the centerline.", check=(bool, "must not be empty")),
-    ParamSpec("topics.marker", "needle/marker", "Output visualization_msgs/Marker tube.", check=(bool, "must not be empty")),
-    ParamSpec("topics.pose_array", "needle/state/current_shape", "Output geometry_msgs/PoseArray (SmartNeedle convention, metres).", check=(bool, "must not be empty")),
-    ParamSpec("topics.state", "needle/state", "Output needle_interfaces/NeedleState (depth, tip force, energies).", check=(bool, "must not be empty")),
+    ParamSpec("topics.base_pose", "base_pose", "Input geometry_msgs/PoseStamped of the needle holder (flange).", check=TOPIC_CHECK),
+    ParamSpec("topics.base_twist", "base_twist", "Optional input geometry_msgs/TwistStamped (world frame) for velocity feed-forward.", check=TOPIC_CHECK),
+    ParamSpec("topics.tip_load", "tip_load", "Optional input geometry_msgs/WrenchStamped: force on the needle tip (world or base frame), e.g. a recorded tip mass.", check=TOPIC_CHECK),
+    ParamSpec("topics.wrench", "wrench", "Output geometry_msgs/WrenchStamped: wrench of the needle on its holder, base frame.", check=TOPIC_CHECK),
+    ParamSpec("topics.shape", "needle/shape", "Output needle_interfaces/NeedleShape (world frame).", check=TOPIC_CHECK),
+    ParamSpec("topics.path", "needle/path", "Output nav_msgs/Path of the centerline.", check=TOPIC_CHECK),
+    ParamSpec("topics.marker", "needle/marker", "Output visualization_msgs/Marker tube.", check=TOPIC_CHECK),
+    ParamSpec("topics.pose_array", "needle/state/current_shape", "Output geometry_msgs/PoseArray (SmartNeedle convention, metres).", check=TOPIC_CHECK),
+    ParamSpec("topics.state", "needle/state", "Output needle_interfaces/NeedleState (depth, tip force, energies).", check=TOPIC_CHECK),
     ParamSpec("qos.wrench", "sensor_data", "QoS of the wrench output.", choices=QOS_CHOICES),
     ParamSpec("qos.base_pose", "sensor_data", "QoS of the pose input (sensor_data also matches reliable publishers).", choices=QOS_CHOICES),
     ParamSpec("rates.shape_hz", 100.0, "Rate of the NeedleShape and NeedleState outputs [Hz].", 0.1, 1000.0, dynamic=True),

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from needle_vision.parameters import load_params_file
+from needle_vision.parameters import ParamSpec, load_params_file
 
 NODES = ("needle_simulator", "needle_stereo", "needle_compare")
 PIPELINE_SECTION = "needle_pipeline"
@@ -39,11 +39,25 @@ def node_config_files(config_dir: Path) -> dict[str, list[Path]]:
     return {node: [p for p in (config_dir / f"{node}.yaml",) if p.is_file()] for node in NODES}
 
 
+def node_specs(node: str) -> list[ParamSpec]:
+    """The parameter declarations of a pipeline node."""
+    if node == "needle_stereo":
+        from needle_vision.parameters import SPECS
+        return list(SPECS)
+    if node == "needle_compare":
+        from needle_sim_ros.nodes.compare_node import PARAMETERS
+        return PARAMETERS
+    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+    return SIMULATOR_PARAMETERS
+
+
 def node_values(files: Sequence[Path], node: str) -> dict[str, Any]:
-    """Parameter values for ``node`` from params files applied in order (``/**`` and the node's own section)."""
+    """Parameter values for ``node`` from params files applied in order (``/**`` and the node's own section),
+    each checked against the node's declarations as the node checks them (ParameterError naming the file); an
+    experiment file need not have a section for every node."""
     values: dict[str, Any] = {}
     for path in files:
-        values.update(load_params_file(path, node))
+        values.update(load_params_file(path, node, node_specs(node), require_section=False))
     return values
 
 
@@ -81,8 +95,10 @@ def load_experiment(path: str | Path, config_dir: Path | None = None) -> Experim
     path = Path(path).resolve()
     config_dir = config_dir or default_config_dir()
     if not path.is_file():
-        raise ExperimentConfigError(f"experiment file '{path}' does not exist")
+        raise ExperimentConfigError(f"experiment file '{path}' does not exist or is not a file")
     raw = load_params_file(path, PIPELINE_SECTION)
+    for node in NODES:  # every node's section checked now, before anything runs
+        load_params_file(path, node, node_specs(node), require_section=False)
     if "bag" not in raw:
         raise ExperimentConfigError(f"'{path}': section {PIPELINE_SECTION}.ros__parameters needs 'bag'")
     instants = raw.get("plot_instants", [])

@@ -72,10 +72,8 @@ class OfflinePipeline:
         overrides = overrides or {}
         self.experiment = experiment
         self.warnings: list[str] = []
-        sim_values, unknown = simulator_values(experiment.values("needle_simulator", overrides.get("needle_simulator")))
-        self.warnings += unknown
-        cmp_values, unknown = compare_values(experiment.values("needle_compare", overrides.get("needle_compare")))
-        self.warnings += unknown
+        sim_values = simulator_values(experiment.values("needle_simulator", overrides.get("needle_simulator")))
+        cmp_values = compare_values(experiment.values("needle_compare", overrides.get("needle_compare")))
         self.parameters = {"needle_simulator": sim_values, "needle_compare": cmp_values}
         self.simulator = SimulatorStage(sim_values)
         self.comparison = ComparisonStage(cmp_values)
