@@ -32,6 +32,8 @@ class PoseVerdict(Enum):
     OUT_OF_ORDER = "rejected: stamp not newer than the previous pose"
     JUMP = "rejected: jump beyond the configured limit"
     REANCHORED = "accepted: trajectory re-anchored after consistent jumped poses"
+    OUT_OF_RANGE = "rejected: position farther from the origin than pose_input.max_position"
+    RESTARTED = "accepted after a gap in the input, away from the held pose: needle restarted straight there"
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,7 @@ class TrajectoryLimits:
     max_orientation_jump: float = 0.2  # [rad] largest accepted deviation from the predicted orientation
     reanchor_after: int = 10  # consecutive mutually consistent jumped poses that re-anchor the trajectory
     quaternion_tolerance: float = 1e-3  # |1 - |q|| above which a normalization warning is raised
+    max_position: float = 100.0  # [m] largest accepted distance of a pose from the world origin (working volume)
 
 
 class BaseTrajectory:
@@ -114,6 +117,8 @@ class BaseTrajectory:
             return PoseVerdict.NOT_FINITE
         if norm < 1e-9:
             return PoseVerdict.ZERO_QUATERNION
+        if float(np.linalg.norm(position)) > self.limits.max_position:
+            return PoseVerdict.OUT_OF_RANGE
         verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance else PoseVerdict.NORMALIZED
         sample = PoseSample(float(t), position, orientation / norm)
         latest = self.latest

@@ -59,7 +59,10 @@ def guard_dynamic_updates(node: Node, specs: Sequence[ParamSpec], apply: Callabl
                 changed[parameter.name] = spec.validate(parameter.value)
             except ParameterError as error:
                 return SetParametersResult(successful=False, reason=str(error))
-        apply(changed)
+        try:
+            apply(changed)
+        except ValueError as error:  # e.g. a load the model cannot carry
+            return SetParametersResult(successful=False, reason=str(error))
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(on_set)

@@ -67,7 +67,7 @@ class NeedleSimulatorNode(Node):
         try:
             self.sim = simulation_from_parameters(self.p)
         except ValueError as error:
-            raise ParameterError(f"tissue parameters: {error}") from error
+            raise ParameterError(f"parameters (tissue, loads): {error}") from error
         self.props = self.sim.model.props
         # Before any topic exists: once the node is visible in the graph it steps at full speed from the first pose.
         self.get_logger().info(f"compiled/loaded the numerical kernels in {compile_kernels(self.p):.1f} s")
@@ -75,6 +75,7 @@ class NeedleSimulatorNode(Node):
         self.counters = {verdict: 0 for verdict in PoseVerdict}
         self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0}
         self.deadline_misses = 0
+        self._failed_reported = 0  # failed steps already reported in diagnostics
         self._warned_at: dict[str, float] = {}
 
         topics = {k.split(".", 1)[1]: v for k, v in self.p.items() if k.startswith("topics.")}
@@ -158,6 +159,10 @@ class NeedleSimulatorNode(Node):
             self.get_logger().info("first base pose received: needle initialised straight at it")
         if verdict is PoseVerdict.NORMALIZED:
             self.warn_throttled("normalized", "base pose quaternion was not unit length: normalized")
+        elif verdict is PoseVerdict.RESTARTED:
+            self.get_logger().warning(f"base pose after a gap of more than {self.p['pose_input.timeout']:g} s, "
+                                      f"more than {self.p['pose_input.resume_tolerance']:g} m from the held pose: "
+                                      "needle restarted straight at it")
         elif verdict is PoseVerdict.REANCHORED:
             self.get_logger().warning("base pose jumped and stayed there: needle reset straight at the new pose")
         elif verdict not in (PoseVerdict.ACCEPTED,):
@@ -169,8 +174,11 @@ class NeedleSimulatorNode(Node):
         if msg.header.frame_id not in ("", self.p["frames.world"]) or not (np.all(np.isfinite(linear)) and np.all(np.isfinite(angular))):
             self.warn_throttled("twist", "ignoring base twist: not finite or not in the world frame")
             return
-        with self._lock:
-            self.sim.set_twist(self.now_seconds(), linear, angular)
+        try:
+            with self._lock:
+                self.sim.set_twist(self.now_seconds(), linear, angular)
+        except ValueError as error:
+            self.warn_throttled("twist", f"ignoring base twist: {error}")
 
     def on_tip_load(self, msg: WrenchStamped) -> None:
         """A force on the tip from a topic (a recorded experiment's tip mass); replaces the previous one."""
@@ -180,10 +188,13 @@ class NeedleSimulatorNode(Node):
         if not np.all(np.isfinite(force)) or frame not in (self.p["frames.world"], self.p["frames.base"]):
             self.warn_throttled("tip_load", f"ignoring tip load: not finite or frame '{frame}' unknown")
             return
-        with self._lock:
-            if frame == self.p["frames.base"] and self.sim.base is not None:
-                force = Rotation.from_quat(self.sim.base.orientation).apply(force)
-            self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+        try:
+            with self._lock:
+                if frame == self.p["frames.base"] and self.sim.base is not None:
+                    force = Rotation.from_quat(self.sim.base.orientation).apply(force)
+                self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+        except ValueError as error:
+            self.warn_throttled("tip_load", f"ignoring tip load: {error}")
 
     # -- services and parameters -----------------------------------------------------------------------------
     def on_reset(self, request, response):
@@ -224,11 +235,11 @@ class NeedleSimulatorNode(Node):
 
     def on_parameters_changed(self, changed: dict) -> None:
         with self._lock:
+            if "loads.tip_force" in changed:  # first: a load the model cannot carry refuses the whole change
+                self._apply_tip_force(changed["loads.tip_force"])
             self.p.update(changed)
             if {"damping.rayleigh_alpha", "damping.rayleigh_beta"} & changed.keys():
                 self.sim.rebuild_model(model_builder_from_parameters(self.p))
-            if "loads.tip_force" in changed:
-                self._apply_tip_force(changed["loads.tip_force"])
 
     # -- the real-time loop ----------------------------------------------------------------------------------
     def start(self) -> None:
@@ -303,7 +314,12 @@ class NeedleSimulatorNode(Node):
         now = self.now_seconds()
         with self._lock:
             started = self.sim.started
+            failed = self.sim.statistics.failed_steps
             records = self.sim.advance(now, deterministic=self.use_sim_time) if started else []
+            failed = self.sim.statistics.failed_steps - failed
+        if failed:
+            self.warn_throttled("failed", f"{failed} step(s) failed even after sub-stepping (point loads: "
+                                          f"{len(self.sim.point_loads)}): needle reset straight at the base pose")
         if started and not self.sim.started:
             self.get_logger().warning(f"clock jumped back to {now:.3f} s: waiting for a new first pose")
         if len(records) > 1:
@@ -406,8 +422,9 @@ class NeedleSimulatorNode(Node):
             level, message = DiagnosticStatus.WARN, "waiting for the first base pose"
         elif pose_age > self.p["pose_input.timeout"]:
             level, message = DiagnosticStatus.WARN, f"no base pose for {pose_age:.2f} s: holding the last pose"
-        elif values["failed_steps"]:
+        elif values["failed_steps"] > self._failed_reported:  # new failures since the last report
             level, message = DiagnosticStatus.WARN, f"{values['failed_steps']} failed steps (needle reset)"
+        self._failed_reported = values["failed_steps"]
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: integration", message=message,
                                   hardware_id="needle_sim",
                                   values=[KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v)) for k, v in values.items()])

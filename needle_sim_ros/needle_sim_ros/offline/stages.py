@@ -109,7 +109,7 @@ class SimulatorStage:
         verdict = self.sim.offer_pose((pose.stamp_ns or now_ns) * 1e-9, pose.position, pose.orientation)
         if not started and self.sim.started:
             self._steps_since_start = 0
-        if verdict.name not in ("ACCEPTED", "NORMALIZED", "REANCHORED"):
+        if verdict.name not in ("ACCEPTED", "NORMALIZED", "REANCHORED", "RESTARTED"):
             self._reject(f"base pose {verdict.value}")
 
     def on_tip_load(self, msg: WrenchStamped) -> None:
@@ -121,7 +121,10 @@ class SimulatorStage:
             return
         if frame == self.p["frames.base"] and self.sim.base is not None:
             force = Rotation.from_quat(self.sim.base.orientation).apply(force)
-        self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+        try:
+            self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+        except ValueError:
+            self._reject("tip load beyond what the needle model integrates")
 
     # --- outputs ---------------------------------------------------------------------------------------------
     def advance(self, now_ns: int) -> list[tuple[str, Any]]:
