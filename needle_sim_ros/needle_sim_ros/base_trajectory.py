@@ -32,7 +32,7 @@ class PoseVerdict(Enum):
     OUT_OF_ORDER = "rejected: stamp not newer than the previous pose"
     JUMP = "rejected: jump beyond the configured limit"
     REANCHORED = "accepted: trajectory re-anchored after consistent jumped poses"
-    OUT_OF_RANGE = "rejected: position farther from the origin than pose_input.max_position"
+    OUT_OF_RANGE = "rejected: a position coordinate beyond +-pose_input.max_position"
     RESTARTED = "accepted after a gap in the input, away from the held pose: needle restarted straight there"
 
 
@@ -68,7 +68,7 @@ class TrajectoryLimits:
     max_orientation_jump: float = 0.2  # [rad] largest accepted deviation from the predicted orientation
     reanchor_after: int = 10  # consecutive mutually consistent jumped poses that re-anchor the trajectory
     quaternion_tolerance: float = 1e-3  # |1 - |q|| above which a normalization warning is raised
-    max_position: float = 100.0  # [m] largest accepted distance of a pose from the world origin (working volume)
+    max_position: float = 100.0  # [m] largest accepted |x|, |y|, |z| of a pose (working volume)
 
 
 class BaseTrajectory:
@@ -112,12 +112,16 @@ class BaseTrajectory:
         """Validate a pose sample and add it to the buffer; the verdict says what happened and why."""
         position = np.asarray(position, dtype=float)
         orientation = np.asarray(orientation, dtype=float)
-        norm = _quaternion_norm(float(t), position, orientation)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge finite values: checked below, never warned
+            scale = np.abs(orientation).max()
+            if 1e100 < scale < np.inf:  # |q|^2 would overflow: a non-unit quaternion like any other
+                orientation = orientation / scale
+            norm = _quaternion_norm(float(t), position, orientation)
         if not norm >= 0.0:
             return PoseVerdict.NOT_FINITE
         if norm < 1e-9:
             return PoseVerdict.ZERO_QUATERNION
-        if float(np.linalg.norm(position)) > self.limits.max_position:
+        if np.abs(position).max() > self.limits.max_position:  # per axis: no overflow for huge finite values
             return PoseVerdict.OUT_OF_RANGE
         verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance else PoseVerdict.NORMALIZED
         sample = PoseSample(float(t), position, orientation / norm)

@@ -55,6 +55,12 @@ def max_point_load(props: NeedleProperties) -> float:
     return POINT_LOAD_LIMIT * props.youngs_modulus * second_moment / props.length ** 2
 
 
+def _magnitude(vector) -> float:
+    """Euclidean norm, inf (without an overflow warning) for vectors beyond the float range."""
+    with np.errstate(over="ignore"):
+        return float(np.linalg.norm(np.asarray(vector, dtype=float)))
+
+
 @dataclass(frozen=True)
 class InputLimits:
     """Documented limits of the base input (node parameters ``pose_input.*``): twist magnitudes, and the distance
@@ -161,10 +167,10 @@ class NeedleSimulation:
             raise ValueError(f"arc_length {arc_length} m outside the needle [0, {self.model.props.length}] m")
         if not np.all(np.isfinite(force_world)):
             raise ValueError("force must be finite")
-        others = sum(float(np.linalg.norm(load.force)) for key, load in self.point_loads.items() if key != name)
+        others = sum(_magnitude(load.vector) for key, load in self.point_loads.items() if key != name)
         limit = max_point_load(self.model.props)
-        if others + float(np.linalg.norm(force_world)) > limit:
-            raise ValueError(f"point load '{name}' of {float(np.linalg.norm(force_world)):.4g} N (with the other "
+        if others + _magnitude(force_world) > limit:
+            raise ValueError(f"point load '{name}' of {_magnitude(force_world):.4g} N (with the other "
                              f"loads {others:.4g} N) exceeds the {limit:.3g} N the needle model can integrate "
                              f"({POINT_LOAD_LIMIT:g} E I / L^2)")
         self.point_loads[name] = PointLoad(arc_length, np.asarray(force_world, dtype=float))
@@ -181,8 +187,8 @@ class NeedleSimulation:
         latest = self.trajectory.latest
         gap = self.started and latest is not None and t - latest.t > self.pose_timeout
         verdict = self.trajectory.offer(t, position, orientation)
-        if gap and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED) and float(np.linalg.norm(
-                np.asarray(position, dtype=float) - latest.position)) > self.input_limits.resume_tolerance:
+        if gap and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED) and _magnitude(
+                np.asarray(position, dtype=float) - latest.position) > self.input_limits.resume_tolerance:
             self.trajectory.clear()
             self.trajectory.offer(t, position, orientation)
             self.reset(self.base_motion_at(t), t)
@@ -194,7 +200,7 @@ class NeedleSimulation:
     def set_twist(self, t: float, linear_velocity: np.ndarray, angular_velocity: np.ndarray) -> None:
         """Velocity feed-forward of the flange (world frame); used instead of the estimate while fresh.
         ValueError beyond :class:`InputLimits` (the twist is then not used)."""
-        speed, rate = float(np.linalg.norm(linear_velocity)), float(np.linalg.norm(angular_velocity))
+        speed, rate = _magnitude(linear_velocity), _magnitude(angular_velocity)
         limits = self.input_limits
         if not (speed <= limits.max_linear_speed and rate <= limits.max_angular_speed):
             raise ValueError(f"twist |v| = {speed:.3g} m/s, |w| = {rate:.3g} rad/s beyond pose_input.max_linear_speed "

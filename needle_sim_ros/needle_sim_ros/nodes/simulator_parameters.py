@@ -73,7 +73,7 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("pose_input.reanchor_after", 10, "Consecutive consistent jumped poses after which the needle is reset there.", 1, 10000),
     ParamSpec("pose_input.max_stamp_offset", 0.5, "Wall-clock mode: stamps further than this from now are replaced by the receive time [s].", 1e-3, 3600.0),
     ParamSpec("pose_input.twist_timeout", 0.05, "A twist older than this is ignored [s].", 1e-3, 10.0),
-    ParamSpec("pose_input.max_position", 100.0, "Poses farther than this from the world origin are rejected (working volume) [m].", 1e-3, 1e4),
+    ParamSpec("pose_input.max_position", 100.0, "Poses with a coordinate beyond +-this are rejected (working volume) [m].", 1e-3, 1e4),
     ParamSpec("pose_input.max_linear_speed", 5.0, "Twists with a faster linear velocity are ignored [m/s].", 1e-3, 100.0),
     ParamSpec("pose_input.max_angular_speed", 20.0, "Twists with a faster angular velocity are ignored [rad/s].", 1e-3, 1000.0),
     ParamSpec("pose_input.resume_tolerance", 1e-3, "A pose arriving after a gap longer than pose_input.timeout farther than this from the held pose restarts the needle straight there (with a warning) [m].", 0.0, 10.0),
