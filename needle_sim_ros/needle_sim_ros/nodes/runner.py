@@ -5,6 +5,7 @@ import sys
 from typing import Callable, Sequence
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -44,9 +45,15 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:  # the context was shut down (SIGINT) while the executor waited: a shutdown like the others
+        if rclpy.ok():
+            raise
     finally:
         if hasattr(node, "finish"):
             node.finish()
-        node.destroy_node()
+        try:
+            node.destroy_node()
+        except RCLError:  # entities already invalidated by the shutdown
+            pass
         rclpy.try_shutdown()
     return 0
