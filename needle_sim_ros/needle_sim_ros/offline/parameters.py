@@ -94,8 +94,6 @@ def load_experiment(path: str | Path, config_dir: Path | None = None) -> Experim
     ``config_dir`` (default: :func:`default_config_dir`); raises ExperimentConfigError naming the problem."""
     path = Path(path).resolve()
     config_dir = config_dir or default_config_dir()
-    if not path.is_file():
-        raise ExperimentConfigError(f"experiment file '{path}' does not exist or is not a file")
     raw = load_params_file(path, PIPELINE_SECTION)
     for node in NODES:  # every node's section checked now, before anything runs
         load_params_file(path, node, node_specs(node), require_section=False)
