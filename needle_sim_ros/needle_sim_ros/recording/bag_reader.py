@@ -11,6 +11,7 @@ from __future__ import annotations
 import heapq
 import queue
 import re
+import struct
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +23,7 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
+from zstandard import ZstdError
 
 from needle_sim_ros.recording.qos import OfferedQos, parse_offered_qos_profiles
 
@@ -39,8 +41,9 @@ EXPECTED_TYPES = {
     "/needle/shape": "needle_interfaces/msg/NeedleShape", "/needle/measured_shape": "needle_interfaces/msg/NeedleShape",
     "/shape_error": "needle_interfaces/msg/ShapeError", "/clock": "rosgraph_msgs/msg/Clock",
 }
-# Errors of reading a damaged chunk: CRC mismatch, bad record, failed decompression (zstd/lz4 raise their own).
-CHUNK_ERRORS = (McapError, ValueError, EOFError, OSError, RuntimeError, KeyError)
+# What a cut or damaged record raises while being parsed or decompressed (CRC mismatch is a ValueError; the lz4
+# and zstd decoders raise RuntimeError / ZstdError).
+CHUNK_ERRORS = (McapError, ValueError, struct.error, RuntimeError, ZstdError, UnicodeDecodeError, EOFError, KeyError)
 
 
 def mcap_files(source: Path) -> list[Path]:
@@ -107,7 +110,7 @@ class BagReader:
                 summary = make_reader(stream).get_summary()
         except FileNotFoundError as error:
             raise BagReadError(f"cannot read '{file}': listed in the bag's metadata.yaml but missing") from error
-        except (OSError, McapError, ValueError, EOFError) as error:
+        except (OSError, *CHUNK_ERRORS) as error:
             raise BagReadError(f"cannot read '{file}': not a complete MCAP file (truncated or corrupt: "
                                f"{str(error) or type(error).__name__}); needle_mcap_recover may save its data") from error
         if summary is None or summary.statistics is None:

@@ -19,21 +19,17 @@ from pathlib import Path
 from typing import Iterator
 
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
-from zstandard import ZstdError
 
 from needle_sim_ros.recording.bag_metadata import METADATA_RECORD_NAME
-from needle_sim_ros.recording.bag_reader import BagReadError, mcap_files
+from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReadError, mcap_files
 from needle_sim_ros.recording.mcap_writer import PROFILE, McapBagWriter, RecordingError, WriterOptions
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
-# What a cut or damaged record raises while being parsed or decompressed (CRC mismatch is a ValueError;
-# the lz4 and zstd decoders raise RuntimeError / ZstdError).
-_CORRUPT = (McapError, ValueError, struct.error, RuntimeError, ZstdError, UnicodeDecodeError)
+_CORRUPT = CHUNK_ERRORS
 
 
 class RecoveryError(RuntimeError):
