@@ -45,7 +45,8 @@ ADVERSARIAL = [
     ("int_for_float", "/**:\n  ros__parameters:\n    needle.length: 1\n", ["needle.length", "write 1.0"]),
     ("out_of_range", "/**:\n  ros__parameters:\n    needle.elements: 100000\n", ["needle.elements", "<= 200"]),
     ("nan", "/**:\n  ros__parameters:\n    integrator.dt: .nan\n", ["integrator.dt", "finite"]),
-    ("huge_load", "/**:\n  ros__parameters:\n    loads.tip_force: [0.0, 0.0, -1.0e9]\n", ["loads.tip_force", "must be >= -100"]),
+    ("huge_load", "/**:\n  ros__parameters:\n    loads.tip_force: [0.0, 0.0, -1.0e9]\n",
+     ["loads.tip_force", "must be >= -100"]),
     ("empty", "", None),
     ("other_node", "needle_simulatr:\n  ros__parameters:\n    needle.length: 0.3\n", None),
 ]

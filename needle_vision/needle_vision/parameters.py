@@ -277,7 +277,8 @@ def _read_document(path: Path) -> Any:
     except OSError as error:
         raise ParameterError(f"params file '{path}': cannot read: {error.strerror or error}") from error
     except UnicodeDecodeError as error:
-        raise ParameterError(f"params file '{path}': not UTF-8 text (byte {error.start}); is it a YAML file?") from error
+        raise ParameterError(f"params file '{path}': not UTF-8 text (byte {error.start}); is it a YAML file?"
+                             ) from error
     try:
         return yaml.load(text, Loader=_RclLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as error:

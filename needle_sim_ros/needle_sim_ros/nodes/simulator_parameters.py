@@ -63,7 +63,8 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("rates.shape_hz", 100.0, "Rate of the NeedleShape and NeedleState outputs [Hz].", 0.1, 1000.0, dynamic=True),
     ParamSpec("rates.visualization_hz", 10.0, "Rate of the RViz outputs: path, pose array and marker tube [Hz].", 0.01, 1000.0, dynamic=True),
     ParamSpec("rates.diagnostics_hz", 1.0, "Rate of diagnostic_msgs/DiagnosticArray on /diagnostics [Hz].", 0.1, 100.0, dynamic=True),
-    ParamSpec("output.shape_samples", 50, "Centerline samples per shape message (at most 1000: more would slow the wrench loop).", 2, 1000, dynamic=True),
+    ParamSpec("output.shape_samples", 50, "Centerline samples per shape message (at most 1000: more would slow the "
+              "wrench loop).", 2, 1000, dynamic=True),
     # Pose input handling (see needle_sim_ros.base_trajectory).
     ParamSpec("pose_input.window", 0.02, "Least-squares window for pose, velocity and acceleration estimates [s].", 1e-3, 1.0),
     ParamSpec("pose_input.max_extrapolation", 0.01, "Longest extrapolation beyond the newest pose before it is held [s].", 0.0, 1.0),
@@ -73,12 +74,19 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("pose_input.reanchor_after", 10, "Consecutive consistent jumped poses after which the needle is reset there.", 1, 10000),
     ParamSpec("pose_input.max_stamp_offset", 0.5, "Wall-clock mode: stamps further than this from now are replaced by the receive time [s].", 1e-3, 3600.0),
     ParamSpec("pose_input.twist_timeout", 0.05, "A twist older than this is ignored [s].", 1e-3, 10.0),
-    ParamSpec("pose_input.max_position", 100.0, "Poses with a coordinate beyond +-this are rejected (working volume) [m].", 1e-3, 1e4),
-    ParamSpec("pose_input.max_linear_speed", 5.0, "Twists with a faster linear velocity are ignored [m/s].", 1e-3, 100.0),
-    ParamSpec("pose_input.max_angular_speed", 20.0, "Twists with a faster angular velocity are ignored [rad/s].", 1e-3, 1000.0),
-    ParamSpec("pose_input.resume_tolerance", 1e-3, "A pose arriving after a gap longer than pose_input.timeout farther than this from the held pose restarts the needle straight there (with a warning) [m].", 0.0, 10.0),
+    ParamSpec("pose_input.max_position", 100.0, "Poses with a coordinate beyond +-this are rejected (working "
+              "volume) [m].", 1e-3, 1e4),
+    ParamSpec("pose_input.max_linear_speed", 5.0, "Twists with a faster linear velocity are ignored [m/s].",
+              1e-3, 100.0),
+    ParamSpec("pose_input.max_angular_speed", 20.0, "Twists with a faster angular velocity are ignored [rad/s].",
+              1e-3, 1000.0),
+    ParamSpec("pose_input.resume_tolerance", 1e-3, "A pose arriving after a gap longer than pose_input.timeout "
+              "farther than this from the held pose restarts the needle straight there (with a warning) [m].",
+              0.0, 10.0),
     # External loads (e.g. the tip mass of seed 000 Fig. 7).
-    ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: [0, 0, -9.81 m]); all point loads together at most 25 E I / L^2 (8.4 N for the default needle).", -100.0, 100.0, length=3, dynamic=True),
+    ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: "
+              "[0, 0, -9.81 m]); all point loads together at most 25 E I / L^2 (8.4 N for the default needle).",
+              -100.0, 100.0, length=3, dynamic=True),
     # Real-time loop.
     ParamSpec("loop.max_catch_up", 0.05, "Largest lag [s] the loop integrates to catch up; beyond it time is skipped.", 1e-3, 10.0),
     ParamSpec("loop.busy_wait", 0.0002, "Spin the last part of each period instead of sleeping, for tick accuracy [s].", 0.0, 0.01),

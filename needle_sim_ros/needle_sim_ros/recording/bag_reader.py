@@ -112,7 +112,8 @@ class BagReader:
             raise BagReadError(f"cannot read '{file}': listed in the bag's metadata.yaml but missing") from error
         except (OSError, *CHUNK_ERRORS) as error:
             raise BagReadError(f"cannot read '{file}': not a complete MCAP file (truncated or corrupt: "
-                               f"{str(error) or type(error).__name__}); needle_mcap_recover may save its data") from error
+                               f"{str(error) or type(error).__name__}); needle_mcap_recover may save its data"
+                               ) from error
         if summary is None or summary.statistics is None:
             raise BagReadError(f"'{file}' has no summary (the recording was cut short): "
                                f"run needle_mcap_recover on it first")
