@@ -75,7 +75,8 @@ def test_extreme_numbers_on_every_input_are_bounded_or_refused(simulator):
     rate_window = [m for m in simulator.wrenches[-200:]]
     span = (rate_window[-1].header.stamp.sec + rate_window[-1].header.stamp.nanosec * 1e-9
             - rate_window[0].header.stamp.sec - rate_window[0].header.stamp.nanosec * 1e-9)
-    assert span < 0.3, "the wrench stream slowed down (steps failing or time skipped)"
+    # 200 steps of 1 ms: 0.2 s; failing steps (the bug: ~70 wrenches/s) would take ~3 s; margin for a loaded machine
+    assert span < 1.0, "the wrench stream slowed down (steps failing or time skipped)"
 
 
 def test_a_pose_after_a_gap_away_from_the_held_pose_restarts_without_a_spike(simulator):
