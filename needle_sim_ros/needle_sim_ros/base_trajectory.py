@@ -114,8 +114,8 @@ class BaseTrajectory:
         orientation = np.asarray(orientation, dtype=float)
         with np.errstate(over="ignore", invalid="ignore"):  # huge finite values: checked below, never warned
             scale = np.abs(orientation).max()
-            if 1e100 < scale < np.inf:  # |q|^2 would overflow: a non-unit quaternion like any other
-                orientation = orientation / scale
+            rescaled = 1e100 < scale < np.inf  # |q|^2 would overflow: a non-unit quaternion like any other
+            orientation = orientation / scale if rescaled else orientation
             norm = _quaternion_norm(float(t), position, orientation)
         if not norm >= 0.0:
             return PoseVerdict.NOT_FINITE
@@ -123,7 +123,8 @@ class BaseTrajectory:
             return PoseVerdict.ZERO_QUATERNION
         if np.abs(position).max() > self.limits.max_position:  # per axis: no overflow for huge finite values
             return PoseVerdict.OUT_OF_RANGE
-        verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance else PoseVerdict.NORMALIZED
+        verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance and not rescaled \
+            else PoseVerdict.NORMALIZED
         sample = PoseSample(float(t), position, orientation / norm)
         latest = self.latest
         if latest is not None and sample.t <= latest.t:
