@@ -418,7 +418,10 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
             p["pose_input.max_linear_speed"], p["pose_input.max_angular_speed"], p["pose_input.resume_tolerance"]))
     tip_force = np.asarray(p["loads.tip_force"], dtype=float)
     if np.any(tip_force != 0.0):
-        sim.set_point_load(TIP_FORCE_PARAMETER, model.props.length, tip_force)
+        try:
+            sim.set_point_load(TIP_FORCE_PARAMETER, model.props.length, tip_force)
+        except ValueError as error:
+            raise ValueError(f"parameter 'loads.tip_force' = {tip_force.tolist()}: {error}") from error
     return sim
 
 

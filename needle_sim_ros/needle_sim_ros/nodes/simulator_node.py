@@ -314,9 +314,12 @@ class NeedleSimulatorNode(Node):
         now = self.now_seconds()
         with self._lock:
             started = self.sim.started
-            failed = self.sim.statistics.failed_steps
+            failed, skipped = self.sim.statistics.failed_steps, self.sim.statistics.skipped_time
             records = self.sim.advance(now, deterministic=self.use_sim_time) if started else []
-            failed = self.sim.statistics.failed_steps - failed
+            failed, skipped = self.sim.statistics.failed_steps - failed, self.sim.statistics.skipped_time - skipped
+        if skipped:
+            self.warn_throttled("skipped", f"the integration lagged more than loop.max_catch_up: {skipped:.3f} s of "
+                                           "simulated time skipped (diagnostics: skipped_time_s)")
         if failed:
             self.warn_throttled("failed", f"{failed} step(s) failed even after sub-stepping (point loads: "
                                           f"{len(self.sim.point_loads)}): needle reset straight at the base pose")
