@@ -6,7 +6,6 @@ import subprocess
 from pathlib import Path
 
 import pytest
-import yaml
 
 from needle_vision.parameters import SPECS as STEREO_PARAMETERS, ParameterError, load_params_file
 

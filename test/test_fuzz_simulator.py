@@ -8,7 +8,6 @@ import time
 
 import numpy as np
 import pytest
-import rclpy
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from needle_interfaces.srv import ApplyPointLoad
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
