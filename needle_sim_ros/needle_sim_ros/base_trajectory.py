@@ -32,6 +32,8 @@ class PoseVerdict(Enum):
     OUT_OF_ORDER = "rejected: stamp not newer than the previous pose"
     JUMP = "rejected: jump beyond the configured limit"
     REANCHORED = "accepted: trajectory re-anchored after consistent jumped poses"
+    OUT_OF_RANGE = "rejected: a position coordinate beyond +-pose_input.max_position"
+    RESTARTED = "accepted after a gap in the input, away from the held pose: needle restarted straight there"
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,7 @@ class TrajectoryLimits:
     max_orientation_jump: float = 0.2  # [rad] largest accepted deviation from the predicted orientation
     reanchor_after: int = 10  # consecutive mutually consistent jumped poses that re-anchor the trajectory
     quaternion_tolerance: float = 1e-3  # |1 - |q|| above which a normalization warning is raised
+    max_position: float = 100.0  # [m] largest accepted |x|, |y|, |z| of a pose (working volume)
 
 
 class BaseTrajectory:
@@ -109,12 +112,19 @@ class BaseTrajectory:
         """Validate a pose sample and add it to the buffer; the verdict says what happened and why."""
         position = np.asarray(position, dtype=float)
         orientation = np.asarray(orientation, dtype=float)
-        norm = _quaternion_norm(float(t), position, orientation)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge finite values: checked below, never warned
+            scale = np.abs(orientation).max()
+            rescaled = 1e100 < scale < np.inf  # |q|^2 would overflow: a non-unit quaternion like any other
+            orientation = orientation / scale if rescaled else orientation
+            norm = _quaternion_norm(float(t), position, orientation)
         if not norm >= 0.0:
             return PoseVerdict.NOT_FINITE
         if norm < 1e-9:
             return PoseVerdict.ZERO_QUATERNION
-        verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance else PoseVerdict.NORMALIZED
+        if np.abs(position).max() > self.limits.max_position:  # per axis: no overflow for huge finite values
+            return PoseVerdict.OUT_OF_RANGE
+        verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance and not rescaled \
+            else PoseVerdict.NORMALIZED
         sample = PoseSample(float(t), position, orientation / norm)
         latest = self.latest
         if latest is not None and sample.t <= latest.t:

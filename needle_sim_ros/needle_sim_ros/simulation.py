@@ -42,6 +42,36 @@ from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, 
 from needle_sim_ros.tissue import build_tissue_forces
 
 
+# Largest sum of point-load magnitudes, as a multiple of the needle's bending load scale E I / L^2. Found by
+# experiment (README, reliability): with the default discretisation (10 elements, dt = 1 ms, 4 sub-step halvings) a
+# tip load applied at once to the straight needle integrates up to 30 E I / L^2 (10 N for the seed 000 needle)
+# transverse or compressive, while 45 E I / L^2 (15 N) fails at most steps; 25 keeps a margin (8.4 N).
+POINT_LOAD_LIMIT = 25.0
+
+
+def max_point_load(props: NeedleProperties) -> float:
+    """Largest total point load [N] the simulator accepts for this needle (:data:`POINT_LOAD_LIMIT` E I / L^2)."""
+    second_moment = np.pi * props.radius ** 4 / 4.0
+    return POINT_LOAD_LIMIT * props.youngs_modulus * second_moment / props.length ** 2
+
+
+def _magnitude(vector) -> float:
+    """Euclidean norm, inf (without an overflow warning) for vectors beyond the float range."""
+    with np.errstate(over="ignore"):
+        return float(np.linalg.norm(np.asarray(vector, dtype=float)))
+
+
+@dataclass(frozen=True)
+class InputLimits:
+    """Documented limits of the base input (node parameters ``pose_input.*``): twist magnitudes, and the distance
+    [m] from the held pose beyond which a pose arriving after a gap (older than ``pose_timeout``) restarts the
+    needle straight there instead of dragging it across in one step."""
+
+    max_linear_speed: float = 5.0  # [m/s]
+    max_angular_speed: float = 20.0  # [rad/s]
+    resume_tolerance: float = 1e-3  # [m]
+
+
 class StepRecord(NamedTuple):
     """What one accepted step produced: its end time, the base wrench and the integrator's effort."""
 
@@ -54,8 +84,9 @@ class StepRecord(NamedTuple):
 
 def step_wrenches(records: Sequence[StepRecord]):
     """(end time, force, torque) of each step's wrench on the holder in the base frame: what the simulator
-    publishes on ``wrench``."""
-    return ((record.t, record.wrench.force_base, record.wrench.torque_base) for record in records)
+    publishes on ``wrench`` (a step whose wrench is not finite is left out: never NaN on the wire)."""
+    return ((record.t, record.wrench.force_base, record.wrench.torque_base) for record in records
+            if np.isfinite(record.wrench.force_base).all() and np.isfinite(record.wrench.torque_base).all())
 
 
 @dataclass
@@ -93,7 +124,7 @@ class NeedleSimulation:
                  flange_offset: tuple[np.ndarray, np.ndarray] = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
                  extra_forces_builder: Callable[[NeedleModel], list] | None = None, max_catch_up: float = 0.05, pose_timeout: float = 0.1,
                  twist_timeout: float = 0.05, clamp_interval: tuple[float, float] | None = None,
-                 model_builder: ModelBuilder | None = None) -> None:
+                 model_builder: ModelBuilder | None = None, input_limits: InputLimits = InputLimits()) -> None:
         if clamp_interval is not None and model_builder is None:
             raise ValueError("a clamp interval needs a model_builder to rebuild the model with the fixture")
         self.model = model
@@ -107,6 +138,7 @@ class NeedleSimulation:
         self.max_catch_up = max_catch_up
         self.pose_timeout = pose_timeout
         self.twist_timeout = twist_timeout
+        self.input_limits = input_limits
         self.twist: tuple[float, np.ndarray, np.ndarray] | None = None
         self.clamp_interval = clamp_interval
         self.model_builder = model_builder
@@ -129,10 +161,18 @@ class NeedleSimulation:
         return [self._gravity, *self.point_loads.values(), *self.extra_forces]
 
     def set_point_load(self, name: str, arc_length: float, force_world: np.ndarray) -> None:
+        """Set (or replace) a named point load; ValueError if outside the needle, not finite, or if the loads
+        would sum to more than :func:`max_point_load` (more than the model integrates)."""
         if not 0.0 <= arc_length <= self.model.props.length:
             raise ValueError(f"arc_length {arc_length} m outside the needle [0, {self.model.props.length}] m")
         if not np.all(np.isfinite(force_world)):
             raise ValueError("force must be finite")
+        others = sum(_magnitude(load.vector) for key, load in self.point_loads.items() if key != name)
+        limit = max_point_load(self.model.props)
+        if others + _magnitude(force_world) > limit:
+            raise ValueError(f"point load '{name}' of {_magnitude(force_world):.4g} N (with the other "
+                             f"loads {others:.4g} N) exceeds the {limit:.3g} N the needle model can integrate "
+                             f"({POINT_LOAD_LIMIT:g} E I / L^2)")
         self.point_loads[name] = PointLoad(arc_length, np.asarray(force_world, dtype=float))
 
     def clear_point_loads(self, names: Sequence[str] = ()) -> int:
@@ -144,13 +184,27 @@ class NeedleSimulation:
     # -- base input -----------------------------------------------------------------------------------------
     def offer_pose(self, t: float, position, orientation) -> PoseVerdict:
         """Offer a flange pose; the first valid pose (and a re-anchoring) starts the needle straight there."""
+        latest = self.trajectory.latest
+        gap = self.started and latest is not None and t - latest.t > self.pose_timeout
         verdict = self.trajectory.offer(t, position, orientation)
+        if gap and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED) and _magnitude(
+                np.asarray(position, dtype=float) - latest.position) > self.input_limits.resume_tolerance:
+            self.trajectory.clear()
+            self.trajectory.offer(t, position, orientation)
+            self.reset(self.base_motion_at(t), t)
+            return PoseVerdict.RESTARTED
         if verdict is PoseVerdict.REANCHORED or (not self.started and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)):
             self.reset(self.base_motion_at(t), t)
         return verdict
 
     def set_twist(self, t: float, linear_velocity: np.ndarray, angular_velocity: np.ndarray) -> None:
-        """Velocity feed-forward of the flange (world frame); used instead of the estimate while fresh."""
+        """Velocity feed-forward of the flange (world frame); used instead of the estimate while fresh.
+        ValueError beyond :class:`InputLimits` (the twist is then not used)."""
+        speed, rate = _magnitude(linear_velocity), _magnitude(angular_velocity)
+        limits = self.input_limits
+        if not (speed <= limits.max_linear_speed and rate <= limits.max_angular_speed):
+            raise ValueError(f"twist |v| = {speed:.3g} m/s, |w| = {rate:.3g} rad/s beyond pose_input.max_linear_speed "
+                             f"{limits.max_linear_speed:g} m/s / max_angular_speed {limits.max_angular_speed:g} rad/s")
         self.twist = (t, np.asarray(linear_velocity, dtype=float), np.asarray(angular_velocity, dtype=float))
 
     def base_motion_at(self, t: float) -> BaseMotion:
@@ -239,6 +293,9 @@ class NeedleSimulation:
                 self._step_index += 1
                 done += 1
             count -= done
+        if records and not np.isfinite(self.state.q).all():  # never carry a non-finite state on
+            self.statistics.failed_steps += 1
+            self.state = self.model.straight_state(self.base, self.state.t)
         return records
 
     def _grid_time(self, index):
@@ -344,7 +401,7 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
     trajectory = BaseTrajectory(TrajectoryLimits(
         window=p["pose_input.window"], max_extrapolation=p["pose_input.max_extrapolation"],
         max_position_jump=p["pose_input.max_position_jump"], max_orientation_jump=p["pose_input.max_orientation_jump"],
-        reanchor_after=p["pose_input.reanchor_after"]))
+        reanchor_after=p["pose_input.reanchor_after"], max_position=p["pose_input.max_position"]))
     clamp = p["fixtures.clamp_interval"]
     model, integrator = model_builder(())
     if p["tissue.enable"]:
@@ -355,10 +412,14 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
                        np.asarray(p["flange_offset.orientation"], dtype=float)),
         extra_forces_builder=tissue_builder if p["tissue.enable"] else None, max_catch_up=p["loop.max_catch_up"], pose_timeout=p["pose_input.timeout"],
         twist_timeout=p["pose_input.twist_timeout"], clamp_interval=tuple(clamp) if len(clamp) == 2 else None,
-        model_builder=model_builder)
+        model_builder=model_builder, input_limits=InputLimits(
+            p["pose_input.max_linear_speed"], p["pose_input.max_angular_speed"], p["pose_input.resume_tolerance"]))
     tip_force = np.asarray(p["loads.tip_force"], dtype=float)
     if np.any(tip_force != 0.0):
-        sim.set_point_load(TIP_FORCE_PARAMETER, model.props.length, tip_force)
+        try:
+            sim.set_point_load(TIP_FORCE_PARAMETER, model.props.length, tip_force)
+        except ValueError as error:
+            raise ValueError(f"parameter 'loads.tip_force' = {tip_force.tolist()}: {error}") from error
     return sim
 
 

@@ -337,5 +337,11 @@ def test_sigkilled_writer_leaves_a_file_recoverable_up_to_the_last_complete_chun
 def test_recover_cli_reports_bad_input(tmp_path, capsys):
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"not an mcap file at all")
-    assert recovery.main([str(junk), str(tmp_path / "out.mcap")]) == 1
+    assert recovery.main([str(junk), str(tmp_path / "out.mcap")]) == 2
     assert "not an MCAP file" in capsys.readouterr().err
+    assert not (tmp_path / "out.mcap").exists()  # nothing that looks like a recovered file
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    assert recovery.main([str(empty), str(tmp_path / "out.mcap")]) == 2
+    assert "0 bytes long: nothing to recover" in capsys.readouterr().err
+    assert not (tmp_path / "out.mcap").exists()

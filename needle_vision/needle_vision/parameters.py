@@ -1,13 +1,25 @@
-"""The parameters of ``needle_stereo`` (and of the offline command): one table with defaults, meanings,
-ranges and checks, without ROS. The node declares each with a ``ParameterDescriptor`` built from this table;
-the offline command reads the same names from a ROS 2 params file.
+"""Parameters of the needle_sim executables, without ROS: one declaration layer and one params-file loader.
+
+:class:`ParamSpec` declares a parameter (name, type given by its default, default, range, choices, meaning with the
+unit in brackets); :func:`load_params_file` reads a ROS 2 params file (``/**``, node-name and namespaced sections,
+wildcards, several nodes in one file) and checks it as strictly as ``rcl`` does plus the specs' ranges, so a file
+that a node would refuse is refused by the offline tools too, with one message naming the file, the parameter and
+the problem (:class:`ParameterError`; unknown names suggest the nearest known one). :func:`check_ros_arguments`
+applies it to the ``--params-file`` arguments of a node's command line before ``rclpy.init``. The nodes declare
+each spec with a ``ParameterDescriptor`` built from it (ROS side: ``needle_sim_ros.nodes.parameters``).
+
+Below: the parameters of ``needle_stereo`` and of the offline stereo command (:data:`SPECS`).
 """
 from __future__ import annotations
 
+import difflib
 import math
+import os
+import re
+import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 import yaml
@@ -21,14 +33,37 @@ from needle_vision.reconstruction import ReconstructionConfig
 from needle_vision.tracking import TrackingConfig
 from needle_vision.transform import RigidTransform
 
+# Parameters every rclpy node has (accepted in any node's section).
+ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
+# Nodes of the suite (a section for another name is probably a typo: warned) and the pipeline tools' section.
+KNOWN_NODES = ("needle_simulator", "needle_stereo", "needle_compare", "needle_replay", "needle_pipeline")
+_TOPIC_TOKEN = re.compile(r"^(~|[A-Za-z_][A-Za-z0-9_]*|\{[A-Za-z_][A-Za-z0-9_]*\})$")
+
 
 class ParameterError(ValueError):
-    """A parameter value is invalid; the message names the parameter."""
+    """A parameter value or params file is invalid; the message names the file and parameter."""
+
+
+def valid_topic_name(name: str) -> bool:
+    """A ROS 2 topic name (relative, absolute or private): tokens of letters, digits and '_' not starting with a
+    digit, separated by single '/', no trailing '/'."""
+    if not isinstance(name, str) or not name or name.endswith("/") and name != "/":
+        return False
+    tokens = name[1:].split("/") if name.startswith("/") else name.split("/")
+    return name != "/" and all(_TOPIC_TOKEN.match(t) for t in tokens) and "~" not in tokens[1:]
+
+
+TOPIC_CHECK = (valid_topic_name, "not a valid ROS 2 topic name (letters, digits, '_' and '/', no leading digit)")
 
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter: name, default (its type is the parameter's type), meaning with unit, valid values."""
+    """One parameter: name, default (its type is the parameter's type), meaning with unit, valid values.
+
+    ``low``/``high`` bound numbers (and every element of number arrays); ``choices`` lists valid values;
+    ``length`` fixes an array's length; ``check`` is an extra predicate with the message shown when it fails.
+    ``dynamic`` parameters may change while a node runs; ``allow_infinite`` admits +-inf (e.g. "no limit").
+    """
 
     name: str
     default: Any
@@ -38,22 +73,40 @@ class ParamSpec:
     choices: Sequence[Any] | None = None
     length: int | None = None
     check: tuple[Callable[[Any], bool], str] | None = None
+    dynamic: bool = False
+    allow_infinite: bool = False
 
-    def validate(self, value: Any) -> Any:
-        """The value if valid, else ParameterError naming the parameter."""
+    @property
+    def is_list(self) -> bool:
+        return isinstance(self.default, (list, tuple))
+
+    @property
+    def value_type(self) -> type:
+        """bool, int, float or str (of the elements, for a list; an empty default list holds floats)."""
+        sample = (self.default[0] if self.default else 0.0) if self.is_list else self.default
+        return bool if isinstance(sample, bool) else int if isinstance(sample, int) else \
+            float if isinstance(sample, float) else str
+
+    def validate(self, value: Any, strict: bool = False) -> Any:
+        """The value (converted to the parameter's type) if valid, else ParameterError naming the parameter.
+        ``strict``: types as ROS 2 requires them (an integer is no float: write 1.0)."""
         def fail(reason: str) -> None:
             raise ParameterError(f"parameter '{self.name}' = {value!r}: {reason} ({self.description})")
 
-        expected = type(self.default[0]) if isinstance(self.default, list) else type(self.default)
-        values = list(value) if isinstance(value, (list, tuple, np.ndarray)) else [value]
-        if isinstance(self.default, list) != isinstance(value, (list, tuple, np.ndarray)):
-            fail("expected a list" if isinstance(self.default, list) else "expected a single value")
+        expected = self.value_type
+        is_list = isinstance(value, (list, tuple, np.ndarray))
+        if self.is_list != is_list:
+            fail(f"expected a list of {expected.__name__}" if self.is_list else "expected a single value")
+        values = list(value) if is_list else [value]
         for v in values:
-            numeric = isinstance(v, (int, float)) and not isinstance(v, bool)
-            if expected is float and not numeric or expected is int and not (numeric and float(v).is_integer()) \
+            numeric = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+            integral = isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+            if expected is float and not (numeric and (integral is False or not strict)) \
+                    or expected is int and not (integral or not strict and numeric and float(v).is_integer()) \
                     or expected in (str, bool) and not isinstance(v, expected):
-                fail(f"expected {expected.__name__}")
-            if numeric and not math.isfinite(v):
+                fail(f"expected {'a list of ' if self.is_list else ''}{expected.__name__}"
+                     + (" (write 1.0, not 1)" if expected is float and integral else ""))
+            if numeric and math.isnan(v) or numeric and math.isinf(v) and not self.allow_infinite:
                 fail("must be finite")
             if numeric and self.low is not None and v < self.low:
                 fail(f"must be >= {self.low:g}")
@@ -65,7 +118,14 @@ class ParamSpec:
             fail(f"must be one of {', '.join(map(str, self.choices))}")
         if self.check is not None and not self.check[0](value):
             fail(self.check[1])
-        return [expected(v) for v in values] if isinstance(self.default, list) else expected(value)
+        return [expected(v) for v in values] if self.is_list else expected(value)
+
+
+def unknown_name_error(name: str, known: Iterable[str], where: str = "") -> ParameterError:
+    """'unknown parameter X (did you mean Y?)' with the nearest known name (difflib)."""
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    hint = f" (did you mean '{close[0]}'?)" if close else ""
+    return ParameterError(f"{where}unknown parameter '{name}'{hint}")
 
 
 def _readable_file_or_empty(path: str) -> bool:
@@ -149,9 +209,9 @@ SPECS: tuple[ParamSpec, ...] = (
 
 def validate_all(values: dict[str, Any]) -> dict[str, Any]:
     """All parameters (defaults for missing ones) validated, including checks across parameters."""
-    unknown = set(values) - {spec.name for spec in SPECS}
+    unknown = sorted(set(values) - {spec.name for spec in SPECS})
     if unknown:
-        raise ParameterError(f"unknown parameter(s): {', '.join(sorted(unknown))}")
+        raise unknown_name_error(unknown[0], (spec.name for spec in SPECS))
     result = {spec.name: spec.validate(values.get(spec.name, spec.default)) for spec in SPECS}
     if result["reconstruction.max_depth"] <= result["reconstruction.min_depth"]:
         raise ParameterError(f"parameter 'reconstruction.max_depth' = {result['reconstruction.max_depth']}: must "
@@ -191,24 +251,193 @@ def output_from_left(values: dict[str, Any]) -> RigidTransform:
     return RigidTransform.from_xyz_quaternion(values["output_transform"])
 
 
-def _flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    flat = {}
-    for key, value in tree.items():
-        if isinstance(value, dict):
-            flat.update(_flatten(value, f"{prefix}{key}."))
+
+
+# Declarations used when load_params_file is given none (the stereo node's, for needle_stereo_offline).
+NODE_SPECS: dict[str, Sequence[ParamSpec]] = {"needle_stereo": SPECS}
+
+
+def _print_warning(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)
+
+
+_warned: set[str] = set()
+
+
+def _warn_once(warn: Callable[[str], None], message: str) -> None:
+    if message not in _warned:
+        _warned.add(message)
+        warn(message)
+
+
+class _RclLoader(yaml.SafeLoader):
+    """YAML as rcl reads params files: also '1e9' and '1.0e9' are floats (YAML 1.1 needs an exponent sign)."""
+
+
+_RclLoader.add_implicit_resolver("tag:yaml.org,2002:float",
+                                 re.compile(r"^[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+$"), list("-+0123456789."))
+
+
+def _read_document(path: Path) -> Any:
+    """The parsed YAML of a params file; ParameterError naming the file for every way reading can fail."""
+    if not path.exists():
+        raise ParameterError(f"params file '{path}': no such file")
+    if path.is_dir():
+        raise ParameterError(f"params file '{path}': is a directory, not a file")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as error:
+        raise ParameterError(f"params file '{path}': cannot read: {error.strerror or error}") from error
+    except UnicodeDecodeError as error:
+        raise ParameterError(f"params file '{path}': not UTF-8 text (byte {error.start}); is it a YAML file?"
+                             ) from error
+    try:
+        return yaml.load(text, Loader=_RclLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise ParameterError(f"params file '{path}': malformed YAML{where}: {problem}") from error
+
+
+def _sections(document: dict, path: Path, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], dict]]:
+    """(node name pattern as tokens, ros__parameters tree) of every section, namespaces nested or in the key."""
+    found = []
+    for key, value in document.items():
+        tokens = prefix + tuple(t for t in str(key).split("/") if t)
+        name = "/" + "/".join(tokens)
+        if key == "ros__parameters":
+            if not prefix:
+                raise ParameterError(f"params file '{path}': 'ros__parameters' must be under a node name "
+                                     "(e.g. '/**:' or 'needle_simulator:')")
+            if not isinstance(value, dict):
+                raise ParameterError(f"params file '{path}': '{name}/ros__parameters' must be a mapping of "
+                                     f"parameter names to values, got {type(value).__name__}")
+            found.append((prefix, value))
+        elif isinstance(value, dict) and value:
+            found += _sections(value, path, tokens)
         else:
-            flat[f"{prefix}{key}"] = value
+            owner = "/" + "/".join(prefix) if prefix else name
+            node = prefix[-1] if prefix else key
+            raise ParameterError(f"params file '{path}': section '{owner}' has no 'ros__parameters' (expected "
+                                 f"'{node}: {{ros__parameters: {{name: value}}}}')")
+    return found
+
+
+def _pattern_matches(pattern: tuple[str, ...], tokens: tuple[str, ...]) -> bool:
+    """rcl's node-name wildcards: '**' any number of tokens, '*' within one token."""
+    if not pattern:
+        return not tokens
+    if pattern[0] == "**":
+        return any(_pattern_matches(pattern[1:], tokens[k:]) for k in range(len(tokens) + 1))
+    if not tokens:
+        return False
+    regex = "^" + ".*".join(map(re.escape, pattern[0].split("*"))) + "$"
+    return bool(re.match(regex, tokens[0])) and _pattern_matches(pattern[1:], tokens[1:])
+
+
+def _flat_values(tree: dict, path: Path, section: str, prefix: str = "") -> dict[str, Any]:
+    """Dotted names -> values, each a scalar or a list of one scalar type as ROS 2 parameters are."""
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        where = f"params file '{path}', section '{section}': parameter '{name}'"
+        if isinstance(value, dict):
+            if not value:
+                raise ParameterError(f"{where}: empty mapping has no value")
+            flat.update(_flat_values(value, path, section, name + "."))
+            continue
+        items = value if isinstance(value, list) else [value]
+        if value is None or any(v is None for v in items):
+            raise ParameterError(f"{where}: no value (null)")
+        kinds = {type(v) for v in items}
+        if not kinds <= {bool, int, float, str}:
+            raise ParameterError(f"{where}: lists may hold only numbers, strings or booleans, not "
+                                 f"{', '.join(sorted(k.__name__ for k in kinds - {bool, int, float, str}))}")
+        if len(kinds) > 1:
+            hint = " (write 1.0, not 1)" if kinds == {int, float} else ""
+            raise ParameterError(f"{where} = {value!r}: a list must hold one type, not "
+                                 f"{' and '.join(sorted(k.__name__ for k in kinds))}{hint}")
+        flat[name] = value
     return flat
 
 
-def load_params_file(path: str | Path, node_name: str = "needle_stereo") -> dict[str, Any]:
-    """Parameter values of ``node_name`` (or ``/**``) from a ROS 2 params file (nested keys become dotted)."""
-    try:
-        document = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as error:
-        raise ParameterError(f"cannot read params file '{path}': {error}") from error
+def load_params_file(path: str | Path, node_name: str = "needle_stereo", specs: Sequence[ParamSpec] | None = None,
+                     namespace: str = "/", warn: Callable[[str], None] = _print_warning,
+                     known_elsewhere: Iterable[str] = (), require_section: bool = True) -> dict[str, Any]:
+    """The values for node ``node_name`` (in ``namespace``) from a ROS 2 params file, dotted names, sections
+    applied in file order as rcl does. The whole file is checked as rcl checks it; with ``specs`` (default:
+    :data:`NODE_SPECS`) the node's values are validated too: unknown names suggest the nearest known one, except
+    that in a wildcard section (``/**``) names in ``known_elsewhere`` belong to other nodes started with the same
+    file. An empty file, a section for no node of the suite or (``require_section``) a file without a section
+    for this node is warned about. Raises ParameterError naming the file."""
+    path = Path(path)
+    specs = NODE_SPECS.get(node_name) if specs is None else specs
+    document = _read_document(path)
+    if document is None:
+        _warn_once(warn, f"params file '{path}' is empty: no parameters set")
+        return {}
+    if not isinstance(document, dict):
+        raise ParameterError(f"params file '{path}': expected a mapping of node names to "
+                             f"{{ros__parameters: ...}}, got {type(document).__name__}")
+    fq_tokens = tuple(t for t in namespace.split("/") if t) + (node_name,)
+    by_name = {spec.name: spec for spec in specs or ()}
+    others = set(known_elsewhere)
     values: dict[str, Any] = {}
-    for key in ("/**", node_name, "/" + node_name):
-        section = document.get(key, {}) if isinstance(document, dict) else {}
-        values.update(_flatten(section.get("ros__parameters", {}) if isinstance(section, dict) else {}))
+    applied = False
+    for pattern, tree in _sections(document, path):
+        section = "/" + "/".join(pattern)
+        flat = _flat_values(tree, path, section)
+        if not any(_pattern_matches(pattern, (node,)) or _pattern_matches(pattern, fq_tokens) for node in KNOWN_NODES):
+            close = difflib.get_close_matches(pattern[-1], KNOWN_NODES, n=1, cutoff=0.6)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            _warn_once(warn, f"params file '{path}': section '{section}' is for no node of needle_sim{hint}; ignored")
+        if not _pattern_matches(pattern, fq_tokens):
+            continue
+        applied = True
+        for name, value in flat.items():
+            where = f"params file '{path}', node '{node_name}': "
+            if specs is not None and name not in by_name:
+                if name in ROS_BUILTIN or name.startswith("qos_overrides.") or "*" in section and name in others:
+                    continue
+                raise unknown_name_error(name, by_name, where)
+            try:
+                values[name] = by_name[name].validate(value, strict=True) if specs is not None else value
+            except ParameterError as error:
+                raise ParameterError(where + str(error)) from error
+    if not applied and require_section:
+        _warn_once(warn, f"params file '{path}' has no section for node '{node_name}' (nor '/**'): it sets nothing")
     return values
+
+
+def ros_argument_files(argv: Sequence[str]) -> tuple[list[str], str | None, str]:
+    """(params files, node name remap or None, namespace) from the ``--ros-args`` parts of a command line."""
+    files, node, namespace = [], None, "/"
+    inside, k = False, 0
+    while k < len(argv):
+        arg = argv[k]
+        if arg == "--ros-args":
+            inside = True
+        elif arg == "--":
+            inside = False
+        elif inside and arg == "--params-file" and k + 1 < len(argv):
+            files.append(argv[k + 1])
+            k += 1
+        elif inside and arg in ("-r", "--remap") and k + 1 < len(argv):
+            rule = argv[k + 1].split(":", 1)[-1] if argv[k + 1].count(":=") and ":__" in argv[k + 1] else argv[k + 1]
+            if rule.startswith("__node:="):
+                node = rule.split(":=", 1)[1]
+            elif rule.startswith("__ns:="):
+                namespace = rule.split(":=", 1)[1]
+            k += 1
+        k += 1
+    return files, node, namespace
+
+
+def check_ros_arguments(argv: Sequence[str], node_name: str, specs: Sequence[ParamSpec] | None,
+                        warn: Callable[[str], None] = _print_warning, known_elsewhere: Iterable[str] = ()) -> None:
+    """Check every ``--params-file`` of a node's command line with :func:`load_params_file` before rclpy reads
+    it (rcl's own parser would fail with a traceback); raises ParameterError."""
+    files, remapped, namespace = ros_argument_files(argv)
+    for path in files:
+        load_params_file(path, remapped or node_name, specs, namespace, warn, known_elsewhere)

@@ -54,12 +54,26 @@ def rcl_arguments(argv: list[str], args: argparse.Namespace) -> tuple[list[str],
     return [argv[0], "--ros-args", *files, "--", *argv[1:], "--ros-args", *remaps], stereo
 
 
+def check_node_arguments(rcl_args: list[str], stereo: bool, logger) -> None:
+    """Every --params-file checked for each node before rclpy reads them (ParameterError, a ValueError)."""
+    from needle_vision.parameters import SPECS as STEREO_PARAMETERS, check_ros_arguments
+
+    from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
+    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+    nodes = {"needle_simulator": SIMULATOR_PARAMETERS, "needle_compare": COMPARE_PARAMETERS,
+             **({"needle_stereo": STEREO_PARAMETERS} if stereo else {})}
+    for name, specs in nodes.items():  # a '/**' section reaches all three nodes: each ignores the others' names
+        others = {spec.name for other, other_specs in nodes.items() if other != name for spec in other_specs}
+        check_ros_arguments(rcl_args, name, specs, logger.warning, others)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv if argv is None else argv)
     args = parse_arguments(remove_ros_args(argv)[1:])
     logger = rclpy.logging.get_logger(NAME)
     try:
         rcl_args, stereo = rcl_arguments(argv, args)
+        check_node_arguments(rcl_args, stereo, logger)
     except ValueError as error:
         logger.fatal(str(error))
         return EXIT_BAD_PARAMETER

@@ -274,8 +274,12 @@ class CompareNode(Node):
     def finish(self) -> dict:
         """Finalize the recording; return (and write, if configured) the run summary."""
         if self.recorder is not None:
-            files = self.recorder.close()
-            print(f"[{NODE_NAME}] recording finalized: {', '.join(map(str, files))}", flush=True)
+            files = ", ".join(map(str, self.recorder.close())) or "none"
+            if self.recorder.failure is None:
+                print(f"[{NODE_NAME}] recording finalized: {files}", flush=True)
+            else:
+                print(f"[{NODE_NAME}] recording NOT finalized ({self.recorder.failure}): {files}; "
+                      "needle_mcap_recover rebuilds its index", file=sys.stderr, flush=True)
         self.summary.unpaired_measurements = self.pairer.unpaired
         report = self.summary.as_dict()
         print(f"[{NODE_NAME}] summary: {json.dumps(report)}", flush=True)
@@ -290,7 +294,7 @@ class CompareNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(CompareNode, NODE_NAME, args)
+    return run_node(CompareNode, NODE_NAME, args, PARAMETERS)
 
 
 if __name__ == "__main__":

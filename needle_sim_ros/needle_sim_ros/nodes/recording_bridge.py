@@ -72,6 +72,8 @@ class TopicRecorder:
         self._node = node
         self._writer: McapBagWriter | None = McapBagWriter(path, options, custom_data)  # RecordingError: caller
         self._registered: set[str] = set()
+        self.failure: str | None = None  # why the recording stopped early (then close() cannot finalize it)
+        self._stopped_files: list = []
         node.create_timer(max(options.chunk_interval, 0.1) if options.chunk_interval > 0 else 1.0, self._flush_due)
 
     def add_parameters(self, node_name: str, values: dict[str, Any], parameter_file: str) -> None:
@@ -93,12 +95,14 @@ class TopicRecorder:
         self._guard(lambda w: w.write(topic, data, self._now()))
 
     def close(self) -> list:
+        """Finalize; returns the files. ``failure`` says whether they are incomplete (stopped by an error)."""
         if self._writer is None:
-            return []
+            return self._stopped_files
         writer, self._writer = self._writer, None
         try:
             return writer.close()
         except RecordingError as error:
+            self.failure = str(error)
             self._node.get_logger().error(f"recording not finalized: {error}; run needle_mcap_recover on it")
             return writer.files
 
@@ -117,4 +121,6 @@ class TopicRecorder:
             self._node.get_logger().error(f"recording stopped: {error}; the file keeps every complete chunk "
                                           "(needle_mcap_recover rebuilds its index)")
             writer, self._writer = self._writer, None
-            self._node.get_logger().error(f"recording files: {', '.join(map(str, writer.close()))}")
+            self.failure = str(error)
+            self._stopped_files = writer.close()
+            self._node.get_logger().error(f"recording files: {', '.join(map(str, self._stopped_files))}")

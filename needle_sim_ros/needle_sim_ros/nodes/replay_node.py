@@ -54,6 +54,10 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
                         help="wait S seconds before playing (after --wait-for-subscribers)")
     parser.add_argument("--wait-for-subscribers", type=_non_negative, default=0.0, metavar="S",
                         help="wait up to S seconds until every topic has a subscriber")
+    parser.add_argument("--stop-on-corrupt", action="store_true",
+                        help="stop at a corrupt chunk (default: skip it, count it and warn)")
+    parser.add_argument("--allow-type-mismatch", action="store_true", help="also play topics whose recorded type "
+                        "differs from what the suite's nodes expect on that name (default: skip them)")
     return parser.parse_args(argv)
 
 
@@ -62,8 +66,13 @@ class ReplayNode(Node):
         super().__init__(NODE_NAME)
         self.reader, self.args = reader, args
         self.publishers_by_topic = {}
+        mismatches = {} if args.allow_type_mismatch else reader.type_mismatches()
         for topic in args.topics or sorted(reader.topics):
             recorded = reader.topics[topic]
+            if topic in mismatches:
+                self.get_logger().error(f"skipping topic '{topic}': recorded type '{mismatches[topic][0]}', the "
+                                        f"nodes expect '{mismatches[topic][1]}' (--allow-type-mismatch plays it)")
+                continue
             try:
                 message_type = message_class(recorded.type_name)
             except (ImportError, AttributeError, ValueError) as error:
@@ -130,26 +139,36 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_arguments(remove_ros_args(argv)[1:])
     logger = rclpy.logging.get_logger(NODE_NAME)
     try:
-        reader = BagReader(args.bag)
+        reader = BagReader(args.bag, stop_on_corrupt=args.stop_on_corrupt)
     except BagReadError as error:
         logger.fatal(str(error))
-        return 1
+        return 2
     unknown = sorted(set(args.topics or ()) - set(reader.topics))
     if unknown:
         logger.fatal(f"--topics: not in '{args.bag}': {', '.join(unknown)} "
                      f"(recorded: {', '.join(sorted(reader.topics))})")
-        return 1
+        return 2
     rclpy.init(args=argv)
     node = ReplayNode(reader, args)
+    status = 0
     try:
-        node.play()
-        node.get_logger().info(f"played {node.published} messages from {args.bag}")
+        if not node.publishers_by_topic:
+            node.get_logger().fatal(f"nothing to play from '{args.bag}'")
+            status = 2
+        else:
+            node.play()
+            node.get_logger().info(f"played {node.published} messages from {args.bag}")
+    except BagReadError as error:
+        node.get_logger().fatal(str(error))
+        status = 2
     except KeyboardInterrupt:
         pass
     finally:
+        if reader.corrupt_chunks:
+            node.get_logger().warning(f"skipped {reader.corrupt_chunks} corrupt chunk(s) of '{args.bag}'")
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return status
 
 
 if __name__ == "__main__":

@@ -1,23 +1,35 @@
 """The `main` of every needle_sim_ros node: init, construct, spin, and a clean, defined exit."""
 from __future__ import annotations
 
-from typing import Callable
+import sys
+from typing import Callable, Sequence
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
-from needle_sim_ros.nodes.parameters import ParameterError
+from needle_vision.parameters import check_ros_arguments
+
+from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
 
 EXIT_BAD_PARAMETER = 2
 
 
-def run_node(make_node: Callable[[], Node], name: str, args=None) -> int:
-    """Spin one node until SIGINT/SIGTERM; a ParameterError at construction exits with code 2.
+def run_node(make_node: Callable[[], Node], name: str, args=None,
+             specs: Sequence[ParamSpec] | None = None) -> int:
+    """Spin one node until SIGINT/SIGTERM; a bad ``--params-file`` (checked against ``specs`` before rclpy reads
+    it) or a ParameterError at construction exits with code 2.
 
     Optional node hooks: ``start()`` after construction (e.g. a real-time thread), ``finish()`` before destruction
     (e.g. stop that thread, finalize a log file).
     """
+    try:
+        check_ros_arguments(sys.argv if args is None else args, name, specs,
+                            lambda message: rclpy.logging.get_logger(name).warning(message))
+    except ParameterError as error:
+        rclpy.logging.get_logger(name).fatal(str(error))
+        return EXIT_BAD_PARAMETER
     rclpy.init(args=args)
     try:
         node = make_node()
@@ -33,9 +45,15 @@ def run_node(make_node: Callable[[], Node], name: str, args=None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:  # the context was shut down (SIGINT) while the executor waited: a shutdown like the others
+        if rclpy.ok():
+            raise
     finally:
         if hasattr(node, "finish"):
             node.finish()
-        node.destroy_node()
+        try:
+            node.destroy_node()
+        except RCLError:  # entities already invalidated by the shutdown
+            pass
         rclpy.try_shutdown()
     return 0

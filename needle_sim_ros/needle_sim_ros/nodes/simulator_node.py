@@ -211,6 +211,10 @@ class NeedleSimulatorNode(LifecycleNode):
             self.get_logger().info("first base pose received: needle initialised straight at it")
         if verdict is PoseVerdict.NORMALIZED:
             self.warn_throttled("normalized", "base pose quaternion was not unit length: normalized")
+        elif verdict is PoseVerdict.RESTARTED:
+            self.get_logger().warning(f"base pose after a gap of more than {self.p['pose_input.timeout']:g} s, "
+                                      f"more than {self.p['pose_input.resume_tolerance']:g} m from the held pose: "
+                                      "needle restarted straight at it")
         elif verdict is PoseVerdict.REANCHORED:
             self.get_logger().warning("base pose jumped and stayed there: needle reset straight at the new pose")
         elif verdict not in (PoseVerdict.ACCEPTED,):
@@ -225,8 +229,11 @@ class NeedleSimulatorNode(LifecycleNode):
             self.counters_other["twist_rejected"] += 1
             self.warn_throttled("twist", "ignoring base twist: not finite or not in the world frame")
             return
-        with self._lock:
-            self.sim.set_twist(self.now_seconds(), linear, angular)
+        try:
+            with self._lock:
+                self.sim.set_twist(self.now_seconds(), linear, angular)
+        except ValueError as error:
+            self.warn_throttled("twist", f"ignoring base twist: {error}")
 
     def on_tip_load(self, msg: WrenchStamped) -> None:
         """A force on the tip from a topic (a recorded experiment's tip mass); replaces the previous one."""
@@ -237,12 +244,15 @@ class NeedleSimulatorNode(LifecycleNode):
             self.counters_other["tip_load_rejected"] += 1
             self.warn_throttled("tip_load", f"ignoring tip load: not finite or frame '{frame}' unknown")
             return
-        with self._lock:
-            if self.sim is None:
-                return
-            if frame == self.p["frames.base"] and self.sim.base is not None:
-                force = Rotation.from_quat(self.sim.base.orientation).apply(force)
-            self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+        try:
+            with self._lock:
+                if self.sim is None:
+                    return
+                if frame == self.p["frames.base"] and self.sim.base is not None:
+                    force = Rotation.from_quat(self.sim.base.orientation).apply(force)
+                self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+        except ValueError as error:
+            self.warn_throttled("tip_load", f"ignoring tip load: {error}")
 
     # -- services and parameters -----------------------------------------------------------------------------
     def on_reset(self, request, response):
@@ -283,13 +293,13 @@ class NeedleSimulatorNode(LifecycleNode):
 
     def on_parameters_changed(self, changed: dict) -> None:
         with self._lock:
+            if "loads.tip_force" in changed and self.sim is not None:
+                self._apply_tip_force(changed["loads.tip_force"])  # first: a load the model cannot carry refuses all
             self.p.update(changed)
             if self.sim is None:  # unconfigured: configure builds with the new values
                 return
             if {"damping.rayleigh_alpha", "damping.rayleigh_beta"} & changed.keys():
                 self.sim.rebuild_model(model_builder_from_parameters(self.p))
-            if "loads.tip_force" in changed:
-                self._apply_tip_force(changed["loads.tip_force"])
 
     # -- the real-time loop ----------------------------------------------------------------------------------
     def start(self) -> None:
@@ -366,7 +376,15 @@ class NeedleSimulatorNode(LifecycleNode):
             if not self.active:
                 return
             started = self.sim.started
+            failed, skipped = self.sim.statistics.failed_steps, self.sim.statistics.skipped_time
             records = self.sim.advance(now, deterministic=self.use_sim_time) if started else []
+            failed, skipped = self.sim.statistics.failed_steps - failed, self.sim.statistics.skipped_time - skipped
+        if skipped:
+            self.warn_throttled("skipped", f"the integration lagged more than loop.max_catch_up: {skipped:.3f} s of "
+                                           "simulated time skipped (diagnostics: skipped_time_s)")
+        if failed:
+            self.warn_throttled("failed", f"{failed} step(s) failed even after sub-stepping (point loads: "
+                                          f"{len(self.sim.point_loads)}): needle reset straight at the base pose")
         if started and not self.sim.started:
             self.get_logger().warning(f"clock jumped back to {now:.3f} s: waiting for a new first pose")
         if len(records) > 1:  # simulated time has no deadline: several steps per tick are its catch-up
@@ -491,7 +509,7 @@ class NeedleSimulatorNode(LifecycleNode):
 
 
 def main(args=None) -> int:
-    return run_node(NeedleSimulatorNode, "needle_simulator", args)
+    return run_node(NeedleSimulatorNode, "needle_simulator", args, SIMULATOR_PARAMETERS)
 
 
 if __name__ == "__main__":

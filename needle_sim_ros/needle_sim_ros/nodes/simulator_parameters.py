@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from needle_sim_ros.model.config import DEFAULTS as MODEL_DEFAULTS
-from needle_sim_ros.nodes.parameters import ParamSpec
+from needle_vision.parameters import TOPIC_CHECK, ParamSpec
 from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
 
@@ -51,21 +51,22 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("flange_offset.orientation", [0.0, 0.0, 0.0, 1.0], "Rotation flange -> needle base frame, quaternion (x, y, z, w).", -1.0, 1.0, length=4,
               check=(_unit_quaternion, "must be a unit quaternion")),
     # Topics (relative, so they can be remapped and namespaced).
-    ParamSpec("topics.base_pose", "base_pose", "Input geometry_msgs/PoseStamped of the needle holder (flange).", check=(bool, "must not be empty")),
-    ParamSpec("topics.base_twist", "base_twist", "Optional input geometry_msgs/TwistStamped (world frame) for velocity feed-forward.", check=(bool, "must not be empty")),
-    ParamSpec("topics.tip_load", "tip_load", "Optional input geometry_msgs/WrenchStamped: force on the needle tip (world or base frame), e.g. a recorded tip mass.", check=(bool, "must not be empty")),
-    ParamSpec("topics.wrench", "wrench", "Output geometry_msgs/WrenchStamped: wrench of the needle on its holder, base frame.", check=(bool, "must not be empty")),
-    ParamSpec("topics.shape", "needle/shape", "Output needle_interfaces/NeedleShape (world frame).", check=(bool, "must not be empty")),
-    ParamSpec("topics.path", "needle/path", "Output nav_msgs/Path of the centerline.", check=(bool, "must not be empty")),
-    ParamSpec("topics.marker", "needle/marker", "Output visualization_msgs/Marker tube.", check=(bool, "must not be empty")),
-    ParamSpec("topics.pose_array", "needle/state/current_shape", "Output geometry_msgs/PoseArray (SmartNeedle convention, metres).", check=(bool, "must not be empty")),
-    ParamSpec("topics.state", "needle/state", "Output needle_interfaces/NeedleState (depth, tip force, energies).", check=(bool, "must not be empty")),
+    ParamSpec("topics.base_pose", "base_pose", "Input geometry_msgs/PoseStamped of the needle holder (flange).", check=TOPIC_CHECK),
+    ParamSpec("topics.base_twist", "base_twist", "Optional input geometry_msgs/TwistStamped (world frame) for velocity feed-forward.", check=TOPIC_CHECK),
+    ParamSpec("topics.tip_load", "tip_load", "Optional input geometry_msgs/WrenchStamped: force on the needle tip (world or base frame), e.g. a recorded tip mass.", check=TOPIC_CHECK),
+    ParamSpec("topics.wrench", "wrench", "Output geometry_msgs/WrenchStamped: wrench of the needle on its holder, base frame.", check=TOPIC_CHECK),
+    ParamSpec("topics.shape", "needle/shape", "Output needle_interfaces/NeedleShape (world frame).", check=TOPIC_CHECK),
+    ParamSpec("topics.path", "needle/path", "Output nav_msgs/Path of the centerline.", check=TOPIC_CHECK),
+    ParamSpec("topics.marker", "needle/marker", "Output visualization_msgs/Marker tube.", check=TOPIC_CHECK),
+    ParamSpec("topics.pose_array", "needle/state/current_shape", "Output geometry_msgs/PoseArray (SmartNeedle convention, metres).", check=TOPIC_CHECK),
+    ParamSpec("topics.state", "needle/state", "Output needle_interfaces/NeedleState (depth, tip force, energies).", check=TOPIC_CHECK),
     ParamSpec("qos.wrench", "sensor_data", "QoS of the wrench output.", choices=QOS_CHOICES),
     ParamSpec("qos.base_pose", "sensor_data", "QoS of the pose input (sensor_data also matches reliable publishers).", choices=QOS_CHOICES),
     ParamSpec("rates.shape_hz", 100.0, "Rate of the NeedleShape and NeedleState outputs [Hz].", 0.1, 1000.0, dynamic=True),
     ParamSpec("rates.visualization_hz", 10.0, "Rate of the RViz outputs: path, pose array and marker tube [Hz].", 0.01, 1000.0, dynamic=True),
     ParamSpec("rates.diagnostics_hz", 1.0, "Rate of diagnostic_msgs/DiagnosticArray on /diagnostics [Hz].", 0.1, 100.0, dynamic=True),
-    ParamSpec("output.shape_samples", 50, "Centerline samples per shape message.", 2, 10000, dynamic=True),
+    ParamSpec("output.shape_samples", 50, "Centerline samples per shape message (at most 1000: more would slow the "
+              "wrench loop).", 2, 1000, dynamic=True),
     # Pose input handling (see needle_sim_ros.base_trajectory).
     ParamSpec("pose_input.window", 0.02, "Least-squares window for pose, velocity and acceleration estimates [s].", 1e-3, 1.0),
     ParamSpec("pose_input.max_extrapolation", 0.01, "Longest extrapolation beyond the newest pose before it is held [s].", 0.0, 1.0),
@@ -75,8 +76,19 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("pose_input.reanchor_after", 10, "Consecutive consistent jumped poses after which the needle is reset there.", 1, 10000),
     ParamSpec("pose_input.max_stamp_offset", 0.5, "Wall-clock mode: stamps further than this from now are replaced by the receive time [s].", 1e-3, 3600.0),
     ParamSpec("pose_input.twist_timeout", 0.05, "A twist older than this is ignored [s].", 1e-3, 10.0),
+    ParamSpec("pose_input.max_position", 100.0, "Poses with a coordinate beyond +-this are rejected (working "
+              "volume) [m].", 1e-3, 1e4),
+    ParamSpec("pose_input.max_linear_speed", 5.0, "Twists with a faster linear velocity are ignored [m/s].",
+              1e-3, 100.0),
+    ParamSpec("pose_input.max_angular_speed", 20.0, "Twists with a faster angular velocity are ignored [rad/s].",
+              1e-3, 1000.0),
+    ParamSpec("pose_input.resume_tolerance", 1e-3, "A pose arriving after a gap longer than pose_input.timeout "
+              "farther than this from the held pose restarts the needle straight there (with a warning) [m].",
+              0.0, 10.0),
     # External loads (e.g. the tip mass of seed 000 Fig. 7).
-    ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: [0, 0, -9.81 m]).", -1e3, 1e3, length=3, dynamic=True),
+    ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: "
+              "[0, 0, -9.81 m]); all point loads together at most 25 E I / L^2 (8.4 N for the default needle).",
+              -100.0, 100.0, length=3, dynamic=True),
     # Lifecycle (needle_sim_ros.nodes.lifecycle).
     ParamSpec("autostart", True, "Configure and activate at start (a plain node); false: wait for lifecycle transitions (managed, e.g. by a robot bringup)."),
     # Real-time loop.

@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +64,17 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
     return lines
 
 
+def publish(staging: Path, output_dir: Path) -> None:
+    """Move a run's results into place: the old summary goes first and the new one comes last, so a summary.json
+    always describes the pipeline.mcap and plots next to it; stale plots of an earlier run are removed."""
+    (output_dir / "summary.json").unlink(missing_ok=True)
+    os.replace(staging / "pipeline.mcap", output_dir / "pipeline.mcap")
+    shutil.rmtree(output_dir / "plots", ignore_errors=True)
+    if (staging / "plots").is_dir():
+        os.replace(staging / "plots", output_dir / "plots")
+    os.replace(staging / "summary.json", output_dir / "summary.json")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="needle_offline", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
@@ -76,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-stereo", action="store_true", help="compare a recorded needle/measured_shape instead")
     parser.add_argument("--no-plots", action="store_true", help="do not write plots")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--stop-on-corrupt", action="store_true", help="stop at a corrupt chunk or message of the "
+                        "bag (default: skip it and count it in the summary)")
     args = parser.parse_args(argv)
     if args.start_offset < 0 or (args.duration is not None and args.duration <= 0):
         parser.error("--start-offset must be >= 0 and --duration > 0")
@@ -87,34 +103,57 @@ def main(argv: list[str] | None = None) -> int:
     try:
         experiment = load_experiment(args.experiment) if args.experiment else experiment_for_bag(args.bag)
         pipeline = OfflinePipeline(experiment, overrides, stereo=False if args.no_stereo else None)
-        output_dir.mkdir(parents=True, exist_ok=True)
         reader = BagReader(args.bag)
-        total = (reader.end_time_ns - reader.start_time_ns) / 1e9 - args.start_offset
-        total = min(total, args.duration) if args.duration is not None else total
+        output_dir.mkdir(parents=True, exist_ok=True)
+    except (ExperimentConfigError, ParameterError, BagReadError, ValueError) as error:
+        print(f"needle_offline: error: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        print(f"needle_offline: error: output directory '{output_dir}': {error.strerror or error}", file=sys.stderr)
+        return 2
+    # Everything is written into a staging directory and moved into place only when the run succeeded.
+    staging = Path(tempfile.mkdtemp(prefix=".needle_offline-", dir=output_dir))
+    try:
+        return run_and_publish(args, experiment, pipeline, reader, staging, output_dir)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def run_and_publish(args: argparse.Namespace, experiment, pipeline: OfflinePipeline, reader: BagReader,
+                    staging: Path, output_dir: Path) -> int:
+    """Run into ``staging``; on success replace the results in ``output_dir`` (summary.json last)."""
+    name = args.bag.stem
+    total = (reader.end_time_ns - reader.start_time_ns) / 1e9 - args.start_offset
+    total = min(total, args.duration) if args.duration is not None else total
+    try:
         with tqdm(total=round(total, 3), unit="s", desc=f"needle_offline {name}", disable=args.quiet,
                   bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s of bag [{elapsed}<{remaining}]") as bar:
             def progress(done: float) -> None:
                 bar.update(min(round(done, 3), bar.total) - bar.n)
-            run = pipeline.run(args.bag, output_dir / "pipeline.mcap", args.start_offset, args.duration, progress)
-    except (ExperimentConfigError, ParameterError, BagReadError, ValueError) as error:
+            run = pipeline.run(args.bag, staging / "pipeline.mcap", args.start_offset, args.duration, progress,
+                               args.stop_on_corrupt)
+        summary = run.summary
+        log = read_pipeline_log(run.log_path, args.bag)
+    except (ParameterError, BagReadError, ValueError) as error:
         print(f"needle_offline: error: {error}", file=sys.stderr)
         return 2
-    except RecordingError as error:
+    except (RecordingError, OSError) as error:
         print(f"needle_offline: error: {error}", file=sys.stderr)
         return 1
-    summary = run.summary
     for warning in summary["warnings"]:
         print(f"[needle_offline] note: {warning}", file=sys.stderr)
-    log = read_pipeline_log(run.log_path, args.bag)
     summary["versus_ground_truth"] = versus_ground_truth(log)
     if not args.no_plots:
         instants = args.instants or experiment.settings.plot_instants
-        summary["plots"] = [str(p) for p in write_plots(log, output_dir / "plots", instants, name)]
-    summary["log"] = str(run.log_path)
-    (output_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        written = write_plots(log, staging / "plots", instants, name)
+        summary["plots"] = [str(output_dir / "plots" / p.name) for p in written]
+    summary["log"] = str(output_dir / "pipeline.mcap")
+    (staging / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    publish(staging, output_dir)
     for line in summary_lines(summary):
         print(f"[needle_offline] {line}")
-    print(f"[needle_offline] MCAP log: {run.log_path}\n[needle_offline] summary: {output_dir / 'summary.json'}")
+    print(f"[needle_offline] MCAP log: {output_dir / 'pipeline.mcap'}\n"
+          f"[needle_offline] summary: {output_dir / 'summary.json'}")
     if not args.no_plots:
         print(f"[needle_offline] plots: {output_dir / 'plots'}")
     return 0

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from needle_vision.package_files import share_file
-from needle_vision.parameters import load_params_file
+from needle_vision.parameters import ParamSpec, load_params_file
 
 #: The pipeline's nodes and the package whose share directory holds each node's config file.
 NODE_PACKAGES = {"needle_simulator": "needle_sim_ros", "needle_stereo": "needle_vision",
@@ -36,11 +36,25 @@ def node_config_files(config_dir: Path | None = None) -> dict[str, list[Path]]:
     return {node: [path] if path.is_file() else [] for node, path in paths.items()}
 
 
+def node_specs(node: str) -> list[ParamSpec]:
+    """The parameter declarations of a pipeline node."""
+    if node == "needle_stereo":
+        from needle_vision.parameters import SPECS
+        return list(SPECS)
+    if node == "needle_compare":
+        from needle_sim_ros.nodes.compare_node import PARAMETERS
+        return PARAMETERS
+    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+    return SIMULATOR_PARAMETERS
+
+
 def node_values(files: Sequence[Path], node: str) -> dict[str, Any]:
-    """Parameter values for ``node`` from params files applied in order (``/**`` and the node's own section)."""
+    """Parameter values for ``node`` from params files applied in order (``/**`` and the node's own section),
+    each checked against the node's declarations as the node checks them (ParameterError naming the file); an
+    experiment file need not have a section for every node."""
     values: dict[str, Any] = {}
     for path in files:
-        values.update(load_params_file(path, node))
+        values.update(load_params_file(path, node, node_specs(node), require_section=False))
     return values
 
 
@@ -80,6 +94,8 @@ def load_experiment(path: str | Path, config_dir: Path | None = None) -> Experim
     if not path.is_file():
         raise ExperimentConfigError(f"experiment file '{path}' does not exist")
     raw = load_params_file(path, PIPELINE_SECTION)
+    for node in NODES:  # every node's section checked now, before anything runs
+        load_params_file(path, node, node_specs(node), require_section=False)
     if "bag" not in raw:
         raise ExperimentConfigError(f"'{path}': section {PIPELINE_SECTION}.ros__parameters needs 'bag'")
     instants = raw.get("plot_instants", [])

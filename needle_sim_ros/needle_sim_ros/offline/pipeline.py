@@ -14,6 +14,7 @@ plots and reports read either. Nothing here depends on wall time: the same bag a
 """
 from __future__ import annotations
 
+import struct
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -29,7 +30,7 @@ from needle_sim_ros import cdr
 from needle_sim_ros.offline.parameters import ExperimentConfig
 from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
                                            simulator_values, stereo_values)
-from needle_sim_ros.recording import BagReader, OfferedQos, WriterOptions
+from needle_sim_ros.recording import BagReader, BagReadError, OfferedQos, WriterOptions
 from needle_sim_ros.recording.bag_reader import read_ahead
 from needle_sim_ros.recording.background_writer import BackgroundBagWriter
 
@@ -44,6 +45,10 @@ OUTPUT_TOPICS = {
 }
 INPUT_TYPES = {"/tip_load": WrenchStamped, "/left/camera_info": CameraInfo, "/right/camera_info": CameraInfo,
                "/needle/measured_shape": NeedleShape}  # besides images and poses (see decode)
+
+
+# What decoding a damaged message raises (CDR readers: struct/index/unicode errors; rclpy: RuntimeError).
+DECODE_ERRORS = (ValueError, RuntimeError, IndexError, struct.error, UnicodeDecodeError, TypeError, OverflowError)
 
 
 def decode(topic: str, data: bytes) -> Any:
@@ -72,10 +77,8 @@ class OfflinePipeline:
         overrides = overrides or {}
         self.experiment = experiment
         self.warnings: list[str] = []
-        sim_values, unknown = simulator_values(experiment.values("needle_simulator", overrides.get("needle_simulator")))
-        self.warnings += unknown
-        cmp_values, unknown = compare_values(experiment.values("needle_compare", overrides.get("needle_compare")))
-        self.warnings += unknown
+        sim_values = simulator_values(experiment.values("needle_simulator", overrides.get("needle_simulator")))
+        cmp_values = compare_values(experiment.values("needle_compare", overrides.get("needle_compare")))
         self.parameters = {"needle_simulator": sim_values, "needle_compare": cmp_values}
         self.simulator = SimulatorStage(sim_values)
         self.comparison = ComparisonStage(cmp_values)
@@ -87,16 +90,23 @@ class OfflinePipeline:
             self.stereo = StereoStage(values)
 
     def input_topics(self, reader: BagReader) -> list[str]:
+        """The recorded input topics; ValueError naming the topic if one has another type than the nodes expect."""
         topics = ["/base_pose", "/tip_load"]
         topics += ["/left/image_raw", "/right/image_raw", "/left/camera_info", "/right/camera_info"] if self.use_stereo \
             else ["/needle/measured_shape"]
-        return [t for t in topics if t in reader.topics]
+        topics = [t for t in topics if t in reader.topics]
+        for topic, (recorded, expected) in reader.type_mismatches().items():
+            if topic in topics:
+                raise ValueError(f"bag '{reader.path}': topic '{topic}' has type '{recorded}', expected '{expected}'")
+        return topics
 
     def run(self, bag: Path, output: Path | None, start_offset: float = 0.0, duration: float | None = None,
-            progress: Callable[[float], None] | None = None) -> OfflineRun:
+            progress: Callable[[float], None] | None = None, stop_on_corrupt: bool = False) -> OfflineRun:
         """Process the bag slice [start + start_offset, + duration] (s); write the log to ``output`` (.mcap).
-        ``progress(seconds)`` is told the bag time processed so far, about every 0.1 s of it."""
-        reader = BagReader(bag)
+        ``progress(seconds)`` is told the bag time processed so far, about every 0.1 s of it. Corrupt chunks and
+        undecodable messages are skipped and counted (``stop_on_corrupt``: BagReadError instead)."""
+        reader = BagReader(bag, stop_on_corrupt)
+        undecodable = 0
         topics = self.input_topics(reader)
         if "/base_pose" not in topics:
             raise ValueError(f"bag '{bag}' has no /base_pose topic: nothing drives the simulator")
@@ -124,7 +134,14 @@ class OfflinePipeline:
                 if now > end:
                     break
                 self._advance(now)
-                msg = decode(message.topic, message.data)
+                try:
+                    msg = decode(message.topic, message.data)
+                except DECODE_ERRORS as error:
+                    undecodable += 1
+                    if stop_on_corrupt:
+                        raise BagReadError(f"bag '{bag}': undecodable {message.topic} message at "
+                                           f"{now / NS:.9f} s ({error})") from error
+                    continue
                 if message.topic in ("/base_pose", "/tip_load"):
                     with self._timed("simulator"):
                         if message.topic == "/base_pose":
@@ -163,7 +180,9 @@ class OfflinePipeline:
             "timing": {"wall_s": wall, "simulated_s": simulated,
                        "real_time_factor": simulated / wall if wall > 0 else None,
                        **stages, "messages_and_io_s": wall - sum(self.seconds.values())},
-            "warnings": self.warnings,
+            "warnings": self.warnings + [f"skipped {n} {what} of the bag" for n, what in (
+                (reader.corrupt_chunks, "corrupt chunk(s)"), (undecodable, "undecodable message(s)")) if n],
+            "corrupt_chunks": reader.corrupt_chunks, "undecodable_messages": undecodable,
         }
         return OfflineRun(summary, output, self.errors)
 

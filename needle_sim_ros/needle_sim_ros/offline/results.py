@@ -15,6 +15,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from needle_sim_ros.comparison import Centerline, compare_centerlines
+from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReader
 
 NS = 1_000_000_000
 MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC = "/needle/shape", "/needle/measured_shape", "/shape_error", "/wrench"
@@ -75,12 +76,12 @@ def _wrench(messages: list) -> WrenchSeries | None:
 
 
 def read_pipeline_log(log: str | Path, bag: str | Path | None = None) -> PipelineLog:
-    """Decode ``log`` (model/measured shapes, errors, wrench) and, if given, the bag's ground truth and start."""
-    start = None
+    """Decode ``log`` (model/measured shapes, errors, wrench) and, if given, the bag's (.mcap file or bag
+    directory) ground truth and start; the truth stops at a corrupt chunk (the comparison skipped it already)."""
+    start, bag_files = None, []
     if bag is not None:
-        with open(bag, "rb") as stream:
-            statistics = make_reader(stream).get_summary().statistics
-        start = statistics.message_start_time
+        reader = BagReader(bag)
+        start, bag_files = reader.start_time_ns, reader.files
     result = PipelineLog(start_ns=0)
     wrenches, truth_wrenches, errors = [], [], []
     for _, channel, _, msg in _decoded(Path(log), {MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC}):
@@ -92,12 +93,15 @@ def read_pipeline_log(log: str | Path, bag: str | Path | None = None) -> Pipelin
             errors.append(msg)
         else:
             wrenches.append(msg)
-    if bag is not None:
-        for _, channel, _, msg in _decoded(Path(bag), {TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC}):
-            if channel.topic == TRUTH_SHAPE_TOPIC:
-                result.truth_shapes[_stamp(msg.header)] = _points(msg)
-            else:
-                truth_wrenches.append(msg)
+    try:
+        for file in bag_files:
+            for _, channel, _, msg in _decoded(file, {TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC}):
+                if channel.topic == TRUTH_SHAPE_TOPIC:
+                    result.truth_shapes[_stamp(msg.header)] = _points(msg)
+                else:
+                    truth_wrenches.append(msg)
+    except CHUNK_ERRORS:
+        pass  # counted by the pipeline's reader (summary: corrupt_chunks)
     result.start_ns = start if start is not None else min(
         [*result.model_shapes, *result.measured_shapes], default=0)
     errors.sort(key=lambda m: _stamp(m.header))

@@ -30,7 +30,7 @@ from needle_vision.calibration import (CalibrationError, StereoRig, calibration_
                                        load_camera_calibration)
 from needle_vision.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.pairing import StampPairer as FramePairer
-from needle_vision.parameters import output_from_left, stereo_config, validate_all
+from needle_vision.parameters import ROS_BUILTIN, output_from_left, stereo_config, unknown_name_error, validate_all
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
 from needle_vision.transform import RigidTransform, quaternion_from_x_axis
 
@@ -49,16 +49,17 @@ def stamp_ns(header: Header) -> int:
     return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
 
 
-def validated(specs: list[ParamSpec], values: dict[str, Any], node: str) -> tuple[dict[str, Any], list[str]]:
-    """Defaults overridden by ``values``, each checked like the node checks it; also the names the node does not
-    declare (a node ignores them)."""
+def validated(specs: list[ParamSpec], values: dict[str, Any], node: str) -> dict[str, Any]:
+    """Defaults overridden by ``values``, each checked like the node checks it; a name the node does not declare
+    is an error suggesting the nearest declared one."""
     by_name = {spec.name: spec for spec in specs}
     result = {spec.name: spec.default for spec in specs}
     for name, value in values.items():
         if name in by_name:
             result[name] = by_name[name].validate(value)
-    unknown = sorted(set(values) - set(by_name) - {"use_sim_time"})
-    return result, [f"{node}: parameter '{name}' is not declared by the node (ignored)" for name in unknown]
+        elif name not in ROS_BUILTIN:
+            raise unknown_name_error(name, by_name, f"{node}: ")
+    return result
 
 
 @dataclass(frozen=True)
@@ -108,7 +109,7 @@ class SimulatorStage:
         verdict = self.sim.offer_pose((pose.stamp_ns or now_ns) * 1e-9, pose.position, pose.orientation)
         if not started and self.sim.started:
             self._steps_since_start = 0
-        if verdict.name not in ("ACCEPTED", "NORMALIZED", "REANCHORED"):
+        if verdict.name not in ("ACCEPTED", "NORMALIZED", "REANCHORED", "RESTARTED"):
             self._reject(f"base pose {verdict.value}")
 
     def on_tip_load(self, msg: WrenchStamped) -> None:
@@ -120,7 +121,10 @@ class SimulatorStage:
             return
         if frame == self.p["frames.base"] and self.sim.base is not None:
             force = Rotation.from_quat(self.sim.base.orientation).apply(force)
-        self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+        try:
+            self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
+        except ValueError:
+            self._reject("tip load beyond what the needle model integrates")
 
     # --- outputs ---------------------------------------------------------------------------------------------
     def advance(self, now_ns: int) -> list[tuple[str, Any]]:
@@ -289,11 +293,11 @@ class ComparisonStage:
         return self.summary.as_dict()
 
 
-def simulator_values(values: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+def simulator_values(values: dict[str, Any]) -> dict[str, Any]:
     return validated(SIMULATOR_PARAMETERS, values, "needle_simulator")
 
 
-def compare_values(values: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+def compare_values(values: dict[str, Any]) -> dict[str, Any]:
     return validated(COMPARE_PARAMETERS, values, "needle_compare")
 
 

@@ -19,21 +19,17 @@ from pathlib import Path
 from typing import Iterator
 
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
-from zstandard import ZstdError
 
 from needle_sim_ros.recording.bag_metadata import METADATA_RECORD_NAME
-from needle_sim_ros.recording.bag_reader import BagReadError, mcap_files
+from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReadError, mcap_files
 from needle_sim_ros.recording.mcap_writer import PROFILE, McapBagWriter, RecordingError, WriterOptions
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
-# What a cut or damaged record raises while being parsed or decompressed (CRC mismatch is a ValueError;
-# the lz4 and zstd decoders raise RuntimeError / ZstdError).
-_CORRUPT = (McapError, ValueError, struct.error, RuntimeError, ZstdError, UnicodeDecodeError)
+_CORRUPT = CHUNK_ERRORS
 
 
 class RecoveryError(RuntimeError):
@@ -126,7 +122,11 @@ def recover(source: str | Path, destination: str | Path, options: WriterOptions 
     """Rewrite every complete message of ``source`` (file or bag directory) into a valid MCAP ``destination``."""
     report = RecoveryReport()
     sources = mcap_files(Path(source))
+    for path in sources:
+        if path.stat().st_size < len(MAGIC):
+            raise RecoveryError(f"'{path}' is {path.stat().st_size} bytes long: nothing to recover")
     writer = McapBagWriter(destination, options)
+    done = False
     try:
         for path in sources:
             schemas: dict[int, Schema] = {}
@@ -149,8 +149,12 @@ def recover(source: str | Path, destination: str | Path, options: WriterOptions 
                 elif isinstance(record, Attachment):
                     writer.add_attachment(record.name, record.media_type, record.data, record.log_time)
                     report.attachments += 1
+        done = True
     finally:
         writer.close()
+        if not done:  # leave nothing that looks like a recovered file
+            for written in writer.files:
+                Path(written).unlink(missing_ok=True)
     report.topics = len(writer.topics)
     return report
 
@@ -170,9 +174,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("output must differ from input")
     try:
         report = recover(args.input, args.output, WriterOptions(compression=args.compression, overwrite=args.overwrite))
-    except (RecoveryError, RecordingError, BagReadError) as error:
-        print(f"needle_mcap_recover: {error}", file=sys.stderr)
+    except (RecoveryError, BagReadError) as error:
+        print(f"needle_mcap_recover: error: {error}", file=sys.stderr)
+        return 2
+    except RecordingError as error:
+        print(f"needle_mcap_recover: error: {error}", file=sys.stderr)
         return 1
+    if report.messages == 0:
+        print(f"needle_mcap_recover: warning: no complete message in '{args.input}': '{args.output}' holds no data",
+              file=sys.stderr)
     print(f"needle_mcap_recover: {report.describe()} -> {args.output}")
     return 0
 

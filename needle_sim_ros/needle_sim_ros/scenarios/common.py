@@ -10,9 +10,11 @@ from typing import Callable
 
 import numpy as np
 
+from needle_vision.parameters import ParamSpec, load_params_file
+
 from needle_sim_ros.model import (BaseMotion, BaseWrench, NeedleModel, NeedleProperties, centerline,
                                   load_needle_config, needle_parameters)
-from needle_sim_ros.model.config import explicit_parameters
+from needle_sim_ros.model.config import DEFAULTS, GROUPS
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
@@ -29,24 +31,42 @@ def add_needle_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", type=Path, default=None, help="write a PNG figure here")
 
 
+# Model keys the node does not declare (a scenario's mesh and fixtures); empty lists stand for "none".
+MODEL_ONLY_PARAMETERS = [
+    ParamSpec("needle.element_lengths", [], "Lengths of the elements from A to the tip [m]; []: uniform.", 0.0, 10.0),
+    ParamSpec("fixtures.intervals", [], "Arc-length pairs [s_start, s_end, ...] [m] held in a fixture; []: none.",
+              0.0, 10.0),
+    ParamSpec("fixtures.frame", "world", "Frame of the fixtures: world or base."),
+    ParamSpec("fixtures.needle_position", [0.0, 0.0, 0.0], "Needle base position of the fixture frame [m].", length=3),
+    ParamSpec("fixtures.needle_orientation", [0.0, 0.0, 0.0, 1.0], "Needle base orientation of the fixture frame "
+              "(quaternion x, y, z, w).", length=4),
+]
+
+
+def checked_params_file(path: Path, prefixes: tuple[str, ...]) -> dict:
+    """The ``needle_simulator`` (or ``/**``) values of a params file, checked by the shared loader against the
+    simulator's declarations (ParameterError, a ValueError, naming the file and parameter); only names starting
+    with ``prefixes`` are kept, and empty model lists become None (the model's "none")."""
+    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+    values = load_params_file(path, "needle_simulator", [*SIMULATOR_PARAMETERS, *MODEL_ONLY_PARAMETERS])
+    return {name: (None if value == [] and name in DEFAULTS else value)
+            for name, value in values.items() if name.startswith(prefixes)}
+
+
 def needle_configuration(args: argparse.Namespace) -> tuple[NeedleProperties, dict, dict, dict]:
-    """(props, build_model kwargs, Integrator kwargs, flat parameters) from --params files and the command line."""
-    parameters = needle_parameters(merged_parameters(args.params))
-    props, build, integrator = load_needle_config(parameters)
+    """(props, build_model kwargs, Integrator kwargs, flat parameters) from --params files (applied in order,
+    each checked by the shared loader) and the command line."""
+    source: dict = {}
+    for path in args.params:
+        source.update(checked_params_file(path, tuple(g + "." for g in GROUPS)))
+    props, build, integrator = load_needle_config(source)
+    parameters = needle_parameters(source)
     if args.elements is not None:
         build["n_elements"] = args.elements
         build.pop("element_lengths", None)
     if args.axial_gauss is not None:
         build["axial_gauss"] = args.axial_gauss
     return props, build, integrator, parameters
-
-
-def merged_parameters(files: list[Path]) -> dict:
-    """The needle.*, damping.*, integrator.* and fixtures.* parameters that params files set, applied in order."""
-    merged: dict = {}
-    for path in files:
-        merged.update(explicit_parameters(path))
-    return merged
 
 
 def material(props: NeedleProperties) -> dict:

@@ -20,10 +20,10 @@ from needle_vision.package_files import share_file
 
 from needle_sim_ros.model import (Gravity, Integrator, NeedleProperties, State, build_model, load_needle_config,
                                   reaction_wrench, solve_static)
-from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, flatten_tissue_config, tissue_readout
+from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, tissue_readout
 
-from .common import (add_needle_arguments, figure, integrate_sampled, material, needle_configuration, save_figure,
-                     shape_json, write_json)
+from .common import (add_needle_arguments, checked_params_file, figure, integrate_sampled, material,
+                     needle_configuration, save_figure, shape_json, write_json)
 from .insertion_motion import InsertionMotion
 
 
@@ -173,9 +173,7 @@ def run(args: argparse.Namespace) -> int:
     files = [shipped_tissue_config(), *args.params]
     tissue = {}
     for path in files:
-        if not path.is_file():
-            raise FileNotFoundError(f"params file '{path}' does not exist")
-        tissue.update(flatten_tissue_config(path))
+        tissue.update(checked_params_file(path, ("tissue.",)))
     depths = (args.depth,) if args.retract_to is None else (args.depth, args.retract_to)
     motion = InsertionMotion(depths, args.speed, args.gap, np.radians(args.roll_deg), args.spin_rate,
                              args.duty_cycle)
