@@ -146,7 +146,7 @@ def assert_refused(result: subprocess.CompletedProcess, path: Path, words: list[
 EXECUTABLES = {
     "needle_simulator": lambda path, out: ["needle_simulator", "--ros-args", "--params-file", str(path)],
     "needle_compare": lambda path, out: ["needle_compare", "--ros-args", "--params-file", str(path)],
-    "needle_scenario": lambda path, out: ["needle_scenario", "static", "--tip-mass", "0.0", "--config", str(path),
+    "needle_scenario": lambda path, out: ["needle_scenario", "static", "--tip-mass", "0.0", "--params", str(path),
                                           "--json", str(out / "static.json")],
     "needle_offline": lambda path, out: ["needle_offline", str(REPO / "bags" / "insertion.mcap"), "--experiment",
                                          str(path), "--output-dir", str(out), "--quiet"],
@@ -181,7 +181,7 @@ def test_every_executable_refuses_bad_params_files_with_exit_2(tmp_path, executa
 @pytest.mark.slow
 def test_the_unknown_name_suggests_the_nearest_known_one_in_every_tool(tmp_path, ros_env):
     path = write_case(tmp_path, "typo", ADVERSARIAL[[c[0] for c in ADVERSARIAL].index("typo")][1])
-    result = run(["needle_scenario", "static", "--config", str(path)], tmp_path, ros_env)
+    result = run(["needle_scenario", "static", "--params", str(path)], tmp_path, ros_env)
     assert result.returncode == 2 and "did you mean 'needle.length'" in result.stderr
 
 

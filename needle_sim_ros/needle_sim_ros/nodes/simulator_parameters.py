@@ -87,7 +87,7 @@ SIMULATOR_PARAMETERS = [
               0.0, 10.0),
     # External loads (e.g. the tip mass of seed 000 Fig. 7).
     ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: "
-              "[0, 0, -9.81 m]); all point loads together at most 25 E I / L^2 (8.4 N for the default needle).",
+              "[0, 0, -9.81 m]); all point loads together at most 20 E I / L^2 (6.8 N for the default needle).",
               -100.0, 100.0, length=3, dynamic=True),
     # Lifecycle (needle_sim_ros.nodes.lifecycle).
     ParamSpec("autostart", True, "Configure and activate at start (a plain node); false: wait for lifecycle transitions (managed, e.g. by a robot bringup)."),

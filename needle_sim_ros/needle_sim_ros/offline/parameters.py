@@ -92,7 +92,7 @@ def load_experiment(path: str | Path, config_dir: Path | None = None) -> Experim
     the problem. The path is not resolved through symbolic links: the bag is relative to ``<root>``."""
     path = Path(path).absolute()
     if not path.is_file():
-        raise ExperimentConfigError(f"experiment file '{path}' does not exist")
+        raise ExperimentConfigError(f"experiment file '{path}': no such file")
     raw = load_params_file(path, PIPELINE_SECTION)
     for node in NODES:  # every node's section checked now, before anything runs
         load_params_file(path, node, node_specs(node), require_section=False)
