@@ -13,6 +13,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         # Parameter files live at the repository root (config/) and are installed with this package.
         ("share/" + package_name + "/config", glob("../config/*.yaml")),
+        ("share/" + package_name + "/config/batch", glob("../config/batch/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     install_requires=["setuptools"],
@@ -31,6 +32,7 @@ setup(
             "needle_bringup = needle_sim_ros.nodes.bringup:main",
             "needle_offline = needle_sim_ros.offline.cli:main",
             "needle_make_bags = needle_sim_ros.experiments.make_bags:main",
+            "needle_batch = needle_sim_ros.batch.cli:main",
         ],
     },
 )
