@@ -39,8 +39,8 @@ class TaskSpec:
 
     @property
     def key(self) -> str:
-        """Resume key: bag content hash + parameter set (+ slice)."""
-        text = f"{self.bag_hash}|{canonical(self.parameters)}|{self.duration}"
+        """Resume key: bag content hash + parameter set (+ experiment file and slice)."""
+        text = f"{self.bag_hash}|{canonical(self.parameters)}|{self.experiment}|{self.duration}"
         return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 

@@ -34,6 +34,7 @@ class TruthModel:
     rayleigh_alpha: float = 1.0  # [1/s]
     dt: float = 5e-4  # [s]
     rho_inf: float = 0.9
+    tissue: tuple[tuple[str, object], ...] = ()  # tissue parameter overrides (simulator names), e.g. for identification
 
 
 @dataclass
@@ -58,7 +59,7 @@ def truth_simulation(experiment: Experiment, truth: TruthModel) -> NeedleSimulat
 
     def tissue_builder(model) -> list:
         from needle_sim_ros.tissue import build_tissue_forces
-        return build_tissue_forces({"tissue.enable": True}, model)
+        return build_tissue_forces({"tissue.enable": True, **dict(truth.tissue)}, model)
 
     model, integrator = model_builder(())
     simulation = NeedleSimulation(model, integrator, truth.dt, BaseTrajectory(),
