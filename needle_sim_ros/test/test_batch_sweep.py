@@ -1,6 +1,7 @@
 """needle_batch sweep on a LocalCluster of 2 processes over the sample bags: the same numbers as needle_offline run
 bag by bag, failed rows for a corrupt and a missing bag, --resume reruns only what did not finish, and the table of
-1 worker equals that of 2. Installed executables, run from a temporary working directory."""
+1 worker equals that of 2. Installed executables, run from the repository root (the sample experiment files name the
+stereo calibration files relative to it, as for needle_offline); outputs in a temporary folder."""
 import json
 import shutil
 import subprocess
@@ -19,8 +20,8 @@ GRID = "sweep:\n  needle_simulator:\n    ros__parameters:\n      damping.rayleig
 COLUMN = "needle_simulator:damping.rayleigh_beta"
 
 
-def run(*args, cwd):
-    return subprocess.run(list(args), cwd=cwd, capture_output=True, text=True, timeout=600)
+def run(*args):
+    return subprocess.run(list(args), cwd=REPO, capture_output=True, text=True, timeout=600)
 
 
 @pytest.fixture(scope="module")
@@ -33,8 +34,8 @@ def sweep(tmp_path_factory):
     (work / "bags.txt").write_text("\n".join(lines) + "\n")
     (work / "grid.yaml").write_text(GRID)
     out = work / "out"
-    result = run("needle_batch", "sweep", "--bags", "bags.txt", "--grid", "grid.yaml", "--duration", DURATION,
-                 "--workers", "2", "--output-dir", str(out), "--quiet", cwd=work)
+    result = run("needle_batch", "sweep", "--bags", str(work / "bags.txt"), "--grid", str(work / "grid.yaml"),
+                 "--duration", DURATION, "--workers", "2", "--output-dir", str(out), "--quiet")
     return work, out, result
 
 
@@ -50,7 +51,7 @@ def test_sweep_writes_a_row_per_bag_and_set_and_failed_rows_for_bad_bags(sweep):
     assert len(ok) == len(BAGS) * len(BETAS) and (ok["compared"] > 0).all()
     failed = table[table["status"] == "failed"].set_index(table[table["status"] == "failed"]["bag"].map(
         lambda b: Path(b).stem))
-    assert "missing.mcap" in failed.loc["missing", "error"].iloc[0]
+    assert "missing.mcap' does not exist" in failed.loc["missing", "error"].iloc[0]
     assert failed.loc["corrupt", "error"].iloc[0]
     assert failed["rmse_mean_m"].isna().all()
     assert ok["wrench_force_rms_n"].notna().all()  # every sample bag has a reference wrench
@@ -63,9 +64,10 @@ def test_rows_match_needle_offline_bag_by_bag(sweep, bag):
     table = pd.read_parquet(out / "results.parquet")
     for beta in BETAS:
         target = work / f"offline_{bag}_{beta}"
-        result = run("needle_offline", f"{REPO}/bags/{bag}.mcap", "--experiment", f"{REPO}/config/experiments/{bag}.yaml",
-                     "--duration", DURATION, "--set", f"needle_simulator:damping.rayleigh_beta={beta}", "--no-plots",
-                     "--quiet", "--output-dir", str(target), cwd=work)
+        result = run("needle_offline", f"{REPO}/bags/{bag}.mcap", "--experiment",
+                     f"{REPO}/config/experiments/{bag}.yaml", "--duration", DURATION, "--set",
+                     f"needle_simulator:damping.rayleigh_beta={beta}", "--no-plots",
+                     "--quiet", "--output-dir", str(target))
         assert result.returncode == 0, result.stderr
         expected = json.loads((target / "summary.json").read_text())["comparison"]
         row = table[(table["bag"] == f"{REPO}/bags/{bag}.mcap") & (table[COLUMN] == beta)].iloc[0]
@@ -77,16 +79,17 @@ def test_rows_match_needle_offline_bag_by_bag(sweep, bag):
 def test_resume_reruns_only_unfinished_tasks_and_one_worker_gives_the_same_table(sweep):
     work, out, _ = sweep
     before = pd.read_parquet(out / "results.parquet")
-    result = run("needle_batch", "sweep", "--bags", "bags.txt", "--grid", "grid.yaml", "--duration", DURATION,
-                 "--workers", "1", "--output-dir", str(out), "--quiet", "--resume", "--no-plots", cwd=work)
+    result = run("needle_batch", "sweep", "--bags", str(work / "bags.txt"), "--grid", str(work / "grid.yaml"),
+                 "--duration", DURATION, "--workers", "1", "--output-dir", str(out), "--quiet", "--resume",
+                 "--no-plots")
     assert "ran 4, reused 6" in result.stdout, result.stdout + result.stderr
     after = pd.read_parquet(out / "results.parquet")
     pd.testing.assert_frame_equal(before[before["status"] == "ok"], after[after["status"] == "ok"])
     # one worker from scratch, insertion only: the same rows as with two workers (wall time aside)
     shutil.copy(REPO / "bags/insertion.mcap", work / "insertion.mcap")
     result = run("needle_batch", "sweep", "--bags", str(work / "insertion.mcap"), "--experiment",
-                 f"{REPO}/config/experiments/insertion.yaml", "--grid", "grid.yaml", "--duration", DURATION,
-                 "--workers", "1", "--output-dir", str(work / "one"), "--quiet", "--no-plots", cwd=work)
+                 f"{REPO}/config/experiments/insertion.yaml", "--grid", str(work / "grid.yaml"), "--duration", DURATION,
+                 "--workers", "1", "--output-dir", str(work / "one"), "--quiet", "--no-plots")
     assert result.returncode == 0, result.stderr
     one = pd.read_parquet(work / "one" / "results.parquet").drop(columns=["bag", "wall_s", "key"])
     two = before[before["bag"] == f"{REPO}/bags/insertion.mcap"].drop(columns=["bag", "wall_s", "key"])
