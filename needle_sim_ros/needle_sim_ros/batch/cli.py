@@ -76,11 +76,11 @@ def run_sweep_command(args: argparse.Namespace, client, entries, config_dir: Pat
 
 
 def run_identify_command(args: argparse.Namespace, client, entries, config_dir: Path) -> int:
-    from needle_sim_ros.batch.identify import IdentifyError, identify, parse_fit
+    from needle_sim_ros.batch.identify import IdentifyError, identify
     from needle_sim_ros.batch.report import write_identification
     from needle_sim_ros.batch.sweep import plan
     from needle_sim_ros.batch.task import ResidualScales
-    fits = [parse_fit(text) for text in args.fit]
+    fits = args.fits
     bags = plan(client, entries, [{}], config_dir, args.experiment, args.duration)
     try:
         result = identify(client, bags, fits, ResidualScales(args.shape_scale, args.force_scale, args.moment_scale),
@@ -117,7 +117,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         entries = resolve_bags(args.bags)
         if args.command == "sweep":
-            load_grid(args.grid)  # bad grid files fail before a cluster starts
+            load_grid(args.grid)  # bad grid files and fitted parameters fail before a cluster starts
+        else:
+            from needle_sim_ros.batch.identify import parse_fit
+            args.fits = [parse_fit(text) for text in args.fit]
         if args.experiment is not None and not args.experiment.is_file():
             raise BagListError(f"--experiment '{args.experiment}': no such file")
         config_dir = default_config_dir()
