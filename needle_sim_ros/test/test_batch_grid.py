@@ -71,3 +71,11 @@ def test_bag_lists_and_content_keys(tmp_path):
     assert same.key != TaskSpec("x", content_hash(str(tmp_path / "b.mcap")), "e", "c", {"n": {"p": 1}}).key
     assert same.key != TaskSpec("x", same.bag_hash, "e", "c", {"n": {"p": 2}}).key
     assert content_hash(str(tmp_path / "missing.mcap")) == "missing"
+
+
+def test_the_installed_example_grid_loads():
+    from ament_index_python.packages import get_package_share_directory
+    grid = load_grid(Path(get_package_share_directory("needle_sim_ros")) / "config/batch/sweep_example.yaml")
+    assert len(grid.parameter_sets) == 2 * 2 + 2
+    assert grid.parameter_sets[1]["needle_simulator"]["tissue.layers.tip_stiffness"] == [1.2e4]
+    assert grid.parameter_sets[-1]["needle_simulator"]["tissue.layers.friction_coulomb"] == [8.0]

@@ -66,6 +66,10 @@ def run_sweep_command(args: argparse.Namespace, client, entries, config_dir: Pat
     print(f"[needle_batch] {len(result.table)} row(s): ran {result.ran}, reused {result.reused}, failed {len(failed)}")
     for row in failed.itertuples():
         print(f"[needle_batch] failed: {row.bag} (parameter set {row.parameter_set}): {row.error}", file=sys.stderr)
+    no_reference = int((result.table["status"].eq("ok") & result.table["wrench_force_rms_n"].isna()).sum())
+    if no_reference:
+        print(f"[needle_batch] note: wrench error empty in {no_reference} row(s): the bag has no reference wrench "
+              f"(/ground_truth/wrench)", file=sys.stderr)
     print(f"[needle_batch] table: {args.output_dir / 'results.parquet'}, {args.output_dir / 'results.csv'}")
     if not args.no_plots:
         files, notes = write_sweep_plots(result.table, grid.columns, args.output_dir / "plots")

@@ -23,12 +23,13 @@ def write_sweep_plots(table: pd.DataFrame, columns: list[str], folder: Path) -> 
     files, notes = [], []
     metrics = [m for m in PLOTTED if ok[m].notna().any()]
     for name in columns:
-        axis = numeric_axis(ok[name]) if len(ok) else None
+        rows = ok[ok[name].notna()]  # the sets that give this parameter
+        axis = numeric_axis(rows[name]) if len(rows) else None
         if axis is None or not metrics:
             notes.append(f"'{name}': not plotted (no finished rows, or values are not numbers)")
             continue
         figure, axes = plt.subplots(2, len(metrics), figsize=(4.5 * len(metrics), 6.5), squeeze=False)
-        data = ok.assign(_x=axis)
+        data = rows.assign(_x=axis)
         for j, metric in enumerate(metrics):
             label, scale = PLOTTED[metric]
             for bag, rows in data.groupby("bag", sort=True):
