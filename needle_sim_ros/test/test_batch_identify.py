@@ -3,7 +3,6 @@ synthetic insertions generated with them (needle_sim_ros.experiments), starting 
 written params file is one the simulator accepts and holds the estimate."""
 import json
 import subprocess
-from pathlib import Path
 
 import pytest
 

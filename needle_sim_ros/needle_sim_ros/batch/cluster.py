@@ -29,9 +29,11 @@ def open_client(workers: int | None = None, scheduler: str | None = None) -> Ite
 
 
 def map_ordered(client: Any, function: Callable, items: Sequence[Any], *args: Any, desc: str = "",
-                quiet: bool = False, on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
+                quiet: bool = False, on_result: Callable[[int, Any], None] | None = None,
+                on_error: Callable[[Any, BaseException], Any] | None = None) -> list[Any]:
     """``function(item, *args)`` for every item on the cluster; results in item order, a tqdm bar as they finish.
-    ``on_result(index, result)`` is called on the client as each finishes (e.g. to save progress)."""
+    ``on_result(index, result)`` is called on the client as each finishes (e.g. to save progress); a task that
+    raises (or whose worker died) gives ``on_error(item, error)`` if given, else the error propagates."""
     from distributed import as_completed
     futures = [client.submit(function, item, *args, pure=False) for item in items]
     index = {future.key: i for i, future in enumerate(futures)}
@@ -39,7 +41,12 @@ def map_ordered(client: Any, function: Callable, items: Sequence[Any], *args: An
     with tqdm(total=len(futures), desc=desc, unit="task", disable=quiet) as bar:
         for future in as_completed(futures):
             i = index[future.key]
-            results[i] = future.result()
+            try:
+                results[i] = future.result()
+            except Exception as error:  # noqa: BLE001 - e.g. distributed.KilledWorker
+                if on_error is None:
+                    raise
+                results[i] = on_error(items[i], error)
             if on_result is not None:
                 on_result(i, results[i])
             bar.update(1)

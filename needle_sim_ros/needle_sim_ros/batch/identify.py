@@ -53,12 +53,17 @@ def parse_fit(text: str) -> FitParameter:
     return FitParameter(node, name, initial)
 
 
+def reason(_: Any, error: BaseException) -> str:
+    """A one-line reason from an error (also for a task whose worker died)."""
+    return f"{type(error).__name__}: {' '.join(str(error).split())}"
+
+
 def residuals_or_error(spec: TaskSpec, scales: ResidualScales) -> np.ndarray | str:
     """On a worker: the bag's residuals, or the one-line reason they could not be computed."""
     try:
         return run_residuals(spec, scales)
     except Exception as error:  # noqa: BLE001 - reported per bag on the client
-        return f"{type(error).__name__}: {' '.join(str(error).split())}"
+        return reason(spec, error)
 
 
 @dataclass
@@ -114,7 +119,7 @@ class Identification:
         todo = [x for x in dict.fromkeys(tuple(map(float, x)) for x in points) if x not in self.cache]
         specs = [replace(bag, parameters=self.parameter_set(np.array(x))) for x in todo for bag in self.bags]
         results = map_ordered(self.client, residuals_or_error, specs, self.scales, desc=f"identify ({kind})",
-                              quiet=self.quiet)
+                              quiet=self.quiet, on_error=reason)
         for k, x in enumerate(todo):
             per_bag = results[k * len(self.bags):(k + 1) * len(self.bags)]
             self._check(per_bag)
@@ -139,7 +144,7 @@ class Identification:
         x0 = np.zeros(len(self.fits))
         specs = [replace(bag, parameters=self.parameter_set(x0)) for bag in self.bags]
         results = map_ordered(self.client, residuals_or_error, specs, self.scales, desc="identify (start)",
-                              quiet=self.quiet)
+                              quiet=self.quiet, on_error=reason)
         self.dropped = {b.bag: r for b, r in zip(self.bags, results) if isinstance(r, str)}
         self.bags = [b for b, r in zip(self.bags, results) if not isinstance(r, str)]
         if not self.bags:

@@ -12,7 +12,7 @@ from needle_sim_ros.batch.bags import BagEntry, content_hash
 from needle_sim_ros.batch.cluster import map_ordered
 from needle_sim_ros.batch.grid import Grid, ParameterSet
 from needle_sim_ros.batch.table import build_table, finished_rows, write_table
-from needle_sim_ros.batch.task import TaskSpec, run_row
+from needle_sim_ros.batch.task import TaskSpec, failed_row, run_row
 
 SAVE_EVERY_S = 10.0  # the partial table is rewritten at most this often while tasks finish (for --resume)
 
@@ -65,7 +65,7 @@ def run_sweep(client: Any, tasks: list[TaskSpec], grid: Grid, output_dir: Path, 
             last_save = time.monotonic()
 
     map_ordered(client, run_row, [tasks[i] for i in pending], desc="needle_batch sweep", quiet=quiet,
-                on_result=finished)
+                on_result=finished, on_error=failed_row)
     save()
     table = pd.read_parquet(output_dir / "results.parquet")
     return SweepResult(table, len(pending), len(tasks) - len(pending))

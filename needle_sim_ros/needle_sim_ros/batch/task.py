@@ -98,25 +98,29 @@ def _one_line(error: BaseException) -> str:
     return f"{type(error).__name__}: {text}"
 
 
+def failed_row(spec: TaskSpec, error: BaseException, wall_s: float = 0.0) -> dict[str, Any]:
+    return {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS), "status": "failed",
+            "error": _one_line(error), "wall_s": wall_s}
+
+
 def run_row(spec: TaskSpec) -> dict[str, Any]:
     """The table row of a task: metrics (None where unavailable), wall time, status and error message."""
-    row: dict[str, Any] = {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS)}
     start = time.perf_counter()
     try:
         with tempfile.TemporaryDirectory(prefix="needle_batch_") as folder:
             summary, log, _ = run_pipeline(spec, Path(folder))
         c = summary["comparison"]
+        row: dict[str, Any] = {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS)}
         row.update(rmse_mean_m=c["rmse_mean_m"], rmse_max_m=c["rmse_max_m"], tip_error_mean_m=c["tip_error_mean_m"],
                    compared=int(c["compared"]))
         differences = wrench_differences(log)
         if differences is not None:
             row["wrench_force_rms_n"] = float(np.sqrt(np.mean(np.sum(differences[0] ** 2, axis=1))))
             row["wrench_moment_rms_nm"] = float(np.sqrt(np.mean(np.sum(differences[1] ** 2, axis=1))))
-        row.update(status="ok", error="")
+        row.update(status="ok", error="", wall_s=time.perf_counter() - start)
+        return row
     except Exception as error:  # noqa: BLE001 - any failure of one task becomes its row
-        row.update(status="failed", error=_one_line(error))
-    row["wall_s"] = time.perf_counter() - start
-    return row
+        return failed_row(spec, error, time.perf_counter() - start)
 
 
 @dataclass(frozen=True)
