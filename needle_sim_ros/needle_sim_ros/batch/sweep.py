@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +38,6 @@ class SweepResult:
     table: pd.DataFrame
     ran: int
     reused: int
-    files: list[Path] = field(default_factory=list)
 
 
 def run_sweep(client: Any, tasks: list[TaskSpec], grid: Grid, output_dir: Path, resume: bool = False,
