@@ -15,6 +15,7 @@ setup(
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/config/experiments", glob("config/experiments/*.yaml")),
         ("share/" + package_name + "/config/foxglove", glob("config/foxglove/*.json")),
+        ("share/" + package_name + "/config/batch", glob("config/batch/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     install_requires=["setuptools"],
@@ -34,6 +35,7 @@ setup(
             "needle_bringup = needle_sim_ros.nodes.bringup:main",
             "needle_offline = needle_sim_ros.offline.cli:main",
             "needle_make_bags = needle_sim_ros.experiments.make_bags:main",
+            "needle_batch = needle_sim_ros.batch.cli:main",
         ],
     },
 )

@@ -38,6 +38,7 @@ class TruthModel:
     rayleigh_alpha: float = 1.0  # [1/s]
     dt: float = 1e-4  # [s]
     rho_inf: float = 0.9
+    tissue: tuple[tuple[str, object], ...] = ()  # tissue parameter overrides (simulator names), e.g. for identification
 
 
 def static_check(truth: TruthModel, tip_masses=(0.0, 0.04, 0.08)) -> dict[str, float]:
@@ -78,7 +79,7 @@ def truth_simulation(experiment: Experiment, truth: TruthModel) -> NeedleSimulat
 
     def tissue_builder(model) -> list:
         from needle_sim_ros.tissue import build_tissue_forces
-        return build_tissue_forces({"tissue.enable": True}, model)
+        return build_tissue_forces({"tissue.enable": True, **dict(truth.tissue)}, model)
 
     model, integrator = model_builder(())
     simulation = NeedleSimulation(model, integrator, truth.dt, BaseTrajectory(),

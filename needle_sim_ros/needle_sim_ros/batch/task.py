@@ -1,0 +1,152 @@
+"""One batch task on a worker: the offline pipeline (:class:`needle_sim_ros.offline.pipeline.OfflinePipeline`, as
+``needle_offline`` runs it) over one bag with one parameter set, reduced to a table row or a residual vector.
+
+Only paths and parameters travel through the scheduler; the worker reads the bag. A failing task returns a row with
+``status = failed`` and a one-line message instead of raising, so one bad bag never aborts a batch.
+"""
+from __future__ import annotations
+
+import hashlib
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from needle_sim_ros.batch.grid import SPECS, ParameterSet, canonical, split_index
+from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
+from needle_sim_ros.offline.parameters import ExperimentConfig, load_experiment
+from needle_sim_ros.offline.pipeline import OfflinePipeline
+from needle_sim_ros.offline.results import PipelineLog, WrenchSeries, read_pipeline_log
+
+METRICS = ("rmse_mean_m", "rmse_max_m", "tip_error_mean_m", "wrench_force_rms_n", "wrench_moment_rms_nm",
+           "compared")
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """What a worker needs: the bag and experiment paths, the config folder, the overrides and the bag slice."""
+
+    bag: str
+    bag_hash: str
+    experiment: str
+    config_dir: str
+    parameters: ParameterSet
+    duration: float | None = None
+    parameter_set: int = 0  # index in the grid (a table column, not part of the key)
+
+    @property
+    def key(self) -> str:
+        """Resume key: bag content hash + parameter set (+ experiment file and slice)."""
+        text = f"{self.bag_hash}|{canonical(self.parameters)}|{self.experiment}|{self.duration}"
+        return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def resolved_overrides(experiment: ExperimentConfig, parameters: ParameterSet) -> dict[str, dict[str, Any]]:
+    """Per-node overrides with ``name[i]`` entries written into a copy of the experiment's array."""
+    result: dict[str, dict[str, Any]] = {}
+    for node, values in parameters.items():
+        plain = {n: v for n, v in values.items() if split_index(n)[1] is None}
+        base = experiment.values(node, plain)
+        for name, value in values.items():
+            array_name, index = split_index(name)
+            if index is None:
+                continue
+            array = list(plain.get(array_name, base.get(array_name, SPECS[node][array_name].default)))
+            if index >= len(array):
+                raise ValueError(f"{node}: '{name}' is out of range: '{array_name}' has {len(array)} element(s)")
+            array[index] = value
+            plain[array_name] = array
+        result[node] = plain
+    return result
+
+
+def run_pipeline(spec: TaskSpec, output_dir: Path) -> tuple[dict[str, Any], PipelineLog, OfflinePipeline]:
+    """The offline pipeline over the task's bag; returns its summary, its decoded log and the pipeline."""
+    if not Path(spec.bag).exists():
+        raise FileNotFoundError(f"bag '{spec.bag}' does not exist")
+    experiment = load_experiment(spec.experiment, Path(spec.config_dir))
+    pipeline = OfflinePipeline(experiment, resolved_overrides(experiment, spec.parameters))
+    run = pipeline.run(Path(spec.bag), output_dir / "pipeline.mcap", 0.0, spec.duration)
+    return run.summary, read_pipeline_log(run.log_path, spec.bag), pipeline
+
+
+def _model_at(series: WrenchSeries, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    force = np.column_stack([np.interp(times, series.times, series.force[:, i]) for i in range(3)])
+    torque = np.column_stack([np.interp(times, series.times, series.torque[:, i]) for i in range(3)])
+    return force, torque
+
+
+def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None:
+    """Model minus reference force [N] and moment [N m] at the reference stamps inside the model's time span
+    (model wrench interpolated linearly); None when the bag has no reference wrench or the model none there."""
+    model, reference = log.wrench, log.truth_wrench
+    if model is None or reference is None or model.times.size < 2:
+        return None
+    inside = (reference.times >= model.times[0]) & (reference.times <= model.times[-1])
+    if not np.any(inside):
+        return None
+    times = reference.times[inside].astype(float)
+    force, torque = _model_at(WrenchSeries(model.times.astype(float), model.force, model.torque), times)
+    return force - reference.force[inside], torque - reference.torque[inside]
+
+
+def _one_line(error: BaseException) -> str:
+    text = " ".join(str(error).split()) or type(error).__name__
+    return f"{type(error).__name__}: {text}"
+
+
+def failed_row(spec: TaskSpec, error: BaseException, wall_s: float = 0.0) -> dict[str, Any]:
+    return {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS), "status": "failed",
+            "error": _one_line(error), "wall_s": wall_s}
+
+
+def run_row(spec: TaskSpec) -> dict[str, Any]:
+    """The table row of a task: metrics (None where unavailable), wall time, status and error message."""
+    start = time.perf_counter()
+    try:
+        with tempfile.TemporaryDirectory(prefix="needle_batch_") as folder:
+            summary, log, _ = run_pipeline(spec, Path(folder))
+        c = summary["comparison"]
+        row: dict[str, Any] = {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS)}
+        row.update(rmse_mean_m=c["rmse_mean_m"], rmse_max_m=c["rmse_max_m"], tip_error_mean_m=c["tip_error_mean_m"],
+                   compared=int(c["compared"]))
+        differences = wrench_differences(log)
+        if differences is not None:
+            row["wrench_force_rms_n"] = float(np.sqrt(np.mean(np.sum(differences[0] ** 2, axis=1))))
+            row["wrench_moment_rms_nm"] = float(np.sqrt(np.mean(np.sum(differences[1] ** 2, axis=1))))
+        row.update(status="ok", error="", wall_s=time.perf_counter() - start)
+        return row
+    except Exception as error:  # noqa: BLE001 - any failure of one task becomes its row
+        return failed_row(spec, error, time.perf_counter() - start)
+
+
+@dataclass(frozen=True)
+class ResidualScales:
+    """Scales that make the residuals dimensionless: shape [m], force [N], moment [N m]."""
+
+    shape: float = 1e-4
+    force: float = 1e-2
+    moment: float = 1e-3
+
+
+def run_residuals(spec: TaskSpec, scales: ResidualScales) -> np.ndarray:
+    """Signed residual vector of a bag: per compared measurement, each measured sample (in the model frame) minus
+    its closest point on the paired model centerline / ``scales.shape``; then model minus reference force and
+    moment at the reference stamps / their scales (if the bag has a reference wrench)."""
+    with tempfile.TemporaryDirectory(prefix="needle_batch_") as folder:
+        _, log, pipeline = run_pipeline(spec, Path(folder))
+    model_from_camera = pipeline.comparison.model_from_camera
+    parts = []
+    for measured_ns, model_ns in zip(log.error_times, log.model_times):
+        measured = model_from_camera.apply(log.measured_shapes[int(measured_ns)])
+        closest = closest_points_on_polyline(measured, log.model_shapes[int(model_ns)])
+        parts.append((measured - closest.point).ravel() / scales.shape)
+    differences = wrench_differences(log)
+    if differences is not None:
+        parts += [differences[0].ravel() / scales.force, differences[1].ravel() / scales.moment]
+    if not parts:
+        raise ValueError(f"bag '{spec.bag}': nothing compared and no reference wrench: no residuals")
+    return np.concatenate(parts)
