@@ -24,8 +24,11 @@ PYTHON_KEYS = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "numba": "python3-numba", "yaml": "python3-yaml",
     "cv2": "python3-opencv", "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm",
     "mcap": "mcap-ros2-support", "mcap_ros2": "mcap-ros2-support", "zstandard": "mcap-ros2-support",
-    "pytest": "python3-pytest", "rosbags": "python3-rosbags-pip",
+    "pytest": "python3-pytest", "rosbags": "python3-rosbags-pip", "pandas": "python3-pandas",
 }
+#: Libraries without a rosdep key, documented as a pip line in the README; needle_batch (their only user) exits 2
+#: with that line when they are missing, and the rest of the package imports without them.
+PIP_ONLY = {"dask", "distributed", "pyarrow"}
 RUN_TAGS = ("depend", "exec_depend")
 TEST_TAGS = RUN_TAGS + ("test_depend",)
 # ROS packages named in strings: message types ("pkg/msg/Type"), share-directory look-ups, package:// paths.
@@ -57,7 +60,7 @@ def required_keys(files: list[Path], own: str, local: set[str]) -> dict[str, set
     for path in files:
         text = path.read_text()
         python = imported_modules(text) if path.suffix == ".py" else set()
-        modules = python - set(sys.stdlib_module_names) - local - {own, "__future__"}
+        modules = python - set(sys.stdlib_module_names) - local - PIP_ONLY - {own, "__future__"}
         keys = {PYTHON_KEYS.get(module, module) for module in modules}
         keys |= {name for pattern in _ROS_NAME_PATTERNS for name in pattern.findall(text)}
         if re.search(r"\"ros2\",\s*\"bag\"", text):

@@ -33,7 +33,6 @@ def test_identify_recovers_known_tissue_parameters(tmp_path):
     assert all(b["rms_final"] < b["rms_initial"] for b in report["per_bag"])
     history = (out / "fit_history.csv").read_text().splitlines()
     assert len(history) - 1 == report["evaluations"] >= 3
-    values, unknown = simulator_values(node_values([out / "identified_params.yaml"], "needle_simulator"))
-    assert not unknown
+    values = simulator_values(node_values([out / "identified_params.yaml"], "needle_simulator"))
     assert values["tissue.layers.tip_stiffness"] == [pytest.approx(report["estimate"][0])]
     assert values["tissue.layers.friction_coulomb"] == [pytest.approx(report["estimate"][1])]

@@ -17,7 +17,6 @@ from pathlib import Path
 
 from needle_sim_ros.batch.bags import BagListError, resolve_bags
 from needle_sim_ros.batch.grid import GridError, load_grid
-from needle_sim_ros.offline.parameters import default_config_dir
 
 PIP_LINE = 'pip install "dask[distributed]" pandas pyarrow'
 
@@ -56,11 +55,11 @@ def parser() -> argparse.ArgumentParser:
     return main
 
 
-def run_sweep_command(args: argparse.Namespace, client, entries, config_dir: Path) -> int:
+def run_sweep_command(args: argparse.Namespace, client, entries) -> int:
     from needle_sim_ros.batch.plots import write_sweep_plots
     from needle_sim_ros.batch.sweep import plan, run_sweep
     grid = load_grid(args.grid)
-    tasks = plan(client, entries, grid.parameter_sets, config_dir, args.experiment, args.duration)
+    tasks = plan(client, entries, grid.parameter_sets, None, args.experiment, args.duration)
     result = run_sweep(client, tasks, grid, args.output_dir, args.resume, args.quiet)
     failed = result.table[result.table["status"] != "ok"]
     print(f"[needle_batch] {len(result.table)} row(s): ran {result.ran}, reused {result.reused}, failed {len(failed)}")
@@ -79,13 +78,13 @@ def run_sweep_command(args: argparse.Namespace, client, entries, config_dir: Pat
     return 1 if len(failed) else 0
 
 
-def run_identify_command(args: argparse.Namespace, client, entries, config_dir: Path) -> int:
+def run_identify_command(args: argparse.Namespace, client, entries) -> int:
     from needle_sim_ros.batch.identify import IdentifyError, identify
     from needle_sim_ros.batch.report import write_identification
     from needle_sim_ros.batch.sweep import plan
     from needle_sim_ros.batch.task import ResidualScales
     fits = args.fits
-    bags = plan(client, entries, [{}], config_dir, args.experiment, args.duration)
+    bags = plan(client, entries, [{}], None, args.experiment, args.duration)
     try:
         result = identify(client, bags, fits, ResidualScales(args.shape_scale, args.force_scale, args.moment_scale),
                           args.step, args.max_evaluations, args.quiet)
@@ -127,10 +126,9 @@ def main(argv: list[str] | None = None) -> int:
             args.fits = [parse_fit(text) for text in args.fit]
         if args.experiment is not None and not args.experiment.is_file():
             raise BagListError(f"--experiment '{args.experiment}': no such file")
-        config_dir = default_config_dir()
         with open_client(args.workers, args.scheduler) as client:
             command = run_sweep_command if args.command == "sweep" else run_identify_command
-            return command(args, client, entries, config_dir)
+            return command(args, client, entries)
     except (BagListError, GridError) as error:
         print(f"needle_batch: error: {error}", file=sys.stderr)
         return 2

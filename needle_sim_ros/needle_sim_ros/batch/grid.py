@@ -22,12 +22,12 @@ from typing import Any
 
 import yaml
 
+from needle_sim_ros.model.config import flatten_tree as flatten
 from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
 from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.offline.parameters import NODES
 from needle_vision.parameters import SPECS as STEREO_PARAMETERS
-from needle_vision.parameters import _flatten as flatten
 
 ParameterSet = dict[str, dict[str, Any]]  # node -> parameter name -> value
 SPECS: dict[str, dict[str, ParamSpec]] = {

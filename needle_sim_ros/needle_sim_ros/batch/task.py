@@ -67,7 +67,7 @@ def run_pipeline(spec: TaskSpec, output_dir: Path) -> tuple[dict[str, Any], Pipe
     """The offline pipeline over the task's bag; returns its summary, its decoded log and the pipeline."""
     if not Path(spec.bag).exists():
         raise FileNotFoundError(f"bag '{spec.bag}' does not exist")
-    experiment = load_experiment(spec.experiment, Path(spec.config_dir))
+    experiment = load_experiment(spec.experiment, Path(spec.config_dir) if spec.config_dir else None)
     pipeline = OfflinePipeline(experiment, resolved_overrides(experiment, spec.parameters))
     run = pipeline.run(Path(spec.bag), output_dir / "pipeline.mcap", 0.0, spec.duration)
     return run.summary, read_pipeline_log(run.log_path, spec.bag), pipeline

@@ -47,12 +47,13 @@ DEFAULTS: dict[str, Any] = {
 }
 
 
-def _flatten(tree: Mapping, prefix: str = "") -> dict[str, Any]:
+def flatten_tree(tree: Mapping, prefix: str = "") -> dict[str, Any]:
+    """Nested mapping -> dotted names (``{"a": {"b": 1}}`` -> ``{"a.b": 1}``); values as they are."""
     flat: dict[str, Any] = {}
     for key, value in tree.items():
         name = f"{prefix}{key}"
         if isinstance(value, Mapping):
-            flat.update(_flatten(value, name + "."))
+            flat.update(flatten_tree(value, name + "."))
         else:
             flat[name] = value
     return flat
@@ -72,13 +73,13 @@ def parameter_tree(source) -> Mapping:
         return source
     merged: dict[str, Any] = {}
     for section in sections:
-        merged.update(_flatten(section))
+        merged.update(flatten_tree(section))
     return merged
 
 
 def explicit_parameters(source) -> dict[str, Any]:
     """The needle/damping/integrator/fixtures parameters that ``source`` sets (flat dotted names)."""
-    flat = _flatten(parameter_tree(source))
+    flat = flatten_tree(parameter_tree(source))
     ours = {k: v for k, v in flat.items() if k.split(".", 1)[0] in GROUPS}
     unknown = sorted(set(ours) - set(DEFAULTS))
     if unknown:

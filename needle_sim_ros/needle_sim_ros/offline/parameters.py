@@ -108,11 +108,16 @@ def load_experiment(path: str | Path, config_dir: Path | None = None) -> Experim
     return ExperimentConfig(path, settings, files)
 
 
+def experiments_dir(config_dir: Path | None = None) -> Path:
+    """``<config_dir>/experiments``, by default the directory needle_sim_ros installs
+    (``share/needle_sim_ros/config/experiments/``)."""
+    return config_dir / "experiments" if config_dir else share_file("needle_sim_ros", "config/experiments")
+
+
 def experiment_for_bag(bag: str | Path, config_dir: Path | None = None) -> ExperimentConfig:
     """The experiment file of a bundled bag: ``<config_dir>/experiments/<bag stem>.yaml``, by default the one
     needle_sim_ros installs (``share/needle_sim_ros/config/experiments/``)."""
-    experiments = config_dir / "experiments" if config_dir else share_file("needle_sim_ros", "config/experiments")
-    path = experiments / f"{Path(bag).stem}.yaml"
+    path = experiments_dir(config_dir) / f"{Path(bag).stem}.yaml"
     if not path.is_file():
         raise ExperimentConfigError(f"no experiment file for bag '{bag}': expected '{path}'")
     return load_experiment(path, config_dir)
