@@ -12,6 +12,9 @@ run() {  # run <lock: "" or noble> <title> <pytest args...>
   NEEDLE_LOCK=$lock bash -c \
     'source scripts/setup_env.sh && printf "\033[1m[test]\033[0m %s\n" "$0" && exec pytest "$@"' "$title" "$@"
 }
+# Lint first (pycodestyle + pyflakes, lines <= 120: ruff.toml), in the main environment.
+NEEDLE_LOCK="" bash -c 'source scripts/setup_env.sh >/dev/null && printf "\033[1m[test]\033[0m lint (ruff)\n" \
+  && exec ruff check .'
 status=0
 run "" "running the test suite (package tests and suite-level tests)" "${TESTS[@]}" "$@" || status=$?
 if [ "${NEEDLE_NOBLE:-1}" != 0 ]; then

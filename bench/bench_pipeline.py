@@ -75,7 +75,8 @@ def live_rows(rates: list[float], directory: Path, from_source: bool) -> list[st
         rmse = f"{c['rmse_mean_m'] * 1e3:.3f}" if c["rmse_mean_m"] is not None else "n/a"
         rows.append(f"| {rate:g} | {c['compared']} / {expected} | {expected - c['compared']} | "
                     f"{d.get('skipped_time_s', '?')} | {float(d.get('step_time_mean_ms', 'nan')):.3f} | {rmse} | "
-                    + " / ".join(f"{cpu.get(n) or 0:.1f}" for n in ("needle_simulator", "needle_stereo", "needle_compare"))
+                    + " / ".join(f"{cpu.get(n) or 0:.1f}"
+                                 for n in ("needle_simulator", "needle_stereo", "needle_compare"))
                     + " |")
     return rows
 

@@ -12,11 +12,13 @@ from pathlib import Path
 
 import numpy
 
-BUILD_MACHINE_PREFIX = re.compile(r"/opt/python/cp3\d+-cp3\d+/(?:include/python3\.\d+|lib/python3\.\d+/site-packages/numpy/_core/include)")
+BUILD_MACHINE_PREFIX = re.compile(r"/opt/python/cp3\d+-cp3\d+/"
+                                  r"(?:include/python3\.\d+|lib/python3\.\d+/site-packages/numpy/_core/include)")
 
 
 def real_path(match: re.Match) -> str:
-    return sysconfig.get_paths()["include"] if "/include/python" in match.group(0) and "numpy" not in match.group(0) else numpy.get_include()
+    python_include = "/include/python" in match.group(0) and "numpy" not in match.group(0)
+    return sysconfig.get_paths()["include"] if python_include else numpy.get_include()
 
 
 def main(venv: Path) -> int:

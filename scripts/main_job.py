@@ -113,7 +113,8 @@ class Children:
         stream.close()
         child = Child(name, process, log_path)
         self.started.append(child)
-        say(f"started {name} (pid {process.pid}, log {log_path.relative_to(REPO) if log_path.is_relative_to(REPO) else log_path})")
+        shown = log_path.relative_to(REPO) if log_path.is_relative_to(REPO) else log_path
+        say(f"started {name} (pid {process.pid}, log {shown})")
         return child
 
     def stop(self, child: Child) -> int | None:
@@ -233,7 +234,8 @@ def run(args: argparse.Namespace) -> int:
     out = root / "live"
     out.mkdir(parents=True, exist_ok=True)
     say(f"bag {bag.relative_to(REPO) if bag.is_relative_to(REPO) else bag}: {experiment.settings.description}")
-    say(f"experiment parameters {experiment.path.relative_to(REPO) if experiment.path.is_relative_to(REPO) else experiment.path}; outputs in {root}")
+    shown = experiment.path.relative_to(REPO) if experiment.path.is_relative_to(REPO) else experiment.path
+    say(f"experiment parameters {shown}; outputs in {root}")
     stereo_params = node_values(experiment.files["needle_stereo"], "needle_stereo")
     background = int(stereo_params.get("background.frames", 10))
     if args.start_offset or args.duration is not None:

@@ -68,6 +68,7 @@ def test_1khz_wrench_stream_has_no_loss_under_reliable_qos(node, ros_env):
     finally:
         publisher.kill()
     assert publisher.returncode == 0, out
-    assert sequence == list(range(count)), f"received {len(sequence)} of {count}, in order: {sequence == sorted(sequence)}"
+    assert sequence == list(range(count)), \
+        f"received {len(sequence)} of {count}, in order: {sequence == sorted(sequence)}"
     elapsed = float(out.split(" in ")[1].split()[0])
     assert elapsed < count / 1000.0 * 1.1, f"publisher could not hold 1 kHz: {elapsed:.3f} s for {count} messages"

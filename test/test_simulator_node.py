@@ -88,7 +88,8 @@ def simulator(ros_env, tmp_path):
     driver = Driver()
 
     def start(**overrides):
-        process = subprocess.Popen(simulator_command() + ["--ros-args", "--params-file", str(write_params(tmp_path, **overrides))],
+        params = str(write_params(tmp_path, **overrides))
+        process = subprocess.Popen(simulator_command() + ["--ros-args", "--params-file", params],
                                    env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         processes.append(process)
         deadline = time.monotonic() + 180.0  # a first start on a fresh machine compiles the numba kernels (~50 s)
@@ -204,7 +205,8 @@ def test_bad_inputs_are_survived_and_never_produce_nan(simulator):
     ({"needle.gravity": [0.0, -9.81]}, "needle.gravity"),
 ])
 def test_bad_parameter_file_ends_the_node_with_a_message_naming_the_parameter(ros_env, tmp_path, override, name):
-    result = subprocess.run(simulator_command() + ["--ros-args", "--params-file", str(write_params(tmp_path, **override))],
+    params = str(write_params(tmp_path, **override))
+    result = subprocess.run(simulator_command() + ["--ros-args", "--params-file", params],
                             env=ros_env, capture_output=True, text=True, timeout=120)
     assert result.returncode != 0
     assert f"'{name}'" in result.stdout + result.stderr

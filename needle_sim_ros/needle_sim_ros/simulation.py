@@ -27,6 +27,7 @@ from needle_sim_ros.model import (
     Gravity,
     Integrator,
     NeedleModel,
+    NeedleProperties,
     needle_properties,
     PointLoad,
     State,
@@ -116,13 +117,15 @@ class NeedleSimulation:
 
     ``extra_forces_builder(model)`` makes the extra force contributions (e.g. tissue models with their own state:
     track, stick anchors) evaluated every step in addition to gravity and the named point loads; they are made
-    anew at every reset, so a restarted needle starts in fresh tissue. A step that fails even after the integrator's sub-stepping resets the needle to the straight state at
-    the current base pose (counted in ``statistics.failed_steps``): the output never contains NaN.
+    anew at every reset, so a restarted needle starts in fresh tissue. A step that fails even after the
+    integrator's sub-stepping resets the needle to the straight state at the current base pose (counted in
+    ``statistics.failed_steps``): the output never contains NaN.
     """
 
     def __init__(self, model: NeedleModel, integrator: Integrator, dt: float, trajectory: BaseTrajectory,
                  flange_offset: tuple[np.ndarray, np.ndarray] = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
-                 extra_forces_builder: Callable[[NeedleModel], list] | None = None, max_catch_up: float = 0.05, pose_timeout: float = 0.1,
+                 extra_forces_builder: Callable[[NeedleModel], list] | None = None, max_catch_up: float = 0.05,
+                 pose_timeout: float = 0.1,
                  twist_timeout: float = 0.05, clamp_interval: tuple[float, float] | None = None,
                  model_builder: ModelBuilder | None = None, input_limits: InputLimits = InputLimits()) -> None:
         if clamp_interval is not None and model_builder is None:
@@ -193,7 +196,8 @@ class NeedleSimulation:
             self.trajectory.offer(t, position, orientation)
             self.reset(self.base_motion_at(t), t)
             return PoseVerdict.RESTARTED
-        if verdict is PoseVerdict.REANCHORED or (not self.started and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)):
+        first = not self.started and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)
+        if verdict is PoseVerdict.REANCHORED or first:
             self.reset(self.base_motion_at(t), t)
         return verdict
 
@@ -243,7 +247,8 @@ class NeedleSimulation:
     def reset(self, base: BaseMotion, t: float) -> None:
         """Straight, unloaded needle at rest relative to the base at time t (clamped there, if configured)."""
         if self.clamp_interval is not None:
-            fixture = Fixture(interval=self.clamp_interval, frame="world", needle_pose=(base.position, base.orientation))
+            fixture = Fixture(interval=self.clamp_interval, frame="world",
+                              needle_pose=(base.position, base.orientation))
             self.model, self.integrator = self.model_builder((fixture,))
         if self.extra_forces_builder is not None:
             self.extra_forces = list(self.extra_forces_builder(self.model))
@@ -410,7 +415,8 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
         model, integrator, p["integrator.dt"], trajectory,
         flange_offset=(np.asarray(p["flange_offset.position"], dtype=float),
                        np.asarray(p["flange_offset.orientation"], dtype=float)),
-        extra_forces_builder=tissue_builder if p["tissue.enable"] else None, max_catch_up=p["loop.max_catch_up"], pose_timeout=p["pose_input.timeout"],
+        extra_forces_builder=tissue_builder if p["tissue.enable"] else None, max_catch_up=p["loop.max_catch_up"],
+        pose_timeout=p["pose_input.timeout"],
         twist_timeout=p["pose_input.twist_timeout"], clamp_interval=tuple(clamp) if len(clamp) == 2 else None,
         model_builder=model_builder, input_limits=InputLimits(
             p["pose_input.max_linear_speed"], p["pose_input.max_angular_speed"], p["pose_input.resume_tolerance"]))

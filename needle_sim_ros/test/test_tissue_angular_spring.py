@@ -63,7 +63,10 @@ def test_free_vibration_conserves_energy():
         def rhs(state):
             return np.concatenate([state[3:], needle.acceleration(state[:3], state[3:], no_load)])
         s = np.concatenate([g, gd])
-        k1 = rhs(s); k2 = rhs(s + dt / 2 * k1); k3 = rhs(s + dt / 2 * k2); k4 = rhs(s + dt * k3)
+        k1 = rhs(s)
+        k2 = rhs(s + dt / 2 * k1)
+        k3 = rhs(s + dt / 2 * k2)
+        k4 = rhs(s + dt * k3)
         s = s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         g, gd = s[:3], s[3:]
     # wrong mass-matrix or centripetal terms change the energy at O(1); RK4 drift here is < 1e-6

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import difflib
 import math
-import os
 import re
 import sys
 from dataclasses import dataclass

@@ -237,7 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.experiments:
         experiment = EXPERIMENTS[name]()
         print(f"[needle_make_bags] {name}: {experiment.description}", flush=True)
-        total += write_bag(experiment, args.output_dir / f"{name}.mcap", log=lambda m: print(m, flush=True))["size_bytes"]
+        written = write_bag(experiment, args.output_dir / f"{name}.mcap", log=lambda m: print(m, flush=True))
+        total += written["size_bytes"]
     print(f"[needle_make_bags] {len(args.experiments)} bag(s), {total / 1e6:.1f} MB in total")
     return 0
 

@@ -56,8 +56,9 @@ class SequenceBuffers:
 
 
 @njit(cache=True)
-def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables, rows, residual,
-                       band, pivots, factorization, kl, control, states, wrenches, iterations):
+def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed, base_nodes,
+                       base_local_r, base_local_rx, active, scale, tables, rows, residual, band, pivots,
+                       factorization, kl, control, states, wrenches, iterations):
     """Integrate from history (rows q, q', q'', a at t_n) one step per packed base motion (k, 19) with rotations
     (k, 3, 3). Writes each step's rows into states (k, 4, n), its wrench on the holder [force, torque in the world
     frame, force, torque in the base frame] into wrenches (k, 12) and its Newton corrections into iterations (k,).

@@ -21,7 +21,6 @@ from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.node import Node
 from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
 

@@ -24,11 +24,13 @@ def quaternions_from_tangents(tangents: np.ndarray) -> np.ndarray:
 
 def _pose(position, quaternion) -> Pose:
     return Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
-                orientation=Quaternion(x=float(quaternion[0]), y=float(quaternion[1]), z=float(quaternion[2]), w=float(quaternion[3])))
+                orientation=Quaternion(x=float(quaternion[0]), y=float(quaternion[1]), z=float(quaternion[2]),
+                                       w=float(quaternion[3])))
 
 
 def needle_shape_msg(header: Header, source: str, points: np.ndarray, tangents: np.ndarray, arc_length: np.ndarray,
-                     tip_position: np.ndarray, tip_orientation: np.ndarray, uncertainty: np.ndarray | None = None) -> NeedleShape:
+                     tip_position: np.ndarray, tip_orientation: np.ndarray,
+                     uncertainty: np.ndarray | None = None) -> NeedleShape:
     return NeedleShape(
         header=header,
         source=source,

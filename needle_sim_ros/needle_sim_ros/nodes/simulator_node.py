@@ -101,7 +101,8 @@ class NeedleSimulatorNode(LifecycleNode):
         configured = lambda: self.sim is not None  # noqa: E731
         self.create_service(Trigger, "~/reset", when_configured(configured, self.on_reset))
         self.create_service(ApplyPointLoad, "~/apply_point_load", when_configured(configured, self.on_apply_point_load))
-        self.create_service(ClearPointLoads, "~/clear_point_loads", when_configured(configured, self.on_clear_point_loads))
+        self.create_service(ClearPointLoads, "~/clear_point_loads",
+                            when_configured(configured, self.on_clear_point_loads))
         guard_dynamic_updates(self, SIMULATOR_PARAMETERS, self.on_parameters_changed)
         self._next_output = {"shape": 0.0, "visualization": 0.0, "diagnostics": 0.0}
         self._loop = threading.Thread(target=self.run_loop, name="needle_integration", daemon=True)
@@ -112,7 +113,8 @@ class NeedleSimulatorNode(LifecycleNode):
         if self.p["autostart"]:
             autostart(self)
         self.get_logger().info(
-            f"needle_simulator ready ({'active' if self.active else 'unconfigured: waiting for lifecycle transitions'}): "
+            "needle_simulator ready ("
+            f"{'active' if self.active else 'unconfigured: waiting for lifecycle transitions'}): "
             f"{self.p['needle.elements']} elements, dt = {self.p['integrator.dt'] * 1e3:g} ms, "
             f"{'simulated' if self.use_sim_time else 'wall-clock'} time; base poses on "
             f"'{self.resolve_topic_name(topics['base_pose'])}'")
@@ -124,7 +126,8 @@ class NeedleSimulatorNode(LifecycleNode):
             self.p = {spec.name: spec.validate(self.get_parameter(spec.name).value) for spec in SIMULATOR_PARAMETERS}
             sim = simulation_from_parameters(self.p)
         except (ParameterError, ValueError) as error:
-            self.configure_error = f"tissue parameters: {error}" if not isinstance(error, ParameterError) else str(error)
+            self.configure_error = (str(error) if isinstance(error, ParameterError)
+                                    else f"tissue parameters: {error}")
             self.get_logger().error(f"configure failed: {self.configure_error}")
             return TransitionCallbackReturn.FAILURE
         # Before any topic is active: once active the node steps at full speed from the first pose.
@@ -200,7 +203,8 @@ class NeedleSimulatorNode(LifecycleNode):
         stamp = pose.stamp_ns * 1e-9
         if stamp == 0.0 or (not self.use_sim_time and abs(stamp - received) > self.p["pose_input.max_stamp_offset"]):
             self.counters_other["stamp_replaced"] += 1
-            self.warn_throttled("stamp", f"base pose stamp {stamp:.3f} s is unset or {stamp - received:+.3f} s from now: "
+            self.warn_throttled("stamp", f"base pose stamp {stamp:.3f} s is unset or {stamp - received:+.3f} s from "
+                                         "now: "
                                          "using the receive time instead")
             stamp = received
         with self._lock:
@@ -225,7 +229,8 @@ class NeedleSimulatorNode(LifecycleNode):
             return
         v, w = msg.twist.linear, msg.twist.angular
         linear, angular = np.array([v.x, v.y, v.z]), np.array([w.x, w.y, w.z])
-        if msg.header.frame_id not in ("", self.p["frames.world"]) or not (np.all(np.isfinite(linear)) and np.all(np.isfinite(angular))):
+        finite = np.all(np.isfinite(linear)) and np.all(np.isfinite(angular))
+        if msg.header.frame_id not in ("", self.p["frames.world"]) or not finite:
             self.counters_other["twist_rejected"] += 1
             self.warn_throttled("twist", "ignoring base twist: not finite or not in the world frame")
             return
@@ -270,7 +275,8 @@ class NeedleSimulatorNode(LifecycleNode):
         force = np.array([request.force.x, request.force.y, request.force.z])
         frame = request.frame_id or self.p["frames.world"]
         if frame not in (self.p["frames.world"], self.p["frames.base"]):
-            response.success, response.message = False, f"frame_id '{frame}' is neither '{self.p['frames.world']}' nor '{self.p['frames.base']}'"
+            response.success = False
+            response.message = f"frame_id '{frame}' is neither '{self.p['frames.world']}' nor '{self.p['frames.base']}'"
             return response
         try:
             with self._lock:
@@ -282,7 +288,8 @@ class NeedleSimulatorNode(LifecycleNode):
         except ValueError as error:
             response.success, response.message = False, str(error)
             return response
-        response.success, response.message = True, f"load '{request.name or 'default'}' applied at s = {request.arc_length:g} m"
+        response.success = True
+        response.message = f"load '{request.name or 'default'}' applied at s = {request.arc_length:g} m"
         return response
 
     def on_clear_point_loads(self, request, response):

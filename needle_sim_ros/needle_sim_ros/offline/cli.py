@@ -77,7 +77,8 @@ def publish(staging: Path, output_dir: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="needle_offline", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n",
+                                                                                                                1)[1])
     parser.add_argument("bag", type=Path, help="rosbag2 MCAP recording (.mcap file or bag directory)")
     parser.add_argument("--experiment", type=Path, help="experiment params file (default: the installed "
                         "share/needle_sim_ros/config/experiments/<bag name>.yaml)")

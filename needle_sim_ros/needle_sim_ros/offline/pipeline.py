@@ -92,7 +92,8 @@ class OfflinePipeline:
     def input_topics(self, reader: BagReader) -> list[str]:
         """The recorded input topics; ValueError naming the topic if one has another type than the nodes expect."""
         topics = ["/base_pose", "/tip_load"]
-        topics += ["/left/image_raw", "/right/image_raw", "/left/camera_info", "/right/camera_info"] if self.use_stereo \
+        images = ["/left/image_raw", "/right/image_raw", "/left/camera_info", "/right/camera_info"]
+        topics += images if self.use_stereo \
             else ["/needle/measured_shape"]
         topics = [t for t in topics if t in reader.topics]
         for topic, (recorded, expected) in reader.type_mismatches().items():
@@ -120,7 +121,8 @@ class OfflinePipeline:
             self.writer = BackgroundBagWriter(output, WriterOptions(overwrite=True))
             wrench_qos = OfferedQos(depth=100, reliability="reliable" if self.parameters["needle_simulator"][
                 "qos.wrench"] == "reliable" else "best_effort")
-            for topic, (type_name, qos) in {**OUTPUT_TOPICS, "/wrench": (OUTPUT_TOPICS["/wrench"][0], wrench_qos)}.items():
+            outputs = {**OUTPUT_TOPICS, "/wrench": (OUTPUT_TOPICS["/wrench"][0], wrench_qos)}
+            for topic, (type_name, qos) in outputs.items():
                 self.writer.add_topic(topic, type_name, (qos,))
         self.errors = []
         self.seconds = dict.fromkeys(("simulator", "stereo", "comparison"), 0.0)

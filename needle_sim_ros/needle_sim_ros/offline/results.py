@@ -18,7 +18,8 @@ from needle_sim_ros.comparison import Centerline, compare_centerlines
 from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReader
 
 NS = 1_000_000_000
-MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC = "/needle/shape", "/needle/measured_shape", "/shape_error", "/wrench"
+MODEL_TOPIC, MEASURED_TOPIC = "/needle/shape", "/needle/measured_shape"
+ERROR_TOPIC, WRENCH_TOPIC = "/shape_error", "/wrench"
 TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC = "/ground_truth/shape", "/ground_truth/wrench"
 
 

@@ -5,8 +5,9 @@ gravity, its tip ``gap`` in front of the entry surface (the configured entry poi
 x = L + gap; the normal must be world +x).  It then follows an ``InsertionMotion``: tip depths reached in turn at a
 constant speed (insert, retract, re-insert), a roll that turns the bevel, duty-cycled spinning.  Written (SI):
 time, insertion depth, the tip's lateral deflection (distance from the entry axis, perpendicular to it), tip
-position, its offset (y, z) from the axis and unit tangent, base roll, base force and torque (eq. 20, the needle on its holder, base frame), the tissue readout, the
-parameters used, and a seed 001 Fig. 4 style plot of the deflection versus depth.
+position, its offset (y, z) from the axis and unit tangent, base roll, base force and torque (eq. 20, the needle
+on its holder, base frame), the tissue readout, the parameters used, and a seed 001 Fig. 4 style plot of the
+deflection versus depth.
 """
 from __future__ import annotations
 
