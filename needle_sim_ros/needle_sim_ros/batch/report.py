@@ -28,8 +28,8 @@ def params_file_text(fits: list[FitParameter], result: FitResult, reference: Tas
     parameter_set: dict[str, dict] = {}
     for fit, value in zip(fits, result.estimate):
         parameter_set.setdefault(fit.node, {})[fit.name] = float(value)
-    overrides = resolved_overrides(load_experiment(reference.experiment,
-                                                        Path(reference.config_dir) if reference.config_dir else None), parameter_set)
+    config_dir = Path(reference.config_dir) if reference.config_dir else None
+    overrides = resolved_overrides(load_experiment(reference.experiment, config_dir), parameter_set)
     header = "".join(f"# {f.label} = {v:.6g} +- {s:.2g} (1 sigma)\n" for f, v, s in
                      zip(fits, result.estimate, result.std))
     document = {node: {"ros__parameters": values} for node, values in overrides.items()}
