@@ -27,7 +27,7 @@ def generate_launch_description() -> LaunchDescription:
              parameters=[PathJoinSubstitution([config, "needle_simulator.yaml"]), common, {"qos.wrench": "reliable"}]),
         Node(package="needle_vision", executable="needle_stereo", name="needle_stereo", output="screen",
              condition=IfCondition(LaunchConfiguration("stereo")),
-             parameters=[PathJoinSubstitution([config, "needle_stereo.yaml"]), common]),
+             parameters=[PathJoinSubstitution([config, "needle_stereo.yaml"]), common, {"output_frame": "world"}]),
         Node(package="needle_sim_ros", executable="needle_compare", name="needle_compare", output="screen",
              parameters=[PathJoinSubstitution([config, "needle_compare.yaml"]), common,
                          {"log.path": LaunchConfiguration("log")}],

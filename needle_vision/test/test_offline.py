@@ -25,6 +25,8 @@ def params_file(tmp_path: Path, rig, **overrides) -> Path:
 
 def read_rows(path: Path) -> tuple[list[str], np.ndarray]:
     with open(path) as stream:
+        comment = stream.readline()
+        assert comment.startswith("# needle_stereo_offline: points in frame ") and "[m]" in comment
         rows = list(csv.reader(stream))
     return rows[0], np.array([[float(v) if v else np.nan for v in row] for row in rows[1:]])
 
@@ -87,7 +89,7 @@ def test_mcap_bag_with_camera_info_and_bad_frames(tmp_path, rig, background_fram
                  "--output", str(output), "--quiet"]) == 0
     header, rows = read_rows(output)
     assert header[-6:] == ["vx", "vy", "vz", "ax", "ay", "az"]
-    assert set(rows[:, 0]) == {3}  # pair index: the 4th usable pair (the last one) is the only measurement
+    assert set(rows[:, 0]) == {4}  # index of the synchronised pair (the unusable yuv422 pair is pair 3)
     assert np.all(np.isnan(rows[:, -6:]))  # tracking needs 5 frames before it reports motion
     distance, _ = distance_to_curve(rows[:, 4:7], SHAPES["3d"])
     assert np.sqrt(np.mean(distance ** 2)) < 1e-4  # calibration from the bag's camera_info
