@@ -168,7 +168,7 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float) 
         try:
             return image.gray()
         except ImageFormatError as error:
-            raise _SkippedPair(str(error)) from error
+            raise SkippedPair(str(error)) from error
 
     def jobs() -> Iterator[PairJob]:
         pairer = StampPairer(tolerance)
@@ -192,16 +192,17 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float) 
     return source
 
 
-class _SkippedPair(Exception):
+class SkippedPair(Exception):
     """A pair whose images cannot be used (counted, not fatal)."""
 
 
-def open_source(path: Path, arguments: argparse.Namespace, tolerance: float) -> PairSource:
+def open_source(path: Path, fps: float, left_topic: str, right_topic: str, tolerance: float) -> PairSource:
+    """The pairs of an image folder (stamps from ``fps``) or of a bag's image topics."""
     if not path.exists():
         raise InputError(f"input '{path}' does not exist")
     if path.is_dir() and ((path / "left").is_dir() or (path / "right").is_dir()):
-        return folder_source(path, arguments.fps)
-    return bag_source(path, arguments.left_topic, arguments.right_topic, tolerance)
+        return folder_source(path, fps)
+    return bag_source(path, left_topic, right_topic, tolerance)
 
 
 def decoded(jobs: Iterator[PairJob], workers: int, depth: int
@@ -260,7 +261,7 @@ def _selected(index: int, frames: slice) -> bool:
     return (frames.start is None or index >= frames.start) and (frames.stop is None or index < frames.stop)
 
 
-def _load_pairs(source: PairSource, wanted: Callable[[int], bool], workers: int, limit: int) -> list:
+def load_pairs(source: PairSource, wanted: Callable[[int], bool], workers: int, limit: int) -> list:
     """Decoded pairs whose index is ``wanted`` (at most ``limit``), stopping early when possible."""
     jobs = (job for job in source.jobs() if wanted(job[0]))
     pairs = []
@@ -268,7 +269,7 @@ def _load_pairs(source: PairSource, wanted: Callable[[int], bool], workers: int,
         for _, _, future in loaded:
             try:
                 pairs.append(future.result())
-            except _SkippedPair:
+            except SkippedPair:
                 continue
             if len(pairs) >= limit:
                 break
@@ -288,18 +289,18 @@ def build_backgrounds(mode: str, source: PairSource, pipeline: StereoNeedlePipel
             raise NothingMeasured(f"the input has {source.count} pair(s), not more than background.frames = {first} "
                                   "(the needle-free pairs at its start): nothing left to measure; use --background "
                                   "median, none or a needle-free FOLDER|BAG")
-        pairs, used = _load_pairs(source, lambda k: k < first, arguments.workers, first), first
+        pairs, used = load_pairs(source, lambda k: k < first, arguments.workers, first), first
     elif mode == "median":
         start = frames.start or 0
         stop = min(frames.stop or source.count or start + MEDIAN_PAIRS, source.count or 1 << 62)
         picks = set(np.linspace(start, max(stop - 1, start), MEDIAN_PAIRS).round().astype(int).tolist())
-        pairs, used = _load_pairs(source, picks.__contains__, arguments.workers, len(picks)), 0
+        pairs, used = load_pairs(source, picks.__contains__, arguments.workers, len(picks)), 0
     else:
         path = Path(mode)
         if not path.exists():
             raise InputError(f"background '{mode}' is neither first, median, none nor an existing folder or bag")
-        pairs, used = _load_pairs(open_source(path, arguments, tolerance), lambda k: True, arguments.workers,
-                                  BACKGROUND_PAIRS), 0
+        separate = open_source(path, arguments.fps, arguments.left_topic, arguments.right_topic, tolerance)
+        pairs, used = load_pairs(separate, lambda k: True, arguments.workers, BACKGROUND_PAIRS), 0
     if not pairs:
         raise InputError(f"background ({mode}): no usable pair")
     try:
@@ -348,7 +349,8 @@ def _settings(arguments: argparse.Namespace) -> dict:
 def run(arguments: argparse.Namespace) -> int:
     values = _settings(arguments)
     source_path = Path(arguments.input)
-    source = open_source(source_path, arguments, values["sync_tolerance"])
+    source = open_source(source_path, arguments.fps, arguments.left_topic, arguments.right_topic,
+                         values["sync_tolerance"])
     if values["left_calibration_file"]:
         rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
                                                  load_camera_calibration(values["right_calibration_file"]))
@@ -380,7 +382,7 @@ def run(arguments: argparse.Namespace) -> int:
             for frame, stamp, future in tqdm(loaded, total=total, unit="pair", disable=arguments.quiet):
                 try:
                     left, right = future.result()
-                except _SkippedPair as error:
+                except SkippedPair as error:
                     outcomes[f"image skipped: {error}"] += 1
                     continue
                 if per_frame and left.ndim == 2 and right.ndim == 2:
