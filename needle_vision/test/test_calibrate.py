@@ -15,12 +15,13 @@ from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeli
 from needle_vision.render import project_points
 from needle_vision.sensitivity import board_corners, random_board_pose
 
-BOARD, SQUARE, VIEWS = (9, 6), 0.015, 16
+BOARD, SQUARE, VIEWS = (9, 6), 0.02, 36
 
 
 @pytest.fixture(scope="module")
 def board_folder(tmp_path_factory, rig):
-    """VIEWS pairs with the whole board inside both images (10 px margin), around the needle's volume."""
+    """VIEWS pairs with the whole board inside both images (10 px margin), tilted up to 40°, spread over the
+    needle's volume (as a user following good practice would take them)."""
     folder = tmp_path_factory.mktemp("board")
     for side in ("left", "right"):
         (folder / side).mkdir()
@@ -28,7 +29,7 @@ def board_folder(tmp_path_factory, rig):
     grid = board_corners(BOARD, SQUARE)
     written = 0
     while written < VIEWS:
-        pose = random_board_pose(rig, rng, np.array([0.135, 0.0, -0.04]), tilt=0.55, spread=(0.11, 0.08, 0.09))
+        pose = random_board_pose(rig, rng, np.array([0.135, 0.0, -0.04]), tilt=0.65, spread=(0.14, 0.08, 0.1))
         if any(np.any(p < 10) or np.any(p > [1430, 1070])
                for p in (project_points(rig, pose.apply(grid), side) for side in ("left", "right"))):
             continue
@@ -54,7 +55,7 @@ def test_focal_lengths_and_baseline_within_half_a_percent(rig, estimated):
     estimated_rig = StereoRig.from_camera_calibrations(left, right)
     assert estimated_rig.baseline == pytest.approx(rig.baseline, rel=0.005)
     report = yaml.safe_load((estimated / "calibration_report.yaml").read_text())
-    assert report["views"] == VIEWS
+    assert report["views"] >= VIEWS - 3  # the steepest views may be missed
     assert report["reprojection_rms_px"]["stereo"] < 0.15
     assert report["rectified_epipolar_error_px"]["rms"] < 0.15
 
@@ -74,8 +75,8 @@ def test_needle_measured_with_the_estimated_calibration(rig, estimated, backgrou
 
 
 def test_errors(tmp_path, board_folder, capsys):
-    assert main([str(board_folder), "--board", "8x5", "--square", "0.015", "--output-dir", str(tmp_path)]) == 1
+    assert main([str(board_folder), "--board", "8x5", "--square", "0.02", "--output-dir", str(tmp_path)]) == 1
     assert "found in both images of 0 pair(s)" in capsys.readouterr().err
     assert not (tmp_path / "left.yaml").exists()
-    assert main([str(tmp_path / "absent"), "--board", "9x6", "--square", "0.015"]) == 2
+    assert main([str(tmp_path / "absent"), "--board", "9x6", "--square", "0.02"]) == 2
     assert "does not exist" in capsys.readouterr().err
