@@ -82,13 +82,20 @@ def image_fields(array: np.ndarray, encoding: str) -> dict[str, Any]:
 
 
 class SerializedImage(NamedTuple):
-    """Header and payload of a serialized image message: stamp [s], frame_id, and either the ``sensor_msgs/Image``
-    fields (``compressed_format`` empty) or the ``CompressedImage`` format and bytes (``fields['data']``)."""
+    """Header and payload of a serialized image message: stamp (sec, nanosec), frame_id, and either the
+    ``sensor_msgs/Image`` fields (``compressed_format`` empty) or the ``CompressedImage`` format and bytes
+    (``fields['data']``)."""
 
-    stamp: float
+    sec: int
+    nanosec: int
     frame_id: str
     fields: dict[str, Any]
     compressed_format: str = ""
+
+    @property
+    def stamp(self) -> float:
+        """Header stamp [s]."""
+        return self.sec + 1e-9 * self.nanosec
 
     def gray(self) -> np.ndarray:
         """One grey channel: a view of the serialized pixels for mono8/mono16, decoded for compressed images
@@ -98,9 +105,14 @@ class SerializedImage(NamedTuple):
         image = cv2.imdecode(self.fields["data"], cv2.IMREAD_UNCHANGED)
         if image is None:
             raise ImageFormatError(f"cannot decode compressed image (format '{self.compressed_format}')")
-        if image.ndim == 3:
-            image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
-        return image
+        return decoded_to_gray(image)
+
+
+def decoded_to_gray(image: np.ndarray) -> np.ndarray:
+    """One grey channel of an image decoded by OpenCV (grey, BGR or BGRA)."""
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    return image
 
 
 def deserialize_image(data: bytes, compressed: bool) -> SerializedImage:
@@ -137,15 +149,14 @@ def deserialize_image(data: bytes, compressed: bool) -> SerializedImage:
     try:
         sec, nanosec = take("<iI", 4)
         frame_id = string()
-        stamp = sec + 1e-9 * nanosec
         if compressed:
             image_format = string()
-            return SerializedImage(stamp, frame_id, {"data": blob()}, image_format or "unknown")
+            return SerializedImage(sec, nanosec, frame_id, {"data": blob()}, image_format or "unknown")
         height, width = take("<II", 4)
         encoding = string()
         (is_bigendian,) = take("<B", 1)
         (step,) = take("<I", 4)
-        return SerializedImage(stamp, frame_id, {"height": height, "width": width, "encoding": encoding,
+        return SerializedImage(sec, nanosec, frame_id, {"height": height, "width": width, "encoding": encoding,
                                                  "step": step, "data": blob(), "is_bigendian": bool(is_bigendian)})
     except struct.error as error:
         raise ImageFormatError(f"truncated image message ({error})") from error

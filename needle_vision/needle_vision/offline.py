@@ -35,7 +35,7 @@ from tqdm import tqdm
 
 from needle_vision.background import BackgroundModel
 from needle_vision.calibration import CalibrationError, StereoRig, calibration_from_camera_info, load_camera_calibration
-from needle_vision.image_codec import ImageFormatError, deserialize_image
+from needle_vision.image_codec import ImageFormatError, decoded_to_gray, deserialize_image
 from needle_vision.pairing import StampPairer
 from needle_vision.parameters import ParameterError, load_params_file, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
@@ -70,9 +70,7 @@ def _read_image(path: Path) -> np.ndarray:
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
     if image is None:
         raise InputError(f"cannot read image '{path}' (missing, not an image, or corrupt)")
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
-    return image
+    return decoded_to_gray(image)
 
 
 def folder_source(folder: Path, fps: float) -> PairSource:
