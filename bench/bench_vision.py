@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "needle_vision" / "test"))
-from conftest import SHAPES, distance_to_curve  # noqa: E402  (the tests' known needle shapes)
+from vision_shapes import SHAPES, distance_to_curve  # noqa: E402  (the tests' known needle shapes)
 
 from needle_vision.calibration import camera_calibration_yaml  # noqa: E402
 from needle_vision.centerline import extract_centerline  # noqa: E402

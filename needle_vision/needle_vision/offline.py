@@ -169,6 +169,7 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float) 
             raise SkippedPair(str(error)) from error
 
     def jobs() -> Iterator[PairJob]:
+        source.skipped.clear()  # counted again on each pass (the background may take a pass of its own)
         pairer = StampPairer(tolerance)
         index = 0
         for topic, schema, data in _bag_records(path, [left_topic, right_topic]):
