@@ -1,6 +1,7 @@
 """needle_stereo_calibrate on rendered checkerboard pairs of the sample rig (known intrinsics and extrinsics), and
 the needle measured with the calibration it writes."""
-from pathlib import Path
+import shutil
+import subprocess
 
 import cv2
 import numpy as np
@@ -80,3 +81,12 @@ def test_errors(tmp_path, board_folder, capsys):
     assert not (tmp_path / "left.yaml").exists()
     assert main([str(tmp_path / "absent"), "--board", "9x6", "--square", "0.02"]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_installed_command(tmp_path):
+    """The console script, from another working directory: a bad input is one line on stderr, exit status 2."""
+    command = shutil.which("needle_stereo_calibrate")
+    assert command, "needle_stereo_calibrate is not installed (run scripts/setup_env.sh)"
+    result = subprocess.run([command, "absent/", "--board", "9x6", "--square", "0.02"], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1 and "does not exist" in result.stderr
