@@ -6,8 +6,8 @@ image topics (raw or compressed), read as ``needle_stereo_offline`` reads them. 
 corners are found (``cv2.findChessboardCornersSB``); each camera is calibrated with OpenCV's 5-coefficient model
 (``plumb_bob``), then ``cv2.stereoCalibrate`` refines both cameras' intrinsics with the rotation and translation
 between them (ROS ``camera_calibration`` keeps the intrinsics fixed: on renders of the sample rig that leaves the
-needle 0.17 mm off instead of 0.04-0.10 mm). Output: ``left.yaml`` and ``right.yaml`` in the camera_calibration format the node
-and the offline command read (R and P from ``stereoRectify`` with ``CALIB_ZERO_DISPARITY``), and
+needle 0.17 mm off instead of 0.04-0.10 mm). Output: ``left.yaml`` and ``right.yaml`` in the camera_calibration
+format the node and the offline command read (R and P from ``stereoRectify`` with ``CALIB_ZERO_DISPARITY``), and
 ``calibration_report.yaml``: RMS reprojection errors [px] per camera and of the stereo fit, the worst view, and the
 rectification quality: the epipolar error of the corners after the pipeline's own rectification [px].
 Exit status 0 on success, 1 when too few pairs show the board, 2 on bad input.
@@ -29,7 +29,7 @@ import numpy as np
 import yaml
 
 from needle_vision.calibration import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
-from needle_vision.offline import InputError, SkippedPair, decoded, open_source
+from needle_vision.offline import InputError, SkippedPair, command_status, decoded, open_source
 from needle_vision.rectification import Rectification
 from needle_vision.sensitivity import board_corners
 
@@ -89,8 +89,8 @@ def stereo_calibrate(views: list[tuple[str, np.ndarray, np.ndarray]], corners: t
                      sizes: tuple[tuple[int, int], tuple[int, int]]) -> StereoCalibrationResult:
     """Calibrate from ``(name, left corners, right corners)`` per pair; ``sizes``: (width, height) per camera."""
     if len(views) < MIN_VIEWS:
-        raise CalibrationFailed(f"the board ({corners[0]}x{corners[1]} inner corners) was found in both images of "
-                                f"{len(views)} pair(s); at least {MIN_VIEWS} are needed (check --board)")
+        raise CalibrationFailed(f"calibration failed: the board ({corners[0]}x{corners[1]} inner corners) was found "
+                                f"in both images of {len(views)} pair(s); at least {MIN_VIEWS} are needed (check --board)")
     grid = board_corners(corners, square)
     objects = [grid] * len(views)
     image_points = [[v[k].astype(np.float32).reshape(-1, 1, 2) for v in views] for k in (1, 2)]
@@ -194,14 +194,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--square must be positive")
     if arguments.workers < 1:
         parser.error("--workers must be at least 1")
-    try:
-        return run(arguments)
-    except (InputError, CalibrationError, OSError) as error:
-        print(f"needle_stereo_calibrate: error: {error}", file=sys.stderr)
-        return 2
-    except CalibrationFailed as error:
-        print(f"needle_stereo_calibrate: calibration failed: {error}", file=sys.stderr)
-        return 1
+    return command_status("needle_stereo_calibrate", run, arguments, (InputError, CalibrationError, OSError),
+                          CalibrationFailed)
 
 
 if __name__ == "__main__":

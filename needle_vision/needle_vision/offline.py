@@ -285,9 +285,9 @@ def build_backgrounds(mode: str, source: PairSource, pipeline: StereoNeedlePipel
         return 0  # per frame (see run) or bootstrapped by the pipeline from the first pair
     if mode == "first":
         if source.count is not None and source.count <= first:
-            raise NothingMeasured(f"the input has {source.count} pair(s), not more than background.frames = {first} "
-                                  "(the needle-free pairs at its start): nothing left to measure; use --background "
-                                  "median, none or a needle-free FOLDER|BAG")
+            raise NothingMeasured(f"nothing measured: the input has {source.count} pair(s), not more than "
+                                  f"background.frames = {first} (the needle-free pairs at its start); use "
+                                  "--background median, none or a needle-free FOLDER|BAG")
         pairs, used = load_pairs(source, lambda k: k < first, arguments.workers, first), first
     elif mode == "median":
         start = frames.start or 0
@@ -400,7 +400,7 @@ def run(arguments: argparse.Namespace) -> int:
             print(f"  {count:6d}  {outcome}")
         if not measured:
             raise NothingMeasured("no pair was measured" + (" (the input has no pair in --frames)"
-                                                            if not sum(outcomes.values()) else ""))
+                                                            if not sum(outcomes.values()) else "") + "; no CSV written")
         partial.replace(output)
     finally:
         partial.unlink(missing_ok=True)
@@ -438,13 +438,20 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--fps must be positive")
     if arguments.workers < 1:
         parser.error("--workers must be at least 1")
+    return command_status("needle_stereo_offline", run, arguments, (ParameterError, CalibrationError, InputError,
+                                                                    OSError), NothingMeasured)
+
+
+def command_status(prog: str, run: Callable[[argparse.Namespace], int], arguments: argparse.Namespace,
+                   bad_input: tuple[type[Exception], ...], failure: type[Exception]) -> int:
+    """``run(arguments)``'s status; bad input: a one-line message and 2, ``failure``: a one-line message and 1."""
     try:
         return run(arguments)
-    except (ParameterError, CalibrationError, InputError, OSError) as error:
-        print(f"needle_stereo_offline: error: {error}", file=sys.stderr)
+    except bad_input as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
         return 2
-    except NothingMeasured as error:
-        print(f"needle_stereo_offline: nothing measured: {error}; no CSV written", file=sys.stderr)
+    except failure as error:
+        print(f"{prog}: {error}", file=sys.stderr)
         return 1
 
 
