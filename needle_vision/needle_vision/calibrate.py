@@ -90,7 +90,8 @@ def stereo_calibrate(views: list[tuple[str, np.ndarray, np.ndarray]], corners: t
     """Calibrate from ``(name, left corners, right corners)`` per pair; ``sizes``: (width, height) per camera."""
     if len(views) < MIN_VIEWS:
         raise CalibrationFailed(f"calibration failed: the board ({corners[0]}x{corners[1]} inner corners) was found "
-                                f"in both images of {len(views)} pair(s); at least {MIN_VIEWS} are needed (check --board)")
+                                f"in both images of {len(views)} pair(s); at least {MIN_VIEWS} are needed "
+                                "(check --board)")
     grid = board_corners(corners, square)
     objects = [grid] * len(views)
     image_points = [[v[k].astype(np.float32).reshape(-1, 1, 2) for v in views] for k in (1, 2)]
