@@ -25,6 +25,7 @@ setup(
         "console_scripts": [
             "needle_stereo = needle_vision.stereo_node:main",
             "needle_stereo_offline = needle_vision.offline:main",
+            "needle_stereo_calibrate = needle_vision.calibrate:main",
         ],
     },
 )

@@ -21,6 +21,8 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from std_msgs.msg import Header
 
+from needle_vision.image_codec import deserialize_image
+
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
 
 
@@ -191,37 +193,12 @@ class DecodedImage(NamedTuple):
 
 def image(data: bytes) -> DecodedImage:
     """Decode a serialized ``sensor_msgs/msg/Image`` (XCDR1 little endian; rclpy's deserialize copies the
-    megabytes of pixels into a Python array first)."""
-    if len(data) < 12 or data[:2] != ENCAPSULATION[:2]:
-        raise ValueError("not a little-endian CDR payload")
-    payload = memoryview(data)[4:]
-    offset = 0
-
-    def take(fmt: str, align: int):
-        nonlocal offset
-        offset += -offset % align
-        values = struct.unpack_from(fmt, payload, offset)
-        offset += struct.calcsize(fmt)
-        return values
-
-    def string() -> str:
-        nonlocal offset
-        (length,) = take("<I", 4)
-        text = bytes(payload[offset:offset + length - 1]).decode()
-        offset += length
-        return text
-
-    sec, nanosec = take("<iI", 4)
-    frame_id = string()
-    height, width = take("<II", 4)
-    encoding = string()
-    (is_bigendian,) = take("<B", 1)
-    step, size = take("<II", 4)
-    if offset + size > len(payload):
-        raise ValueError(f"image data of {size} bytes runs past the end of the message")
-    pixels = np.frombuffer(data, dtype=np.uint8, count=size, offset=4 + offset)
-    return DecodedImage(Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=frame_id), height, width, encoding,
-                        is_bigendian, step, pixels)
+    megabytes of pixels into a Python array first): :func:`needle_vision.image_codec.deserialize_image`."""
+    decoded = deserialize_image(data, compressed=False)
+    fields = decoded.fields
+    return DecodedImage(Header(stamp=Time(sec=decoded.sec, nanosec=decoded.nanosec), frame_id=decoded.frame_id),
+                        fields["height"], fields["width"], fields["encoding"], int(fields["is_bigendian"]),
+                        fields["step"], fields["data"])
 
 
 class DecodedPose(NamedTuple):

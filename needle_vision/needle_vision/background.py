@@ -76,6 +76,17 @@ class BackgroundModel:
         return cls(total, threshold)
 
     @classmethod
+    def from_median(cls, frames: Iterable[np.ndarray], threshold: ContrastThreshold) -> "BackgroundModel":
+        """Per-pixel median of frames spread over a sequence in which the needle moves: each pixel shows the
+        background in more than half of them, so the needle drops out (it does not where it stands still)."""
+        frames = list(frames)
+        if not frames:
+            raise ValueError("no background frames")
+        if any(frame.shape != frames[0].shape for frame in frames):
+            raise ValueError("background frames differ in size")
+        return cls(np.median(np.stack(frames), axis=0), threshold)
+
+    @classmethod
     def from_needle_frame(cls, frame: np.ndarray, threshold: ContrastThreshold,
                           needle_width_px: int) -> "BackgroundModel":
         """Bootstrap from one frame showing the needle: a closing (dark needle) or opening (bright needle)

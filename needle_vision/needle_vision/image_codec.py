@@ -1,12 +1,15 @@
 """``sensor_msgs/Image`` fields <-> numpy arrays for mono8, mono16, bgr8 and rgb8 (no cv_bridge, no ROS).
 
 Works on plain field values, so the node (rclpy messages) and the offline command (messages decoded from a
-bag) share it. The pipeline works on one grey channel: colour images are converted to grey.
+bag) share it. The pipeline works on one grey channel: colour images are converted to grey. Serialized
+``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage`` (CDR, as a rosbag2 MCAP stores them) are read here
+too, without building message objects: the pixels stay a view into the serialized bytes.
 """
 from __future__ import annotations
 
+import struct
 import sys
-from typing import Any, Mapping
+from typing import Any, Mapping, NamedTuple
 
 import cv2
 import numpy as np
@@ -76,3 +79,84 @@ def image_fields(array: np.ndarray, encoding: str) -> dict[str, Any]:
     array = np.ascontiguousarray(array, dtype=np.dtype(dtype).newbyteorder("<"))
     return {"height": array.shape[0], "width": array.shape[1], "encoding": encoding, "is_bigendian": 0,
             "step": array.shape[1] * channels * array.itemsize, "data": array.tobytes()}
+
+
+class SerializedImage(NamedTuple):
+    """Header and payload of a serialized image message: stamp (sec, nanosec), frame_id, and either the
+    ``sensor_msgs/Image`` fields (``compressed_format`` empty) or the ``CompressedImage`` format and bytes
+    (``fields['data']``)."""
+
+    sec: int
+    nanosec: int
+    frame_id: str
+    fields: dict[str, Any]
+    compressed_format: str = ""
+
+    @property
+    def stamp(self) -> float:
+        """Header stamp [s]."""
+        return self.sec + 1e-9 * self.nanosec
+
+    def gray(self) -> np.ndarray:
+        """One grey channel: a view of the serialized pixels for mono8/mono16, decoded for compressed images
+        (OpenCV releases the GIL while decoding, so this runs well on worker threads)."""
+        if not self.compressed_format:
+            return image_to_gray(**self.fields)
+        image = cv2.imdecode(self.fields["data"], cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise ImageFormatError(f"cannot decode compressed image (format '{self.compressed_format}')")
+        return decoded_to_gray(image)
+
+
+def decoded_to_gray(image: np.ndarray) -> np.ndarray:
+    """One grey channel of an image decoded by OpenCV (grey, BGR or BGRA)."""
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    return image
+
+
+def deserialize_image(data: bytes, compressed: bool) -> SerializedImage:
+    """Read a CDR-serialized (little-endian XCDR1) ``sensor_msgs/Image`` or, with ``compressed``,
+    ``sensor_msgs/CompressedImage``; the pixel bytes are not copied."""
+    if len(data) < 12 or bytes(data[:2]) != b"\x00\x01":
+        raise ImageFormatError("not a little-endian CDR image message")
+    view = memoryview(data)
+    offset = 4
+
+    def take(fmt: str, align: int) -> tuple:
+        nonlocal offset
+        offset += -(offset - 4) % align
+        values = struct.unpack_from(fmt, view, offset)
+        offset += struct.calcsize(fmt)
+        return values
+
+    def string() -> str:
+        nonlocal offset
+        (length,) = take("<I", 4)
+        text = bytes(view[offset:offset + max(length - 1, 0)]).decode("utf-8", "replace")
+        offset += length
+        return text
+
+    def blob() -> np.ndarray:
+        nonlocal offset
+        (size,) = take("<I", 4)
+        if offset + size > len(view):
+            raise ImageFormatError(f"image data of {size} bytes runs past the end of the message")
+        array = np.frombuffer(data, np.uint8, size, offset)
+        offset += size
+        return array
+
+    try:
+        sec, nanosec = take("<iI", 4)
+        frame_id = string()
+        if compressed:
+            image_format = string()
+            return SerializedImage(sec, nanosec, frame_id, {"data": blob()}, image_format or "unknown")
+        height, width = take("<II", 4)
+        encoding = string()
+        (is_bigendian,) = take("<B", 1)
+        (step,) = take("<I", 4)
+        return SerializedImage(sec, nanosec, frame_id, {"height": height, "width": width, "encoding": encoding,
+                                                 "step": step, "data": blob(), "is_bigendian": bool(is_bigendian)})
+    except struct.error as error:
+        raise ImageFormatError(f"truncated image message ({error})") from error

@@ -1,12 +1,15 @@
 """``needle_stereo_offline``: measure the needle in recorded stereo frames, headless (seed 000, Sec. III-A).
 
 Input is either a folder with ``left/`` and ``right/`` sub-folders of images paired by file name (stamps from
-``--fps``), or a rosbag2 MCAP recording (an ``.mcap`` file or a bag folder) with the stereo_image_proc
-topics, read with the ``mcap`` + ``mcap_ros2`` readers. The calibration comes from camera_calibration YAML
-files or, for a bag without them, from its ``camera_info`` topics. Settings are the node's parameters, read
-from a ROS 2 params file. Output: one CSV row per centerline sample (frame = index of the synchronised pair,
-stamp [s], sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with tracking) in the
-configured output frame.
+``--fps``), or a rosbag2 MCAP recording (an ``.mcap`` file or a bag folder) with ``sensor_msgs/Image`` or
+``sensor_msgs/CompressedImage`` topics, read as serialized bytes (raw pixels are never copied). Images are
+decoded on a thread pool ahead of the measurement (OpenCV releases the GIL). The calibration comes from
+camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics. Settings are the
+node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
+``--output-frame`` override the common ones. Output: one CSV row per centerline sample (frame = index of the
+synchronised pair, stamp [s], sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with
+tracking); its first line names the frame and units. Exit status: 0 when at least one pair was measured, 1 when
+none was, 2 on bad input.
 
     needle_stereo_offline recording.mcap --params config/needle_stereo.yaml --output needle.csv
 """
@@ -14,64 +17,100 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
+import queue
+import re
 import sys
+import threading
 from collections import Counter
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import closing
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
+from needle_vision.background import BackgroundModel
 from needle_vision.calibration import CalibrationError, StereoRig, calibration_from_camera_info, load_camera_calibration
-from needle_vision.image_codec import ImageFormatError, image_message_to_gray
+from needle_vision.image_codec import ImageFormatError, decoded_to_gray, deserialize_image
 from needle_vision.pairing import StampPairer
 from needle_vision.parameters import ParameterError, load_params_file, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
+IMAGE_TYPES = {"sensor_msgs/msg/Image": False, "sensor_msgs/msg/CompressedImage": True}  # -> compressed
+MEDIAN_PAIRS = 25  # pairs spread over the sequence for --background median
+BACKGROUND_PAIRS = 200  # most pairs averaged from a separate background input
 
 
 class InputError(ValueError):
     """The input folder or bag cannot be used (message says why)."""
 
 
-def folder_pairs(folder: Path, fps: float) -> tuple[int, Iterator[tuple[float, np.ndarray, np.ndarray]]]:
-    """(count, iterator of (stamp, left, right)) for ``folder/left/NAME`` + ``folder/right/NAME`` images."""
-    names = {side: {p.name for p in (folder / side).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
-             for side in ("left", "right") if (folder / side).is_dir()}
-    if len(names) < 2:
+#: (pair index, stamp [s], loader of the (left, right) grey images run on a worker thread)
+PairJob = tuple[int, float, Callable[[], tuple[np.ndarray, np.ndarray]]]
+
+
+@dataclass
+class PairSource:
+    """The synchronised pairs of one input: their count (an estimate for a bag, None if unknown), the jobs in
+    order, whether it is an image folder, the left frame_id, and a counter of frames that could not be used."""
+
+    count: int | None
+    jobs: Callable[[], Iterator[PairJob]]
+    is_folder: bool
+    frame_id: str = ""
+    skipped: Counter = field(default_factory=Counter)
+
+
+def _read_image(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
+    if image is None:
+        raise InputError(f"cannot read image '{path}' (missing, not an image, or corrupt)")
+    return decoded_to_gray(image)
+
+
+def folder_source(folder: Path, fps: float) -> PairSource:
+    """Pairs ``folder/left/NAME`` + ``folder/right/NAME`` in name order, stamps ``index / fps``."""
+    sides = [folder / side for side in ("left", "right")]
+    if not all(side.is_dir() for side in sides):
         raise InputError(f"'{folder}' needs sub-folders left/ and right/ with images")
-    common = sorted(names["left"] & names["right"])
+    names = [{p.name for p in side.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES} for side in sides]
+    common = sorted(names[0] & names[1])
     if not common:
-        raise InputError(f"'{folder}': no image name is present in both left/ and right/")
+        raise InputError(f"'{folder}': no image name is present in both left/ and right/"
+                         + ("" if any(names) else " (no images at all)"))
 
-    def read(path: Path) -> np.ndarray:
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise InputError(f"cannot read image '{path}'")
-        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
-
-    return len(common), ((k / fps, read(folder / "left" / n), read(folder / "right" / n)) for k, n in enumerate(common))
+    def jobs() -> Iterator[PairJob]:
+        for k, name in enumerate(common):
+            yield k, k / fps, lambda name=name: (_read_image(sides[0] / name), _read_image(sides[1] / name))
+    return PairSource(len(common), jobs, True, "left_optical")
 
 
 def _bag_files(path: Path) -> list[Path]:
-    files = [path] if path.is_file() else sorted(path.glob("*.mcap"))
+    files = [path] if path.is_file() else sorted(path.glob("*.mcap")) if path.is_dir() else []
     if not files:
-        raise InputError(f"'{path}' is neither an .mcap file nor a folder with .mcap files")
+        raise InputError(f"'{path}' is neither an .mcap file, a rosbag2 folder nor a folder with left/ and right/")
     return files
 
 
-def _bag_messages(path: Path, topics: list[str]) -> Iterator[tuple[str, object]]:
+def _bag_records(path: Path, topics: list[str]) -> Iterator[tuple[str, str, bytes]]:
+    """(topic, schema name, serialized bytes) of ``topics`` in log-time order; unreadable files -> InputError."""
     from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
 
-    wanted = {"/" + topic.lstrip("/") for topic in topics}
+    wanted = ["/" + topic.lstrip("/") for topic in topics]
     for file in _bag_files(path):
-        with open(file, "rb") as stream:
-            reader = make_reader(stream, decoder_factories=[DecoderFactory()])
-            for _, channel, _, message in reader.iter_decoded_messages(topics=sorted(wanted)):
-                yield "/" + channel.topic.lstrip("/"), message
+        try:
+            with open(file, "rb") as stream:
+                for schema, channel, message in make_reader(stream).iter_messages(topics=wanted):
+                    yield "/" + channel.topic.lstrip("/"), schema.name if schema else "", message.data
+        except InputError:
+            raise
+        except Exception as error:  # noqa: BLE001 - the mcap reader raises many kinds on corrupt files
+            raise InputError(f"cannot read '{file}': {error or type(error).__name__}") from error
 
 
 def _bag_count(path: Path, topic: str) -> int | None:
@@ -79,8 +118,11 @@ def _bag_count(path: Path, topic: str) -> int | None:
 
     total = 0
     for file in _bag_files(path):
-        with open(file, "rb") as stream:
-            summary = make_reader(stream).get_summary()
+        try:
+            with open(file, "rb") as stream:
+                summary = make_reader(stream).get_summary()
+        except Exception:  # noqa: BLE001 - no summary: the count stays unknown, reading reports the problem
+            return None
         if summary is None or summary.statistics is None:
             return None
         total += sum(summary.statistics.channel_message_counts.get(cid, 0)
@@ -90,34 +132,194 @@ def _bag_count(path: Path, topic: str) -> int | None:
 
 def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRig:
     """The rig from the first camera_info message of each camera in the bag."""
+    from mcap_ros2.decoder import DecoderFactory
+
+    topics = {"/" + t.lstrip("/"): side for t, side in ((left_info_topic, "left"), (right_info_topic, "right"))}
+    from mcap.reader import make_reader
+
     infos: dict[str, object] = {}
-    for topic, message in _bag_messages(path, [left_info_topic, right_info_topic]):
-        infos.setdefault(topic, message)
+    for file in _bag_files(path):
+        try:
+            with open(file, "rb") as stream:
+                reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+                for _, channel, _, message in reader.iter_decoded_messages(topics=sorted(topics)):
+                    infos.setdefault(topics["/" + channel.topic.lstrip("/")], message)
+                    if len(infos) == 2:
+                        break
+        except Exception as error:  # noqa: BLE001 - corrupt file
+            raise InputError(f"cannot read '{file}': {error or type(error).__name__}") from error
         if len(infos) == 2:
             break
-    left, right = ("/" + t.lstrip("/") for t in (left_info_topic, right_info_topic))
-    if left not in infos or right not in infos:
-        raise InputError(f"the bag has no {left} / {right} messages; give calibration files instead")
-    return StereoRig.from_camera_calibrations(calibration_from_camera_info(infos[left], "left"),
-                                              calibration_from_camera_info(infos[right], "right"))
+    if len(infos) < 2:
+        raise InputError(f"the bag has no {' / '.join(topics)} messages; give calibration files instead")
+    return StereoRig.from_camera_calibrations(calibration_from_camera_info(infos["left"], "left"),
+                                              calibration_from_camera_info(infos["right"], "right"))
 
 
-def bag_pairs(path: Path, left_topic: str, right_topic: str, tolerance: float, skipped: Counter
-              ) -> Iterator[tuple[float, np.ndarray, np.ndarray]]:
-    """Synchronised (stamp, left, right) grey images of the bag; unusable frames are counted in ``skipped``."""
-    pairer = StampPairer(tolerance)
+def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float) -> PairSource:
+    """Synchronised pairs of the bag's image topics (raw or compressed); images of an unusable encoding and
+    frames without a partner are counted in ``skipped``."""
     left = "/" + left_topic.lstrip("/")
-    for topic, message in _bag_messages(path, [left_topic, right_topic]):
-        stamp = message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec
-        pair = pairer.push("left" if topic == left else "right", stamp, message)
-        if pair is None:
-            continue
+    source = PairSource(_bag_count(path, left_topic), lambda: iter(()), False)
+
+    def gray(image) -> np.ndarray:
         try:
-            yield pair.stamp, image_message_to_gray(pair.left), image_message_to_gray(pair.right)
+            return image.gray()
         except ImageFormatError as error:
-            skipped[f"image skipped: {error}"] += 1
-    if pairer.dropped:
-        skipped[f"frames without a partner within {tolerance} s"] += pairer.dropped
+            raise SkippedPair(str(error)) from error
+
+    def jobs() -> Iterator[PairJob]:
+        source.skipped.clear()  # counted again on each pass (the background may take a pass of its own)
+        pairer = StampPairer(tolerance)
+        index = 0
+        for topic, schema, data in _bag_records(path, [left_topic, right_topic]):
+            if schema not in IMAGE_TYPES:
+                raise InputError(f"topic {topic} of '{path}' has type '{schema}', not an Image or CompressedImage")
+            try:
+                image = deserialize_image(data, IMAGE_TYPES[schema])
+            except ImageFormatError as error:
+                source.skipped[f"image skipped: {error}"] += 1
+                continue
+            pair = pairer.push("left" if topic == left else "right", image.stamp, image)
+            if pair is not None:
+                source.frame_id = source.frame_id or pair.left.frame_id
+                yield index, pair.stamp, lambda pair=pair: (gray(pair.left), gray(pair.right))
+                index += 1
+        if pairer.dropped:
+            source.skipped[f"frames without a partner within {tolerance} s"] += pairer.dropped
+    source.jobs = jobs
+    return source
+
+
+class SkippedPair(Exception):
+    """A pair whose images cannot be used (counted, not fatal)."""
+
+
+def open_source(path: Path, fps: float, left_topic: str, right_topic: str, tolerance: float) -> PairSource:
+    """The pairs of an image folder (stamps from ``fps``) or of a bag's image topics."""
+    if not path.exists():
+        raise InputError(f"input '{path}' does not exist")
+    if path.is_dir() and ((path / "left").is_dir() or (path / "right").is_dir()):
+        return folder_source(path, fps)
+    return bag_source(path, left_topic, right_topic, tolerance)
+
+
+def decoded(jobs: Iterator[PairJob], workers: int, depth: int
+            ) -> Iterator[tuple[int, float, Future]]:
+    """The jobs with their loaders running on ``workers`` threads up to ``depth`` pairs ahead; the jobs
+    themselves (reading a bag: file reads and chunk decompression) are iterated on one more thread."""
+    ahead: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    end = object()
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="decode") as pool:
+        def offer(item) -> bool:
+            while not stop.is_set():
+                try:
+                    ahead.put(item, timeout=0.05)
+                    return True
+                except queue.Full:
+                    pass
+            return False
+
+        def produce() -> None:
+            try:
+                for index, stamp, load in jobs:
+                    if not offer((index, stamp, pool.submit(load))):
+                        return
+                offer(end)
+            except BaseException as error:  # noqa: BLE001 - raised again in the consumer
+                offer(error)
+
+        feeder = threading.Thread(target=produce, name="pair-reader", daemon=True)
+        feeder.start()
+        try:
+            while (item := ahead.get()) is not end:
+                if isinstance(item, BaseException):
+                    raise item
+                yield item
+        finally:
+            stop.set()
+            while not ahead.empty():
+                item = ahead.get_nowait()
+                if isinstance(item, tuple):
+                    item[2].cancel()
+            feeder.join()
+
+
+def _frames(text: str) -> slice:
+    match = re.fullmatch(r"\s*(\d*)\s*:\s*(\d*)\s*", text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"'{text}' is not A:B (pair indices, either may be empty)")
+    start, stop = (int(v) if v else None for v in match.groups())
+    if start is not None and stop is not None and stop <= start:
+        raise argparse.ArgumentTypeError(f"'{text}': B must be greater than A")
+    return slice(start, stop)
+
+
+def _selected(index: int, frames: slice) -> bool:
+    return (frames.start is None or index >= frames.start) and (frames.stop is None or index < frames.stop)
+
+
+def load_pairs(source: PairSource, wanted: Callable[[int], bool], workers: int, limit: int) -> list:
+    """Decoded pairs whose index is ``wanted`` (at most ``limit``), stopping early when possible."""
+    jobs = (job for job in source.jobs() if wanted(job[0]))
+    pairs = []
+    with closing(decoded(jobs, workers, 2 * workers + 2)) as loaded:
+        for _, _, future in loaded:
+            try:
+                pairs.append(future.result())
+            except SkippedPair:
+                continue
+            if len(pairs) >= limit:
+                break
+    return pairs
+
+
+def build_backgrounds(mode: str, source: PairSource, pipeline: StereoNeedlePipeline, frames: slice,
+                      arguments: argparse.Namespace, tolerance: float) -> int:
+    """Set the pipeline's background models for ``mode`` (first, median, none or a needle-free input);
+    returns how many leading pairs of ``source`` are background (not measured)."""
+    threshold = pipeline.config.threshold
+    first = pipeline.config.background_frames
+    if mode == "none" or (mode == "first" and first == 0):
+        return 0  # per frame (see run) or bootstrapped by the pipeline from the first pair
+    if mode == "first":
+        if source.count is not None and source.count <= first:
+            raise NothingMeasured(f"nothing measured: the input has {source.count} pair(s), not more than "
+                                  f"background.frames = {first} (the needle-free pairs at its start); use "
+                                  "--background median, none or a needle-free FOLDER|BAG")
+        pairs, used = load_pairs(source, lambda k: k < first, arguments.workers, first), first
+    elif mode == "median":
+        start = frames.start or 0
+        stop = min(frames.stop or source.count or start + MEDIAN_PAIRS, source.count or 1 << 62)
+        picks = set(np.linspace(start, max(stop - 1, start), MEDIAN_PAIRS).round().astype(int).tolist())
+        pairs, used = load_pairs(source, picks.__contains__, arguments.workers, len(picks)), 0
+    else:
+        path = Path(mode)
+        if not path.exists():
+            raise InputError(f"background '{mode}' is neither first, median, none nor an existing folder or bag")
+        separate = open_source(path, arguments.fps, arguments.left_topic, arguments.right_topic, tolerance)
+        pairs, used = load_pairs(separate, lambda k: True, arguments.workers, BACKGROUND_PAIRS), 0
+    if not pairs:
+        raise InputError(f"background ({mode}): no usable pair")
+    try:
+        make = BackgroundModel.from_median if mode == "median" else BackgroundModel.from_frames
+        pipeline.backgrounds = tuple(make([pair[k] for pair in pairs], threshold) for k in range(2))
+    except ValueError as error:
+        raise InputError(f"background ({mode}): {error}") from error
+    return used
+
+
+class NothingMeasured(RuntimeError):
+    """The run measured nothing (exit status 1); the message says why."""
+
+
+def csv_header(frame_id: str, tracking: bool) -> tuple[str, list[str]]:
+    """The comment line (frame and units) and the column names."""
+    comment = (f"# needle_stereo_offline: points in frame '{frame_id}'; units SI: stamp [s], arc_length, x, y, z, "
+               "uncertainty (1 sigma) [m]" + (", vx..vz [m/s], ax..az [m/s^2]" if tracking else ""))
+    return comment, (["frame", "stamp", "sample", "arc_length", "x", "y", "z", "uncertainty"]
+                     + (["vx", "vy", "vz", "ax", "ay", "az"] if tracking else []))
 
 
 def write_rows(writer: csv.writer, frame: int, stamp: float, result: FrameResult, tracking: bool) -> None:
@@ -131,45 +333,78 @@ def write_rows(writer: csv.writer, frame: int, stamp: float, result: FrameResult
         writer.writerow([frame, f"{stamp:.9f}", sample, *(f"{v:.7g}" for v in values), *missing])
 
 
-def run(arguments: argparse.Namespace) -> int:
+def _settings(arguments: argparse.Namespace) -> dict:
     values = load_params_file(arguments.params) if arguments.params else {}
-    if arguments.left_calibration:
-        values["left_calibration_file"] = arguments.left_calibration
-    if arguments.right_calibration:
-        values["right_calibration_file"] = arguments.right_calibration
-    values = validate_all(values)
-    source = Path(arguments.input)
-    if not source.exists():
-        raise InputError(f"input '{source}' does not exist")
-    is_folder = source.is_dir() and (source / "left").is_dir()
+    for name, value in (("left_calibration_file", arguments.left_calibration),
+                        ("right_calibration_file", arguments.right_calibration),
+                        ("needle_polarity", arguments.polarity)):
+        if value is not None:
+            values[name] = value
+    if arguments.output_frame is not None:
+        values["output_frame"] = "" if arguments.output_frame in ("camera", "") else arguments.output_frame
+    return validate_all(values)
+
+
+def run(arguments: argparse.Namespace) -> int:
+    values = _settings(arguments)
+    source_path = Path(arguments.input)
+    source = open_source(source_path, arguments.fps, arguments.left_topic, arguments.right_topic,
+                         values["sync_tolerance"])
     if values["left_calibration_file"]:
         rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
                                                  load_camera_calibration(values["right_calibration_file"]))
-    elif is_folder:
+    elif source.is_folder:
         raise InputError("an image folder needs calibration files (--left-calibration/--right-calibration)")
     else:
-        rig = bag_rig(source, arguments.left_info_topic, arguments.right_info_topic)
+        rig = bag_rig(source_path, arguments.left_info_topic, arguments.right_info_topic)
     pipeline = StereoNeedlePipeline(rig, stereo_config(values), output_from_left(values))
-    outcomes: Counter = Counter()
-    if is_folder:
-        total, pairs = folder_pairs(source, arguments.fps)
-    else:
-        total = _bag_count(source, arguments.left_topic)
-        pairs = bag_pairs(source, arguments.left_topic, arguments.right_topic, values["sync_tolerance"], outcomes)
+    mode = arguments.background or "first"
+    frames = arguments.frames
+    background_pairs = build_backgrounds(mode, source, pipeline, frames, arguments, values["sync_tolerance"])
+    outcomes: Counter = Counter({FrameStatus.BACKGROUND.value: background_pairs} if background_pairs else {})
     tracking = values["tracking.enabled"]
-    with open(arguments.output, "w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(["frame", "stamp", "sample", "arc_length", "x", "y", "z", "uncertainty"]
-                        + (["vx", "vy", "vz", "ax", "ay", "az"] if tracking else []))
-        for frame, (stamp, left, right) in enumerate(tqdm(pairs, total=total, unit="pair", disable=arguments.quiet)):
-            result = pipeline.process(stamp, left, right)
-            outcomes[result.status.value if result.status is not FrameStatus.REJECTED
-                     else f"rejected: {result.reason}"] += 1
-            if result.status is FrameStatus.MEASURED:
-                write_rows(writer, frame, stamp, result, tracking)
-    print(f"{sum(outcomes.values())} frames/pairs -> {arguments.output}")
-    for outcome, count in outcomes.most_common():
-        print(f"  {count:6d}  {outcome}")
+    per_frame = mode == "none"
+    half_width = pipeline.config.centerline.profile_half_width
+    jobs = (job for job in source.jobs() if job[0] >= background_pairs and _selected(job[0], frames))
+    total = None if source.count is None else len(range(*slice(max(frames.start or 0, background_pairs),
+                                                               frames.stop).indices(source.count)))
+    output = Path(arguments.output)
+    partial = output.with_name(output.name + ".part")
+    measured = 0
+    try:
+        with open(partial, "w", newline="") as stream, \
+                closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded:
+            comment, columns = csv_header(values["output_frame"] or source.frame_id or "left_optical", tracking)
+            stream.write(comment + "\n")
+            writer = csv.writer(stream)
+            writer.writerow(columns)
+            for frame, stamp, future in tqdm(loaded, total=total, unit="pair", disable=arguments.quiet):
+                try:
+                    left, right = future.result()
+                except SkippedPair as error:
+                    outcomes[f"image skipped: {error}"] += 1
+                    continue
+                if per_frame and left.ndim == 2 and right.ndim == 2:
+                    pipeline.backgrounds = tuple(BackgroundModel.from_needle_frame(image, pipeline.config.threshold,
+                                                                                   half_width)
+                                                 for image in (left, right))
+                result = pipeline.process(stamp, left, right)
+                outcomes[result.status.value if result.status is not FrameStatus.REJECTED
+                         else f"rejected: {result.reason}"] += 1
+                if result.status is FrameStatus.MEASURED:
+                    measured += 1
+                    write_rows(writer, frame, stamp, result, tracking)
+        outcomes.update(source.skipped or {})
+        print(f"{sum(outcomes.values())} frames/pairs of '{source_path}'")
+        for outcome, count in outcomes.most_common():
+            print(f"  {count:6d}  {outcome}")
+        if not measured:
+            raise NothingMeasured("no pair was measured" + (" (the input has no pair in --frames)"
+                                                            if not sum(outcomes.values()) else "") + "; no CSV written")
+        partial.replace(output)
+    finally:
+        partial.unlink(missing_ok=True)
+    print(f"{measured} measured pairs -> {output}")
     return 0
 
 
@@ -181,20 +416,43 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--left-calibration", help="camera_calibration YAML of the left camera")
     parser.add_argument("--right-calibration", help="camera_calibration YAML of the right camera")
     parser.add_argument("--output", default="needle_stereo.csv", help="CSV file written (default: %(default)s)")
+    parser.add_argument("--polarity", help="needle darker (dark) or brighter (bright) than the background "
+                        "(overrides needle_polarity)")
+    parser.add_argument("--background", help="first: the first background.frames pairs are needle-free (default); "
+                        "median: per-pixel median over the sequence (a moving needle); none: estimated in each "
+                        "pair; or a folder/bag of needle-free pairs")
+    parser.add_argument("--frames", type=_frames, default=slice(None), metavar="A:B",
+                        help="measure pairs A (included) to B (excluded) only; either may be empty")
+    parser.add_argument("--output-frame", help="'camera': the raw left optical frame (output_transform unused); "
+                        "another name (e.g. world): output_frame, with output_transform from the params file")
     parser.add_argument("--fps", type=float, default=220.0, help="frame rate of an image folder [Hz] (stamps)")
-    parser.add_argument("--left-topic", default="left/image_raw")
-    parser.add_argument("--right-topic", default="right/image_raw")
+    parser.add_argument("--workers", type=int, default=min(4, os.cpu_count() or 1),
+                        help="image decoding threads (default: %(default)s)")
+    parser.add_argument("--left-topic", default="left/image_raw", help="Image or CompressedImage topic")
+    parser.add_argument("--right-topic", default="right/image_raw", help="Image or CompressedImage topic")
     parser.add_argument("--left-info-topic", default="left/camera_info")
     parser.add_argument("--right-info-topic", default="right/camera_info")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     arguments = parser.parse_args(argv)
     if not arguments.fps > 0:
         parser.error("--fps must be positive")
+    if arguments.workers < 1:
+        parser.error("--workers must be at least 1")
+    return command_status("needle_stereo_offline", run, arguments, (ParameterError, CalibrationError, InputError,
+                                                                    OSError), NothingMeasured)
+
+
+def command_status(prog: str, run: Callable[[argparse.Namespace], int], arguments: argparse.Namespace,
+                   bad_input: tuple[type[Exception], ...], failure: type[Exception]) -> int:
+    """``run(arguments)``'s status; bad input: a one-line message and 2, ``failure``: a one-line message and 1."""
     try:
         return run(arguments)
-    except (ParameterError, CalibrationError, InputError) as error:
-        print(f"needle_stereo_offline: error: {error}", file=sys.stderr)
+    except bad_input as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
         return 2
+    except failure as error:
+        print(f"{prog}: {error}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -150,7 +150,7 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("output_frame", "", "frame_id of the published cloud and shape; empty: the left image's frame_id "
               "(raw left optical frame)"),
     ParamSpec("output_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "fixed pose of the raw left optical "
-              "frame in output_frame: x, y, z [m], qx, qy, qz, qw", length=7,
+              "frame in output_frame (unused when output_frame is empty): x, y, z [m], qx, qy, qz, qw", length=7,
               check=(_nonzero_quaternion, "quaternion must be non-zero")),
     ParamSpec("left_optical_frame", "stereo_left_optical_frame", "TF frame of the raw left optical frame (z forward, "
               "x right, y down; REP 103): child of output_frame on /tf_static, with output_transform"),
@@ -247,6 +247,10 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
 
 
 def output_from_left(values: dict[str, Any]) -> RigidTransform:
+    """Pose of the raw left optical frame in the output frame: ``output_transform`` when ``output_frame`` is
+    set, else the identity (the points stay in the raw left optical frame)."""
+    if not values["output_frame"]:
+        return RigidTransform()
     return RigidTransform.from_xyz_quaternion(values["output_transform"])
 
 

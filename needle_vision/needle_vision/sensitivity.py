@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from needle_vision.calibration import CameraCalibration, StereoRig
 from needle_vision.render import project_points, world_from_camera
+from needle_vision.transform import RigidTransform
 
 
 @dataclass(frozen=True)
@@ -29,20 +30,34 @@ class SimulatedCalibration:
     rms_stereo: float
 
 
+def board_corners(corners: tuple[int, int], square: float) -> np.ndarray:
+    """Inner corners ``(cols * rows, 3)`` of a checkerboard in its own frame [m], centred, row by row (OpenCV's
+    order for ``patternSize = corners``), z = 0."""
+    grid = np.zeros((corners[0] * corners[1], 3), np.float32)
+    grid[:, :2] = np.mgrid[0:corners[0], 0:corners[1]].T.reshape(-1, 2) * square
+    grid[:, :2] -= grid[:, :2].mean(axis=0)
+    return grid
+
+
+def random_board_pose(rig: StereoRig, rng: np.random.Generator, centre: np.ndarray, tilt: float = 0.6,
+                      spread: tuple[float, float, float] = (0.12, 0.1, 0.1)) -> RigidTransform:
+    """Pose of a board in the world frame: facing the left camera, tilted by up to ``tilt`` [rad] about its
+    in-plane axes, turned at random about its normal, and shifted by up to ``spread`` [m] from ``centre``."""
+    towards_cameras = world_from_camera(rig, "left").translation - centre
+    facing = Rotation.align_vectors([towards_cameras], [[0.0, 0.0, 1.0]])[0]
+    turn = Rotation.from_rotvec(np.append(rng.uniform(-tilt, tilt, 2), rng.uniform(-np.pi, np.pi)))
+    return RigidTransform((facing * turn).as_matrix(), centre + rng.uniform(-np.asarray(spread), spread))
+
+
 def simulate_checkerboard_calibration(rig: StereoRig, rng: np.random.Generator, *, reprojection_rms_px: float = 0.14,
                                       views: int = 25, corners: tuple[int, int] = (9, 6), square: float = 0.03,
                                       centre: np.ndarray = np.array([0.135, 0.0, -0.04])) -> SimulatedCalibration:
     """Calibrate ``rig`` from ``views`` noisy checkerboard views (board of ``corners`` inner corners, ``square``
     [m]) held around ``centre`` (world frame [m], default: the middle of the needle's volume)."""
-    grid = np.zeros((corners[0] * corners[1], 3), np.float32)
-    grid[:, :2] = np.mgrid[0:corners[0], 0:corners[1]].T.reshape(-1, 2) * square
-    grid[:, :2] -= grid[:, :2].mean(axis=0)
-    towards_cameras = world_from_camera(rig, "left").translation - centre
-    facing = Rotation.align_vectors([towards_cameras], [[0.0, 0.0, 1.0]])[0]
+    grid = board_corners(corners, square)
     object_points, left_points, right_points = [], [], []
     while len(object_points) < views:
-        tilt = Rotation.from_rotvec(np.append(rng.uniform(-0.6, 0.6, 2), rng.uniform(-np.pi, np.pi)))
-        board = (facing * tilt).apply(grid) + centre + rng.uniform([-0.12, -0.1, -0.1], [0.12, 0.1, 0.1])
+        board = random_board_pose(rig, rng, centre).apply(grid)
         seen = []
         for side, camera in (("left", rig.left), ("right", rig.right)):
             pixels = project_points(rig, board, side)

@@ -23,6 +23,8 @@ def params_file(tmp_path: Path, rig, **overrides) -> Path:
 
 def read_rows(path: Path) -> tuple[list[str], np.ndarray]:
     with open(path) as stream:
+        comment = stream.readline()
+        assert comment.startswith("# needle_stereo_offline: points in frame ") and "[m]" in comment
         rows = list(csv.reader(stream))
     return rows[0], np.array([[float(v) if v else np.nan for v in row] for row in rows[1:]])
 
@@ -46,7 +48,8 @@ def test_image_folder(tmp_path, rig, background_frames, renders, capsys):
     assert "3  used to build the background model" in capsys.readouterr().out
 
 
-def write_bag(path: Path, rig, frames, encoding_of=lambda k: "mono8"):
+def write_bag(path: Path, rig, frames, encoding_of=lambda k: "mono8", compressed: bool = False):
+    """An MCAP bag with camera_info and, per frame, Image (or PNG CompressedImage on .../compressed) messages."""
     from mcap_ros2.writer import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -55,7 +58,8 @@ def write_bag(path: Path, rig, frames, encoding_of=lambda k: "mono8"):
     with open(path, "wb") as stream:
         writer = Writer(stream)
         schemas = {name: writer.register_msgdef(name, store.generate_msgdef(name, ros_version=2)[0])
-                   for name in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo")}
+                   for name in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo",
+                                "sensor_msgs/msg/CompressedImage")}
         for k, (stamp, left, right) in enumerate(frames):
             time = {"sec": int(stamp), "nanosec": int(round((stamp % 1) * 1e9))}
             for side, image, camera in (("left", left, ros.left), ("right", right, ros.right)):
@@ -66,6 +70,11 @@ def write_bag(path: Path, rig, frames, encoding_of=lambda k: "mono8"):
                         "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}
                 writer.write_message(f"/{side}/camera_info", schemas["sensor_msgs/msg/CameraInfo"], info,
                                      log_time=int(stamp * 1e9))
+                if compressed:
+                    writer.write_message(f"/{side}/image_raw/compressed", schemas["sensor_msgs/msg/CompressedImage"],
+                                         {"header": header, "format": "mono8; png compressed ",
+                                          "data": cv2.imencode(".png", image)[1].tobytes()}, log_time=int(stamp * 1e9))
+                    continue
                 fields = image_fields(image, "mono8")
                 fields["encoding"] = encoding_of(k)
                 writer.write_message(f"/{side}/image_raw", schemas["sensor_msgs/msg/Image"],
@@ -85,7 +94,7 @@ def test_mcap_bag_with_camera_info_and_bad_frames(tmp_path, rig, background_fram
                  "--output", str(output), "--quiet"]) == 0
     header, rows = read_rows(output)
     assert header[-6:] == ["vx", "vy", "vz", "ax", "ay", "az"]
-    assert set(rows[:, 0]) == {3}  # pair index: the 4th usable pair (the last one) is the only measurement
+    assert set(rows[:, 0]) == {4}  # index of the synchronised pair (the unusable yuv422 pair is pair 3)
     assert np.all(np.isnan(rows[:, -6:]))  # tracking needs 5 frames before it reports motion
     distance, _ = distance_to_curve(rows[:, 4:7], SHAPES["3d"])
     assert np.sqrt(np.mean(distance ** 2)) < 1e-4  # calibration from the bag's camera_info
@@ -95,13 +104,33 @@ def test_mcap_bag_with_camera_info_and_bad_frames(tmp_path, rig, background_fram
 
 
 def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
-    assert main([str(tmp_path / "absent.mcap"), "--quiet"]) == 2
-    assert "does not exist" in capsys.readouterr().err
-    (tmp_path / "frames" / "left").mkdir(parents=True)
-    (tmp_path / "frames" / "right").mkdir()
-    assert main([str(tmp_path / "frames"), "--quiet"]) == 2
-    assert "needs calibration files" in capsys.readouterr().err
+    def error(*arguments: str) -> str:
+        assert main([*arguments, "--quiet", "--output", str(tmp_path / "out.csv")]) == 2
+        message = capsys.readouterr().err
+        assert message.count("\n") == 1 and "Traceback" not in message and not (tmp_path / "out.csv").exists()
+        return message
+
+    assert "does not exist" in error(str(tmp_path / "absent.mcap"))
+    frames = tmp_path / "frames"
+    (frames / "left").mkdir(parents=True)
+    (frames / "right").mkdir()
+    assert "no images at all" in error(str(frames))
+    for side in ("left", "right"):
+        cv2.imwrite(str(frames / side / "0000.png"), np.zeros((4, 4), np.uint8))
+    assert "needs calibration files" in error(str(frames))
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"sync_tolerance": -1.0}}}))
-    assert main([str(tmp_path / "frames"), "--params", str(bad), "--quiet"]) == 2
-    assert "parameter 'sync_tolerance'" in capsys.readouterr().err
+    assert "parameter 'sync_tolerance'" in error(str(frames), "--params", str(bad))
+    calibration = ["--left-calibration", str(REPO / "config/stereo/left.yaml"),
+                   "--right-calibration", str(REPO / "config/stereo/right.yaml")]
+    (frames / "left" / "0001.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    (frames / "right" / "0001.png").mkdir()  # a directory with an image's name
+    assert "cannot read image" in error(str(frames), *calibration, "--background", "none")
+    assert "parameter 'needle_polarity'" in error(str(frames), *calibration, "--polarity", "grey")
+    assert "neither first, median, none" in error(str(frames), *calibration, "--background", "elsewhere")
+    corrupt = tmp_path / "corrupt.mcap"
+    corrupt.write_bytes(b"\x89MCAP0\r\n" + bytes(100))
+    assert "cannot read" in error(str(corrupt), *calibration)
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    assert "neither an .mcap file" in error(str(plain), *calibration)
