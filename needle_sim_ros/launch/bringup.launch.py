@@ -70,7 +70,8 @@ def _nodes(context):
     if _flag(arg["stereo"], settings["stereo"]):
         actions.append(Node(package="needle_vision", executable="needle_stereo", name="needle_stereo",
                             namespace=arg["namespace"], output="screen",
-                            parameters=[f"{stereo_config}/needle_stereo.yaml", common, {"output_frame": "world"}, *extra]))
+                            parameters=[f"{stereo_config}/needle_stereo.yaml", common,
+                                        {"output_frame": "world"}, *extra]))
     if _flag(arg["compare"], settings["compare"]):
         actions.append(Node(
             package="needle_sim_ros", executable="needle_compare", name="needle_compare",

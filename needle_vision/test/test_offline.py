@@ -121,8 +121,8 @@ def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"sync_tolerance": -1.0}}}))
     assert "parameter 'sync_tolerance'" in error(str(frames), "--params", str(bad))
-    calibration = ["--left-calibration", str(REPO / "config/stereo/left.yaml"),
-                   "--right-calibration", str(REPO / "config/stereo/right.yaml")]
+    calibration = ["--left-calibration", "package://needle_vision/config/stereo/left.yaml",
+                   "--right-calibration", "package://needle_vision/config/stereo/right.yaml"]
     (frames / "left" / "0001.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")
     (frames / "right" / "0001.png").mkdir()  # a directory with an image's name
     assert "cannot read image" in error(str(frames), *calibration, "--background", "none")
