@@ -6,13 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
-from test_offline import REPO, params_file, read_rows, write_bag
+from test_offline import params_file, read_rows, write_bag
 from vision_shapes import SHAPES, distance_to_curve
 from needle_vision.offline import main
 
 MOVING = ("straight", "planar", "3d", "straight", "planar")  # a needle that moves between pairs
-CALIBRATION = ["--left-calibration", str(REPO / "config/stereo/left.yaml"),
-               "--right-calibration", str(REPO / "config/stereo/right.yaml")]
+CALIBRATION = ["--left-calibration", "package://needle_vision/config/stereo/left.yaml",
+               "--right-calibration", "package://needle_vision/config/stereo/right.yaml"]
 
 
 def write_folder(folder: Path, pairs) -> Path:
