@@ -53,9 +53,10 @@ def test_offline_batch_mode_dynamic_rmse_is_below_half_a_millimetre(offline_dyna
 def test_offline_batch_mode_is_deterministic(offline_dynamic, tmp_path):
     # The same bag slice and parameters give the same comparisons to the last bit (no wall-clock dependence).
     run = OfflinePipeline(experiment_for_bag(DYNAMIC)).run(DYNAMIC, None, duration=DYNAMIC_SLICE)
-    again = [(e.rmse, e.max_error, e.tip_error) for e in run.errors]
     first = offline_dynamic["summary"]["comparison"]
-    assert len(again) == first["compared"] and sum(e[0] for e in again) / len(again) == first["rmse_mean_m"]
+    assert len(run.errors) == first["compared"]
+    # the summaries accumulate in the pipeline's own order, so equal runs give equal means to the last bit
+    assert run.summary["comparison"] == first
 
 
 def test_a_wrong_youngs_modulus_gives_a_clearly_larger_error():
