@@ -124,8 +124,8 @@ def test_needle_stereo_offline_measures_with_the_installed_params_and_calibratio
             cv2.imwrite(str(elsewhere / "frames" / side / f"{k:04d}.png"), pair[index])
     result = subprocess.run([executable("needle_vision", "needle_stereo_offline"), "frames", "--params",
                              str(SHARE["needle_vision"] / "config" / "needle_stereo.yaml"), "--quiet",
-                             "--output-frame", "world", "--output", "needle.csv"], cwd=elsewhere, env=install_env, capture_output=True,
-                            text=True, timeout=600)
+                             "--output-frame", "world", "--output", "needle.csv"], cwd=elsewhere, env=install_env,
+                            capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
     rows = np.loadtxt(elsewhere / "needle.csv", delimiter=",", skiprows=2, ndmin=2)  # frame/units line, header
     assert len(rows) > 10 and set(rows[:, 0]) == {background}
