@@ -121,6 +121,10 @@ SPECS: tuple[ParamSpec, ...] = (
               "centerline [m]", 0.0, 0.2),
     ParamSpec("reconstruction.sample_spacing", 0.001, "arc-length step of the published samples [m]",
               1e-4, 0.1),
+    ParamSpec("reconstruction.max_length", 0.3, "a measured centerline longer than this is rejected as "
+              "implausible (set it to the needle's free length plus a margin) [m]", 1e-3, 10.0),
+    ParamSpec("reconstruction.max_image_scatter", 0.5, "image centerlines scattering more than this across the "
+              "curve are rejected as low-confidence detections (a needle scatters ~0.05 px) [px]", 0.01, 100.0),
     ParamSpec("background.frames", 10, "first synchronised pairs, needle-free, averaged into the background; "
               "0: bootstrap from the first pair by erasing the needle [-]", 0, 100000),
     ParamSpec("background.learning_rate", 0.0, "running update of the background away from the needle per "
@@ -169,6 +173,8 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
                                             outlier_floor=values["reconstruction.outlier_floor"],
                                             smoothing_length=values["reconstruction.smoothing_length"],
                                             sample_spacing=values["reconstruction.sample_spacing"],
+                                            max_length=values["reconstruction.max_length"],
+                                            max_image_scatter=values["reconstruction.max_image_scatter"],
                                             base_point=np.array(values["base_point"])),
         background_frames=values["background.frames"],
         background_learning_rate=values["background.learning_rate"],

@@ -3,6 +3,7 @@ reconstruction of each synchronised pair, and optional tracking. Shared by the n
 """
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -12,7 +13,8 @@ from needle_vision.background import BackgroundModel, ContrastThreshold
 from needle_vision.calibration import StereoRig
 from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
 from needle_vision.correspondence import MatchError, MatchingConfig
-from needle_vision.reconstruction import NeedleMeasurement, ReconstructionConfig, reconstruct_centerline
+from needle_vision.reconstruction import (ImplausibleError, NeedleMeasurement, ReconstructionConfig,
+                                          reconstruct_centerline)
 from needle_vision.rectification import Rectification
 from needle_vision.tracking import CenterlineMotion, CenterlineTracker, TrackingConfig
 from needle_vision.transform import RigidTransform
@@ -56,7 +58,8 @@ class StereoNeedlePipeline:
     """Measures the needle in synchronised pairs of raw grey images (uint8 or uint16) of ``rig``.
 
     Immutable model: rig, rectification, config, ``output_from_left`` (pose of the left optical frame in the
-    output frame). Mutable state: background models, background frames collected so far, the tracker.
+    output frame). Mutable state: background models, background frames collected so far, the tracker, the last
+    measured base (orders base and tip by temporal continuity) and ``rejections``, counted by reason kind.
     """
 
     def __init__(self, rig: StereoRig, config: StereoConfig = StereoConfig(),
@@ -69,6 +72,12 @@ class StereoNeedlePipeline:
         self._background_frames: list[tuple[np.ndarray, np.ndarray]] = []
         self._dtype: np.dtype | None = None
         self.tracker = CenterlineTracker(config.tracking) if config.tracking else None
+        self.last_base: np.ndarray | None = None
+        self.rejections: Counter[str] = Counter()
+
+    def _reject(self, kind: str, reason: str) -> FrameResult:
+        self.rejections[kind] += 1
+        return FrameResult(FrameStatus.REJECTED, reason=reason)
 
     def _check(self, left: np.ndarray, right: np.ndarray) -> str:
         """Why the pair cannot be used, or ''."""
@@ -88,7 +97,7 @@ class StereoNeedlePipeline:
         """Use one synchronised pair (stamp [s]) for the background or measure the needle in it."""
         problem = self._check(left, right)
         if problem:
-            return FrameResult(FrameStatus.REJECTED, reason=problem)
+            return self._reject("bad input", problem)
         self._dtype = left.dtype
         config = self.config
         if self.backgrounds is None:
@@ -107,9 +116,14 @@ class StereoNeedlePipeline:
             centerlines = [extract_centerline(image, background, config.centerline)
                            for image, background in zip((left, right), self.backgrounds)]
             measurement = reconstruct_centerline(*centerlines, self.rectification, config.matching,
-                                                 config.reconstruction, self.output_from_left)
-        except (NoNeedleError, MatchError) as error:
-            return FrameResult(FrameStatus.REJECTED, reason=str(error))
+                                                 config.reconstruction, self.output_from_left, self.last_base)
+        except NoNeedleError as error:
+            return self._reject("no needle", str(error))
+        except ImplausibleError as error:
+            return self._reject("implausible", str(error))
+        except MatchError as error:
+            return self._reject("no stereo match", str(error))
+        self.last_base = measurement.points[0]
         if config.background_learning_rate > 0:
             for image, background, centerline in zip((left, right), self.backgrounds, centerlines):
                 background.update(image, centerline.points, config.background_learning_rate,

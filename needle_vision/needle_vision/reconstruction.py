@@ -23,6 +23,10 @@ from needle_vision.transform import RigidTransform
 MIN_IMAGE_NOISE_PX = 0.02
 
 
+class ImplausibleError(MatchError):
+    """A reconstruction that no needle in the configured working volume can produce (message says why)."""
+
+
 @dataclass(frozen=True)
 class ReconstructionConfig:
     """Settings of triangulation and post-processing (names match the node's ``reconstruction.*``)."""
@@ -34,6 +38,8 @@ class ReconstructionConfig:
     smoothing_length: float = 8e-3    # [m] arc length of the local cubic fit that smooths the centerline
     sample_spacing: float = 1e-3      # [m] arc-length step of the published samples
     min_points: int = 20              # fewer inliers than this: no measurement
+    max_length: float = 0.3           # [m] a longer centerline is implausible for a needle: rejected
+    max_image_scatter: float = 0.5    # [px] image centerlines scattering more across the curve are not a needle
     base_point: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [m] near the base, output frame
 
 
@@ -85,8 +91,15 @@ def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: in
 
 def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
                            matching: MatchingConfig, config: ReconstructionConfig,
-                           output_from_left: RigidTransform) -> NeedleMeasurement:
-    """Triangulate, clean, order, smooth and resample; raises MatchError when no measurement results."""
+                           output_from_left: RigidTransform, base_hint: np.ndarray | None = None
+                           ) -> NeedleMeasurement:
+    """Triangulate, clean, order, smooth and resample; raises MatchError when no measurement results.
+    The base is the end nearer to ``base_hint`` (output frame; e.g. the previous frame's base) when given, else
+    nearer to ``config.base_point``."""
+    scatter = max(left.noise_px, right.noise_px)
+    if scatter > config.max_image_scatter:
+        raise ImplausibleError(f"implausible: image centerline scatters {scatter:.2f} px across the curve "
+                               f"(> {config.max_image_scatter:g} px): low detection confidence")
     left_rect = rectification.rectify(left.points, "left")
     right_rect = rectification.rectify(right.points, "right")
     ends_visible = all(_ends_inside(centerline.points, camera.width, camera.height) for centerline, camera
@@ -118,7 +131,8 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2) * smoothing_gain
 
     points = output_from_left.apply(points)
-    if np.linalg.norm(points[-1] - config.base_point) < np.linalg.norm(points[0] - config.base_point):
+    base = config.base_point if base_hint is None else base_hint
+    if np.linalg.norm(points[-1] - base) < np.linalg.norm(points[0] - base):
         points, point_sigma, anchored = points[::-1], point_sigma[::-1], anchored[::-1]
     smooth = local_polynomial_smooth(points, window, 3)
     arc = arc_length(smooth)
@@ -126,6 +140,9 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     samples = np.append(np.arange(0.0, length, config.sample_spacing), length)
     if samples[-1] - samples[-2] < 0.25 * config.sample_spacing:  # no sliver at the tip
         samples = np.delete(samples, -2)
+    if length > config.max_length:
+        raise ImplausibleError(f"implausible: measured needle is {length * 1e3:.0f} mm long "
+                               f"(> max_length {config.max_length * 1e3:.0f} mm)")
     resampled = interpolate(arc, smooth, samples)
     tangents = derivative(resampled, samples)
     tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
