@@ -131,3 +131,36 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
     np.testing.assert_allclose(np.frombuffer(bytes(cloud.data), "<f4").reshape(-1, 3), points, atol=1e-6)
     # Side by side, half size (also published for rejected pairs, e.g. 720 px wide for the half-size pair).
     assert any(image.encoding == "bgr8" and (image.width, image.height) == (1440, 540) for image in received["debug"])
+
+
+def test_singular_right_projection_is_refused_without_a_crash(ros_env, rig):
+    """camera_info whose right P has a zero last row (fx' > 0 still): the node warns naming the field, lives on."""
+    process = start_node(ros_env, "-p", "warning_period:=0.01", "-p", "image_qos:=reliable")
+    rclpy.init()
+    node = rclpy.create_node("needle_stereo_singular_test")
+    try:
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        infos = {side: node.create_publisher(CameraInfo, f"{side}/camera_info", reliable) for side in ("left", "right")}
+        ros = rig.with_ros_rectification()
+        fields = {side: camera_info_fields(camera) for side, camera in (("left", ros.left), ("right", ros.right))}
+        fields["right"]["p"] = list(fields["right"]["p"][:8]) + [0.0] * 4
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and min(p.get_subscription_count() for p in infos.values()) < 1:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            for side in ("left", "right"):
+                infos[side].publish(CameraInfo(**fields[side]))
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert process.poll() is None
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        process.send_signal(signal.SIGINT)
+        try:
+            output, _ = process.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            output, _ = process.communicate()
+    assert "Traceback" not in output
+    assert "camera 'right' (right): projection_matrix is singular" in output, output
