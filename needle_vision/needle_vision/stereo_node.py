@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 import time
 
+import cv2
 import numpy as np
 import rclpy
 import rclpy.executors
@@ -107,11 +108,11 @@ class NeedleStereoNode(Node):
         try:
             rig = StereoRig.from_camera_calibrations(calibration_from_camera_info(self.camera_infos["left"], "left"),
                                                      calibration_from_camera_info(self.camera_infos["right"], "right"))
-        except CalibrationError as error:
+            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
+        except (CalibrationError, cv2.error, np.linalg.LinAlgError) as error:
             self.pipeline = None
             self.warn("calibration", f"camera_info unusable, nothing is measured: {error}")
             return
-        self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
         self.get_logger().info("stereo calibration received from camera_info; background model restarts")
 
     def on_image(self, side: str, msg: Image) -> None:
