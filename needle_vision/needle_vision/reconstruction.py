@@ -21,6 +21,10 @@ from needle_vision.transform import RigidTransform
 
 #: Floor of the per-point image noise [px] used for the uncertainty (the centroid's aliasing error).
 MIN_IMAGE_NOISE_PX = 0.02
+#: 1-sigma error [px] of the needle's end positions along the needle (sub-pixel edge; flat or bevelled end).
+END_LOCALIZATION_PX = 0.3
+#: ``uncertainty`` of a sample in a gap (no triangulated point within ``max_gap``): interpolated, not measured.
+UNMEASURED = -1.0
 
 
 class ImplausibleError(MatchError):
@@ -40,13 +44,15 @@ class ReconstructionConfig:
     min_points: int = 20              # fewer inliers than this: no measurement
     max_length: float = 0.3           # [m] a longer centerline is implausible for a needle: rejected
     max_image_scatter: float = 0.5    # [px] image centerlines scattering more across the curve are not a needle
+    max_gap: float = 1e-3             # [m] longer stretches without a triangulated point are unmeasured
     base_point: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [m] near the base, output frame
 
 
 @dataclass(frozen=True)
 class NeedleMeasurement:
     """The measured centerline in the output frame, base to tip: samples ``points (k, 3)`` [m], unit
-    ``tangents``, ``arc_length`` [m], 1-sigma ``uncertainty`` [m], total ``length`` [m]; the inlier
+    ``tangents``, ``arc_length`` [m], 1-sigma ``uncertainty`` [m] (UNMEASURED in gaps, see ``measured``),
+    total ``length`` [m]; the inlier
     ``triangulated`` points ``(n, 3)`` before smoothing; and the raw image centerlines (for the debug image)."""
 
     points: np.ndarray
@@ -58,6 +64,12 @@ class NeedleMeasurement:
     left_centerline: ImageCenterline
     right_centerline: ImageCenterline
     anchored_fraction: float
+    measured: np.ndarray
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of the sampled length that was measured (not in a gap) [-]."""
+        return float(np.mean(self.measured))
 
 
 def _odd_window(length: float, spacing: float, count: int, minimum: int = 5) -> int:
@@ -143,8 +155,17 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     if length > config.max_length:
         raise ImplausibleError(f"implausible: measured needle is {length * 1e3:.0f} mm long "
                                f"(> max_length {config.max_length * 1e3:.0f} mm)")
+    # Samples between two triangulated points farther apart than max_gap are interpolated: flag them.
+    step_after = np.searchsorted(arc, samples, side="right").clip(1, len(arc) - 1)
+    measured = np.diff(arc)[step_after - 1] <= config.max_gap
     resampled = interpolate(arc, smooth, samples)
     tangents = derivative(resampled, samples)
     tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
-    return NeedleMeasurement(resampled, tangents, samples, np.interp(samples, arc, point_sigma), length,
-                             points, left, right, float(np.mean(anchored)))
+    uncertainty = np.interp(samples, arc, point_sigma)
+    # The end samples also carry the localization of the needle's ends along it (sub-pixel edge, ~0.3 px).
+    end_pixel = np.linalg.norm(output_from_left.inverse().apply(resampled[[0, -1]]), axis=1) \
+        / rectification.focal_length
+    uncertainty[[0, -1]] = np.hypot(uncertainty[[0, -1]], END_LOCALIZATION_PX * end_pixel)
+    uncertainty = np.where(measured, uncertainty, UNMEASURED)
+    return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, left, right,
+                             float(np.mean(anchored)), measured)
