@@ -92,8 +92,8 @@ SPECS: tuple[ParamSpec, ...] = (
               "effort, also matches reliable publishers) or reliable (large images arrive whole or not at all)",
               choices=("sensor_data", "reliable")),
     ParamSpec("sync_tolerance", 0.002, "largest stamp difference of a left/right pair [s]", 0.0, 1.0),
-    ParamSpec("needle_polarity", "dark", "whether the needle looks darker or brighter than the background",
-              choices=("dark", "bright")),
+    ParamSpec("needle_polarity", "auto", "whether the needle looks darker or brighter than the background; auto: "
+              "decided from the first frame that shows it", choices=("auto", "dark", "bright")),
     ParamSpec("detection.downsample", 4, "factor of the coarse detection image (1, 2, 4 or 8) [-]",
               choices=(1, 2, 4, 8)),
     ParamSpec("detection.relative_threshold", 0.1, "coarse needle threshold: contrast as a fraction of the "
@@ -158,7 +158,7 @@ def validate_all(values: dict[str, Any]) -> dict[str, Any]:
 def stereo_config(values: dict[str, Any]) -> StereoConfig:
     """The pipeline settings from validated parameter values."""
     return StereoConfig(
-        threshold=ContrastThreshold(polarity=1 if values["needle_polarity"] == "dark" else -1,
+        threshold=ContrastThreshold(polarity=-1 if values["needle_polarity"] == "bright" else 1,
                                     relative=values["detection.relative_threshold"],
                                     absolute=values["detection.absolute_threshold"],
                                     downsample=values["detection.downsample"]),
@@ -179,7 +179,8 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
         background_frames=values["background.frames"],
         background_learning_rate=values["background.learning_rate"],
         tracking=TrackingConfig(values["tracking.window"], values["tracking.max_gap"])
-        if values["tracking.enabled"] else None)
+        if values["tracking.enabled"] else None,
+        auto_polarity=values["needle_polarity"] == "auto")
 
 
 def output_from_left(values: dict[str, Any]) -> RigidTransform:

@@ -4,12 +4,13 @@ reconstruction of each synchronised pair, and optional tracking. Shared by the n
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
+import cv2
 import numpy as np
 
-from needle_vision.background import BackgroundModel, ContrastThreshold
+from needle_vision.background import BackgroundModel, ContrastThreshold, downsample
 from needle_vision.calibration import StereoRig
 from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
 from needle_vision.correspondence import MatchError, MatchingConfig
@@ -36,6 +37,23 @@ class StereoConfig:
     background_frames: int = 10
     background_learning_rate: float = 0.0
     tracking: TrackingConfig | None = None
+    auto_polarity: bool = True  # decide dark/bright needle from the first frame that shows it (else threshold's)
+
+
+def detect_polarity(darkening: np.ndarray, brightening: np.ndarray, background: np.ndarray,
+                    threshold: ContrastThreshold) -> int:
+    """+1 (dark needle) when the pixels darker than the background by more than the threshold outweigh the
+    brighter ones 3:1, -1 (bright) for the converse, 0 when neither dominates (no needle, or noise).
+    ``darkening``/``brightening``: how much darker/brighter than the background each pixel is [DN]."""
+    factor = threshold.downsample
+    limit = np.maximum(threshold.relative * downsample(background, factor), threshold.absolute)
+    darker, brighter = (float(np.where(excess > limit, excess, 0.0).sum())
+                        for excess in (downsample(darkening, factor), downsample(brightening, factor)))
+    if darker > 3 * brighter and darker > 0:
+        return 1
+    if brighter > 3 * darker:
+        return -1
+    return 0
 
 
 class FrameStatus(Enum):
@@ -73,6 +91,7 @@ class StereoNeedlePipeline:
         self._dtype: np.dtype | None = None
         self.tracker = CenterlineTracker(config.tracking) if config.tracking else None
         self.last_base: np.ndarray | None = None
+        self.polarity = 0 if config.auto_polarity else config.threshold.polarity  # 0: not decided yet
         self.rejections: Counter[str] = Counter()
 
     def _reject(self, kind: str, reason: str) -> FrameResult:
@@ -100,18 +119,36 @@ class StereoNeedlePipeline:
             return self._reject("bad input", problem)
         self._dtype = left.dtype
         config = self.config
+        threshold = replace(config.threshold, polarity=self.polarity or 1)
         if self.backgrounds is None:
             if config.background_frames > 0:
                 self._background_frames.append((left.copy(), right.copy()))
                 if len(self._background_frames) < config.background_frames:
                     return FrameResult(FrameStatus.BACKGROUND)
                 self.backgrounds = tuple(BackgroundModel.from_frames([pair[k] for pair in self._background_frames],
-                                                                     config.threshold) for k in range(2))
+                                                                     threshold) for k in range(2))
                 self._background_frames.clear()
                 return FrameResult(FrameStatus.BACKGROUND)
-            self.backgrounds = tuple(BackgroundModel.from_needle_frame(image, config.threshold,
+            if not self.polarity:  # thin dark structures filled by a closing, thin bright ones by an opening
+                image = left.astype(np.float32)
+                size = 2 * config.centerline.profile_half_width + 1
+                kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+                self.polarity = detect_polarity(cv2.morphologyEx(image, cv2.MORPH_CLOSE, kernel) - image,
+                                                image - cv2.morphologyEx(image, cv2.MORPH_OPEN, kernel), image,
+                                                threshold)
+                if not self.polarity:
+                    return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
+                threshold = replace(threshold, polarity=self.polarity)
+            self.backgrounds = tuple(BackgroundModel.from_needle_frame(image, threshold,
                                                                        config.centerline.profile_half_width)
                                      for image in (left, right))
+        if not self.polarity:
+            difference = self.backgrounds[0].image - left.astype(np.float32)
+            self.polarity = detect_polarity(difference, -difference, self.backgrounds[0].image, threshold)
+            if not self.polarity:
+                return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
+            threshold = replace(threshold, polarity=self.polarity)
+            self.backgrounds = tuple(BackgroundModel(background.image, threshold) for background in self.backgrounds)
         try:
             centerlines = [extract_centerline(image, background, config.centerline)
                            for image, background in zip((left, right), self.backgrounds)]

@@ -6,7 +6,7 @@ from vision_shapes import SHAPES, distance_to_curve
 from needle_vision.background import BackgroundModel, ContrastThreshold
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline
 from needle_vision.reconstruction import ReconstructionConfig
-from needle_vision.render import NEEDLE_LENGTH, NEEDLE_RADIUS, render_stereo_pair
+from needle_vision.render import NEEDLE_LENGTH, NEEDLE_RADIUS, make_scene, render_background_pair, render_stereo_pair
 from needle_vision.tracking import TrackingConfig
 
 
@@ -136,3 +136,21 @@ def test_base_and_tip_keep_their_order_by_temporal_continuity(rig, background_fr
         result = pipeline.process(stamp, *renders(name))
         assert result.status is FrameStatus.MEASURED
         assert np.linalg.norm(result.measurement.points[0]) < 2e-3, name  # base measured at the origin
+
+
+@pytest.mark.parametrize("albedo, polarity", [(None, 1), (1.0, -1)])
+@pytest.mark.parametrize("frames", [4, 0])
+def test_polarity_is_detected_automatically(rig, albedo, polarity, frames):
+    """A dark needle on the default scene, a shiny (bright, contrast ~0.3) one: measured without being told,
+    with averaged and with bootstrapped backgrounds."""
+    scene = make_scene(rig, np.random.default_rng(4), **({} if albedo is None else {"needle_albedo": albedo}))
+    pipeline = StereoNeedlePipeline(rig, StereoConfig(background_frames=frames), rig.world_from_left)
+    assert pipeline.config.auto_polarity
+    for k in range(frames):
+        pipeline.process(0.01 * k, *render_background_pair(rig, np.random.default_rng(k), scene=scene))
+    result = pipeline.process(1.0, *render_stereo_pair(rig, SHAPES["planar"], NEEDLE_RADIUS,
+                                                       np.random.default_rng(9), scene=scene))
+    assert pipeline.polarity == polarity and result.status is FrameStatus.MEASURED, result.reason
+    distance, _ = distance_to_curve(result.measurement.points, SHAPES["planar"])
+    # A third of the dark needle's contrast, or a background bootstrapped from this frame: 0.1-0.3 mm.
+    assert np.sqrt(np.mean(distance ** 2)) < 0.35e-3
