@@ -40,18 +40,24 @@ class StereoConfig:
     auto_polarity: bool = True  # decide dark/bright needle from the first frame that shows it (else threshold's)
 
 
+def _largest_component(mask: np.ndarray) -> int:
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    return int(stats[1:, cv2.CC_STAT_AREA].max()) if count > 1 else 0
+
+
 def detect_polarity(darkening: np.ndarray, brightening: np.ndarray, background: np.ndarray,
                     threshold: ContrastThreshold) -> int:
-    """+1 (dark needle) when the pixels darker than the background by more than the threshold outweigh the
-    brighter ones 3:1, -1 (bright) for the converse, 0 when neither dominates (no needle, or noise).
-    ``darkening``/``brightening``: how much darker/brighter than the background each pixel is [DN]."""
+    """+1 (dark needle) when the largest connected structure darker than the background by more than the
+    threshold (at the coarse scale) is twice the largest brighter one, -1 (bright) for the converse, 0 when
+    neither dominates (no needle, or noise). ``darkening``/``brightening``: how much darker/brighter than the
+    background each pixel is [DN]. The needle is one long structure, texture and noise are scattered."""
     factor = threshold.downsample
     limit = np.maximum(threshold.relative * downsample(background, factor), threshold.absolute)
-    darker, brighter = (float(np.where(excess > limit, excess, 0.0).sum())
-                        for excess in (downsample(darkening, factor), downsample(brightening, factor)))
-    if darker > 3 * brighter and darker > 0:
+    darker, brighter = (_largest_component(downsample(excess, factor) > limit)
+                        for excess in (darkening, brightening))
+    if darker >= 2 * brighter and darker > 0:
         return 1
-    if brighter > 3 * darker:
+    if brighter >= 2 * darker and brighter > 0:
         return -1
     return 0
 
