@@ -43,6 +43,19 @@ def test_bad_parameter_stops_the_node_naming_it(ros_env, arguments, named):
     assert f"'{named}" in output
 
 
+def _stop(node, process: subprocess.Popen) -> str:
+    """Destroy the test's node, shut rclpy down, SIGINT the node process; its whole output."""
+    node.destroy_node()
+    rclpy.shutdown()
+    process.send_signal(signal.SIGINT)
+    try:
+        output, _ = process.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        output, _ = process.communicate()
+    return output
+
+
 def _image_msg(image: np.ndarray, stamp: float, frame_id: str, encoding: str = "mono8") -> Image:
     fields = image_fields(image, "mono8")
     fields["encoding"] = encoding
@@ -102,14 +115,7 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
                 image.width == 1440 for image in received["debug"])):  # the half-size pair's may come first
             rclpy.spin_once(node, timeout_sec=0.1)
     finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        process.send_signal(signal.SIGINT)
-        try:
-            output, _ = process.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            output, _ = process.communicate()
+        output = _stop(node, process)
 
     stamps = [shape.header.stamp.sec + shape.header.stamp.nanosec * 1e-9 for shape in received["shape"]]
     assert len(stamps) == 3, output  # the three good needle pairs (reliable transport)
@@ -154,13 +160,6 @@ def test_singular_right_projection_is_refused_without_a_crash(ros_env, rig):
             rclpy.spin_once(node, timeout_sec=0.1)
         assert process.poll() is None
     finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        process.send_signal(signal.SIGINT)
-        try:
-            output, _ = process.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            output, _ = process.communicate()
+        output = _stop(node, process)
     assert "Traceback" not in output
     assert "camera 'right' (right): projection_matrix is singular" in output, output
