@@ -134,7 +134,9 @@ class NeedleStereoNode(Node):
             return
         result = self.pipeline.process(pair.stamp, *images)
         if result.status is FrameStatus.REJECTED:
-            self.warn("rejected", f"nothing published for the pair at {pair.stamp:.6f} s: {result.reason}")
+            counts = ", ".join(f"{kind} {count}" for kind, count in self.pipeline.rejections.most_common())
+            self.warn("rejected", f"nothing published for the pair at {pair.stamp:.6f} s: {result.reason} "
+                                  f"(rejected so far: {counts})")
         if result.status is not FrameStatus.BACKGROUND:
             self.publish_debug(pair.left.header, images, result)
         if result.status is FrameStatus.MEASURED:

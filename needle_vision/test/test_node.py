@@ -120,7 +120,7 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
     stamps = [shape.header.stamp.sec + shape.header.stamp.nanosec * 1e-9 for shape in received["shape"]]
     assert len(stamps) == 3, output  # the three good needle pairs (reliable transport)
     assert all(abs(stamp - 1.03) > 1e-3 for stamp in stamps)  # nothing for the wrong-size pair
-    assert "is 720x540 but its calibration is 1440x1080" in output
+    assert "is 720x540 but its calibration is 1440x1080 (rejected so far: bad input 1)" in output
     shape = received["shape"][0]
     assert shape.header.frame_id == "world" and shape.source == NeedleShape.SOURCE_STEREO
     points = np.array([[p.x, p.y, p.z] for p in shape.points])
