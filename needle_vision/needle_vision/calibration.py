@@ -199,6 +199,10 @@ class StereoRig:
         if np.linalg.norm(left.projection[:, 3]) > 1e-9 * max(1.0, np.abs(left.projection).max()):
             raise CalibrationError(f"camera '{left.camera_name}' (left): projection_matrix has a non-zero 4th "
                                    "column; left and right calibration files may be swapped")
+        for side, camera in (("left", left), ("right", right)):
+            if np.linalg.cond(camera.projection[:, :3]) > 1e12:
+                raise CalibrationError(f"camera '{camera.camera_name}' ({side}): projection_matrix is singular "
+                                       "(its first three columns K' are not invertible)")
         t_right = np.linalg.solve(right.projection[:, :3], right.projection[:, 3])
         if np.linalg.norm(t_right) < 1e-6:
             raise CalibrationError(f"camera '{right.camera_name}' (right): projection_matrix has no baseline "

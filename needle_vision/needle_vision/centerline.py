@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from scipy.ndimage import median_filter
 
 from needle_vision.background import BackgroundModel, downsample
 from needle_vision.curves import arc_length, moving_average
@@ -35,6 +36,9 @@ class CenterlineConfig:
     min_profile_fraction: float = 0.75  # slices with less contrast (per needle width) than this fraction of the
     #                                     median are dropped: gaps, and the partly covered slices at the tips
     min_length_px: float = 40.0      # [px] shorter detections are "no needle"
+    local_window: int = 41           # [slices] the contrast reference is the median over this many neighbours
+    min_contrast_fraction: float = 0.2  # slices with less than this fraction of the whole needle's median are
+    #                                     dropped whatever their neighbours
 
 
 @dataclass(frozen=True)
@@ -226,6 +230,28 @@ def _slices_along(path):  # pragma: no cover - compiled
     return along_rows[:n], fixed[:n], predicted[:n], obliquity[:n]
 
 
+def _sub_pixel_end(points: np.ndarray, coverage: np.ndarray, along_rows: np.ndarray, fixed: np.ndarray,
+                   obliquity: np.ndarray, kept: np.ndarray, sign: int, beyond: int = 4) -> np.ndarray | None:
+    """The needle's end beyond the kept slices, to sub-pixel: from a fully covered slice j0 (third kept from
+    the end) the slices' coverage fractions f (contrast over the end's median) sum to the distance of the end
+    edge from j0's centre plus one half pixel (a pixel-integrated step: sum_j clip(e - j + 1/2, 0, 1) = e + 1/2).
+    ``sign`` +1 for the last end, -1 for the first. None where the slices there are not one straight run."""
+    if len(kept) < 12:
+        return None
+    j0 = kept[-3] if sign > 0 else kept[2]
+    stop = kept[-1] + beyond if sign > 0 else kept[0] - beyond
+    run = np.arange(j0, stop + sign, sign)
+    run = run[(run >= 0) & (run < len(fixed))]
+    if not (np.all(along_rows[run] == along_rows[j0]) and np.all(np.abs(np.diff(fixed[run])) == 1)):
+        return None
+    edge = (np.sum(np.clip(coverage[run], 0.0, 1.0)) - 0.5) / obliquity[j0]  # [px] along the needle
+    inner = points[kept[-12]] if sign > 0 else points[kept[11]]
+    direction = points[j0] - inner
+    direction /= max(np.linalg.norm(direction), 1e-9)
+    steps = np.append(np.arange(1.0, edge, 1.0), edge) if edge > 0 else np.zeros(0)
+    return points[j0] + np.outer(steps, direction)  # one pixel apart like the slices, the end last
+
+
 def extract_centerline(image: np.ndarray, background: BackgroundModel, config: CenterlineConfig = CenterlineConfig()
                        ) -> ImageCenterline:
     """The needle's sub-pixel centerline in ``image`` (uint8/uint16 grey, same size as the background)."""
@@ -259,13 +285,37 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     if np.count_nonzero(strong) < 3:
         raise NoNeedleError("the needle's slices have no contrast")
     # Contrast per unit of needle width (independent of the slice's obliquity): low at gaps and partial tips.
+    # Between the first and last slice with min_profile_fraction of the needle's median contrast, a slice is
+    # compared with the median of its neighbours above a floor (adaptive along the curve: a faded stretch is
+    # followed; the floor keeps gaps and background texture out). Beyond them, the partly covered slices at the
+    # tips are dropped as before.
     width_contrast = contrast * obliquity
-    keep = (width_contrast >= config.min_profile_fraction * np.median(width_contrast[strong])) \
-        & (np.abs(centroid - predicted) <= wide)
-    centroid, fixed, along_rows = centroid[keep], fixed[keep], along_rows[keep]
+    median = np.median(width_contrast[strong])
+    keep = (width_contrast >= config.min_contrast_fraction * median) & (np.abs(centroid - predicted) <= wide)
+    full = keep & (width_contrast >= config.min_profile_fraction * median)
+    ends = np.flatnonzero(full)
+    if len(ends) < 3:
+        raise NoNeedleError("the needle's slices have no contrast")
+    keep[:ends[0]] = False
+    keep[ends[-1] + 1:] = False
+    local = median_filter(width_contrast[keep], size=config.local_window, mode="mirror")
+    keep[keep] = full[keep] | (width_contrast[keep] >= config.min_profile_fraction * local)
+    kept = np.flatnonzero(keep)
     points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
+    coverage = width_contrast / max(np.median(width_contrast[kept[-15:]]), 1e-12), \
+        width_contrast / max(np.median(width_contrast[kept[:15]]), 1e-12)
+    ends = [_sub_pixel_end(points, coverage[k], along_rows, fixed, obliquity, kept, sign) for k, sign in
+            ((1, -1), (0, 1))]
+    contrast_kept = contrast[kept]
+    points = points[kept]
+    if ends[0] is not None:  # the slices from j0 outwards are replaced by points on the end's line
+        points = np.vstack([ends[0][::-1], points[2:]])
+        contrast_kept = np.append(np.full(len(ends[0]), contrast_kept[2]), contrast_kept[2:])
+    if ends[1] is not None:
+        points = np.vstack([points[:-2], ends[1]])
+        contrast_kept = np.append(contrast_kept[:-2], np.full(len(ends[1]), contrast_kept[-3]))
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
     residual = np.linalg.norm(points - moving_average(points, 9), axis=1)
     noise = float(1.4826 * np.median(residual) * np.sqrt(9 / 8)) if len(points) > 9 else 0.0
-    return ImageCenterline(points, contrast[keep], noise)
+    return ImageCenterline(points, contrast_kept, noise)

@@ -162,8 +162,8 @@ SPECS: tuple[ParamSpec, ...] = (
               "effort, also matches reliable publishers) or reliable (large images arrive whole or not at all)",
               choices=("sensor_data", "reliable")),
     ParamSpec("sync_tolerance", 0.002, "largest stamp difference of a left/right pair [s]", 0.0, 1.0),
-    ParamSpec("needle_polarity", "dark", "whether the needle looks darker or brighter than the background",
-              choices=("dark", "bright")),
+    ParamSpec("needle_polarity", "auto", "whether the needle looks darker or brighter than the background; auto: "
+              "decided from the first frame that shows it", choices=("auto", "dark", "bright")),
     ParamSpec("detection.downsample", 4, "factor of the coarse detection image (1, 2, 4 or 8) [-]",
               choices=(1, 2, 4, 8)),
     ParamSpec("detection.relative_threshold", 0.1, "coarse needle threshold: contrast as a fraction of the "
@@ -191,6 +191,10 @@ SPECS: tuple[ParamSpec, ...] = (
               "centerline [m]", 0.0, 0.2),
     ParamSpec("reconstruction.sample_spacing", 0.001, "arc-length step of the published samples [m]",
               1e-4, 0.1),
+    ParamSpec("reconstruction.max_length", 0.3, "a measured centerline longer than this is rejected as "
+              "implausible (set it to the needle's free length plus a margin) [m]", 1e-3, 10.0),
+    ParamSpec("reconstruction.max_image_scatter", 0.5, "image centerlines scattering more than this across the "
+              "curve are rejected as low-confidence detections (a needle scatters ~0.05 px) [px]", 0.01, 100.0),
     ParamSpec("background.frames", 10, "first synchronised pairs, needle-free, averaged into the background; "
               "0: bootstrap from the first pair by erasing the needle [-]", 0, 100000),
     ParamSpec("background.learning_rate", 0.0, "running update of the background away from the needle per "
@@ -224,7 +228,7 @@ def validate_all(values: dict[str, Any]) -> dict[str, Any]:
 def stereo_config(values: dict[str, Any]) -> StereoConfig:
     """The pipeline settings from validated parameter values."""
     return StereoConfig(
-        threshold=ContrastThreshold(polarity=1 if values["needle_polarity"] == "dark" else -1,
+        threshold=ContrastThreshold(polarity=-1 if values["needle_polarity"] == "bright" else 1,
                                     relative=values["detection.relative_threshold"],
                                     absolute=values["detection.absolute_threshold"],
                                     downsample=values["detection.downsample"]),
@@ -239,11 +243,14 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
                                             outlier_floor=values["reconstruction.outlier_floor"],
                                             smoothing_length=values["reconstruction.smoothing_length"],
                                             sample_spacing=values["reconstruction.sample_spacing"],
+                                            max_length=values["reconstruction.max_length"],
+                                            max_image_scatter=values["reconstruction.max_image_scatter"],
                                             base_point=np.array(values["base_point"])),
         background_frames=values["background.frames"],
         background_learning_rate=values["background.learning_rate"],
         tracking=TrackingConfig(values["tracking.window"], values["tracking.max_gap"])
-        if values["tracking.enabled"] else None)
+        if values["tracking.enabled"] else None,
+        auto_polarity=values["needle_polarity"] == "auto")
 
 
 def output_from_left(values: dict[str, Any]) -> RigidTransform:

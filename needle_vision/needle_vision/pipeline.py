@@ -3,16 +3,19 @@ reconstruction of each synchronised pair, and optional tracking. Shared by the n
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections import Counter
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
+import cv2
 import numpy as np
 
-from needle_vision.background import BackgroundModel, ContrastThreshold
+from needle_vision.background import BackgroundModel, ContrastThreshold, downsample
 from needle_vision.calibration import StereoRig
 from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
 from needle_vision.correspondence import MatchError, MatchingConfig
-from needle_vision.reconstruction import NeedleMeasurement, ReconstructionConfig, reconstruct_centerline
+from needle_vision.reconstruction import (ImplausibleError, NeedleMeasurement, ReconstructionConfig,
+                                          reconstruct_centerline)
 from needle_vision.rectification import Rectification
 from needle_vision.tracking import CenterlineMotion, CenterlineTracker, TrackingConfig
 from needle_vision.transform import RigidTransform
@@ -34,6 +37,29 @@ class StereoConfig:
     background_frames: int = 10
     background_learning_rate: float = 0.0
     tracking: TrackingConfig | None = None
+    auto_polarity: bool = True  # decide dark/bright needle from the first frame that shows it (else threshold's)
+
+
+def _largest_component(mask: np.ndarray) -> int:
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    return int(stats[1:, cv2.CC_STAT_AREA].max()) if count > 1 else 0
+
+
+def detect_polarity(darkening: np.ndarray, brightening: np.ndarray, background: np.ndarray,
+                    threshold: ContrastThreshold) -> int:
+    """+1 (dark needle) when the largest connected structure darker than the background by more than the
+    threshold (at the coarse scale) is twice the largest brighter one, -1 (bright) for the converse, 0 when
+    neither dominates (no needle, or noise). ``darkening``/``brightening``: how much darker/brighter than the
+    background each pixel is [DN]. The needle is one long structure, texture and noise are scattered."""
+    factor = threshold.downsample
+    limit = np.maximum(threshold.relative * downsample(background, factor), threshold.absolute)
+    darker, brighter = (_largest_component(downsample(excess, factor) > limit)
+                        for excess in (darkening, brightening))
+    if darker >= 2 * brighter and darker > 0:
+        return 1
+    if brighter >= 2 * darker and brighter > 0:
+        return -1
+    return 0
 
 
 class FrameStatus(Enum):
@@ -56,7 +82,8 @@ class StereoNeedlePipeline:
     """Measures the needle in synchronised pairs of raw grey images (uint8 or uint16) of ``rig``.
 
     Immutable model: rig, rectification, config, ``output_from_left`` (pose of the left optical frame in the
-    output frame). Mutable state: background models, background frames collected so far, the tracker.
+    output frame). Mutable state: background models, background frames collected so far, the tracker, the last
+    measured base (orders base and tip by temporal continuity) and ``rejections``, counted by reason kind.
     """
 
     def __init__(self, rig: StereoRig, config: StereoConfig = StereoConfig(),
@@ -69,6 +96,13 @@ class StereoNeedlePipeline:
         self._background_frames: list[tuple[np.ndarray, np.ndarray]] = []
         self._dtype: np.dtype | None = None
         self.tracker = CenterlineTracker(config.tracking) if config.tracking else None
+        self.last_base: np.ndarray | None = None
+        self.polarity = 0 if config.auto_polarity else config.threshold.polarity  # 0: not decided yet
+        self.rejections: Counter[str] = Counter()
+
+    def _reject(self, kind: str, reason: str) -> FrameResult:
+        self.rejections[kind] += 1
+        return FrameResult(FrameStatus.REJECTED, reason=reason)
 
     def _check(self, left: np.ndarray, right: np.ndarray) -> str:
         """Why the pair cannot be used, or ''."""
@@ -88,28 +122,51 @@ class StereoNeedlePipeline:
         """Use one synchronised pair (stamp [s]) for the background or measure the needle in it."""
         problem = self._check(left, right)
         if problem:
-            return FrameResult(FrameStatus.REJECTED, reason=problem)
+            return self._reject("bad input", problem)
         self._dtype = left.dtype
         config = self.config
+        threshold = replace(config.threshold, polarity=self.polarity or 1)
         if self.backgrounds is None:
             if config.background_frames > 0:
                 self._background_frames.append((left.copy(), right.copy()))
                 if len(self._background_frames) < config.background_frames:
                     return FrameResult(FrameStatus.BACKGROUND)
                 self.backgrounds = tuple(BackgroundModel.from_frames([pair[k] for pair in self._background_frames],
-                                                                     config.threshold) for k in range(2))
+                                                                     threshold) for k in range(2))
                 self._background_frames.clear()
                 return FrameResult(FrameStatus.BACKGROUND)
-            self.backgrounds = tuple(BackgroundModel.from_needle_frame(image, config.threshold,
+            if not self.polarity:  # thin dark structures filled by a closing, thin bright ones by an opening
+                image = left.astype(np.float32)
+                size = 2 * config.centerline.profile_half_width + 1
+                kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+                self.polarity = detect_polarity(cv2.morphologyEx(image, cv2.MORPH_CLOSE, kernel) - image,
+                                                image - cv2.morphologyEx(image, cv2.MORPH_OPEN, kernel), image,
+                                                threshold)
+                if not self.polarity:
+                    return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
+                threshold = replace(threshold, polarity=self.polarity)
+            self.backgrounds = tuple(BackgroundModel.from_needle_frame(image, threshold,
                                                                        config.centerline.profile_half_width)
                                      for image in (left, right))
+        if not self.polarity:
+            difference = self.backgrounds[0].image - left.astype(np.float32)
+            self.polarity = detect_polarity(difference, -difference, self.backgrounds[0].image, threshold)
+            if not self.polarity:
+                return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
+            threshold = replace(threshold, polarity=self.polarity)
+            self.backgrounds = tuple(BackgroundModel(background.image, threshold) for background in self.backgrounds)
         try:
             centerlines = [extract_centerline(image, background, config.centerline)
                            for image, background in zip((left, right), self.backgrounds)]
             measurement = reconstruct_centerline(*centerlines, self.rectification, config.matching,
-                                                 config.reconstruction, self.output_from_left)
-        except (NoNeedleError, MatchError) as error:
-            return FrameResult(FrameStatus.REJECTED, reason=str(error))
+                                                 config.reconstruction, self.output_from_left, self.last_base)
+        except NoNeedleError as error:
+            return self._reject("no needle", str(error))
+        except ImplausibleError as error:
+            return self._reject("implausible", str(error))
+        except MatchError as error:
+            return self._reject("no stereo match", str(error))
+        self.last_base = measurement.points[0]
         if config.background_learning_rate > 0:
             for image, background, centerline in zip((left, right), self.backgrounds, centerlines):
                 background.update(image, centerline.points, config.background_learning_rate,

@@ -21,6 +21,14 @@ from needle_vision.transform import RigidTransform
 
 #: Floor of the per-point image noise [px] used for the uncertainty (the centroid's aliasing error).
 MIN_IMAGE_NOISE_PX = 0.02
+#: 1-sigma error [px] of the needle's end positions along the needle (sub-pixel edge; flat or bevelled end).
+END_LOCALIZATION_PX = 0.3
+#: ``uncertainty`` of a sample in a gap (no triangulated point within ``max_gap``): interpolated, not measured.
+UNMEASURED = -1.0
+
+
+class ImplausibleError(MatchError):
+    """A reconstruction that no needle in the configured working volume can produce (message says why)."""
 
 
 @dataclass(frozen=True)
@@ -34,13 +42,17 @@ class ReconstructionConfig:
     smoothing_length: float = 8e-3    # [m] arc length of the local cubic fit that smooths the centerline
     sample_spacing: float = 1e-3      # [m] arc-length step of the published samples
     min_points: int = 20              # fewer inliers than this: no measurement
+    max_length: float = 0.3           # [m] a longer centerline is implausible for a needle: rejected
+    max_image_scatter: float = 0.5    # [px] image centerlines scattering more across the curve are not a needle
+    max_gap: float = 1e-3             # [m] longer stretches without a triangulated point are unmeasured
     base_point: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [m] near the base, output frame
 
 
 @dataclass(frozen=True)
 class NeedleMeasurement:
     """The measured centerline in the output frame, base to tip: samples ``points (k, 3)`` [m], unit
-    ``tangents``, ``arc_length`` [m], 1-sigma ``uncertainty`` [m], total ``length`` [m]; the inlier
+    ``tangents``, ``arc_length`` [m], 1-sigma ``uncertainty`` [m] (UNMEASURED in gaps, see ``measured``),
+    total ``length`` [m]; the inlier
     ``triangulated`` points ``(n, 3)`` before smoothing; and the raw image centerlines (for the debug image)."""
 
     points: np.ndarray
@@ -52,6 +64,12 @@ class NeedleMeasurement:
     left_centerline: ImageCenterline
     right_centerline: ImageCenterline
     anchored_fraction: float
+    measured: np.ndarray
+
+    @property
+    def coverage(self) -> float:
+        """Fraction of the sampled length that was measured (not in a gap) [-]."""
+        return float(np.mean(self.measured))
 
 
 def _odd_window(length: float, spacing: float, count: int, minimum: int = 5) -> int:
@@ -85,8 +103,15 @@ def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: in
 
 def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
                            matching: MatchingConfig, config: ReconstructionConfig,
-                           output_from_left: RigidTransform) -> NeedleMeasurement:
-    """Triangulate, clean, order, smooth and resample; raises MatchError when no measurement results."""
+                           output_from_left: RigidTransform, base_hint: np.ndarray | None = None
+                           ) -> NeedleMeasurement:
+    """Triangulate, clean, order, smooth and resample; raises MatchError when no measurement results.
+    The base is the end nearer to ``base_hint`` (output frame; e.g. the previous frame's base) when given, else
+    nearer to ``config.base_point``."""
+    scatter = max(left.noise_px, right.noise_px)
+    if scatter > config.max_image_scatter:
+        raise ImplausibleError(f"implausible: image centerline scatters {scatter:.2f} px across the curve "
+                               f"(> {config.max_image_scatter:g} px): low detection confidence")
     left_rect = rectification.rectify(left.points, "left")
     right_rect = rectification.rectify(right.points, "right")
     ends_visible = all(_ends_inside(centerline.points, camera.width, camera.height) for centerline, camera
@@ -118,7 +143,8 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2) * smoothing_gain
 
     points = output_from_left.apply(points)
-    if np.linalg.norm(points[-1] - config.base_point) < np.linalg.norm(points[0] - config.base_point):
+    base = config.base_point if base_hint is None else base_hint
+    if np.linalg.norm(points[-1] - base) < np.linalg.norm(points[0] - base):
         points, point_sigma, anchored = points[::-1], point_sigma[::-1], anchored[::-1]
     smooth = local_polynomial_smooth(points, window, 3)
     arc = arc_length(smooth)
@@ -126,8 +152,20 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     samples = np.append(np.arange(0.0, length, config.sample_spacing), length)
     if samples[-1] - samples[-2] < 0.25 * config.sample_spacing:  # no sliver at the tip
         samples = np.delete(samples, -2)
+    if length > config.max_length:
+        raise ImplausibleError(f"implausible: measured needle is {length * 1e3:.0f} mm long "
+                               f"(> max_length {config.max_length * 1e3:.0f} mm)")
+    # Samples between two triangulated points farther apart than max_gap are interpolated: flag them.
+    step_after = np.searchsorted(arc, samples, side="right").clip(1, len(arc) - 1)
+    measured = np.diff(arc)[step_after - 1] <= config.max_gap
     resampled = interpolate(arc, smooth, samples)
     tangents = derivative(resampled, samples)
     tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
-    return NeedleMeasurement(resampled, tangents, samples, np.interp(samples, arc, point_sigma), length,
-                             points, left, right, float(np.mean(anchored)))
+    uncertainty = np.interp(samples, arc, point_sigma)
+    # The end samples also carry the localization of the needle's ends along it (sub-pixel edge, ~0.3 px).
+    end_pixel = np.linalg.norm(output_from_left.inverse().apply(resampled[[0, -1]]), axis=1) \
+        / rectification.focal_length
+    uncertainty[[0, -1]] = np.hypot(uncertainty[[0, -1]], END_LOCALIZATION_PX * end_pixel)
+    uncertainty = np.where(measured, uncertainty, UNMEASURED)
+    return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, left, right,
+                             float(np.mean(anchored)), measured)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 import time
 
+import cv2
 import numpy as np
 import rclpy
 import rclpy.executors
@@ -123,11 +124,11 @@ class NeedleStereoNode(Node):
         try:
             rig = StereoRig.from_camera_calibrations(calibration_from_camera_info(self.camera_infos["left"], "left"),
                                                      calibration_from_camera_info(self.camera_infos["right"], "right"))
-        except CalibrationError as error:
+            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
+        except (CalibrationError, cv2.error, np.linalg.LinAlgError) as error:
             self.pipeline = None
             self.warn("calibration", f"camera_info unusable, nothing is measured: {error}")
             return
-        self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
         self.send_camera_frames(rig)
         self.get_logger().info("stereo calibration received from camera_info; background model restarts")
 
@@ -150,7 +151,9 @@ class NeedleStereoNode(Node):
             return
         result = self.pipeline.process(pair.stamp, *images)
         if result.status is FrameStatus.REJECTED:
-            self.warn("rejected", f"nothing published for the pair at {pair.stamp:.6f} s: {result.reason}")
+            counts = ", ".join(f"{kind} {count}" for kind, count in self.pipeline.rejections.most_common())
+            self.warn("rejected", f"nothing published for the pair at {pair.stamp:.6f} s: {result.reason} "
+                                  f"(rejected so far: {counts})")
         if result.status is not FrameStatus.BACKGROUND:
             self.publish_debug(pair.left.header, images, result)
         if result.status is FrameStatus.MEASURED:

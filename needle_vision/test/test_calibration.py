@@ -70,6 +70,17 @@ def test_mismatched_rectified_focal_lengths_are_reported(rig):
         StereoRig.from_camera_calibrations(ros.left, replace(ros.right, projection=projection))
 
 
+@pytest.mark.parametrize("side", ["left", "right"])
+def test_singular_projection_matrix_is_refused_with_the_field_named(rig, side):
+    ros = rig.with_ros_rectification()
+    cameras = {"left": ros.left, "right": ros.right}
+    projection = cameras[side].projection.copy()
+    projection[2, :3] = 0.0  # last row of K' zero: fx', fy' > 0 still, but not invertible
+    cameras[side] = replace(cameras[side], projection=projection)
+    with pytest.raises(CalibrationError, match=f"\\({side}\\): projection_matrix is singular"):
+        StereoRig.from_camera_calibrations(cameras["left"], cameras["right"])
+
+
 @pytest.mark.parametrize("change, message", [
     ({"camera_matrix": np.zeros((3, 3))}, "fx, fy > 0"),
     ({"distortion": [0.1, 0.2]}, "plumb_bob needs 5"),

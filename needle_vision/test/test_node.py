@@ -44,6 +44,19 @@ def test_bad_parameter_stops_the_node_naming_it(ros_env, arguments, named):
     assert f"'{named}" in output
 
 
+def _stop(node, process: subprocess.Popen) -> str:
+    """Destroy the test's node, shut rclpy down, SIGINT the node process; its whole output."""
+    node.destroy_node()
+    rclpy.shutdown()
+    process.send_signal(signal.SIGINT)
+    try:
+        output, _ = process.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        output, _ = process.communicate()
+    return output
+
+
 def _image_msg(image: np.ndarray, stamp: float, frame_id: str, encoding: str = "mono8") -> Image:
     fields = image_fields(image, "mono8")
     fields["encoding"] = encoding
@@ -103,19 +116,12 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
                 image.width == 1440 for image in received["debug"])):  # the half-size pair's may come first
             rclpy.spin_once(node, timeout_sec=0.1)
     finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        process.send_signal(signal.SIGINT)
-        try:
-            output, _ = process.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            output, _ = process.communicate()
+        output = _stop(node, process)
 
     stamps = [shape.header.stamp.sec + shape.header.stamp.nanosec * 1e-9 for shape in received["shape"]]
     assert len(stamps) == 3, output  # the three good needle pairs (reliable transport)
     assert all(abs(stamp - 1.03) > 1e-3 for stamp in stamps)  # nothing for the wrong-size pair
-    assert "is 720x540 but its calibration is 1440x1080" in output
+    assert "is 720x540 but its calibration is 1440x1080 (rejected so far: bad input 1)" in output
     shape = received["shape"][0]
     assert shape.header.frame_id == "world" and shape.source == NeedleShape.SOURCE_STEREO
     points = np.array([[p.x, p.y, p.z] for p in shape.points])
@@ -132,3 +138,29 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
     np.testing.assert_allclose(np.frombuffer(bytes(cloud.data), "<f4").reshape(-1, 3), points, atol=1e-6)
     # Side by side, half size (also published for rejected pairs, e.g. 720 px wide for the half-size pair).
     assert any(image.encoding == "bgr8" and (image.width, image.height) == (1440, 540) for image in received["debug"])
+
+
+def test_singular_right_projection_is_refused_without_a_crash(ros_env, rig):
+    """camera_info whose right P has a zero last row (fx' > 0 still): the node warns naming the field, lives on."""
+    process = start_node(ros_env, "-p", "warning_period:=0.01", "-p", "image_qos:=reliable")
+    rclpy.init()
+    node = rclpy.create_node("needle_stereo_singular_test")
+    try:
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        infos = {side: node.create_publisher(CameraInfo, f"{side}/camera_info", reliable) for side in ("left", "right")}
+        ros = rig.with_ros_rectification()
+        fields = {side: camera_info_fields(camera) for side, camera in (("left", ros.left), ("right", ros.right))}
+        fields["right"]["p"] = list(fields["right"]["p"][:8]) + [0.0] * 4
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and min(p.get_subscription_count() for p in infos.values()) < 1:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            for side in ("left", "right"):
+                infos[side].publish(CameraInfo(**fields[side]))
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert process.poll() is None
+    finally:
+        output = _stop(node, process)
+    assert "Traceback" not in output
+    assert "camera 'right' (right): projection_matrix is singular" in output, output

@@ -31,7 +31,7 @@ def test_sample_params_file_is_complete_and_valid(monkeypatch, tmp_path):
 @pytest.mark.parametrize("name, value, message", [
     ("sync_tolerance", -0.1, "must be >= 0"),
     ("detection.downsample", 3, "must be one of 1, 2, 4, 8"),
-    ("needle_polarity", "grey", "must be one of dark, bright"),
+    ("needle_polarity", "grey", "must be one of auto, dark, bright"),
     ("output_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], "quaternion must be non-zero"),
     ("base_point", [0.0, 0.0], "expected 3 values"),
     ("reconstruction.sample_spacing", float("nan"), "must be finite"),
