@@ -146,6 +146,7 @@ def assert_refused(result: subprocess.CompletedProcess, path: Path, words: list[
 EXECUTABLES = {
     "needle_simulator": lambda path, out: ["needle_simulator", "--ros-args", "--params-file", str(path)],
     "needle_compare": lambda path, out: ["needle_compare", "--ros-args", "--params-file", str(path)],
+    "needle_stereo": lambda path, out: ["needle_stereo", "--ros-args", "--params-file", str(path)],
     "needle_scenario": lambda path, out: ["needle_scenario", "static", "--tip-mass", "0.0", "--params", str(path),
                                           "--json", str(out / "static.json")],
     "needle_offline": lambda path, out: ["needle_offline", str(REPO / "bags" / "insertion.mcap"), "--experiment",
@@ -163,8 +164,8 @@ def test_every_executable_refuses_bad_params_files_with_exit_2(tmp_path, executa
     cases = {name: (content, words) for name, content, words in ADVERSARIAL + [MISSING]}
     for name in PROCESS_CASES:
         content, words = cases[name]
-        if executable in ("needle_compare", "needle_stereo_offline") and name == "typo":
-            content = content.replace("/**", {"needle_compare": "needle_compare",
+        if executable in ("needle_compare", "needle_stereo", "needle_stereo_offline") and name == "typo":
+            content = content.replace("/**", {"needle_compare": "needle_compare", "needle_stereo": "needle_stereo",
                                               "needle_stereo_offline": "needle_stereo"}[executable])
             words = ["needle.lenght"]
         if executable == "needle_offline":  # an experiment file: the node sections

@@ -29,7 +29,8 @@ from needle_vision.calibration import (CalibrationError, StereoRig, calibration_
 from needle_vision.image_codec import ImageFormatError, image_fields, image_message_to_gray
 from needle_vision.outputs import debug_image, pointcloud2_fields
 from needle_vision.pairing import StampPairer
-from needle_vision.parameters import SPECS, ParameterError, ParamSpec, output_from_left, stereo_config, validate_all
+from needle_vision.parameters import (SPECS, ParameterError, ParamSpec, check_ros_arguments, output_from_left,
+                                      stereo_config, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
 from needle_vision.tf_output import TfOutput, transform_stamped
 from needle_vision.transform import quaternion_from_x_axis
@@ -190,6 +191,12 @@ class NeedleStereoNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    try:  # every --params-file checked before rclpy reads it (rcl's parser would end in a traceback)
+        check_ros_arguments(sys.argv if args is None else args, "needle_stereo", SPECS,
+                            lambda message: rclpy.logging.get_logger("needle_stereo").warning(message))
+    except ParameterError as error:
+        rclpy.logging.get_logger("needle_stereo").fatal(str(error))
+        return 2
     rclpy.init(args=args)
     node = None
     try:
