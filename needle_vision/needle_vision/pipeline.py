@@ -148,16 +148,17 @@ class StereoNeedlePipeline:
             self.backgrounds = tuple(BackgroundModel.from_needle_frame(image, threshold,
                                                                        config.centerline.profile_half_width)
                                      for image in (left, right))
-        if not self.polarity:
-            difference = self.backgrounds[0].image - left.astype(np.float32)
-            self.polarity = detect_polarity(difference, -difference, self.backgrounds[0].image, threshold)
-            if not self.polarity:
+        backgrounds = self.backgrounds
+        if not self.polarity:  # decided here, kept only once a needle is measured with it (not on empty frames)
+            difference = backgrounds[0].image - left.astype(np.float32)
+            polarity = detect_polarity(difference, -difference, backgrounds[0].image, threshold)
+            if not polarity:
                 return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
-            threshold = replace(threshold, polarity=self.polarity)
-            self.backgrounds = tuple(BackgroundModel(background.image, threshold) for background in self.backgrounds)
+            threshold = replace(threshold, polarity=polarity)
+            backgrounds = tuple(BackgroundModel(background.image, threshold) for background in backgrounds)
         try:
             centerlines = [extract_centerline(image, background, config.centerline)
-                           for image, background in zip((left, right), self.backgrounds)]
+                           for image, background in zip((left, right), backgrounds)]
             measurement = reconstruct_centerline(*centerlines, self.rectification, config.matching,
                                                  config.reconstruction, self.output_from_left, self.last_base)
         except NoNeedleError as error:
@@ -167,6 +168,7 @@ class StereoNeedlePipeline:
         except MatchError as error:
             return self._reject("no stereo match", str(error))
         self.last_base = measurement.points[0]
+        self.polarity, self.backgrounds = threshold.polarity, backgrounds
         if config.background_learning_rate > 0:
             for image, background, centerline in zip((left, right), self.backgrounds, centerlines):
                 background.update(image, centerline.points, config.background_learning_rate,
