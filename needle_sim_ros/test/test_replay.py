@@ -17,6 +17,7 @@ from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
+from scipy.stats import theilslopes
 from scipy.spatial.transform import Rotation
 
 from needle_vision.transform import RigidTransform
@@ -100,8 +101,10 @@ def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(nod
     assert [k for _, k in arrivals] == list(range(count)), out
     received = np.array([t for t, _ in arrivals], dtype=float)
     expected = (np.array(stamps, dtype=float) - stamps[0]) / rate
-    # The played time scale: arrival vs schedule has slope 1 (0.5 s of playback; 1 % = 5 ms drift).
-    slope = np.polyfit(expected, received, 1)[0]
+    # The played time scale: arrival vs schedule has slope 1 (0.5 s of playback; 1 % = 5 ms drift). Theil-Sen (the
+    # median of pairwise slopes): a least-squares fit let one stall of the receiving process on a loaded 2-core
+    # machine (~8 ms, bounded below as jitter) tilt the whole line by 1.7 %.
+    slope = theilslopes(received, expected)[0]
     assert slope == pytest.approx(1.0, abs=0.01)
     # Jitter: deviation of each arrival from the schedule, after removing the constant transport latency (sleep
     # overshoot, scheduling of two processes on a shared 2-core machine). Bounds: median 1 ms and 90th percentile
