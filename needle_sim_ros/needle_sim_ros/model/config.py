@@ -77,19 +77,14 @@ def parameter_tree(source) -> Mapping:
     return merged
 
 
-def explicit_parameters(source) -> dict[str, Any]:
-    """The needle/damping/integrator/fixtures parameters that ``source`` sets (flat dotted names)."""
+def needle_parameters(source) -> dict[str, Any]:
+    """All needle/damping/integrator/fixtures parameters (flat dotted names), defaults filled in."""
     flat = flatten_tree(parameter_tree(source))
     ours = {k: v for k, v in flat.items() if k.split(".", 1)[0] in GROUPS}
     unknown = sorted(set(ours) - set(DEFAULTS))
     if unknown:
         raise ValueError(f"unknown needle config key(s) {unknown}; known: {sorted(DEFAULTS)}")
-    return ours
-
-
-def needle_parameters(source) -> dict[str, Any]:
-    """All needle/damping/integrator/fixtures parameters (flat dotted names), defaults filled in."""
-    return {**DEFAULTS, **explicit_parameters(source)}
+    return {**DEFAULTS, **ours}
 
 
 def _fixtures(p: Mapping[str, Any]) -> tuple[Fixture, ...]:

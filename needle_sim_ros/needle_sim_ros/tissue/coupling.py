@@ -160,9 +160,9 @@ def needle_points(S: np.ndarray, S_x: np.ndarray, slots: np.ndarray, q: np.ndarr
 
 
 @njit(cache=True)
-def cut_quadrature(node_arc, element_lengths, lower, upper, xi, w, q):
+def cut_quadrature(node_arc, element_lengths, lower, upper, xi, w):
     """Gauss points (xi, w on [-1, 1]) on each element's share of the arc interval [lower, upper]: weights (m,) [m],
-    q slots (m, 4), S and S_x (m, 4) of eq. 4, and the needle's positions and unit tangents (m, 3) at q."""
+    q slots (m, 4), S and S_x (m, 4) of eq. 4."""
     starts = np.maximum(node_arc[:-1], lower)
     ends = np.minimum(node_arc[1:], upper)
     cut = np.flatnonzero(ends > starts)
@@ -181,16 +181,7 @@ def cut_quadrature(node_arc, element_lengths, lower, upper, xi, w, q):
             k += 1
     S, S_x, S_xx = np.empty((m, 4)), np.empty((m, 4)), np.empty((m, 4))
     hermite_shapes(local, lengths, S, S_x, S_xx)
-    r, tangents = np.zeros((m, 3)), np.zeros((m, 3))
-    for k in range(m):
-        for a in range(4):
-            for i in range(3):
-                r[k, i] += S[k, a] * q[3 * slots[k, a] + i]
-                tangents[k, i] += S_x[k, a] * q[3 * slots[k, a] + i]
-        norm = np.sqrt(tangents[k, 0] ** 2 + tangents[k, 1] ** 2 + tangents[k, 2] ** 2)
-        for i in range(3):
-            tangents[k, i] /= norm
-    return weights, slots, S, S_x, r, tangents
+    return weights, slots, S, S_x
 
 
 @njit(cache=True)
@@ -351,8 +342,9 @@ class ShaftSupport:
         lower = max(s_tip - tip_coordinate, 0.0)
         if not upper > lower:
             return _Frozen.inactive()
-        weights, slots, S, S_x, r, tangents = cut_quadrature(model.mesh.node_arc_length, model.mesh.element_lengths,
-                                                             lower, upper, _GAUSS_XI, _GAUSS_W, q)
+        weights, slots, S, S_x = cut_quadrature(model.mesh.node_arc_length, model.mesh.element_lengths, lower, upper,
+                                                _GAUSS_XI, _GAUSS_W)
+        r, tangents = needle_points(S, S_x, slots, q)
         points = track.locate(track.project(r)[0])[0]
         depth = block.depth(points)
         stiffness, damping = block.layer_values(("lateral_stiffness", "lateral_damping"), depth)

@@ -38,11 +38,6 @@ class Track:
         return self._vertices[: self._count]
 
     @property
-    def arc(self) -> np.ndarray:
-        """Cumulative arc length [m] at the vertices."""
-        return self._arc[: self._count]
-
-    @property
     def length(self) -> float:
         return float(self._arc[self._count - 1]) if self._count else 0.0
 
