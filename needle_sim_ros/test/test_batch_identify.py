@@ -1,6 +1,7 @@
 """needle_batch identify recovers known tissue parameters (bevel K_T, Karnopp C_n) within 5 % from two short
-synthetic insertions generated with them (needle_sim_ros.experiments), starting 25 % off, on 2 local workers; the
-written params file is one the simulator accepts and holds the estimate."""
+synthetic insertions generated with them (needle_sim_ros.experiments: the truth integrates the protocol's exact base
+motion, the pipeline the bag's 200 Hz poses and the FBG shapes carry sensor noise), starting 25 % off, on 2 local
+workers; the written params file is one the simulator accepts and holds the estimate."""
 import json
 import subprocess
 
@@ -14,11 +15,6 @@ from needle_sim_ros.offline.parameters import node_values  # noqa: E402
 from needle_sim_ros.offline.stages import simulator_values  # noqa: E402
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "issue #17 left open: since #13's path-memory tissue, K_T acts almost only while the bevel enters, so these two "
-    "short FBG insertions barely constrain it (measured: K_T 11044 for a true 12000, -8 %; rms 1.30 -> 1.29 noise "
-    "units); C_n is still recovered (8.15 for 8). Needs better-conditioned synthetic experiments (e.g. the reference "
-    "wrench as residuals, longer insertions with a roll change)."))
 def test_identify_recovers_known_tissue_parameters(tmp_path):
     pairs = write_identification_bags(tmp_path / "bags")
     manifest = tmp_path / "bags.txt"

@@ -2,8 +2,11 @@
 
 Path memory (Glozman & Shoham's virtual springs, seed 001 Sec. II: forces act "at the nodes in contact with the
 tissue nodes that are previously cut by the needle"): the track starts where the tip crossed the entry surface
-and, whenever the tip has advanced ``spacing`` beyond its end, grows a vertex AT THE TIP: each tissue point's rest
-position is where the tip passed when it cut that point.  Tissue beyond the end is uncut and holds nothing
+and, whenever the tip has advanced ``spacing`` beyond its end, grows a vertex ON THE TIP'S PATH: each tissue point's
+rest position is where the tip passed when it cut that point.  The vertex is interpolated between the tip's
+positions before and after the step at the exact crossing (``spacing`` ahead of the end), not put at the step's
+end: the track then depends continuously on the motion, not on which step the crossing fell in (a 1 ms step at
+20 mm/s would otherwise shift it by up to 20 um and make the response jump with any parameter).  Tissue beyond the end is uncut and holds nothing
 laterally (the cut front carries no spring).  Retracting leaves the track in place, so a re-insertion follows it
 until the tip passes its end, then cuts new tissue.
 """
@@ -28,6 +31,7 @@ class Track:
         self._arc = np.zeros(capacity)
         self._count = 0
         self._direction = np.array([1.0, 0.0, 0.0])
+        self._previous_tip = np.zeros(3)  # the tip position of the previous cut() (the entry point at the start)
 
     @property
     def started(self) -> bool:
@@ -49,6 +53,7 @@ class Track:
         self._count = 0
         self._direction = np.asarray(direction, dtype=float) / norm
         self._append(np.asarray(entry_point, dtype=float))
+        self._previous_tip = np.array(entry_point, dtype=float)
 
     def _append(self, point: np.ndarray) -> None:
         if self._count == self._vertices.shape[0]:
@@ -71,11 +76,18 @@ class Track:
         return self.length + float((point - self._vertices[self._count - 1]) @ self.end_tangent())
 
     def cut(self, tip_position: np.ndarray) -> bool:
-        """Extend the track to the tip when it is ``spacing`` or more beyond the end; True if it grew."""
-        if self.coordinate_ahead(tip_position) - self.length < self.spacing:
-            return False
-        self._append(np.asarray(tip_position, dtype=float))
-        return True
+        """Extend the track while the tip is ``spacing`` or more beyond its end, each vertex where the straight path
+        from the previous tip position crosses ``spacing`` ahead of the end; True if it grew."""
+        tip = np.asarray(tip_position, dtype=float)
+        previous, grew = self._previous_tip, False
+        while (ahead := self.coordinate_ahead(tip) - self.length) >= self.spacing:
+            behind = self.coordinate_ahead(previous) - self.length
+            fraction = (self.spacing - behind) / (ahead - behind) if behind < self.spacing else 0.0
+            previous = previous + fraction * (tip - previous)
+            self._append(previous)
+            grew = True
+        self._previous_tip = tip.copy()
+        return grew
 
     def locate(self, coordinate) -> tuple[np.ndarray, np.ndarray]:
         """Points (k, 3) and unit tangents (k, 3) at track coordinates (k,) (>= 0; beyond ``length`` on the
