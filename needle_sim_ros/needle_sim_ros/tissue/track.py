@@ -6,9 +6,9 @@ and, whenever the tip has advanced ``spacing`` beyond its end, grows a vertex ON
 rest position is where the tip passed when it cut that point.  The vertex is interpolated between the tip's
 positions before and after the step at the exact crossing (``spacing`` ahead of the end), not put at the step's
 end: the track then depends continuously on the motion, not on which step the crossing fell in (a 1 ms step at
-20 mm/s would otherwise shift it by up to 20 um and make the response jump with any parameter).  Tissue beyond the end is uncut and holds nothing
-laterally (the cut front carries no spring).  Retracting leaves the track in place, so a re-insertion follows it
-until the tip passes its end, then cuts new tissue.
+20 mm/s would otherwise shift it by up to 20 um and make the response jump with any parameter).  Tissue beyond
+the end is uncut and holds nothing laterally (the cut front carries no spring).  Retracting leaves the track in
+place, so a re-insertion follows it until the tip passes its end, then cuts new tissue.
 """
 from __future__ import annotations
 
