@@ -16,6 +16,9 @@ import numpy as np
 from numba import njit
 
 
+END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at the default 0.1 mm spacing)
+
+
 class Track:
     """Mutable polyline from the entry point; ``length`` is its arc length [m] (0 right after the entry).
 
@@ -66,9 +69,12 @@ class Track:
         self._count += 1
 
     def end_tangent(self) -> np.ndarray:
+        """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (the first
+        direction while there is none). One 0.1 mm segment would carry the tip's lateral jitter: tilted by it, the
+        cut front seemed to recede from an advancing tip, the track stopped growing and the tip forces switched off."""
         if self._count < 2:
             return self._direction
-        d = self._vertices[self._count - 1] - self._vertices[self._count - 2]
+        d = self._vertices[self._count - 1] - self._vertices[max(self._count - 1 - END_CHORD_SEGMENTS, 0)]
         return d / np.sqrt(d @ d)
 
     def coordinate_ahead(self, point: np.ndarray) -> float:
