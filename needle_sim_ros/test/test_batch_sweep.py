@@ -1,10 +1,12 @@
 """needle_batch sweep on a LocalCluster of 2 processes over the sample bags: the same numbers as needle_offline run
-bag by bag, failed rows for a corrupt and a missing bag, --resume reruns only what did not finish, and the table of
-1 worker equals that of 2. Installed executables, run from the repository root (the sample experiment files name the
-stereo calibration files relative to it, as for needle_offline); outputs in a temporary folder."""
+bag by bag, failed rows for a corrupt and a missing bag, --resume reruns only what did not finish, and the tables of
+1 worker, of 2 and of an existing scheduler are equal. Installed executables, run from the repository root (the
+sample experiment files name the stereo calibration files relative to it, as for needle_offline); outputs in a
+temporary folder."""
 import json
 import shutil
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -94,3 +96,35 @@ def test_resume_reruns_only_unfinished_tasks_and_one_worker_gives_the_same_table
     one = pd.read_parquet(work / "one" / "results.parquet").drop(columns=["bag", "wall_s", "key"])
     two = before[before["bag"] == f"{REPO}/bags/insertion.mcap"].drop(columns=["bag", "wall_s", "key"])
     pd.testing.assert_frame_equal(one.reset_index(drop=True), two.reset_index(drop=True))
+
+
+def test_an_existing_scheduler_gives_the_same_table(sweep, tmp_path):
+    """--scheduler: a scheduler and a worker started apart from needle_batch (as on a cluster, `dask scheduler` /
+    `dask worker`); the insertion rows equal those of the LocalCluster run (wall time aside)."""
+    work, out, _ = sweep
+    address_file = tmp_path / "scheduler.json"
+    scheduler = subprocess.Popen(["dask", "scheduler", "--port", "0", "--dashboard-address", ":0",
+                                  "--scheduler-file", str(address_file)], cwd=REPO, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL)
+    worker = subprocess.Popen(["dask", "worker", "--scheduler-file", str(address_file), "--nthreads", "1",
+                               "--nworkers", "1", "--dashboard-address", ":0"], cwd=REPO, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(300):
+            if address_file.exists() and address_file.stat().st_size:
+                break
+            time.sleep(0.1)
+        address = json.loads(address_file.read_text())["address"]
+        result = run("needle_batch", "sweep", "--bags", str(REPO / "bags/insertion.mcap"), "--experiment",
+                     f"{REPO}/config/experiments/insertion.yaml", "--grid", str(work / "grid.yaml"), "--duration",
+                     DURATION, "--scheduler", address, "--output-dir", str(tmp_path / "remote"), "--quiet",
+                     "--no-plots")
+    finally:
+        for process in (worker, scheduler):
+            process.terminate()
+            process.wait(timeout=30)
+    assert result.returncode == 0, result.stdout + result.stderr
+    remote = pd.read_parquet(tmp_path / "remote" / "results.parquet").drop(columns=["bag", "wall_s", "key"])
+    local = pd.read_parquet(out / "results.parquet")
+    local = local[local["bag"] == f"{REPO}/bags/insertion.mcap"].drop(columns=["bag", "wall_s", "key"])
+    pd.testing.assert_frame_equal(remote.reset_index(drop=True), local.reset_index(drop=True))
