@@ -40,7 +40,7 @@ class PoseVerdict(Enum):
     JUMP = "rejected: jump beyond the configured limit"
     REANCHORED = "accepted: trajectory re-anchored after consistent jumped poses"
     OUT_OF_RANGE = "rejected: a position coordinate beyond +-pose_input.max_position"
-    RESTARTED = "accepted after a gap in the input, away from the held pose: needle restarted straight there"
+    RESTARTED = "accepted after a gap in the input, away from the held pose: needle restarted at rest there"
 
 
 @dataclass(frozen=True)

@@ -212,15 +212,15 @@ class NeedleSimulatorNode(LifecycleNode):
             verdict = self.sim.offer_pose(stamp, pose.position, pose.orientation)
             self.counters[verdict] += 1
         if self.sim.started and not started:
-            self.get_logger().info("first base pose received: needle initialised straight at it")
+            self.get_logger().info("first base pose received: needle initialised at rest at it")
         if verdict is PoseVerdict.NORMALIZED:
             self.warn_throttled("normalized", "base pose quaternion was not unit length: normalized")
         elif verdict is PoseVerdict.RESTARTED:
             self.get_logger().warning(f"base pose after a gap of more than {self.p['pose_input.timeout']:g} s, "
                                       f"more than {self.p['pose_input.resume_tolerance']:g} m from the held pose: "
-                                      "needle restarted straight at it")
+                                      "needle restarted at rest at it")
         elif verdict is PoseVerdict.REANCHORED:
-            self.get_logger().warning("base pose jumped and stayed there: needle reset straight at the new pose")
+            self.get_logger().warning("base pose jumped and stayed there: needle restarted at rest at the new pose")
         elif verdict not in (PoseVerdict.ACCEPTED,):
             self.warn_throttled(verdict.name, f"base pose {verdict.value}; keeping the previous trajectory")
 

@@ -36,6 +36,9 @@ SIMULATOR_PARAMETERS = [
               "5 = the paper's.", 1, 10),
     ParamSpec("needle.bending_gauss_points", MODEL_DEFAULTS["needle.bending_gauss_points"],
               "Gauss points per element for the bending integral (eq. 13).", 1, 10),
+    ParamSpec("needle.start_in_equilibrium", True,
+              "Start (and restart) the needle at rest in static equilibrium under gravity and the loads; false: "
+              "straight (it then drops and swings)."),
     # alpha M damps absolute velocities (a drag alpha m v on a rigidly moving needle, felt at the holder), so it is
     # zero by default; beta K_0 acts on strain rates in a rotation-safe form (needle_sim_ros.model.damping).
     ParamSpec("damping.rayleigh_alpha", MODEL_DEFAULTS["damping.rayleigh_alpha"],
@@ -124,7 +127,7 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("pose_input.max_angular_speed", 20.0, "Twists with a faster angular velocity are ignored [rad/s].",
               1e-3, 1000.0),
     ParamSpec("pose_input.resume_tolerance", 1e-3, "A pose arriving after a gap longer than pose_input.timeout "
-              "farther than this from the held pose restarts the needle straight there (with a warning) [m].",
+              "farther than this from the held pose restarts the needle at rest there (with a warning) [m].",
               0.0, 10.0),
     # External loads (e.g. the tip mass of seed 000 Fig. 7).
     ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: "
