@@ -44,6 +44,8 @@ DEFAULTS: dict[str, Any] = {
     # needle_simulator only (read by the node, ignored here): [s_start, s_end] clamped where the needle lies when
     # it starts; [0.0] = none
     "fixtures.clamp_interval": [0.0],
+    # needle_simulator only: (re)start at rest in static equilibrium (the scenarios set their own initial states)
+    "needle.start_in_equilibrium": True,
 }
 
 

@@ -36,7 +36,7 @@ SIMULATOR_PARAMETERS = [
               "5 = the paper's.", 1, 10),
     ParamSpec("needle.bending_gauss_points", MODEL_DEFAULTS["needle.bending_gauss_points"],
               "Gauss points per element for the bending integral (eq. 13).", 1, 10),
-    ParamSpec("needle.start_in_equilibrium", True,
+    ParamSpec("needle.start_in_equilibrium", MODEL_DEFAULTS["needle.start_in_equilibrium"],
               "Start (and restart) the needle at rest in static equilibrium under gravity and the loads; false: "
               "straight (it then drops and swings)."),
     # alpha M damps absolute velocities (a drag alpha m v on a rigidly moving needle, felt at the holder), so it is
