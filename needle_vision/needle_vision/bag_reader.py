@@ -3,13 +3,14 @@
 An indexed file (summary with chunk indexes, as rosbag2 and the mcap writers leave it) is memory-mapped; the
 chunks holding the topics are decompressed (zstd, lz4) on worker threads a few chunks ahead of the reader
 (zstandard and lz4 release the GIL) and their records parsed there; message payloads are views into the map or
-the decompressed chunk, never copied. Files without a summary or chunk index (a recording that was cut off,
+the decompressed chunk, never copied (the pages of uncompressed chunks are mapped on those threads too). Files without a summary or chunk index (a recording that was cut off,
 other writers), or whose chunks overlap in time, are read by the mcap library's own readers.
 """
 from __future__ import annotations
 
 import mmap
 import struct
+import sys
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -20,6 +21,7 @@ _RECORD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _CHUNK_HEAD = struct.Struct("<QQQIi")  # start, end, uncompressed size, uncompressed crc, compression length
 AHEAD_BYTES = 64 << 20  # decompressed bytes in flight at most (at least two chunks)
+MADV_POPULATE_READ = getattr(mmap, "MADV_POPULATE_READ", 22)  # Linux's value (Python 3.12 does not name it)
 
 
 class BagMessage(NamedTuple):
@@ -47,8 +49,20 @@ def _decompress(compression: str, data: memoryview, size: int) -> memoryview | b
     raise ValueError(f"unsupported chunk compression '{compression}'")
 
 
-def _chunk_messages(file: memoryview, offset: int, channels: dict[int, tuple[str, str]]) -> list[BagMessage]:
-    """The messages of ``channels`` in the chunk record at ``offset``, in log-time order."""
+def _populate(mapped: mmap.mmap, start: int, length: int) -> None:
+    """Map the pages of an uncompressed chunk here (a worker thread), so that the first reader of the pixels (the
+    measurement) does not take the page faults (~0.5 ms per 1440x1080 image); Linux >= 5.14, else nothing."""
+    if sys.platform == "linux":
+        aligned = start - start % mmap.PAGESIZE
+        try:
+            mapped.madvise(MADV_POPULATE_READ, aligned, min(length + start - aligned, len(mapped) - aligned))
+        except OSError:
+            pass
+
+
+def _chunk_messages(mapped: mmap.mmap, file: memoryview, offset: int, channels: dict[int, tuple[str, str]]
+                    ) -> list[BagMessage]:
+    """The messages of ``channels`` in the chunk record at ``offset`` of the mapped file, in log-time order."""
     opcode, _ = _RECORD.unpack_from(file, offset)
     if opcode != _CHUNK:
         raise ValueError(f"no chunk record at byte {offset} (opcode {opcode:#x}): the chunk index is wrong")
@@ -59,6 +73,8 @@ def _chunk_messages(file: memoryview, offset: int, channels: dict[int, tuple[str
     position += name_length
     (length,) = struct.unpack_from("<Q", file, position)
     position += 8
+    if compression == "":
+        _populate(mapped, position, length)
     records = _decompress(compression, file[position:position + length], size)
     view = memoryview(records)
     messages, position, end = [], 0, len(view)
@@ -123,7 +139,7 @@ def read_messages(file: Path, topics: Iterable[str], threads: int = 2) -> Iterat
                     future, size = pending.popleft()
                     in_flight -= size
                     yield from future.result()
-                pending.append((pool.submit(_chunk_messages, view, index.chunk_start_offset, channels),
+                pending.append((pool.submit(_chunk_messages, mapped, view, index.chunk_start_offset, channels),
                                 index.uncompressed_size))
                 in_flight += index.uncompressed_size
             while pending:
