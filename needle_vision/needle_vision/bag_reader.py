@@ -3,8 +3,9 @@
 An indexed file (summary with chunk indexes, as rosbag2 and the mcap writers leave it) is memory-mapped; the
 chunks holding the topics are decompressed (zstd, lz4) on worker threads a few chunks ahead of the reader
 (zstandard and lz4 release the GIL) and their records parsed there; message payloads are views into the map or
-the decompressed chunk, never copied (the pages of uncompressed chunks are mapped on those threads too). Files without a summary or chunk index (a recording that was cut off,
-other writers), or whose chunks overlap in time, are read by the mcap library's own readers.
+the decompressed chunk, never copied (the pages of uncompressed chunks are mapped on those threads too). Files
+without a summary or chunk index (written without them), and files whose chunks overlap in time, are read by the
+mcap library's own readers; a file without a footer fails as it does there.
 """
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ def write_file(path: Path, log_times, **options) -> Path:
     with open(path, "wb") as stream:
         writer = Writer(stream, **options)
         writer.start()
-        schema = writer.register_schema("test/msg/Blob", "ros2msg", b"uint8[] data")
+        schema = writer.register_schema("std_msgs/msg/UInt8MultiArray", "ros2msg", b"uint8[] data")
         channels = [writer.register_channel(topic, "cdr", schema) for topic in (*TOPICS, "/other")]
         for k, log_time in enumerate(log_times):
             data = rng.integers(0, 256, int(rng.integers(0, 300_000)), dtype=np.uint8).tobytes()
@@ -54,7 +54,7 @@ def test_same_messages_as_the_mcap_library(tmp_path, layout):
     assert len(expected) == 45
     read = [(m.topic, m.log_time, bytes(m.data)) for m in read_messages(path, [t.lstrip("/") for t in TOPICS])]
     assert read == expected
-    assert [m.schema for m in read_messages(path, TOPICS[:1])] == ["test/msg/Blob"] * 15
+    assert [m.schema for m in read_messages(path, TOPICS[:1])] == ["std_msgs/msg/UInt8MultiArray"] * 15
 
 
 def test_messages_out_of_order_in_and_across_chunks(tmp_path):
