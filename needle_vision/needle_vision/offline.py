@@ -22,7 +22,7 @@ import queue
 import re
 import sys
 import threading
-from collections import Counter
+from collections import Counter, deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import closing
 from dataclasses import dataclass, field
@@ -375,6 +375,20 @@ def write_rows(stream: TextIO, frame: int, stamp: float, result: FrameResult, tr
     stream.write("".join([row % (sample, *values) for sample, values in enumerate(np.column_stack(columns).tolist())]))
 
 
+def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[StampedPose], values: dict,
+                   source: PairSource) -> None:
+    """Store the base poses read with a pair (in the output frame); unusable ones are counted in the source."""
+    for pose in poses:
+        to_output = output_from_pose_frame(pose.frame_id, values["output_frame"],
+                                           (values["left_optical_frame"], source.frame_id), pipeline.output_from_left)
+        try:
+            if to_output is None:
+                raise ValueError(f"frame '{pose.frame_id}' is neither the output frame nor the left optical frame")
+            pipeline.base_poses.add(pose.stamp, pose.position, pose.orientation, to_output)
+        except ValueError as error:
+            source.poses_skipped[f"base pose ignored: {error}"] += 1
+
+
 def _settings(arguments: argparse.Namespace) -> dict:
     values = load_params_file(arguments.params) if arguments.params else {}
     for name, value in (("left_calibration_file", arguments.left_calibration),
@@ -422,23 +436,15 @@ def run(arguments: argparse.Namespace) -> int:
     ordering: Counter = Counter()
     try:
         with open(partial, "w", newline="") as stream, \
-                closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded:
+                closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded, \
+                ThreadPoolExecutor(max_workers=1, thread_name_prefix="csv") as csv_thread:
             comment, columns = csv_header(values["output_frame"] or source.frame_id or "left_optical", tracking)
             stream.write(comment + "\n")
             writer = csv.writer(stream)
             writer.writerow(columns)
+            written: deque[Future] = deque()  # CSV rows formatted and written on a thread of their own
             for frame, stamp, future, poses in tqdm(loaded, total=total, unit="pair", disable=arguments.quiet):
-                for pose in poses:
-                    to_output = output_from_pose_frame(pose.frame_id, values["output_frame"],
-                                                       (values["left_optical_frame"], source.frame_id),
-                                                       pipeline.output_from_left)
-                    try:
-                        if to_output is None:
-                            raise ValueError(f"frame '{pose.frame_id}' is neither the output frame nor the left "
-                                             "optical frame")
-                        pipeline.base_poses.add(pose.stamp, pose.position, pose.orientation, to_output)
-                    except ValueError as error:
-                        source.poses_skipped[f"base pose ignored: {error}"] += 1
+                add_base_poses(pipeline, poses, values, source)
                 try:
                     left, right = future.result()
                 except SkippedPair as error:
@@ -454,7 +460,11 @@ def run(arguments: argparse.Namespace) -> int:
                 if result.status is FrameStatus.MEASURED:
                     measured += 1
                     ordering[result.ordering] += 1
-                    write_rows(stream, frame, stamp, result, tracking)
+                    written.append(csv_thread.submit(write_rows, stream, frame, stamp, result, tracking))
+                    while written and (written[0].done() or len(written) > 64):
+                        written.popleft().result()  # raises what writing raised (e.g. a full disk)
+            for future in written:
+                future.result()
         outcomes.update(source.skipped or {})
         print(f"{sum(outcomes.values())} frames/pairs of '{source_path}'")
         for outcome, count in outcomes.most_common():
