@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 import cv2
 import numpy as np
@@ -104,7 +105,7 @@ class NeedleStereoNode(Node):
         self.get_logger().info(f"needle_stereo ready: calibration from {source}, "
                                f"background from {self.config.background_frames} pairs")
 
-    def base_tf_buffer(self):
+    def base_tf_buffer(self) -> Any:
         """A tf2_ros buffer listening to /tf for the base frame, or None (no frame set, or tf2_ros missing)."""
         if not self.values["base_pose.frame"]:
             return None
