@@ -6,9 +6,10 @@ Input is either a folder with ``left/`` and ``right/`` sub-folders of images pai
 decoded on a thread pool ahead of the measurement (OpenCV releases the GIL). The calibration comes from
 camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics. Settings are the
 node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
-``--output-frame`` override the common ones. Output: one CSV row per centerline sample (frame = index of the
-synchronised pair, stamp [s], sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with
-tracking); its first line names the frame and units. Exit status: 0 when at least one pair was measured, 1 when
+``--output-frame`` override the common ones; ``--base-pose-topic`` reads the needle's base poses from the bag
+to tell base from tip. Output: one CSV row per centerline sample (frame = index of the synchronised pair, stamp [s],
+sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with tracking); its first line names the
+frame and units. Exit status: 0 when at least one pair was measured, 1 when
 none was, 2 on bad input.
 
     needle_stereo_offline recording.mcap --params config/needle_stereo.yaml --output needle.csv
