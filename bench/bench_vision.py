@@ -27,6 +27,7 @@ from vision_shapes import SHAPES, distance_to_curve  # noqa: E402  (the tests' k
 
 from needle_vision.calibration import camera_calibration_yaml  # noqa: E402
 from needle_vision.centerline import extract_centerline  # noqa: E402
+from needle_vision.offline import decoded, open_source  # noqa: E402
 from needle_vision.offline import main as offline_main  # noqa: E402
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline  # noqa: E402
 from needle_vision.reconstruction import reconstruct_centerline  # noqa: E402
@@ -135,21 +136,38 @@ def throughput(rig, scene, imaging, quick: bool) -> None:
         print(f"Measurement alone: {measure[1] / 4:.2f} ms per pair (median; OpenCV threads as installed). Decoding "
               "one image on one thread, median: " + ", ".join(f"{n.split(' (')[0]} {t[1] / 10:.1f} ms"
                                                              for n, t in stage_decode.items()) + ".\n")
-        print("| input | workers | wall [s] (best / median of 3) | pairs/s (best / median) |")
-        print("|---|---|---|---|")
+        print(f"Load average before: {' / '.join(f'{v:.1f}' for v in os.getloadavg())} (1 / 5 / 15 min). "
+              "CPU: user + system time of all threads per pair (best run). Decoding only: reading and decoding "
+              "the pairs with the same threads, nothing measured (the ceiling of the input).\n")
+        print("| input | workers | wall [s] (best / median of 3) | pairs/s (best / median) | CPU [ms/pair] "
+              "| decoding only [pairs/s] |")
+        print("|---|---|---|---|---|---|")
         for name, arguments in inputs.items():
             for workers in (1, 2, 4):
-                walls = []
+                walls, cpus = [], []
                 for _ in range(3):
-                    start = time.perf_counter()
+                    cpu, start = time.process_time(), time.perf_counter()
                     with contextlib.redirect_stdout(io.StringIO()):  # the command's summary
                         code = offline_main([*arguments, "--quiet", "--workers", str(workers),
                                              "--output", str(root / "out.csv")])
                     walls.append(time.perf_counter() - start)
+                    cpus.append(time.process_time() - cpu)
                     assert code == 0, name
                 best, median = min(walls), float(np.median(walls))
-                print(f"| {name} | {workers} | {best:.2f} / {median:.2f} | {count / best:.0f} / {count / median:.0f} |",
-                      flush=True)
+                ceiling = min(timed_decoding(arguments[0], workers) for _ in range(3))
+                print(f"| {name} | {workers} | {best:.2f} / {median:.2f} | {count / best:.0f} / {count / median:.0f} "
+                      f"| {1e3 * cpus[walls.index(best)] / count:.1f} | {count / ceiling:.0f} |", flush=True)
+        print(f"\nLoad average after: {' / '.join(f'{v:.1f}' for v in os.getloadavg())}.")
+
+
+def timed_decoding(path: str, workers: int) -> float:
+    """Wall time [s] of reading and decoding every pair of an input as needle_stereo_offline does."""
+    source = open_source(Path(path), 220.0, "left/image_raw", "right/image_raw", 0.002)
+    start = time.perf_counter()
+    with contextlib.closing(decoded(source.jobs(), workers, 4 * workers + 4)) as loaded:
+        for _, _, future, _ in loaded:
+            future.result()
+    return time.perf_counter() - start
 
 
 def main() -> None:

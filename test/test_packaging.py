@@ -24,6 +24,7 @@ PYTHON_KEYS = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "numba": "python3-numba", "yaml": "python3-yaml",
     "cv2": "python3-opencv", "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm",
     "mcap": "mcap-ros2-support", "mcap_ros2": "mcap-ros2-support", "zstandard": "mcap-ros2-support",
+    "lz4": "mcap-ros2-support",
     "pytest": "python3-pytest", "rosbags": "python3-rosbags-pip", "pandas": "python3-pandas",
 }
 #: Libraries without a rosdep key, documented as a pip line in the README; needle_batch (their only user) exits 2

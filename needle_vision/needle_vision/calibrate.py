@@ -148,10 +148,10 @@ def run(arguments: argparse.Namespace) -> int:
         found = [find_corners(image, corners) for image in (left, right)]
         return [image.shape[::-1] for image in (left, right)], found
 
-    jobs = ((index, stamp, lambda load=load: detect(load)) for index, stamp, load in source.jobs())
+    jobs = ((index, stamp, lambda load=load: detect(load), poses) for index, stamp, load, poses in source.jobs())
     views, sizes, pairs = [], None, 0
     with closing(decoded(jobs, arguments.workers, 2 * arguments.workers + 2)) as detected:
-        for index, _, future in detected:
+        for index, _, future, _ in detected:
             try:
                 shape, (left, right) = future.result()
             except SkippedPair:

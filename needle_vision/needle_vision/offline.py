@@ -6,9 +6,10 @@ Input is either a folder with ``left/`` and ``right/`` sub-folders of images pai
 decoded on a thread pool ahead of the measurement (OpenCV releases the GIL). The calibration comes from
 camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics. Settings are the
 node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
-``--output-frame`` override the common ones. Output: one CSV row per centerline sample (frame = index of the
-synchronised pair, stamp [s], sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with
-tracking); its first line names the frame and units. Exit status: 0 when at least one pair was measured, 1 when
+``--output-frame`` override the common ones; ``--base-pose-topic`` reads the needle's base poses from the bag
+to tell base from tip. Output: one CSV row per centerline sample (frame = index of the synchronised pair, stamp [s],
+sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with tracking); its first line names the
+frame and units. Exit status: 0 when at least one pair was measured, 1 when
 none was, 2 on bad input.
 
     needle_stereo_offline recording.mcap --params config/needle_stereo.yaml --output needle.csv
@@ -22,22 +23,25 @@ import queue
 import re
 import sys
 import threading
-from collections import Counter
+from collections import Counter, deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, TextIO
 
 import cv2
 import numpy as np
 from tqdm import tqdm
 
 from needle_vision.background import BackgroundModel
+from needle_vision.bag_reader import BagMessage, read_messages
+from needle_vision.base_pose import StampedPose, deserialize_pose_stamped, output_from_pose_frame
 from needle_vision.calibration import CalibrationError, StereoRig, calibration_from_camera_info, load_camera_calibration
 from needle_vision.image_codec import ImageFormatError, decoded_to_gray, deserialize_image
 from needle_vision.pairing import StampPairer
-from needle_vision.parameters import ParameterError, load_params_file, output_from_left, stereo_config, validate_all
+from needle_vision.parameters import (ParameterError, base_pose_store, load_params_file, output_from_left,
+                                      stereo_config, valid_topic_name, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
@@ -50,20 +54,24 @@ class InputError(ValueError):
     """The input folder or bag cannot be used (message says why)."""
 
 
-#: (pair index, stamp [s], loader of the (left, right) grey images run on a worker thread)
-PairJob = tuple[int, float, Callable[[], tuple[np.ndarray, np.ndarray]]]
+#: (pair index, stamp [s], loader of the (left, right) grey images run on a worker thread, base poses read since
+#: the previous pair)
+PairJob = tuple[int, float, Callable[[], tuple[np.ndarray, np.ndarray]], list[StampedPose]]
+POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 
 
 @dataclass
 class PairSource:
     """The synchronised pairs of one input: their count (an estimate for a bag, None if unknown), the jobs in
-    order, whether it is an image folder, the left frame_id, and a counter of frames that could not be used."""
+    order, whether it is an image folder, the left frame_id, a counter of frames that could not be used and
+    one of base poses that could not be read."""
 
     count: int | None
     jobs: Callable[[], Iterator[PairJob]]
     is_folder: bool
     frame_id: str = ""
     skipped: Counter = field(default_factory=Counter)
+    poses_skipped: Counter = field(default_factory=Counter)
 
 
 def _read_image(path: Path) -> np.ndarray:
@@ -86,7 +94,7 @@ def folder_source(folder: Path, fps: float) -> PairSource:
 
     def jobs() -> Iterator[PairJob]:
         for k, name in enumerate(common):
-            yield k, k / fps, lambda name=name: (_read_image(sides[0] / name), _read_image(sides[1] / name))
+            yield k, k / fps, lambda name=name: (_read_image(sides[0] / name), _read_image(sides[1] / name)), []
     return PairSource(len(common), jobs, True, "left_optical")
 
 
@@ -97,16 +105,11 @@ def _bag_files(path: Path) -> list[Path]:
     return files
 
 
-def _bag_records(path: Path, topics: list[str]) -> Iterator[tuple[str, str, bytes]]:
-    """(topic, schema name, serialized bytes) of ``topics`` in log-time order; unreadable files -> InputError."""
-    from mcap.reader import make_reader
-
-    wanted = ["/" + topic.lstrip("/") for topic in topics]
+def _bag_records(path: Path, topics: list[str]) -> Iterator[BagMessage]:
+    """The messages of ``topics`` in log-time order (payloads are views); unreadable files -> InputError."""
     for file in _bag_files(path):
         try:
-            with open(file, "rb") as stream:
-                for schema, channel, message in make_reader(stream).iter_messages(topics=wanted):
-                    yield "/" + channel.topic.lstrip("/"), schema.name if schema else "", message.data
+            yield from read_messages(file, topics)
         except InputError:
             raise
         except Exception as error:  # noqa: BLE001 - the mcap reader raises many kinds on corrupt files
@@ -128,6 +131,24 @@ def _bag_count(path: Path, topic: str) -> int | None:
         total += sum(summary.statistics.channel_message_counts.get(cid, 0)
                      for cid, channel in summary.channels.items() if channel.topic.lstrip("/") == topic.lstrip("/"))
     return total
+
+
+def _bag_types(path: Path, topic: str) -> set[str] | None:
+    """Schema names of ``topic``'s messages in the bag's summaries (None: a file has no summary)."""
+    from mcap.reader import make_reader
+
+    types = set()
+    for file in _bag_files(path):
+        try:
+            with open(file, "rb") as stream:
+                summary = make_reader(stream).get_summary()
+        except Exception:  # noqa: BLE001 - no summary: unknown, reading reports the problem
+            return None
+        if summary is None or summary.statistics is None:
+            return None
+        types |= {summary.schemas[c.schema_id].name if c.schema_id else "" for cid, c in summary.channels.items()
+                  if c.topic.lstrip("/") == topic.lstrip("/") and summary.statistics.channel_message_counts.get(cid)}
+    return types
 
 
 def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRig:
@@ -156,10 +177,11 @@ def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRi
                                               calibration_from_camera_info(infos["right"], "right"))
 
 
-def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float) -> PairSource:
-    """Synchronised pairs of the bag's image topics (raw or compressed); images of an unusable encoding and
-    frames without a partner are counted in ``skipped``."""
+def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, base_topic: str = "") -> PairSource:
+    """Synchronised pairs of the bag's image topics (raw or compressed) with the ``base_topic`` poses read
+    before each; images of an unusable encoding and frames without a partner are counted in ``skipped``."""
     left = "/" + left_topic.lstrip("/")
+    base = "/" + base_topic.lstrip("/") if base_topic else ""
     source = PairSource(_bag_count(path, left_topic), lambda: iter(()), False)
 
     def gray(image) -> np.ndarray:
@@ -170,9 +192,18 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float) 
 
     def jobs() -> Iterator[PairJob]:
         source.skipped.clear()  # counted again on each pass (the background may take a pass of its own)
+        source.poses_skipped.clear()
         pairer = StampPairer(tolerance)
-        index = 0
-        for topic, schema, data in _bag_records(path, [left_topic, right_topic]):
+        index, poses = 0, []
+        for topic, schema, _, data in _bag_records(path, [left_topic, right_topic] + ([base] if base else [])):
+            if topic == base:
+                if schema != POSE_TYPE:
+                    raise InputError(f"base pose topic {topic} of '{path}' has type '{schema}', not {POSE_TYPE}")
+                try:
+                    poses.append(deserialize_pose_stamped(data))
+                except ValueError as error:
+                    source.poses_skipped[f"base pose ignored: {error}"] += 1
+                continue
             if schema not in IMAGE_TYPES:
                 raise InputError(f"topic {topic} of '{path}' has type '{schema}', not an Image or CompressedImage")
             try:
@@ -183,8 +214,8 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float) 
             pair = pairer.push("left" if topic == left else "right", image.stamp, image)
             if pair is not None:
                 source.frame_id = source.frame_id or pair.left.frame_id
-                yield index, pair.stamp, lambda pair=pair: (gray(pair.left), gray(pair.right))
-                index += 1
+                yield index, pair.stamp, lambda pair=pair: (gray(pair.left), gray(pair.right)), poses
+                index, poses = index + 1, []
         if pairer.dropped:
             source.skipped[f"frames without a partner within {tolerance} s"] += pairer.dropped
     source.jobs = jobs
@@ -195,19 +226,30 @@ class SkippedPair(Exception):
     """A pair whose images cannot be used (counted, not fatal)."""
 
 
-def open_source(path: Path, fps: float, left_topic: str, right_topic: str, tolerance: float) -> PairSource:
-    """The pairs of an image folder (stamps from ``fps``) or of a bag's image topics."""
+def open_source(path: Path, fps: float, left_topic: str, right_topic: str, tolerance: float,
+                base_topic: str = "") -> PairSource:
+    """The pairs of an image folder (stamps from ``fps``) or of a bag's image topics (with the poses of
+    ``base_topic``; an image folder has none: InputError)."""
     if not path.exists():
         raise InputError(f"input '{path}' does not exist")
     if path.is_dir() and ((path / "left").is_dir() or (path / "right").is_dir()):
+        if base_topic:
+            raise InputError(f"--base-pose-topic needs an MCAP input; '{path}' is an image folder")
         return folder_source(path, fps)
-    return bag_source(path, left_topic, right_topic, tolerance)
+    types = _bag_types(path, base_topic) if base_topic else None
+    if types is not None and not types:
+        raise InputError(f"'{path}' has no messages on the base pose topic '{base_topic}'")
+    if types and types != {POSE_TYPE}:
+        raise InputError(f"base pose topic '{base_topic}' of '{path}' has type '{', '.join(sorted(types))}', "
+                         f"not {POSE_TYPE}")
+    return bag_source(path, left_topic, right_topic, tolerance, base_topic)
 
 
 def decoded(jobs: Iterator[PairJob], workers: int, depth: int
-            ) -> Iterator[tuple[int, float, Future]]:
+            ) -> Iterator[tuple[int, float, Future, list[StampedPose]]]:
     """The jobs with their loaders running on ``workers`` threads up to ``depth`` pairs ahead; the jobs
-    themselves (reading a bag: file reads and chunk decompression) are iterated on one more thread."""
+    themselves (reading a bag: parsing, with chunks decompressed on threads of the reader) are iterated on one
+    more thread."""
     ahead: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
     end = object()
@@ -223,8 +265,8 @@ def decoded(jobs: Iterator[PairJob], workers: int, depth: int
 
         def produce() -> None:
             try:
-                for index, stamp, load in jobs:
-                    if not offer((index, stamp, pool.submit(load))):
+                for index, stamp, load, poses in jobs:
+                    if not offer((index, stamp, pool.submit(load), poses)):
                         return
                 offer(end)
             except BaseException as error:  # noqa: BLE001 - raised again in the consumer
@@ -265,7 +307,7 @@ def load_pairs(source: PairSource, wanted: Callable[[int], bool], workers: int, 
     jobs = (job for job in source.jobs() if wanted(job[0]))
     pairs = []
     with closing(decoded(jobs, workers, 2 * workers + 2)) as loaded:
-        for _, _, future in loaded:
+        for _, _, future, _ in loaded:
             try:
                 pairs.append(future.result())
             except SkippedPair:
@@ -322,15 +364,30 @@ def csv_header(frame_id: str, tracking: bool) -> tuple[str, list[str]]:
                      + (["vx", "vy", "vz", "ax", "ay", "az"] if tracking else []))
 
 
-def write_rows(writer: csv.writer, frame: int, stamp: float, result: FrameResult, tracking: bool) -> None:
-    """One row per sample; with tracking, the motion cells stay empty until the tracker has its window."""
+def write_rows(stream: TextIO, frame: int, stamp: float, result: FrameResult, tracking: bool) -> None:
+    """One CSV row per sample (as csv.writer writes them; one formatting per row, ~4x faster than per value); with
+    tracking, the motion cells stay empty until the tracker has its window."""
     m = result.measurement
     columns = [m.arc_length, *m.points.T, m.uncertainty]
     if result.motion is not None:
         columns += [*result.motion.velocity.T, *result.motion.acceleration.T]
-    missing = [""] * 6 if tracking and result.motion is None else []
-    for sample, values in enumerate(zip(*columns)):
-        writer.writerow([frame, f"{stamp:.9f}", sample, *(f"{v:.7g}" for v in values), *missing])
+    missing = ",,,,,," if tracking and result.motion is None else ""
+    row = f"{frame},{stamp:.9f},%d," + ",".join(["%.7g"] * len(columns)) + missing + "\r\n"
+    stream.write("".join([row % (sample, *values) for sample, values in enumerate(np.column_stack(columns).tolist())]))
+
+
+def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[StampedPose], values: dict,
+                   source: PairSource) -> None:
+    """Store the base poses read with a pair (in the output frame); unusable ones are counted in the source."""
+    for pose in poses:
+        to_output = output_from_pose_frame(pose.frame_id, values["output_frame"],
+                                           (values["left_optical_frame"], source.frame_id), pipeline.output_from_left)
+        try:
+            if to_output is None:
+                raise ValueError(f"frame '{pose.frame_id}' is neither the output frame nor the left optical frame")
+            pipeline.base_poses.add(pose.stamp, pose.position, pose.orientation, to_output)
+        except ValueError as error:
+            source.poses_skipped[f"base pose ignored: {error}"] += 1
 
 
 def _settings(arguments: argparse.Namespace) -> dict:
@@ -348,8 +405,14 @@ def _settings(arguments: argparse.Namespace) -> dict:
 def run(arguments: argparse.Namespace) -> int:
     values = _settings(arguments)
     source_path = Path(arguments.input)
+    base_topic = arguments.base_pose_topic or ""
+    if arguments.base_pose_topic is not None and not valid_topic_name(base_topic):
+        raise InputError(f"--base-pose-topic '{base_topic}' is not a valid ROS 2 topic name")
+    if base_topic and "/" + base_topic.lstrip("/") in {"/" + t.lstrip("/") for t in (arguments.left_topic,
+                                                                                      arguments.right_topic)}:
+        raise InputError(f"--base-pose-topic '{base_topic}' is also an image topic")
     source = open_source(source_path, arguments.fps, arguments.left_topic, arguments.right_topic,
-                         values["sync_tolerance"])
+                         values["sync_tolerance"], base_topic)
     if values["left_calibration_file"]:
         rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
                                                  load_camera_calibration(values["right_calibration_file"]))
@@ -357,7 +420,7 @@ def run(arguments: argparse.Namespace) -> int:
         raise InputError("an image folder needs calibration files (--left-calibration/--right-calibration)")
     else:
         rig = bag_rig(source_path, arguments.left_info_topic, arguments.right_info_topic)
-    pipeline = StereoNeedlePipeline(rig, stereo_config(values), output_from_left(values))
+    pipeline = StereoNeedlePipeline(rig, stereo_config(values), output_from_left(values), base_pose_store(values))
     mode = arguments.background or "first"
     frames = arguments.frames
     background_pairs = build_backgrounds(mode, source, pipeline, frames, arguments, values["sync_tolerance"])
@@ -371,14 +434,18 @@ def run(arguments: argparse.Namespace) -> int:
     output = Path(arguments.output)
     partial = output.with_name(output.name + ".part")
     measured = 0
+    ordering: Counter = Counter()
     try:
         with open(partial, "w", newline="") as stream, \
-                closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded:
+                closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded, \
+                ThreadPoolExecutor(max_workers=1, thread_name_prefix="csv") as csv_thread:
             comment, columns = csv_header(values["output_frame"] or source.frame_id or "left_optical", tracking)
             stream.write(comment + "\n")
             writer = csv.writer(stream)
             writer.writerow(columns)
-            for frame, stamp, future in tqdm(loaded, total=total, unit="pair", disable=arguments.quiet):
+            written: deque[Future] = deque()  # CSV rows formatted and written on a thread of their own
+            for frame, stamp, future, poses in tqdm(loaded, total=total, unit="pair", disable=arguments.quiet):
+                add_base_poses(pipeline, poses, values, source)
                 try:
                     left, right = future.result()
                 except SkippedPair as error:
@@ -393,11 +460,21 @@ def run(arguments: argparse.Namespace) -> int:
                          else f"rejected: {result.reason}"] += 1
                 if result.status is FrameStatus.MEASURED:
                     measured += 1
-                    write_rows(writer, frame, stamp, result, tracking)
+                    ordering[result.ordering] += 1
+                    written.append(csv_thread.submit(write_rows, stream, frame, stamp, result, tracking))
+                    while written and (written[0].done() or len(written) > 64):
+                        written.popleft().result()  # raises what writing raised (e.g. a full disk)
+            for future in written:
+                future.result()
         outcomes.update(source.skipped or {})
         print(f"{sum(outcomes.values())} frames/pairs of '{source_path}'")
         for outcome, count in outcomes.most_common():
             print(f"  {count:6d}  {outcome}")
+        if base_topic:
+            print("base and tip of the measured pairs told by: "
+                  + ", ".join(f"{kind} {count}" for kind, count in ordering.most_common()))
+            for note, count in source.poses_skipped.most_common():
+                print(f"  {count:6d}  {note}")
         if not measured:
             raise NothingMeasured("no pair was measured" + (" (the input has no pair in --frames)"
                                                             if not sum(outcomes.values()) else "") + "; no CSV written")
@@ -430,6 +507,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="image decoding threads (default: %(default)s)")
     parser.add_argument("--left-topic", default="left/image_raw", help="Image or CompressedImage topic")
     parser.add_argument("--right-topic", default="right/image_raw", help="Image or CompressedImage topic")
+    parser.add_argument("--base-pose-topic", metavar="TOPIC", help="geometry_msgs/PoseStamped of the needle base "
+                        "in the bag (e.g. base_pose): base and tip are told by it (base_pose.max_age, "
+                        "base_pose.offset of the params file)")
     parser.add_argument("--left-info-topic", default="left/camera_info")
     parser.add_argument("--right-info-topic", default="right/camera_info")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 
 from needle_vision.background import ContrastThreshold
+from needle_vision.base_pose import BasePoseStore
 from needle_vision.centerline import CenterlineConfig
 from needle_vision.correspondence import MatchingConfig
 from needle_vision.package_files import resolve_path
@@ -157,7 +158,18 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("right_optical_frame", "stereo_right_optical_frame", "TF frame of the raw right optical frame: child "
               "of left_optical_frame on /tf_static, from the stereo calibration"),
     ParamSpec("base_point", [0.0, 0.0, 0.0], "point near the needle base (clamp point A) in output_frame [m]; "
-              "the centerline end nearer to it is the base", length=3),
+              "the centerline end nearer to it is the base when neither a fresh base pose nor the previous "
+              "frame's base is known", length=3),
+    ParamSpec("base_pose.topic", "base_pose", "geometry_msgs/PoseStamped of the needle base or holder (the "
+              "simulator's base_pose input), in output_frame or the left optical frame; the centerline end "
+              "nearer to it is the base; empty: no subscription",
+              check=(lambda name: name == "" or valid_topic_name(name), TOPIC_CHECK[1] + " or empty")),
+    ParamSpec("base_pose.frame", "needle_base", "TF frame of the needle base (the simulator's frames.base), "
+              "looked up in the output frame at each pair's stamp when tf2_ros is installed; empty: no lookup"),
+    ParamSpec("base_pose.max_age", 0.1, "a base pose (topic or TF) farther in time from a pair's stamp is not "
+              "used; ordering then falls back to the previous frame's base, then to base_point [s]", 0.0, 60.0),
+    ParamSpec("base_pose.offset", [0.0, 0.0, 0.0], "the point taken as the base in the base pose's frame [m] "
+              "(e.g. the simulator's flange_offset.position for its base_pose topic)", -10.0, 10.0, length=3),
     ParamSpec("image_qos", "sensor_data", "QoS of the image and camera_info subscriptions: sensor_data (best "
               "effort, also matches reliable publishers) or reliable (large images arrive whole or not at all)",
               choices=("sensor_data", "reliable")),
@@ -251,6 +263,11 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
         tracking=TrackingConfig(values["tracking.window"], values["tracking.max_gap"])
         if values["tracking.enabled"] else None,
         auto_polarity=values["needle_polarity"] == "auto")
+
+
+def base_pose_store(values: dict[str, Any]) -> BasePoseStore:
+    """An empty store of base poses with the validated ``base_pose.max_age`` and ``base_pose.offset``."""
+    return BasePoseStore(values["base_pose.max_age"], values["base_pose.offset"])
 
 
 def output_from_left(values: dict[str, Any]) -> RigidTransform:

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from needle_vision.background import BackgroundModel, ContrastThreshold, downsample
+from needle_vision.base_pose import BasePoseStore
 from needle_vision.calibration import StereoRig
 from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
 from needle_vision.correspondence import MatchError, MatchingConfig
@@ -70,12 +71,14 @@ class FrameStatus(Enum):
 
 @dataclass(frozen=True)
 class FrameResult:
-    """Outcome of one pair: status, the measurement and motion when measured, the reason when rejected."""
+    """Outcome of one pair: status, the measurement and motion when measured, the reason when rejected, and
+    what told the base from the tip (``ordering``: "base pose", "continuity" or "base point")."""
 
     status: FrameStatus
     measurement: NeedleMeasurement | None = None
     motion: CenterlineMotion | None = None
     reason: str = ""
+    ordering: str = ""
 
 
 class StereoNeedlePipeline:
@@ -83,11 +86,14 @@ class StereoNeedlePipeline:
 
     Immutable model: rig, rectification, config, ``output_from_left`` (pose of the left optical frame in the
     output frame). Mutable state: background models, background frames collected so far, the tracker, the last
-    measured base (orders base and tip by temporal continuity) and ``rejections``, counted by reason kind.
+    measured base and ``rejections``, counted by reason kind.
+
+    Base and tip: the end nearer to the base pose of ``base_poses`` at the pair's stamp (fresh poses only), else
+    nearer to the previous frame's base (temporal continuity), else nearer to ``reconstruction.base_point``.
     """
 
     def __init__(self, rig: StereoRig, config: StereoConfig = StereoConfig(),
-                 output_from_left: RigidTransform = RigidTransform()):
+                 output_from_left: RigidTransform = RigidTransform(), base_poses: BasePoseStore | None = None):
         self.rig = rig
         self.config = config
         self.output_from_left = output_from_left
@@ -97,6 +103,7 @@ class StereoNeedlePipeline:
         self._dtype: np.dtype | None = None
         self.tracker = CenterlineTracker(config.tracking) if config.tracking else None
         self.last_base: np.ndarray | None = None
+        self.base_poses = base_poses
         self.polarity = 0 if config.auto_polarity else config.threshold.polarity  # 0: not decided yet
         self.rejections: Counter[str] = Counter()
 
@@ -156,11 +163,14 @@ class StereoNeedlePipeline:
                 return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
             threshold = replace(threshold, polarity=polarity)
             backgrounds = tuple(BackgroundModel(background.image, threshold) for background in backgrounds)
+        base = self.base_poses.base_at(stamp) if self.base_poses is not None else None
+        ordering = "base pose" if base is not None else "continuity" if self.last_base is not None else "base point"
         try:
             centerlines = [extract_centerline(image, background, config.centerline)
                            for image, background in zip((left, right), backgrounds)]
             measurement = reconstruct_centerline(*centerlines, self.rectification, config.matching,
-                                                 config.reconstruction, self.output_from_left, self.last_base)
+                                                 config.reconstruction, self.output_from_left,
+                                                 self.last_base if base is None else base)
         except NoNeedleError as error:
             return self._reject("no needle", str(error))
         except ImplausibleError as error:
@@ -174,4 +184,4 @@ class StereoNeedlePipeline:
                 background.update(image, centerline.points, config.background_learning_rate,
                                   2 * config.centerline.profile_half_width)
         motion = self.tracker.update(stamp, measurement.arc_length, measurement.points) if self.tracker else None
-        return FrameResult(FrameStatus.MEASURED, measurement, motion)
+        return FrameResult(FrameStatus.MEASURED, measurement, motion, ordering=ordering)

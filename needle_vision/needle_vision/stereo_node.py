@@ -4,18 +4,22 @@ Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``, ``righ
 naming; remap as needed); pairs frames by stamp; publishes ``needle/measured_points`` (sensor_msgs/PointCloud2:
 the centerline samples, x y z float32, plus vx..vz, ax..az when tracking), ``needle/measured_shape``
 (needle_interfaces/NeedleShape with per-sample uncertainty) and ``needle/debug_image`` (bgr8, centerlines
-drawn). Everything else happens in the ROS-free :class:`needle_vision.pipeline.StereoNeedlePipeline`.
+drawn). Base and tip are told apart by the needle's base pose: ``base_pose`` (geometry_msgs/PoseStamped, read
+raw) and, where tf2_ros is installed, the TF frame ``base_pose.frame``. Everything else happens in the ROS-free
+:class:`needle_vision.pipeline.StereoNeedlePipeline`.
 """
 from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 import cv2
 import numpy as np
 import rclpy
 import rclpy.executors
-from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
+import rclpy.time
+from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3
 from needle_interfaces.msg import NeedleShape
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
@@ -24,13 +28,14 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
+from needle_vision.base_pose import deserialize_pose_stamped, output_from_pose_frame
 from needle_vision.calibration import (CalibrationError, StereoRig, calibration_from_camera_info,
                                        load_camera_calibration)
 from needle_vision.image_codec import ImageFormatError, image_fields, image_message_to_gray
 from needle_vision.outputs import debug_image, pointcloud2_fields
 from needle_vision.pairing import StampPairer
-from needle_vision.parameters import (SPECS, ParameterError, ParamSpec, check_ros_arguments, output_from_left,
-                                      stereo_config, validate_all)
+from needle_vision.parameters import (SPECS, ParameterError, ParamSpec, base_pose_store, check_ros_arguments,
+                                      output_from_left, stereo_config, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
 from needle_vision.tf_output import TfOutput, transform_stamped
 from needle_vision.transform import quaternion_from_x_axis
@@ -64,12 +69,14 @@ class NeedleStereoNode(Node):
         self.values = validate_all(values)
         self.config = stereo_config(self.values)
         self.output_from_left = output_from_left(self.values)
+        self.base_poses = base_pose_store(self.values)
         self.pairer = StampPairer(self.values["sync_tolerance"])
         self.pipeline: StereoNeedlePipeline | None = None
         self.camera_infos: dict[str, CameraInfo] = {}
         self.frame_id = self.values["output_frame"]
         self._last_warning: dict[str, float] = {}
         self._reported_drops = 0
+        self._image_frame = ""  # frame_id of the left images (the raw left optical frame)
         self.tf = TfOutput(self)
         qos = qos_profile_sensor_data if self.values["image_qos"] == "sensor_data" else \
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -79,7 +86,7 @@ class NeedleStereoNode(Node):
                                                          load_camera_calibration(self.values["right_calibration_file"]))
             except CalibrationError as error:
                 raise ParameterError(f"parameter 'left_calibration_file'/'right_calibration_file': {error}") from error
-            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
+            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left, self.base_poses)
             self.send_camera_frames(rig)
         else:
             for side in ("left", "right"):
@@ -87,12 +94,58 @@ class NeedleStereoNode(Node):
                                          lambda msg, side=side: self.on_camera_info(side, msg), qos)
         for side in ("left", "right"):
             self.create_subscription(Image, f"{side}/image_raw", lambda msg, side=side: self.on_image(side, msg), qos)
+        if self.values["base_pose.topic"]:
+            self.create_subscription(PoseStamped, self.values["base_pose.topic"], self.on_base_pose,
+                                     qos_profile_sensor_data, raw=True)
+        self.tf_buffer = self.base_tf_buffer()
         self.cloud_pub = self.create_publisher(PointCloud2, "needle/measured_points", 10)
         self.shape_pub = self.create_publisher(NeedleShape, "needle/measured_shape", 10)
         self.debug_pub = self.create_publisher(Image, "needle/debug_image", 1)
         source = "calibration files" if self.pipeline else "left/camera_info and right/camera_info"
         self.get_logger().info(f"needle_stereo ready: calibration from {source}, "
                                f"background from {self.config.background_frames} pairs")
+
+    def base_tf_buffer(self) -> Any:
+        """A tf2_ros buffer listening to /tf for the base frame, or None (no frame set, or tf2_ros missing)."""
+        if not self.values["base_pose.frame"]:
+            return None
+        try:
+            from tf2_ros import Buffer, TransformListener
+        except ImportError:
+            self.get_logger().info("tf2_ros is not installed: the base frame is not looked up on TF (base poses "
+                                   f"from '{self.values['base_pose.topic']}' only)")
+            return None
+        buffer = Buffer()
+        self._tf_listener = TransformListener(buffer, self)
+        return buffer
+
+    def on_base_pose(self, data: bytes) -> None:
+        """A serialized base pose, stored in the output frame; unusable ones are warned about (throttled)."""
+        try:
+            pose = deserialize_pose_stamped(data)
+            to_output = output_from_pose_frame(pose.frame_id, self.frame_id,
+                                               (self.values["left_optical_frame"], self._image_frame),
+                                               self.output_from_left)
+            if to_output is None:
+                raise ValueError(f"frame '{pose.frame_id}' is neither the output frame "
+                                 f"'{self.frame_id or self._image_frame}' nor the left optical frame")
+            self.base_poses.add(pose.stamp, pose.position, pose.orientation, to_output)
+        except ValueError as error:
+            self.warn("base_pose", f"base pose on '{self.values['base_pose.topic']}' ignored: {error}")
+
+    def look_up_base(self, header: Header) -> None:
+        """The base frame's pose on TF at the image's stamp into the store (nothing when TF has none)."""
+        try:
+            transform = self.tf_buffer.lookup_transform(self.frame_id or header.frame_id,
+                                                        self.values["base_pose.frame"],
+                                                        rclpy.time.Time.from_msg(header.stamp))
+        except Exception:  # noqa: BLE001 - tf2's lookup, connectivity and extrapolation errors: no pose
+            return
+        t, r = transform.transform.translation, transform.transform.rotation
+        try:
+            self.base_poses.add(_stamp_seconds(header), (t.x, t.y, t.z), (r.x, r.y, r.z, r.w))
+        except ValueError as error:
+            self.warn("base_pose", f"base frame '{self.values['base_pose.frame']}' on TF ignored: {error}")
 
     def send_camera_frames(self, rig: StereoRig) -> None:
         """/tf_static: output_frame -> left optical frame (output_transform; only with an output_frame) and
@@ -125,7 +178,7 @@ class NeedleStereoNode(Node):
         try:
             rig = StereoRig.from_camera_calibrations(calibration_from_camera_info(self.camera_infos["left"], "left"),
                                                      calibration_from_camera_info(self.camera_infos["right"], "right"))
-            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left)
+            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left, self.base_poses)
         except (CalibrationError, cv2.error, np.linalg.LinAlgError) as error:
             self.pipeline = None
             self.warn("calibration", f"camera_info unusable, nothing is measured: {error}")
@@ -150,6 +203,9 @@ class NeedleStereoNode(Node):
         except ImageFormatError as error:
             self.warn("encoding", f"image skipped: {error}")
             return
+        self._image_frame = pair.left.header.frame_id
+        if self.tf_buffer is not None:
+            self.look_up_base(pair.left.header)
         result = self.pipeline.process(pair.stamp, *images)
         if result.status is FrameStatus.REJECTED:
             counts = ", ".join(f"{kind} {count}" for kind, count in self.pipeline.rejections.most_common())

@@ -1,4 +1,5 @@
 """needle_stereo as a separate process, driven over ROS 2 from this test (isolated ROS domain)."""
+import importlib.util
 import os
 import signal
 import subprocess
@@ -11,6 +12,7 @@ import pytest
 import yaml
 
 rclpy = pytest.importorskip("rclpy", reason="the node test needs ROS 2 (rclpy)")
+from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 
@@ -164,3 +166,75 @@ def test_singular_right_projection_is_refused_without_a_crash(ros_env, rig):
         output = _stop(node, process)
     assert "Traceback" not in output
     assert "camera 'right' (right): projection_matrix is singular" in output, output
+
+
+def _pose_msg(stamp: float, frame_id: str, position) -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = int(stamp), int(round(stamp % 1 * 1e9))
+    msg.header.frame_id = frame_id
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in position)
+    msg.pose.orientation.w = 1.0
+    return msg
+
+
+@pytest.mark.parametrize("source", [
+    "topic",
+    pytest.param("tf", marks=pytest.mark.skipif(
+        importlib.util.find_spec("tf2_ros") is None,
+        reason="tf2_ros is not installed (no PyPI wheel): the node's TF lookup of base_pose.frame cannot run")),
+])
+def test_node_tells_base_from_tip_by_the_base_pose(ros_env, tmp_path, rig, background_frames, renders, source):
+    """base_point at the tip of the measured needle: without a base pose the shape would start at its tip. The
+    base pose (at the shapes' base, the world origin) comes from the base_pose topic, after a non-finite one
+    (warned about and ignored), or from TF (frame needle_base)."""
+    base_point = SHAPES["planar"][-1]
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
+        "background": {"frames": 1}, "output_frame": "world", "warning_period": 0.01, "image_qos": "reliable",
+        "left_calibration_file": "package://needle_vision/config/stereo/left.yaml",
+        "right_calibration_file": "package://needle_vision/config/stereo/right.yaml",
+        "output_transform": rig.world_from_left.as_xyz_quaternion(), "base_point": base_point.tolist()}}}))
+    process = start_node(ros_env, "--params-file", str(params))
+    rclpy.init()
+    node = rclpy.create_node("needle_stereo_base_test")
+    try:
+        shapes = []
+        node.create_subscription(NeedleShape, "needle/measured_shape", shapes.append, 10)
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        images = {side: node.create_publisher(Image, f"{side}/image_raw", reliable) for side in ("left", "right")}
+        poses = node.create_publisher(PoseStamped, "base_pose", reliable)
+        if source == "tf":
+            from tf2_ros import StaticTransformBroadcaster
+            from needle_vision.tf_output import transform_stamped
+            StaticTransformBroadcaster(node).sendTransform(transform_stamped(
+                node.get_clock().now().to_msg(), "world", "needle_base", [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]))
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and (min(p.get_subscription_count() for p in (*images.values(), poses)) < 1
+                                               or node.count_publishers("needle/measured_shape") < 1):
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert process.poll() is None, process.stdout.read()
+        warm_up = time.monotonic() + 1.0
+        while time.monotonic() < warm_up:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        for stamp, (left, right) in ((1.00, background_frames[0]), (1.01, renders("planar")),
+                                     (1.02, renders("planar"))):
+            if source == "topic":
+                poses.publish(_pose_msg(stamp - 0.003, "world", (float("nan"), 0.0, 0.0)))
+                poses.publish(_pose_msg(stamp - 0.002, "world", (0.0, 0.0, 0.0)))
+                rclpy.spin_once(node, timeout_sec=0.05)
+            for side, image in (("left", left), ("right", right)):
+                images[side].publish(_image_msg(image, stamp, f"{side}_optical"))
+            end = time.monotonic() + 0.5
+            while time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.05)
+        end = time.monotonic() + 10
+        while time.monotonic() < end and len(shapes) < 2:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        output = _stop(node, process)
+    assert len(shapes) == 2, output
+    for shape in shapes:
+        first, last = (np.array([p.x, p.y, p.z]) for p in (shape.points[0], shape.points[-1]))
+        assert np.linalg.norm(first) < 2e-3 and np.linalg.norm(last - base_point) < 2e-3
+    if source == "topic":
+        assert "base pose on 'base_pose' ignored: non-finite" in output

@@ -48,20 +48,24 @@ def test_image_folder(tmp_path, rig, background_frames, renders, capsys):
     assert "3  used to build the background model" in capsys.readouterr().out
 
 
-def write_bag(path: Path, rig, frames, encoding_of=lambda k: "mono8", compressed: bool = False):
-    """An MCAP bag with camera_info and, per frame, Image (or PNG CompressedImage on .../compressed) messages."""
+def write_bag(path: Path, rig, frames, encoding_of=lambda k: "mono8", compressed: bool = False,
+              extra=lambda k: (), **writer_options):
+    """An MCAP bag with camera_info and, per frame, Image (or PNG CompressedImage on .../compressed) messages,
+    after the frame's ``extra(k)`` messages (topic, type name, fields)."""
     from mcap_ros2.writer import Writer
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
     ros = rig.with_ros_rectification()
     with open(path, "wb") as stream:
-        writer = Writer(stream)
+        writer = Writer(stream, **writer_options)
         schemas = {name: writer.register_msgdef(name, store.generate_msgdef(name, ros_version=2)[0])
                    for name in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo",
-                                "sensor_msgs/msg/CompressedImage")}
+                                "sensor_msgs/msg/CompressedImage", "geometry_msgs/msg/PoseStamped")}
         for k, (stamp, left, right) in enumerate(frames):
             time = {"sec": int(stamp), "nanosec": int(round((stamp % 1) * 1e9))}
+            for topic, type_name, fields in extra(k):
+                writer.write_message(topic, schemas[type_name], fields, log_time=int(stamp * 1e9))
             for side, image, camera in (("left", left, ros.left), ("right", right, ros.right)):
                 if image is None:
                     continue

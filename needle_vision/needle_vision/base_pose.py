@@ -1,0 +1,117 @@
+"""Stamped poses of the needle base, for telling the base of a measured centerline from its tip (issue 16).
+
+The simulator's ``base_pose`` input (``geometry_msgs/PoseStamped`` of the needle holder) or the TF frame of the
+needle base give, at each pair's stamp, where the base is; this ordering does not depend on the previous frame
+(temporal continuity) nor on a fixed ``base_point``, which flip when the needle moves or starts near them.
+:class:`BasePoseStore` keeps the recent poses, :func:`deserialize_pose_stamped` reads a serialized
+``PoseStamped`` (CDR, as a bag or a raw subscription gives it) without building message objects. No ROS here.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+import struct
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from needle_vision.transform import RigidTransform
+
+
+class StampedPose(NamedTuple):
+    """A pose: stamp [s], frame_id, position (x, y, z) [m] and orientation (qx, qy, qz, qw)."""
+
+    stamp: float
+    frame_id: str
+    position: tuple[float, float, float]
+    orientation: tuple[float, float, float, float]
+
+
+def deserialize_pose_stamped(data: bytes | memoryview) -> StampedPose:
+    """A CDR-serialized (little-endian XCDR1) ``geometry_msgs/PoseStamped``; ValueError when it is not one."""
+    view = memoryview(data)
+    if len(view) < 12 or bytes(view[:2]) != b"\x00\x01":
+        raise ValueError("not a little-endian CDR PoseStamped message")
+    try:
+        sec, nanosec, length = struct.unpack_from("<iII", view, 4)
+        offset = 16 + length
+        frame_id = bytes(view[16:16 + max(length - 1, 0)]).decode("utf-8", "replace")
+        offset += -(offset - 4) % 8
+        values = struct.unpack_from("<7d", view, offset)
+    except struct.error as error:
+        raise ValueError(f"truncated PoseStamped message ({error})") from error
+    return StampedPose(sec + 1e-9 * nanosec, frame_id, values[:3], values[3:])
+
+
+def _rotate(quaternion: Sequence[float], vector: Sequence[float]) -> tuple[float, float, float]:
+    """``vector`` rotated by the unit quaternion (x, y, z, w): v + 2w (q x v) + 2 q x (q x v)."""
+    x, y, z, w = quaternion
+    vx, vy, vz = vector
+    cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
+    return (vx + 2 * (w * cx + y * cz - z * cy), vy + 2 * (w * cy + z * cx - x * cz),
+            vz + 2 * (w * cz + x * cy - y * cx))
+
+
+class BasePoseStore:
+    """Recent base poses, as the base point in the output frame, for ordering the measured centerline.
+
+    ``offset``: the point used as the base in the pose's own frame [m] (e.g. the clamp point A in the flange
+    frame of the simulator's ``base_pose``, plus a stretch of needle hidden in the holder along x);
+    ``max_age`` [s]: a pose farther in time from a pair's stamp is not used. Keeps the newest ``capacity`` poses.
+    """
+
+    def __init__(self, max_age: float, offset: Sequence[float] = (0.0, 0.0, 0.0), capacity: int = 4096):
+        if not (max_age >= 0 and math.isfinite(max_age)) or capacity < 1 \
+                or len(offset) != 3 or not all(math.isfinite(v) for v in offset):
+            raise ValueError("max_age must be finite and >= 0, capacity >= 1, offset 3 finite values")
+        self.max_age = float(max_age)
+        self.offset = tuple(float(v) for v in offset)
+        self.capacity = capacity
+        self._stamps: list[float] = []
+        self._points: list[np.ndarray] = []
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def add(self, stamp: float, position: Sequence[float], orientation: Sequence[float],
+            output_from_pose: RigidTransform | None = None) -> None:
+        """Store the base point of a pose given in a frame whose pose in the output frame is
+        ``output_from_pose`` (None: the output frame itself). ValueError for non-finite values or a zero
+        quaternion (nothing stored)."""
+        values = (stamp, *position, *orientation)
+        if len(values) != 8 or not all(math.isfinite(v) for v in values):
+            raise ValueError("non-finite stamp, position or orientation")
+        norm = math.hypot(*orientation)
+        if norm < 1e-9:
+            raise ValueError("zero quaternion")
+        shift = _rotate([q / norm for q in orientation], self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
+        point = np.array([p + s for p, s in zip(position, shift)])
+        if output_from_pose is not None:
+            point = output_from_pose.apply(point)
+        index = bisect.bisect_right(self._stamps, stamp)
+        self._stamps.insert(index, float(stamp))
+        self._points.insert(index, point)
+        if len(self._stamps) > self.capacity:
+            del self._stamps[0], self._points[0]
+
+    def base_at(self, stamp: float) -> np.ndarray | None:
+        """The base point [m, output frame] of the pose nearest in time to ``stamp``, or None when none is
+        within ``max_age``."""
+        index = bisect.bisect_left(self._stamps, stamp)
+        nearest = min((k for k in (index - 1, index) if 0 <= k < len(self._stamps)),
+                      key=lambda k: abs(self._stamps[k] - stamp), default=None)
+        if nearest is None or abs(self._stamps[nearest] - stamp) > self.max_age:
+            return None
+        return self._points[nearest]
+
+
+def output_from_pose_frame(frame_id: str, output_frame: str, left_frames: Sequence[str],
+                           output_from_left: RigidTransform) -> RigidTransform | None:
+    """Pose of a base pose's frame in the output frame: the identity for the output frame (``output_frame``,
+    or the left optical frame when it is empty) and for an empty frame_id, ``output_from_left`` for the left
+    optical frame (``left_frames``: its names), None for any other frame (the pose cannot be used)."""
+    if not frame_id or frame_id == output_frame:
+        return RigidTransform()
+    if frame_id in left_frames:
+        return output_from_left
+    return None

@@ -1,0 +1,73 @@
+"""needle_vision.bag_reader against the mcap library's own reader: the same messages in the same order for every
+way a writer may lay out an MCAP file (chunk compression, no chunks, no index or summary, overlapping chunks)."""
+import mmap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, IndexType, Writer
+
+from needle_vision.bag_reader import read_messages
+
+TOPICS = ("/left/image_raw", "/right/image_raw", "/base_pose")
+
+
+def write_file(path: Path, log_times, **options) -> Path:
+    """Messages of random sizes (up to 300 kB) on three topics and one unwanted topic."""
+    rng = np.random.default_rng(0)
+    with open(path, "wb") as stream:
+        writer = Writer(stream, **options)
+        writer.start()
+        schema = writer.register_schema("std_msgs/msg/UInt8MultiArray", "ros2msg", b"uint8[] data")
+        channels = [writer.register_channel(topic, "cdr", schema) for topic in (*TOPICS, "/other")]
+        for k, log_time in enumerate(log_times):
+            data = rng.integers(0, 256, int(rng.integers(0, 300_000)), dtype=np.uint8).tobytes()
+            writer.add_message(channels[k % 4], log_time, data, log_time, sequence=k)
+        writer.finish()
+    return path
+
+
+def library(path: Path, topics) -> list[tuple[str, int, bytes]]:
+    with open(path, "rb") as stream:
+        return [(channel.topic, message.log_time, message.data)
+                for _, channel, message in make_reader(stream).iter_messages(topics=list(topics))]
+
+
+IN_ORDER = [1_000_000 * k for k in range(60)]
+LAYOUTS = {
+    "zstd chunks": {"compression": CompressionType.ZSTD, "chunk_size": 1 << 20},
+    "lz4 chunks": {"compression": CompressionType.LZ4, "chunk_size": 1 << 20},
+    "uncompressed chunks": {"compression": CompressionType.NONE, "chunk_size": 1 << 20},
+    "a message per chunk": {"compression": CompressionType.NONE, "chunk_size": 1},
+    "no chunks": {"use_chunking": False},
+    "no index": {"index_types": IndexType.NONE, "compression": CompressionType.ZSTD},
+    "no summary": {"index_types": IndexType.NONE, "repeat_channels": False, "repeat_schemas": False,
+                   "use_statistics": False, "use_summary_offsets": False},
+}
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_same_messages_as_the_mcap_library(tmp_path, layout):
+    path = write_file(tmp_path / "bag.mcap", IN_ORDER, **LAYOUTS[layout])
+    expected = library(path, TOPICS)
+    assert len(expected) == 45
+    read = [(m.topic, m.log_time, bytes(m.data)) for m in read_messages(path, [t.lstrip("/") for t in TOPICS])]
+    assert read == expected
+    assert [m.schema for m in read_messages(path, TOPICS[:1])] == ["std_msgs/msg/UInt8MultiArray"] * 15
+
+
+def test_messages_out_of_order_in_and_across_chunks(tmp_path):
+    """Log times decreasing (chunks overlap in time) and shuffled within chunks: log-time order as the library."""
+    shuffled = np.random.default_rng(1).permutation(IN_ORDER).tolist()
+    for name, times in (("reversed", IN_ORDER[::-1]), ("shuffled", shuffled)):
+        path = write_file(tmp_path / f"{name}.mcap", times, compression=CompressionType.ZSTD, chunk_size=1 << 20)
+        read = [(m.topic, m.log_time, bytes(m.data)) for m in read_messages(path, TOPICS)]
+        assert read == library(path, TOPICS) and [t for _, t, _ in read] == sorted(t for _, t, _ in read)
+
+
+def test_uncompressed_payloads_are_views_of_the_file(tmp_path):
+    path = write_file(tmp_path / "bag.mcap", IN_ORDER, compression=CompressionType.NONE)
+    message = next(read_messages(path, TOPICS))
+    assert isinstance(message.data, memoryview) and isinstance(message.data.obj, mmap.mmap)  # not copied
+    assert bytes(message.data) == library(path, TOPICS)[0][2]
