@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import map_coordinates, median_filter
 
 from needle_vision.background import BackgroundModel, downsample
 from needle_vision.curves import arc_length, moving_average
@@ -230,26 +230,45 @@ def _slices_along(path):  # pragma: no cover - compiled
     return along_rows[:n], fixed[:n], predicted[:n], obliquity[:n]
 
 
-def _sub_pixel_end(points: np.ndarray, coverage: np.ndarray, along_rows: np.ndarray, fixed: np.ndarray,
-                   obliquity: np.ndarray, kept: np.ndarray, sign: int, beyond: int = 4) -> np.ndarray | None:
-    """The needle's end beyond the kept slices, to sub-pixel: from a fully covered slice j0 (third kept from
-    the end) the slices' coverage fractions f (contrast over the end's median) sum to the distance of the end
-    edge from j0's centre plus one half pixel (a pixel-integrated step: sum_j clip(e - j + 1/2, 0, 1) = e + 1/2).
-    ``sign`` +1 for the last end, -1 for the first. None where the slices there are not one straight run."""
-    if len(kept) < 12:
+def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: float, points: np.ndarray,
+                       half_width: int, step: float = 0.25) -> tuple[int, np.ndarray] | None:
+    """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
+
+    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely)
+    gives the direction of the profile of the contrast integrated across the needle; the end is where that
+    profile falls to half its level (a flat end is a step blurred symmetrically). The points within
+    ``half_width + 1`` px of the end (centroids biased by the oblique cut) are replaced by a quadratic (the
+    needle's curvature) fitted to the 80 before them, one pixel apart up to the end. Returns (number of points
+    kept, the new points ending with the end), or None where the profile leaves the image or does not fall."""
+    if len(points) < 100:
         return None
-    j0 = kept[-3] if sign > 0 else kept[2]
-    stop = kept[-1] + beyond if sign > 0 else kept[0] - beyond
-    run = np.arange(j0, stop + sign, sign)
-    run = run[(run >= 0) & (run < len(fixed))]
-    if not (np.all(along_rows[run] == along_rows[j0]) and np.all(np.abs(np.diff(fixed[run])) == 1)):
+    fitted = points[-30:-8]
+    centre = fitted.mean(axis=0)
+    direction = np.linalg.svd(fitted - centre)[2][0]
+    direction *= np.sign(direction @ (fitted[-1] - fitted[0]))
+    normal = np.array([-direction[1], direction[0]])
+    along = (points - centre) @ direction
+    s = np.arange(along[-30], along[-1] + 2 * half_width, step)
+    u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
+    xy = centre + s[:, None, None] * direction + u[None, :, None] * normal  # (s, u, 2)
+    if np.any(xy < 0) or np.any(xy[..., 0] > image.shape[1] - 1) or np.any(xy[..., 1] > image.shape[0] - 1):
         return None
-    edge = (np.sum(np.clip(coverage[run], 0.0, 1.0)) - 0.5) / obliquity[j0]  # [px] along the needle
-    inner = points[kept[-12]] if sign > 0 else points[kept[11]]
-    direction = points[j0] - inner
-    direction /= max(np.linalg.norm(direction), 1e-9)
-    steps = np.append(np.arange(1.0, edge, 1.0), edge) if edge > 0 else np.zeros(0)
-    return points[j0] + np.outer(steps, direction)  # one pixel apart like the slices, the end last
+    at = (xy[..., 1].ravel(), xy[..., 0].ravel())
+    grey = map_coordinates(image.astype(np.float32), at, order=1).reshape(xy.shape[:2])
+    base = map_coordinates(background, at, order=1).reshape(xy.shape[:2])
+    profile = moving_average(np.sum(polarity * (base - grey) / np.maximum(base, 1.0), axis=1)[:, None], 3)[:, 0]
+    level = np.median(profile[s <= along[-9]])
+    outside = np.flatnonzero((s > along[-9]) & (profile < 0.5 * level))
+    if level <= 0 or outside.size == 0:
+        return None
+    k = outside[0]
+    end = s[k - 1] + step * (profile[k - 1] - 0.5 * level) / (profile[k - 1] - profile[k])
+    kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
+    if kept < 80 or end <= along[kept - 1]:
+        return None
+    lateral = np.polynomial.Polynomial.fit(along[kept - 80:kept], (points[kept - 80:kept] - centre) @ normal, 2)
+    steps = np.append(np.arange(along[kept - 1] + 1.0, end, 1.0), end)
+    return kept, centre + np.outer(steps, direction) + np.outer(lateral(steps), normal)
 
 
 def extract_centerline(image: np.ndarray, background: BackgroundModel, config: CenterlineConfig = CenterlineConfig()
@@ -302,18 +321,17 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     keep[keep] = full[keep] | (width_contrast[keep] >= config.min_profile_fraction * local)
     kept = np.flatnonzero(keep)
     points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
-    coverage = width_contrast / max(np.median(width_contrast[kept[-15:]]), 1e-12), \
-        width_contrast / max(np.median(width_contrast[kept[:15]]), 1e-12)
-    ends = [_sub_pixel_end(points, coverage[k], along_rows, fixed, obliquity, kept, sign) for k, sign in
-            ((1, -1), (0, 1))]
     contrast_kept = contrast[kept]
     points = points[kept]
-    if ends[0] is not None:  # the slices from j0 outwards are replaced by points on the end's line
-        points = np.vstack([ends[0][::-1], points[2:]])
-        contrast_kept = np.append(np.full(len(ends[0]), contrast_kept[2]), contrast_kept[2:])
-    if ends[1] is not None:
-        points = np.vstack([points[:-2], ends[1]])
-        contrast_kept = np.append(contrast_kept[:-2], np.full(len(ends[1]), contrast_kept[-3]))
+    cut = len(points) // 2
+    first, last = (_end_along_profile(image, background.image, polarity, part, config.profile_half_width)
+                   for part in (points[:cut][::-1], points[cut:]))
+    # The last points at each end are replaced by points towards the sub-pixel end.
+    lo, head = (cut - first[0], first[1][::-1]) if first else (0, np.zeros((0, 2)))
+    hi, tail = (cut + last[0], last[1]) if last else (len(points), np.zeros((0, 2)))
+    contrast_kept = np.concatenate([np.full(len(head), contrast_kept[lo]), contrast_kept[lo:hi],
+                                    np.full(len(tail), contrast_kept[hi - 1])])
+    points = np.vstack([head, points[lo:hi], tail])
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
     residual = np.linalg.norm(points - moving_average(points, 9), axis=1)
