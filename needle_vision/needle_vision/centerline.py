@@ -24,6 +24,10 @@ from needle_vision.background import BackgroundModel, downsample
 from needle_vision.curves import arc_length, moving_average
 
 
+#: [points] window of the running median that gives each centerline point's local scatter.
+NOISE_WINDOW = 61
+
+
 class NoNeedleError(ValueError):
     """No needle-like structure was found in an image (message says why)."""
 
@@ -44,11 +48,14 @@ class CenterlineConfig:
 @dataclass(frozen=True)
 class ImageCenterline:
     """Centerline points ``(n, 2)`` (x, y raw pixels) ordered from one end to the other, their slice contrast
-    (sum of relative contrast across the slice) and the robust scatter [px] of the points across the curve."""
+    (sum of relative contrast across the slice), the robust scatter [px] of the points across the curve, and
+    that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW`` points: the noise
+    grows where the needle's contrast is lower, e.g. in front of a darker background)."""
 
     points: np.ndarray
     contrast: np.ndarray
     noise_px: float
+    local_noise_px: np.ndarray
 
 
 @numba.njit(cache=True)
@@ -334,6 +341,13 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     points = np.vstack([head, points[lo:hi], tail])
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
-    residual = np.linalg.norm(points - moving_average(points, 9), axis=1)
-    noise = float(1.4826 * np.median(residual) * np.sqrt(9 / 8)) if len(points) > 9 else 0.0
-    return ImageCenterline(points, contrast_kept, noise)
+    # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
+    sliced = np.arange(len(head), len(head) + hi - lo)
+    residual = np.linalg.norm(points - moving_average(points, 9), axis=1)[sliced] * 1.4826 * np.sqrt(9 / 8)
+    if len(sliced) > 9:
+        noise = float(np.median(residual))
+        local = np.interp(np.arange(len(points)), sliced,
+                          median_filter(residual, size=min(NOISE_WINDOW, len(sliced)), mode="nearest"))
+    else:
+        noise, local = 0.0, np.zeros(len(points))
+    return ImageCenterline(points, contrast_kept, noise, local)

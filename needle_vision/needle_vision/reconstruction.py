@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from needle_vision.centerline import ImageCenterline
 from needle_vision.correspondence import MatchError, MatchingConfig, match_centerlines
@@ -83,6 +84,11 @@ def _ends_inside(points: np.ndarray, width: int, height: int, margin: float = 5.
     return bool(np.all((ends >= margin) & (ends <= [width - 1 - margin, height - 1 - margin])))
 
 
+def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
+    """The local image noise [px] of ``centerline`` (rectified points ``rectified``) at the matched points."""
+    return centerline.local_noise_px[cKDTree(rectified).query(matched)[1]]
+
+
 def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: int) -> np.ndarray:
     """Points within max(outlier_sigma robust sigmas, outlier_floor) of a smoothed curve; repeated once more
     when outliers were found (they bend the first smoothed curve)."""
@@ -131,15 +137,17 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     if len(points) < config.min_points:
         raise MatchError(f"only {len(points)} points left after outlier rejection")
 
-    # Per-point noise: lateral from the image noise, depth through the disparity (worse where the needle is
+    # Per-point noise: lateral from the local image noise, depth through the disparity (worse where the needle is
     # close to parallel to the epipolar lines: there the match slides along the curve).
-    noise_px = max(left.noise_px, right.noise_px, MIN_IMAGE_NOISE_PX)
+    noise_px = np.maximum.reduce([_local_noise(left, left_rect, match.left),
+                                  _local_noise(right, right_rect, match.right),
+                                  np.full(len(match.left), MIN_IMAGE_NOISE_PX)])[valid][keep]
     min_sin = np.sin(np.radians(matching.min_epipolar_angle_deg))
     slope = np.where(anchored, np.maximum(sin_angle, min_sin), 0.5 * min_sin)
     depth_noise = rectification.depth_per_disparity(points) * noise_px * np.sqrt(2 + 1 / slope ** 2)
     lateral_noise = np.linalg.norm(points, axis=1) / rectification.focal_length * noise_px
     window = _odd_window(config.smoothing_length, spacing, len(points))
-    smoothing_gain = smoothing_noise_gain(window, 3)  # noise kept by the cubic fit
+    smoothing_gain = smoothing_noise_gain(len(points), window, 3)  # noise kept by the cubic fit
     point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2) * smoothing_gain
 
     points = output_from_left.apply(points)

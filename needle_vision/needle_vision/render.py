@@ -103,8 +103,11 @@ def _smooth_noise(rng: np.random.Generator, size: tuple[int, int], sigma: float)
 
 
 def make_scene(rig: StereoRig, rng: np.random.Generator, *, brightness: float = 235.0,
-               needle_albedo: float = 0.12, texture_contrast: float = 0.08) -> Scene:
-    """A textured, unevenly lit background for each camera (see the module docstring)."""
+               needle_albedo: float = 0.12, texture_contrast: float = 0.08, edge_contrast: float = 0.0,
+               edge_width_px: float = 15.0) -> Scene:
+    """A textured, unevenly lit background for each camera (see the module docstring). ``edge_contrast`` > 0
+    adds a brightness ramp: the albedo falls by that fraction from the right to the left of a vertical edge
+    through the image centre, over ~``edge_width_px`` (a tanh profile)."""
     illumination, albedo = [], []
     for camera in (rig.left, rig.right):
         width, height = camera.image_size
@@ -117,7 +120,8 @@ def make_scene(rig: StereoRig, rng: np.random.Generator, *, brightness: float = 
         illumination.append((brightness * light / light.max()).astype(np.float32))
         texture = 0.72 + texture_contrast * _smooth_noise(rng, (width, height), 4.0) \
             + texture_contrast * _smooth_noise(rng, (width, height), 30.0)
-        albedo.append(np.clip(texture, 0.45, 0.95).astype(np.float32))
+        ramp = 1 - 0.5 * edge_contrast * (1 - np.tanh((x - width / 2) / edge_width_px))
+        albedo.append((np.clip(texture, 0.45, 0.95) * ramp).astype(np.float32))
     return Scene(tuple(illumination), tuple(albedo), needle_albedo)
 
 
