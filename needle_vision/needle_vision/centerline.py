@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numba
 import numpy as np
 from scipy.ndimage import map_coordinates, median_filter
@@ -43,6 +44,7 @@ class CenterlineConfig:
     local_window: int = 41           # [slices] the contrast reference is the median over this many neighbours
     min_contrast_fraction: float = 0.2  # slices with less than this fraction of the whole needle's median are
     #                                     dropped whatever their neighbours
+    max_link_angle_deg: float = 15.0  # components whose facing ends differ less in direction are one needle
 
 
 @dataclass(frozen=True)
@@ -247,7 +249,7 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     ``half_width + 1`` px of the end (centroids biased by the oblique cut) are replaced by a quadratic (the
     needle's curvature) fitted to the 80 before them, one pixel apart up to the end. Returns (number of points
     kept, the new points ending with the end), or None where the profile leaves the image or does not fall."""
-    if len(points) < 100:
+    if len(points) < 100 or np.any(np.linalg.norm(np.diff(points[-100:], axis=0), axis=1) > GAP_PX):
         return None
     fitted = points[-30:-8]
     centre = fitted.mean(axis=0)
@@ -278,6 +280,67 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     return kept, centre + np.outer(steps, direction) + np.outer(lateral(steps), normal)
 
 
+#: [px] consecutive centerline points farther apart than this are separated by a gap (hidden stretch).
+GAP_PX = 3.0
+
+
+def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
+    """The longest geodesic path of the largest linked component of ``mask``, then of the next largest ones
+    (up to ``count``, at least ``min_length`` coarse pixels long)."""
+    mask = mask.copy()
+    _, labels = cv2.connectedComponents(cv2.dilate(mask, np.ones((3, 3), np.uint8)), connectivity=8)
+    paths = []
+    for _ in range(count):
+        path = _coarse_path(mask, 2, scratch)
+        if len(path) < 2 or (paths and len(path) < min_length):
+            break
+        paths.append(path)
+        mask[labels == labels[path[0, 1], path[0, 0]]] = 0
+    return paths
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> float:
+    """z component of the cross product of two 2D vectors."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def _end_tangent(path: np.ndarray) -> np.ndarray:
+    """Unit direction out of the last point of ``path`` (from the point 4 before it)."""
+    tangent = path[-1] - path[max(-5, -len(path))]
+    return tangent / max(np.linalg.norm(tangent), 1e-9)
+
+
+def _join(first: np.ndarray, second: np.ndarray, max_angle_deg: float, margin: float) -> np.ndarray | None:
+    """The two paths as one, through the gap between ends that face each other: end directions within
+    ``max_angle_deg`` (antiparallel) and each end within ``margin`` + 15 % of the gap of the other's tangent
+    line; the closest such pair of ends. None when no ends face each other."""
+    best, best_gap = None, np.inf
+    for a in (first, first[::-1]):
+        for b in (second, second[::-1]):
+            gap = b[0] - a[-1]
+            distance = np.linalg.norm(gap)
+            tangent_a, tangent_b = _end_tangent(a), _end_tangent(b[::-1])
+            if distance >= best_gap or tangent_a @ -tangent_b < np.cos(np.radians(max_angle_deg)):
+                continue
+            lateral = max(abs(_cross(tangent_a, gap)), abs(_cross(tangent_b, gap)))
+            if gap @ tangent_a > 0 and lateral <= margin + 0.15 * distance:
+                best, best_gap = np.vstack([a, b]), distance
+    return best
+
+
+def _link_components(paths: list[np.ndarray], max_angle_deg: float, margin: float) -> np.ndarray:
+    """The first path extended by the others whose ends face its ends (a needle cut by an occluder)."""
+    path, others = paths[0], list(paths[1:])
+    while others:
+        joined = [_join(path, other, max_angle_deg, margin) for other in others]
+        linked = [k for k, candidate in enumerate(joined) if candidate is not None]
+        if not linked:
+            break
+        path = joined[linked[0]]
+        others.pop(linked[0])
+    return path
+
+
 def extract_centerline(image: np.ndarray, background: BackgroundModel, config: CenterlineConfig = CenterlineConfig()
                        ) -> ImageCenterline:
     """The needle's sub-pixel centerline in ``image`` (uint8/uint16 grey, same size as the background)."""
@@ -286,15 +349,20 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     threshold = background.threshold
     factor, polarity = threshold.downsample, float(threshold.polarity)
     coarse = downsample(image, factor)
-    path = _coarse_path(background.coarse_foreground(coarse), 2, background.coarse_scratch)
-    if len(path) < 2:
+    paths = _coarse_paths(background.coarse_foreground(coarse), background.coarse_scratch,
+                          int(config.min_length_px / factor))
+    if not paths:
         raise NoNeedleError("no pixel differs enough from the background")
-    path = _refine_path(coarse, background.coarse, polarity, path)
-    path = moving_average((path + 0.5) * factor - 0.5, 3)  # coarse pixel centres -> full-resolution coordinates
-    length = arc_length(path)[-1]
+    # coarse pixel centres -> full-resolution coordinates
+    paths = [moving_average((_refine_path(coarse, background.coarse, polarity, path) + 0.5) * factor - 0.5, 3)
+             for path in paths]
+    length = arc_length(paths[0])[-1]
     if length < config.min_length_px:
         raise NoNeedleError(f"largest foreground structure is {length:.0f} px long "
                             f"(< {config.min_length_px:.0f} px): no needle")
+    # Components whose ends face each other are one needle with a hidden stretch between them: sliced through
+    # (the slices in the gap have no contrast and are dropped).
+    path = _link_components(paths, config.max_link_angle_deg, 2.0 * factor)
     # Extend both ends along the end tangents so that the tips are sliced too (empty slices are dropped).
     ends = []
     for end, inner in ((path[0], path[min(2, len(path) - 1)]), (path[-1], path[max(-3, -len(path))])):
@@ -326,8 +394,13 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     keep[ends[-1] + 1:] = False
     local = median_filter(width_contrast[keep], size=config.local_window, mode="mirror")
     keep[keep] = full[keep] | (width_contrast[keep] >= config.min_profile_fraction * local)
-    kept = np.flatnonzero(keep)
     points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
+    # At a gap the slices may be cut by the occluder's edge (centroid biased): drop those next to it.
+    kept = np.flatnonzero(keep)
+    edges = np.flatnonzero(np.linalg.norm(np.diff(points[kept], axis=0), axis=1) > GAP_PX)
+    for edge in edges:
+        keep[kept[max(edge - config.profile_half_width, 0):edge + config.profile_half_width + 2]] = False
+    kept = np.flatnonzero(keep)
     contrast_kept = contrast[kept]
     points = points[kept]
     cut = len(points) // 2
@@ -346,8 +419,11 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     residual = np.linalg.norm(points - moving_average(points, 9), axis=1)[sliced] * 1.4826 * np.sqrt(9 / 8)
     if len(sliced) > 9:
         noise = float(np.median(residual))
-        local = np.interp(np.arange(len(points)), sliced,
-                          median_filter(residual, size=min(NOISE_WINDOW, len(sliced)), mode="nearest"))
+        window = min(NOISE_WINDOW, len(sliced))
+        local = median_filter(residual, size=window, mode="nearest")
+        local[:window // 2] = np.median(residual[:window])  # the first and last full windows' at the ends
+        local[len(local) - window // 2:] = np.median(residual[-window:])
+        local = np.interp(np.arange(len(points)), sliced, local)
     else:
         noise, local = 0.0, np.zeros(len(points))
     return ImageCenterline(points, contrast_kept, noise, local)

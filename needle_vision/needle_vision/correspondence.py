@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from needle_vision.centerline import GAP_PX
 from needle_vision.curves import arc_length, derivative, interpolate, moving_average
 
 
@@ -91,6 +92,23 @@ def _coarse_map(s: np.ndarray, e_left: np.ndarray, t: np.ndarray, e_right: np.nd
     return np.interp(s, s_coarse, np.interp(index, np.arange(len(t_coarse)), t_coarse)), cost
 
 
+def _smooth_runs(points: np.ndarray, window: int) -> np.ndarray:
+    """Moving average of each run of points between gaps (steps > GAP_PX): never across a hidden stretch."""
+    points = np.asarray(points, float)
+    cuts = np.flatnonzero(np.linalg.norm(np.diff(points, axis=0), axis=1) > GAP_PX) + 1
+    return np.vstack([moving_average(run, window) for run in np.split(points, cuts)])
+
+
+def _in_gaps(t: np.ndarray, curve_t: np.ndarray) -> np.ndarray:
+    """Whether each arc length ``t`` falls inside a gap (a step > GAP_PX) of the curve with arc lengths
+    ``curve_t``: no point of that curve was seen there."""
+    steps = np.flatnonzero(np.diff(curve_t) > GAP_PX)
+    inside = np.zeros(len(t), bool)
+    for k in steps:
+        inside |= (t > curve_t[k]) & (t < curve_t[k + 1])
+    return inside
+
+
 def _common_ends(left: np.ndarray, right: np.ndarray, e: int, min_sin: float, tolerance: float
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Both curves (same direction) with each pair of corresponding ends moved to their mean epipolar
@@ -126,7 +144,7 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
     stretch runs along the lines (no anchor there)."""
     if len(left) < 5 or len(right) < 5:
         raise MatchError("a centerline has fewer than 5 points")
-    left, right = moving_average(np.asarray(left, float), 5), moving_average(np.asarray(right, float), 5)
+    left, right = _smooth_runs(left, 5), _smooth_runs(right, 5)
     e = epipolar_axis
     s = arc_length(left)
     # Direction of the right curve: from the ends' epipolar coordinates when they tell clearly, else by warping
@@ -163,7 +181,7 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
         t_match = np.clip(t_match + update, np.maximum(t0 - step_limit, 0), np.minimum(t0 + step_limit, t[-1]))
     residual = left[:, e] - np.interp(t_match, t, right[:, e])
     anchored &= np.abs(residual) <= config.max_epipolar_error_px
-    anchored &= (t_match > 0) & (t_match < t[-1])  # a match clamped at a curve end is no match
+    anchored &= (t_match > 0) & (t_match < t[-1]) & ~_in_gaps(t_match, t)  # clamped at an end or in a gap: no match
     # Keep the anchors in order: drop those behind the running maximum (noise at near-parallel stretches).
     index = np.flatnonzero(anchored)
     if index.size:
@@ -185,9 +203,10 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
         spread = s[nearby] - s[nearby].mean()
         ratio = spread @ t_match[nearby] / (spread @ spread) if np.ptp(s[nearby]) > 0 else t[-1] / s[-1]
         t_match[outside] = t_match[reference] + ratio * (s[outside] - s[reference])
-    # Points placed by continuity must still (nearly) satisfy the epipolar constraint: a stretch missing in
-    # one image (occlusion) is not bridged.
+    # Points placed by continuity must still (nearly) satisfy the epipolar constraint, and none is matched
+    # into a gap of the right curve: a stretch missing in one image (occlusion) is not bridged.
     residual = left[:, e] - np.interp(t_match, t, right[:, e])
     keep = (t_match >= 0) & (t_match <= t[-1]) & (anchored | (np.abs(residual) <= 2 * config.max_epipolar_error_px))
+    keep &= ~_in_gaps(t_match, t)
     matched_right = interpolate(t, right, t_match[keep])
     return Correspondence(left[keep], matched_right, anchored[keep], sin_angle[keep])

@@ -5,7 +5,7 @@ points (measured samples within max(3 sigma, 0.1 mm) of the truth, the others fl
 import numpy as np
 import pytest
 
-from vision_shapes import SHAPES, check_not_invented
+from vision_shapes import SHAPES, check_not_invented, faded
 from needle_vision.background import BackgroundModel, ContrastThreshold
 from needle_vision.centerline import extract_centerline
 from needle_vision.correspondence import MatchingConfig
@@ -68,3 +68,16 @@ def test_needle_in_front_of_a_brightness_ramp(rig, edge_scene):
     scene, backgrounds = edge_scene
     images = render_stereo_pair(rig, SHAPES["3d"], NEEDLE_RADIUS, np.random.default_rng(7), scene=scene)
     _check(_measure(rig, backgrounds, images), "3d", 0.99)
+
+
+@pytest.mark.parametrize("name, start, stop", [("3d", 0.3, 0.4), ("planar", 0.6, 0.7)])
+def test_stretch_hidden_in_one_camera(rig, backgrounds, renders, background_frames, name, start, stop):
+    """10 % of the needle (plus ~4 mm each side: the occluder's margin) hidden in the left camera only: the left
+    image's two parts are linked, the stretch the left camera does not see is flagged unmeasured, the rest
+    measured (before: the left image's larger part only, coverage 58 %, the planar tip lost; measured: 84-85 %)."""
+    truth = SHAPES[name]
+    images = faded(rig, renders(name), background_frames[0], truth, start, stop, 0.0, ("left",))
+    measurement = _measure(rig, backgrounds, images)
+    _, arc = _check(measurement, name, 0.8)
+    length = _length(truth)
+    assert not np.any(measurement.measured & (arc > start * length + 1e-3) & (arc < stop * length - 1e-3))
