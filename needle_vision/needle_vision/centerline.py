@@ -262,10 +262,14 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     xy = centre + s[:, None, None] * direction + u[None, :, None] * normal  # (s, u, 2)
     if np.any(xy < 0) or np.any(xy[..., 0] > image.shape[1] - 1) or np.any(xy[..., 1] > image.shape[0] - 1):
         return None
-    at = (xy[..., 1].ravel(), xy[..., 0].ravel())
-    grey = map_coordinates(image.astype(np.float32), at, order=1).reshape(xy.shape[:2])
-    base = map_coordinates(background, at, order=1).reshape(xy.shape[:2])
-    profile = moving_average(np.sum(polarity * (base - grey) / np.maximum(base, 1.0), axis=1)[:, None], 3)[:, 0]
+    low = np.floor(xy.reshape(-1, 2).min(axis=0)).astype(int)
+    high = np.ceil(xy.reshape(-1, 2).max(axis=0)).astype(int) + 1
+    window = np.s_[low[1]:high[1], low[0]:high[0]]  # the relative contrast in the bounding box, interpolated
+    base = background[window]
+    relative = polarity * (base - image[window]) / np.maximum(base, 1.0)
+    at = (xy[..., 1].ravel() - low[1], xy[..., 0].ravel() - low[0])
+    profile = map_coordinates(relative, at, order=1).reshape(xy.shape[:2]).sum(axis=1)
+    profile = moving_average(profile[:, None], 3)[:, 0]
     level = np.median(profile[s <= along[-9]])
     outside = np.flatnonzero((s > along[-9]) & (profile < 0.5 * level))
     if level <= 0 or outside.size == 0:
