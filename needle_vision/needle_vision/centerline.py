@@ -239,6 +239,36 @@ def _slices_along(path):  # pragma: no cover - compiled
     return along_rows[:n], fixed[:n], predicted[:n], obliquity[:n]
 
 
+#: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
+#: tapered (a bevel seen side-on).
+TAPER_FACTOR = 1.5
+
+
+def _crossing(s: np.ndarray, profile: np.ndarray, level: float, start: float) -> float | None:
+    """First ``s`` beyond ``start`` where ``profile`` falls below ``level`` (linear interpolation)."""
+    below = np.flatnonzero((s > start) & (profile < level))
+    if below.size == 0 or below[0] == 0:
+        return None
+    k = below[0]
+    return float(s[k - 1] + (s[k] - s[k - 1]) * (profile[k - 1] - level) / (profile[k - 1] - profile[k]))
+
+
+def _edge_spread(cross: np.ndarray, u: np.ndarray) -> float | None:
+    """Distance between the 25 % and 75 % points of the needle's side edges in its cross profile ``cross``
+    (samples at ``u``): the blurred step's width. None when the profile has no clear peak inside."""
+    peak = int(np.argmax(cross))
+    if cross[peak] <= 0 or peak in (0, len(u) - 1):
+        return None
+    widths = []
+    for side in (slice(peak, None), slice(peak, None, -1)):  # right edge, left edge (outwards from the peak)
+        edge = [_crossing(np.abs(u[side] - u[peak]), cross[side], fraction * cross[peak], -1.0)
+                for fraction in (0.75, 0.25)]
+        if None in edge:
+            return None
+        widths.append(edge[1] - edge[0])
+    return float(np.mean(widths))
+
+
 def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: float, points: np.ndarray,
                        half_width: int, step: float = 0.25) -> tuple[int, np.ndarray] | None:
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
@@ -268,14 +298,20 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     base = background[window]
     relative = polarity * (base - image[window]) / np.maximum(base, 1.0)
     at = (xy[..., 1].ravel() - low[1], xy[..., 0].ravel() - low[0])
-    profile = map_coordinates(relative, at, order=1).reshape(xy.shape[:2]).sum(axis=1)
-    profile = moving_average(profile[:, None], 3)[:, 0]
-    level = np.median(profile[s <= along[-9]])
-    outside = np.flatnonzero((s > along[-9]) & (profile < 0.5 * level))
-    if level <= 0 or outside.size == 0:
+    grid = map_coordinates(relative, at, order=1).reshape(xy.shape[:2])
+    profile = moving_average(grid.sum(axis=1)[:, None], 3)[:, 0]
+    inside = s <= along[-9]
+    level = np.median(profile[inside])
+    crossings = [_crossing(s, profile, fraction * level, along[-9]) for fraction in (0.75, 0.5, 0.25)]
+    if level <= 0 or None in crossings:
         return None
-    k = outside[0]
-    end = s[k - 1] + step * (profile[k - 1] - 0.5 * level) / (profile[k - 1] - profile[k])
+    end = crossings[1]
+    # A bevel tapers the end: the profile falls over its length instead of the blur's (the needle's side
+    # edges, across, show the blur): the end is half the taper beyond the half-contrast point.
+    blur = _edge_spread(np.median(grid[inside], axis=0), u)
+    spread = crossings[2] - crossings[0]
+    if blur is not None and spread > TAPER_FACTOR * blur:
+        end += np.sqrt(spread ** 2 - blur ** 2)
     kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
     if kept < 80 or end <= along[kept - 1]:
         return None
@@ -284,8 +320,9 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     return kept, centre + np.outer(steps, direction) + np.outer(lateral(steps), normal)
 
 
-#: [px] consecutive centerline points farther apart than this are separated by a gap (hidden stretch).
-GAP_PX = 3.0
+#: [px] consecutive centerline points farther apart are separated by a hidden stretch (shorter runs of weak
+#: slices are bridged as before).
+GAP_PX = 40.0
 
 
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
@@ -405,6 +442,8 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     for edge in edges:
         keep[kept[max(edge - config.profile_half_width, 0):edge + config.profile_half_width + 2]] = False
     kept = np.flatnonzero(keep)
+    if len(kept) < 3:
+        raise NoNeedleError("too few centerline points with enough contrast")
     contrast_kept = contrast[kept]
     points = points[kept]
     cut = len(points) // 2

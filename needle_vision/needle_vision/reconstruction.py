@@ -162,11 +162,13 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     if len(points) < config.min_points:
         raise MatchError(f"only {len(points)} points left after outlier rejection")
 
-    # Per-point noise: lateral from the local image noise, depth through the disparity (worse where the needle is
-    # close to parallel to the epipolar lines: there the match slides along the curve).
+    # Per-point noise (the images' local scatter where above their median): lateral from the image noise, depth
+    # through the disparity (worse where the needle is close to parallel to the epipolar lines: there the match
+    # slides along the curve).
     noise_px = np.maximum.reduce([_local_noise(left, left_rect, match.left),
                                   _local_noise(right, right_rect, match.right),
-                                  np.full(len(match.left), MIN_IMAGE_NOISE_PX)])[valid]
+                                  np.full(len(match.left), max(left.noise_px, right.noise_px,
+                                                               MIN_IMAGE_NOISE_PX))])[valid]
     noise_px = noise_px[inliers]
     min_sin = np.sin(np.radians(matching.min_epipolar_angle_deg))
     slope = np.where(anchored, np.maximum(sin_angle, min_sin), 0.5 * min_sin)
