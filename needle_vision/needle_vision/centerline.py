@@ -4,13 +4,15 @@ extract the background, find the needle points).
 1. Coarse detection on an area-averaged image (``downsample``x smaller): background subtraction, a threshold
    relative to the local background brightness (binarization robust to uneven lighting), the largest
    component (pixels up to two coarse pixels apart are linked, bridging small gaps) and its longest geodesic
-   path, which orders the needle from one end to the other.
+   path, which orders the needle from one end to the other; other components whose ends face its ends (a
+   needle cut by an occluder) are joined to it, the hidden stretch between them left without points.
 2. Full-resolution refinement: the band around the coarse path is cut into axis-aligned one-pixel slices
    (columns where the needle runs closer to horizontal, rows elsewhere); the centroid of the background-
    subtracted grey levels across each slice is a centerline point (no image interpolation). Integer sampling
    of the pixel-integrated profile leaves a small aliasing error that oscillates with the sub-pixel phase:
    up to ~0.04 px for a 2.5 px wide needle imaged with no lens blur, negligible with a realistic blur
    (Gaussian point spread sigma >= 0.5 px). Weak slices (gaps, beyond the ends) are dropped.
+3. The ends to sub-pixel from the contrast profile along the needle's end direction (:func:`_end_along_profile`).
 """
 from __future__ import annotations
 
@@ -27,6 +29,9 @@ from needle_vision.curves import arc_length, moving_average
 
 #: [points] window of the running median that gives each centerline point's local scatter.
 NOISE_WINDOW = 61
+#: [px] consecutive centerline points farther apart are separated by a hidden stretch (shorter runs of weak
+#: slices are bridged as before).
+GAP_PX = 40.0
 
 
 class NoNeedleError(ValueError):
@@ -277,8 +282,11 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     gives the direction of the profile of the contrast integrated across the needle; the end is where that
     profile falls to half its level (a flat end is a step blurred symmetrically). The points within
     ``half_width + 1`` px of the end (centroids biased by the oblique cut) are replaced by a quadratic (the
-    needle's curvature) fitted to the 80 before them, one pixel apart up to the end. Returns (number of points
-    kept, the new points ending with the end), or None where the profile leaves the image or does not fall."""
+    needle's curvature) fitted to the 80 before them, one pixel apart up to the end. A bevel seen side-on
+    tapers the end: where the profile falls (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the
+    needle's side edges, the end is sqrt(spread² - blur²) beyond the half-contrast point (a linear taper's
+    half length). Returns (number of points kept, the new points ending with the end), or None where the
+    profile leaves the image or does not fall."""
     if len(points) < 100 or np.any(np.linalg.norm(np.diff(points[-100:], axis=0), axis=1) > GAP_PX):
         return None
     fitted = points[-30:-8]
@@ -306,8 +314,6 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     if level <= 0 or None in crossings:
         return None
     end = crossings[1]
-    # A bevel tapers the end: the profile falls over its length instead of the blur's (the needle's side
-    # edges, across, show the blur): the end is half the taper beyond the half-contrast point.
     blur = _edge_spread(np.median(grid[inside], axis=0), u)
     spread = crossings[2] - crossings[0]
     if blur is not None and spread > TAPER_FACTOR * blur:
@@ -318,11 +324,6 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     lateral = np.polynomial.Polynomial.fit(along[kept - 80:kept], (points[kept - 80:kept] - centre) @ normal, 2)
     steps = np.append(np.arange(along[kept - 1] + 1.0, end, 1.0), end)
     return kept, centre + np.outer(steps, direction) + np.outer(lateral(steps), normal)
-
-
-#: [px] consecutive centerline points farther apart are separated by a hidden stretch (shorter runs of weak
-#: slices are bridged as before).
-GAP_PX = 40.0
 
 
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
@@ -436,7 +437,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     local = median_filter(width_contrast[keep], size=config.local_window, mode="mirror")
     keep[keep] = full[keep] | (width_contrast[keep] >= config.min_profile_fraction * local)
     points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
-    # At a gap the slices may be cut by the occluder's edge (centroid biased): drop those next to it.
+    # At a hidden stretch the slices may be cut by the occluder's edge (centroid biased): drop those next to it.
     kept = np.flatnonzero(keep)
     edges = np.flatnonzero(np.linalg.norm(np.diff(points[kept], axis=0), axis=1) > GAP_PX)
     for edge in edges:
