@@ -247,6 +247,9 @@ def _slices_along(path):  # pragma: no cover - compiled
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
 #: tapered (a bevel seen side-on).
 TAPER_FACTOR = 1.5
+#: ... provided the profile scatters less than this fraction of its level along the needle (a weak needle's
+#: noisy profile does not tell a taper).
+MAX_TAPER_SCATTER = 0.05
 
 
 def _crossing(s: np.ndarray, profile: np.ndarray, level: float, start: float) -> float | None:
@@ -284,9 +287,9 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     ``half_width + 1`` px of the end (centroids biased by the oblique cut) are replaced by a quadratic (the
     needle's curvature) fitted to the 80 before them, one pixel apart up to the end. A bevel seen side-on
     tapers the end: where the profile falls (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the
-    needle's side edges, the end is sqrt(spread² - blur²) beyond the half-contrast point (a linear taper's
-    half length). Returns (number of points kept, the new points ending with the end), or None where the
-    profile leaves the image or does not fall."""
+    needle's side edges (and the profile is clean), the end is sqrt(spread² - blur²) beyond the half-contrast
+    point (a linear taper's half length). Returns (number of points kept, the new points ending with the end),
+    or None where the profile leaves the image or does not fall."""
     if len(points) < 100 or np.any(np.linalg.norm(np.diff(points[-100:], axis=0), axis=1) > GAP_PX):
         return None
     fitted = points[-30:-8]
@@ -316,7 +319,8 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     end = crossings[1]
     blur = _edge_spread(np.median(grid[inside], axis=0), u)
     spread = crossings[2] - crossings[0]
-    if blur is not None and spread > TAPER_FACTOR * blur:
+    clean = 1.4826 * np.median(np.abs(profile[inside] - level)) < MAX_TAPER_SCATTER * level
+    if clean and blur is not None and spread > TAPER_FACTOR * blur:
         end += np.sqrt(spread ** 2 - blur ** 2)
     kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
     if kept < 80 or end <= along[kept - 1]:
