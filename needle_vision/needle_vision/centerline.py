@@ -301,10 +301,11 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     s = np.arange(along[-30], along[-1] + 2 * half_width, step)
     u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
     xy = centre + s[:, None, None] * direction + u[None, :, None] * normal  # (s, u, 2)
-    if np.any(xy < 0) or np.any(xy[..., 0] > image.shape[1] - 1) or np.any(xy[..., 1] > image.shape[0] - 1):
+    corners = xy[[0, 0, -1, -1], [0, -1, 0, -1]]  # an affine grid: its extremes are at the corners
+    if np.any(corners < 0) or np.any(corners > [image.shape[1] - 1, image.shape[0] - 1]):
         return None
-    low = np.floor(xy.reshape(-1, 2).min(axis=0)).astype(int)
-    high = np.ceil(xy.reshape(-1, 2).max(axis=0)).astype(int) + 1
+    low = np.floor(corners.min(axis=0)).astype(int)
+    high = np.ceil(corners.max(axis=0)).astype(int) + 1
     window = np.s_[low[1]:high[1], low[0]:high[0]]  # the relative contrast in the bounding box, interpolated
     base = background[window]
     relative = polarity * (base - image[window]) / np.maximum(base, 1.0)
@@ -325,9 +326,9 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
     if kept < 80 or end <= along[kept - 1]:
         return None
-    lateral = np.polynomial.Polynomial.fit(along[kept - 80:kept], (points[kept - 80:kept] - centre) @ normal, 2)
+    lateral = np.polyfit(along[kept - 80:kept], (points[kept - 80:kept] - centre) @ normal, 2)
     steps = np.append(np.arange(along[kept - 1] + 1.0, end, 1.0), end)
-    return kept, centre + np.outer(steps, direction) + np.outer(lateral(steps), normal)
+    return kept, centre + np.outer(steps, direction) + np.outer(np.polyval(lateral, steps), normal)
 
 
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
