@@ -4,24 +4,34 @@ extract the background, find the needle points).
 1. Coarse detection on an area-averaged image (``downsample``x smaller): background subtraction, a threshold
    relative to the local background brightness (binarization robust to uneven lighting), the largest
    component (pixels up to two coarse pixels apart are linked, bridging small gaps) and its longest geodesic
-   path, which orders the needle from one end to the other.
+   path, which orders the needle from one end to the other; other components whose ends face its ends (a
+   needle cut by an occluder) are joined to it, the hidden stretch between them left without points.
 2. Full-resolution refinement: the band around the coarse path is cut into axis-aligned one-pixel slices
    (columns where the needle runs closer to horizontal, rows elsewhere); the centroid of the background-
    subtracted grey levels across each slice is a centerline point (no image interpolation). Integer sampling
    of the pixel-integrated profile leaves a small aliasing error that oscillates with the sub-pixel phase:
    up to ~0.04 px for a 2.5 px wide needle imaged with no lens blur, negligible with a realistic blur
    (Gaussian point spread sigma >= 0.5 px). Weak slices (gaps, beyond the ends) are dropped.
+3. The ends to sub-pixel from the contrast profile along the needle's end direction (:func:`_end_along_profile`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numba
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import map_coordinates, median_filter
 
 from needle_vision.background import BackgroundModel, downsample
 from needle_vision.curves import arc_length, moving_average
+
+
+#: [points] window of the running median that gives each centerline point's local scatter.
+NOISE_WINDOW = 61
+#: [px] consecutive centerline points farther apart are separated by a hidden stretch (shorter runs of weak
+#: slices are bridged as before).
+GAP_PX = 40.0
 
 
 class NoNeedleError(ValueError):
@@ -39,16 +49,20 @@ class CenterlineConfig:
     local_window: int = 41           # [slices] the contrast reference is the median over this many neighbours
     min_contrast_fraction: float = 0.2  # slices with less than this fraction of the whole needle's median are
     #                                     dropped whatever their neighbours
+    max_link_angle_deg: float = 15.0  # components whose facing ends differ less in direction are one needle
 
 
 @dataclass(frozen=True)
 class ImageCenterline:
     """Centerline points ``(n, 2)`` (x, y raw pixels) ordered from one end to the other, their slice contrast
-    (sum of relative contrast across the slice) and the robust scatter [px] of the points across the curve."""
+    (sum of relative contrast across the slice), the robust scatter [px] of the points across the curve, and
+    that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW`` points: the noise
+    grows where the needle's contrast is lower, e.g. in front of a darker background)."""
 
     points: np.ndarray
     contrast: np.ndarray
     noise_px: float
+    local_noise_px: np.ndarray
 
 
 @numba.njit(cache=True)
@@ -230,26 +244,148 @@ def _slices_along(path):  # pragma: no cover - compiled
     return along_rows[:n], fixed[:n], predicted[:n], obliquity[:n]
 
 
-def _sub_pixel_end(points: np.ndarray, coverage: np.ndarray, along_rows: np.ndarray, fixed: np.ndarray,
-                   obliquity: np.ndarray, kept: np.ndarray, sign: int, beyond: int = 4) -> np.ndarray | None:
-    """The needle's end beyond the kept slices, to sub-pixel: from a fully covered slice j0 (third kept from
-    the end) the slices' coverage fractions f (contrast over the end's median) sum to the distance of the end
-    edge from j0's centre plus one half pixel (a pixel-integrated step: sum_j clip(e - j + 1/2, 0, 1) = e + 1/2).
-    ``sign`` +1 for the last end, -1 for the first. None where the slices there are not one straight run."""
-    if len(kept) < 12:
+#: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
+#: tapered (a bevel seen side-on).
+TAPER_FACTOR = 1.5
+#: ... provided the profile scatters less than this fraction of its level along the needle (a weak needle's
+#: noisy profile does not tell a taper).
+MAX_TAPER_SCATTER = 0.05
+
+
+def _crossing(s: np.ndarray, profile: np.ndarray, level: float, start: float) -> float | None:
+    """First ``s`` beyond ``start`` where ``profile`` falls below ``level`` (linear interpolation)."""
+    below = np.flatnonzero((s > start) & (profile < level))
+    if below.size == 0 or below[0] == 0:
         return None
-    j0 = kept[-3] if sign > 0 else kept[2]
-    stop = kept[-1] + beyond if sign > 0 else kept[0] - beyond
-    run = np.arange(j0, stop + sign, sign)
-    run = run[(run >= 0) & (run < len(fixed))]
-    if not (np.all(along_rows[run] == along_rows[j0]) and np.all(np.abs(np.diff(fixed[run])) == 1)):
+    k = below[0]
+    return float(s[k - 1] + (s[k] - s[k - 1]) * (profile[k - 1] - level) / (profile[k - 1] - profile[k]))
+
+
+def _edge_spread(cross: np.ndarray, u: np.ndarray) -> float | None:
+    """Distance between the 25 % and 75 % points of the needle's side edges in its cross profile ``cross``
+    (samples at ``u``): the blurred step's width. None when the profile has no clear peak inside."""
+    peak = int(np.argmax(cross))
+    if cross[peak] <= 0 or peak in (0, len(u) - 1):
         return None
-    edge = (np.sum(np.clip(coverage[run], 0.0, 1.0)) - 0.5) / obliquity[j0]  # [px] along the needle
-    inner = points[kept[-12]] if sign > 0 else points[kept[11]]
-    direction = points[j0] - inner
-    direction /= max(np.linalg.norm(direction), 1e-9)
-    steps = np.append(np.arange(1.0, edge, 1.0), edge) if edge > 0 else np.zeros(0)
-    return points[j0] + np.outer(steps, direction)  # one pixel apart like the slices, the end last
+    widths = []
+    for side in (slice(peak, None), slice(peak, None, -1)):  # right edge, left edge (outwards from the peak)
+        edge = [_crossing(np.abs(u[side] - u[peak]), cross[side], fraction * cross[peak], -1.0)
+                for fraction in (0.75, 0.25)]
+        if None in edge:
+            return None
+        widths.append(edge[1] - edge[0])
+    return float(np.mean(widths))
+
+
+def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: float, points: np.ndarray,
+                       half_width: int, step: float = 0.25) -> tuple[int, np.ndarray] | None:
+    """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
+
+    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely)
+    gives the direction of the profile of the contrast integrated across the needle; the end is where that
+    profile falls to half its level (a flat end is a step blurred symmetrically). The points within
+    ``half_width + 1`` px of the end (centroids biased by the oblique cut) are replaced by a quadratic (the
+    needle's curvature) fitted to the 80 before them, one pixel apart up to the end. A bevel seen side-on
+    tapers the end: where the profile falls (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the
+    needle's side edges (and the profile is clean), the end is sqrt(spread² - blur²) beyond the half-contrast
+    point (a linear taper's half length). Returns (number of points kept, the new points ending with the end),
+    or None where the profile leaves the image or does not fall."""
+    if len(points) < 100 or np.any(np.linalg.norm(np.diff(points[-100:], axis=0), axis=1) > GAP_PX):
+        return None
+    fitted = points[-30:-8]
+    centre = fitted.mean(axis=0)
+    direction = np.linalg.svd(fitted - centre)[2][0]
+    direction *= np.sign(direction @ (fitted[-1] - fitted[0]))
+    normal = np.array([-direction[1], direction[0]])
+    along = (points - centre) @ direction
+    s = np.arange(along[-30], along[-1] + 2 * half_width, step)
+    u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
+    xy = centre + s[:, None, None] * direction + u[None, :, None] * normal  # (s, u, 2)
+    corners = xy[[0, 0, -1, -1], [0, -1, 0, -1]]  # an affine grid: its extremes are at the corners
+    if np.any(corners < 0) or np.any(corners > [image.shape[1] - 1, image.shape[0] - 1]):
+        return None
+    low = np.floor(corners.min(axis=0)).astype(int)
+    high = np.ceil(corners.max(axis=0)).astype(int) + 1
+    window = np.s_[low[1]:high[1], low[0]:high[0]]  # the relative contrast in the bounding box, interpolated
+    base = background[window]
+    relative = polarity * (base - image[window]) / np.maximum(base, 1.0)
+    at = (xy[..., 1].ravel() - low[1], xy[..., 0].ravel() - low[0])
+    grid = map_coordinates(relative, at, order=1).reshape(xy.shape[:2])
+    profile = moving_average(grid.sum(axis=1)[:, None], 3)[:, 0]
+    inside = s <= along[-9]
+    level = np.median(profile[inside])
+    crossings = [_crossing(s, profile, fraction * level, along[-9]) for fraction in (0.75, 0.5, 0.25)]
+    if level <= 0 or None in crossings:
+        return None
+    end = crossings[1]
+    blur = _edge_spread(np.median(grid[inside], axis=0), u)
+    spread = crossings[2] - crossings[0]
+    clean = 1.4826 * np.median(np.abs(profile[inside] - level)) < MAX_TAPER_SCATTER * level
+    if clean and blur is not None and spread > TAPER_FACTOR * blur:
+        end += np.sqrt(spread ** 2 - blur ** 2)
+    kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
+    if kept < 80 or end <= along[kept - 1]:
+        return None
+    lateral = np.polyfit(along[kept - 80:kept], (points[kept - 80:kept] - centre) @ normal, 2)
+    steps = np.append(np.arange(along[kept - 1] + 1.0, end, 1.0), end)
+    return kept, centre + np.outer(steps, direction) + np.outer(np.polyval(lateral, steps), normal)
+
+
+def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
+    """The longest geodesic path of the largest linked component of ``mask``, then of the next largest ones
+    (up to ``count``, at least ``min_length`` coarse pixels long)."""
+    mask = mask.copy()
+    _, labels = cv2.connectedComponents(cv2.dilate(mask, np.ones((3, 3), np.uint8)), connectivity=8)
+    paths = []
+    for _ in range(count):
+        path = _coarse_path(mask, 2, scratch)
+        if len(path) < 2 or (paths and len(path) < min_length):
+            break
+        paths.append(path)
+        mask[labels == labels[path[0, 1], path[0, 0]]] = 0
+    return paths
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> float:
+    """z component of the cross product of two 2D vectors."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def _end_tangent(path: np.ndarray) -> np.ndarray:
+    """Unit direction out of the last point of ``path`` (from the point 4 before it)."""
+    tangent = path[-1] - path[max(-5, -len(path))]
+    return tangent / max(np.linalg.norm(tangent), 1e-9)
+
+
+def _join(first: np.ndarray, second: np.ndarray, max_angle_deg: float, margin: float) -> np.ndarray | None:
+    """The two paths as one, through the gap between ends that face each other: end directions within
+    ``max_angle_deg`` (antiparallel) and each end within ``margin`` + 15 % of the gap of the other's tangent
+    line; the closest such pair of ends. None when no ends face each other."""
+    best, best_gap = None, np.inf
+    for a in (first, first[::-1]):
+        for b in (second, second[::-1]):
+            gap = b[0] - a[-1]
+            distance = np.linalg.norm(gap)
+            tangent_a, tangent_b = _end_tangent(a), _end_tangent(b[::-1])
+            if distance >= best_gap or tangent_a @ -tangent_b < np.cos(np.radians(max_angle_deg)):
+                continue
+            lateral = max(abs(_cross(tangent_a, gap)), abs(_cross(tangent_b, gap)))
+            if gap @ tangent_a > 0 and lateral <= margin + 0.15 * distance:
+                best, best_gap = np.vstack([a, b]), distance
+    return best
+
+
+def _link_components(paths: list[np.ndarray], max_angle_deg: float, margin: float) -> np.ndarray:
+    """The first path extended by the others whose ends face its ends (a needle cut by an occluder)."""
+    path, others = paths[0], list(paths[1:])
+    while others:
+        joined = [_join(path, other, max_angle_deg, margin) for other in others]
+        linked = [k for k, candidate in enumerate(joined) if candidate is not None]
+        if not linked:
+            break
+        path = joined[linked[0]]
+        others.pop(linked[0])
+    return path
 
 
 def extract_centerline(image: np.ndarray, background: BackgroundModel, config: CenterlineConfig = CenterlineConfig()
@@ -260,15 +396,20 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     threshold = background.threshold
     factor, polarity = threshold.downsample, float(threshold.polarity)
     coarse = downsample(image, factor)
-    path = _coarse_path(background.coarse_foreground(coarse), 2, background.coarse_scratch)
-    if len(path) < 2:
+    paths = _coarse_paths(background.coarse_foreground(coarse), background.coarse_scratch,
+                          int(config.min_length_px / factor))
+    if not paths:
         raise NoNeedleError("no pixel differs enough from the background")
-    path = _refine_path(coarse, background.coarse, polarity, path)
-    path = moving_average((path + 0.5) * factor - 0.5, 3)  # coarse pixel centres -> full-resolution coordinates
-    length = arc_length(path)[-1]
+    # coarse pixel centres -> full-resolution coordinates
+    paths = [moving_average((_refine_path(coarse, background.coarse, polarity, path) + 0.5) * factor - 0.5, 3)
+             for path in paths]
+    length = arc_length(paths[0])[-1]
     if length < config.min_length_px:
         raise NoNeedleError(f"largest foreground structure is {length:.0f} px long "
                             f"(< {config.min_length_px:.0f} px): no needle")
+    # Components whose ends face each other are one needle with a hidden stretch between them: sliced through
+    # (the slices in the gap have no contrast and are dropped).
+    path = _link_components(paths, config.max_link_angle_deg, 2.0 * factor)
     # Extend both ends along the end tangents so that the tips are sliced too (empty slices are dropped).
     ends = []
     for end, inner in ((path[0], path[min(2, len(path) - 1)]), (path[-1], path[max(-3, -len(path))])):
@@ -300,22 +441,38 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     keep[ends[-1] + 1:] = False
     local = median_filter(width_contrast[keep], size=config.local_window, mode="mirror")
     keep[keep] = full[keep] | (width_contrast[keep] >= config.min_profile_fraction * local)
-    kept = np.flatnonzero(keep)
     points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
-    coverage = width_contrast / max(np.median(width_contrast[kept[-15:]]), 1e-12), \
-        width_contrast / max(np.median(width_contrast[kept[:15]]), 1e-12)
-    ends = [_sub_pixel_end(points, coverage[k], along_rows, fixed, obliquity, kept, sign) for k, sign in
-            ((1, -1), (0, 1))]
+    # At a hidden stretch the slices may be cut by the occluder's edge (centroid biased): drop those next to it.
+    kept = np.flatnonzero(keep)
+    edges = np.flatnonzero(np.linalg.norm(np.diff(points[kept], axis=0), axis=1) > GAP_PX)
+    for edge in edges:
+        keep[kept[max(edge - config.profile_half_width, 0):edge + config.profile_half_width + 2]] = False
+    kept = np.flatnonzero(keep)
+    if len(kept) < 3:
+        raise NoNeedleError("too few centerline points with enough contrast")
     contrast_kept = contrast[kept]
     points = points[kept]
-    if ends[0] is not None:  # the slices from j0 outwards are replaced by points on the end's line
-        points = np.vstack([ends[0][::-1], points[2:]])
-        contrast_kept = np.append(np.full(len(ends[0]), contrast_kept[2]), contrast_kept[2:])
-    if ends[1] is not None:
-        points = np.vstack([points[:-2], ends[1]])
-        contrast_kept = np.append(contrast_kept[:-2], np.full(len(ends[1]), contrast_kept[-3]))
+    cut = len(points) // 2
+    first, last = (_end_along_profile(image, background.image, polarity, part, config.profile_half_width)
+                   for part in (points[:cut][::-1], points[cut:]))
+    # The last points at each end are replaced by points towards the sub-pixel end.
+    lo, head = (cut - first[0], first[1][::-1]) if first else (0, np.zeros((0, 2)))
+    hi, tail = (cut + last[0], last[1]) if last else (len(points), np.zeros((0, 2)))
+    contrast_kept = np.concatenate([np.full(len(head), contrast_kept[lo]), contrast_kept[lo:hi],
+                                    np.full(len(tail), contrast_kept[hi - 1])])
+    points = np.vstack([head, points[lo:hi], tail])
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
-    residual = np.linalg.norm(points - moving_average(points, 9), axis=1)
-    noise = float(1.4826 * np.median(residual) * np.sqrt(9 / 8)) if len(points) > 9 else 0.0
-    return ImageCenterline(points, contrast_kept, noise)
+    # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
+    sliced = np.arange(len(head), len(head) + hi - lo)
+    residual = np.linalg.norm(points - moving_average(points, 9), axis=1)[sliced] * 1.4826 * np.sqrt(9 / 8)
+    if len(sliced) > 9:
+        noise = float(np.median(residual))
+        window = min(NOISE_WINDOW, len(sliced))
+        local = median_filter(residual, size=window, mode="nearest")
+        local[:window // 2] = np.median(residual[:window])  # the first and last full windows' at the ends
+        local[len(local) - window // 2:] = np.median(residual[-window:])
+        local = np.interp(np.arange(len(points)), sliced, local)
+    else:
+        noise, local = 0.0, np.zeros(len(points))
+    return ImageCenterline(points, contrast_kept, noise, local)

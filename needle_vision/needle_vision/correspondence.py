@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from needle_vision.centerline import GAP_PX
 from needle_vision.curves import arc_length, derivative, interpolate, moving_average
 
 
@@ -91,16 +92,59 @@ def _coarse_map(s: np.ndarray, e_left: np.ndarray, t: np.ndarray, e_right: np.nd
     return np.interp(s, s_coarse, np.interp(index, np.arange(len(t_coarse)), t_coarse)), cost
 
 
+def _smooth_runs(points: np.ndarray, window: int) -> np.ndarray:
+    """Moving average of each run of points between gaps (steps > GAP_PX): never across a hidden stretch."""
+    points = np.asarray(points, float)
+    cuts = np.flatnonzero(np.linalg.norm(np.diff(points, axis=0), axis=1) > GAP_PX) + 1
+    return np.vstack([moving_average(run, window) for run in np.split(points, cuts)])
+
+
+def _in_gaps(t: np.ndarray, curve_t: np.ndarray) -> np.ndarray:
+    """Whether each arc length ``t`` falls inside a gap (a step > GAP_PX) of the curve with arc lengths
+    ``curve_t``: no point of that curve was seen there."""
+    steps = np.flatnonzero(np.diff(curve_t) > GAP_PX)
+    inside = np.zeros(len(t), bool)
+    for k in steps:
+        inside |= (t > curve_t[k]) & (t < curve_t[k + 1])
+    return inside
+
+
+def _common_ends(left: np.ndarray, right: np.ndarray, e: int, min_sin: float, tolerance: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Both curves (same direction) with each pair of corresponding ends moved to their mean epipolar
+    coordinate: a needle end is one 3D point, on one epipolar line in both images. Each end moves along its
+    curve's end tangent (trimmed or extended by at most ``tolerance / min_sin`` px); ends whose tangents run
+    within asin(min_sin) of the epipolar lines, or that are more than ``tolerance`` px apart, stay."""
+    curves = [left, right]
+    for end in (0, 1):
+        flipped = [curve[::-1] if end == 0 else curve for curve in curves]  # this end last
+        tangents = [curve[-1] - curve[-6] for curve in flipped]
+        tangents = [tangent / max(np.linalg.norm(tangent), 1e-12) for tangent in tangents]
+        ends_e = [curve[-1, e] for curve in flipped]
+        if min(abs(tangent[e]) for tangent in tangents) < min_sin or abs(ends_e[0] - ends_e[1]) > tolerance:
+            continue
+        moved = []
+        for curve, tangent, end_e in zip(flipped, tangents, ends_e):
+            shift = (0.5 * sum(ends_e) - end_e) / tangent[e]  # [px] along the tangent, outward positive
+            inside = (curve[:-1] - curve[-1]) @ tangent < shift - 0.25
+            inside[:-int(np.ceil(abs(shift))) - 2] = True  # only the last points can lie beyond the new end
+            curve = np.vstack([curve[:-1][inside], curve[-1] + shift * tangent])
+            moved.append(curve[::-1] if end == 0 else curve)
+        curves = moved
+    return curves[0], curves[1]
+
+
 def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
                       config: MatchingConfig = MatchingConfig(), ends_visible: bool = False) -> Correspondence:
     """Correspond two ordered rectified centerlines ``(n, 2)``, ``(m, 2)`` (either direction for the right).
 
-    ``ends_visible``: both curves end at the needle's real ends (not cut by an image border). Then, where an
-    end stretch runs along the epipolar lines (no anchor near the end), the two curves' ends are taken as
-    corresponding points, provided they lie on the same epipolar line."""
+    ``ends_visible``: both curves end at the needle's real ends (not cut by an image border). Then each pair
+    of ends within ``2 max_epipolar_error_px`` of one epipolar line are corresponding points: moved onto their
+    mean epipolar line where they cross the lines (:func:`_common_ends`), taken as they are where the end
+    stretch runs along the lines (no anchor there)."""
     if len(left) < 5 or len(right) < 5:
         raise MatchError("a centerline has fewer than 5 points")
-    left, right = moving_average(np.asarray(left, float), 5), moving_average(np.asarray(right, float), 5)
+    left, right = _smooth_runs(left, 5), _smooth_runs(right, 5)
     e = epipolar_axis
     s = arc_length(left)
     # Direction of the right curve: from the ends' epipolar coordinates when they tell clearly, else by warping
@@ -117,10 +161,14 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
         t0, cost = _coarse_map(s, left[:, e], t, oriented[:, e], config)
         candidates.append((cost, oriented, t, t0))
     _, right, t, t0 = min(candidates, key=lambda candidate: candidate[0])
+    min_sin = np.sin(np.radians(config.min_epipolar_angle_deg))
+    if ends_visible:
+        left, right = _common_ends(left, right, e, min_sin, 2 * config.max_epipolar_error_px)
+        s, t = arc_length(left), arc_length(right)
+        t0, _ = _coarse_map(s, left[:, e], t, right[:, e], config)
 
     slope_left = derivative(left[:, e], s)
     slope_right = derivative(right[:, e], t)
-    min_sin = np.sin(np.radians(config.min_epipolar_angle_deg))
     sin_angle = np.minimum(np.abs(slope_left), np.abs(np.interp(t0, t, slope_right)))
     anchored = sin_angle >= min_sin
     # Sub-pixel: Newton steps on e_right(t) = e_left(s) at the anchors, staying near the warping's guess.
@@ -133,7 +181,7 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
         t_match = np.clip(t_match + update, np.maximum(t0 - step_limit, 0), np.minimum(t0 + step_limit, t[-1]))
     residual = left[:, e] - np.interp(t_match, t, right[:, e])
     anchored &= np.abs(residual) <= config.max_epipolar_error_px
-    anchored &= (t_match > 0) & (t_match < t[-1])  # a match clamped at a curve end is no match
+    anchored &= (t_match > 0) & (t_match < t[-1]) & ~_in_gaps(t_match, t)  # clamped at an end or in a gap: no match
     # Keep the anchors in order: drop those behind the running maximum (noise at near-parallel stretches).
     index = np.flatnonzero(anchored)
     if index.size:
@@ -141,11 +189,8 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
         anchored[index[~ordered]] = False
         index = index[ordered]
     if ends_visible:
-        for end, other_end, inner in ((0, 0.0, index[:1]), (len(s) - 1, t[-1], index[-1:])):
-            far_from_anchors = inner.size == 0 or abs(s[inner[0]] - s[end]) > 2 * config.dtw_spacing_px
-            same_line = abs(left[end, e] - (right[0, e] if end == 0 else right[-1, e])) \
-                <= 2 * config.max_epipolar_error_px
-            if far_from_anchors and same_line:
+        for end, other_end in ((0, 0.0), (len(s) - 1, t[-1])):
+            if abs(left[end, e] - (right[0, e] if end == 0 else right[-1, e])) <= 2 * config.max_epipolar_error_px:
                 anchored[end], t_match[end] = True, other_end
         index = np.flatnonzero(anchored)
     if index.size < 2:
@@ -158,9 +203,10 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
         spread = s[nearby] - s[nearby].mean()
         ratio = spread @ t_match[nearby] / (spread @ spread) if np.ptp(s[nearby]) > 0 else t[-1] / s[-1]
         t_match[outside] = t_match[reference] + ratio * (s[outside] - s[reference])
-    # Points placed by continuity must still (nearly) satisfy the epipolar constraint: a stretch missing in
-    # one image (occlusion) is not bridged.
+    # Points placed by continuity must still (nearly) satisfy the epipolar constraint, and none is matched
+    # into a gap of the right curve: a stretch missing in one image (occlusion) is not bridged.
     residual = left[:, e] - np.interp(t_match, t, right[:, e])
     keep = (t_match >= 0) & (t_match <= t[-1]) & (anchored | (np.abs(residual) <= 2 * config.max_epipolar_error_px))
+    keep &= ~_in_gaps(t_match, t)
     matched_right = interpolate(t, right, t_match[keep])
     return Correspondence(left[keep], matched_right, anchored[keep], sin_angle[keep])

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from needle_vision.centerline import ImageCenterline
 from needle_vision.correspondence import MatchError, MatchingConfig, match_centerlines
@@ -83,6 +84,27 @@ def _ends_inside(points: np.ndarray, width: int, height: int, margin: float = 5.
     return bool(np.all((ends >= margin) & (ends <= [width - 1 - margin, height - 1 - margin])))
 
 
+def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
+    """The local image noise [px] of ``centerline`` (rectified points ``rectified``) at the matched points: that of
+    the nearest of every 8th point (it varies over NOISE_WINDOW points)."""
+    return centerline.local_noise_px[::8][cKDTree(rectified[::8]).query(matched)[1]]
+
+
+def _runs(points: np.ndarray, split: float) -> list[slice]:
+    """The runs of consecutive points not separated by a step longer than ``split`` (a hidden stretch)."""
+    cuts = np.flatnonzero(np.linalg.norm(np.diff(points, axis=0), axis=1) > split) + 1
+    bounds = np.concatenate([[0], cuts, [len(points)]])
+    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def _smooth_runs(points: np.ndarray, runs: list[slice], length: float, spacing: float) -> tuple[np.ndarray,
+                                                                                                 np.ndarray]:
+    """Local cubic smoothing over ``length`` of each run separately, and its noise gain at each point."""
+    windows = [_odd_window(length, spacing, run.stop - run.start) for run in runs]
+    return (np.vstack([local_polynomial_smooth(points[run], w, 3) for run, w in zip(runs, windows)]),
+            np.concatenate([smoothing_noise_gain(run.stop - run.start, w, 3) for run, w in zip(runs, windows)]))
+
+
 def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: int) -> np.ndarray:
     """Points within max(outlier_sigma robust sigmas, outlier_floor) of a smoothed curve; repeated once more
     when outliers were found (they bend the first smoothed curve)."""
@@ -124,29 +146,43 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
         raise MatchError(f"only {np.count_nonzero(valid)} triangulated points lie within "
                          f"{config.min_depth:g}-{config.max_depth:g} m of the left camera")
     points, anchored, sin_angle = points[valid], match.anchored[valid], match.sin_angle[valid]
-    spacing = float(arc_length(points)[-1] / (len(points) - 1))
+    # Hidden stretches (no point over half the smoothing length) split the points into runs, each cleaned and
+    # smoothed on its own; runs too short for the cubic fit are dropped.
+    split = 0.5 * config.smoothing_length
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    spacing = float(np.mean(steps[steps <= split])) if np.any(steps <= split) else split
     window = _odd_window(config.smoothing_length, spacing, len(points))
-    keep = _robust_inliers(points, config, window)
-    points, anchored, sin_angle = points[keep], anchored[keep], sin_angle[keep]
+    inliers = np.zeros(len(points), bool)
+    for run in _runs(points, split):
+        if run.stop - run.start >= 5:
+            inliers[run] = _robust_inliers(points[run], config, window)
+    inliers = np.flatnonzero(inliers)
+    runs = [run for run in _runs(points[inliers], split) if run.stop - run.start >= 5]
+    inliers = np.concatenate([inliers[run] for run in runs] + [np.zeros(0, int)])
+    points, anchored, sin_angle = points[inliers], anchored[inliers], sin_angle[inliers]
     if len(points) < config.min_points:
         raise MatchError(f"only {len(points)} points left after outlier rejection")
 
-    # Per-point noise: lateral from the image noise, depth through the disparity (worse where the needle is
-    # close to parallel to the epipolar lines: there the match slides along the curve).
-    noise_px = max(left.noise_px, right.noise_px, MIN_IMAGE_NOISE_PX)
+    # Per-point noise (the images' local scatter where above their median): lateral from the image noise, depth
+    # through the disparity (worse where the needle is close to parallel to the epipolar lines: there the match
+    # slides along the curve).
+    noise_px = np.maximum.reduce([_local_noise(left, left_rect, match.left),
+                                  _local_noise(right, right_rect, match.right),
+                                  np.full(len(match.left), max(left.noise_px, right.noise_px,
+                                                               MIN_IMAGE_NOISE_PX))])[valid]
+    noise_px = noise_px[inliers]
     min_sin = np.sin(np.radians(matching.min_epipolar_angle_deg))
     slope = np.where(anchored, np.maximum(sin_angle, min_sin), 0.5 * min_sin)
     depth_noise = rectification.depth_per_disparity(points) * noise_px * np.sqrt(2 + 1 / slope ** 2)
     lateral_noise = np.linalg.norm(points, axis=1) / rectification.focal_length * noise_px
-    window = _odd_window(config.smoothing_length, spacing, len(points))
-    smoothing_gain = smoothing_noise_gain(window, 3)  # noise kept by the cubic fit
-    point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2) * smoothing_gain
+    point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2)
 
     points = output_from_left.apply(points)
     base = config.base_point if base_hint is None else base_hint
     if np.linalg.norm(points[-1] - base) < np.linalg.norm(points[0] - base):
         points, point_sigma, anchored = points[::-1], point_sigma[::-1], anchored[::-1]
-    smooth = local_polynomial_smooth(points, window, 3)
+    smooth, smoothing_gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
+    point_sigma = point_sigma * smoothing_gain  # noise kept by the cubic fit
     arc = arc_length(smooth)
     length = float(arc[-1])
     samples = np.append(np.arange(0.0, length, config.sample_spacing), length)

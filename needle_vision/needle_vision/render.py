@@ -103,8 +103,11 @@ def _smooth_noise(rng: np.random.Generator, size: tuple[int, int], sigma: float)
 
 
 def make_scene(rig: StereoRig, rng: np.random.Generator, *, brightness: float = 235.0,
-               needle_albedo: float = 0.12, texture_contrast: float = 0.08) -> Scene:
-    """A textured, unevenly lit background for each camera (see the module docstring)."""
+               needle_albedo: float = 0.12, texture_contrast: float = 0.08, edge_contrast: float = 0.0,
+               edge_width_px: float = 15.0) -> Scene:
+    """A textured, unevenly lit background for each camera (see the module docstring). ``edge_contrast`` > 0
+    adds a brightness ramp: the albedo falls by that fraction from the right to the left of a vertical edge
+    through the image centre, over ~``edge_width_px`` (a tanh profile)."""
     illumination, albedo = [], []
     for camera in (rig.left, rig.right):
         width, height = camera.image_size
@@ -117,7 +120,8 @@ def make_scene(rig: StereoRig, rng: np.random.Generator, *, brightness: float = 
         illumination.append((brightness * light / light.max()).astype(np.float32))
         texture = 0.72 + texture_contrast * _smooth_noise(rng, (width, height), 4.0) \
             + texture_contrast * _smooth_noise(rng, (width, height), 30.0)
-        albedo.append(np.clip(texture, 0.45, 0.95).astype(np.float32))
+        ramp = 1 - 0.5 * edge_contrast * (1 - np.tanh((x - width / 2) / edge_width_px))
+        albedo.append((np.clip(texture, 0.45, 0.95) * ramp).astype(np.float32))
     return Scene(tuple(illumination), tuple(albedo), needle_albedo)
 
 
@@ -160,9 +164,12 @@ def _end_fraction(along: np.ndarray, tangent: np.ndarray, blur_sigma: float) -> 
 
 
 def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius: float, blur_sigma_px: float = 0.0,
-                    max_spacing_px: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    max_spacing_px: float = 0.5, bevel_length: float = 0.0
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel response to a tube (flat ends) around a centerline given in the camera's optical frame: the
     covered fraction of each pixel's area, through a Gaussian point spread of ``blur_sigma_px``.
+    ``bevel_length`` > 0 [m]: the last end is bevelled as seen side-on: over that length of the centerline the
+    band narrows linearly to nothing at the end, one silhouette edge straight up to the tip (the bevel's point).
 
     Returns ``(rows, cols, coverage)`` of the pixels the tube touches. The centerline is resampled so that its
     projection has vertices at most ``max_spacing_px`` apart; the local half-width is the projected distance
@@ -183,6 +190,10 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
     lateral_norm = np.linalg.norm(lateral, axis=1, keepdims=True)
     lateral = np.where(lateral_norm > 1e-12, lateral / np.maximum(lateral_norm, 1e-12), [1.0, 0.0, 0.0])
     half_width = 0.5 * np.linalg.norm(project(points + radius * lateral) - project(points - radius * lateral), axis=1)
+    from_tip = np.linalg.norm(points - points[-1], axis=1) if bevel_length > 0 else np.full(len(points), np.inf)
+    remaining = np.clip(from_tip / max(bevel_length, 1e-12), 0.0, 1.0)  # fraction of the width left
+    shift = half_width * (1 - remaining)  # the band's centre moves towards the straight edge
+    half_width = half_width * remaining
 
     # Candidate pixels: a thick polyline around the projected centerline, within the image.
     margin = int(np.ceil(half_width.max() + 2 + 4 * blur_sigma_px))
@@ -202,6 +213,7 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
     end_tangents = [t / np.linalg.norm(t) for t in end_tangents]
     extended = np.vstack([centres[0] + 3 * end_tangents[0], centres, centres[-1] + 3 * end_tangents[1]])
     extended_half_width = np.concatenate([half_width[:1], half_width, half_width[-1:]])
+    extended_shift = np.concatenate([shift[:1], shift, shift[-1:]])
 
     # Closest point on the projected polyline (nearest vertex, then its two segments).
     _, nearest = cKDTree(extended).query(pixels)
@@ -219,7 +231,8 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
         best_distance = np.where(better, distance, best_distance)
         best[better] = np.column_stack([normal, (1 - t) * extended_half_width[first]
                                         + t * extended_half_width[first + 1],
-                                        np.einsum("ij,ij->i", offset, normal)])[better]
+                                        np.einsum("ij,ij->i", offset, normal)
+                                        - (1 - t) * extended_shift[first] - t * extended_shift[first + 1]])[better]
     coverage = _band_coverage(best[:, 3], best[:, :2], best[:, 2], blur_sigma_px)
     for end, outward in ((centres[0], end_tangents[0]), (centres[-1], end_tangents[1])):
         near = np.linalg.norm(pixels - end, axis=1) < half_width.max() + 5 + 4 * blur_sigma_px  # + extension
@@ -245,13 +258,14 @@ def render_background_pair(rig: StereoRig, rng: np.random.Generator, *, scene: S
 
 def render_stereo_pair(rig: StereoRig, centerline_points_world: np.ndarray, radius: float,
                        rng: np.random.Generator, *, scene: Scene | None = None,
-                       imaging: Imaging = Imaging(), encoding: str = "mono8"
+                       imaging: Imaging = Imaging(), encoding: str = "mono8", bevel_length: float = 0.0
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Left and right images of a tube of ``radius`` [m] around ``centerline_points_world`` ``(n, 3)`` [m].
 
     The centerline is taken as the polyline through the points (give them densely, e.g. every 0.5 mm).
     ``encoding``: mono8, mono16, bgr8 or rgb8. ``scene`` defaults to ``make_scene(rig, rng(0))`` (make it once
-    and pass it when rendering many frames: it costs ~0.1 s).
+    and pass it when rendering many frames: it costs ~0.1 s). ``bevel_length`` [m]: the last point's end
+    bevelled over that length (see :func:`needle_coverage`; 0: cut flat).
     """
     points = np.asarray(centerline_points_world, dtype=float)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2 or not np.all(np.isfinite(points)):
@@ -265,7 +279,8 @@ def render_stereo_pair(rig: StereoRig, centerline_points_world: np.ndarray, radi
         points_camera = world_from_camera(rig, side).inverse().apply(points)
         if np.any(points_camera[:, 2] <= radius):
             raise ValueError(f"part of the needle is behind the {side} camera")
-        rows, cols, coverage = needle_coverage(camera, points_camera, radius, imaging.blur_sigma_px)
+        rows, cols, coverage = needle_coverage(camera, points_camera, radius, imaging.blur_sigma_px,
+                                               bevel_length=bevel_length)
         albedo[rows, cols] = (1 - coverage) * albedo[rows, cols] + coverage * scene.needle_albedo
         images.append(_expose(scene.illumination[k] * albedo, rng, imaging, encoding))
     return images[0], images[1]

@@ -3,46 +3,17 @@ unmeasured instead of being bridged by a chord reported as measured."""
 import numpy as np
 import pytest
 
-from vision_shapes import SHAPES, distance_to_curve
+from vision_shapes import SHAPES, check_not_invented, faded
 from needle_vision.centerline import extract_centerline
 from needle_vision.correspondence import MatchingConfig
-from needle_vision.reconstruction import UNMEASURED, ReconstructionConfig, reconstruct_centerline
+from needle_vision.reconstruction import ReconstructionConfig, reconstruct_centerline
 from needle_vision.rectification import Rectification
-from needle_vision.render import project_points
-
-
-def _faded(rig, images, background_pair, curve, start, stop, keep):
-    """The pair with the needle's contrast scaled by ``keep`` around the true stretch [start, stop] (fractions
-    of the length): pixels within 12 px of its projection are blended towards a needle-free frame."""
-    out = []
-    stretch = curve[int(start * len(curve)):int(stop * len(curve))]
-    for image, background, side in zip(images, background_pair, ("left", "right")):
-        pixels = project_points(rig, stretch, side)
-        ys, xs = np.mgrid[0:image.shape[0], 0:image.shape[1]]
-        mask = np.zeros(image.shape, bool)
-        for x, y in pixels[::4]:
-            y0, x0 = int(round(y)), int(round(x))
-            mask[max(y0 - 12, 0):y0 + 13, max(x0 - 12, 0):x0 + 13] = True
-        blended = background + keep * (image.astype(float) - background)
-        out.append(np.where(mask, np.clip(np.round(blended), 0, 255), image).astype(image.dtype))
-    return out
 
 
 def _measure(rig, backgrounds, images):
     centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
     return reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
                                   ReconstructionConfig(), rig.world_from_left)
-
-
-def _check_not_invented(measurement, truth):
-    """Measured samples lie within 3x their pixel-noise distance (floored at the 0.1 mm accuracy requirement)
-    of the truth; the others are flagged UNMEASURED. Returns (distances, true arc lengths) of the samples."""
-    distance, arc = distance_to_curve(measurement.points, truth)
-    measured = measurement.measured
-    assert np.all(measurement.uncertainty[~measured] == UNMEASURED)
-    assert np.all(measurement.uncertainty[measured] > 0)
-    assert np.all(distance[measured] <= np.maximum(3 * measurement.uncertainty[measured], 1e-4))
-    return distance, arc
 
 
 TRUE_LENGTH = float(np.linalg.norm(np.diff(SHAPES["3d"], axis=0), axis=1).sum())
@@ -52,24 +23,24 @@ TRUE_LENGTH = float(np.linalg.norm(np.diff(SHAPES["3d"], axis=0), axis=1).sum())
 def test_faded_stretch_is_followed(rig, backgrounds, renders, background_frames, keep):
     """40-55 % of the 3D-bent needle at 40 % / 25 % of its contrast (before: those slices were dropped and the
     gap bridged by a chord 1.4 mm off the needle, reported as measured; coverage 0.70)."""
-    images = _faded(rig, renders("3d"), background_frames[0], SHAPES["3d"], 0.40, 0.55, keep)
+    images = faded(rig, renders("3d"), background_frames[0], SHAPES["3d"], 0.40, 0.55, keep)
     measurement = _measure(rig, backgrounds, images)
-    distance, arc = _check_not_invented(measurement, SHAPES["3d"])
+    distance, arc = check_not_invented(measurement, SHAPES["3d"])
     assert measurement.coverage == 1.0 and (arc[-1] - arc[0]) / TRUE_LENGTH >= 0.99
     assert np.sqrt(np.mean(distance ** 2)) < 1e-4  # measured: 0.04 mm
 
 
 def test_hidden_stretch_gives_no_invented_points(rig, backgrounds, renders, background_frames):
-    """40-55 % hidden (contrast 0, an occluder the colour of the background): nothing is reported across the
-    hidden stretch. Only the larger visible part is measured (the detection keeps one component), and the end
-    at the occluder is not a needle end (the two views cut it at different points): within 2 mm of it the
-    samples are up to 0.2 mm off, beyond the 3-sigma bound (known limitation; issue 16)."""
-    images = _faded(rig, renders("3d"), background_frames[0], SHAPES["3d"], 0.40, 0.55, 0.0)
+    """40-55 % hidden (contrast 0, an occluder the colour of the background): the two visible parts, whose
+    facing ends agree in direction, are linked into one centerline and both measured; nothing is reported
+    across the hidden stretch and the samples at the occluder are within their bounds (before: only the larger
+    part was measured, coverage 43 %, and within 2 mm of the occluder samples were up to 0.2 mm off). The
+    occluder reaches 12 px (~4 mm) beyond the stretch in the images: at most ~82 % is visible (measured: 80 %)."""
+    images = faded(rig, renders("3d"), background_frames[0], SHAPES["3d"], 0.40, 0.55, 0.0)
     measurement = _measure(rig, backgrounds, images)
-    distance, arc = distance_to_curve(measurement.points, SHAPES["3d"])
-    near_occluder = measurement.arc_length < 2e-3  # the measured part starts at the occluder
-    assert np.all(distance[near_occluder] < 0.25e-3)
-    bound = np.maximum(3 * measurement.uncertainty, 1e-4)
-    assert np.all((distance <= bound)[~near_occluder & measurement.measured])
+    _, arc = check_not_invented(measurement, SHAPES["3d"])
+    spacing = ReconstructionConfig().sample_spacing
+    assert np.count_nonzero(measurement.measured) * spacing / TRUE_LENGTH >= 0.78
     hidden = (arc > 0.40 * TRUE_LENGTH + 1e-3) & (arc < 0.55 * TRUE_LENGTH - 1e-3)
     assert not np.any(measurement.measured & hidden)
+    assert arc[0] < 1e-3 and arc[-1] > TRUE_LENGTH - 1e-3  # base and tip: both parts

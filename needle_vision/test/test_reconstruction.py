@@ -97,9 +97,11 @@ def test_stretch_parallel_to_epipolar_lines_comes_from_continuity(measure):
     assert np.median(measurement.uncertainty[tail]) > 3 * np.median(measurement.uncertainty[arc < 0.12])
 
 
-@pytest.mark.parametrize("name", ["straight", "3d", "hook"])
+@pytest.mark.parametrize("name", ["straight", "planar", "3d", "hook"])
 def test_tip_localized_within_a_fifth_of_a_millimetre(measure, name):
-    """Sub-pixel needle end from the partly covered slices (issue 16: before, 0.32-0.46 mm short on these)."""
+    """Sub-pixel needle ends from the contrast profile along the end's direction, on one epipolar line in both
+    views (issue 16: before, 0.32-0.70 mm off; then 0.06-0.40 mm, the planar tip cut diagonally across the
+    slices). Measured: tips 0.02-0.12 mm, bases 0.13-0.15 mm."""
     measurement = measure(name)
     assert np.linalg.norm(measurement.points[-1] - SHAPES[name][-1]) <= 0.2e-3
-    assert np.linalg.norm(measurement.points[0] - SHAPES[name][0]) <= 0.3e-3
+    assert np.linalg.norm(measurement.points[0] - SHAPES[name][0]) <= 0.2e-3

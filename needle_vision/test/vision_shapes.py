@@ -1,10 +1,13 @@
-"""Known needle centerlines for the vision tests and an independent distance-to-curve measure."""
+"""Known needle centerlines for the vision tests, an independent distance-to-curve measure, occluded or faded
+renders and the "no invented points" check."""
 from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import brentq
 
-from needle_vision.render import NEEDLE_LENGTH
+from needle_vision.calibration import StereoRig
+from needle_vision.reconstruction import UNMEASURED, NeedleMeasurement
+from needle_vision.render import NEEDLE_LENGTH, project_points
 
 SAMPLES = 1081  # 0.25 mm along the needle: the polyline is the true curve to ~1e-8 m for these curvatures
 
@@ -40,6 +43,13 @@ SHAPES = {
     # Straight, a 90° bend, then a 54 mm tail hanging along -z: along the rig's baseline, i.e. parallel to the
     # epipolar lines in both images (depth there is only given by continuity and the tip).
     "hook": centerline_from_angles(lambda xi: -np.pi / 2 * _smoothstep((xi - 0.5) / 0.3)),
+    # An S bent out of the image plane: towards the cameras, then away (depth +-45 mm), and down.
+    "s_curve": centerline_from_angles(lambda xi: -0.3 * (2 * xi - xi ** 2), lambda xi: 0.5 * np.sin(2 * np.pi * xi)),
+    # A 40 mm stretch (45-60 % of the length) pointing towards the rig, 18 deg off the viewing rays: seen
+    # nearly end-on, ~3x foreshortened.
+    "end_on": centerline_from_angles(
+        lambda xi: -0.3 * (2 * xi - xi ** 2),
+        lambda xi: 1.26 * (_smoothstep((xi - 0.35) / 0.1) - _smoothstep((xi - 0.6) / 0.1))),
 }
 
 
@@ -54,3 +64,36 @@ def distance_to_curve(points: np.ndarray, curve: np.ndarray) -> tuple[np.ndarray
     best = np.argmin(distance, axis=1)
     rows = np.arange(len(points))
     return distance[rows, best], arc[best] + t[rows, best] * np.linalg.norm(direction[best], axis=1)
+
+
+def faded(rig: StereoRig, images: tuple[np.ndarray, np.ndarray], background_pair: tuple[np.ndarray, np.ndarray],
+          curve: np.ndarray, start: float, stop: float, keep: float, sides: tuple[str, ...] = ("left", "right")
+          ) -> list[np.ndarray]:
+    """The pair with the needle's contrast scaled by ``keep`` around the true stretch [start, stop] (fractions
+    of the length): pixels within 12 px of its projection are blended towards a needle-free frame (in the
+    cameras ``sides``; keep 0: an occluder the colour of the background)."""
+    out = []
+    stretch = curve[int(start * len(curve)):int(stop * len(curve))]
+    for image, background, side in zip(images, background_pair, ("left", "right")):
+        if side not in sides:
+            out.append(image)
+            continue
+        pixels = project_points(rig, stretch, side)
+        mask = np.zeros(image.shape, bool)
+        for x, y in pixels[::4]:
+            y0, x0 = int(round(y)), int(round(x))
+            mask[max(y0 - 12, 0):y0 + 13, max(x0 - 12, 0):x0 + 13] = True
+        blended = background + keep * (image.astype(float) - background)
+        out.append(np.where(mask, np.clip(np.round(blended), 0, 255), image).astype(image.dtype))
+    return out
+
+
+def check_not_invented(measurement: NeedleMeasurement, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Measured samples lie within 3x their pixel-noise distance (floored at the 0.1 mm accuracy requirement)
+    of the truth; the others are flagged UNMEASURED. Returns (distances, true arc lengths) of the samples."""
+    distance, arc = distance_to_curve(measurement.points, truth)
+    measured = measurement.measured
+    assert np.all(measurement.uncertainty[~measured] == UNMEASURED)
+    assert np.all(measurement.uncertainty[measured] > 0)
+    assert np.all(distance[measured] <= np.maximum(3 * measurement.uncertainty[measured], 1e-4))
+    return distance, arc
