@@ -173,6 +173,10 @@ def main() -> None:
         print("error: MuJoCo is not installed (benchmark-only dependency): pip install 'mujoco>=3.17'",
               file=sys.stderr)
         sys.exit(2)
+    if tuple(int(part) for part in mujoco.__version__.split(".")[:2]) < (3, 17):
+        print(f"error: MuJoCo {mujoco.__version__} has no bending for 1D flexes (added in 3.17): "
+              "pip install -U 'mujoco>=3.17'", file=sys.stderr)
+        sys.exit(2)
     print(f"MuJoCo {mujoco.__version__}; {SEGMENTS} elements / segments, dt = {DT * 1e3:g} ms\n")
     exact, ours, theirs = static_errors(mujoco)
     print(f"| 80 g tip mass + weight, static tip | x [mm] | z [mm] | error [mm] |\n|---|---|---|---|\n"
