@@ -359,21 +359,26 @@ class NeedleSimulation:
         self.state = State(rows[0], rows[1], rows[2], float(t), rows[3], self.base)
 
     def step(self, base_next: BaseMotion, t_next: float) -> StepRecord:
-        """One step with the general integrator path (sub-stepping, state-dependent forces) to t_next."""
+        """One step with the general integrator path (sub-stepping, state-dependent forces) to t_next.
+
+        A step that fails even with sub-steps restarts the needle straight at the base; the forces' own state
+        (tissue contact, track, anchors, friction states) is then left as the last accepted step made it: the
+        restarted needle has not moved through the tissue."""
         start = time.perf_counter()
         forces = self.forces
         try:
             result = self.integrator.step(self.state, self.dt, base_next, forces)
-            self.state, iterations, substeps = result.state, result.newton_iterations, result.substeps
-            self.state.t = float(t_next)
         except StepFailed:
             self.statistics.failed_steps += 1
             self.state = self.model.straight_state(base_next, float(t_next))
             iterations, substeps = 0, 0
-        for force in forces:
-            advance = getattr(force, "advance", None)
-            if advance is not None:
-                advance(self.model, self.state, base_next)
+        else:
+            self.state, iterations, substeps = result.state, result.newton_iterations, result.substeps
+            self.state.t = float(t_next)
+            for force in forces:
+                advance = getattr(force, "advance", None)
+                if advance is not None:
+                    advance(self.model, self.state, base_next)
         self.base = base_next
         wrench = reaction_wrench(self.model, self.state, base_next, forces)
         wall = time.perf_counter() - start

@@ -1,12 +1,13 @@
 """The simulator core (NeedleSimulation) and its compiled step sequences: equilibrium at rest, agreement with the
 one-step integrator under motion, and the fall-back to the general step."""
 import math
+import pickle
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from needle_sim_ros.model import BaseMotion, Gravity, Integrator, PointLoad
+from needle_sim_ros.model import BaseMotion, Gravity, Integrator, PointLoad, StepFailed
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
 
@@ -120,3 +121,30 @@ def test_the_needle_starts_at_rest_in_equilibrium_under_its_weight(in_equilibriu
         assert np.abs(np.array(tips) - tips[0]).max() < 1e-3 * sag
     else:
         assert tips[0] == 0.0 and min(tips) < -0.5 * sag
+
+
+def _tissue_state(forces) -> list[bytes]:
+    """The tissue forces' mutable state as bytes (contact, track, anchors, friction states)."""
+    return [pickle.dumps(force) for force in forces]
+
+
+def test_a_failed_step_leaves_the_tissue_state_as_the_last_accepted_step_made_it(monkeypatch):
+    """Inserting at 10 mm/s 4 mm into the tissue; then a step fails: the needle restarts straight, but the track,
+    anchors and friction states are those before the failed step (they used to be advanced with the straight
+    needle, which had jumped through the tissue)."""
+    sim = simulation_from_parameters({**PARAMETERS, "tissue.enable": True, "tissue.entry_point": [0.272, 0.0, 0.0]})
+    for k in range(700):
+        sim.offer_pose(k * 1e-3, [0.01 * max(k * 1e-3 - 0.1, 0.0), 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+        sim.advance(k * 1e-3, deterministic=True)
+    tissue = sim.extra_forces
+    assert tissue and any(getattr(force, "contact", None) is not None and force.contact.track.started
+                          for force in tissue)
+    before = _tissue_state(tissue)
+
+    def fail(*args, **kwargs):
+        raise StepFailed("forced")
+    monkeypatch.setattr(sim.integrator, "step", fail)
+    base = sim.base_motion_at(sim.state.t + sim.dt)
+    sim.step(base, sim.state.t + sim.dt)
+    assert sim.statistics.failed_steps == 1
+    assert _tissue_state(tissue) == before
