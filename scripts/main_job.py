@@ -173,6 +173,7 @@ class Monitor:
     def __init__(self) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
+        from lifecycle_msgs.srv import GetState
         from needle_interfaces.msg import ShapeError
         from rclpy.qos import QoSProfile
         from rosgraph_msgs.msg import Clock
@@ -187,6 +188,8 @@ class Monitor:
         self.node.create_subscription(ShapeError, "shape_error", lambda m: self.errors.append(m.rmse),
                                       QoSProfile(depth=100))
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, QoSProfile(depth=10))
+        self.get_state = self.node.create_client(GetState, "/needle_simulator/get_state")
+        self.get_state_request = GetState.Request()
 
     def _on_clock(self, msg) -> None:
         self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
@@ -212,6 +215,18 @@ class Monitor:
         if stereo or fbg:
             ready = ready and n.count_subscribers("/needle/measured_shape") >= 1
         return ready
+
+    def simulator_active(self) -> bool:
+        """The simulator answers its lifecycle state ``active``: its kernels are compiled and it takes poses (it
+        subscribes before compiling; poses sent earlier would wait in its queue and the first one it keeps would not
+        be the bag's first)."""
+        if not self.get_state.service_is_ready():
+            return False
+        future = self.get_state.call_async(self.get_state_request)
+        end = time.monotonic() + 1.0
+        while not future.done() and time.monotonic() < end:
+            self.rclpy.spin_once(self.node, timeout_sec=0.05)
+        return future.done() and future.result() is not None and future.result().current_state.label == "active"
 
     def close(self) -> None:
         self.node.destroy_node()
@@ -276,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
         monitor = Monitor()
         say("waiting for the nodes to connect ...")
         deadline = time.monotonic() + START_TIMEOUT
-        while not monitor.connected(stereo, fbg=not stereo):
+        while not (monitor.connected(stereo, fbg=not stereo) and monitor.simulator_active()):
             monitor.spin(0.2)
             failed = [c for c in children.started if c.failed()]
             if failed or time.monotonic() > deadline:
