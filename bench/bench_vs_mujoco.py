@@ -28,7 +28,7 @@ import time
 import numpy as np
 
 from needle_sim_ros.experiments.elastica import elastica_tip
-from needle_sim_ros.model import BaseMotion, Gravity, Integrator, PointLoad, solve_static, tip_pose
+from needle_sim_ros.model import BaseMotion, Gravity, PointLoad, solve_static, tip_pose
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import NeedleSimulation, compile_kernels, simulation_from_parameters
 
@@ -138,7 +138,7 @@ def simulator_step_time(gravity: bool, kept_load: float, at_mid: bool, seconds: 
 def general_step_time(seconds: float) -> float:
     """Mean wall time per Integrator.step (the general path: full Newton, any force) after the release."""
     sim = released_simulation(True)
-    integrator = Integrator(sim.model, rho_inf=PARAMETERS["integrator.rho_inf"])
+    integrator = sim.integrator  # configured from the same parameters as the simulator's
     base, state, forces = BaseMotion(np.zeros(3), IDENTITY), sim.state, [Gravity()]
     steps = int(seconds / DT)
     start = time.perf_counter()
