@@ -30,18 +30,6 @@ CAMERA_TO_MODEL = RigidTransform(Rotation.from_euler("zyx", [30.0, 10.0, -5.0], 
                                  [0.1, -0.2, 0.3])
 
 
-@pytest.fixture(scope="module")
-def ros_env():
-    """A ROS domain of this test process only (id from the pid), discovery on this host only."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1", PYTHONPATH=f"{PACKAGE_ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ.update({k: env[k] for k in saved})
-    yield env
-    for key, value in saved.items():
-        os.environ.pop(key) if value is None else os.environ.__setitem__(key, value)
-
-
 @pytest.fixture
 def node(ros_env):
     rclpy.init()
@@ -52,7 +40,8 @@ def node(ros_env):
 
 
 def start(ros_env, module: str, *args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", f"needle_sim_ros.nodes.{module}", *args], env=ros_env,
+    env = dict(ros_env, PYTHONPATH=f"{PACKAGE_ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    return subprocess.Popen([sys.executable, "-m", f"needle_sim_ros.nodes.{module}", *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 

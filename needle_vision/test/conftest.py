@@ -2,8 +2,6 @@
 per test session), and an independent distance-to-curve measure."""
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
 
@@ -46,15 +44,3 @@ def renders(rig, scene):
             cache[name] = render_stereo_pair(rig, SHAPES[name], NEEDLE_RADIUS, np.random.default_rng(7), scene=scene)
         return cache[name]
     return get
-
-
-@pytest.fixture(scope="session")
-def ros_env() -> dict:
-    """Environment for a node in a child process: a ROS domain of this test process only (from the pid, so that
-    parallel runs do not see each other), discovery on this host only."""
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(101 + os.getpid() % 100)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["PYTHONUNBUFFERED"] = "1"
-    os.environ.update({key: env[key] for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
-    return env

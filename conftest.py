@@ -1,0 +1,24 @@
+"""The ROS test environment of every test directory (package tests and suite tests): one isolated ROS 2 domain."""
+import os
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def ros_env() -> dict:
+    """Environment for nodes in child processes: a ROS domain of this test run only, discovery on this host only.
+
+    The domain id is derived from the pid so that parallel test runs on one machine do not see each other
+    (ids 1..100 keep within the range where every DDS port is valid). The test process itself joins the same
+    domain (for rclpy nodes created in tests); its previous settings are restored at the end of the session.
+    """
+    env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               PYTHONUNBUFFERED="1")
+    saved = {key: os.environ.get(key) for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    os.environ.update({key: env[key] for key in saved})
+    yield env
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
