@@ -17,7 +17,7 @@ import numpy as np
 
 from needle_sim_ros.batch.grid import SPECS, ParameterSet, canonical, split_index
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
-from needle_sim_ros.offline.parameters import ExperimentConfig, load_experiment
+from needle_sim_ros.parameters.experiment import ExperimentConfig, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
 from needle_sim_ros.offline.results import PipelineLog, WrenchSeries, read_pipeline_log
 

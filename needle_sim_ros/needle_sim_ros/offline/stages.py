@@ -30,16 +30,15 @@ from needle_vision.calibration import (CalibrationError, StereoRig, calibration_
                                        load_camera_calibration)
 from needle_vision.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.pairing import StampPairer as FramePairer
-from needle_vision.parameters import ROS_BUILTIN, output_from_left, stereo_config, unknown_name_error, validate_all
+from needle_vision.parameters import ROS_BUILTIN, ParameterError, ParamSpec, output_from_left, stereo_config, unknown_name_error, validate_all
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
 from needle_vision.transform import RigidTransform, quaternion_from_x_axis
 
 from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
-from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
-from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
-from needle_sim_ros.nodes.shape_messages import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
-from needle_sim_ros import cdr
+from needle_sim_ros.messages import cdr
+from needle_sim_ros.messages.shape import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
+from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
 
 NS = 1_000_000_000
