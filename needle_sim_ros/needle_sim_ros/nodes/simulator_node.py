@@ -33,6 +33,8 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
+from needle_vision.parameters import ParameterError
+
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.geometry import quaternions_from_tangents, tube_triangles

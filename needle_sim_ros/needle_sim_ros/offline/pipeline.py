@@ -52,7 +52,8 @@ DECODE_ERRORS = (ValueError, RuntimeError, IndexError, struct.error, UnicodeDeco
 
 
 def decode(topic: str, data: bytes) -> Any:
-    """An input message from its serialized bytes (images and poses decoded directly: :mod:`cdr`)."""
+    """An input message from its serialized bytes (images and poses decoded directly:
+    :mod:`needle_sim_ros.messages.cdr`)."""
     if topic.endswith("image_raw"):
         return cdr.image(data)
     if topic == "/base_pose":

@@ -6,7 +6,8 @@ Each stage holds the same ROS-free core as its node and translates messages exac
   deterministically (up to min(clock, newest pose stamp)), a ``wrench`` per step (base frame) and a ``needle/shape``
   at ``rates.shape_hz``. The node publishes shapes when its clock passes the due time; here they are due on the same
   rate counted in integration steps from the first pose, so that a measurement stamped on that grid meets a model
-  shape of the very same instant. The two high-rate outputs are serialized straight from arrays (:mod:`.cdr`).
+  shape of the very same instant. The two high-rate outputs are serialized straight from arrays
+  (:mod:`needle_sim_ros.messages.cdr`).
 * :class:`StereoStage` — ``needle_stereo``: left/right pairing by stamp and
   :class:`needle_vision.pipeline.StereoNeedlePipeline`, publishing ``needle/measured_shape``.
 * :class:`ComparisonStage` — ``needle_compare``: stamp pairing, extrinsic and centerline distances
@@ -30,7 +31,8 @@ from needle_vision.calibration import (CalibrationError, StereoRig, calibration_
                                        load_camera_calibration)
 from needle_vision.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.pairing import StampPairer as FramePairer
-from needle_vision.parameters import ROS_BUILTIN, ParameterError, ParamSpec, output_from_left, stereo_config, unknown_name_error, validate_all
+from needle_vision.parameters import (ROS_BUILTIN, ParameterError, ParamSpec, output_from_left, stereo_config,
+                                      unknown_name_error, validate_all)
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
 from needle_vision.transform import RigidTransform, quaternion_from_x_axis
 
