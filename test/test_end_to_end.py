@@ -97,51 +97,70 @@ def test_the_protocols_base_velocity_and_acceleration_are_the_derivatives_of_the
                        atol=1e-3 * np.abs(acceleration).max())
 
 
+@pytest.mark.slow
 def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_shape_bytes():
-    """The same poses at the same clock instants: the node's own output code (its publishers captured, driven as
-    its loop drives it in simulated time) and the offline stage write the same bytes. The base is rolled and
-    yawed: the tip frame's y axis is the base frame's carried along the needle, not the minimal rotation onto it."""
+    """The same serialized poses at the same clock instants: the node's own input and output code (its loop
+    iteration and pose callback, driven as in simulated time, publishers captured) and the offline stage (driven as
+    OfflinePipeline drives it) write the same bytes. The base is rolled and yawed: the tip frame's y axis is the
+    base frame's carried along the needle, not the minimal rotation of the world frame onto the needle."""
+    import threading
     from types import SimpleNamespace
 
-    from needle_sim_ros.messages.cdr import DecodedPose
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.serialization import serialize_message
+    from scipy.spatial.transform import Rotation
+
+    from needle_sim_ros.base_trajectory import PoseVerdict
+    from needle_sim_ros.messages import cdr
     from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
     from needle_sim_ros.offline.stages import SimulatorStage, simulator_values
     from needle_sim_ros.simulation import simulation_from_parameters
-    from scipy.spatial.transform import Rotation
 
     p = simulator_values({"needle.elements": 6, "rates.shape_hz": 100.0})
-    clock = [1.0 + 0.01 * k for k in range(21)]  # a pose every 10 ms, the clock at each pose's stamp
-    poses = [(t, np.array([0.01 * (t - 1.0), 0.0, 0.1]),
-              Rotation.from_euler("xyz", [0.6, -0.3 * (t - 1.0), 0.4]).as_quat()) for t in clock]
+    clock = [1_000_000_000 + 10_000_000 * k for k in range(21)]  # [ns] a pose every 10 ms, stamped with the clock
+    poses = []
+    for now in clock:
+        t = (now - clock[0]) * 1e-9
+        message = PoseStamped()
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(now, 1_000_000_000)
+        message.header.frame_id = p["frames.world"]
+        message.pose.position.x, message.pose.position.z = 0.01 * t, 0.1
+        q = message.pose.orientation
+        q.x, q.y, q.z, q.w = Rotation.from_euler("xyz", [0.6, -0.3 * t, 0.4]).as_quat()
+        poses.append((now, serialize_message(message)))
+    end = clock[-1] + 10_000_000
 
     stage = SimulatorStage(p)
     offline = []
-    for t, position, orientation in poses:  # as OfflinePipeline: advance to the message time, then take it
-        now = round(t * 1e9)
+    for now, data in poses:  # as OfflinePipeline.run: advance to the message's time, then take the message
         offline += stage.advance(now)
-        stage.on_pose(DecodedPose(now, p["frames.world"], position, orientation), now)
-    offline += stage.advance(round((clock[-1] + 0.01) * 1e9))
+        stage.on_pose(cdr.pose_stamped(data), now)
+    offline += stage.advance(end)
 
-    node = object.__new__(NeedleSimulatorNode)
+    node = object.__new__(NeedleSimulatorNode)  # the node's methods on its state, without a ROS context
     published: dict[str, list[bytes]] = {"wrench": [], "shape": []}
-    node.p, node.sim = p, simulation_from_parameters(p)
+    node.p, node.sim, node.active, node.use_sim_time = p, simulation_from_parameters(p), True, True
+    node._lock, node._polled, node._warned_at, node._next_output = threading.Lock(), [], {}, {"shape": 0.0}
+    node.counters, node.counters_other = {verdict: 0 for verdict in PoseVerdict}, {"stamp_replaced": 0}
+    node.catch_up_steps = node.deadline_misses = 0
+    node.get_logger = lambda: SimpleNamespace(info=print, warning=print)
     node.wrench_pub = SimpleNamespace(publish=published["wrench"].append)
     node.shape_pub = SimpleNamespace(publish=published["shape"].append)
     node.state_pub, node.tf = SimpleNamespace(publish=lambda data: None), SimpleNamespace(send=lambda *args: None)
-    node._next_output = {"shape": 0.0}
     node.sim.after_step = node.publish_shape_on_grid  # as on_configure in simulated time
-    for t, position, orientation in [*poses, (clock[-1] + 0.01, None, None)]:  # as loop_iteration and on_pose
-        if node.sim.started:
-            node.publish_wrenches(node.sim.advance(t, deterministic=True))
-        if position is not None:
-            node.sim.offer_pose(t, position, orientation)
+    for now, data in [*poses, (end, None)]:  # the clock reaches the message, then its callback runs
+        node.now_seconds = lambda now=now: now * 1e-9
+        node.loop_iteration()
+        if data is not None:
+            node.on_pose(data)
+    assert node.counters[PoseVerdict.ACCEPTED] == len(poses) and stage.rejected == {}
 
     wrenches = [data for kind, data in offline if kind == "wrench"]
-    assert len(wrenches) == 210 and wrenches == published["wrench"]
+    assert len(wrenches) == 200 and wrenches == published["wrench"]  # a step per ms up to the newest pose
     stamp = lambda data: data[4:12]  # noqa: E731  (sec, nanosec of the header)
     node_shapes = {stamp(data): data for data in published["shape"]}
     offline_shapes = [shape.cdr() for kind, shape in offline if kind == "shape"]
-    assert len(offline_shapes) == 21 and all(stamp(data) in node_shapes for data in offline_shapes)
+    assert len(offline_shapes) == 20 and all(stamp(data) in node_shapes for data in offline_shapes)
     assert [node_shapes[stamp(data)] for data in offline_shapes] == offline_shapes
 
 

@@ -39,6 +39,7 @@ from needle_vision.transform import RigidTransform, quaternion_from_x_axis
 from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.shape import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
+from needle_sim_ros.model import tip_pose
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
@@ -148,7 +149,10 @@ class SimulatorStage:
 
     def shape(self) -> "ModelShape":
         line = self.sim.shape(self.p["output.shape_samples"])
-        tip_position, tip_orientation = self.sim.tip()
+        # as the node's snapshot: the tip frame's y, z axes are the base frame's carried along the needle
+        base = self.sim.base
+        tip_position, tip_orientation = tip_pose(self.sim.model, self.sim.state.q,
+                                                 None if base is None else base.orientation)
         header = Header(stamp=time_msg(self.sim.state.t), frame_id=self.p["frames.world"])
         return ModelShape(header, line.points, line.tangents, line.arc_length, tip_position, tip_orientation)
 
