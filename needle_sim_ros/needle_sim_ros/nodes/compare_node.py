@@ -10,7 +10,6 @@ its parameters :mod:`needle_sim_ros.parameters.compare`.
 from __future__ import annotations
 
 import json
-import math
 import sys
 import pathlib
 from typing import Any
@@ -26,9 +25,8 @@ from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
 
 from needle_vision.parameters import ParameterError
-from needle_vision.transform import RigidTransform
 
-from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
+from needle_sim_ros.comparison import Centerline, ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import centerline_display
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
 from needle_sim_ros.nodes.parameters import declare_all
@@ -84,11 +82,7 @@ class CompareNode(Node):
         if v["log.path"].endswith(".mcap") and (v["log.max_file_size"] or v["log.max_file_duration"]):
             raise ParameterError("parameters 'log.max_file_size'/'log.max_file_duration' split a recording and need "
                                  f"'log.path' to be a bag directory (no .mcap suffix), got '{v['log.path']}'")
-        extrinsic = [*v["extrinsic.translation"], *v["extrinsic.rotation"]]
-        self.model_from_camera = RigidTransform.from_xyz_quaternion(extrinsic)
-        self.max_match_distance = v["max_match_distance"] or math.inf
-        self.pairer = StampPairer(int(round(v["tolerance"] * 1e9)), model_buffer=v["model_buffer"])
-        self.summary = ErrorSummary()
+        self.session = ComparisonSession(v, self.warn_rejected)
         self.error_qos = QoSProfile(depth=10)
         self.error_publisher = self.create_publisher(ShapeError, "shape_error", self.error_qos)
         self.recorder = self._open_recording() if v["log.path"] else None
@@ -144,67 +138,38 @@ class CompareNode(Node):
         if resolved in self.logged:
             self.recorder.record(resolved, message, message_type, own_qos)
 
-    def reject(self, what: str, reason: str) -> None:
-        self.summary.reject(what)
+    def warn_rejected(self, what: str, reason: str) -> None:
         self.get_logger().warning(f"ignoring {what}: {reason}", throttle_duration_sec=WARN_PERIOD)
-
-    def frame_ok(self, what: str, frame_id: str, expected: str) -> bool:
-        if expected and frame_id != expected:
-            self.reject(what, f"frame_id '{frame_id}' is not '{expected}'")
-            return False
-        return True
 
     def on_model(self, msg: NeedleShape) -> None:
         self.log("model/shape", msg, NeedleShape)
-        if not self.frame_ok("model shape", msg.header.frame_id, self.values["model_frame"]):
-            return
-        try:
-            points, arc_length, _ = shape_arrays(msg)
-            centerline = Centerline(points, arc_length)
-            if len(points) < 2:
-                raise ComparisonError("needs at least two samples")
-        except ComparisonError as error:
-            self.reject("model shape", str(error))
-            return
-        self.compare(self.pairer.add_model(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+        points, arc_length, _ = shape_arrays(msg)
+        self.publish(self.session.add_model(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header, points,
+                                            arc_length))
 
     def on_measured_shape(self, msg: NeedleShape) -> None:
         self.log("measured/shape", msg, NeedleShape)
-        if not self.frame_ok("measured shape", msg.header.frame_id, self.values["measured_frame"]):
-            return
-        try:
-            points, arc_length, _ = shape_arrays(msg)
-            centerline = Centerline(points, arc_length)
-        except ComparisonError as error:
-            self.reject("measured shape", str(error))
-            return
-        self.compare(self.pairer.add_measurement(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+        points, arc_length, _ = shape_arrays(msg)
+        self.publish(self.session.add_measurement(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header,
+                                                  points, arc_length))
 
     def on_measured_points(self, msg: PointCloud2) -> None:
         self.log("measured/points", msg, PointCloud2)
-        if not self.frame_ok("measured points", msg.header.frame_id, self.values["measured_frame"]):
-            return
         try:
-            centerline = Centerline(cloud_points(msg), ordered=False)
-        except (ValueError, ComparisonError) as error:
-            self.reject("measured points", str(error))
+            points = cloud_points(msg)
+        except ValueError as error:
+            self.session.reject("measured points", str(error))
             return
-        self.compare(self.pairer.add_measurement(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+        self.publish(self.session.add_measurement(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header,
+                                                  points, what="measured points"))
 
     # --- output -----------------------------------------------------------------------------------------------
-    def compare(self, pairs) -> None:
-        for pair in pairs:
-            (model_header, model), (measured_header, measured) = pair.model, pair.measurement
-            try:
-                result = compare_centerlines(model, measured, self.model_from_camera, self.max_match_distance)
-            except ComparisonError as error:
-                self.reject("shape pair", str(error))
-                continue
-            self.summary.add(result)
-            msg = shape_error_msg(result, model_header, measured_header)
+    def publish(self, compared: list[ComparedPair]) -> None:
+        for pair in compared:
+            msg = shape_error_msg(pair.result, pair.model_tag, pair.measured_tag)
             self.error_publisher.publish(msg)
             self.log("shape_error", msg, ShapeError, self.error_qos)
-            self.display(model_header, model, measured, result)
+            self.display(pair.model_tag, pair.model, pair.measured, pair.result)
 
     def display(self, model_header, model: Centerline, measured: Centerline, result) -> None:
         """The compared centerlines as Path and Marker tube (model frame), at most ``display.rate`` per second of
@@ -214,7 +179,7 @@ class CompareNode(Node):
         if rate <= 0.0 or self._next_display_ns - 2e9 / rate <= now_ns < self._next_display_ns:
             return
         self._next_display_ns = now_ns + int(1e9 / rate)
-        points = self.model_from_camera.apply(measured.points)[result.matched]
+        points = self.session.model_from_camera.apply(measured.points)[result.matched]
         if not measured.ordered:  # a point cloud: order by the arc length of the closest model point
             points = points[np.argsort(result.arc_length)]
         stamp, frame, radius = model_header.stamp, model_header.frame_id, self.values["display.tube_radius"]
@@ -234,8 +199,7 @@ class CompareNode(Node):
             else:
                 print(f"[{NODE_NAME}] recording NOT finalized ({self.recorder.failure}): {files}; "
                       "needle_mcap_recover rebuilds its index", file=sys.stderr, flush=True)
-        self.summary.unpaired_measurements = self.pairer.unpaired
-        report = self.summary.as_dict()
+        report = self.session.finish()
         print(f"[{NODE_NAME}] summary: {json.dumps(report)}", flush=True)
         if self.values["summary_path"]:
             path = pathlib.Path(self.values["summary_path"])
