@@ -20,7 +20,6 @@ from needle_sim_ros.batch.bags import resolve_bags
 from needle_sim_ros.batch.cluster import map_ordered, open_client
 from needle_sim_ros.batch.sweep import plan
 from needle_sim_ros.batch.task import run_row
-from needle_sim_ros.offline.parameters import default_config_dir
 
 BETAS = [1.0e-4 * (1 + k / 4) for k in range(8)]
 TRIVIAL_TASKS = 200
@@ -34,7 +33,7 @@ def measure(workers: int, duration: float) -> dict[str, float]:
     entries = resolve_bags("bags")
     sets = [{"needle_simulator": {"damping.rayleigh_beta": beta}} for beta in BETAS]
     with open_client(workers) as client:
-        tasks = plan(client, entries, sets, default_config_dir(), None, duration)
+        tasks = plan(client, entries, sets, None, None, duration)
         client.run(run_row, tasks[len(BETAS)])  # warm-up on every worker (imports, compiled-code caches)
         start = time.perf_counter()
         rows = map_ordered(client, run_row, tasks, quiet=True)

@@ -29,7 +29,7 @@ BAGS = ("static_tip_load", "dynamic_pitch", "insertion")
 
 
 def offline_rows(directory: Path, repeats: int) -> list[str]:
-    from needle_sim_ros.offline.parameters import experiment_for_bag
+    from needle_sim_ros.parameters.experiment import experiment_for_bag
     from needle_sim_ros.offline.pipeline import OfflinePipeline
     rows = ["| bag | bag time [s] | wall [s] best (median) | real-time factor best (median) | "
             "simulator core [s] (per step [ms]) | simulator messages [s] | stereo [s] | comparison [s] | "

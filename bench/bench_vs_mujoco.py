@@ -29,7 +29,7 @@ import numpy as np
 
 from needle_sim_ros.experiments.elastica import elastica_tip
 from needle_sim_ros.model import BaseMotion, Gravity, PointLoad, solve_static, tip_pose
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import NeedleSimulation, compile_kernels, simulation_from_parameters
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}

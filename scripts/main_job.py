@@ -237,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
     sys.path[:0] = [str(s) for s in SOURCES] if args.from_source else []
     from needle_sim_ros.offline.cli import main as offline_main
     from needle_sim_ros.offline.cli import summary_lines
-    from needle_sim_ros.offline.parameters import experiment_for_bag, load_experiment, node_values
+    from needle_sim_ros.parameters.experiment import experiment_for_bag, load_experiment, node_values
     from needle_sim_ros.offline.plots import write_plots
     from needle_sim_ros.offline.results import read_pipeline_log, versus_ground_truth
 

@@ -21,9 +21,8 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from needle_sim_ros.experiments.protocols import EXPERIMENTS
-from needle_sim_ros import cdr
 from needle_sim_ros.offline.cli import main as offline_main
-from needle_sim_ros.offline.parameters import experiment_for_bag
+from needle_sim_ros.parameters.experiment import experiment_for_bag
 from needle_sim_ros.offline.pipeline import OfflinePipeline
 
 REPO = Path(__file__).resolve().parents[1]
@@ -98,98 +97,71 @@ def test_the_protocols_base_velocity_and_acceleration_are_the_derivatives_of_the
                        atol=1e-3 * np.abs(acceleration).max())
 
 
-def test_fast_cdr_encoders_decode_to_the_nodes_messages():
-    # The offline pipeline writes the wrench and model shape bytes itself; rclpy must read back exactly the
-    # messages the simulator node builds (padding bytes may differ: rclpy leaves them uninitialised).
-    from geometry_msgs.msg import WrenchStamped
-    from needle_interfaces.msg import NeedleShape
-    from rclpy.serialization import deserialize_message
-    from std_msgs.msg import Header
+@pytest.mark.slow
+def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_shape_bytes():
+    """The same serialized poses at the same clock instants: the node's own input and output code (its loop
+    iteration and pose callback, driven as in simulated time, publishers captured) and the offline stage (driven as
+    OfflinePipeline drives it) write the same bytes. The base is rolled and yawed: the tip frame's y axis is the
+    base frame's carried along the needle, not the minimal rotation of the world frame onto the needle."""
+    import threading
+    from types import SimpleNamespace
 
-    from needle_sim_ros.nodes.shape_messages import needle_shape_msg, time_msg
-    rng = np.random.default_rng(7)
-    stamp = time_msg(1_700_000_001.2345)
-    for count, frame, uncertainty in ((50, "world", None), (7, "w", rng.random(7)), (1, "abcdefg", None)):
-        points, tangents, arc = rng.random((count, 3)), rng.random((count, 3)), np.cumsum(rng.random(count))
-        tip, quaternion = rng.random(3), rng.random(4)
-        expected = needle_shape_msg(Header(stamp=stamp, frame_id=frame), "model", points, tangents, arc, tip,
-                                    quaternion, uncertainty)
-        data = cdr.needle_shape(stamp.sec, stamp.nanosec, frame, "model", points, tangents, arc, tip, quaternion,
-                                uncertainty)
-        assert deserialize_message(data, NeedleShape) == expected
-    from needle_interfaces.msg import NeedleState
-    values = rng.random(8)
-    state = NeedleState(header=Header(stamp=stamp, frame_id="world"), insertion_depth=values[0],
-                        inserted_length=values[1], axial_force=values[5], kinetic_energy=values[6],
-                        elastic_energy=values[7])
-    state.tip_force.x, state.tip_force.y, state.tip_force.z = values[2:5]
-    assert deserialize_message(cdr.needle_state(stamp.sec, stamp.nanosec, "world", *values), NeedleState) == state
-    times = np.array([1_700_000_001.2345, 12.9999999999, 0.0, 3.0000000004])
-    wrenches = rng.random((times.size, 6))
-    encoded = cdr.wrench_stamped_many("needle_base", zip(times, wrenches[:, :3], wrenches[:, 3:]))
-    for t, data, values in zip(times, encoded, wrenches):
-        wrench = deserialize_message(data, WrenchStamped)
-        assert wrench.header == Header(stamp=time_msg(t), frame_id="needle_base")
-        assert [wrench.wrench.force.x, wrench.wrench.force.y, wrench.wrench.force.z] == values[:3].tolist()
-        assert [wrench.wrench.torque.x, wrench.wrench.torque.y, wrench.wrench.torque.z] == values[3:].tolist()
-
-
-def test_visualization_encoders_decode_to_rclpy_built_messages():
-    # The simulator publishes Path, PoseArray and the Marker tube as CDR bytes; rclpy must read back the messages
-    # one would build field by field.
-    from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion
-    from nav_msgs.msg import Path as PathMsg
-    from rclpy.serialization import deserialize_message, serialize_message
-    from std_msgs.msg import ColorRGBA, Header
-    from visualization_msgs.msg import Marker
-
-    from needle_sim_ros.nodes.shape_messages import time_msg
-    rng = np.random.default_rng(5)
-    stamp = time_msg(42.125)
-    for count, frame in ((50, "world"), (3, "w"), (1, "abcdefgh")):
-        points, quaternions = rng.random((count, 3)), rng.random((count, 4))
-        header = Header(stamp=stamp, frame_id=frame)
-        poses = [Pose(position=Point(x=p[0], y=p[1], z=p[2]), orientation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]))
-                 for p, q in zip(points, quaternions)]
-        assert deserialize_message(cdr.pose_array(stamp.sec, stamp.nanosec, frame, points, quaternions),
-                                   PoseArray) == PoseArray(header=header, poses=poses)
-        assert deserialize_message(cdr.path(stamp.sec, stamp.nanosec, frame, points, quaternions), PathMsg) == \
-            PathMsg(header=header, poses=[PoseStamped(header=header, pose=pose) for pose in poses])
-        vertices = rng.random((3 * count, 3))
-        marker = Marker(header=header, ns="needle", id=7, type=Marker.TRIANGLE_LIST, action=Marker.ADD,
-                        color=ColorRGBA(r=0.75, g=0.75, b=0.8, a=1.0),
-                        points=[Point(x=v[0], y=v[1], z=v[2]) for v in vertices])
-        marker.pose.orientation.w = 1.0
-        marker.scale.x = marker.scale.y = marker.scale.z = 1.0
-        encoded = cdr.triangle_list_marker(stamp.sec, stamp.nanosec, frame, "needle", 7, vertices,
-                                           (0.75, 0.75, 0.8, 1.0))
-        # (compared after rclpy's own round trip: the color is float32 on the wire)
-        assert deserialize_message(encoded, Marker) == deserialize_message(serialize_message(marker), Marker)
-
-
-def test_image_and_pose_decoders_read_rclpy_serialized_messages():
-    from rclpy.serialization import serialize_message
-    from sensor_msgs.msg import Image
-    from std_msgs.msg import Header
-
-    from needle_sim_ros.nodes.shape_messages import time_msg
-    pixels = np.random.default_rng(2).integers(0, 255, size=(5, 7, 3), dtype=np.uint8)
-    for frame, encoding in (("left_camera_optical_frame", "rgb8"), ("l", "bgr8"), ("", "mono16")):
-        message = Image(header=Header(stamp=time_msg(12.5), frame_id=frame), height=5, width=7, encoding=encoding,
-                        is_bigendian=0, step=24, data=np.pad(pixels.reshape(5, 21), ((0, 0), (0, 3))).tobytes())
-        decoded = cdr.image(serialize_message(message))
-        assert decoded.header == message.header
-        assert (decoded.height, decoded.width, decoded.encoding, decoded.step) == (5, 7, encoding, 24)
-        assert decoded.data.tobytes() == bytes(message.data) and not decoded.data.flags.owndata
     from geometry_msgs.msg import PoseStamped
-    for frame in ("", "w", "world", "base_link_x"):
-        pose = PoseStamped(header=Header(stamp=time_msg(3.25), frame_id=frame))
-        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = 0.1, -0.2, 0.3
-        orientation = pose.pose.orientation
-        orientation.x, orientation.y, orientation.z, orientation.w = 0.5, 0.5, -0.5, 0.5
-        decoded = cdr.pose_stamped(serialize_message(pose))
-        assert decoded.stamp_ns == 3_250_000_000 and decoded.frame_id == frame
-        assert decoded.position.tolist() == [0.1, -0.2, 0.3] and decoded.orientation.tolist() == [0.5, 0.5, -0.5, 0.5]
+    from rclpy.serialization import serialize_message
+    from scipy.spatial.transform import Rotation
+
+    from needle_sim_ros.base_trajectory import PoseVerdict
+    from needle_sim_ros.messages import cdr
+    from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
+    from needle_sim_ros.offline.stages import SimulatorStage, simulator_values
+    from needle_sim_ros.simulation import simulation_from_parameters
+
+    p = simulator_values({"needle.elements": 6, "rates.shape_hz": 100.0})
+    clock = [1_000_000_000 + 10_000_000 * k for k in range(21)]  # [ns] a pose every 10 ms, stamped with the clock
+    poses = []
+    for now in clock:
+        t = (now - clock[0]) * 1e-9
+        message = PoseStamped()
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(now, 1_000_000_000)
+        message.header.frame_id = p["frames.world"]
+        message.pose.position.x, message.pose.position.z = 0.01 * t, 0.1
+        q = message.pose.orientation
+        q.x, q.y, q.z, q.w = Rotation.from_euler("xyz", [0.6, -0.3 * t, 0.4]).as_quat()
+        poses.append((now, serialize_message(message)))
+    end = clock[-1] + 10_000_000
+
+    stage = SimulatorStage(p)
+    offline = []
+    for now, data in poses:  # as OfflinePipeline.run: advance to the message's time, then take the message
+        offline += stage.advance(now)
+        stage.on_pose(cdr.pose_stamped(data), now)
+    offline += stage.advance(end)
+
+    node = object.__new__(NeedleSimulatorNode)  # the node's methods on its state, without a ROS context
+    published: dict[str, list[bytes]] = {"wrench": [], "shape": []}
+    node.p, node.sim, node.active, node.use_sim_time = p, simulation_from_parameters(p), True, True
+    node._lock, node._polled, node._warned_at, node._next_output = threading.Lock(), [], {}, {"shape": 0.0}
+    node.counters, node.counters_other = {verdict: 0 for verdict in PoseVerdict}, {"stamp_replaced": 0}
+    node.catch_up_steps = node.deadline_misses = 0
+    node.get_logger = lambda: SimpleNamespace(info=print, warning=print)
+    node.wrench_pub = SimpleNamespace(publish=published["wrench"].append)
+    node.shape_pub = SimpleNamespace(publish=published["shape"].append)
+    node.state_pub, node.tf = SimpleNamespace(publish=lambda data: None), SimpleNamespace(send=lambda *args: None)
+    node.sim.after_step = node.publish_shape_on_grid  # as on_configure in simulated time
+    for now, data in [*poses, (end, None)]:  # the clock reaches the message, then its callback runs
+        node.now_seconds = lambda now=now: now * 1e-9
+        node.loop_iteration()
+        if data is not None:
+            node.on_pose(data)
+    assert node.counters[PoseVerdict.ACCEPTED] == len(poses) and stage.rejected == {}
+
+    wrenches = [data for kind, data in offline if kind == "wrench"]
+    assert len(wrenches) == 200 and wrenches == published["wrench"]  # a step per ms up to the newest pose
+    stamp = lambda data: data[4:12]  # noqa: E731  (sec, nanosec of the header)
+    node_shapes = {stamp(data): data for data in published["shape"]}
+    offline_shapes = [shape.cdr() for kind, shape in offline if kind == "shape"]
+    assert len(offline_shapes) == 20 and all(stamp(data) in node_shapes for data in offline_shapes)
+    assert [node_shapes[stamp(data)] for data in offline_shapes] == offline_shapes
 
 
 def decode_with_rosbags(path: Path) -> dict[str, list]:

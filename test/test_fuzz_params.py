@@ -9,8 +9,8 @@ import pytest
 
 from needle_vision.parameters import SPECS as STEREO_PARAMETERS, ParameterError, load_params_file
 
-from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 
 REPO = Path(__file__).resolve().parents[1]
 SEED = 15

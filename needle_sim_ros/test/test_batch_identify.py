@@ -11,7 +11,7 @@ pytest.importorskip("pandas", reason="needle_batch needs pandas (pip install pan
 pytest.importorskip("distributed", reason="needle_batch needs dask[distributed]")
 
 from batch_fixtures import TRUE_TISSUE, write_identification_bags  # noqa: E402
-from needle_sim_ros.offline.parameters import node_values  # noqa: E402
+from needle_sim_ros.parameters.experiment import node_values  # noqa: E402
 from needle_sim_ros.offline.stages import simulator_values  # noqa: E402
 
 

@@ -218,7 +218,7 @@ def test_calibration_rejects_a_straight_needle_in_one_pose():
 def test_parameter_file_lists_every_compare_node_parameter_with_a_valid_default():
     import yaml
     from needle_vision.package_files import share_file
-    from needle_sim_ros.nodes.compare_node import PARAMETERS
+    from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS as PARAMETERS
     config = share_file("needle_sim_ros", "config/needle_compare.yaml")  # as installed
     values = yaml.safe_load(config.read_text())["/**"]["ros__parameters"]
     assert set(values) == {spec.name for spec in PARAMETERS}
@@ -244,3 +244,31 @@ def test_point_cloud_points_are_read_by_field_offsets_and_non_finite_points_drop
     cloud.fields = fields[:2]
     with pytest.raises(ValueError, match="float32 fields x, y, z"):
         cloud_points(cloud)
+
+
+def test_comparison_session_rejects_pairs_and_compares_as_the_node_and_the_offline_stage():
+    from needle_sim_ros.comparison import ComparisonSession
+    from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+    values = {spec.name: spec.default for spec in COMPARE_PARAMETERS}
+    values.update({"model_frame": "world", "measured_frame": "camera", "tolerance": 0.002,
+                   "extrinsic.translation": [0.0, 0.0, 0.5]})
+    rejected = []
+    session = ComparisonSession(values, lambda what, reason: rejected.append((what, reason)))
+    s = np.linspace(0.0, 0.1, 11)
+    model = np.column_stack([s, np.zeros(11), np.zeros(11)])
+    offset = 1e-3  # measured 1 mm off the model along y, in a camera frame 0.5 m below the model frame
+    measured = model + [0.0, offset, -0.5]
+    assert session.add_model(1_000_000_000, "map", "wrong frame", model, s) == []
+    assert session.add_model(1_000_000_000, "world", "one sample", model[:1], s[:1]) == []
+    assert session.add_model(1_000_000_000, "world", "model", model, s) == []
+    assert session.add_measurement(1_001_000_000, "camera", "points", measured[::-1]) == []  # waits for a model
+    [compared] = session.add_model(1_010_000_000, "world", "later model", model, s)
+    assert (compared.model_tag, compared.measured_tag) == ("model", "points")
+    assert compared.result.rmse == pytest.approx(offset, rel=1e-9)
+    [compared] = session.add_measurement(1_009_000_000, "camera", "shape", measured, s)
+    assert compared.model_tag == "later model" and compared.result.tip_error == pytest.approx(offset, rel=1e-9)
+    assert session.add_measurement(1_005_000_000, "camera", "too far from both", measured, s) == []
+    summary = session.finish()
+    assert (summary["compared"], summary["unpaired_measurements"]) == (2, 1)
+    assert summary["rejected_inputs"] == {"model shape": 2}
+    assert rejected == [("model shape", "frame_id 'map' is not 'world'"), ("model shape", "needs at least two samples")]

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from needle_sim_ros.model import BaseMotion, Gravity, Integrator, PointLoad, StepFailed
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}

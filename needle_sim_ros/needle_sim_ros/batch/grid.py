@@ -23,11 +23,10 @@ from typing import Any
 import yaml
 
 from needle_sim_ros.model.config import flatten_tree as flatten
-from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
-from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
-from needle_sim_ros.offline.parameters import NODES
-from needle_vision.parameters import SPECS as STEREO_PARAMETERS
+from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+from needle_sim_ros.parameters.experiment import NODES
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+from needle_vision.parameters import SPECS as STEREO_PARAMETERS, ParameterError, ParamSpec
 
 ParameterSet = dict[str, dict[str, Any]]  # node -> parameter name -> value
 SPECS: dict[str, dict[str, ParamSpec]] = {

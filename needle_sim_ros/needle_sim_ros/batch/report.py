@@ -13,7 +13,7 @@ import yaml
 
 from needle_sim_ros.batch.identify import FitParameter, FitResult
 from needle_sim_ros.batch.task import TaskSpec, resolved_overrides
-from needle_sim_ros.offline.parameters import load_experiment
+from needle_sim_ros.parameters.experiment import load_experiment
 
 
 def _write(path: Path, text: str) -> None:

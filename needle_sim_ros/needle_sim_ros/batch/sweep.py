@@ -13,7 +13,7 @@ from needle_sim_ros.batch.cluster import map_ordered
 from needle_sim_ros.batch.grid import Grid, ParameterSet
 from needle_sim_ros.batch.table import build_table, finished_rows, write_table
 from needle_sim_ros.batch.task import TaskSpec, failed_row, run_row
-from needle_sim_ros.offline.parameters import experiments_dir
+from needle_sim_ros.parameters.experiment import experiments_dir
 
 SAVE_EVERY_S = 10.0  # the partial table is rewritten at most this often while tasks finish (for --resume)
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from needle_sim_ros.batch.grid import SPECS, ParameterSet, canonical, split_index
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
-from needle_sim_ros.offline.parameters import ExperimentConfig, load_experiment
+from needle_sim_ros.parameters.experiment import ExperimentConfig, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
 from needle_sim_ros.offline.results import PipelineLog, WrenchSeries, read_pipeline_log
 
@@ -138,7 +138,7 @@ def run_residuals(spec: TaskSpec, scales: ResidualScales) -> np.ndarray:
     moment at the reference stamps / their scales (if the bag has a reference wrench)."""
     with tempfile.TemporaryDirectory(prefix="needle_batch_") as folder:
         _, log, pipeline = run_pipeline(spec, Path(folder))
-    model_from_camera = pipeline.comparison.model_from_camera
+    model_from_camera = pipeline.comparison.session.model_from_camera
     parts = []
     for measured_ns, model_ns in zip(log.error_times, log.model_times):
         measured = model_from_camera.apply(log.measured_shapes[int(measured_ns)])

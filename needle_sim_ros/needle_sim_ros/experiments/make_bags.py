@@ -39,7 +39,7 @@ from std_msgs.msg import Header
 from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, run_ground_truth, static_check
 from needle_sim_ros.experiments.protocols import EXPERIMENTS, Experiment
 from needle_sim_ros.model import BaseMotion
-from needle_sim_ros.nodes.shape_messages import needle_shape_msg
+from needle_sim_ros.messages.shape import needle_shape_msg
 from needle_sim_ros.recording import McapBagWriter, OfferedQos, WriterOptions
 
 START_NS = 1_700_000_000 * 10**9  # bag start (log time of t = 0)

@@ -21,7 +21,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.utilities import remove_ros_args
 
-from needle_sim_ros.nodes.parameters import ParameterError
+from needle_vision.parameters import ParameterError
 
 NAME = "needle_bringup"
 EXIT_BAD_PARAMETER = 2
@@ -45,7 +45,7 @@ def rcl_arguments(argv: list[str], args: argparse.Namespace) -> tuple[list[str],
     files: list[str] = []
     stereo = not args.no_stereo
     if args.experiment is not None:
-        from needle_sim_ros.offline.parameters import load_experiment
+        from needle_sim_ros.parameters.experiment import load_experiment
         experiment = load_experiment(args.experiment)
         for path in dict.fromkeys(p for node_files in experiment.files.values() for p in node_files):
             files += ["--params-file", str(path)]
@@ -58,8 +58,8 @@ def check_node_arguments(rcl_args: list[str], stereo: bool, logger) -> None:
     """Every --params-file checked for each node before rclpy reads them (ParameterError, a ValueError)."""
     from needle_vision.parameters import SPECS as STEREO_PARAMETERS, check_ros_arguments
 
-    from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
-    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+    from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
     nodes = {"needle_simulator": SIMULATOR_PARAMETERS, "needle_compare": COMPARE_PARAMETERS,
              **({"needle_stereo": STEREO_PARAMETERS} if stereo else {})}
     for name, specs in nodes.items():  # a '/**' section reaches all three nodes: each ignores the others' names

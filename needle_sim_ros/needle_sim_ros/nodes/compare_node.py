@@ -4,12 +4,12 @@ Subscribes ``model/shape`` (NeedleShape) and ``measured/shape`` (NeedleShape) or
 float32 x, y, z), pairs them by header stamp, brings the measurement into the model frame with the camera -> model
 extrinsic and publishes ``shape_error`` (needle_interfaces/ShapeError). With ``log.path`` set it records the shapes,
 errors, ``base_pose`` (PoseStamped) and ``wrench`` (WrenchStamped) plus the parameters in force into a
-rosbag2-compatible MCAP file, finalized on SIGINT/SIGTERM. The comparison itself is :mod:`needle_sim_ros.comparison`.
+rosbag2-compatible MCAP file, finalized on SIGINT/SIGTERM. The comparison itself is :mod:`needle_sim_ros.comparison`,
+its parameters :mod:`needle_sim_ros.parameters.compare`.
 """
 from __future__ import annotations
 
 import json
-import math
 import sys
 import pathlib
 from typing import Any
@@ -24,14 +24,15 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
 
-from needle_vision.transform import RigidTransform
+from needle_vision.parameters import ParameterError
 
-from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
-from needle_sim_ros.nodes.centerline_display import DISPLAY_TOPICS, centerline_display
-from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec, declare_all
+from needle_sim_ros.comparison import Centerline, ComparedPair, ComparisonSession
+from needle_sim_ros.messages.centerline_display import centerline_display
+from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
+from needle_sim_ros.nodes.parameters import declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
 from needle_sim_ros.nodes.runner import run_node
-from needle_sim_ros.nodes.shape_messages import shape_arrays, shape_error_msg
+from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS, DISPLAY_TOPICS
 from needle_sim_ros.recording import RecordingError, WriterOptions
 
 NODE_NAME = "needle_compare"
@@ -39,54 +40,6 @@ WARN_PERIOD = 5.0  # [s] between repeated warnings about bad input
 LOGGABLE = {"model/shape": NeedleShape, "measured/shape": NeedleShape, "measured/points": PointCloud2,
             "shape_error": ShapeError, "base_pose": PoseStamped, "wrench": WrenchStamped,
             **{topic: Path if topic.endswith("path") else Marker for topic in DISPLAY_TOPICS}}
-
-
-def _unit_quaternion(q) -> bool:
-    return math.isfinite(sum(q)) and np.linalg.norm(q) > 1e-6
-
-
-PARAMETERS = [
-    ParamSpec("tolerance", 0.005, "Largest stamp difference [s] between a measured and a model shape that are "
-              "compared.", low=0.0, high=10.0),
-    ParamSpec("extrinsic.translation", [0.0, 0.0, 0.0], "Camera origin in the model frame [m] (x, y, z): "
-              "p_model = R p_camera + t.", length=3),
-    ParamSpec("extrinsic.rotation", [0.0, 0.0, 0.0, 1.0], "Camera orientation R in the model frame as a "
-              "quaternion (x, y, z, w); normalized here.", length=4,
-              check=(_unit_quaternion, "must be a finite, non-zero quaternion")),
-    ParamSpec("model_frame", "", "Expected header.frame_id of model shapes; errors are expressed in it. "
-              "Empty: accept any."),
-    ParamSpec("measured_frame", "", "Expected header.frame_id of measurements (the camera frame). Empty: accept any."),
-    ParamSpec("measured_input", "shape", "Measurement topic: 'shape' = measured/shape (NeedleShape, ordered base to "
-              "tip), 'points' = measured/points (PointCloud2 with float32 x, y, z).", choices=("shape", "points")),
-    ParamSpec("max_match_distance", 0.0, "Measured samples farther than this [m] from the model centerline are "
-              "outliers and not matched; 0 matches all.", low=0.0, high=10.0),
-    ParamSpec("model_buffer", 200, "Model shapes kept for pairing [count]; must cover the measurement latency "
-              "times the model rate.", low=1, high=100000),
-    ParamSpec("qos.inputs", "sensor_data", "QoS of the recorded base_pose and wrench subscriptions: sensor_data "
-              "(best effort: matches the simulator's default best-effort wrench and reliable publishers) or "
-              "reliable (every message of a reliable publisher, e.g. qos.wrench: reliable in a replay).",
-              choices=("reliable", "sensor_data")),
-    ParamSpec("summary_path", "", "JSON file written at shutdown with mean/max RMSE and counts. Empty: none."),
-    ParamSpec("display.rate", 10.0, "Largest rate [Hz of measurement time] of the compared centerlines as "
-              "nav_msgs/Path and Marker tubes on compare/{model,measured}/{path,marker} (model frame); 0: none.",
-              low=0.0, high=1000.0),
-    ParamSpec("display.tube_radius", 0.000635, "Radius [m] of the Marker tubes (the needle's).", low=1e-6, high=0.1),
-    ParamSpec("log.tf", True, "Also record /tf and /tf_static (needs tf2_msgs; without it the log has no TF)."),
-    ParamSpec("log.path", "", "MCAP recording: a '.mcap' file, or a rosbag2 bag directory (any other path; may be "
-              "split). Empty: no recording."),
-    ParamSpec("log.topics", list(LOGGABLE), "Topics recorded (relative to the node namespace), a subset of "
-              + ", ".join(LOGGABLE) + ".", check=(lambda v: set(v) <= set(LOGGABLE), "unknown topic")),
-    ParamSpec("log.compression", "zstd", "Chunk compression of the recording.", choices=("zstd", "lz4", "none")),
-    ParamSpec("log.chunk_size", 1 << 20, "Uncompressed chunk size [bytes] at which a chunk is written to disk.",
-              low=1024, high=1 << 30),
-    ParamSpec("log.chunk_interval", 1.0, "Longest time [s] a chunk stays in memory (data lost on a crash).",
-              low=0.0, high=3600.0),
-    ParamSpec("log.max_file_size", 0, "Split a bag directory into a new file past this size [bytes]; 0 = never.",
-              low=0, high=1 << 50),
-    ParamSpec("log.max_file_duration", 0.0, "Split a bag directory into a new file past this duration [s]; "
-              "0 = never.", low=0.0, high=1e7),
-    ParamSpec("log.overwrite", False, "Replace an existing recording at log.path instead of refusing to start."),
-]
 
 
 def stamp_ns(stamp) -> int:
@@ -124,16 +77,12 @@ def parameter_file(values: dict[str, Any]) -> str:
 class CompareNode(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        self.values = declare_all(self, PARAMETERS)
+        self.values = declare_all(self, COMPARE_PARAMETERS)
         v = self.values
         if v["log.path"].endswith(".mcap") and (v["log.max_file_size"] or v["log.max_file_duration"]):
             raise ParameterError("parameters 'log.max_file_size'/'log.max_file_duration' split a recording and need "
                                  f"'log.path' to be a bag directory (no .mcap suffix), got '{v['log.path']}'")
-        extrinsic = [*v["extrinsic.translation"], *v["extrinsic.rotation"]]
-        self.model_from_camera = RigidTransform.from_xyz_quaternion(extrinsic)
-        self.max_match_distance = v["max_match_distance"] or math.inf
-        self.pairer = StampPairer(int(round(v["tolerance"] * 1e9)), model_buffer=v["model_buffer"])
-        self.summary = ErrorSummary()
+        self.session = ComparisonSession(v, self.warn_rejected)
         self.error_qos = QoSProfile(depth=10)
         self.error_publisher = self.create_publisher(ShapeError, "shape_error", self.error_qos)
         self.recorder = self._open_recording() if v["log.path"] else None
@@ -189,67 +138,38 @@ class CompareNode(Node):
         if resolved in self.logged:
             self.recorder.record(resolved, message, message_type, own_qos)
 
-    def reject(self, what: str, reason: str) -> None:
-        self.summary.reject(what)
+    def warn_rejected(self, what: str, reason: str) -> None:
         self.get_logger().warning(f"ignoring {what}: {reason}", throttle_duration_sec=WARN_PERIOD)
-
-    def frame_ok(self, what: str, frame_id: str, expected: str) -> bool:
-        if expected and frame_id != expected:
-            self.reject(what, f"frame_id '{frame_id}' is not '{expected}'")
-            return False
-        return True
 
     def on_model(self, msg: NeedleShape) -> None:
         self.log("model/shape", msg, NeedleShape)
-        if not self.frame_ok("model shape", msg.header.frame_id, self.values["model_frame"]):
-            return
-        try:
-            points, arc_length, _ = shape_arrays(msg)
-            centerline = Centerline(points, arc_length)
-            if len(points) < 2:
-                raise ComparisonError("needs at least two samples")
-        except ComparisonError as error:
-            self.reject("model shape", str(error))
-            return
-        self.compare(self.pairer.add_model(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+        points, arc_length, _ = shape_arrays(msg)
+        self.publish(self.session.add_model(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header, points,
+                                            arc_length))
 
     def on_measured_shape(self, msg: NeedleShape) -> None:
         self.log("measured/shape", msg, NeedleShape)
-        if not self.frame_ok("measured shape", msg.header.frame_id, self.values["measured_frame"]):
-            return
-        try:
-            points, arc_length, _ = shape_arrays(msg)
-            centerline = Centerline(points, arc_length)
-        except ComparisonError as error:
-            self.reject("measured shape", str(error))
-            return
-        self.compare(self.pairer.add_measurement(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+        points, arc_length, _ = shape_arrays(msg)
+        self.publish(self.session.add_measurement(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header,
+                                                  points, arc_length))
 
     def on_measured_points(self, msg: PointCloud2) -> None:
         self.log("measured/points", msg, PointCloud2)
-        if not self.frame_ok("measured points", msg.header.frame_id, self.values["measured_frame"]):
-            return
         try:
-            centerline = Centerline(cloud_points(msg), ordered=False)
-        except (ValueError, ComparisonError) as error:
-            self.reject("measured points", str(error))
+            points = cloud_points(msg)
+        except ValueError as error:
+            self.session.reject("measured points", str(error))
             return
-        self.compare(self.pairer.add_measurement(stamp_ns(msg.header.stamp), (msg.header, centerline)))
+        self.publish(self.session.add_measurement(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header,
+                                                  points, what="measured points"))
 
     # --- output -----------------------------------------------------------------------------------------------
-    def compare(self, pairs) -> None:
-        for pair in pairs:
-            (model_header, model), (measured_header, measured) = pair.model, pair.measurement
-            try:
-                result = compare_centerlines(model, measured, self.model_from_camera, self.max_match_distance)
-            except ComparisonError as error:
-                self.reject("shape pair", str(error))
-                continue
-            self.summary.add(result)
-            msg = shape_error_msg(result, model_header, measured_header)
+    def publish(self, compared: list[ComparedPair]) -> None:
+        for pair in compared:
+            msg = shape_error_msg(pair.result, pair.model_tag, pair.measured_tag)
             self.error_publisher.publish(msg)
             self.log("shape_error", msg, ShapeError, self.error_qos)
-            self.display(model_header, model, measured, result)
+            self.display(pair.model_tag, pair.model, pair.measured, pair.result)
 
     def display(self, model_header, model: Centerline, measured: Centerline, result) -> None:
         """The compared centerlines as Path and Marker tube (model frame), at most ``display.rate`` per second of
@@ -259,7 +179,7 @@ class CompareNode(Node):
         if rate <= 0.0 or self._next_display_ns - 2e9 / rate <= now_ns < self._next_display_ns:
             return
         self._next_display_ns = now_ns + int(1e9 / rate)
-        points = self.model_from_camera.apply(measured.points)[result.matched]
+        points = self.session.model_from_camera.apply(measured.points)[result.matched]
         if not measured.ordered:  # a point cloud: order by the arc length of the closest model point
             points = points[np.argsort(result.arc_length)]
         stamp, frame, radius = model_header.stamp, model_header.frame_id, self.values["display.tube_radius"]
@@ -279,8 +199,7 @@ class CompareNode(Node):
             else:
                 print(f"[{NODE_NAME}] recording NOT finalized ({self.recorder.failure}): {files}; "
                       "needle_mcap_recover rebuilds its index", file=sys.stderr, flush=True)
-        self.summary.unpaired_measurements = self.pairer.unpaired
-        report = self.summary.as_dict()
+        report = self.session.finish()
         print(f"[{NODE_NAME}] summary: {json.dumps(report)}", flush=True)
         if self.values["summary_path"]:
             path = pathlib.Path(self.values["summary_path"])
@@ -293,7 +212,7 @@ class CompareNode(Node):
 
 
 def main(args=None) -> int:
-    return run_node(CompareNode, NODE_NAME, args, PARAMETERS)
+    return run_node(CompareNode, NODE_NAME, args, COMPARE_PARAMETERS)
 
 
 if __name__ == "__main__":

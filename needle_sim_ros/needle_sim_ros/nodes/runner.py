@@ -9,9 +9,8 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
-from needle_vision.parameters import check_ros_arguments
+from needle_vision.parameters import ParameterError, ParamSpec, check_ros_arguments
 
-from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
 
 EXIT_BAD_PARAMETER = 2
 

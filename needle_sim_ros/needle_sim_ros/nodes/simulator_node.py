@@ -33,17 +33,20 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from needle_sim_ros import cdr
+from needle_vision.parameters import ParameterError
+
 from needle_sim_ros.base_trajectory import PoseVerdict
+from needle_sim_ros.messages import cdr
+from needle_sim_ros.messages.geometry import quaternions_from_tangents, tube_triangles
+from needle_sim_ros.messages.shape import time_msg
 from needle_sim_ros.model import State, centerline, elastic_energy, kinetic_energy, tip_pose
 from needle_sim_ros.nodes.diagnostics import HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
-from needle_sim_ros.nodes.parameters import ParameterError, declare_all, guard_dynamic_updates
+from needle_sim_ros.nodes.parameters import declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import PolledCallbackGroup, drain
 from needle_sim_ros.nodes.runner import run_node
-from needle_sim_ros.nodes.shape_messages import quaternions_from_tangents, time_msg, tube_triangles
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.nodes.tf_output import SimulatorTf
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
     TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters, simulation_from_parameters,
     step_wrenches)

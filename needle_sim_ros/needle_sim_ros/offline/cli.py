@@ -23,8 +23,9 @@ from typing import Any
 import yaml
 from tqdm import tqdm
 
-from needle_sim_ros.nodes.parameters import ParameterError
-from needle_sim_ros.offline.parameters import NODES, ExperimentConfigError, experiment_for_bag, load_experiment
+from needle_vision.parameters import ParameterError
+
+from needle_sim_ros.parameters.experiment import NODES, ExperimentConfigError, experiment_for_bag, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
 from needle_sim_ros.offline.plots import write_plots
 from needle_sim_ros.offline.results import read_pipeline_log, versus_ground_truth

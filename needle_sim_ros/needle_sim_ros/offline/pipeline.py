@@ -26,8 +26,8 @@ from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo
 
-from needle_sim_ros import cdr
-from needle_sim_ros.offline.parameters import ExperimentConfig
+from needle_sim_ros.messages import cdr
+from needle_sim_ros.parameters.experiment import ExperimentConfig
 from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
                                            simulator_values, stereo_values)
 from needle_sim_ros.recording import BagReader, BagReadError, OfferedQos, WriterOptions
@@ -52,7 +52,8 @@ DECODE_ERRORS = (ValueError, RuntimeError, IndexError, struct.error, UnicodeDeco
 
 
 def decode(topic: str, data: bytes) -> Any:
-    """An input message from its serialized bytes (images and poses decoded directly: :mod:`cdr`)."""
+    """An input message from its serialized bytes (images and poses decoded directly:
+    :mod:`needle_sim_ros.messages.cdr`)."""
     if topic.endswith("image_raw"):
         return cdr.image(data)
     if topic == "/base_pose":

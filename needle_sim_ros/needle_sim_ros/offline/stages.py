@@ -6,7 +6,8 @@ Each stage holds the same ROS-free core as its node and translates messages exac
   deterministically (up to min(clock, newest pose stamp)), a ``wrench`` per step (base frame) and a ``needle/shape``
   at ``rates.shape_hz``. The node publishes shapes when its clock passes the due time; here they are due on the same
   rate counted in integration steps from the first pose, so that a measurement stamped on that grid meets a model
-  shape of the very same instant. The two high-rate outputs are serialized straight from arrays (:mod:`.cdr`).
+  shape of the very same instant. The two high-rate outputs are serialized straight from arrays
+  (:mod:`needle_sim_ros.messages.cdr`).
 * :class:`StereoStage` — ``needle_stereo``: left/right pairing by stamp and
   :class:`needle_vision.pipeline.StereoNeedlePipeline`, publishing ``needle/measured_shape``.
 * :class:`ComparisonStage` — ``needle_compare``: stamp pairing, extrinsic and centerline distances
@@ -30,16 +31,17 @@ from needle_vision.calibration import (CalibrationError, StereoRig, calibration_
                                        load_camera_calibration)
 from needle_vision.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.pairing import StampPairer as FramePairer
-from needle_vision.parameters import ROS_BUILTIN, output_from_left, stereo_config, unknown_name_error, validate_all
+from needle_vision.parameters import (ROS_BUILTIN, ParameterError, ParamSpec, output_from_left, stereo_config,
+                                      unknown_name_error, validate_all)
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
-from needle_vision.transform import RigidTransform, quaternion_from_x_axis
+from needle_vision.transform import quaternion_from_x_axis
 
-from needle_sim_ros.comparison import Centerline, ComparisonError, ErrorSummary, StampPairer, compare_centerlines
-from needle_sim_ros.nodes.compare_node import PARAMETERS as COMPARE_PARAMETERS
-from needle_sim_ros.nodes.parameters import ParameterError, ParamSpec
-from needle_sim_ros.nodes.shape_messages import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
-from needle_sim_ros import cdr
+from needle_sim_ros.comparison import ComparedPair, ComparisonSession
+from needle_sim_ros.messages import cdr
+from needle_sim_ros.messages.shape import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
+from needle_sim_ros.model import tip_pose
+from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
 
 NS = 1_000_000_000
@@ -147,7 +149,10 @@ class SimulatorStage:
 
     def shape(self) -> "ModelShape":
         line = self.sim.shape(self.p["output.shape_samples"])
-        tip_position, tip_orientation = self.sim.tip()
+        # as the node's snapshot: the tip frame's y, z axes are the base frame's carried along the needle
+        base = self.sim.base
+        tip_position, tip_orientation = tip_pose(self.sim.model, self.sim.state.q,
+                                                 None if base is None else base.orientation)
         header = Header(stamp=time_msg(self.sim.state.t), frame_id=self.p["frames.world"])
         return ModelShape(header, line.points, line.tangents, line.arc_length, tip_position, tip_orientation)
 
@@ -231,66 +236,31 @@ class StereoStage:
 
 
 class ComparisonStage:
-    """``needle_compare`` (:mod:`needle_sim_ros.nodes.compare_node`) on the model and measured shapes."""
+    """``needle_compare`` (:mod:`needle_sim_ros.nodes.compare_node`) on the model and measured shapes: the same
+    :class:`needle_sim_ros.comparison.ComparisonSession`."""
 
     def __init__(self, v: dict[str, Any]) -> None:
         if v["measured_input"] != "shape":
             raise ParameterError("needle_compare: the offline pipeline compares measured/shape only "
                                  "(parameter 'measured_input' must be 'shape')")
         self.values = v
-        extrinsic = [*v["extrinsic.translation"], *v["extrinsic.rotation"]]
-        self.model_from_camera = RigidTransform.from_xyz_quaternion(extrinsic)
-        self.max_match_distance = v["max_match_distance"] or math.inf
-        self.pairer = StampPairer(int(round(v["tolerance"] * 1e9)), model_buffer=v["model_buffer"])
-        self.summary = ErrorSummary()
-
-    def _centerline(self, what: str, header: Header, points: np.ndarray, arc_length: np.ndarray, frame: str,
-                    minimum: int) -> Centerline | None:
-        """As the node: wrong frame, bad samples or too few samples reject the shape (counted)."""
-        if frame and header.frame_id != frame:
-            self.summary.reject(what)
-            return None
-        try:
-            centerline = Centerline(points, arc_length)
-            if len(points) < minimum:
-                raise ComparisonError("needs at least two samples")
-        except ComparisonError:
-            self.summary.reject(what)
-            return None
-        return centerline
+        self.session = ComparisonSession(v)
 
     def on_model(self, shape: ModelShape) -> list[ShapeError]:
-        centerline = self._centerline("model shape", shape.header, shape.points, shape.arc_length,
-                                      self.values["model_frame"], 2)
-        if centerline is None:
-            return []
-        return self.compare(self.pairer.add_model(stamp_ns(shape.header), (shape.header, centerline)))
+        return self.errors(self.session.add_model(stamp_ns(shape.header), shape.header.frame_id, shape.header,
+                                                  shape.points, shape.arc_length))
 
     def on_measured(self, msg: NeedleShape) -> list[ShapeError]:
         points, arc_length, _ = shape_arrays(msg)
-        centerline = self._centerline("measured shape", msg.header, points, arc_length,
-                                      self.values["measured_frame"], 1)
-        if centerline is None:
-            return []
-        return self.compare(self.pairer.add_measurement(stamp_ns(msg.header), (msg.header, centerline)))
+        return self.errors(self.session.add_measurement(stamp_ns(msg.header), msg.header.frame_id, msg.header,
+                                                        points, arc_length))
 
-    def compare(self, pairs) -> list[ShapeError]:
-        errors = []
-        for pair in pairs:
-            (model_header, model), (measured_header, measured) = pair.model, pair.measurement
-            try:
-                result = compare_centerlines(model, measured, self.model_from_camera, self.max_match_distance)
-            except ComparisonError:
-                self.summary.reject("shape pair")
-                continue
-            self.summary.add(result)
-            msg = shape_error_msg(result, model_header, measured_header)
-            errors.append(msg)
-        return errors
+    @staticmethod
+    def errors(compared: list[ComparedPair]) -> list[ShapeError]:
+        return [shape_error_msg(pair.result, pair.model_tag, pair.measured_tag) for pair in compared]
 
     def finish(self) -> dict[str, Any]:
-        self.summary.unpaired_measurements = self.pairer.unpaired
-        return self.summary.as_dict()
+        return self.session.finish()
 
 
 def simulator_values(values: dict[str, Any]) -> dict[str, Any]:

@@ -47,7 +47,7 @@ def checked_params_file(path: Path, prefixes: tuple[str, ...]) -> dict:
     """The ``needle_simulator`` (or ``/**``) values of a params file, checked by the shared loader against the
     simulator's declarations (ParameterError, a ValueError, naming the file and parameter); only names starting
     with ``prefixes`` are kept, and empty model lists become None (the model's "none")."""
-    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
     values = load_params_file(path, "needle_simulator", [*SIMULATOR_PARAMETERS, *MODEL_ONLY_PARAMETERS])
     return {name: (None if value == [] and name in DEFAULTS else value)
             for name, value in values.items() if name.startswith(prefixes)}

@@ -1,6 +1,5 @@
-"""Needle centerline <-> ROS message objects (NeedleShape, ShapeError) and the geometry of the shape outputs
-(pose orientations along the centerline, the tube's triangles); :mod:`needle_sim_ros.cdr` encodes the simulator's
-high-rate outputs directly."""
+"""Needle centerline <-> ROS message objects (NeedleShape, ShapeError, Time); :mod:`needle_sim_ros.messages.cdr`
+encodes the simulator's high-rate outputs directly."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,18 +7,6 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from needle_interfaces.msg import NeedleShape, ShapeError
 from std_msgs.msg import Header
-
-
-def quaternions_from_tangents(tangents: np.ndarray) -> np.ndarray:
-    """Unit quaternions (x, y, z, w) of frames whose x axis is each tangent, with the least rotation from world x."""
-    t = tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
-    x = np.array([1.0, 0.0, 0.0])
-    axis = np.cross(x, t)
-    w = 1.0 + t[:, 0]
-    q = np.column_stack([axis, w])
-    opposite = w < 1e-9  # tangent along -x: rotate by pi about z
-    q[opposite] = [0.0, 0.0, 1.0, 0.0]
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def _pose(position, quaternion) -> Pose:
@@ -47,30 +34,6 @@ def shape_arrays(msg: NeedleShape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(points (n,3), arc_length (n,), uncertainty (n,) or empty) of a NeedleShape."""
     points = np.array([[p.x, p.y, p.z] for p in msg.points], dtype=float).reshape(-1, 3)
     return points, np.asarray(msg.arc_length, dtype=float), np.asarray(msg.uncertainty, dtype=float)
-
-
-def tube_triangles(points: np.ndarray, tangents: np.ndarray, radius: float, sides: int = 8) -> np.ndarray:
-    """Triangle-list vertices (m, 3) of a tube of the given radius around a centerline.
-
-    Cross-section frames are carried along the curve by parallel transport (no twist), so the tube does not
-    spin with the curve's Frenet frame and stays well defined where the curvature vanishes.
-    """
-    t = tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
-    helper = np.array([0.0, 0.0, 1.0]) if abs(t[0, 2]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    normals = np.empty_like(t)
-    n = np.cross(helper, t[0])
-    normals[0] = n / np.linalg.norm(n)
-    for i in range(1, len(t)):
-        n = normals[i - 1] - np.dot(normals[i - 1], t[i]) * t[i]
-        normals[i] = n / np.linalg.norm(n)
-    binormals = np.cross(t, normals)
-    angles = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
-    rings = points[:, None, :] + radius * (np.cos(angles)[None, :, None] * normals[:, None, :]
-                                           + np.sin(angles)[None, :, None] * binormals[:, None, :])
-    a, b = rings[:-1], rings[1:]
-    a_next, b_next = np.roll(a, -1, axis=1), np.roll(b, -1, axis=1)
-    quads = np.stack([a, b, b_next, a, b_next, a_next], axis=2)  # two triangles per quad
-    return quads.reshape(-1, 3)
 
 
 def time_msg(seconds: float) -> Time:

@@ -6,9 +6,11 @@ vertices. Building rclpy messages (a Python object per point) and serializing th
 per wrench and ~10 ms per tube -- Python work that holds the GIL against the 1 kHz integration thread. These
 encoders write the same bytes from the arrays in microseconds; nodes publish them with ``Publisher.publish(bytes)``
 and the offline pipeline records them. They produce exactly what ``rclpy.serialization.serialize_message``
-produces for the equivalent message (checked by the tests): XCDR1 little endian (encapsulation 0x0001),
+produces for the equivalent message (checked byte for byte by test_cdr): XCDR1 little endian (encapsulation 0x0001),
 primitives aligned to their size from the start of the payload, strings as uint32 length (with the terminating
-NUL) + bytes + NUL, sequences as uint32 count + elements.
+NUL) + bytes + NUL, sequences as uint32 count + elements, padding bytes zero. ``serialize_message`` returns as many
+bytes as rmw_fastrtps's size estimate, which aligns a sequence of float64 to 8 bytes even when it is empty (the
+serializer itself does not): the encoders end with the same number of zero bytes.
 """
 from __future__ import annotations
 
@@ -32,13 +34,16 @@ class _Buffer:
     def __init__(self) -> None:
         self.parts: list[bytes] = []
         self.size = 0
+        self.estimated_size = 0  # rmw_fastrtps's size estimate: never less than ``size``
 
     def _add(self, data: bytes) -> None:
         self.parts.append(data)
         self.size += len(data)
+        self.estimated_size += len(data)
 
     def align(self, boundary: int) -> None:
         padding = -self.size % boundary
+        self.estimated_size += -self.estimated_size % boundary - padding
         if padding:
             self._add(b"\x00" * padding)
 
@@ -68,13 +73,19 @@ class _Buffer:
             self._add(values.tobytes())
 
     def sequence(self, values: np.ndarray, per_element: int) -> None:
-        """uint32 element count, then the elements' doubles (``per_element`` doubles each)."""
+        """uint32 element count, then the elements' doubles: structs of ``per_element`` doubles each (Point,
+        Vector3, Pose)."""
         values = np.asarray(values, dtype=float).reshape(-1)
         self.uint32(values.size // per_element)
         self.doubles(values)
 
+    def float64_sequence(self, values: np.ndarray) -> None:
+        """uint32 count, then the float64 values (the size estimate aligns them even when there are none)."""
+        self.sequence(values, 1)
+        self.estimated_size += -self.estimated_size % 8
+
     def bytes(self) -> bytes:
-        return ENCAPSULATION + b"".join(self.parts)
+        return ENCAPSULATION + b"".join(self.parts) + bytes(self.estimated_size - self.size)
 
 
 @lru_cache(maxsize=8)
@@ -172,8 +183,8 @@ def needle_shape(sec: int, nanosec: int, frame_id: str, source: str, points: np.
     buffer.string(source)
     buffer.sequence(points, 3)
     buffer.sequence(tangents, 3)
-    buffer.sequence(arc_length, 1)
-    buffer.sequence(np.zeros(0) if uncertainty is None else uncertainty, 1)
+    buffer.float64_sequence(arc_length)
+    buffer.float64_sequence(np.zeros(0) if uncertainty is None else uncertainty)
     length = float(arc_length[-1]) if len(arc_length) else 0.0
     buffer.doubles(np.concatenate([tip_position, tip_orientation, [length]]))
     return buffer.bytes()

@@ -42,9 +42,9 @@ def node_specs(node: str) -> list[ParamSpec]:
         from needle_vision.parameters import SPECS
         return list(SPECS)
     if node == "needle_compare":
-        from needle_sim_ros.nodes.compare_node import PARAMETERS
-        return PARAMETERS
-    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+        from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+        return COMPARE_PARAMETERS
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
     return SIMULATOR_PARAMETERS
 
 

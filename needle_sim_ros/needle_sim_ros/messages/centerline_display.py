@@ -1,24 +1,16 @@
 """Model and measured centerlines of a comparison for RViz and Foxglove: nav_msgs/Path and a Marker tube.
 
 Both are in the model frame (the measurement mapped by the camera -> model extrinsic), serialized with the
-encoders of :mod:`needle_sim_ros.cdr` (checked byte for byte against rclpy in test_end_to_end).
+encoders of :mod:`needle_sim_ros.messages.cdr` (checked byte for byte against rclpy in test_cdr).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from needle_sim_ros import cdr
-from needle_sim_ros.nodes.shape_messages import quaternions_from_tangents, tube_triangles
+from needle_sim_ros.messages import cdr
+from needle_sim_ros.messages.geometry import polyline_tangents, quaternions_from_tangents, tube_triangles
 
-DISPLAY_TOPICS = ("compare/model/path", "compare/model/marker", "compare/measured/path", "compare/measured/marker")
 COLORS = {"model": (0.75, 0.75, 0.8, 1.0), "measured": (1.0, 0.55, 0.1, 0.8)}  # RGBA
-
-
-def polyline_tangents(points: np.ndarray) -> np.ndarray:
-    """Unit tangents of a sampled curve (central differences; one-sided at the ends)."""
-    tangents = np.gradient(points, axis=0)
-    norms = np.linalg.norm(tangents, axis=1, keepdims=True)
-    return tangents / np.where(norms > 0.0, norms, 1.0)
 
 
 def centerline_display(sec: int, nanosec: int, frame_id: str, kind: str, points: np.ndarray,

@@ -1,0 +1,107 @@
+"""The package layout of issue 12: one ROS-free core per node, which the node and the offline stage both call.
+
+``offline/`` never imports ``nodes/`` and ``nodes/`` never imports ``offline/`` (read from each file's syntax tree),
+and the cores import neither rclpy nor any ROS message package, not even through other modules (checked by
+importing them in a fresh interpreter in which those imports fail).
+"""
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import needle_sim_ros
+
+PACKAGE = Path(needle_sim_ros.__file__).parent  # the installed package: what the executables run
+#: The ROS-free cores (packages and single modules of needle_sim_ros), as the README lists them.
+ROS_FREE = ("model", "tissue", "simulation", "base_trajectory", "quaternion", "comparison", "parameters",
+            "recording", "scenarios", "launch_support", "messages.geometry")
+#: Distributions of ROS 2 itself (the message packages are recognised by their suffixes).
+ROS_PACKAGES = ("rclpy", "rcl_interfaces", "builtin_interfaces", "rosidl_runtime_py", "rpyutils")
+ROS_SUFFIXES = ("_msgs", "_srvs", "_interfaces")
+
+
+def imported_modules(source: str, package: str) -> set[str]:
+    """Absolute names of the modules a source file of ``package`` imports, anywhere in it (relative imports
+    resolved against the package)."""
+    names = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            names |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = package.rsplit(".", node.level - 1)[0] if node.level else ""
+            module = ".".join(part for part in (base, node.module or "") if part)
+            names |= {module} | {f"{module}.{alias.name}" for alias in node.names}
+    return names
+
+
+@pytest.mark.parametrize("importer, forbidden", [("offline", "needle_sim_ros.nodes"),
+                                                 ("nodes", "needle_sim_ros.offline")])
+def test_offline_and_nodes_do_not_import_each_other(importer, forbidden):
+    files = sorted((PACKAGE / importer).glob("*.py"))
+    assert files
+    offending = {path.name: sorted(name for name in imported_modules(path.read_text(), f"needle_sim_ros.{importer}")
+                                   if name == forbidden or name.startswith(forbidden + "."))
+                 for path in files}
+    assert {path: names for path, names in offending.items() if names} == {}
+
+
+def test_imported_modules_sees_absolute_relative_and_nested_imports():
+    # the checker itself must see every form of import the rule forbids
+    source = "from ..nodes import runner\nfrom . import stages\ndef f():\n    import needle_sim_ros.nodes.bringup\n"
+    assert imported_modules(source, "needle_sim_ros.offline") == {
+        "needle_sim_ros.nodes", "needle_sim_ros.nodes.runner", "needle_sim_ros.offline",
+        "needle_sim_ros.offline.stages", "needle_sim_ros.nodes.bringup"}
+
+
+BLOCKING_IMPORTER = """
+import importlib, json, pkgutil, sys
+ROS, SUFFIXES = {ros!r}, {suffixes!r}
+
+class BlockRos:
+    def find_spec(self, name, path=None, target=None):
+        top = name.split(".")[0]
+        if top in ROS or top.endswith(SUFFIXES):
+            raise ImportError(f"ROS module {{name}} imported")
+        return None
+
+sys.meta_path.insert(0, BlockRos())
+failures = {{}}
+for core in {cores!r}:
+    names = ["needle_sim_ros." + core]
+    try:
+        module = importlib.import_module(names[0])
+        if hasattr(module, "__path__"):
+            names += [m.name for m in pkgutil.walk_packages(module.__path__, names[0] + ".")]
+        for name in names:
+            importlib.import_module(name)
+    except ImportError as error:
+        failures[core] = str(error)
+print(json.dumps(failures))
+"""
+
+
+def blocked_import_failures(cores) -> dict[str, str]:
+    script = BLOCKING_IMPORTER.format(ros=ROS_PACKAGES, suffixes=ROS_SUFFIXES, cores=tuple(cores))
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def test_the_cores_import_no_ros():
+    assert blocked_import_failures(ROS_FREE) == {}
+
+
+def test_the_ros_blocker_catches_ros_imports():
+    # the nodes and the message encoders do use ROS: the same check must flag them
+    failures = blocked_import_failures(("nodes", "messages.cdr", "offline"))
+    assert set(failures) == {"nodes", "messages.cdr", "offline"}
+    assert all("ROS module" in reason for reason in failures.values())
+
+
+def test_the_compare_node_records_exactly_the_declared_topics():
+    from needle_sim_ros.nodes.compare_node import LOGGABLE
+    from needle_sim_ros.parameters.compare import LOGGABLE_TOPICS
+    assert tuple(LOGGABLE) == LOGGABLE_TOPICS
