@@ -196,3 +196,15 @@ def test_every_shipped_config_file_loads_cleanly(monkeypatch):
             warnings = []
             load_params_file(path, node, SPECS[node], warn=warnings.append, require_section=False)
             assert not warnings, warnings
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("node", ["needle_simulator", "needle_compare", "needle_stereo"])
+def test_every_node_refuses_a_command_line_override_of_an_unknown_name(tmp_path, node, ros_env):
+    """``-p needle.lenght:=0.2``: rclpy would ignore the undeclared name and run with the default length."""
+    result = run([node, "--ros-args", "-p", "needle.lenght:=0.2"], tmp_path, ros_env)
+    output = result.stdout + result.stderr
+    assert result.returncode == 2 and "Traceback" not in output, output
+    assert "unknown parameter 'needle.lenght'" in output, output
+    if node == "needle_simulator":
+        assert "did you mean 'needle.length'" in output, output

@@ -18,7 +18,7 @@ import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, NamedTuple, Sequence
 
 import numpy as np
 import yaml
@@ -119,6 +119,11 @@ class ParamSpec:
         if self.check is not None and not self.check[0](value):
             fail(self.check[1])
         return [expected(v) for v in values] if self.is_list else expected(value)
+
+
+def _set_by_ros(name: str) -> bool:
+    """Whether rclpy itself declares the parameter on every node (sim time, QoS overrides)."""
+    return name in ROS_BUILTIN or name.startswith("qos_overrides.")
 
 
 def unknown_name_error(name: str, known: Iterable[str], where: str = "") -> ParameterError:
@@ -425,7 +430,7 @@ def load_params_file(path: str | Path, node_name: str = "needle_stereo", specs: 
         for name, value in flat.items():
             where = f"params file '{path}', node '{node_name}': "
             if specs is not None and name not in by_name:
-                if name in ROS_BUILTIN or name.startswith("qos_overrides.") or "*" in section and name in others:
+                if _set_by_ros(name) or "*" in section and name in others:
                     continue
                 raise unknown_name_error(name, by_name, where)
             try:
@@ -437,9 +442,18 @@ def load_params_file(path: str | Path, node_name: str = "needle_stereo", specs: 
     return values
 
 
-def ros_argument_files(argv: Sequence[str]) -> tuple[list[str], str | None, str]:
-    """(params files, node name remap or None, namespace) from the ``--ros-args`` parts of a command line."""
-    files, node, namespace = [], None, "/"
+class RosArguments(NamedTuple):
+    """The parts of a command line's ``--ros-args`` that set a node's parameters."""
+
+    params_files: list[str]
+    node_name: str | None                   # the __node remap, if any
+    namespace: str
+    overrides: list[tuple[str | None, str]]  # (node the rule is for, or None for every node; name) of -p/--param
+
+
+def ros_arguments(argv: Sequence[str]) -> RosArguments:
+    """Params files, node name remap, namespace and parameter overrides from the ``--ros-args`` parts of argv."""
+    parsed = RosArguments([], None, "/", [])
     inside, k = False, 0
     while k < len(argv):
         arg = argv[k]
@@ -448,23 +462,37 @@ def ros_argument_files(argv: Sequence[str]) -> tuple[list[str], str | None, str]
         elif arg == "--":
             inside = False
         elif inside and arg == "--params-file" and k + 1 < len(argv):
-            files.append(argv[k + 1])
+            parsed.params_files.append(argv[k + 1])
+            k += 1
+        elif inside and arg in ("-p", "--param") and k + 1 < len(argv):
+            target, _, name = argv[k + 1].partition(":=")[0].rpartition(":")
+            parsed.overrides.append((target or None, name))
             k += 1
         elif inside and arg in ("-r", "--remap") and k + 1 < len(argv):
             rule = argv[k + 1].split(":", 1)[-1] if argv[k + 1].count(":=") and ":__" in argv[k + 1] else argv[k + 1]
             if rule.startswith("__node:="):
-                node = rule.split(":=", 1)[1]
+                parsed = parsed._replace(node_name=rule.split(":=", 1)[1])
             elif rule.startswith("__ns:="):
-                namespace = rule.split(":=", 1)[1]
+                parsed = parsed._replace(namespace=rule.split(":=", 1)[1])
             k += 1
         k += 1
-    return files, node, namespace
+    return parsed
 
 
 def check_ros_arguments(argv: Sequence[str], node_name: str, specs: Sequence[ParamSpec] | None,
                         warn: Callable[[str], None] = _print_warning, known_elsewhere: Iterable[str] = ()) -> None:
     """Check every ``--params-file`` of a node's command line with :func:`load_params_file` before rclpy reads
-    it (rcl's own parser would fail with a traceback); raises ParameterError."""
-    files, remapped, namespace = ros_argument_files(argv)
-    for path in files:
-        load_params_file(path, remapped or node_name, specs, namespace, warn, known_elsewhere)
+    it (rcl's own parser would fail with a traceback), and the names of its ``-p name:=value`` overrides (rclpy
+    would ignore an undeclared one silently); raises ParameterError. A ``-p`` rule without a node prefix reaches
+    every node started with the command line: names in ``known_elsewhere`` belong to the others."""
+    parsed = ros_arguments(argv)
+    node = parsed.node_name or node_name
+    for path in parsed.params_files:
+        load_params_file(path, node, specs, parsed.namespace, warn, known_elsewhere)
+    names = {spec.name for spec in (NODE_SPECS.get(node) if specs is None else specs) or ()}
+    others = set(known_elsewhere)
+    for target, name in parsed.overrides:
+        if not names or target not in (None, node) or name in names or _set_by_ros(name) \
+                or target is None and name in others:
+            continue
+        raise unknown_name_error(name, names, f"parameter override '-p {name}:=...' for node '{node}': ")

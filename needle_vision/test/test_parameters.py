@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from needle_vision.package_files import share_file
-from needle_vision.parameters import SPECS, ParameterError, load_params_file, stereo_config, validate_all
+from needle_vision.parameters import (SPECS, ParameterError, check_ros_arguments, load_params_file, stereo_config,
+                                      validate_all)
 
 CONFIG = share_file("needle_vision", "config/needle_stereo.yaml")  # as installed
 
@@ -57,3 +58,21 @@ def test_tracking_and_polarity_reach_the_pipeline_config():
                                          "base_point": [0.1, 0.2, 0.3]}))
     assert config.tracking.window == 7 and config.threshold.polarity == -1
     np.testing.assert_array_equal(config.reconstruction.base_point, [0.1, 0.2, 0.3])
+
+
+def test_a_command_line_override_of_an_unknown_name_is_refused_naming_the_nearest_one():
+    """rclpy ignores ``-p name:=value`` for a parameter the node does not declare: a typo would go unnoticed."""
+    with pytest.raises(ParameterError, match=r"'-p detection.min_lenght:=\.\.\.'.*did you mean 'detection.min_length'"):
+        check_ros_arguments(["needle_stereo", "--ros-args", "-p", "detection.min_lenght:=0.01"], "needle_stereo", SPECS)
+    with pytest.raises(ParameterError, match="unknown parameter 'nosuch'"):
+        check_ros_arguments(["x", "--ros-args", "--param", "needle_stereo:nosuch:=1"], "needle_stereo", SPECS)
+    accepted = [["x", "--ros-args", "-p", "detection.min_length:=0.01", "-p", "use_sim_time:=true",
+                 "-p", "qos_overrides./needle/measured_shape.publisher.depth:=5"],
+                ["x", "--ros-args", "-p", "needle_simulator:needle.lenght:=0.2"],   # a rule for another node
+                ["x", "-p", "nosuch:=1"],                                            # not a ROS argument
+                ["x", "--ros-args", "-r", "__node:=cam", "-p", "needle_stereo:nosuch:=1"]]  # renamed node
+    for argv in accepted:
+        check_ros_arguments(argv, "needle_stereo", SPECS)
+    # started together (bringup), a rule without a node prefix reaches every node: names of the others are theirs
+    check_ros_arguments(["x", "--ros-args", "-p", "needle.length:=0.2"], "needle_stereo", SPECS,
+                        known_elsewhere={"needle.length"})
