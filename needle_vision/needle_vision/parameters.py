@@ -6,7 +6,8 @@ wildcards, several nodes in one file) and checks it as strictly as ``rcl`` does 
 that a node would refuse is refused by the offline tools too, with one message naming the file, the parameter and
 the problem (:class:`ParameterError`; unknown names suggest the nearest known one). :func:`check_ros_arguments`
 applies it to the ``--params-file`` arguments of a node's command line before ``rclpy.init``. The nodes declare
-each spec with a ``ParameterDescriptor`` built from it (ROS side: ``needle_sim_ros.nodes.parameters``).
+each spec with a ``ParameterDescriptor`` built from it (ROS side: ``needle_vision.ros_parameters``, used by every
+node of the suite).
 
 Below: the parameters of ``needle_stereo`` and of the offline stereo command (:data:`SPECS`).
 """

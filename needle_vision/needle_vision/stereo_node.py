@@ -21,8 +21,6 @@ import rclpy.executors
 import rclpy.time
 from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3
 from needle_interfaces.msg import NeedleShape
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
@@ -34,23 +32,12 @@ from needle_vision.calibration import (CalibrationError, StereoRig, calibration_
 from needle_vision.image_codec import ImageFormatError, image_fields, image_message_to_gray
 from needle_vision.outputs import debug_image, pointcloud2_fields
 from needle_vision.pairing import StampPairer
-from needle_vision.parameters import (SPECS, ParameterError, ParamSpec, base_pose_store, check_ros_arguments,
+from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments,
                                       output_from_left, stereo_config, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
+from needle_vision.ros_parameters import declare_all
 from needle_vision.tf_output import TfOutput, transform_stamped
 from needle_vision.transform import quaternion_from_x_axis
-
-
-def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
-    descriptor = ParameterDescriptor(name=spec.name, read_only=True, description=spec.description + (
-        f" Choices: {', '.join(map(str, spec.choices))}." if spec.choices else ""))
-    if spec.low is not None and spec.high is not None and not isinstance(spec.default, list):
-        if isinstance(spec.default, float):
-            descriptor.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
-                                                                  to_value=float(spec.high))]
-        elif isinstance(spec.default, int) and not isinstance(spec.default, bool):
-            descriptor.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
-    return descriptor
 
 
 def _stamp_seconds(header: Header) -> float:
@@ -60,13 +47,7 @@ def _stamp_seconds(header: Header) -> float:
 class NeedleStereoNode(Node):
     def __init__(self) -> None:
         super().__init__("needle_stereo")
-        values = {}
-        for spec in SPECS:
-            try:
-                values[spec.name] = self.declare_parameter(spec.name, spec.default, _descriptor(spec)).value
-            except (InvalidParameterValueException, ParameterException, TypeError) as error:
-                raise ParameterError(f"parameter '{spec.name}': {error} ({spec.description})") from error
-        self.values = validate_all(values)
+        self.values = validate_all(declare_all(self, SPECS))
         self.config = stereo_config(self.values)
         self.output_from_left = output_from_left(self.values)
         self.base_poses = base_pose_store(self.values)

@@ -16,6 +16,7 @@ from rclpy.node import Node
 
 from needle_vision.parameters import ParameterError, ParamSpec
 
+
 def descriptor(spec: ParamSpec) -> ParameterDescriptor:
     """The ROS descriptor of a spec: description (with choices), read-only unless dynamic, scalar range."""
     text = spec.description + (f" Choices: {', '.join(map(str, spec.choices))}." if spec.choices else "")
