@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.integrate import simpson
 
-from needle_sim_ros.model import (BaseMotion, GeneralizedForce, Gravity, Integrator, LineLoad, MaterialPointForce,
-                                  NeedleProperties, NodalLoad, PointForces, PointLoad, build_model, reaction_wrench,
-                                  solve_static)
+from needle_sim_ros.model import (BaseMotion, ForceContribution, GeneralizedForce, Gravity, Integrator, LineLoad,
+                                  MaterialPointForce, NeedleProperties, NodalLoad, PointForces, PointLoad, build_model,
+                                  reaction_wrench, solve_static)
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
 BASE = BaseMotion((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
@@ -116,8 +116,10 @@ def test_state_dependent_forces_in_statics_and_dynamics():
     assert np.allclose(wrench.force_world, total, atol=1e-9)
 
 
-class TipTether:
+class TipTether(ForceContribution):
     """A spring between the tip and node 1 (couples coordinates 11 elements apart): widens the Newton band."""
+
+    state_dependent, time_invariant, stateful = True, False, False
 
     def __init__(self, stiffness):
         self.stiffness = stiffness

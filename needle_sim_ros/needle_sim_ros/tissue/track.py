@@ -12,11 +12,23 @@ place, so a re-insertion follows it until the tip passes its end, then cuts new 
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 
 END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at the default 0.1 mm spacing)
+
+
+class TrackSnapshot(NamedTuple):
+    """A copy of a track's state (:meth:`Track.snapshot`)."""
+
+    vertices: np.ndarray
+    arc: np.ndarray
+    count: int
+    direction: np.ndarray
+    previous_tip: np.ndarray
 
 
 class Track:
@@ -67,6 +79,16 @@ class Track:
             self._arc[self._count] = self._arc[self._count - 1] + np.sqrt(step @ step)
         self._vertices[self._count] = point
         self._count += 1
+
+    def snapshot(self) -> TrackSnapshot:
+        """A copy of the track's state, for :meth:`restore`."""
+        return TrackSnapshot(self._vertices.copy(), self._arc.copy(), self._count, self._direction.copy(),
+                             self._previous_tip.copy())
+
+    def restore(self, snapshot: TrackSnapshot) -> None:
+        self._vertices, self._arc = snapshot.vertices.copy(), snapshot.arc.copy()
+        self._count = snapshot.count
+        self._direction, self._previous_tip = snapshot.direction.copy(), snapshot.previous_tip.copy()
 
     def end_tangent(self) -> np.ndarray:
         """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (the first
