@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from needle_sim_ros.model import BaseMotion, Gravity, Integrator, PointLoad, StepFailed
+from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrator, PointLoad, StepFailed
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
 
@@ -204,3 +204,34 @@ def test_a_failed_step_with_tissue_changes_nothing(law):
             run.offer_pose(t + k * 1e-3, *inserting(t + k * 1e-3))
             run.advance(t + k * 1e-3, deterministic=True)
     assert _simulation_state(sim, False) == _simulation_state(twin, False)
+
+
+def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
+    """The stateful forces advance one after the other once the integrator has accepted the step; if one fails
+    (here the seed 002 tip, after the shaft support and the bevel tip advanced the shared contact, track, anchors
+    and LuGre z), its error is raised with the whole simulation as before the step."""
+    sim = _inserted(SHAFT_LAWS[1])
+    t = sim.state.t + sim.dt
+    base = sim.base_motion_at(t)
+    before = _simulation_state(sim)
+
+    def broken(*args):
+        raise FloatingPointError("broken tissue law")
+    monkeypatch.setattr(sim.extra_forces[-1], "advance", broken)
+    with pytest.raises(FloatingPointError):
+        sim.step(base, t)
+    monkeypatch.undo()
+    after = _simulation_state(sim)
+    assert [name for name in before if after[name] != before[name]] == []
+    assert sim.statistics.failed_steps == 0
+
+
+def test_extra_forces_are_checked_against_the_force_protocol_at_the_reset():
+    class Undeclared:
+        def evaluate(self, model, q, qd, t, base):
+            return GeneralizedForce(np.zeros(model.n_dof))
+
+    sim = simulation_from_parameters(PARAMETERS)
+    sim.extra_forces_builder = lambda model: [Undeclared()]
+    with pytest.raises(TypeError, match="Undeclared must declare state_dependent"):
+        sim.offer_pose(0.0, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
