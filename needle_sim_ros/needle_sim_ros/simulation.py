@@ -95,22 +95,16 @@ def step_wrenches(records: Sequence[StepRecord]):
 
 
 class SimulationSnapshot(NamedTuple):
-    """Everything a step changes (:meth:`NeedleSimulation.snapshot`): the needle state (arrays copied), the base
-    motion, the index of the last step on the time grid, the integrator's memory and a snapshot of each stateful
-    force (pairs force, snapshot). The statistics are counters of what happened, not state, and are not kept."""
+    """Everything a step changes (:meth:`NeedleSimulation.snapshot`): the needle state, the base motion, the index
+    of the last step on the time grid, the integrator's memory and a snapshot of each stateful force (pairs force,
+    snapshot). The state object is kept as is: the integrator never changes its input, the simulation replaces its
+    state and never changes one in place. The statistics count what happened; they are not state."""
 
     state: State | None
     base: BaseMotion | None
     step_index: int
     integrator: IntegratorMemory
     forces: tuple
-
-
-def _copy_state(state: State | None) -> State | None:
-    if state is None:
-        return None
-    aux = None if state.aux is None else state.aux.copy()
-    return State(state.q.copy(), state.qd.copy(), state.qdd.copy(), state.t, aux, state.base)
 
 
 @dataclass
@@ -385,12 +379,11 @@ class NeedleSimulation:
     def snapshot(self) -> SimulationSnapshot:
         """Everything a step changes, for :meth:`restore` (cheap: a few small arrays per stateful force)."""
         stateful = tuple((force, force.snapshot()) for force in self.forces if force.stateful)
-        return SimulationSnapshot(_copy_state(self.state), self.base, self._step_index, self.integrator.snapshot(),
-                                  stateful)
+        return SimulationSnapshot(self.state, self.base, self._step_index, self.integrator.snapshot(), stateful)
 
     def restore(self, snapshot: SimulationSnapshot) -> None:
         """Put the simulation back to ``snapshot`` (taken with the same model and forces)."""
-        self.state, self.base = _copy_state(snapshot.state), snapshot.base
+        self.state, self.base = snapshot.state, snapshot.base
         self._step_index = snapshot.step_index
         self.integrator.restore(snapshot.integrator)
         for force, saved in snapshot.forces:
