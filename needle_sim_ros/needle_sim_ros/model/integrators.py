@@ -23,6 +23,7 @@ then ``StepFailed`` is raised.  The input state is never modified.
 from __future__ import annotations
 
 import math
+import operator
 from typing import NamedTuple
 
 import numpy as np
@@ -239,7 +240,7 @@ class Integrator:
         the same force objects are passed."""
         forces = tuple(forces)
         cached = self._split_cache
-        if len(forces) == len(cached[0]) and all(a is b for a, b in zip(forces, cached[0])):
+        if len(forces) == len(cached[0]) and all(map(operator.is_, forces, cached[0])):
             return cached[1:]
         constant, varying = split_forces(forces)
         self._split_cache = (forces, constant, varying, all(force.time_invariant for force in forces))
@@ -253,7 +254,7 @@ class Integrator:
     def _constant_force(self, forces: list, t: float, base: BaseMotion) -> np.ndarray:
         """Sum of the state-independent forces; cached while the same time-invariant load objects are passed."""
         cached_forces, cached = self._constant_cache
-        if len(forces) == len(cached_forces) and all(a is b for a, b in zip(forces, cached_forces)):
+        if len(forces) == len(cached_forces) and all(map(operator.is_, forces, cached_forces)):
             return cached
         total = constant_force(self.model, forces, t, base)
         if all(force.time_invariant for force in forces):
