@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrator, PointLoad, StepFailed
+from needle_sim_ros.model import (BaseMotion, ForceContribution, GeneralizedForce, Gravity, Integrator, PointLoad,
+                                  StepFailed)
 from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
 
@@ -204,6 +205,34 @@ def test_a_failed_step_with_tissue_changes_nothing(law):
             run.offer_pose(t + k * 1e-3, *inserting(t + k * 1e-3))
             run.advance(t + k * 1e-3, deterministic=True)
     assert _simulation_state(sim, False) == _simulation_state(twin, False)
+
+
+class PoisonedAfter(ForceContribution):
+    """No force until t_bad, NaN after it (a tissue law breaking down within a step)."""
+
+    state_dependent, time_invariant, stateful = True, False, False
+
+    def __init__(self, t_bad: float) -> None:
+        self.t_bad = t_bad
+
+    def evaluate(self, model, q, qd, t, base):
+        return GeneralizedForce(np.full(model.n_dof, np.nan if t > self.t_bad else 0.0))
+
+
+def test_a_step_failing_after_converged_sub_steps_restores_the_integrators_memory():
+    """The step fails only in its last 40 %: its first sub-steps converge from q_n and switch the integrator back to
+    the extrapolating predictor (as after a fallback, it was on q_n); the failed step leaves it on q_n."""
+    sim = _inserted(SHAFT_LAWS[0])
+    t = sim.state.t + sim.dt
+    base = sim.base_motion_at(t)
+    sim.extra_forces.append(PoisonedAfter(t - 0.4 * sim.dt))
+    sim.integrator._extrapolate = False
+    before = _simulation_state(sim)
+    with pytest.raises(StepFailed):
+        sim.step(base, t)
+    after = _simulation_state(sim)
+    assert [name for name in before if after[name] != before[name]] == []
+    assert sim.integrator._extrapolate is False
 
 
 def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
