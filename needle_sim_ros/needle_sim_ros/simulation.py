@@ -34,6 +34,7 @@ from needle_sim_ros.model import (
     StaticSolveFailed,
     StepFailed,
     build_model,
+    check_forces,
     centerline,
     elastic_energy,
     kinetic_energy,
@@ -41,6 +42,7 @@ from needle_sim_ros.model import (
     solve_static,
     tip_pose,
 )
+from needle_sim_ros.model.integrators import IntegratorMemory
 from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
 from needle_sim_ros.tissue import build_tissue_forces
 
@@ -92,6 +94,19 @@ def step_wrenches(records: Sequence[StepRecord]):
             if np.isfinite(record.wrench.force_base).all() and np.isfinite(record.wrench.torque_base).all())
 
 
+class SimulationSnapshot(NamedTuple):
+    """Everything a step changes (:meth:`NeedleSimulation.snapshot`): the needle state, the base motion, the index
+    of the last step on the time grid, the integrator's memory and a snapshot of each stateful force (pairs force,
+    snapshot). The state object is kept as is: the integrator never changes its input, the simulation replaces its
+    state and never changes one in place. The statistics count what happened; they are not state."""
+
+    state: State | None
+    base: BaseMotion | None
+    step_index: int
+    integrator: IntegratorMemory
+    forces: tuple
+
+
 @dataclass
 class LoopStatistics:
     """Counters reported in diagnostics."""
@@ -120,9 +135,11 @@ class NeedleSimulation:
 
     ``extra_forces_builder(model)`` makes the extra force contributions (e.g. tissue models with their own state:
     track, stick anchors) evaluated every step in addition to gravity and the named point loads; they are made
-    anew at every reset, so a restarted needle starts in fresh tissue. A step that fails even after the
-    integrator's sub-stepping resets the needle to the straight state at the current base pose (counted in
-    ``statistics.failed_steps``): the output never contains NaN.
+    anew at every reset (and checked against the force protocol, :func:`check_forces`), so a restarted needle
+    starts in fresh tissue. A step is a transaction (:meth:`step`): a step that fails even after the integrator's
+    sub-stepping changes nothing and is counted in ``statistics.failed_steps``; :meth:`advance_to` then restarts
+    the needle straight at the current base pose, the forces keeping the state of the last accepted step: the
+    output never contains NaN.
 
     ``start_in_equilibrium``: a (re)started needle is at rest in static equilibrium under gravity and the point loads
     (seed 000 eq. 17 without inertia) instead of straight, so it does not first drop and swing (a free 18 G needle
@@ -261,7 +278,7 @@ class NeedleSimulation:
                               needle_pose=(base.position, base.orientation))
             self.model, self.integrator = self.model_builder((fixture,))
         if self.extra_forces_builder is not None:
-            self.extra_forces = list(self.extra_forces_builder(self.model))
+            self.extra_forces = list(check_forces(self.extra_forces_builder(self.model)))
         self.base = base
         self.state = self.model.straight_state(base, t)
         if self.start_in_equilibrium:
@@ -317,7 +334,8 @@ class NeedleSimulation:
                 done = self._step_sequence(times, motions, rotations, records)
                 self._step_index += done
             if done < count:
-                records.append(self.step(BaseMotion.from_packed(motions[done], rotations[done]), times[done]))
+                records.append(self._step_or_restart(BaseMotion.from_packed(motions[done], rotations[done]),
+                                                     times[done]))
                 self._step_index += 1
                 done += 1
             count -= done
@@ -358,29 +376,54 @@ class NeedleSimulation:
         self.base = BaseMotion.from_packed(motion, rotation)
         self.state = State(rows[0], rows[1], rows[2], float(t), rows[3], self.base)
 
-    def step(self, base_next: BaseMotion, t_next: float) -> StepRecord:
-        """One step with the general integrator path (sub-stepping, state-dependent forces) to t_next.
+    def snapshot(self) -> SimulationSnapshot:
+        """Everything a step changes, for :meth:`restore` (cheap: a few small arrays per stateful force)."""
+        stateful = tuple((force, force.snapshot()) for force in self.forces if force.stateful)
+        return SimulationSnapshot(self.state, self.base, self._step_index, self.integrator.snapshot(), stateful)
 
-        A step that fails even with sub-steps restarts the needle straight at the base; the forces' own state
-        (tissue contact, track, anchors, friction states) is then left as the last accepted step made it: the
-        restarted needle has not moved through the tissue."""
+    def restore(self, snapshot: SimulationSnapshot) -> None:
+        """Put the simulation back to ``snapshot`` (taken with the same model and forces)."""
+        self.state, self.base = snapshot.state, snapshot.base
+        self._step_index = snapshot.step_index
+        self.integrator.restore(snapshot.integrator)
+        for force, saved in snapshot.forces:
+            force.restore(saved)
+
+    def step(self, base_next: BaseMotion, t_next: float) -> StepRecord:
+        """One step with the general integrator path (sub-stepping, state-dependent forces) to t_next, as one
+        transaction: the stateful forces advance once the integrator has accepted the step, and if anything fails
+        the simulation is restored to its :meth:`snapshot` from before the step and the error raised (StepFailed:
+        counted in ``statistics.failed_steps``)."""
         start = time.perf_counter()
         forces = self.forces
+        before = self.snapshot()
         try:
             result = self.integrator.step(self.state, self.dt, base_next, forces)
-        except StepFailed:
-            self.statistics.failed_steps += 1
-            self.state = self.model.straight_state(base_next, float(t_next))
-            iterations, substeps = 0, 0
-        else:
-            self.state, iterations, substeps = result.state, result.newton_iterations, result.substeps
+            self.state, self.base = result.state, base_next
             self.state.t = float(t_next)
             for force in forces:
-                advance = getattr(force, "advance", None)
-                if advance is not None:
-                    advance(self.model, self.state, base_next)
-        self.base = base_next
-        wrench = reaction_wrench(self.model, self.state, base_next, forces)
+                if force.stateful:
+                    force.advance(self.model, self.state, base_next)
+        except BaseException as error:
+            self.restore(before)
+            if isinstance(error, StepFailed):
+                self.statistics.failed_steps += 1
+            raise
+        return self._finish_step(start, forces, result.newton_iterations, result.substeps)
+
+    def _step_or_restart(self, base_next: BaseMotion, t_next: float) -> StepRecord:
+        """:meth:`step`, or if it fails the needle restarted straight at the base (the forces' state is that of the
+        last accepted step: the restarted needle has not moved through the tissue)."""
+        start = time.perf_counter()
+        try:
+            return self.step(base_next, t_next)
+        except StepFailed:
+            self.state, self.base = self.model.straight_state(base_next, float(t_next)), base_next
+            return self._finish_step(start, self.forces, 0, 0)
+
+    def _finish_step(self, start: float, forces: list, iterations: int, substeps: int) -> StepRecord:
+        """Reaction wrench, statistics, record and hook of the step that led to the current state."""
+        wrench = reaction_wrench(self.model, self.state, self.base, forces)
         wall = time.perf_counter() - start
         stats = self.statistics
         stats.steps += 1

@@ -9,9 +9,10 @@ from needle_sim_ros.experiments.elastica import cantilever_beta_l
 from scipy.integrate import simpson
 from scipy.spatial.transform import Rotation
 
-from needle_sim_ros.model import (BaseMotion, Fixture, GeneralizedForce, Gravity, Integrator, NeedleProperties,
-                                  PointLoad, StepFailed, axial_strain, build_model, centerline, curvature,
-                                  elastic_energy, kinetic_energy, reaction_wrench, solve_static, tangent_stiffness)
+from needle_sim_ros.model import (BaseMotion, Fixture, ForceContribution, GeneralizedForce, Gravity, Integrator,
+                                  NeedleProperties, PointLoad, StepFailed, axial_strain, build_model, centerline,
+                                  curvature, elastic_energy, kinetic_energy, reaction_wrench, solve_static,
+                                  tangent_stiffness)
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
 WEIGHTLESS = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0,
@@ -230,8 +231,10 @@ def test_dissipative_schemes_settle_to_the_static_equilibrium(method, rho_inf):
     assert np.abs(state.q[-6:-3] - static.q[-6:-3]).max() < 1e-4
 
 
-class PoisonedForce:
+class PoisonedForce(ForceContribution):
     """A force that becomes NaN after t_bad (a broken tissue model)."""
+
+    state_dependent, time_invariant, stateful = True, False, False
 
     def __init__(self, t_bad):
         self.t_bad = t_bad

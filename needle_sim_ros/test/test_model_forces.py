@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 from scipy.integrate import simpson
 
-from needle_sim_ros.model import (BaseMotion, GeneralizedForce, Gravity, Integrator, LineLoad, MaterialPointForce,
-                                  NeedleProperties, NodalLoad, PointForces, PointLoad, build_model, reaction_wrench,
-                                  solve_static)
+from needle_sim_ros.model import (BaseMotion, ForceContribution, GeneralizedForce, Gravity, Integrator, LineLoad,
+                                  MaterialPointForce, NeedleProperties, NodalLoad, PointForces, PointLoad, build_model,
+                                  check_forces, reaction_wrench, solve_static)
+from needle_sim_ros.tissue import build_tissue_forces
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
 BASE = BaseMotion((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
@@ -116,8 +117,10 @@ def test_state_dependent_forces_in_statics_and_dynamics():
     assert np.allclose(wrench.force_world, total, atol=1e-9)
 
 
-class TipTether:
+class TipTether(ForceContribution):
     """A spring between the tip and node 1 (couples coordinates 11 elements apart): widens the Newton band."""
+
+    state_dependent, time_invariant, stateful = True, False, False
 
     def __init__(self, stiffness):
         self.stiffness = stiffness
@@ -146,3 +149,54 @@ def test_wide_jacobians_are_handled():
     for _ in range(300):
         state = integrator.step(state, 2e-3, BASE, forces).state
     assert np.abs(state.q - static.q).max() < 1e-7  # settled (as above)
+
+
+class Undeclared:
+    def evaluate(self, model, q, qd, t, base):
+        return GeneralizedForce(np.zeros(model.n_dof))
+
+
+class ForgetsItsState(Undeclared, ForceContribution):
+    state_dependent, time_invariant, stateful = True, False, True
+
+    def advance(self, model, state, base):
+        pass
+
+
+class AdvancesUnseen(ForgetsItsState):
+    stateful = False
+
+
+class ConstantButMoving(Undeclared, ForceContribution):
+    state_dependent, time_invariant, stateful = True, True, False
+
+
+@pytest.mark.parametrize("force, message", [
+    (Undeclared(), "Undeclared must declare state_dependent"),
+    (ForgetsItsState(), "ForgetsItsState declares stateful = True but has no snapshot, restore"),
+    (AdvancesUnseen(), "AdvancesUnseen has advance.. but declares stateful = False"),
+    (ConstantButMoving(), "ConstantButMoving declares time_invariant = True, which excludes state_dependent")])
+def test_contributions_breaking_the_force_protocol_are_refused_by_name(force, message):
+    model = build_model(NEEDLE, 2)
+    with pytest.raises(TypeError, match=message):
+        Integrator(model).step(model.straight_state(BASE), 1e-3, BASE, [Gravity(), force])
+    with pytest.raises(TypeError, match=message):
+        solve_static(model, BASE, [force])
+
+
+def test_every_contribution_declares_its_capabilities():
+    """(state_dependent, time_invariant, stateful) of the product's contributions, tissue from its factory."""
+    model = build_model(NEEDLE, 4)
+    loads = {"gravity": Gravity(), "point": PointLoad(0.1, (0, 0, 1)), "point base": PointLoad(0.1, (0, 0, 1), "base"),
+             "line": LineLoad(0.0, 0.1, (0, 0, 1)), "nodal": NodalLoad(-1, (0, 0, 1)),
+             "nodal base": NodalLoad(-1, (0, 0, 1), frame="base"),
+             "material points": MaterialPointForce([0.1], [1.0], winkler(1.0))}
+    tissue = build_tissue_forces({"tissue.insertion_profile.enable": True}, model)
+    declared = {name: (f.state_dependent, f.time_invariant, f.stateful) for name, f in loads.items()}
+    assert declared == {"gravity": (False, True, False), "point": (False, True, False),
+                        "point base": (False, False, False), "line": (False, True, False),
+                        "nodal": (False, True, False), "nodal base": (False, False, False),
+                        "material points": (True, False, False)}
+    assert [(type(f).__name__, f.state_dependent, f.time_invariant, f.stateful) for f in check_forces(tissue)] == [
+        ("ShaftSupport", True, False, True), ("BevelTipForce", True, False, True), ("TipResistance", True, False, True)]
+    assert check_forces(loads.values()) == tuple(loads.values())

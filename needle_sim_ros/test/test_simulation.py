@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from needle_sim_ros.model import BaseMotion, Gravity, Integrator, PointLoad, StepFailed
+from needle_sim_ros.model import (BaseMotion, ForceContribution, GeneralizedForce, Gravity, Integrator, PointLoad,
+                                  StepFailed)
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
 
@@ -128,23 +129,138 @@ def _tissue_state(forces) -> list[bytes]:
     return [pickle.dumps(force) for force in forces]
 
 
+def _inserted(overrides: dict | None = None, seconds: float = 0.7):
+    """A simulation with tissue (bevel tip, lateral support, the shaft law of ``overrides``), inserting at 10 mm/s
+    from t = 0.1 s: 4 mm into the tissue after 0.7 s."""
+    sim = simulation_from_parameters({**PARAMETERS, "tissue.enable": True, "tissue.entry_point": [0.272, 0.0, 0.0],
+                                      **(overrides or {})})
+    for k in range(int(round(seconds * 1e3))):
+        sim.offer_pose(k * 1e-3, *inserting(k * 1e-3))
+        sim.advance(k * 1e-3, deterministic=True)
+    assert sim.extra_forces and sim.extra_forces[0].contact.track.started
+    return sim
+
+
+def inserting(t: float) -> tuple[list, list]:
+    return [0.01 * max(t - 0.1, 0.0), 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]
+
+
 def test_a_failed_step_leaves_the_tissue_state_as_the_last_accepted_step_made_it(monkeypatch):
     """Inserting at 10 mm/s 4 mm into the tissue; then a step fails: the needle restarts straight, but the track,
     anchors and friction states are those before the failed step (they used to be advanced with the straight
     needle, which had jumped through the tissue)."""
-    sim = simulation_from_parameters({**PARAMETERS, "tissue.enable": True, "tissue.entry_point": [0.272, 0.0, 0.0]})
-    for k in range(700):
-        sim.offer_pose(k * 1e-3, [0.01 * max(k * 1e-3 - 0.1, 0.0), 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
-        sim.advance(k * 1e-3, deterministic=True)
+    sim = _inserted()
     tissue = sim.extra_forces
-    assert tissue and any(getattr(force, "contact", None) is not None and force.contact.track.started
-                          for force in tissue)
     before = _tissue_state(tissue)
 
     def fail(*args, **kwargs):
         raise StepFailed("forced")
     monkeypatch.setattr(sim.integrator, "step", fail)
-    base = sim.base_motion_at(sim.state.t + sim.dt)
-    sim.step(base, sim.state.t + sim.dt)
-    assert sim.statistics.failed_steps == 1
+    t = sim.state.t + sim.dt
+    sim.offer_pose(t, *inserting(t))
+    records = sim.advance(t, deterministic=True)
+    assert sim.statistics.failed_steps == 1 and len(records) == 1
+    np.testing.assert_array_equal(sim.state.q, sim.model.straight_state(sim.base, t).q)
     assert _tissue_state(tissue) == before
+
+
+def _simulation_state(sim, with_input: bool = True) -> dict[str, bytes]:
+    """Every piece of state a step can change, pickled, read from the objects themselves (not through their
+    snapshots): needle state (t, q, q', q'', a), base motion, step grid, the integrator's memory (its scratch
+    buffers and caches aside), every force (contact, puncture, track, anchors, bevel and cutting phases, LuGre z)
+    and the pose input (``with_input``; its spare buffer rows are uninitialised, so only comparable with itself)."""
+    integrator = sim.integrator
+    memory = (integrator._extrapolate, None if integrator._sequence is None else integrator._sequence.control)
+    parts = {"state": sim.state, "base": sim.base, "grid": (sim._grid_origin, sim._step_index), "integrator": memory,
+             **({"trajectory": sim.trajectory} if with_input else {})}
+    parts.update({f"force {i} ({type(force).__name__})": force for i, force in enumerate(sim.forces)})
+    return {name: pickle.dumps(value) for name, value in parts.items()}
+
+
+SHAFT_LAWS = [{"tissue.shaft.axial_model": "karnopp"},
+              {"tissue.shaft.axial_model": "lugre", "tissue.insertion_profile.enable": True}]
+
+
+@pytest.mark.parametrize("law", SHAFT_LAWS, ids=["karnopp", "lugre+profile"])
+def test_a_failed_step_with_tissue_changes_nothing(law):
+    """Mid-insertion (bevel tip, lateral support, Karnopp or LuGre shaft law with the seed 002 tip), a step whose
+    Newton cannot converge (1 iteration, tolerance 1e-300, every sub-step) raises StepFailed and leaves every piece
+    of the simulation's state bit for bit as before; the run then goes on exactly as one that never tried it."""
+    sim, twin = _inserted(law), _inserted(law)
+    assert _simulation_state(sim, False) == _simulation_state(twin, False)
+    t = sim.state.t + sim.dt
+    base = sim.base_motion_at(t)  # (serving a pose is remembered by the trajectory: the same for the twin)
+    twin.base_motion_at(t)
+    before = _simulation_state(sim)
+    settings = sim.integrator.newton_tol, sim.integrator.max_newton_iterations
+    sim.integrator.newton_tol, sim.integrator.max_newton_iterations = 1e-300, 1
+    with pytest.raises(StepFailed):
+        sim.step(base, t)
+    after = _simulation_state(sim)
+    assert [name for name in before if after[name] != before[name]] == []
+    assert sim.statistics.failed_steps == 1
+    sim.integrator.newton_tol, sim.integrator.max_newton_iterations = settings
+    for k in range(1, 101):
+        for run in (sim, twin):
+            run.offer_pose(t + k * 1e-3, *inserting(t + k * 1e-3))
+            run.advance(t + k * 1e-3, deterministic=True)
+    assert _simulation_state(sim, False) == _simulation_state(twin, False)
+
+
+class PoisonedAfter(ForceContribution):
+    """No force until t_bad, NaN after it (a tissue law breaking down within a step)."""
+
+    state_dependent, time_invariant, stateful = True, False, False
+
+    def __init__(self, t_bad: float) -> None:
+        self.t_bad = t_bad
+
+    def evaluate(self, model, q, qd, t, base):
+        return GeneralizedForce(np.full(model.n_dof, np.nan if t > self.t_bad else 0.0))
+
+
+def test_a_step_failing_after_converged_sub_steps_restores_the_integrators_memory():
+    """The step fails only in its last 40 %: its first sub-steps converge from q_n and switch the integrator back to
+    the extrapolating predictor (as after a fallback, it was on q_n); the failed step leaves it on q_n."""
+    sim = _inserted(SHAFT_LAWS[0])
+    t = sim.state.t + sim.dt
+    base = sim.base_motion_at(t)
+    sim.extra_forces.append(PoisonedAfter(t - 0.4 * sim.dt))
+    sim.integrator._extrapolate = False
+    before = _simulation_state(sim)
+    with pytest.raises(StepFailed):
+        sim.step(base, t)
+    after = _simulation_state(sim)
+    assert [name for name in before if after[name] != before[name]] == []
+    assert sim.integrator._extrapolate is False
+
+
+def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
+    """The stateful forces advance one after the other once the integrator has accepted the step; if one fails
+    (here the seed 002 tip, after the shaft support and the bevel tip advanced the shared contact, track, anchors
+    and LuGre z), its error is raised with the whole simulation as before the step."""
+    sim = _inserted(SHAFT_LAWS[1])
+    t = sim.state.t + sim.dt
+    base = sim.base_motion_at(t)
+    before = _simulation_state(sim)
+
+    def broken(*args):
+        raise FloatingPointError("broken tissue law")
+    monkeypatch.setattr(sim.extra_forces[-1], "advance", broken)
+    with pytest.raises(FloatingPointError):
+        sim.step(base, t)
+    monkeypatch.undo()
+    after = _simulation_state(sim)
+    assert [name for name in before if after[name] != before[name]] == []
+    assert sim.statistics.failed_steps == 0
+
+
+def test_extra_forces_are_checked_against_the_force_protocol_at_the_reset():
+    class Undeclared:
+        def evaluate(self, model, q, qd, t, base):
+            return GeneralizedForce(np.zeros(model.n_dof))
+
+    sim = simulation_from_parameters(PARAMETERS)
+    sim.extra_forces_builder = lambda model: [Undeclared()]
+    with pytest.raises(TypeError, match="Undeclared must declare state_dependent"):
+        sim.offer_pose(0.0, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])

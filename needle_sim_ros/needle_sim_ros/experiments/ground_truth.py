@@ -21,7 +21,7 @@ from needle_sim_ros.base_trajectory import BaseTrajectory
 from needle_sim_ros.experiments.protocols import Experiment
 from needle_sim_ros.experiments.elastica import elastica_tip
 from needle_sim_ros.model import (BaseMotion, Centerline, Gravity, Integrator, NeedleProperties, PointLoad,
-                                  build_model, solve_static)
+                                  StepFailed, build_model, solve_static)
 from needle_sim_ros.simulation import NeedleSimulation
 
 TIP_WEIGHT = "tip_weight"
@@ -119,9 +119,10 @@ def run_ground_truth(experiment: Experiment, truth: TruthModel, shape_times, wre
         t = k * dt
         if loaded:
             simulation.set_point_load(TIP_WEIGHT, truth.props.length, experiment.tip_force(t))
-        record = simulation.step(experiment.base(t), t)
-        if simulation.statistics.failed_steps:
-            raise RuntimeError(f"ground truth of '{experiment.name}': step at t = {t:.4f} s failed")
+        try:
+            record = simulation.step(experiment.base(t), t)
+        except StepFailed as error:
+            raise RuntimeError(f"ground truth of '{experiment.name}': step at t = {t:.4f} s failed") from error
         if k % wrench_every == 0:
             wrench_times.append(t)
             forces.append(record.wrench.force_base)

@@ -2,11 +2,10 @@
 mass, exact-curvature elastic forces with analytic Jacobian, Rayleigh damping, general external forces, a rigid
 base driving the constrained coordinates, fixtures, implicit integrators, statics and the base reaction wrench."""
 from .config import load_needle_config, needle_parameters, needle_properties
-from .damping import damping_force, damping_matrix, reference_stiffness
 from .elastic import elastic_energy, elastic_forces, tangent_stiffness
 from .fixtures import Fixture
 from .forces import (ForceContribution, GeneralizedForce, Gravity, LineLoad, MaterialPointForce, NodalLoad,
-                     PointForces, PointLoad)
+                     PointForces, PointLoad, check_forces)
 from .integrators import Integrator, StepFailed, StepResult
 from .kinematics import BaseMotion
 from .mesh import Interpolation
@@ -19,10 +18,10 @@ from .statics import StaticResult, StaticSolveFailed, solve_static
 
 __all__ = [
     "NeedleProperties", "build_model", "NeedleModel", "State", "Interpolation", "BaseMotion", "Fixture",
-    "ForceContribution", "GeneralizedForce", "Gravity", "PointLoad", "NodalLoad", "LineLoad", "MaterialPointForce",
-    "PointForces", "Integrator", "StepResult", "StepFailed", "solve_static", "StaticResult", "StaticSolveFailed",
+    "ForceContribution", "check_forces", "GeneralizedForce", "Gravity", "PointLoad", "NodalLoad", "LineLoad",
+    "MaterialPointForce", "PointForces", "Integrator", "StepResult", "StepFailed", "solve_static", "StaticResult",
+    "StaticSolveFailed",
     "reaction_wrench", "base_constraint_force", "BaseWrench", "centerline", "Centerline", "tip_pose",
     "axial_strain", "curvature", "kinetic_energy", "elastic_energy", "gravitational_energy", "elastic_forces",
-    "tangent_stiffness", "damping_force", "damping_matrix", "reference_stiffness", "load_needle_config",
-    "needle_parameters", "needle_properties",
+    "tangent_stiffness", "load_needle_config", "needle_parameters", "needle_properties",
 ]

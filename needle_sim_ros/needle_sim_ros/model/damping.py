@@ -82,29 +82,3 @@ def add_axial_damping(q, qd, axial_S_x, strain_rate_weights, forces, band, kl, r
                             row = first + 3 * a + c
                             for c2 in range(3):
                                 band[row, first + 3 * b + c2 - row + kl] += dab * rx[c] * rx[c2]
-
-
-def reference_stiffness(model, axis) -> np.ndarray:
-    """K_0(t) of the straight, unstressed needle along the unit axis t, dense (n_dof, n_dof)."""
-    t = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
-    axial, bending = reference_stiffness_slots(model.elastic)
-    tt = np.outer(t, t)
-    return np.kron(axial, tt) + np.kron(bending, np.eye(3) - tt)
-
-
-def damping_force(model, q, qd, axis) -> np.ndarray:
-    """Q_d = -C q' at (q, q') with the holder axis t, (n_dof,)."""
-    t = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
-    slots = np.asarray(qd, dtype=float).reshape(-1, 3)
-    linear = model.damping.isotropic @ slots + np.outer(model.damping.transverse @ (slots @ t), t)
-    forces = -linear.ravel()
-    add_axial_damping(np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(qd, dtype=float),
-                      model.elastic.axial_S_x, model.damping.strain_rate_weights, forces, np.zeros((1, 1)), 0, 0.0,
-                      False)
-    return forces
-
-
-def damping_matrix(model, q, axis) -> np.ndarray:
-    """C = -dQ_d/dq' at q (dense); alpha M + beta K_0(t) at the straight state along t."""
-    n = model.n_dof
-    return np.column_stack([-damping_force(model, q, np.eye(n)[i], axis) for i in range(n)])

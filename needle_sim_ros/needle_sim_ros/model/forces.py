@@ -1,20 +1,15 @@
-"""External generalized forces (seed 000 eqs. 14-16): one interface for gravity, loads and tissue models.
+"""External generalized forces (seed 000 eqs. 14-16): one protocol for gravity, loads and tissue models.
 
 A point force F at the material point x of element j does the virtual work F^T S(x) delta e_j (eq. 14), hence
 Q_f = sum_i S^T(x_i) F_i (eq. 15); nodal loads add Q_P directly (eq. 16); a line load f per length adds
-int S^T f ds.  Every contribution implements
-
-    evaluate(model, q, qd, t, base) -> GeneralizedForce(Q, dQ_dq, dQ_dqd)       (Jacobians dense or None = zero)
-    advance(model, state, base) -> None        (optional; the caller runs it once per accepted step)
-
-and may set ``state_independent = True`` when Q depends on (t, base) only and both Jacobians are zero: the
-integrator then evaluates it once per step and runs its compiled fast path; ``time_invariant = True`` in addition
-(Q constant, the object never mutated) lets it reuse the value across steps.
+int S^T f ds.  Every contribution implements ``evaluate(model, q, qd, t, base) -> GeneralizedForce`` and declares
+its capabilities as class attributes (:class:`ForceContribution`), checked by :func:`check_forces` when a force
+list is handed to the integrator, the statics or the simulation.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, NamedTuple, Protocol, runtime_checkable
+from typing import Callable, ClassVar, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -30,9 +25,55 @@ class GeneralizedForce(NamedTuple):
     dQ_dqd: np.ndarray | None = None
 
 
-@runtime_checkable
-class ForceContribution(Protocol):
-    def evaluate(self, model, q: np.ndarray, qd: np.ndarray, t: float, base) -> GeneralizedForce: ...
+class ForceContribution:
+    """Base of the external force contributions. Each declares, as class attributes (a property where the answer
+    depends on the instance, e.g. the frame of a load):
+
+    * ``state_dependent``: Q depends on q or q' and its Jacobians may be non-zero (evaluated at every Newton
+      iteration); False: Q depends on (t, base) only, both Jacobians zero (evaluated once per step).
+    * ``time_invariant``: Q is one constant vector (neither state dependent nor stateful, never mutated): summed
+      once and reused; when every force is so, the compiled step sequence applies.
+    * ``stateful``: it keeps state that changes from step to step (tissue contact, track, anchors, friction
+      states) and implements ``advance(model, state, base)``, run once per accepted step, and ``snapshot()`` /
+      ``restore(snapshot)``: the simulation snapshots every stateful force before a step and restores it when the
+      step fails, so a failed step changes nothing. A snapshot shares no mutable array with the force.
+    """
+
+    state_dependent: ClassVar[bool]
+    time_invariant: ClassVar[bool]
+    stateful: ClassVar[bool]
+
+    def evaluate(self, model, q: np.ndarray, qd: np.ndarray, t: float, base) -> GeneralizedForce:
+        raise NotImplementedError
+
+
+CAPABILITIES = ("state_dependent", "time_invariant", "stateful")
+STATE_HOOKS = ("advance", "snapshot", "restore")
+
+
+def check_forces(forces) -> tuple:
+    """The contributions as a tuple, each checked against the :class:`ForceContribution` protocol; TypeError naming
+    the class of the first one that breaks it."""
+    forces = tuple(forces)
+    for force in forces:
+        name = type(force).__name__
+        if not callable(getattr(force, "evaluate", None)):
+            raise TypeError(f"force contribution {name} has no evaluate(model, q, qd, t, base)")
+        for capability in CAPABILITIES:
+            if not hasattr(type(force), capability) or not isinstance(getattr(force, capability), bool):
+                raise TypeError(f"force contribution {name} must declare {capability} = True or False as a class "
+                                f"attribute (ForceContribution)")
+        hooks = [hook for hook in STATE_HOOKS if callable(getattr(force, hook, None))]
+        if force.stateful and len(hooks) < len(STATE_HOOKS):
+            missing = ", ".join(hook for hook in STATE_HOOKS if hook not in hooks)
+            raise TypeError(f"force contribution {name} declares stateful = True but has no {missing}()")
+        if not force.stateful and "advance" in hooks:
+            raise TypeError(f"force contribution {name} has advance() but declares stateful = False: its state "
+                            "would be neither advanced nor rolled back")
+        if force.time_invariant and (force.state_dependent or force.stateful):
+            raise TypeError(f"force contribution {name} declares time_invariant = True, which excludes "
+                            "state_dependent and stateful")
+    return forces
 
 
 class PointForces(NamedTuple):
@@ -76,15 +117,20 @@ def distribution_matrix(interpolation: Interpolation, weights: np.ndarray, n_dof
     return G.reshape(n_dof, 3)
 
 
-class _ConstantVectorLoad:
+class _ConstantVectorLoad(ForceContribution):
     """A load Q = G f with a constant vector f given in the world or the base frame (state independent)."""
 
-    state_independent = True
+    state_dependent = False
+    stateful = False
 
     def __init__(self, vector, frame: str, name: str) -> None:
         self.frame = frame
         self.vector = _frame_vector(vector, frame, name)
-        self.time_invariant = frame == "world"
+
+    @property
+    def time_invariant(self) -> bool:
+        """World-frame loads are constant; base-frame ones turn with the base."""
+        return self.frame == "world"
 
     def distribution(self, model) -> np.ndarray:
         raise NotImplementedError
@@ -133,11 +179,12 @@ class LineLoad(_ConstantVectorLoad):
         return distribution_matrix(model.interpolation(points.ravel()), weights.ravel(), model.n_dof)
 
 
-class Gravity:
+class Gravity(ForceContribution):
     """Weight of the needle: the line load rho A g over [0, L] (g = NeedleProperties.gravity, world frame)."""
 
-    state_independent = True
+    state_dependent = False
     time_invariant = True
+    stateful = False
 
     @staticmethod
     def distribution(model) -> np.ndarray:
@@ -149,17 +196,17 @@ class Gravity:
             _read_only(self.distribution(m) @ np.asarray(m.props.gravity))))
 
 
-class NodalLoad:
+class NodalLoad(ForceContribution):
     """Generalized load Q_P on the coordinates of one node (eq. 16): ``force`` [N] on r, ``gradient_force`` [N m]
     on r_x (a moment M at the node corresponds to gradient_force = M x r_x / |r_x|^2, state dependent). Node
     indices may be negative (-1 = tip). World or base frame."""
 
-    state_independent = True
+    state_dependent = False
+    stateful = False
 
     def __init__(self, node: int, force, gradient_force=(0.0, 0.0, 0.0), frame: str = "world") -> None:
         self.node = int(node)
         self.frame = frame
-        self.time_invariant = frame == "world"
         self.generalized = np.concatenate([_frame_vector(force, frame, "NodalLoad"),
                                            _frame_vector(gradient_force, frame, "NodalLoad gradient_force")])
 
@@ -174,12 +221,17 @@ class NodalLoad:
         Q[first:first + 6] = values.ravel()
         return GeneralizedForce(Q)
 
+    @property
+    def time_invariant(self) -> bool:
+        """World-frame loads are constant; base-frame ones turn with the base."""
+        return self.frame == "world"
+
 
 PointForceLaw = Callable[[np.ndarray, np.ndarray, np.ndarray, float, object], PointForces]
 
 
 @dataclass(eq=False)
-class MaterialPointForce:
+class MaterialPointForce(ForceContribution):
     """Forces from a per-point law at material points s_k with weights w_k (e.g. length shares for a force per
     length): Q = sum_k w_k S^T(s_k) F_k (eq. 15) with the chain-rule Jacobians
         dQ/dq  = sum_k w_k S_k^T (dF/dr S_k + dF/dr_x S_x,k),   dQ/dq' = sum_k w_k S_k^T dF/dv S_k.
@@ -188,6 +240,9 @@ class MaterialPointForce:
     arc_lengths: np.ndarray
     weights: np.ndarray
     law: PointForceLaw
+    state_dependent: ClassVar[bool] = True
+    time_invariant: ClassVar[bool] = False
+    stateful: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         self.arc_lengths = np.atleast_1d(np.asarray(self.arc_lengths, dtype=float))

@@ -23,6 +23,7 @@ then ``StepFailed`` is raised.  The input state is never modified.
 from __future__ import annotations
 
 import math
+import operator
 from typing import NamedTuple
 
 import numpy as np
@@ -32,8 +33,9 @@ from .model import NeedleModel, State
 from .newton import (CONVERGED, NewtonSolver, assemble_system, keeps_extrapolating, predictor_budget,
                      predictor_for_attempt)
 from .banded import ELEMENT_BANDWIDTH, band_cholesky, cholesky_solve
+from .forces import check_forces
 from .partition import hermite_quintic
-from .sequence import EXTRAPOLATE, SequenceBuffers, integrate_sequence
+from .sequence import EXTRAPOLATE, FACTORED, SequenceBuffers, integrate_sequence
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
 
@@ -50,6 +52,14 @@ class SequenceResult(NamedTuple):
     states: np.ndarray
     wrenches: np.ndarray
     iterations: np.ndarray
+
+
+class IntegratorMemory(NamedTuple):
+    """What an integrator carries from one step to the next: whether Newton starts from the extrapolating
+    predictor, and whether the compiled sequence's kept factorization is valid (:meth:`Integrator.snapshot`)."""
+
+    extrapolate: bool
+    factored: int
 
 
 class StepResult(NamedTuple):
@@ -83,10 +93,10 @@ def scheme_coefficients(method: str, rho_inf: float) -> tuple[float, ...]:
 
 
 def split_forces(forces) -> tuple[list, list]:
-    """(state-independent, state-dependent) contributions."""
+    """(state-independent, state-dependent) contributions, checked against the force protocol."""
     constant, varying = [], []
-    for force in forces:
-        (constant if getattr(force, "state_independent", False) else varying).append(force)
+    for force in check_forces(forces):
+        (varying if force.state_dependent else constant).append(force)
     return constant, varying
 
 
@@ -119,6 +129,7 @@ class Integrator:
         self.max_substep_halvings = int(max_substep_halvings)
         self.solver = NewtonSolver(model)
         self._constant_cache: tuple[tuple, np.ndarray] = ((), np.zeros(model.n_dof))
+        self._split_cache: tuple[tuple, list, list, bool] = ((), [], [], True)
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
         self._extrapolate = True
         self._sequence: SequenceBuffers | None = None
@@ -128,7 +139,7 @@ class Integrator:
         model = self.model
         base = base or state.base
         qdd = np.array(state.qdd, dtype=float)
-        constant, varying = split_forces(forces)
+        constant, varying, _ = self._split(forces)
         ext_Q = constant_force(model, constant, state.t, base)
         for force in varying:
             ext_Q += force.evaluate(model, state.q, state.qd, state.t, base).Q
@@ -154,7 +165,7 @@ class Integrator:
             self._sequence.invalidate()  # the sequence's kept factorization is of another motion now
         model = self.model
         n = model.n_dof
-        constant, varying = split_forces(forces)
+        constant, varying, _ = self._split(forces)
         t_next = state.t + dt
         end = np.zeros((3, n))
         model.partition.impose(base_next, t_next, end)
@@ -180,10 +191,19 @@ class Integrator:
 
     def supports_sequence(self, forces) -> bool:
         """Whether :meth:`step_sequence` applies: the constrained coordinates follow the base or are fixed in the
-        world, and every force is state-independent and time-invariant (gravity, world-frame point loads)."""
-        return self._sequence_buffers().supported and all(
-            getattr(force, "state_independent", False) and getattr(force, "time_invariant", False)
-            and not hasattr(force, "advance") for force in forces)
+        world, and every force is time-invariant (gravity, world-frame point loads)."""
+        return self._sequence_buffers().supported and self._split(forces)[2]
+
+    def snapshot(self) -> IntegratorMemory:
+        """The integrator's memory between steps (:meth:`restore` puts it back, e.g. after a failed step)."""
+        factored = int(self._sequence.control[FACTORED]) if self._sequence is not None else 0
+        return IntegratorMemory(self._extrapolate, factored)
+
+    def restore(self, memory: IntegratorMemory) -> None:
+        """Put back the memory of :meth:`snapshot` (a general step leaves the kept factorization untouched)."""
+        self._extrapolate = memory.extrapolate
+        if self._sequence is not None:
+            self._sequence.control[FACTORED] = memory.factored
 
     def step_sequence(self, state: State, dt: float, motions: np.ndarray, rotations: np.ndarray,
                       forces=()) -> SequenceResult:
@@ -200,7 +220,7 @@ class Integrator:
         states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)
         history = buffers.history
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
-        ext_Q = self._constant_force(list(forces), state.t + dt, None)
+        ext_Q = self._constant_force(self._split(forces)[0], state.t + dt, None)
         done = integrate_sequence(history, motions, rotations, self._coefficients(dt), ext_Q, self.newton_tol,
                                   self.max_newton_iterations, buffers.prescribed,
                                   buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
@@ -215,6 +235,17 @@ class Integrator:
             self._sequence = SequenceBuffers(self.model)
         return self._sequence
 
+    def _split(self, forces) -> tuple[list, list, bool]:
+        """(state-independent, state-dependent, all time-invariant) contributions: checked and split once while
+        the same force objects are passed."""
+        forces = tuple(forces)
+        cached = self._split_cache
+        if len(forces) == len(cached[0]) and all(map(operator.is_, forces, cached[0])):
+            return cached[1:]
+        constant, varying = split_forces(forces)
+        self._split_cache = (forces, constant, varying, all(force.time_invariant for force in forces))
+        return self._split_cache[1:]
+
     def _coefficients(self, h: float) -> np.ndarray:
         if self._coef_cache[0] != h:
             self._coef_cache = (h, np.concatenate([[h], self.coefficients]))
@@ -223,10 +254,10 @@ class Integrator:
     def _constant_force(self, forces: list, t: float, base: BaseMotion) -> np.ndarray:
         """Sum of the state-independent forces; cached while the same time-invariant load objects are passed."""
         cached_forces, cached = self._constant_cache
-        if len(forces) == len(cached_forces) and all(a is b for a, b in zip(forces, cached_forces)):
+        if len(forces) == len(cached_forces) and all(map(operator.is_, forces, cached_forces)):
             return cached
         total = constant_force(self.model, forces, t, base)
-        if all(getattr(force, "time_invariant", False) for force in forces):
+        if all(force.time_invariant for force in forces):
             self._constant_cache = (tuple(forces), total)
         return total
 

@@ -13,7 +13,7 @@ import numpy as np
 from needle_vision.parameters import ParamSpec, load_params_file
 
 from needle_sim_ros.model import (BaseMotion, BaseWrench, NeedleModel, NeedleProperties, centerline,
-                                  load_needle_config, needle_parameters)
+                                  check_forces, load_needle_config, needle_parameters)
 from needle_sim_ros.model.config import DEFAULTS, GROUPS
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
@@ -122,7 +122,7 @@ def integrate_sampled(integrator, state, dt: float, n_steps: int, every: int, ba
     Returns (state, integration wall time [s] excluding recording, Newton iterations in all)."""
     base = base_at(state.t)
     record(state, base)
-    advancing = [force for force in forces if hasattr(force, "advance")]
+    advancing = [force for force in check_forces(forces) if force.stateful]
     integration_wall, iterations = 0.0, 0
     for k in range(1, n_steps + 1):
         tick = time.perf_counter()

@@ -3,6 +3,8 @@
 * ``TissueContact``: per-step state shared by the contributions: tip depth and axial speed, capsule puncture,
   the track cut by the tip.  Updated once per accepted step (idempotent, keyed on the state time) from the
   ``advance`` hook of whichever contribution runs first.
+* ``TissueForce``: the force protocol of the tissue contributions (state dependent, stateful: each snapshot holds
+  the shared contact's state and the contribution's own) and their published resultants (``resultants``).
 * ``ShaftSupport``: lateral Winkler springs and dampers (per unit length) perpendicular to the needle on the part
   of it that lies in tissue the tip has already cut (path memory, ``track``; the cut front holds nothing
   laterally), integrated by Gauss quadrature; along the needle, the selected axial law of ``shaft_laws`` on
@@ -17,11 +19,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from needle_sim_ros.model import GeneralizedForce
+from needle_sim_ros.model import ForceContribution, GeneralizedForce
 from needle_sim_ros.model.forces import assemble_point_forces
 from needle_sim_ros.model.mesh import hermite_shapes
 
@@ -30,7 +33,7 @@ from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
 from .shaft_laws import AxialCoefficients
-from .track import Track
+from .track import Track, TrackSnapshot
 
 
 @njit(cache=True)
@@ -52,6 +55,18 @@ def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return q[-6:-3], q[-3:]
 
 
+class ContactSnapshot(NamedTuple):
+    """A copy of a contact's state (:meth:`TissueContact.snapshot`)."""
+
+    punctured: bool
+    tip_depth: float
+    tip_axial_speed: float
+    step_duration: float
+    at_front: bool
+    time: float | None
+    track: TrackSnapshot
+
+
 class TissueContact:
     """State of the needle-tissue contact shared by the contributions.
 
@@ -69,6 +84,16 @@ class TissueContact:
         self.step_duration = 0.0
         self.at_front = False
         self._time: float | None = None
+
+    def snapshot(self) -> ContactSnapshot:
+        """A copy of the contact's state (track included), for :meth:`restore`."""
+        return ContactSnapshot(self.punctured, self.tip_depth, self.tip_axial_speed, self.step_duration,
+                               self.at_front, self._time, self.track.snapshot())
+
+    def restore(self, snapshot: ContactSnapshot) -> None:
+        (self.punctured, self.tip_depth, self.tip_axial_speed, self.step_duration, self.at_front,
+         self._time) = snapshot[:6]
+        self.track.restore(snapshot.track)
 
     def update(self, model, state, base) -> None:
         """Advance the contact to ``state`` (once per state time)."""
@@ -93,6 +118,33 @@ class TissueContact:
                              and self.track.coordinate_ahead(r_tip) >= self.track.length - self.track.spacing)
         else:
             self.at_front = False
+
+
+class TissueForce(ForceContribution):
+    """A tissue contribution on ``contact``: state dependent and stateful. Its snapshot is the shared contact's
+    state with its own (``_own_snapshot``); contributions sharing a contact restore it to the same values."""
+
+    state_dependent = True
+    time_invariant = False
+    stateful = True
+    contact: TissueContact
+
+    def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
+        """World force [N] of this contribution on the tip and on the whole needle at ``state``."""
+        raise NotImplementedError
+
+    def snapshot(self) -> tuple:
+        return self.contact.snapshot(), self._own_snapshot()
+
+    def restore(self, snapshot: tuple) -> None:
+        self.contact.restore(snapshot[0])
+        self._restore_own(snapshot[1])
+
+    def _own_snapshot(self):
+        raise NotImplementedError
+
+    def _restore_own(self, snapshot) -> None:
+        raise NotImplementedError
 
 
 LATERAL_GAUSS_POINTS = 3
@@ -207,7 +259,7 @@ def entry_coverage(arc_lengths, depth, inside):
     return coverage
 
 
-class ShaftSupport:
+class ShaftSupport(TissueForce):
     """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle.
 
     Lateral (``lateral``: per-layer ``lateral_stiffness``, ``lateral_damping`` per unit length): springs and
@@ -271,6 +323,10 @@ class ShaftSupport:
         return sum((fz.weights @ self._law(fz, *self._kinematics(fz, q, qd))[0] for fz in self._parts
                     if fz.weights.size), np.zeros(3))
 
+    def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
+        """No force on the tip; the shaft forces' resultant on the needle."""
+        return np.zeros(3), self.total_force(model, state.q, state.qd, state.t, base)
+
     def elastic_energy(self, model, q) -> float:
         """Energy [J] stored in the lateral springs and the sticking axial anchors (stick band |u| <= C/k_a)."""
         energy = 0.0
@@ -285,6 +341,17 @@ class ShaftSupport:
         return energy
 
     # -- per-step update -------------------------------------------------------------------------------------
+    def _own_snapshot(self) -> tuple:
+        """Anchors, active points and the frozen data of the next step (the latter never change in place)."""
+        return (self.anchor.copy(), self.active.copy(), self._coverage, self._lateral, self._parts,
+                None if self.axial_law is None else self.axial_law.snapshot())
+
+    def _restore_own(self, snapshot: tuple) -> None:
+        anchor, active, self._coverage, self._lateral, self._parts, law = snapshot
+        self.anchor, self.active = anchor.copy(), active.copy()
+        if self.axial_law is not None:
+            self.axial_law.restore(law)
+
     def advance(self, model, state, base) -> None:
         """Update contact and track, (de)activate points, slip the anchors, freeze the next step's data."""
         contact = self.contact
@@ -370,7 +437,7 @@ class ShaftSupport:
             points, tangents, depth, zero, zero, axial, float(self.axial_law.stick_stiffness)))
 
 
-class BevelTipForce:
+class BevelTipForce(TissueForce):
     """Seed 001 eqs. 4-5 at the tip: F = K_T (-P1 t + Q1 n) with P1, Q1 the forces of ``bevel`` per unit K_T, K_T
     of the tip's layer, n the bevel side (``bevel_side_base``, base frame) rolled with the base orientation."""
 
@@ -390,6 +457,16 @@ class BevelTipForce:
         side = base.rotation @ self.bevel_side_base
         force, jacobian = self.unit_bevel.tip_force(tip_coordinates(q)[1], side)
         return self._scale * force, self._scale * jacobian
+
+    def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
+        force = self.tip_force(state.q, base)[0]
+        return force, force
+
+    def _own_snapshot(self) -> float:
+        return self._scale
+
+    def _restore_own(self, snapshot: float) -> None:
+        self._scale = snapshot
 
     def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
         n = q.size
@@ -413,7 +490,7 @@ class BevelTipForce:
                        if engaged else 0.0)
 
 
-class TipResistance:
+class TipResistance(TissueForce):
     """Seed 002 at the tip: capsule stiffness before puncture, cutting force F_c while cutting.
 
     The capsule force -(a1 x + a2 x^2) n (x = tip depth, n = entry normal) is elastic.  The cutting force
@@ -446,6 +523,16 @@ class TipResistance:
         force, d_drx, d_dv = cutting_force(np.ascontiguousarray(rx), np.ascontiguousarray(qd[-6:-3]),
                                            self.profile.cutting_force, self.cutting_speed_scale)
         return force, zero, d_drx, d_dv
+
+    def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
+        force = self.tip_force(state.q, state.qd)[0]
+        return force, force
+
+    def _own_snapshot(self) -> bool:
+        return self._cutting
+
+    def _restore_own(self, snapshot: bool) -> None:
+        self._cutting = snapshot
 
     def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
         n = q.size

@@ -13,7 +13,7 @@ from needle_sim_ros.model import centerline
 from needle_sim_ros.model.config import parameter_tree
 
 from .bevel_tip import BevelTip
-from .coupling import BevelTipForce, ShaftSupport, TipResistance, TissueContact, tip_coordinates
+from .coupling import BevelTipForce, ShaftSupport, TipResistance, TissueContact, TissueForce, tip_coordinates
 from .geometry import LAYER_PARAMETERS, TissueBlock, TissueLayer, inserted_interval
 from .insertion_profile import InsertionForceProfile
 from .lugre import LuGreParameters, ModifiedLuGre
@@ -186,7 +186,7 @@ class TissueReadout:
 
 def tissue_readout(forces, model, state, base) -> TissueReadout | None:
     """Readout of the tissue contributions in ``forces`` (None if there are none) at ``state``."""
-    tissue = [f for f in forces if isinstance(f, (ShaftSupport, BevelTipForce, TipResistance))]
+    tissue = [f for f in forces if isinstance(f, TissueForce)]
     if not tissue:
         return None
     contact = tissue[0].contact
@@ -197,13 +197,7 @@ def tissue_readout(forces, model, state, base) -> TissueReadout | None:
     tip_force = np.zeros(3)
     total = np.zeros(3)
     for force in tissue:
-        if isinstance(force, BevelTipForce):
-            f = force.tip_force(state.q, base)[0]
-        elif isinstance(force, TipResistance):
-            f = force.tip_force(state.q, state.qd)[0]
-        else:
-            total += force.total_force(model, state.q, state.qd, state.t, base)
-            continue
-        tip_force += f
-        total += f
+        on_tip, on_needle = force.resultants(model, state, base)
+        tip_force += on_tip
+        total += on_needle
     return TissueReadout(depth, s_tip - s_entry, tip_force, float(-total @ base.rotation[:, 0]))

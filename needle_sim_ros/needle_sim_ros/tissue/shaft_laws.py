@@ -39,7 +39,20 @@ class AxialCoefficients(NamedTuple):
     velocity_scale: float
 
 
-class KarnoppShaftFriction:
+class StatelessLaw:
+    """An axial law without state of its own (nothing to advance, snapshot or restore)."""
+
+    def advance(self, insertion_depth: float, insertion_speed: float, dt: float) -> None:
+        """Stateless."""
+
+    def snapshot(self) -> None:
+        return None
+
+    def restore(self, snapshot: None) -> None:
+        """Stateless."""
+
+
+class KarnoppShaftFriction(StatelessLaw):
     """Seed 001 eq. 2 with the stick band of ``karnopp.KarnoppFriction``; C_n, b_n per layer."""
 
     def __init__(self, block: TissueBlock, stick_stiffness: float) -> None:
@@ -52,11 +65,8 @@ class KarnoppShaftFriction:
         coulomb, viscous = self.block.layer_values(("friction_coulomb", "friction_viscous"), anchor_depth)
         return AxialCoefficients(coulomb, viscous, 0.0, 0.0, 0.0)
 
-    def advance(self, insertion_depth: float, insertion_speed: float, dt: float) -> None:
-        """Stateless."""
 
-
-class ProfileShaftFriction:
+class ProfileShaftFriction(StatelessLaw):
     """Seed 002 eq. 2 friction F_f(x) spread over the inserted length x, with a stick band of stiffness k_a."""
 
     def __init__(self, profile: InsertionForceProfile, stick_stiffness: float) -> None:
@@ -70,9 +80,6 @@ class ProfileShaftFriction:
         if insertion_depth > 0.0:
             limit = max(float(self.profile.friction_force(insertion_depth)), 0.0) / insertion_depth
         return AxialCoefficients(np.full(anchor_depth.shape, limit), np.zeros(anchor_depth.shape), 0.0, 0.0, 0.0)
-
-    def advance(self, insertion_depth: float, insertion_speed: float, dt: float) -> None:
-        """Stateless."""
 
 
 class LuGreShaftForce:
@@ -96,3 +103,10 @@ class LuGreShaftForce:
         """Advance z over the step (RK3) with l = insertion depth and l' = the tip's axial speed."""
         if dt > 0.0:
             self.z = self.model.step(self.z, max(insertion_depth, 0.0), insertion_speed, dt)
+
+    def snapshot(self) -> float:
+        """The bristle state z [m]."""
+        return self.z
+
+    def restore(self, snapshot: float) -> None:
+        self.z = snapshot

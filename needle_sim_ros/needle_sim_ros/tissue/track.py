@@ -12,6 +12,8 @@ place, so a re-insertion follows it until the tip passes its end, then cuts new 
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -19,11 +21,22 @@ from numba import njit
 END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at the default 0.1 mm spacing)
 
 
+class TrackSnapshot(NamedTuple):
+    """A track's state (:meth:`Track.snapshot`): its vertex count and capacity, initial direction and the tip
+    position of the previous cut (arrays that the track replaces, never changes in place)."""
+
+    count: int
+    capacity: int
+    direction: np.ndarray
+    previous_tip: np.ndarray
+
+
 class Track:
     """Mutable polyline from the entry point; ``length`` is its arc length [m] (0 right after the entry).
 
     Coordinates beyond its end are measured along its end tangent (the initial direction while it has one
-    vertex); they lie in uncut tissue.
+    vertex); they lie in uncut tissue. The vertex buffers only grow at their end and are zero beyond it, so a
+    snapshot is a count (O(1)) and a restore zeroes what was added since.
     """
 
     def __init__(self, spacing: float, capacity: int = 256) -> None:
@@ -54,6 +67,8 @@ class Track:
         if not norm > 0.0:
             raise ValueError("track start: direction must be non-zero")
         self._count = 0
+        self._vertices[:] = 0.0
+        self._arc[:] = 0.0
         self._direction = np.asarray(direction, dtype=float) / norm
         self._append(np.asarray(entry_point, dtype=float))
         self._previous_tip = np.array(entry_point, dtype=float)
@@ -67,6 +82,18 @@ class Track:
             self._arc[self._count] = self._arc[self._count - 1] + np.sqrt(step @ step)
         self._vertices[self._count] = point
         self._count += 1
+
+    def snapshot(self) -> TrackSnapshot:
+        """The track's state, for :meth:`restore`."""
+        return TrackSnapshot(self._count, self._arc.size, self._direction, self._previous_tip)
+
+    def restore(self, snapshot: TrackSnapshot) -> None:
+        if self._arc.size != snapshot.capacity:
+            self._vertices = self._vertices[:snapshot.capacity].copy()
+            self._arc = self._arc[:snapshot.capacity].copy()
+        self._vertices[snapshot.count:] = 0.0
+        self._arc[snapshot.count:] = 0.0
+        self._count, self._direction, self._previous_tip = snapshot.count, snapshot.direction, snapshot.previous_tip
 
     def end_tangent(self) -> np.ndarray:
         """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (the first
