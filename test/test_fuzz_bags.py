@@ -160,6 +160,20 @@ def test_needle_offline_on_damaged_and_mistyped_bags(tmp_path):
     assert np.all(np.isfinite(wrench_values(tmp_path / "out_flip" / "pipeline.mcap")))
 
 
+def test_needle_offline_names_the_bag_problem_before_the_experiment_file(tmp_path):
+    """Without --experiment the experiment file is looked up by the bag's name: a missing bag must be reported as
+    missing (not as a missing experiment file), and a user's own bag gets the --experiment hint."""
+    (tmp_path / "own_recording.mcap").write_bytes(BAG.read_bytes())
+    cases = {"missing.mcap": "input 'missing.mcap' does not exist",
+             "own_recording.mcap": "(give the bag's experiment file with --experiment FILE)"}
+    for bag, words in cases.items():
+        result = subprocess.run(["needle_offline", bag, "--quiet"], cwd=tmp_path, capture_output=True, text=True,
+                                timeout=300)
+        assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+        assert result.stderr.count("\n") == 1 and words in result.stderr, result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["own_recording.mcap"]
+
+
 @pytest.mark.slow
 @pytest.mark.ros
 def test_needle_replay_skips_corrupt_chunks_and_mistyped_topics(tmp_path, ros_env):

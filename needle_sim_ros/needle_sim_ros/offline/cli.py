@@ -103,12 +103,14 @@ def main(argv: list[str] | None = None) -> int:
     name = args.bag.stem
     output_dir = args.output_dir or Path("out") / name / "offline"
     try:
+        reader = BagReader(args.bag)
         experiment = load_experiment(args.experiment) if args.experiment else experiment_for_bag(args.bag)
         pipeline = OfflinePipeline(experiment, overrides, stereo=False if args.no_stereo else None)
-        reader = BagReader(args.bag)
         output_dir.mkdir(parents=True, exist_ok=True)
     except (ExperimentConfigError, ParameterError, BagReadError, ValueError) as error:
-        print(f"needle_offline: error: {error}", file=sys.stderr)
+        hint = " (give the bag's experiment file with --experiment FILE)" \
+            if isinstance(error, ExperimentConfigError) and not args.experiment else ""
+        print(f"needle_offline: error: {error}{hint}", file=sys.stderr)
         return 2
     except OSError as error:
         print(f"needle_offline: error: output directory '{output_dir}': {error.strerror or error}", file=sys.stderr)
