@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from needle_sim_ros.tissue.angular_spring import AngularSpringNeedle, identify_bending_stiffness
+from needle_sim_ros.identification import identify_bending_stiffness
+from needle_sim_ros.tissue.angular_spring import AngularSpringNeedle
 
 
 def test_identification_reproduces_seed_table_i():

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from needle_sim_ros.tissue.insertion_profile import InsertionForceProfile, fit_insertion_profile
+from needle_sim_ros.identification import fit_insertion_profile
+from needle_sim_ros.tissue.insertion_profile import InsertionForceProfile
 
 # Seed 002 stiffness constants read with x in mm, F in N: a1 = 0.0019 N/mm, a2 = 0.0499 N/mm^2.
 TRUE = InsertionForceProfile(a1=1.9, a2=4.99e4, puncture_depth=0.012,

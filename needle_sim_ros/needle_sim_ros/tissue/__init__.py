@@ -1,17 +1,16 @@
 """Needle-tissue interaction models (ROS-free): seed 001 (Karnopp friction, bevel tip, angular-spring needle),
-seed 002 (insertion force profile), seed 003 (modified LuGre + EKF identification), and their coupling to the
-ANCF needle as force contributions.
+seed 002 (insertion force profile), seed 003 (modified LuGre), and their coupling to the ANCF needle as force
+contributions. Their identification from data is in :mod:`needle_sim_ros.identification`.
 
-The pure laws and estimators import without the ANCF model; ``build_tissue_forces`` and ``tissue_readout`` (which
+The pure laws import without the ANCF model; ``build_tissue_forces`` and ``tissue_readout`` (which
 need ``needle_sim_ros.model``) are imported on first use.
 """
-from .angular_spring import AngularSpringNeedle, identify_bending_stiffness
+from .angular_spring import AngularSpringNeedle
 from .bevel_tip import BevelTip
 from .geometry import TissueBlock, TissueLayer, inserted_interval
-from .insertion_profile import InsertionForceProfile, fit_insertion_profile
+from .insertion_profile import InsertionForceProfile
 from .karnopp import KarnoppFriction
 from .lugre import LuGreParameters, ModifiedLuGre
-from .lugre_estimation import TABLE_I_GROUPS, LuGreEstimate, LuGreEstimator, fisher_information, identify_record
 
 _COUPLING_NAMES = ("build_tissue_forces", "tissue_readout", "TissueReadout", "TISSUE_PARAMETERS")
 
@@ -23,7 +22,5 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["AngularSpringNeedle", "identify_bending_stiffness", "BevelTip", "TissueBlock", "TissueLayer",
-           "inserted_interval", "InsertionForceProfile", "fit_insertion_profile", "KarnoppFriction",
-           "LuGreParameters", "ModifiedLuGre", "TABLE_I_GROUPS", "LuGreEstimate", "LuGreEstimator",
-           "fisher_information", "identify_record", *_COUPLING_NAMES]
+__all__ = ["AngularSpringNeedle", "BevelTip", "TissueBlock", "TissueLayer", "inserted_interval",
+           "InsertionForceProfile", "KarnoppFriction", "LuGreParameters", "ModifiedLuGre", *_COUPLING_NAMES]

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
+from needle_sim_ros.identification.lugre_ekf import (TABLE_I_GROUPS, LuGreEstimator, fisher_information,
+                                                     identify_record)
 from needle_sim_ros.tissue.lugre import PARAMETER_NAMES, LuGreParameters, ModifiedLuGre
-from needle_sim_ros.tissue.lugre_estimation import (TABLE_I_GROUPS, LuGreEstimator, fisher_information,
-                                                    identify_record)
 
 TRUE = LuGreParameters(f1=8.0, f2=500.0, sigma0=2.5e5, sigma1=50.0, sigma2=12.0, alpha=125.0)
 DT = 0.005                      # seed 003 samples the force at 200 Hz

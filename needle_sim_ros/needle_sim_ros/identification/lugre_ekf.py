@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lugre import PARAMETER_NAMES, LuGreParameters, axial_force, rk3_step
+from needle_sim_ros.tissue.lugre import PARAMETER_NAMES, LuGreParameters, axial_force, rk3_step
 
 # Feasible region (projection after each update, a standard constrained-EKF device): g(l) > 0 and sigma0 > 0 need
 # f1 > 0, f2 >= 0, sigma0 > 0, and alpha >= 0 keeps the puncture term decaying; sigma1, sigma2 >= 0 (dissipative).
