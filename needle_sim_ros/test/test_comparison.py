@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from needle_vision.transform import RigidTransform
 
-from needle_sim_ros.comparison import (Centerline, ComparisonError, ErrorSummary, StampPairer, calibrate_extrinsic,
+from needle_sim_ros.comparison import (Centerline, ComparisonError, ErrorSummary, ShapePairer, calibrate_extrinsic,
                                        closest_points_on_polyline, compare_centerlines, kabsch)
 from needle_sim_ros.comparison import centerline_distance
 
@@ -131,7 +131,7 @@ class TestStampPairer:
     MS = 1_000_000
 
     def test_measurement_pairs_with_the_nearest_model_once_a_later_model_arrived(self):
-        pairer = StampPairer(tolerance_ns=3 * self.MS)
+        pairer = ShapePairer(tolerance_ns=3 * self.MS)
         assert pairer.add_model(10 * self.MS, "m10") == []
         assert pairer.add_measurement(14 * self.MS, "a") == []       # undecided: a nearer model may follow
         pairs = pairer.add_model(20 * self.MS, "m20")
@@ -141,7 +141,7 @@ class TestStampPairer:
         assert [(p.model, p.measurement, p.model_stamp_ns) for p in pairs] == [("m20", "b", 20 * self.MS)]
 
     def test_late_measurement_finds_its_model_in_the_buffer(self):
-        pairer = StampPairer(tolerance_ns=self.MS, model_buffer=5)
+        pairer = ShapePairer(tolerance_ns=self.MS, model_buffer=5)
         for k in range(10):
             pairer.add_model(k * 10 * self.MS, k)
         assert [p.model for p in pairer.add_measurement(70 * self.MS + 400_000, "x")] == [7]
@@ -149,7 +149,7 @@ class TestStampPairer:
         assert pairer.unpaired == 1
 
     def test_time_going_backwards_restarts_pairing(self):
-        pairer = StampPairer(tolerance_ns=self.MS)
+        pairer = ShapePairer(tolerance_ns=self.MS)
         pairer.add_model(100 * self.MS, "late")
         pairer.add_measurement(200 * self.MS, "waiting")
         pairer.add_model(0, "restart")
@@ -157,7 +157,7 @@ class TestStampPairer:
         assert [p.model for p in pairer.add_measurement(0, "new")] == ["restart"]
 
     def test_pending_measurements_are_bounded(self):
-        pairer = StampPairer(tolerance_ns=self.MS, pending_limit=3)
+        pairer = ShapePairer(tolerance_ns=self.MS, pending_limit=3)
         for k in range(5):
             pairer.add_measurement(k * self.MS, k)
         assert pairer.unpaired == 2                                    # 0 and 1 dropped

@@ -2,12 +2,12 @@
 the comparison session that the needle_compare node and the offline comparison stage both run."""
 from needle_sim_ros.comparison.centerline_distance import ClosestPoints, chord_arc_length, closest_points_on_polyline
 from needle_sim_ros.comparison.extrinsic_calibration import ExtrinsicCalibration, calibrate_extrinsic, kabsch
-from needle_sim_ros.comparison.pairing import StampedPair, StampPairer
+from needle_sim_ros.comparison.pairing import ShapePairer, StampedPair
 from needle_sim_ros.comparison.session import ComparedPair, ComparisonSession
 from needle_sim_ros.comparison.shape_error import (Centerline, ComparisonError, ErrorSummary, ShapeComparison,
                                                    compare_centerlines)
 
 __all__ = ["Centerline", "ClosestPoints", "ComparedPair", "ComparisonError", "ComparisonSession", "ErrorSummary",
            "ExtrinsicCalibration", "ShapeComparison",
-           "StampPairer", "StampedPair", "calibrate_extrinsic", "chord_arc_length", "closest_points_on_polyline",
+           "ShapePairer", "StampedPair", "calibrate_extrinsic", "chord_arc_length", "closest_points_on_polyline",
            "compare_centerlines", "kabsch"]

@@ -1,7 +1,7 @@
 """The comparison core of ``needle_compare``, ROS-free: what the node and the offline comparison stage both run.
 
 Model and measured centerlines come in with their header stamp and frame; a shape in an unexpected frame or with
-unusable samples is rejected (counted by reason), the others are paired by stamp (:class:`StampPairer`) and each
+unusable samples is rejected (counted by reason), the others are paired by stamp (:class:`ShapePairer`) and each
 pair is compared in the model frame (:func:`compare_centerlines`). The caller keeps any tag with a shape (its
 message header) and gets it back with the comparison.
 """
@@ -15,7 +15,7 @@ import numpy as np
 
 from needle_vision.transform import RigidTransform
 
-from needle_sim_ros.comparison.pairing import StampPairer
+from needle_sim_ros.comparison.pairing import ShapePairer
 from needle_sim_ros.comparison.shape_error import Centerline, ComparisonError, ErrorSummary, ShapeComparison, \
     compare_centerlines
 
@@ -40,7 +40,7 @@ class ComparisonSession:
                                                                      *values["extrinsic.rotation"]])
         self.max_match_distance = values["max_match_distance"] or math.inf
         self.model_frame, self.measured_frame = values["model_frame"], values["measured_frame"]
-        self.pairer = StampPairer(int(round(values["tolerance"] * 1e9)), model_buffer=values["model_buffer"])
+        self.pairer = ShapePairer(int(round(values["tolerance"] * 1e9)), model_buffer=values["model_buffer"])
         self.summary = ErrorSummary()
         self.on_reject = on_reject
 
