@@ -7,8 +7,8 @@ from scipy.spatial.transform import Rotation
 
 from needle_vision.transform import RigidTransform
 
-from needle_sim_ros.comparison import (Centerline, ComparisonError, ErrorSummary, ShapePairer, calibrate_extrinsic,
-                                       closest_points_on_polyline, compare_centerlines, kabsch)
+from needle_sim_ros.comparison import (CenterlineSamples, ComparisonError, ErrorSummary, ShapePairer,
+                                       calibrate_extrinsic, closest_points_on_polyline, compare_centerlines, kabsch)
 from needle_sim_ros.comparison import centerline_distance
 
 # Round-off of a few float64 operations on metre-scale coordinates.
@@ -73,8 +73,8 @@ def test_measured_shape_offset_by_a_known_distance_in_the_camera_frame():
     normal = np.array([0.0, 0.0, 1.0])                   # the arc lies in z = 0: offsetting along z keeps distances
     offset = 0.002
     measured_model_frame = vertices[::4] + offset * normal
-    measured = Centerline(CAMERA_TO_MODEL.inverse().apply(measured_model_frame))
-    result = compare_centerlines(Centerline(vertices, s), measured, CAMERA_TO_MODEL)
+    measured = CenterlineSamples(CAMERA_TO_MODEL.inverse().apply(measured_model_frame))
+    result = compare_centerlines(CenterlineSamples(vertices, s), measured, CAMERA_TO_MODEL)
     assert result.matched_samples == len(measured_model_frame)
     np.testing.assert_allclose(result.errors, offset, atol=1e-12)
     assert result.rmse == pytest.approx(offset, abs=1e-12)
@@ -86,12 +86,12 @@ def test_measured_shape_offset_by_a_known_distance_in_the_camera_frame():
 def test_short_measurement_tip_error_and_outlier_gate():
     vertices, s = arc(0.4, 0.2, 41)
     measured = np.vstack([vertices[:31], [[0.05, 0.2, 0.0]]])   # ends 5 cm early, plus one stray sample
-    result = compare_centerlines(Centerline(vertices, s), Centerline(measured), max_match_distance=0.01)
+    result = compare_centerlines(CenterlineSamples(vertices, s), CenterlineSamples(measured), max_match_distance=0.01)
     assert result.matched_samples == 31 and not result.matched[-1]
     assert result.rmse == pytest.approx(0.0, abs=1e-12)
     # Ordered: the tip is the last sample, the stray one, whatever the gate says.
     assert result.tip_error == pytest.approx(np.linalg.norm(vertices[-1] - measured[-1]), abs=1e-12)
-    unordered = compare_centerlines(Centerline(vertices, s), Centerline(measured[::-1], ordered=False),
+    unordered = compare_centerlines(CenterlineSamples(vertices, s), CenterlineSamples(measured[::-1], ordered=False),
                                     max_match_distance=0.01)
     # Unordered: the matched sample farthest along the model, here vertex 30; the chord from it to the tip.
     assert unordered.tip_error == pytest.approx(np.linalg.norm(vertices[-1] - vertices[30]), abs=1e-12)
@@ -106,13 +106,14 @@ def test_short_measurement_tip_error_and_outlier_gate():
 ])
 def test_bad_centerlines_are_rejected_with_a_reason(points, arc_length, message):
     with pytest.raises(ComparisonError, match=message):
-        Centerline(points, arc_length)
+        CenterlineSamples(points, arc_length)
 
 
 def test_nothing_matched_is_an_error_not_nan():
     vertices, _ = arc(0.4, 0.2, 11)
     with pytest.raises(ComparisonError, match="no measured sample"):
-        compare_centerlines(Centerline(vertices), Centerline(vertices + [0.0, 0.0, 1.0]), max_match_distance=0.01)
+        compare_centerlines(CenterlineSamples(vertices), CenterlineSamples(vertices + [0.0, 0.0, 1.0]),
+                            max_match_distance=0.01)
 
 
 def test_summary_statistics():
@@ -120,7 +121,7 @@ def test_summary_statistics():
     assert summary.as_dict()["rmse_mean_m"] is None
     vertices, _ = arc(0.4, 0.2, 11)
     for offset in (0.001, 0.003):
-        summary.add(compare_centerlines(Centerline(vertices), Centerline(vertices + [0.0, 0.0, offset])))
+        summary.add(compare_centerlines(CenterlineSamples(vertices), CenterlineSamples(vertices + [0.0, 0.0, offset])))
     report = summary.as_dict()
     assert report["compared"] == 2
     assert report["rmse_mean_m"] == pytest.approx(0.002, abs=1e-12)
@@ -174,8 +175,9 @@ def calibration_frames(ordered=True):
         vertices, s = arc(radius, 0.2, 21, tuple(np.asarray(normal) / np.linalg.norm(normal)))
         sample_s = np.linspace(0.003, 0.197, 17)
         on_polyline = np.column_stack([np.interp(sample_s, s, vertices[:, i]) for i in range(3)])
-        measured = Centerline(CAMERA_TO_MODEL.inverse().apply(on_polyline), sample_s if ordered else None, ordered)
-        frames.append((Centerline(vertices, s), measured))
+        measured = CenterlineSamples(CAMERA_TO_MODEL.inverse().apply(on_polyline), sample_s if ordered else None,
+                                     ordered)
+        frames.append((CenterlineSamples(vertices, s), measured))
     return frames
 
 
@@ -212,7 +214,7 @@ def test_calibration_from_a_perturbed_guess_with_unordered_samples():
 def test_calibration_rejects_a_straight_needle_in_one_pose():
     vertices = np.column_stack([np.linspace(0.0, 0.2, 11), np.zeros(11), np.zeros(11)])
     with pytest.raises(ComparisonError, match="collinear"):
-        calibrate_extrinsic([(Centerline(vertices), Centerline(vertices))])
+        calibrate_extrinsic([(CenterlineSamples(vertices), CenterlineSamples(vertices))])
 
 
 def test_parameter_file_lists_every_compare_node_parameter_with_a_valid_default():

@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from needle_vision.transform import RigidTransform
 
 from needle_sim_ros.comparison.centerline_distance import chord_arc_length, closest_points_on_polyline
-from needle_sim_ros.comparison.shape_error import Centerline, ComparisonError
+from needle_sim_ros.comparison.shape_error import CenterlineSamples, ComparisonError
 
 # Measured samples whose second principal extent is below this fraction of the first count as collinear.
 _COLLINEAR_RATIO = 1e-6
@@ -43,7 +43,7 @@ def kabsch(source: np.ndarray, target: np.ndarray) -> RigidTransform:
     return RigidTransform(rotation.as_matrix(), target_mean - rotation.apply(source_mean))
 
 
-def _arc_length_guess(frames: Sequence[tuple[Centerline, Centerline]]) -> RigidTransform:
+def _arc_length_guess(frames: Sequence[tuple[CenterlineSamples, CenterlineSamples]]) -> RigidTransform:
     """Kabsch on samples paired by equal arc length from the base (without measured arc lengths, the first
     measured sample is taken as the base)."""
     sources, targets = [], []
@@ -58,8 +58,9 @@ def _arc_length_guess(frames: Sequence[tuple[Centerline, Centerline]]) -> RigidT
     return kabsch(np.concatenate(sources), np.concatenate(targets))
 
 
-def calibrate_extrinsic(frames: Sequence[tuple[Centerline, Centerline]], initial: RigidTransform | None = None,
-                        max_iterations: int = 100, step_tolerance: float = 1e-10) -> ExtrinsicCalibration:
+def calibrate_extrinsic(frames: Sequence[tuple[CenterlineSamples, CenterlineSamples]],
+                        initial: RigidTransform | None = None, max_iterations: int = 100,
+                        step_tolerance: float = 1e-10) -> ExtrinsicCalibration:
     """Estimate the camera -> model extrinsic from (model centerline, measured centerline) pairs of static frames.
 
     Iterates until no measured sample moves by more than ``step_tolerance`` [m] in an iteration, or

@@ -16,7 +16,7 @@ import numpy as np
 from needle_vision.transform import RigidTransform
 
 from needle_sim_ros.comparison.pairing import ShapePairer
-from needle_sim_ros.comparison.shape_error import Centerline, ComparisonError, ErrorSummary, ShapeComparison, \
+from needle_sim_ros.comparison.shape_error import CenterlineSamples, ComparisonError, ErrorSummary, ShapeComparison, \
     compare_centerlines
 
 
@@ -26,8 +26,8 @@ class ComparedPair:
 
     model_tag: Any
     measured_tag: Any
-    model: Centerline
-    measured: Centerline
+    model: CenterlineSamples
+    measured: CenterlineSamples
     result: ShapeComparison
 
 
@@ -49,12 +49,13 @@ class ComparisonSession:
         if self.on_reject is not None:
             self.on_reject(what, reason)
 
-    def _centerline(self, what: str, frame_id: str, expected_frame: str, minimum: int, **samples) -> Centerline | None:
+    def _centerline(self, what: str, frame_id: str, expected_frame: str, minimum: int,
+                    **samples) -> CenterlineSamples | None:
         if expected_frame and frame_id != expected_frame:
             self.reject(what, f"frame_id '{frame_id}' is not '{expected_frame}'")
             return None
         try:
-            centerline = Centerline(**samples)
+            centerline = CenterlineSamples(**samples)
             if len(centerline.points) < minimum:
                 raise ComparisonError("needs at least two samples")
         except ComparisonError as error:

@@ -22,8 +22,9 @@ class ComparisonError(ValueError):
 
 
 @dataclass(frozen=True)
-class Centerline:
-    """Needle centerline samples [m] in one frame.
+class CenterlineSamples:
+    """Needle centerline samples [m] in one frame, as compared (validated input; the model's own sampled
+    centerline with tangents is :class:`needle_sim_ros.model.Centerline`).
 
     ``ordered`` samples run from the base to the tip (NeedleShape); an unordered set (a point cloud) has no
     defined last sample. ``arc_length`` [m] (optional) must be non-decreasing and as long as ``points``.
@@ -67,7 +68,7 @@ class ShapeComparison:
         return int(np.count_nonzero(self.matched))
 
 
-def compare_centerlines(model: Centerline, measured: Centerline,
+def compare_centerlines(model: CenterlineSamples, measured: CenterlineSamples,
                         model_from_measured: RigidTransform = RigidTransform(),
                         max_match_distance: float = math.inf) -> ShapeComparison:
     """Compare a measured centerline (in its own frame) with the model centerline (in the model frame).

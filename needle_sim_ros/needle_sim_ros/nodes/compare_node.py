@@ -26,7 +26,7 @@ from visualization_msgs.msg import Marker
 
 from needle_vision.parameters import ParameterError
 
-from needle_sim_ros.comparison import Centerline, ComparedPair, ComparisonSession
+from needle_sim_ros.comparison import CenterlineSamples, ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import centerline_display
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
 from needle_vision.ros_parameters import declare_all
@@ -171,7 +171,7 @@ class CompareNode(Node):
             self.log("shape_error", msg, ShapeError, self.error_qos)
             self.display(pair.model_tag, pair.model, pair.measured, pair.result)
 
-    def display(self, model_header, model: Centerline, measured: Centerline, result) -> None:
+    def display(self, model_header, model: CenterlineSamples, measured: CenterlineSamples, result) -> None:
         """The compared centerlines as Path and Marker tube (model frame), at most ``display.rate`` per second of
         measurement time (a tube costs a few milliseconds)."""
         rate = self.values["display.rate"]

@@ -14,7 +14,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from needle_sim_ros.comparison import Centerline, compare_centerlines
+from needle_sim_ros.comparison import CenterlineSamples, compare_centerlines
 from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReader
 
 NS = 1_000_000_000
@@ -116,7 +116,7 @@ def read_pipeline_log(log: str | Path, bag: str | Path | None = None) -> Pipelin
 
 
 def _rms_distance(reference: np.ndarray, points: np.ndarray) -> float:
-    return compare_centerlines(Centerline(reference), Centerline(points)).rmse
+    return compare_centerlines(CenterlineSamples(reference), CenterlineSamples(points)).rmse
 
 
 def versus_ground_truth(log: PipelineLog) -> dict[str, float | int | None]:
