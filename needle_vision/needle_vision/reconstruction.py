@@ -123,6 +123,20 @@ def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: in
     return keep
 
 
+@dataclass(frozen=True)
+class Triangulation:
+    """The inlier triangulated points of a pair in the output frame, in left-curve order (base and tip not told
+    yet), their 1-sigma uncertainty [m] and whether each was anchored; their mean spacing [m]; the image
+    centerlines. What :func:`order_and_resample` needs: independent of the previous frames."""
+
+    points: np.ndarray
+    sigma: np.ndarray
+    anchored: np.ndarray
+    spacing: float
+    left_centerline: ImageCenterline
+    right_centerline: ImageCenterline
+
+
 def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
                            matching: MatchingConfig, config: ReconstructionConfig,
                            output_from_left: RigidTransform, base_hint: np.ndarray | None = None
@@ -130,6 +144,15 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     """Triangulate, clean, order, smooth and resample; raises MatchError when no measurement results.
     The base is the end nearer to ``base_hint`` (output frame; e.g. the previous frame's base) when given, else
     nearer to ``config.base_point``."""
+    return order_and_resample(triangulate_centerline(left, right, rectification, matching, config, output_from_left),
+                              rectification, config, output_from_left, base_hint)
+
+
+def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
+                           matching: MatchingConfig, config: ReconstructionConfig,
+                           output_from_left: RigidTransform) -> Triangulation:
+    """Rectify, correspond, triangulate and reject outliers (the part that does not depend on earlier frames);
+    raises MatchError when too few points remain."""
     scatter = max(left.noise_px, right.noise_px)
     if scatter > config.max_image_scatter:
         raise ImplausibleError(f"implausible: image centerline scatters {scatter:.2f} px across the curve "
@@ -177,7 +200,15 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     lateral_noise = np.linalg.norm(points, axis=1) / rectification.focal_length * noise_px
     point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2)
 
-    points = output_from_left.apply(points)
+    return Triangulation(output_from_left.apply(points), point_sigma, anchored, spacing, left, right)
+
+
+def order_and_resample(triangulation: Triangulation, rectification: Rectification, config: ReconstructionConfig,
+                       output_from_left: RigidTransform, base_hint: np.ndarray | None = None) -> NeedleMeasurement:
+    """Order ``triangulation`` from the base (the end nearer to ``base_hint``, else to ``config.base_point``) to the
+    tip, smooth and resample it; raises ImplausibleError for a needle longer than ``max_length``."""
+    points, point_sigma, anchored = triangulation.points, triangulation.sigma, triangulation.anchored
+    split, spacing = 0.5 * config.smoothing_length, triangulation.spacing
     base = config.base_point if base_hint is None else base_hint
     if np.linalg.norm(points[-1] - base) < np.linalg.norm(points[0] - base):
         points, point_sigma, anchored = points[::-1], point_sigma[::-1], anchored[::-1]
@@ -203,5 +234,5 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
         / rectification.focal_length
     uncertainty[[0, -1]] = np.hypot(uncertainty[[0, -1]], END_LOCALIZATION_PX * end_pixel)
     uncertainty = np.where(measured, uncertainty, UNMEASURED)
-    return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, left, right,
-                             float(np.mean(anchored)), measured)
+    return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, triangulation.left_centerline,
+                             triangulation.right_centerline, float(np.mean(anchored)), measured)
