@@ -244,6 +244,55 @@ def _slices_along(path):  # pragma: no cover - compiled
     return along_rows[:n], fixed[:n], predicted[:n], obliquity[:n]
 
 
+@numba.njit(cache=True, nogil=True)
+def _extended(values, j, mirror):  # pragma: no cover - compiled
+    """``values[j]`` for any ``j``, extended beyond the ends by reflection about the end samples (``mirror``)
+    or by repeating them (scipy.ndimage's 'mirror' and 'nearest' modes)."""
+    n = values.shape[0]
+    if not mirror or n == 1:
+        return values[min(max(j, 0), n - 1)]
+    period = 2 * (n - 1)
+    j = abs(j) % period
+    return values[period - j if j >= n else j]
+
+
+@numba.njit(cache=True, nogil=True)
+def _running_median(values, size, mirror):  # pragma: no cover - compiled
+    """scipy.ndimage.median_filter of 1D ``values`` over ``size`` samples (the window's element of rank
+    size // 2, centred at size // 2; modes as :func:`_extended`): a sorted window updated one sample in and one
+    out, O(size) per sample."""
+    n = values.shape[0]
+    out = np.empty(n)
+    if n == 0:
+        return out
+    start = -(size // 2)
+    window = np.empty(size)
+    for k in range(size):
+        window[k] = _extended(values, start + k, mirror)
+    window.sort()
+    out[0] = window[size // 2]
+    for i in range(1, n):
+        leaving, entering = _extended(values, start + i - 1, mirror), _extended(values, start + i - 1 + size, mirror)
+        k = np.searchsorted(window, leaving)  # the leaving value's slot, refilled by shifting towards the entering
+        while k > 0 and window[k - 1] > entering:
+            window[k] = window[k - 1]
+            k -= 1
+        while k < size - 1 and window[k + 1] < entering:
+            window[k] = window[k + 1]
+            k += 1
+        window[k] = entering
+        out[i] = window[size // 2]
+    return out
+
+
+def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
+    """scipy.ndimage.median_filter of 1D ``values`` (mode 'mirror' or 'nearest'), compiled where the window
+    reflects at most once (the usual case; scipy's repeated reflection otherwise)."""
+    if size > len(values):
+        return median_filter(values, size=size, mode=mode)
+    return _running_median(np.ascontiguousarray(values, dtype=float), size, mode == "mirror")
+
+
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
 #: tapered (a bevel seen side-on).
 TAPER_FACTOR = 1.5
@@ -497,7 +546,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
         raise NoNeedleError("the needle's slices have no contrast")
     keep[:ends[0]] = False
     keep[ends[-1] + 1:] = False
-    local = median_filter(width_contrast[keep], size=config.local_window, mode="mirror")
+    local = _median_filter(width_contrast[keep], config.local_window, "mirror")
     keep[keep] = full[keep] | (width_contrast[keep] >= config.min_profile_fraction * local)
     points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
     # At a hidden stretch the slices may be cut by the occluder's edge (centroid biased): drop those next to it.
@@ -527,7 +576,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     if len(sliced) > 9:
         noise = float(np.median(residual))
         window = min(NOISE_WINDOW, len(sliced))
-        local = median_filter(residual, size=window, mode="nearest")
+        local = _median_filter(residual, window, "nearest")
         local[:window // 2] = np.median(residual[:window])  # the first and last full windows' at the ends
         local[len(local) - window // 2:] = np.median(residual[-window:])
         local = np.interp(np.arange(len(points)), sliced, local)
