@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from needle_vision.centerline import ImageCenterline
 from needle_vision.correspondence import MatchError, MatchingConfig, match_centerlines
@@ -84,10 +84,24 @@ def _ends_inside(points: np.ndarray, width: int, height: int, margin: float = 5.
     return bool(np.all((ends >= margin) & (ends <= [width - 1 - margin, height - 1 - margin])))
 
 
+@numba.njit(cache=True, nogil=True)
+def _nearest(reference, queries):  # pragma: no cover - compiled
+    """Index of the nearest of the ``reference`` points ``(n, 2)`` to each of the ``queries`` ``(m, 2)``."""
+    out = np.empty(queries.shape[0], np.int64)
+    for i in range(queries.shape[0]):
+        best, nearest = np.inf, 0
+        for k in range(reference.shape[0]):
+            distance = (reference[k, 0] - queries[i, 0]) ** 2 + (reference[k, 1] - queries[i, 1]) ** 2
+            if distance < best:
+                best, nearest = distance, k
+        out[i] = nearest
+    return out
+
+
 def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
     """The local image noise [px] of ``centerline`` (rectified points ``rectified``) at the matched points: that of
     the nearest of every 8th point (it varies over NOISE_WINDOW points)."""
-    return centerline.local_noise_px[::8][cKDTree(rectified[::8]).query(matched)[1]]
+    return centerline.local_noise_px[::8][_nearest(np.ascontiguousarray(rectified[::8]), matched)]
 
 
 def _runs(points: np.ndarray, split: float) -> list[slice]:
@@ -230,8 +244,7 @@ def order_and_resample(triangulation: Triangulation, rectification: Rectificatio
     tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
     uncertainty = np.interp(samples, arc, point_sigma)
     # The end samples also carry the localization of the needle's ends along it (sub-pixel edge, ~0.3 px).
-    end_pixel = np.linalg.norm(output_from_left.inverse().apply(resampled[[0, -1]]), axis=1) \
-        / rectification.focal_length
+    end_pixel = np.linalg.norm(resampled[[0, -1]] - output_from_left.translation, axis=1) / rectification.focal_length
     uncertainty[[0, -1]] = np.hypot(uncertainty[[0, -1]], END_LOCALIZATION_PX * end_pixel)
     uncertainty = np.where(measured, uncertainty, UNMEASURED)
     return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, triangulation.left_centerline,
