@@ -3,9 +3,11 @@
 Input is either a folder with ``left/`` and ``right/`` sub-folders of images paired by file name (stamps from
 ``--fps``), or a rosbag2 MCAP recording (an ``.mcap`` file or a bag folder) with ``sensor_msgs/Image`` or
 ``sensor_msgs/CompressedImage`` topics, read as serialized bytes (raw pixels are never copied). Images are
-decoded on a thread pool ahead of the measurement (OpenCV releases the GIL). The calibration comes from
-camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics. Settings are the
-node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
+decoded on a thread pool ahead of the measurement (OpenCV releases the GIL); with ``--workers`` >= 2, pairs are
+also measured concurrently once the background and polarity are settled (the compiled kernels release the GIL too),
+their order-dependent part (base/tip by continuity, tracking, CSV) completed in input order: the same CSV. The
+calibration comes from camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics.
+Settings are the node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
 ``--output-frame`` override the common ones; ``--base-pose-topic`` reads the needle's base poses from the bag
 to tell base from tip. Output: one CSV row per centerline sample (frame = index of the synchronised pair, stamp [s],
 sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with tracking); its first line names the
