@@ -295,7 +295,7 @@ def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
 
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
 #: tapered (a bevel seen side-on). On the renders a flat end's ratio stays below 1.05 (at 1.0, 2 of 4 flat tips
-#: moved 0.06-0.2 mm off) and a 1 mm bevel's lies at 1.15-1.3 (1.5 missed it: tips 0.3-0.5 mm short).
+#: moved 0.06-0.2 mm off) and a 1 mm bevel's at 1.15-1.5 in most views (1.5 missed it: tips 0.3-0.5 mm short).
 TAPER_FACTOR = 1.15
 #: ... provided the profile scatters less than this fraction of its level along the needle (a weak needle's
 #: noisy profile does not tell a taper).
