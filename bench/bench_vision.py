@@ -30,7 +30,8 @@ from needle_vision.centerline import extract_centerline  # noqa: E402
 from needle_vision.offline import decoded, open_source  # noqa: E402
 from needle_vision.offline import main as offline_main  # noqa: E402
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline  # noqa: E402
-from needle_vision.reconstruction import reconstruct_centerline  # noqa: E402
+from needle_vision.reconstruction import (order_and_resample, reconstruct_centerline,  # noqa: E402
+                                          triangulate_centerline)
 from needle_vision.render import (NEEDLE_RADIUS, Imaging, default_rig, make_scene, render_background_pair,  # noqa: E402
                                   render_stereo_pair)
 from needle_vision.sensitivity import simulate_checkerboard_calibration  # noqa: E402
@@ -45,6 +46,37 @@ def timed(function, repetitions: int) -> tuple[float, float]:
         function()
         samples.append(time.perf_counter() - start)
     return 1e3 * min(samples), 1e3 * float(np.median(samples))
+
+
+def cpu_timed(function, repetitions: int) -> float:
+    """Median CPU time [ms] of ``function()`` on the calling thread (independent of other processes' load)."""
+    function()
+    samples = []
+    for _ in range(repetitions):
+        start = time.thread_time()
+        function()
+        samples.append(time.thread_time() - start)
+    return 1e3 * float(np.median(samples))
+
+
+def stage_cpu(pipeline: StereoNeedlePipeline, pairs: list[tuple[np.ndarray, np.ndarray]], repetitions: int) -> str:
+    """CPU time per pair [ms] of the measurement's stages on one thread, as a Markdown sentence."""
+    config = pipeline.config
+    centerlines = [[extract_centerline(image, background, config.centerline)
+                    for image, background in zip(pair, pipeline.backgrounds)] for pair in pairs]
+    triangulations = [triangulate_centerline(*both, pipeline.rectification, config.matching, config.reconstruction,
+                                             pipeline.output_from_left) for both in centerlines]
+    stages = {
+        "centerlines (2 images)": lambda: [extract_centerline(image, background, config.centerline)
+                                           for pair in pairs for image, background in zip(pair, pipeline.backgrounds)],
+        "matching + triangulation": lambda: [triangulate_centerline(*both, pipeline.rectification, config.matching,
+                                                                    config.reconstruction, pipeline.output_from_left)
+                                             for both in centerlines],
+        "ordering + resampling": lambda: [order_and_resample(triangulation, pipeline.rectification,
+                                                             config.reconstruction, pipeline.output_from_left)
+                                          for triangulation in triangulations],
+        "whole pair (process)": lambda: [pipeline.process(1.0, *pair) for pair in pairs]}
+    return ", ".join(f"{name} {cpu_timed(stage, repetitions) / len(pairs):.2f}" for name, stage in stages.items())
 
 
 def ready_pipeline(rig, scene, imaging, frames: int = 10, measured_rig=None) -> StereoNeedlePipeline:
@@ -115,7 +147,8 @@ def write_inputs(root: Path, rig, pairs: list[tuple[np.ndarray, np.ndarray]]) ->
 
 
 def throughput(rig, scene, imaging, quick: bool) -> None:
-    """needle_stereo_offline end to end (decoding, background, measurement, CSV) on the same pairs per input."""
+    """needle_stereo_offline end to end (decoding, background, measurement, CSV) on the same pairs per input; with
+    --workers >= 2 pairs are also measured concurrently (the CSV is the same)."""
     count = 60 if quick else 200
     background = [render_background_pair(rig, np.random.default_rng(2000 + k), scene=scene, imaging=imaging)
                   for k in range(10)]
@@ -136,11 +169,13 @@ def throughput(rig, scene, imaging, quick: bool) -> None:
         print(f"Measurement alone: {measure[1] / 4:.2f} ms per pair (median; OpenCV threads as installed). Decoding "
               "one image on one thread, median: " + ", ".join(f"{n.split(' (')[0]} {t[1] / 10:.1f} ms"
                                                              for n, t in stage_decode.items()) + ".\n")
+        print("CPU time per pair on one thread (median; load-independent) [ms]: "
+              + stage_cpu(pipeline, needles, 5 if quick else 20) + ".\n")
         print(f"Load average before: {' / '.join(f'{v:.1f}' for v in os.getloadavg())} (1 / 5 / 15 min). "
               "CPU: user + system time of all threads per pair (best run). Decoding only: reading and decoding "
               "the pairs with the same threads, nothing measured (the ceiling of the input).\n")
-        print("| input | workers | wall [s] (best / median of 3) | pairs/s (best / median) | CPU [ms/pair] "
-              "| decoding only [pairs/s] |")
+        print("| input | --workers (decoding and measuring threads) | wall [s] (best / median of 3) "
+              "| pairs/s (best / median) | CPU [ms/pair] | decoding only [pairs/s] |")
         print("|---|---|---|---|---|---|")
         for name, arguments in inputs.items():
             for workers in (1, 2, 4):

@@ -8,6 +8,7 @@ uneven lighting; the coarse threshold is also relative to the local background b
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -49,7 +50,16 @@ class BackgroundModel:
         contrast = np.maximum(self.threshold.relative * self.coarse, self.threshold.absolute)
         # Grey level a coarse pixel must pass (below it for a dark needle, above for a bright one).
         self._coarse_limit = (self.coarse - self.threshold.polarity * contrast).astype(np.float32)
-        self.coarse_scratch = np.empty(self.coarse.shape, np.int32)  # work space of the coarse path search
+        self._scratch = threading.local()
+
+    @property
+    def coarse_scratch(self) -> np.ndarray:
+        """Work space of the coarse path search (int32, coarse size), one per thread: pairs may be measured
+        concurrently with the same model."""
+        scratch = getattr(self._scratch, "index", None)
+        if scratch is None:
+            scratch = self._scratch.index = np.empty(self.coarse.shape, np.int32)
+        return scratch
 
     def coarse_foreground(self, coarse_image: np.ndarray) -> np.ndarray:
         """Binarized coarse image (uint8, 255 = needle candidate): contrast to the background above

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numba
 import numpy as np
-from scipy.ndimage import map_coordinates, median_filter
+from scipy.ndimage import median_filter
 
 from needle_vision.background import BackgroundModel, downsample
 from needle_vision.curves import arc_length, moving_average
@@ -65,7 +65,7 @@ class ImageCenterline:
     local_noise_px: np.ndarray
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _coarse_path(mask, link, index):  # pragma: no cover - compiled
     """Largest component of the non-zero pixels of ``mask``, pixels linked up to ``link`` pixels apart
     (Chebyshev), and its longest BFS geodesic: the path (k, 2) as (x, y). ``index`` is an int32 scratch
@@ -149,7 +149,7 @@ def _coarse_path(mask, link, index):  # pragma: no cover - compiled
     return path
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _refine_path(image, background, polarity, path):  # pragma: no cover - compiled
     """Centroid of the subtracted grey levels in the 3x3 neighbourhood of each coarse path pixel."""
     height, width = image.shape
@@ -172,7 +172,7 @@ def _refine_path(image, background, polarity, path):  # pragma: no cover - compi
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, half_width):  # pragma: no cover
     """Centroid across each one-pixel slice: slice k is row ``fixed[k]`` (along_rows) or column ``fixed[k]``,
     spanning ``round(predicted[k]) ± half_width``. The weights are the relative contrast (B - I) / B: for a dark
@@ -204,7 +204,7 @@ def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, 
     return centroid, contrast
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _slices_along(path):  # pragma: no cover - compiled
     """One-pixel slices across the polyline ``path`` (full-res x, y), in path order: returns (along_rows,
     fixed, predicted, obliquity). Each segment is cut by the integer columns (segments closer to horizontal)
@@ -244,41 +244,117 @@ def _slices_along(path):  # pragma: no cover - compiled
     return along_rows[:n], fixed[:n], predicted[:n], obliquity[:n]
 
 
+@numba.njit(cache=True, nogil=True)
+def _extended(values, j, mirror):  # pragma: no cover - compiled
+    """``values[j]`` for any ``j``, extended beyond the ends by reflection about the end samples (``mirror``)
+    or by repeating them (scipy.ndimage's 'mirror' and 'nearest' modes)."""
+    n = values.shape[0]
+    if not mirror or n == 1:
+        return values[min(max(j, 0), n - 1)]
+    period = 2 * (n - 1)
+    j = abs(j) % period
+    return values[period - j if j >= n else j]
+
+
+@numba.njit(cache=True, nogil=True)
+def _running_median(values, size, mirror):  # pragma: no cover - compiled
+    """scipy.ndimage.median_filter of 1D ``values`` over ``size`` samples (the window's element of rank
+    size // 2, centred at size // 2; modes as :func:`_extended`): a sorted window updated one sample in and one
+    out, O(size) per sample."""
+    n = values.shape[0]
+    out = np.empty(n)
+    if n == 0:
+        return out
+    start = -(size // 2)
+    window = np.empty(size)
+    for k in range(size):
+        window[k] = _extended(values, start + k, mirror)
+    window.sort()
+    out[0] = window[size // 2]
+    for i in range(1, n):
+        leaving, entering = _extended(values, start + i - 1, mirror), _extended(values, start + i - 1 + size, mirror)
+        k = np.searchsorted(window, leaving)  # the leaving value's slot, refilled by shifting towards the entering
+        while k > 0 and window[k - 1] > entering:
+            window[k] = window[k - 1]
+            k -= 1
+        while k < size - 1 and window[k + 1] < entering:
+            window[k] = window[k + 1]
+            k += 1
+        window[k] = entering
+        out[i] = window[size // 2]
+    return out
+
+
+def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
+    """scipy.ndimage.median_filter of 1D ``values`` (mode 'mirror' or 'nearest'), compiled where the window
+    reflects at most once (the usual case; scipy's repeated reflection otherwise)."""
+    if size > len(values):
+        return median_filter(values, size=size, mode=mode)
+    return _running_median(np.ascontiguousarray(values, dtype=float), size, mode == "mirror")
+
+
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
-#: tapered (a bevel seen side-on).
-TAPER_FACTOR = 1.5
+#: tapered (a bevel seen side-on). On the renders a flat end's ratio stays below 1.05 (at 1.0, 2 of 4 flat tips
+#: moved 0.06-0.2 mm off) and a 1 mm bevel's at 1.15-1.5 in most views (1.5 missed it: tips 0.3-0.5 mm short).
+TAPER_FACTOR = 1.15
 #: ... provided the profile scatters less than this fraction of its level along the needle (a weak needle's
 #: noisy profile does not tell a taper).
 MAX_TAPER_SCATTER = 0.05
 
 
-def _crossing(s: np.ndarray, profile: np.ndarray, level: float, start: float) -> float | None:
-    """First ``s`` beyond ``start`` where ``profile`` falls below ``level`` (linear interpolation)."""
-    below = np.flatnonzero((s > start) & (profile < level))
-    if below.size == 0 or below[0] == 0:
-        return None
-    k = below[0]
-    return float(s[k - 1] + (s[k] - s[k - 1]) * (profile[k - 1] - level) / (profile[k - 1] - profile[k]))
+@numba.njit(cache=True, nogil=True)
+def _crossing(s, profile, level, start):  # pragma: no cover - compiled
+    """First ``s`` beyond ``start`` where ``profile`` falls below ``level`` (linear interpolation); NaN if none."""
+    for k in range(s.shape[0]):
+        if s[k] > start and profile[k] < level:
+            if k == 0:
+                return np.nan
+            return s[k - 1] + (s[k] - s[k - 1]) * (profile[k - 1] - level) / (profile[k - 1] - profile[k])
+    return np.nan
 
 
-def _edge_spread(cross: np.ndarray, u: np.ndarray) -> float | None:
+@numba.njit(cache=True, nogil=True)
+def _edge_spread(cross, u):  # pragma: no cover - compiled
     """Distance between the 25 % and 75 % points of the needle's side edges in its cross profile ``cross``
-    (samples at ``u``): the blurred step's width. None when the profile has no clear peak inside."""
+    (samples at ``u``): the blurred step's width. NaN when the profile has no clear peak inside."""
     peak = int(np.argmax(cross))
-    if cross[peak] <= 0 or peak in (0, len(u) - 1):
-        return None
-    widths = []
-    for side in (slice(peak, None), slice(peak, None, -1)):  # right edge, left edge (outwards from the peak)
-        edge = [_crossing(np.abs(u[side] - u[peak]), cross[side], fraction * cross[peak], -1.0)
-                for fraction in (0.75, 0.25)]
-        if None in edge:
-            return None
-        widths.append(edge[1] - edge[0])
-    return float(np.mean(widths))
+    if cross[peak] <= 0 or peak == 0 or peak == len(u) - 1:
+        return np.nan
+    total = 0.0
+    for side in range(2):  # right edge, left edge (outwards from the peak)
+        if side == 0:
+            distance, values = np.abs(u[peak:] - u[peak]), cross[peak:]
+        else:
+            distance, values = np.abs(u[peak::-1] - u[peak]), cross[peak::-1]
+        inner = _crossing(distance, values, 0.75 * cross[peak], -1.0)
+        outer = _crossing(distance, values, 0.25 * cross[peak], -1.0)
+        if np.isnan(inner) or np.isnan(outer):
+            return np.nan
+        total += outer - inner
+    return total / 2
 
 
-def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: float, points: np.ndarray,
-                       half_width: int, step: float = 0.25) -> tuple[int, np.ndarray] | None:
+@numba.njit(cache=True, nogil=True)
+def _principal_direction(points):  # pragma: no cover - compiled
+    """Unit direction of the least-squares line through ``(n, 2)`` points (the covariance's major axis, closed
+    form), pointing from the first point to the last; and the points' mean."""
+    centre = np.array([points[:, 0].mean(), points[:, 1].mean()])
+    a, b, c = 0.0, 0.0, 0.0
+    for k in range(points.shape[0]):
+        dx, dy = points[k, 0] - centre[0], points[k, 1] - centre[1]
+        a += dx * dx
+        b += dx * dy
+        c += dy * dy
+    major = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    direction = np.array([b, major - a]) if a >= c else np.array([major - c, b])
+    norm = np.sqrt(direction[0] ** 2 + direction[1] ** 2)
+    direction = np.array([1.0, 0.0]) if norm == 0 else direction / norm
+    forward = direction[0] * (points[-1, 0] - points[0, 0]) + direction[1] * (points[-1, 1] - points[0, 1])
+    return direction * np.sign(forward), centre
+
+
+@numba.njit(cache=True, nogil=True)
+def _end_along_profile(image, background, polarity, points, half_width, step=0.25):  # pragma: no cover - compiled
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
     A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely)
@@ -288,47 +364,79 @@ def _end_along_profile(image: np.ndarray, background: np.ndarray, polarity: floa
     needle's curvature) fitted to the 80 before them, one pixel apart up to the end. A bevel seen side-on
     tapers the end: where the profile falls (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the
     needle's side edges (and the profile is clean), the end is sqrt(spread² - blur²) beyond the half-contrast
-    point (a linear taper's half length). Returns (number of points kept, the new points ending with the end),
-    or None where the profile leaves the image or does not fall."""
-    if len(points) < 100 or np.any(np.linalg.norm(np.diff(points[-100:], axis=0), axis=1) > GAP_PX):
-        return None
-    fitted = points[-30:-8]
-    centre = fitted.mean(axis=0)
-    direction = np.linalg.svd(fitted - centre)[2][0]
-    direction *= np.sign(direction @ (fitted[-1] - fitted[0]))
+    point (a linear taper's half length). Returns (number of points kept, the new points ending with the end);
+    kept is -1 where the profile leaves the image or does not fall."""
+    none = (-1, np.zeros((0, 2)))
+    n = points.shape[0]
+    if n < 100:
+        return none
+    for k in range(n - 99, n):
+        if np.sqrt((points[k, 0] - points[k - 1, 0]) ** 2 + (points[k, 1] - points[k - 1, 1]) ** 2) > GAP_PX:
+            return none
+    direction, centre = _principal_direction(points[n - 30:n - 8])
     normal = np.array([-direction[1], direction[0]])
-    along = (points - centre) @ direction
-    s = np.arange(along[-30], along[-1] + 2 * half_width, step)
+    along = (points[:, 0] - centre[0]) * direction[0] + (points[:, 1] - centre[1]) * direction[1]
+    s = np.arange(along[n - 30], along[n - 1] + 2 * half_width, step)
     u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
-    xy = centre + s[:, None, None] * direction + u[None, :, None] * normal  # (s, u, 2)
-    corners = xy[[0, 0, -1, -1], [0, -1, 0, -1]]  # an affine grid: its extremes are at the corners
-    if np.any(corners < 0) or np.any(corners > [image.shape[1] - 1, image.shape[0] - 1]):
-        return None
-    low = np.floor(corners.min(axis=0)).astype(int)
-    high = np.ceil(corners.max(axis=0)).astype(int) + 1
-    window = np.s_[low[1]:high[1], low[0]:high[0]]  # the relative contrast in the bounding box, interpolated
-    base = background[window]
-    relative = polarity * (base - image[window]) / np.maximum(base, 1.0)
-    at = (xy[..., 1].ravel() - low[1], xy[..., 0].ravel() - low[0])
-    grid = map_coordinates(relative, at, order=1).reshape(xy.shape[:2])
-    profile = moving_average(grid.sum(axis=1)[:, None], 3)[:, 0]
-    inside = s <= along[-9]
+    height, width = image.shape
+    for corner_s in (s[0], s[-1]):  # an affine grid: its extremes are at the corners
+        for corner_u in (u[0], u[-1]):
+            x = centre[0] + corner_s * direction[0] + corner_u * normal[0]
+            y = centre[1] + corner_s * direction[1] + corner_u * normal[1]
+            if x < 0 or y < 0 or x > width - 1 or y > height - 1:
+                return none
+    # The relative contrast (B - I) / B interpolated bilinearly on the (s, u) grid.
+    grid = np.empty((s.shape[0], u.shape[0]))
+    for i in range(s.shape[0]):
+        for j in range(u.shape[0]):
+            x = centre[0] + s[i] * direction[0] + u[j] * normal[0]
+            y = centre[1] + s[i] * direction[1] + u[j] * normal[1]
+            x0, y0 = min(int(x), width - 2), min(int(y), height - 2)
+            fx, fy = x - x0, y - y0
+            value = 0.0
+            for dy in range(2):
+                for dx in range(2):
+                    b = float(background[y0 + dy, x0 + dx])
+                    weight = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+                    value += weight * polarity * (b - image[y0 + dy, x0 + dx]) / max(b, 1.0)
+            grid[i, j] = value
+    profile = moving_average(grid.sum(axis=1).reshape(-1, 1), 3)[:, 0]
+    inside = s <= along[n - 9]
     level = np.median(profile[inside])
-    crossings = [_crossing(s, profile, fraction * level, along[-9]) for fraction in (0.75, 0.5, 0.25)]
-    if level <= 0 or None in crossings:
-        return None
-    end = crossings[1]
-    blur = _edge_spread(np.median(grid[inside], axis=0), u)
-    spread = crossings[2] - crossings[0]
+    first = _crossing(s, profile, 0.75 * level, along[n - 9])
+    end = _crossing(s, profile, 0.5 * level, along[n - 9])
+    last = _crossing(s, profile, 0.25 * level, along[n - 9])
+    if level <= 0 or np.isnan(first) or np.isnan(end) or np.isnan(last):
+        return none
+    rows = grid[inside]
+    cross = np.empty(u.shape[0])
+    for j in range(u.shape[0]):
+        cross[j] = np.median(rows[:, j])
+    blur = _edge_spread(cross, u)
+    spread = last - first
     clean = 1.4826 * np.median(np.abs(profile[inside] - level)) < MAX_TAPER_SCATTER * level
-    if clean and blur is not None and spread > TAPER_FACTOR * blur:
+    if clean and not np.isnan(blur) and spread > TAPER_FACTOR * blur:
         end += np.sqrt(spread ** 2 - blur ** 2)
     kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
     if kept < 80 or end <= along[kept - 1]:
-        return None
-    lateral = np.polyfit(along[kept - 80:kept], (points[kept - 80:kept] - centre) @ normal, 2)
+        return none
+    # Quadratic lateral offset against the distance along the line (least squares, centred abscissa).
+    abscissa = along[kept - 80:kept]
+    offset = abscissa.mean()
+    lateral = (points[kept - 80:kept, 0] - centre[0]) * normal[0] + (points[kept - 80:kept, 1] - centre[1]) * normal[1]
+    design = np.empty((80, 3))
+    for k in range(80):
+        t = abscissa[k] - offset
+        design[k, 0], design[k, 1], design[k, 2] = t * t, t, 1.0
+    coefficients = np.linalg.lstsq(design, lateral)[0]
     steps = np.append(np.arange(along[kept - 1] + 1.0, end, 1.0), end)
-    return kept, centre + np.outer(steps, direction) + np.outer(np.polyval(lateral, steps), normal)
+    out = np.empty((steps.shape[0], 2))
+    for k in range(steps.shape[0]):
+        t = steps[k] - offset
+        shift = (coefficients[0] * t + coefficients[1]) * t + coefficients[2]
+        out[k, 0] = centre[0] + steps[k] * direction[0] + shift * normal[0]
+        out[k, 1] = centre[1] + steps[k] * direction[1] + shift * normal[1]
+    return kept, out
 
 
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
@@ -439,7 +547,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
         raise NoNeedleError("the needle's slices have no contrast")
     keep[:ends[0]] = False
     keep[ends[-1] + 1:] = False
-    local = median_filter(width_contrast[keep], size=config.local_window, mode="mirror")
+    local = _median_filter(width_contrast[keep], config.local_window, "mirror")
     keep[keep] = full[keep] | (width_contrast[keep] >= config.min_profile_fraction * local)
     points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
     # At a hidden stretch the slices may be cut by the occluder's edge (centroid biased): drop those next to it.
@@ -453,11 +561,11 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     contrast_kept = contrast[kept]
     points = points[kept]
     cut = len(points) // 2
-    first, last = (_end_along_profile(image, background.image, polarity, part, config.profile_half_width)
-                   for part in (points[:cut][::-1], points[cut:]))
+    first, last = (_end_along_profile(image, background.image, polarity, np.ascontiguousarray(part),
+                                      config.profile_half_width) for part in (points[:cut][::-1], points[cut:]))
     # The last points at each end are replaced by points towards the sub-pixel end.
-    lo, head = (cut - first[0], first[1][::-1]) if first else (0, np.zeros((0, 2)))
-    hi, tail = (cut + last[0], last[1]) if last else (len(points), np.zeros((0, 2)))
+    lo, head = (cut - first[0], first[1][::-1]) if first[0] >= 0 else (0, np.zeros((0, 2)))
+    hi, tail = (cut + last[0], last[1]) if last[0] >= 0 else (len(points), np.zeros((0, 2)))
     contrast_kept = np.concatenate([np.full(len(head), contrast_kept[lo]), contrast_kept[lo:hi],
                                     np.full(len(tail), contrast_kept[hi - 1])])
     points = np.vstack([head, points[lo:hi], tail])
@@ -469,7 +577,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     if len(sliced) > 9:
         noise = float(np.median(residual))
         window = min(NOISE_WINDOW, len(sliced))
-        local = median_filter(residual, size=window, mode="nearest")
+        local = _median_filter(residual, window, "nearest")
         local[:window // 2] = np.median(residual[:window])  # the first and last full windows' at the ends
         local[len(local) - window // 2:] = np.median(residual[-window:])
         local = np.interp(np.arange(len(points)), sliced, local)

@@ -51,7 +51,7 @@ class Correspondence:
     sin_angle: np.ndarray
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _warp(e_left, e_right, prior_left, prior_right, prior_weight):  # pragma: no cover - compiled
     """Monotone alignment minimising sum((e_l - e_r)² + (w (p_l - p_r))²); returns (matched right index for
     each left index (mean over the path), mean cost per path step)."""

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.ndimage import correlate1d
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def arc_length(points):  # pragma: no cover - compiled
     """Cumulative chord length from the first point of ``(n, d)`` points: ``(n,)``."""
     n, d = points.shape
@@ -45,7 +45,7 @@ def resample(points: np.ndarray, count: int) -> np.ndarray:
     return interpolate(arc, points, np.linspace(0.0, arc[-1], count))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def moving_average(values, window):  # pragma: no cover - compiled
     """Centred moving average along axis 0 of ``(n, d)`` values; the window shrinks symmetrically at the
     ends so that the end points stay put."""

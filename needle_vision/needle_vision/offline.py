@@ -3,9 +3,11 @@
 Input is either a folder with ``left/`` and ``right/`` sub-folders of images paired by file name (stamps from
 ``--fps``), or a rosbag2 MCAP recording (an ``.mcap`` file or a bag folder) with ``sensor_msgs/Image`` or
 ``sensor_msgs/CompressedImage`` topics, read as serialized bytes (raw pixels are never copied). Images are
-decoded on a thread pool ahead of the measurement (OpenCV releases the GIL). The calibration comes from
-camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics. Settings are the
-node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
+decoded on a thread pool ahead of the measurement (OpenCV releases the GIL); with ``--workers`` >= 2, pairs are
+also measured concurrently once the background and polarity are settled (the compiled kernels release the GIL too),
+their order-dependent part (base/tip by continuity, tracking, CSV) completed in input order: the same CSV. The
+calibration comes from camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics.
+Settings are the node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
 ``--output-frame`` override the common ones; ``--base-pose-topic`` reads the needle's base poses from the bag
 to tell base from tip. Output: one CSV row per centerline sample (frame = index of the synchronised pair, stamp [s],
 sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with tracking); its first line names the
@@ -42,7 +44,7 @@ from needle_vision.image_codec import ImageFormatError, decoded_to_gray, deseria
 from needle_vision.pairing import StampPairer
 from needle_vision.parameters import (ParameterError, base_pose_store, load_params_file, output_from_left,
                                       stereo_config, valid_topic_name, validate_all)
-from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
+from needle_vision.pipeline import FrameResult, FrameStatus, PairMeasurement, StereoNeedlePipeline
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
 IMAGE_TYPES = {"sensor_msgs/msg/Image": False, "sensor_msgs/msg/CompressedImage": True}  # -> compressed
@@ -390,6 +392,14 @@ def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[StampedPose], val
             source.poses_skipped[f"base pose ignored: {error}"] += 1
 
 
+def _measured(pipeline: StereoNeedlePipeline, images: Future) -> PairMeasurement | None:
+    """The settled ``pipeline``'s measurement of a decoded pair (None when it is skipped), on a measuring thread."""
+    try:
+        return pipeline.measure(*images.result())
+    except SkippedPair:
+        return None
+
+
 def _settings(arguments: argparse.Namespace) -> dict:
     values = load_params_file(arguments.params) if arguments.params else {}
     for name, value in (("left_calibration_file", arguments.left_calibration),
@@ -438,24 +448,33 @@ def run(arguments: argparse.Namespace) -> int:
     try:
         with open(partial, "w", newline="") as stream, \
                 closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded, \
-                ThreadPoolExecutor(max_workers=1, thread_name_prefix="csv") as csv_thread:
+                ThreadPoolExecutor(max_workers=1, thread_name_prefix="csv") as csv_thread, \
+                ThreadPoolExecutor(max_workers=arguments.workers, thread_name_prefix="measure") as measuring:
             comment, columns = csv_header(values["output_frame"] or source.frame_id or "left_optical", tracking)
             stream.write(comment + "\n")
             writer = csv.writer(stream)
             writer.writerow(columns)
             written: deque[Future] = deque()  # CSV rows formatted and written on a thread of their own
-            for frame, stamp, future, poses in tqdm(loaded, total=total, unit="pair", disable=arguments.quiet):
+            # Pairs measured ahead on the measuring threads once the pipeline is settled (their order-dependent
+            # part, base/tip ordering, state and tracking, is completed here in input order).
+            ahead: deque[tuple[int, float, Future, Future, list[StampedPose]]] = deque()
+
+            def complete(frame: int, stamp: float, images: Future, measurement: Future | None,
+                         poses: list[StampedPose]) -> None:
+                nonlocal measured
                 add_base_poses(pipeline, poses, values, source)
                 try:
-                    left, right = future.result()
+                    left, right = images.result()
                 except SkippedPair as error:
                     outcomes[f"image skipped: {error}"] += 1
-                    continue
-                if per_frame and left.ndim == 2 and right.ndim == 2:
-                    pipeline.backgrounds = tuple(BackgroundModel.from_needle_frame(image, pipeline.config.threshold,
-                                                                                   half_width)
-                                                 for image in (left, right))
-                result = pipeline.process(stamp, left, right)
+                    return
+                if measurement is not None:
+                    result = pipeline.complete(stamp, left, right, measurement.result())
+                else:
+                    if per_frame and left.ndim == 2 and right.ndim == 2:
+                        pipeline.backgrounds = tuple(BackgroundModel.from_needle_frame(
+                            image, pipeline.config.threshold, half_width) for image in (left, right))
+                    result = pipeline.process(stamp, left, right)
                 outcomes[result.status.value if result.status is not FrameStatus.REJECTED
                          else f"rejected: {result.reason}"] += 1
                 if result.status is FrameStatus.MEASURED:
@@ -464,6 +483,18 @@ def run(arguments: argparse.Namespace) -> int:
                     written.append(csv_thread.submit(write_rows, stream, frame, stamp, result, tracking))
                     while written and (written[0].done() or len(written) > 64):
                         written.popleft().result()  # raises what writing raised (e.g. a full disk)
+
+            for frame, stamp, future, poses in tqdm(loaded, total=total, unit="pair", disable=arguments.quiet):
+                if arguments.workers > 1 and not per_frame and pipeline.settled:
+                    ahead.append((frame, stamp, future, measuring.submit(_measured, pipeline, future), poses))
+                    while len(ahead) > 2 * arguments.workers:
+                        complete(*ahead.popleft())
+                    continue
+                while ahead:
+                    complete(*ahead.popleft())
+                complete(frame, stamp, future, None, poses)
+            while ahead:
+                complete(*ahead.popleft())
             for future in written:
                 future.result()
         outcomes.update(source.skipped or {})
@@ -504,7 +535,8 @@ def main(argv: list[str] | None = None) -> int:
                         "another name (e.g. world): output_frame, with output_transform from the params file")
     parser.add_argument("--fps", type=float, default=220.0, help="frame rate of an image folder [Hz] (stamps)")
     parser.add_argument("--workers", type=int, default=min(4, os.cpu_count() or 1),
-                        help="image decoding threads (default: %(default)s)")
+                        help="image decoding threads, and threads measuring pairs concurrently (1: one pair after the "
+                        "other; the output is the same) (default: %(default)s)")
     parser.add_argument("--left-topic", default="left/image_raw", help="Image or CompressedImage topic")
     parser.add_argument("--right-topic", default="right/image_raw", help="Image or CompressedImage topic")
     parser.add_argument("--base-pose-topic", metavar="TOPIC", help="geometry_msgs/PoseStamped of the needle base "

@@ -193,6 +193,8 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("detection.min_profile_fraction", 0.75, "slices with less contrast per needle width than this "
               "fraction of the median are dropped (gaps, partly covered slices at the tips) [-]", 0.05, 1.0),
     ParamSpec("detection.min_length", 40.0, "shortest image centerline accepted as a needle [px]", 5.0, 1e5),
+    ParamSpec("detection.max_link_angle", 15.0, "image components whose facing ends differ less than this in "
+              "direction are one needle with a hidden stretch between them (e.g. an occluder) [deg]", 0.0, 90.0),
     ParamSpec("matching.min_epipolar_angle", 10.0, "smallest angle between needle and epipolar lines for a "
               "point-wise epipolar match; flatter stretches are placed by continuity [deg]", 1.0, 45.0),
     ParamSpec("matching.max_epipolar_error", 1.0, "largest epipolar residual of a matched point "
@@ -252,7 +254,8 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
                                     downsample=values["detection.downsample"]),
         centerline=CenterlineConfig(profile_half_width=values["detection.profile_half_width"],
                                     min_profile_fraction=values["detection.min_profile_fraction"],
-                                    min_length_px=values["detection.min_length"]),
+                                    min_length_px=values["detection.min_length"],
+                                    max_link_angle_deg=values["detection.max_link_angle"]),
         matching=MatchingConfig(min_epipolar_angle_deg=values["matching.min_epipolar_angle"],
                                 max_epipolar_error_px=values["matching.max_epipolar_error"]),
         reconstruction=ReconstructionConfig(min_depth=values["reconstruction.min_depth"],

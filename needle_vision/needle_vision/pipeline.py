@@ -13,10 +13,10 @@ import numpy as np
 from needle_vision.background import BackgroundModel, ContrastThreshold, downsample
 from needle_vision.base_pose import BasePoseStore
 from needle_vision.calibration import StereoRig
-from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
+from needle_vision.centerline import CenterlineConfig, ImageCenterline, NoNeedleError, extract_centerline
 from needle_vision.correspondence import MatchError, MatchingConfig
-from needle_vision.reconstruction import (ImplausibleError, NeedleMeasurement, ReconstructionConfig,
-                                          reconstruct_centerline)
+from needle_vision.reconstruction import (ImplausibleError, NeedleMeasurement, ReconstructionConfig, Triangulation,
+                                          order_and_resample, triangulate_centerline)
 from needle_vision.rectification import Rectification
 from needle_vision.tracking import CenterlineMotion, CenterlineTracker, TrackingConfig
 from needle_vision.transform import RigidTransform
@@ -79,6 +79,16 @@ class FrameResult:
     motion: CenterlineMotion | None = None
     reason: str = ""
     ordering: str = ""
+
+
+@dataclass(frozen=True)
+class PairMeasurement:
+    """The part of a pair's measurement that does not depend on earlier pairs (:meth:`StereoNeedlePipeline.measure`):
+    the image centerlines and the triangulation, or why the pair is rejected (kind, reason)."""
+
+    centerlines: tuple[ImageCenterline, ImageCenterline] | None = None
+    triangulation: Triangulation | None = None
+    rejection: tuple[str, str] = ("", "")
 
 
 class StereoNeedlePipeline:
@@ -163,24 +173,63 @@ class StereoNeedlePipeline:
                 return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
             threshold = replace(threshold, polarity=polarity)
             backgrounds = tuple(BackgroundModel(background.image, threshold) for background in backgrounds)
+        return self._complete(stamp, left, right, self._measure(left, right, backgrounds), threshold, backgrounds)
+
+    @property
+    def settled(self) -> bool:
+        """Whether pairs can be measured independently of each other (:meth:`measure` on any thread, then
+        :meth:`complete` in order): backgrounds built, polarity decided, no running background update."""
+        return self.backgrounds is not None and self.polarity != 0 and self.config.background_learning_rate == 0
+
+    def measure(self, left: np.ndarray, right: np.ndarray) -> PairMeasurement:
+        """The part of :meth:`process` that does not depend on earlier pairs; the pipeline must be ``settled``.
+        Thread-safe: reads the pipeline's immutable model only."""
+        problem = self._check(left, right)
+        return PairMeasurement(rejection=("bad input", problem)) if problem else self._measure(left, right,
+                                                                                                self.backgrounds)
+
+    def complete(self, stamp: float, left: np.ndarray, right: np.ndarray, pair: PairMeasurement) -> FrameResult:
+        """:meth:`process` of a settled pipeline given the pair's :meth:`measure`: ordering, state, tracking
+        (pairs in order)."""
+        if pair.rejection[0] == "bad input":
+            return self._reject(*pair.rejection)
+        self._dtype = left.dtype
+        threshold = replace(self.config.threshold, polarity=self.polarity)
+        return self._complete(stamp, left, right, pair, threshold, self.backgrounds)
+
+    def _measure(self, left: np.ndarray, right: np.ndarray,
+                 backgrounds: tuple[BackgroundModel, BackgroundModel]) -> PairMeasurement:
+        config = self.config
+        try:
+            centerlines = tuple(extract_centerline(image, background, config.centerline)
+                                for image, background in zip((left, right), backgrounds))
+            return PairMeasurement(centerlines, triangulate_centerline(*centerlines, self.rectification,
+                                                                       config.matching, config.reconstruction,
+                                                                       self.output_from_left))
+        except NoNeedleError as error:
+            return PairMeasurement(rejection=("no needle", str(error)))
+        except ImplausibleError as error:
+            return PairMeasurement(rejection=("implausible", str(error)))
+        except MatchError as error:
+            return PairMeasurement(rejection=("no stereo match", str(error)))
+
+    def _complete(self, stamp: float, left: np.ndarray, right: np.ndarray, pair: PairMeasurement,
+                  threshold: ContrastThreshold, backgrounds: tuple[BackgroundModel, BackgroundModel]) -> FrameResult:
+        """Order base to tip (base pose, else continuity, else base point), then update the state."""
+        config = self.config
+        if pair.rejection[0]:
+            return self._reject(*pair.rejection)
         base = self.base_poses.base_at(stamp) if self.base_poses is not None else None
         ordering = "base pose" if base is not None else "continuity" if self.last_base is not None else "base point"
         try:
-            centerlines = [extract_centerline(image, background, config.centerline)
-                           for image, background in zip((left, right), backgrounds)]
-            measurement = reconstruct_centerline(*centerlines, self.rectification, config.matching,
-                                                 config.reconstruction, self.output_from_left,
-                                                 self.last_base if base is None else base)
-        except NoNeedleError as error:
-            return self._reject("no needle", str(error))
+            measurement = order_and_resample(pair.triangulation, self.rectification, config.reconstruction,
+                                             self.output_from_left, self.last_base if base is None else base)
         except ImplausibleError as error:
             return self._reject("implausible", str(error))
-        except MatchError as error:
-            return self._reject("no stereo match", str(error))
         self.last_base = measurement.points[0]
         self.polarity, self.backgrounds = threshold.polarity, backgrounds
         if config.background_learning_rate > 0:
-            for image, background, centerline in zip((left, right), self.backgrounds, centerlines):
+            for image, background, centerline in zip((left, right), self.backgrounds, pair.centerlines):
                 background.update(image, centerline.points, config.background_learning_rate,
                                   2 * config.centerline.profile_half_width)
         motion = self.tracker.update(stamp, measurement.arc_length, measurement.points) if self.tracker else None

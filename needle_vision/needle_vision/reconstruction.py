@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from needle_vision.centerline import ImageCenterline
 from needle_vision.correspondence import MatchError, MatchingConfig, match_centerlines
@@ -84,10 +84,24 @@ def _ends_inside(points: np.ndarray, width: int, height: int, margin: float = 5.
     return bool(np.all((ends >= margin) & (ends <= [width - 1 - margin, height - 1 - margin])))
 
 
+@numba.njit(cache=True, nogil=True)
+def _nearest(reference, queries):  # pragma: no cover - compiled
+    """Index of the nearest of the ``reference`` points ``(n, 2)`` to each of the ``queries`` ``(m, 2)``."""
+    out = np.empty(queries.shape[0], np.int64)
+    for i in range(queries.shape[0]):
+        best, nearest = np.inf, 0
+        for k in range(reference.shape[0]):
+            distance = (reference[k, 0] - queries[i, 0]) ** 2 + (reference[k, 1] - queries[i, 1]) ** 2
+            if distance < best:
+                best, nearest = distance, k
+        out[i] = nearest
+    return out
+
+
 def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
     """The local image noise [px] of ``centerline`` (rectified points ``rectified``) at the matched points: that of
     the nearest of every 8th point (it varies over NOISE_WINDOW points)."""
-    return centerline.local_noise_px[::8][cKDTree(rectified[::8]).query(matched)[1]]
+    return centerline.local_noise_px[::8][_nearest(np.ascontiguousarray(rectified[::8]), matched)]
 
 
 def _runs(points: np.ndarray, split: float) -> list[slice]:
@@ -123,6 +137,20 @@ def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: in
     return keep
 
 
+@dataclass(frozen=True)
+class Triangulation:
+    """The inlier triangulated points of a pair in the output frame, in left-curve order (base and tip not told
+    yet), their 1-sigma uncertainty [m] and whether each was anchored; their mean spacing [m]; the image
+    centerlines. What :func:`order_and_resample` needs: independent of the previous frames."""
+
+    points: np.ndarray
+    sigma: np.ndarray
+    anchored: np.ndarray
+    spacing: float
+    left_centerline: ImageCenterline
+    right_centerline: ImageCenterline
+
+
 def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
                            matching: MatchingConfig, config: ReconstructionConfig,
                            output_from_left: RigidTransform, base_hint: np.ndarray | None = None
@@ -130,6 +158,15 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     """Triangulate, clean, order, smooth and resample; raises MatchError when no measurement results.
     The base is the end nearer to ``base_hint`` (output frame; e.g. the previous frame's base) when given, else
     nearer to ``config.base_point``."""
+    return order_and_resample(triangulate_centerline(left, right, rectification, matching, config, output_from_left),
+                              rectification, config, output_from_left, base_hint)
+
+
+def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
+                           matching: MatchingConfig, config: ReconstructionConfig,
+                           output_from_left: RigidTransform) -> Triangulation:
+    """Rectify, correspond, triangulate and reject outliers (the part that does not depend on earlier frames);
+    raises MatchError when too few points remain."""
     scatter = max(left.noise_px, right.noise_px)
     if scatter > config.max_image_scatter:
         raise ImplausibleError(f"implausible: image centerline scatters {scatter:.2f} px across the curve "
@@ -177,7 +214,15 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     lateral_noise = np.linalg.norm(points, axis=1) / rectification.focal_length * noise_px
     point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2)
 
-    points = output_from_left.apply(points)
+    return Triangulation(output_from_left.apply(points), point_sigma, anchored, spacing, left, right)
+
+
+def order_and_resample(triangulation: Triangulation, rectification: Rectification, config: ReconstructionConfig,
+                       output_from_left: RigidTransform, base_hint: np.ndarray | None = None) -> NeedleMeasurement:
+    """Order ``triangulation`` from the base (the end nearer to ``base_hint``, else to ``config.base_point``) to the
+    tip, smooth and resample it; raises ImplausibleError for a needle longer than ``max_length``."""
+    points, point_sigma, anchored = triangulation.points, triangulation.sigma, triangulation.anchored
+    split, spacing = 0.5 * config.smoothing_length, triangulation.spacing
     base = config.base_point if base_hint is None else base_hint
     if np.linalg.norm(points[-1] - base) < np.linalg.norm(points[0] - base):
         points, point_sigma, anchored = points[::-1], point_sigma[::-1], anchored[::-1]
@@ -199,9 +244,8 @@ def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
     uncertainty = np.interp(samples, arc, point_sigma)
     # The end samples also carry the localization of the needle's ends along it (sub-pixel edge, ~0.3 px).
-    end_pixel = np.linalg.norm(output_from_left.inverse().apply(resampled[[0, -1]]), axis=1) \
-        / rectification.focal_length
+    end_pixel = np.linalg.norm(resampled[[0, -1]] - output_from_left.translation, axis=1) / rectification.focal_length
     uncertainty[[0, -1]] = np.hypot(uncertainty[[0, -1]], END_LOCALIZATION_PX * end_pixel)
     uncertainty = np.where(measured, uncertainty, UNMEASURED)
-    return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, left, right,
-                             float(np.mean(anchored)), measured)
+    return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, triangulation.left_centerline,
+                             triangulation.right_centerline, float(np.mean(anchored)), measured)

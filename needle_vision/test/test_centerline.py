@@ -85,3 +85,20 @@ def test_small_blob_is_not_a_needle(background_frames, backgrounds):
 def test_image_of_another_size_is_refused(backgrounds):
     with pytest.raises(ValueError, match="differs"):
         extract_centerline(np.zeros((480, 640), np.uint8), backgrounds[0])
+
+
+@pytest.mark.parametrize("mode", ["mirror", "nearest"])
+def test_running_median_equals_scipy_median_filter(mode):
+    """The compiled running median of the local contrast and noise equals scipy's median filter (ties, even
+    windows, windows as long as the data)."""
+    from scipy.ndimage import median_filter
+
+    from needle_vision.centerline import _running_median
+
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        count = int(rng.integers(1, 200))
+        size = int(rng.integers(1, count + 1))
+        values = rng.normal(size=count) if trial % 2 else rng.integers(0, 4, count).astype(float)
+        assert np.array_equal(_running_median(values, size, mode == "mirror"),
+                              median_filter(values, size=size, mode=mode)), (count, size)

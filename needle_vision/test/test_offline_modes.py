@@ -1,5 +1,6 @@
 """needle_stereo_offline's background choices, frame selection, output frame, compressed bag images and exit
 status, checked against the known needle shapes of the renders."""
+import threading
 from pathlib import Path
 
 import cv2
@@ -94,3 +95,39 @@ def test_compressed_bag_images(tmp_path, rig, background_frames, renders):
     _, rows = read_rows(output)
     assert set(rows[:, 0]) == {3}
     assert np.sqrt(np.mean(distance_to_curve(rows[:, 4:7], SHAPES["planar"])[0] ** 2)) < 1e-4  # PNG: lossless
+
+
+def test_pairs_measured_concurrently_give_the_sequential_csv(tmp_path, rig, background_frames, renders,
+                                                              monkeypatch):
+    """--workers 2 measures pairs on two threads: the CSV is byte-identical to --workers 1. Base and tip follow
+    the previous frame (base_point nearer the hook's tip: only continuity orders the hooks from the base at the
+    origin), tracking carries state from pair to pair and a blank pair is rejected in between."""
+    from needle_vision.pipeline import StereoNeedlePipeline
+
+    base_point = [0.45 * float(np.linalg.norm(np.diff(SHAPES["straight"], axis=0), axis=1).sum()), 0.0, -0.06]
+    assert np.linalg.norm(SHAPES["hook"][-1] - base_point) < np.linalg.norm(SHAPES["hook"][0] - base_point)
+    blank = tuple(np.full_like(image, 128) for image in background_frames[0])
+    sequence = ["straight", "hook", "planar", "hook", "3d", "hook", "straight", "hook"]
+    pairs = background_frames[:3] + [renders(n) for n in sequence[:4]] + [blank] + [renders(n) for n in sequence[4:]]
+    folder = write_folder(tmp_path / "sequence", pairs)
+    threads = set()
+    measure_pair = StereoNeedlePipeline.measure
+
+    def recorded(pipeline, left, right):
+        threads.add(threading.current_thread().name.split("_")[0])
+        return measure_pair(pipeline, left, right)
+    monkeypatch.setattr(StereoNeedlePipeline, "measure", recorded)
+    outputs = []
+    for workers in (1, 2):
+        code, output = measure(tmp_path, rig, folder, "--workers", str(workers), base_point=base_point,
+                               tracking={"enabled": True, "window": 3})
+        assert code == 0
+        outputs.append(output.read_bytes())
+    assert threads == {"measure"}  # --workers 1: process() on the main thread; 2: measure() on measuring threads
+    assert outputs[0] == outputs[1]
+    _, rows = read_rows(tmp_path / "out.csv")
+    frames = sorted(set(rows[:, 0].astype(int)))
+    assert frames == [k for k in range(3, len(pairs)) if k != 7]  # the blank pair is rejected
+    for frame in frames:
+        assert np.linalg.norm(rows[(rows[:, 0] == frame) & (rows[:, 2] == 0), 4:7]) < 2e-3, frame  # base at origin
+    assert not np.all(np.isnan(rows[:, -6:]))  # tracking reported motion

@@ -55,8 +55,9 @@ def test_cross_checks():
 
 def test_tracking_and_polarity_reach_the_pipeline_config():
     config = stereo_config(validate_all({"tracking.enabled": True, "tracking.window": 7, "needle_polarity": "bright",
-                                         "base_point": [0.1, 0.2, 0.3]}))
+                                         "base_point": [0.1, 0.2, 0.3], "detection.max_link_angle": 25.0}))
     assert config.tracking.window == 7 and config.threshold.polarity == -1
+    assert config.centerline.max_link_angle_deg == 25.0
     np.testing.assert_array_equal(config.reconstruction.base_point, [0.1, 0.2, 0.3])
 
 

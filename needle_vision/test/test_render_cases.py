@@ -24,15 +24,16 @@ def _length(curve: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(curve, axis=0), axis=1).sum())
 
 
-def _check(measurement: NeedleMeasurement, name: str, min_coverage: float) -> tuple[np.ndarray, np.ndarray]:
-    """RMS < 0.1 mm over the measured samples, coverage, tip within 0.2 mm, nothing invented."""
+def _check(measurement: NeedleMeasurement, name: str, min_coverage: float, tip_error: float = 0.2e-3
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """RMS < 0.1 mm over the measured samples, coverage, tip within ``tip_error``, nothing invented."""
     truth = SHAPES[name]
     distance, arc = check_not_invented(measurement, truth)
     measured = measurement.measured
     assert np.sqrt(np.mean(distance[measured] ** 2)) < 1e-4
     coverage = np.count_nonzero(measured) * ReconstructionConfig().sample_spacing / _length(truth)
     assert coverage >= min_coverage
-    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.2e-3
+    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= tip_error
     return distance, arc
 
 
@@ -84,10 +85,12 @@ def test_stretch_hidden_in_one_camera(rig, backgrounds, renders, background_fram
 
 
 @pytest.mark.parametrize("name", ["straight", "planar", "3d"])
-def test_bevelled_tip(rig, backgrounds, scene, name):
+@pytest.mark.parametrize("bevel, tip_error", [(2e-3, 0.2e-3), (1e-3, 0.22e-3)])
+def test_bevelled_tip(rig, backgrounds, scene, name, bevel, tip_error):
     """A 2 mm bevel seen side-on tapers the needle's end over ~5 px: the half-contrast point lies half the taper
     short (0.9-1.0 mm); the taper, measured against the blur of the needle's side edges, puts the end back
-    (measured: 0.04-0.11 mm; a 1 mm bevel is not told from the blur: 0.3-0.5 mm, not asserted)."""
+    (measured: 0.04-0.11 mm). A 1 mm bevel tapers over ~2.5 px, its profile falls over only 1.15-1.5 blurs
+    (before: not told from the blur, 0.29-0.50 mm short; measured: 0.09-0.20 mm)."""
     images = render_stereo_pair(rig, SHAPES[name], NEEDLE_RADIUS, np.random.default_rng(7), scene=scene,
-                                bevel_length=2e-3)
-    _check(_measure(rig, backgrounds, images), name, 0.99)
+                                bevel_length=bevel)
+    _check(_measure(rig, backgrounds, images), name, 0.99, tip_error)
