@@ -25,16 +25,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "needle_vision" / "test"))
 from vision_shapes import SHAPES, distance_to_curve  # noqa: E402  (the tests' known needle shapes)
 
-from needle_vision.calibration import camera_calibration_yaml  # noqa: E402
-from needle_vision.centerline import extract_centerline  # noqa: E402
+from needle_vision.calibration.rig import camera_calibration_yaml  # noqa: E402
+from needle_vision.detection.centerline import extract_centerline  # noqa: E402
 from needle_vision.offline import decoded, open_source  # noqa: E402
 from needle_vision.offline import main as offline_main  # noqa: E402
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline  # noqa: E402
-from needle_vision.reconstruction import (order_and_resample, reconstruct_centerline,  # noqa: E402
-                                          triangulate_centerline)
+from needle_vision.matching.reconstruction import (order_and_resample, reconstruct_centerline,  # noqa: E402
+                                                   triangulate_centerline)
 from needle_vision.render import (NEEDLE_RADIUS, Imaging, default_rig, make_scene, render_background_pair,  # noqa: E402
                                   render_stereo_pair)
-from needle_vision.sensitivity import simulate_checkerboard_calibration  # noqa: E402
+from needle_vision.calibration.sensitivity import simulate_checkerboard_calibration  # noqa: E402
 
 
 def timed(function, repetitions: int) -> tuple[float, float]:

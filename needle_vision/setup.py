@@ -23,9 +23,9 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "needle_stereo = needle_vision.stereo_node:main",
+            "needle_stereo = needle_vision.ros.stereo_node:main",
             "needle_stereo_offline = needle_vision.offline:main",
-            "needle_stereo_calibrate = needle_vision.calibrate:main",
+            "needle_stereo_calibrate = needle_vision.calibration.calibrate:main",
         ],
     },
 )

@@ -33,7 +33,7 @@ REPO = Path(__file__).resolve().parent.parent
 SOURCES = (REPO / "needle_sim_ros", REPO / "needle_vision")
 EXECUTABLES = {  # name -> (package, module run with ``python -m`` when not installed)
     "needle_simulator": ("needle_sim_ros", "needle_sim_ros.nodes.simulator_node"),
-    "needle_stereo": ("needle_vision", "needle_vision.stereo_node"),
+    "needle_stereo": ("needle_vision", "needle_vision.ros.stereo_node"),
     "needle_compare": ("needle_sim_ros", "needle_sim_ros.nodes.compare_node"),
     "needle_replay": ("needle_sim_ros", "needle_sim_ros.nodes.replay_node"),
     "needle_bringup": ("needle_sim_ros", "needle_sim_ros.nodes.bringup"),

@@ -177,7 +177,7 @@ def test_configuration_errors_name_the_parameter(model):
 
 
 def test_params_file_builds_and_its_keys_are_all_known(model):
-    from needle_vision.package_files import share_file
+    from needle_vision.streams.package_files import share_file
     path = share_file("needle_sim_ros", "config/tissue.yaml")  # as installed
     forces = build_tissue_forces(path, model)
     assert isinstance(forces[0], ShaftSupport) and isinstance(forces[1], BevelTipForce)

@@ -36,12 +36,13 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from needle_vision.background import BackgroundModel
-from needle_vision.bag_reader import BagMessage, read_messages
-from needle_vision.base_pose import StampedPose, deserialize_pose_stamped, output_from_pose_frame
-from needle_vision.calibration import CalibrationError, StereoRig, calibration_from_camera_info, load_camera_calibration
-from needle_vision.image_codec import ImageFormatError, decoded_to_gray, deserialize_image
-from needle_vision.pairing import StampPairer
+from needle_vision.detection.background import BackgroundModel
+from needle_vision.streams.bag_reader import BagMessage, read_messages
+from needle_vision.streams.base_pose import StampedPose, deserialize_pose_stamped, output_from_pose_frame
+from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
+                                           load_camera_calibration)
+from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image
+from needle_vision.streams.pairing import StampPairer
 from needle_vision.parameters import (ParameterError, base_pose_store, load_params_file, output_from_left,
                                       stereo_config, valid_topic_name, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, PairMeasurement, StereoNeedlePipeline

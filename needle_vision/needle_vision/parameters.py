@@ -6,7 +6,7 @@ wildcards, several nodes in one file) and checks it as strictly as ``rcl`` does 
 that a node would refuse is refused by the offline tools too, with one message naming the file, the parameter and
 the problem (:class:`ParameterError`; unknown names suggest the nearest known one). :func:`check_ros_arguments`
 applies it to the ``--params-file`` arguments of a node's command line before ``rclpy.init``. The nodes declare
-each spec with a ``ParameterDescriptor`` built from it (ROS side: ``needle_vision.ros_parameters``, used by every
+each spec with a ``ParameterDescriptor`` built from it (ROS side: ``needle_vision.ros.ros_parameters``, used by every
 node of the suite).
 
 Below: the parameters of ``needle_stereo`` and of the offline stereo command (:data:`SPECS`).
@@ -24,14 +24,14 @@ from typing import Any, Callable, Iterable, NamedTuple, Sequence
 import numpy as np
 import yaml
 
-from needle_vision.background import ContrastThreshold
-from needle_vision.base_pose import BasePoseStore
-from needle_vision.centerline import CenterlineConfig
-from needle_vision.correspondence import MatchingConfig
-from needle_vision.package_files import resolve_path
+from needle_vision.detection.background import ContrastThreshold
+from needle_vision.streams.base_pose import BasePoseStore
+from needle_vision.detection.centerline import CenterlineConfig
+from needle_vision.matching.correspondence import MatchingConfig
+from needle_vision.streams.package_files import resolve_path
 from needle_vision.pipeline import StereoConfig
-from needle_vision.reconstruction import ReconstructionConfig
-from needle_vision.tracking import TrackingConfig
+from needle_vision.matching.reconstruction import ReconstructionConfig
+from needle_vision.matching.tracking import TrackingConfig
 from needle_vision.transform import RigidTransform
 
 # Parameters every rclpy node has (accepted in any node's section).

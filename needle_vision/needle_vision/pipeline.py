@@ -10,15 +10,15 @@ from enum import Enum
 import cv2
 import numpy as np
 
-from needle_vision.background import BackgroundModel, ContrastThreshold, downsample
-from needle_vision.base_pose import BasePoseStore
-from needle_vision.calibration import StereoRig
-from needle_vision.centerline import CenterlineConfig, ImageCenterline, NoNeedleError, extract_centerline
-from needle_vision.correspondence import MatchError, MatchingConfig
-from needle_vision.reconstruction import (ImplausibleError, NeedleMeasurement, ReconstructionConfig, Triangulation,
-                                          order_and_resample, triangulate_centerline)
-from needle_vision.rectification import Rectification
-from needle_vision.tracking import CenterlineMotion, CenterlineTracker, TrackingConfig
+from needle_vision.detection.background import BackgroundModel, ContrastThreshold, downsample
+from needle_vision.streams.base_pose import BasePoseStore
+from needle_vision.calibration.rig import StereoRig
+from needle_vision.detection.centerline import CenterlineConfig, ImageCenterline, NoNeedleError, extract_centerline
+from needle_vision.matching.correspondence import MatchError, MatchingConfig
+from needle_vision.matching.reconstruction import (ImplausibleError, NeedleMeasurement, ReconstructionConfig,
+                                                   Triangulation, order_and_resample, triangulate_centerline)
+from needle_vision.calibration.rectification import Rectification
+from needle_vision.matching.tracking import CenterlineMotion, CenterlineTracker, TrackingConfig
 from needle_vision.transform import RigidTransform
 
 

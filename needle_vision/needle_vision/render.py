@@ -22,9 +22,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from needle_vision.calibration import CameraCalibration, StereoRig
-from needle_vision.curves import resample
-from needle_vision.image_codec import gray_to_encoding
+from needle_vision.calibration.rig import CameraCalibration, StereoRig
+from needle_vision.detection.curves import resample
+from needle_vision.streams.image_codec import gray_to_encoding
 from needle_vision.transform import RigidTransform, look_at_rotation
 
 #: The paper's needle: radius [m] and length [m] (seed 000, Sec. III-A).

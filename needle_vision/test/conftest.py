@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from needle_vision.background import BackgroundModel, ContrastThreshold
+from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.render import NEEDLE_RADIUS, default_rig, make_scene, render_background_pair, \
     render_stereo_pair
 from vision_shapes import SHAPES

@@ -1,4 +1,4 @@
-"""needle_vision.bag_reader against the mcap library's own reader: the same messages in the same order for every
+"""needle_vision.streams.bag_reader against the mcap library's own reader: the same messages in the same order for every
 way a writer may lay out an MCAP file (chunk compression, no chunks, no index or summary, overlapping chunks)."""
 import mmap
 from pathlib import Path
@@ -8,7 +8,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType, Writer
 
-from needle_vision.bag_reader import read_messages
+from needle_vision.streams.bag_reader import read_messages
 
 TOPICS = ("/left/image_raw", "/right/image_raw", "/base_pose")
 

@@ -7,10 +7,10 @@ import pytest
 
 from test_offline import params_file, read_rows, write_bag
 from vision_shapes import SHAPES
-from needle_vision.base_pose import BasePoseStore, deserialize_pose_stamped, output_from_pose_frame
+from needle_vision.streams.base_pose import BasePoseStore, deserialize_pose_stamped, output_from_pose_frame
 from needle_vision.offline import main
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline
-from needle_vision.reconstruction import ReconstructionConfig
+from needle_vision.matching.reconstruction import ReconstructionConfig
 from needle_vision.transform import RigidTransform
 
 MOVING = ("straight", "planar", "3d", "hook")

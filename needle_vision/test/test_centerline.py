@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from vision_shapes import SHAPES
-from needle_vision.background import BackgroundModel, ContrastThreshold
-from needle_vision.centerline import CenterlineConfig, NoNeedleError, extract_centerline
+from needle_vision.detection.background import BackgroundModel, ContrastThreshold
+from needle_vision.detection.centerline import CenterlineConfig, NoNeedleError, extract_centerline
 from needle_vision.render import NEEDLE_RADIUS, make_scene, project_points, render_background_pair, render_stereo_pair
 
 
@@ -93,7 +93,7 @@ def test_running_median_equals_scipy_median_filter(mode):
     windows, windows as long as the data)."""
     from scipy.ndimage import median_filter
 
-    from needle_vision.centerline import _running_median
+    from needle_vision.detection.centerline import _running_median
 
     rng = np.random.default_rng(3)
     for trial in range(300):

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from needle_vision.correspondence import MatchError, match_centerlines
+from needle_vision.matching.correspondence import MatchError, match_centerlines
 
 U = np.linspace(0.0, 1.0, 20001)
 

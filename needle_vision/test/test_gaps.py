@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from vision_shapes import SHAPES, check_not_invented, faded
-from needle_vision.centerline import extract_centerline
-from needle_vision.correspondence import MatchingConfig
-from needle_vision.reconstruction import ReconstructionConfig, reconstruct_centerline
-from needle_vision.rectification import Rectification
+from needle_vision.detection.centerline import extract_centerline
+from needle_vision.matching.correspondence import MatchingConfig
+from needle_vision.matching.reconstruction import ReconstructionConfig, reconstruct_centerline
+from needle_vision.calibration.rectification import Rectification
 
 
 def _measure(rig, backgrounds, images):

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from needle_vision.image_codec import (ImageFormatError, gray_to_encoding, image_fields, image_message_to_gray,
-                                       image_to_array, image_to_gray)
+from needle_vision.streams.image_codec import (ImageFormatError, gray_to_encoding, image_fields, image_message_to_gray,
+                                               image_to_array, image_to_gray)
 
 
 @pytest.mark.parametrize("encoding", ["mono8", "mono16", "bgr8", "rgb8"])

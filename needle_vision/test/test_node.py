@@ -18,8 +18,8 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 
 from vision_shapes import SHAPES, distance_to_curve  # noqa: E402
 from needle_interfaces.msg import NeedleShape  # noqa: E402
-from needle_vision.calibration import camera_info_fields  # noqa: E402
-from needle_vision.image_codec import image_fields  # noqa: E402
+from needle_vision.calibration.rig import camera_info_fields  # noqa: E402
+from needle_vision.streams.image_codec import image_fields  # noqa: E402
 
 PACKAGE = Path(__file__).resolve().parents[1]
 REPO = PACKAGE.parent
@@ -28,7 +28,7 @@ REPO = PACKAGE.parent
 def start_node(ros_env: dict, *arguments: str) -> subprocess.Popen:
     env = dict(ros_env)
     env["PYTHONPATH"] = os.pathsep.join([str(PACKAGE), env.get("PYTHONPATH", "")])
-    return subprocess.Popen([sys.executable, "-m", "needle_vision.stereo_node", "--ros-args", *arguments],
+    return subprocess.Popen([sys.executable, "-m", "needle_vision.ros.stereo_node", "--ros-args", *arguments],
                             env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
@@ -205,7 +205,7 @@ def test_node_tells_base_from_tip_by_the_base_pose(ros_env, tmp_path, rig, backg
         poses = node.create_publisher(PoseStamped, "base_pose", reliable)
         if source == "tf":
             from tf2_ros import StaticTransformBroadcaster
-            from needle_vision.tf_output import transform_stamped
+            from needle_vision.ros.tf_output import transform_stamped
             StaticTransformBroadcaster(node).sendTransform(transform_stamped(
                 node.get_clock().now().to_msg(), "world", "needle_base", [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]))
         deadline = time.monotonic() + 60

@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from vision_shapes import SHAPES, distance_to_curve
-from needle_vision.calibration import camera_info_fields
-from needle_vision.image_codec import image_fields
+from needle_vision.calibration.rig import camera_info_fields
+from needle_vision.streams.image_codec import image_fields
 from needle_vision.offline import main
 
 

@@ -1,7 +1,7 @@
 """Pairing left and right frames by stamp."""
 import pytest
 
-from needle_vision.pairing import StampPairer
+from needle_vision.streams.pairing import StampPairer
 
 
 def test_frames_pair_within_tolerance_in_any_arrival_order():

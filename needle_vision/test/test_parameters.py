@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from needle_vision.package_files import share_file
+from needle_vision.streams.package_files import share_file
 from needle_vision.parameters import (SPECS, ParameterError, check_ros_arguments, load_params_file, stereo_config,
                                       validate_all)
 

@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 
 from vision_shapes import SHAPES, distance_to_curve
-from needle_vision.background import BackgroundModel, ContrastThreshold
+from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline
-from needle_vision.reconstruction import ReconstructionConfig
+from needle_vision.matching.reconstruction import ReconstructionConfig
 from needle_vision.render import NEEDLE_LENGTH, NEEDLE_RADIUS, make_scene, render_background_pair, render_stereo_pair
-from needle_vision.tracking import TrackingConfig
+from needle_vision.matching.tracking import TrackingConfig
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +84,7 @@ def test_tracking_gives_the_velocity_of_a_moving_needle(rig, scene, background_f
     # Across the needle (y, z): position noise ~0.04 mm per frame over 18 ms, averaged over the needle.
     np.testing.assert_allclose(mean[1:], velocity[1:], atol=0.01)
     # Along it (x) samples are identified by arc length from the detected base end, whose detection jitters by
-    # ~0.1 mm: tangential velocity is ~5x noisier (see needle_vision.tracking).
+    # ~0.1 mm: tangential velocity is ~5x noisier (see needle_vision.matching.tracking).
     assert abs(mean[0]) < 0.05
     assert result.motion.velocity.shape == result.measurement.points.shape
 

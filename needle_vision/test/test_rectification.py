@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from needle_vision.rectification import Rectification
+from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import project_points, world_from_camera
 
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from vision_shapes import SHAPES, check_not_invented, faded
-from needle_vision.background import BackgroundModel, ContrastThreshold
-from needle_vision.centerline import extract_centerline
-from needle_vision.correspondence import MatchingConfig
-from needle_vision.reconstruction import NeedleMeasurement, ReconstructionConfig, reconstruct_centerline
-from needle_vision.rectification import Rectification
+from needle_vision.detection.background import BackgroundModel, ContrastThreshold
+from needle_vision.detection.centerline import extract_centerline
+from needle_vision.matching.correspondence import MatchingConfig
+from needle_vision.matching.reconstruction import NeedleMeasurement, ReconstructionConfig, reconstruct_centerline
+from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import NEEDLE_RADIUS, make_scene, render_background_pair, render_stereo_pair
 
 

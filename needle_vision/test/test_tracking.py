@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from needle_vision.tracking import CenterlineTracker, TrackingConfig
+from needle_vision.matching.tracking import CenterlineTracker, TrackingConfig
 
 ARC = np.linspace(0.0, 0.27, 271)
 

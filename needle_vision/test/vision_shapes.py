@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-from needle_vision.calibration import StereoRig
-from needle_vision.reconstruction import UNMEASURED, NeedleMeasurement
+from needle_vision.calibration.rig import StereoRig
+from needle_vision.matching.reconstruction import UNMEASURED, NeedleMeasurement
 from needle_vision.render import NEEDLE_LENGTH, project_points
 
 SAMPLES = 1081  # 0.25 mm along the needle: the polyline is the true curve to ~1e-8 m for these curvatures

@@ -26,7 +26,7 @@ class ShapePairer:
     """Pairs each measurement with the model shape nearest in stamp, if within ``tolerance_ns``.
 
     One-sided and streaming (a measurement waits for the model shapes around it); the stereo node's
-    :class:`needle_vision.pairing.StampPairer` instead pairs two symmetric camera streams frame by frame."""
+    :class:`needle_vision.streams.pairing.StampPairer` instead pairs two symmetric camera streams frame by frame."""
 
     def __init__(self, tolerance_ns: int, model_buffer: int = 200, pending_limit: int = 100) -> None:
         if tolerance_ns < 0 or model_buffer < 1 or pending_limit < 1:

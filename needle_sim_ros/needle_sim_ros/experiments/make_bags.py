@@ -164,8 +164,8 @@ class BagContent:
 
     def render(self, index: int | None) -> list[tuple[str, object]]:
         """Camera infos and images of one stereo pair: needle-free (index None) or the truth at frame ``index``."""
-        from needle_vision.calibration import camera_info_fields
-        from needle_vision.image_codec import image_fields
+        from needle_vision.calibration.rig import camera_info_fields
+        from needle_vision.streams.image_codec import image_fields
         from needle_vision.render import (NEEDLE_RADIUS, Imaging, default_rig, make_scene, render_background_pair,
                                           render_stereo_pair)
         r = self.rendering

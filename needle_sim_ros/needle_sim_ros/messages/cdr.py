@@ -23,7 +23,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from std_msgs.msg import Header
 
-from needle_vision.image_codec import deserialize_image
+from needle_vision.streams.image_codec import deserialize_image
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
 
@@ -204,7 +204,7 @@ class DecodedImage(NamedTuple):
 
 def image(data: bytes) -> DecodedImage:
     """Decode a serialized ``sensor_msgs/msg/Image`` (XCDR1 little endian; rclpy's deserialize copies the
-    megabytes of pixels into a Python array first): :func:`needle_vision.image_codec.deserialize_image`."""
+    megabytes of pixels into a Python array first): :func:`needle_vision.streams.image_codec.deserialize_image`."""
     decoded = deserialize_image(data, compressed=False)
     fields = decoded.fields
     return DecodedImage(Header(stamp=Time(sec=decoded.sec, nanosec=decoded.nanosec), frame_id=decoded.frame_id),

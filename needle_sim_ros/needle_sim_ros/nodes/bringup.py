@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_PARAMETER
     rclpy.init(args=rcl_args)
     from needle_vision.parameters import ParameterError as StereoParameterError
-    from needle_vision.stereo_node import NeedleStereoNode
+    from needle_vision.ros.stereo_node import NeedleStereoNode
 
     from needle_sim_ros.nodes.compare_node import CompareNode
     from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode

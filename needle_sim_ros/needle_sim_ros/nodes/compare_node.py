@@ -29,7 +29,7 @@ from needle_vision.parameters import ParameterError
 from needle_sim_ros.comparison import CenterlineSamples, ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import centerline_display
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
-from needle_vision.ros_parameters import declare_all
+from needle_vision.ros.ros_parameters import declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
 from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS, DISPLAY_TOPICS

@@ -42,7 +42,7 @@ from needle_sim_ros.messages.shape import time_msg
 from needle_sim_ros.model import State, centerline, elastic_energy, kinetic_energy, tip_pose
 from needle_sim_ros.nodes.diagnostics import HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
-from needle_vision.ros_parameters import declare_all, guard_dynamic_updates
+from needle_vision.ros.ros_parameters import declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import PolledCallbackGroup, drain
 from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.tf_output import SimulatorTf

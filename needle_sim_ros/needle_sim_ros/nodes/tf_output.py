@@ -4,7 +4,7 @@ the ``frames.*`` parameters)."""
 from __future__ import annotations
 
 import numpy as np
-from needle_vision.tf_output import TfOutput, transform_stamped
+from needle_vision.ros.tf_output import TfOutput, transform_stamped
 from rclpy.node import Node
 
 from needle_sim_ros.model.kinematics import BaseMotion, quaternion_matrix

@@ -27,10 +27,10 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from needle_vision.calibration import (CalibrationError, StereoRig, calibration_from_camera_info,
-                                       load_camera_calibration)
-from needle_vision.image_codec import ImageFormatError, image_message_to_gray
-from needle_vision.pairing import StampPairer as FramePairer
+from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
+                                           load_camera_calibration)
+from needle_vision.streams.image_codec import ImageFormatError, image_message_to_gray
+from needle_vision.streams.pairing import StampPairer as FramePairer
 from needle_vision.parameters import (ROS_BUILTIN, ParameterError, ParamSpec, output_from_left, stereo_config,
                                       unknown_name_error, validate_all)
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
@@ -167,7 +167,7 @@ class SimulatorStage:
 
 
 class StereoStage:
-    """``needle_stereo`` (:mod:`needle_vision.stereo_node`) on recorded images."""
+    """``needle_stereo`` (:mod:`needle_vision.ros.stereo_node`) on recorded images."""
 
     def __init__(self, values: dict[str, Any]) -> None:
         self.values = values

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from needle_vision.package_files import share_file
+from needle_vision.streams.package_files import share_file
 from needle_vision.parameters import ParamSpec, load_params_file
 
 #: The pipeline's nodes and the package whose share directory holds each node's config file.

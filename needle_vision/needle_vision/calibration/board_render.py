@@ -5,14 +5,14 @@ Each pixel is traced back through the camera's distortion (``cv2.undistortPoints
 is cut with the board plane, and the board's pattern is sampled there on a ``supersample`` x ``supersample``
 grid inside the pixel (area averaging: anti-aliased edges). The board has ``corners + 1`` squares per side, the
 first (top-left in board coordinates) black, inside a white margin one square wide; around it, a plain grey
-background. Corner positions in board coordinates are :func:`needle_vision.sensitivity.board_corners`.
+background. Corner positions in board coordinates are :func:`needle_vision.calibration.sensitivity.board_corners`.
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from needle_vision.calibration import CameraCalibration, StereoRig
+from needle_vision.calibration.rig import CameraCalibration, StereoRig
 from needle_vision.render import Imaging, project_points, world_from_camera
 from needle_vision.render import _expose as expose  # the renderer's sensor model (noise, quantisation)
 from needle_vision.transform import RigidTransform

@@ -23,8 +23,8 @@ import numba
 import numpy as np
 from scipy.ndimage import median_filter
 
-from needle_vision.background import BackgroundModel, downsample
-from needle_vision.curves import arc_length, moving_average
+from needle_vision.detection.background import BackgroundModel, downsample
+from needle_vision.detection.curves import arc_length, moving_average
 
 
 #: [points] window of the running median that gives each centerline point's local scatter.

@@ -4,7 +4,7 @@ A camera is described by its ``camera_info`` (``camera_calibration`` YAML file o
 intrinsics ``K``, distortion ``D``, and the stereo rectification ``R`` and projection ``P``. The two cameras'
 ``R``/``P`` together encode the extrinsics; :meth:`StereoRig.from_camera_calibrations` recovers the rotation and
 translation between the raw optical frames from them, so the pipeline can re-rectify the rig its own way (see
-:mod:`needle_vision.rectification`) and never assumes parallel cameras.
+:mod:`needle_vision.calibration.rectification`) and never assumes parallel cameras.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import yaml
 
-from needle_vision.package_files import resolve_path
+from needle_vision.streams.package_files import resolve_path
 from needle_vision.transform import RigidTransform
 
 #: Distortion models of ``sensor_msgs/CameraInfo`` handled by OpenCV's standard camera model -> allowed lengths.

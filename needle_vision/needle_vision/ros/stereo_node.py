@@ -26,17 +26,17 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from needle_vision.base_pose import deserialize_pose_stamped, output_from_pose_frame
-from needle_vision.calibration import (CalibrationError, StereoRig, calibration_from_camera_info,
-                                       load_camera_calibration)
-from needle_vision.image_codec import ImageFormatError, image_fields, image_message_to_gray
-from needle_vision.outputs import debug_image, pointcloud2_fields
-from needle_vision.pairing import StampPairer
-from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments,
-                                      output_from_left, stereo_config, validate_all)
+from needle_vision.streams.base_pose import deserialize_pose_stamped, output_from_pose_frame
+from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
+                                           load_camera_calibration)
+from needle_vision.streams.image_codec import ImageFormatError, image_fields, image_message_to_gray
+from needle_vision.streams.outputs import debug_image, pointcloud2_fields
+from needle_vision.streams.pairing import StampPairer
+from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments, output_from_left,
+                                      stereo_config, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
-from needle_vision.ros_parameters import declare_all
-from needle_vision.tf_output import TfOutput, transform_stamped
+from needle_vision.ros.ros_parameters import declare_all
+from needle_vision.ros.tf_output import TfOutput, transform_stamped
 from needle_vision.transform import quaternion_from_x_axis
 
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from needle_vision.centerline import GAP_PX
-from needle_vision.curves import arc_length, derivative, interpolate, moving_average
+from needle_vision.detection.centerline import GAP_PX
+from needle_vision.detection.curves import arc_length, derivative, interpolate, moving_average
 
 
 class MatchError(ValueError):

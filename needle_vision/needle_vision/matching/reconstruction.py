@@ -1,7 +1,7 @@
 """From two image centerlines to the measured 3D needle centerline (seed 000, Sec. III-A: corresponding points
 "are used for constructing an estimate of the three-dimensional needle's state").
 
-Rectify the points, correspond them (:mod:`needle_vision.correspondence`), triangulate them into the raw left
+Rectify the points, correspond them (:mod:`needle_vision.matching.correspondence`), triangulate them into the raw left
 optical frame, reject outliers (depth range, then robust distance to a smoothed curve), order from the base
 (the end nearer the configured base point) to the tip, smooth with a local cubic fit over
 ``smoothing_length`` and resample every ``sample_spacing`` of arc length. Each sample carries a 1-sigma
@@ -14,10 +14,11 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from needle_vision.centerline import ImageCenterline
-from needle_vision.correspondence import MatchError, MatchingConfig, match_centerlines
-from needle_vision.curves import arc_length, derivative, interpolate, local_polynomial_smooth, smoothing_noise_gain
-from needle_vision.rectification import Rectification
+from needle_vision.detection.centerline import ImageCenterline
+from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
+from needle_vision.detection.curves import (arc_length, derivative, interpolate, local_polynomial_smooth,
+                                            smoothing_noise_gain)
+from needle_vision.calibration.rectification import Rectification
 from needle_vision.transform import RigidTransform
 
 #: Floor of the per-point image noise [px] used for the uncertainty (the centroid's aliasing error).

@@ -28,10 +28,10 @@ import cv2
 import numpy as np
 import yaml
 
-from needle_vision.calibration import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
+from needle_vision.calibration.rig import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
 from needle_vision.offline import InputError, SkippedPair, command_status, decoded, open_source
-from needle_vision.rectification import Rectification
-from needle_vision.sensitivity import board_corners
+from needle_vision.calibration.rectification import Rectification
+from needle_vision.calibration.sensitivity import board_corners
 
 MIN_VIEWS = 6  # pairs showing the whole board in both images
 

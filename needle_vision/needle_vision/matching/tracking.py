@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from needle_vision.curves import interpolate
+from needle_vision.detection.curves import interpolate
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from needle_vision.background import downsample
+from needle_vision.detection.background import downsample
 
 #: sensor_msgs/PointField datatype FLOAT32
 FLOAT32 = 7

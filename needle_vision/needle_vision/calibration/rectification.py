@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from needle_vision.calibration import StereoRig
+from needle_vision.calibration.rig import StereoRig
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from needle_vision.calibration import CameraCalibration, StereoRig
+from needle_vision.calibration.rig import CameraCalibration, StereoRig
 from needle_vision.render import project_points, world_from_camera
 from needle_vision.transform import RigidTransform
 

@@ -1,0 +1,1 @@
+"""Detection in each image: background model and contrast threshold, image centerlines, curves."""

@@ -1,0 +1,1 @@
+"""Matching the two views and triangulation: correspondences, 3D reconstruction, temporal tracking."""
