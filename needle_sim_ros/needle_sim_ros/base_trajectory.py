@@ -128,8 +128,10 @@ class BaseTrajectory:
 
     def offer(self, t: float, position, orientation) -> PoseVerdict:
         """Validate a pose sample and add it to the buffer; the verdict says what happened and why."""
-        position = np.asarray(position, dtype=float)
-        orientation = np.asarray(orientation, dtype=float)
+        # Own, writable, contiguous copies: a view of a message buffer (read-only) would make numba compile every
+        # kernel that takes a sample a second time, at the node's first pose.
+        position = np.array(position, dtype=float)
+        orientation = np.array(orientation, dtype=float)
         with np.errstate(over="ignore", invalid="ignore"):  # huge finite values: checked below, never warned
             scale = np.abs(orientation).max()
             rescaled = 1e100 < scale < np.inf  # |q|^2 would overflow: a non-unit quaternion like any other
