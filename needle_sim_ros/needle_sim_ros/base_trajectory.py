@@ -206,39 +206,64 @@ class BaseTrajectory:
 
     def _evaluate(self, times: np.ndarray, out: np.ndarray) -> None:
         newest = self._latest
-        _evaluate_fit(self._fit, newest.t, newest.position, newest.orientation, self.limits.max_extrapolation,
-                      times, out)
-        _apply_correction(self._correction, self._correction_start, self._correction_blend,
-                          newest.t + self.limits.max_extrapolation, times, out)
+        _evaluate_motions(self._fit, newest.t, newest.position, newest.orientation, self.limits.max_extrapolation,
+                          self._correction, self._correction_start, self._correction_blend, times, out)
 
     def _refit(self, newest: PoseSample) -> None:
         """Fit the window ending at ``newest``; continue the previous served motion at the last served time."""
-        previous = None
-        if self._served is not None and self._previous is not None:
-            previous = np.empty((1, 19))
-            self._latest, self._fit = self._previous
-            self._evaluate(np.array([self._served]), previous)
-            self._latest = newest
-        self._fit = self._fit_window(newest)
-        self._correction[:] = 0.0
-        if previous is not None:
-            current = np.empty((1, 19))
-            self._evaluate(np.array([self._served]), current)
-            self._correction = _motion_difference(previous[0], current[0])
-            self._correction_start = self._served
-            first = int(np.searchsorted(self._times[:self._count], newest.t - self.limits.window))
-            interval = (newest.t - self._times[first]) / max(self._count - 1 - first, 1)
-            self._correction_blend = min(max(newest.t - self._served, interval), self.limits.window)
+        continued = self._served is not None and self._previous is not None
+        previous_sample, previous_fit = self._previous if continued else (newest, _NO_FIT)
+        self._fit, self._correction, self._correction_start, self._correction_blend = _refit_window(
+            self._times, self._positions, self._orientations, self._count, newest.t, newest.position,
+            newest.orientation, self.limits.window, self.limits.max_extrapolation, continued,
+            self._served if continued else 0.0, previous_sample.t, previous_sample.position,
+            previous_sample.orientation, previous_fit, self._correction, self._correction_start,
+            self._correction_blend)
         self._previous = (newest, self._fit)
 
-    def _fit_window(self, newest: PoseSample) -> np.ndarray:
-        """Quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest."""
-        n = self._count
-        first = int(np.searchsorted(self._times[:n], newest.t - self.limits.window))
-        if n - first < 3:
-            return np.zeros((0, 6))
-        return _fit_samples(self._times[first:n] - newest.t, self._positions[first:n], self._orientations[first:n],
-                            newest.orientation, max(self.limits.window, 1e-9))
+
+_NO_FIT = np.zeros((0, 6))
+
+
+@njit(cache=True)
+def _evaluate_motions(coeffs: np.ndarray, t_newest: float, p_newest: np.ndarray, q_newest: np.ndarray,
+                      max_extrapolation: float, delta: np.ndarray, start: float, blend: float, times: np.ndarray,
+                      out: np.ndarray) -> None:
+    """Packed motions at ``times`` of the fit ``coeffs`` of the window ending at the newest sample, plus the C2
+    correction ``delta`` (see :func:`_apply_correction`)."""
+    _evaluate_fit(coeffs, t_newest, p_newest, q_newest, max_extrapolation, times, out)
+    _apply_correction(delta, start, blend, t_newest + max_extrapolation, times, out)
+
+
+@njit(cache=True)
+def _refit_window(times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, count: int, t_newest: float,
+                  p_newest: np.ndarray, q_newest: np.ndarray, window: float, max_extrapolation: float,
+                  continued: bool, served: float, t_previous: float, p_previous: np.ndarray, q_previous: np.ndarray,
+                  previous_fit: np.ndarray, delta: np.ndarray, start: float,
+                  blend: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(fit, correction, its start, its blend) of the window ending at the newest sample (one call per new sample).
+
+    Fit: quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest, (0, 6)
+    with fewer than 3 samples in the window. If ``continued``, the correction is the difference at ``served``
+    between the previous served motion (previous newest sample and fit, with its correction ``delta``, ``start``,
+    ``blend``) and the new fit; otherwise zero (start and blend kept)."""
+    first = np.searchsorted(times[:count], t_newest - window)
+    if count - first < 3:
+        fit = np.zeros((0, 6))
+    else:
+        fit = _fit_samples(times[first:count] - t_newest, positions[first:count], orientations[first:count],
+                           q_newest, max(window, 1e-9))
+    correction = np.zeros((6, 3))
+    if not continued:
+        return fit, correction, start, blend
+    at = np.array([served])
+    previous, current = np.empty((1, 19)), np.empty((1, 19))
+    _evaluate_motions(previous_fit, t_previous, p_previous, q_previous, max_extrapolation, delta, start, blend, at,
+                      previous)
+    _evaluate_motions(fit, t_newest, p_newest, q_newest, max_extrapolation, correction, start, blend, at, current)
+    interval = (t_newest - times[first]) / max(count - 1 - first, 1)
+    return (fit, _motion_difference(previous[0], current[0]), served,
+            min(max(t_newest - served, interval), window))
 
 
 @njit(cache=True)
