@@ -64,6 +64,7 @@ def main() -> int:
         overrides["loop.realtime_priority"] = args.realtime_priority
     params.write_text(yaml.safe_dump({"/**": {"ros__parameters": overrides}}))
     executable = REPO / "install/needle_sim_ros/lib/needle_sim_ros/needle_simulator"
+    load_before = os.getloadavg()[0]  # the machine may be shared: latency depends on it
     simulator = subprocess.Popen([str(executable), "--ros-args", "--params-file", str(params)], env=env)
 
     rclpy.init()
@@ -132,7 +133,8 @@ def main() -> int:
     miss_rate = (misses[-1] - misses[0]) / max(steps[-1] - steps[0], 1) if len(steps) > 1 else float("nan")
 
     print(f"\nneedle_simulator, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
-          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}")
+          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}; "
+          f"load average (1 min) {load_before:.2f} before, {os.getloadavg()[0]:.2f} after")
     print("| metric | value | target |")
     print("|---|---|---|")
     print(f"| latency p50 | {np.percentile(latency, 50):.3f} ms | |")
