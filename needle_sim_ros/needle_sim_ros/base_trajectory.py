@@ -132,24 +132,23 @@ class BaseTrajectory:
         # kernel that takes a sample a second time, at the node's first pose.
         position = np.array(position, dtype=float)
         orientation = np.array(orientation, dtype=float)
-        with np.errstate(over="ignore", invalid="ignore"):  # huge finite values: checked below, never warned
-            scale = np.abs(orientation).max()
-            rescaled = 1e100 < scale < np.inf  # |q|^2 would overflow: a non-unit quaternion like any other
-            orientation = orientation / scale if rescaled else orientation
-            norm = _quaternion_norm(float(t), position, orientation)
+        latest = self.latest
+        reference = latest if latest is not None else _ORIGIN
+        norm, rescaled, largest, unit, distance, angle = _checked_pose(
+            float(t), position, orientation, reference.position, reference.orientation, latest is not None)
         if not norm >= 0.0:
             return PoseVerdict.NOT_FINITE
         if norm < 1e-9:
             return PoseVerdict.ZERO_QUATERNION
-        if np.abs(position).max() > self.limits.max_position:  # per axis: no overflow for huge finite values
+        if largest > self.limits.max_position:  # per axis: no overflow for huge finite values
             return PoseVerdict.OUT_OF_RANGE
         verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance and not rescaled \
             else PoseVerdict.NORMALIZED
-        sample = PoseSample(float(t), position, orientation / norm)
-        latest = self.latest
+        sample = PoseSample(float(t), position, unit)
         if latest is not None and sample.t <= latest.t:
             return PoseVerdict.OUT_OF_ORDER
-        if latest is not None and self._is_jump(sample):
+        # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
+        if latest is not None and not self._within_limits((distance, angle)):
             return self._handle_jump(sample)
         self._rejected.clear()
         self._append(sample)
@@ -160,10 +159,6 @@ class BaseTrajectory:
 
     def _within_limits(self, deviation: tuple[float, float]) -> bool:
         return deviation[0] <= self.limits.max_position_jump and deviation[1] <= self.limits.max_orientation_jump
-
-    def _is_jump(self, sample: PoseSample) -> bool:
-        # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
-        return not self._within_limits(self._deviation(self.latest, sample))
 
     def _handle_jump(self, sample: PoseSample) -> PoseVerdict:
         if self._rejected and not self._within_limits(self._deviation(self._rejected[-1], sample)):
@@ -271,6 +266,28 @@ def _quaternion_norm(t: float, position: np.ndarray, orientation: np.ndarray) ->
     """|orientation|, or NaN if any of t, position, orientation is not finite."""
     nan_if_not_finite = (t + np.sum(position) + np.sum(orientation)) * 0.0  # inf * 0 and NaN * 0 are NaN
     return np.sqrt(np.sum(orientation ** 2)) + nan_if_not_finite
+
+
+_ORIGIN = PoseSample(0.0, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))  # reference before the first sample
+
+
+@njit(cache=True)
+def _checked_pose(t: float, position: np.ndarray, orientation: np.ndarray, p_latest: np.ndarray,
+                  q_latest: np.ndarray, has_latest: bool) -> tuple[float, bool, float, np.ndarray, float, float]:
+    """A pose sample checked in one call: (|orientation| after rescaling, NaN if any field is not finite; whether
+    the orientation was rescaled because |q|^2 would overflow; largest |position coordinate|; unit orientation;
+    distance and rotation angle from the latest sample, 0 without one or for an invalid sample)."""
+    scale = np.max(np.abs(orientation))
+    rescaled = 1e100 < scale < np.inf  # |q|^2 would overflow: a non-unit quaternion like any other
+    if rescaled:
+        orientation = orientation / scale
+    norm = _quaternion_norm(t, position, orientation)
+    largest = np.max(np.abs(position))
+    if not norm >= 1e-9:
+        return norm, rescaled, largest, orientation.copy(), 0.0, 0.0
+    unit = orientation / norm
+    distance, angle = _pose_deviation(p_latest, q_latest, position, unit) if has_latest else (0.0, 0.0)
+    return norm, rescaled, largest, unit, distance, angle
 
 
 @njit(cache=True)
