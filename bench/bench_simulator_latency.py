@@ -14,6 +14,7 @@ node's step grid at every phase), and measures
   than one step to catch up), relative to the steps taken.
 
 Usage: python bench/bench_simulator_latency.py [--duration 60] [--elements 10] [--jitter 0.8] [--realtime-priority 0]
+       python bench/bench_simulator_latency.py --pose-path   (the node's per-pose Python only, in-process)
 """
 from __future__ import annotations
 
@@ -46,6 +47,32 @@ def stamp_seconds(data: bytes) -> float:
     return sec + nanosec * 1e-9
 
 
+def pose_path_cost(elements: int, poses: int = 3000) -> None:
+    """Print the node's per-pose Python, in this process: offering a pose to the simulation (validation, buffer) and
+    the base motion at the next step time (the base-pose refit), median and p90 over ``poses`` poses at 1 kHz."""
+    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+    from needle_sim_ros.simulation import compile_kernels, simulation_from_parameters
+
+    p = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS} | {"needle.elements": elements}
+    compile_kernels(p)
+    sim = simulation_from_parameters(p)
+    costs = []
+    for k in range(poses + 100):
+        t = 1.0 + 1e-3 * k + 4e-4
+        half_pitch = 0.5 * math.radians(5.0 * math.sin(2 * math.pi * 0.2 * t))
+        position, orientation = np.array([0.4, 0.0, 0.3]), np.array([0.0, math.sin(half_pitch), 0.0,
+                                                                       math.cos(half_pitch)])
+        start = time.perf_counter()
+        sim.offer_pose(t, position, orientation)
+        offered = time.perf_counter()
+        sim.base_motions(np.array([t + 6e-4]))
+        costs.append((offered - start, time.perf_counter() - offered))
+    costs = np.array(costs[100:]) * 1e6
+    print(f"per-pose Python ({poses} poses, load average {os.getloadavg()[0]:.2f}): offer median "
+          f"{np.median(costs[:, 0]):.1f} us (p90 {np.percentile(costs[:, 0], 90):.1f}), base motion with the refit "
+          f"median {np.median(costs[:, 1]):.1f} us (p90 {np.percentile(costs[:, 1], 90):.1f})")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--duration", type=float, default=60.0, help="measurement time [s]")
@@ -54,7 +81,12 @@ def main() -> int:
     parser.add_argument("--jitter", type=float, default=0.8, help="pose timing jitter, peak to peak [periods]")
     parser.add_argument("--realtime-priority", type=int, default=None,
                         help="override the node's loop.realtime_priority (default 50; 0: normal scheduling)")
+    parser.add_argument("--pose-path", action="store_true",
+                        help="only measure the node's per-pose Python in this process (no simulator process)")
     args = parser.parse_args()
+    if args.pose_path:
+        pose_path_cost(args.elements)
+        return 0
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     os.environ.update(ROS_DOMAIN_ID=env["ROS_DOMAIN_ID"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -64,6 +96,7 @@ def main() -> int:
         overrides["loop.realtime_priority"] = args.realtime_priority
     params.write_text(yaml.safe_dump({"/**": {"ros__parameters": overrides}}))
     executable = REPO / "install/needle_sim_ros/lib/needle_sim_ros/needle_simulator"
+    load_before = os.getloadavg()[0]  # the machine may be shared: latency depends on it
     simulator = subprocess.Popen([str(executable), "--ros-args", "--params-file", str(params)], env=env)
 
     rclpy.init()
@@ -132,7 +165,8 @@ def main() -> int:
     miss_rate = (misses[-1] - misses[0]) / max(steps[-1] - steps[0], 1) if len(steps) > 1 else float("nan")
 
     print(f"\nneedle_simulator, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
-          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}")
+          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}; "
+          f"load average (1 min) {load_before:.2f} before, {os.getloadavg()[0]:.2f} after")
     print("| metric | value | target |")
     print("|---|---|---|")
     print(f"| latency p50 | {np.percentile(latency, 50):.3f} ms | |")

@@ -1,8 +1,39 @@
+import os
+import subprocess
+import sys
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.install import install
 
 package_name = "needle_sim_ros"
+
+# Compiles the simulator's numba kernels for its default configuration into the kernel cache (NUMBA_CACHE_DIR if
+# set, else __pycache__ next to the installed modules), so that the first start of a fresh install loads them.
+COMPILE_KERNELS = """
+from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.simulation import compile_kernels
+seconds = compile_kernels({spec.name: spec.default for spec in SIMULATOR_PARAMETERS})
+print(f"needle_sim_ros: compiled the simulator's numba kernels in {seconds:.0f} s")
+"""
+
+
+class InstallCompilingKernels(install):
+    """``install`` (what colcon's ament_python build runs), then compile the numba kernels against the installed
+    modules: numba's cache is keyed by the source file, so only the installed files' kernels serve at run time.
+    ``NEEDLE_COMPILE_KERNELS=0`` skips it (the first start then compiles, ~1 min)."""
+
+    def run(self) -> None:
+        super().run()
+        if os.environ.get("NEEDLE_COMPILE_KERNELS", "1") == "0":
+            return
+        path = os.pathsep.join(filter(None, (self.install_lib, os.environ.get("PYTHONPATH"))))
+        # cwd: the installed tree, not this source tree (which would shadow it on sys.path)
+        result = subprocess.run([sys.executable, "-c", COMPILE_KERNELS], cwd=self.install_lib,
+                                env=dict(os.environ, PYTHONPATH=path))
+        if result.returncode != 0:
+            print("needle_sim_ros: warning: compiling the numba kernels failed; the simulator's first start will "
+                  "compile them", file=sys.stderr)
 
 setup(
     name=package_name,
@@ -21,6 +52,7 @@ setup(
     install_requires=["setuptools"],
     extras_require={"test": ["pytest"]},
     zip_safe=True,
+    cmdclass={"install": InstallCompilingKernels},
     maintainer="needle_sim developers",
     maintainer_email="dev@needle-sim.invalid",
     description="Real-time 3D dynamic ANCF needle simulation for ROS 2 Jazzy.",

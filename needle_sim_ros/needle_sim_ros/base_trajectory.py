@@ -128,26 +128,27 @@ class BaseTrajectory:
 
     def offer(self, t: float, position, orientation) -> PoseVerdict:
         """Validate a pose sample and add it to the buffer; the verdict says what happened and why."""
-        position = np.asarray(position, dtype=float)
-        orientation = np.asarray(orientation, dtype=float)
-        with np.errstate(over="ignore", invalid="ignore"):  # huge finite values: checked below, never warned
-            scale = np.abs(orientation).max()
-            rescaled = 1e100 < scale < np.inf  # |q|^2 would overflow: a non-unit quaternion like any other
-            orientation = orientation / scale if rescaled else orientation
-            norm = _quaternion_norm(float(t), position, orientation)
+        # Own, writable, contiguous copies: a view of a message buffer (read-only) would make numba compile every
+        # kernel that takes a sample a second time, at the node's first pose.
+        position = np.array(position, dtype=float)
+        orientation = np.array(orientation, dtype=float)
+        latest = self.latest
+        reference = latest if latest is not None else _ORIGIN
+        norm, rescaled, largest, unit, distance, angle = _checked_pose(
+            float(t), position, orientation, reference.position, reference.orientation, latest is not None)
         if not norm >= 0.0:
             return PoseVerdict.NOT_FINITE
         if norm < 1e-9:
             return PoseVerdict.ZERO_QUATERNION
-        if np.abs(position).max() > self.limits.max_position:  # per axis: no overflow for huge finite values
+        if largest > self.limits.max_position:  # per axis: no overflow for huge finite values
             return PoseVerdict.OUT_OF_RANGE
         verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance and not rescaled \
             else PoseVerdict.NORMALIZED
-        sample = PoseSample(float(t), position, orientation / norm)
-        latest = self.latest
+        sample = PoseSample(float(t), position, unit)
         if latest is not None and sample.t <= latest.t:
             return PoseVerdict.OUT_OF_ORDER
-        if latest is not None and self._is_jump(sample):
+        # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
+        if latest is not None and not self._within_limits((distance, angle)):
             return self._handle_jump(sample)
         self._rejected.clear()
         self._append(sample)
@@ -158,10 +159,6 @@ class BaseTrajectory:
 
     def _within_limits(self, deviation: tuple[float, float]) -> bool:
         return deviation[0] <= self.limits.max_position_jump and deviation[1] <= self.limits.max_orientation_jump
-
-    def _is_jump(self, sample: PoseSample) -> bool:
-        # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
-        return not self._within_limits(self._deviation(self.latest, sample))
 
     def _handle_jump(self, sample: PoseSample) -> PoseVerdict:
         if self._rejected and not self._within_limits(self._deviation(self._rejected[-1], sample)):
@@ -204,39 +201,64 @@ class BaseTrajectory:
 
     def _evaluate(self, times: np.ndarray, out: np.ndarray) -> None:
         newest = self._latest
-        _evaluate_fit(self._fit, newest.t, newest.position, newest.orientation, self.limits.max_extrapolation,
-                      times, out)
-        _apply_correction(self._correction, self._correction_start, self._correction_blend,
-                          newest.t + self.limits.max_extrapolation, times, out)
+        _evaluate_motions(self._fit, newest.t, newest.position, newest.orientation, self.limits.max_extrapolation,
+                          self._correction, self._correction_start, self._correction_blend, times, out)
 
     def _refit(self, newest: PoseSample) -> None:
         """Fit the window ending at ``newest``; continue the previous served motion at the last served time."""
-        previous = None
-        if self._served is not None and self._previous is not None:
-            previous = np.empty((1, 19))
-            self._latest, self._fit = self._previous
-            self._evaluate(np.array([self._served]), previous)
-            self._latest = newest
-        self._fit = self._fit_window(newest)
-        self._correction[:] = 0.0
-        if previous is not None:
-            current = np.empty((1, 19))
-            self._evaluate(np.array([self._served]), current)
-            self._correction = _motion_difference(previous[0], current[0])
-            self._correction_start = self._served
-            first = int(np.searchsorted(self._times[:self._count], newest.t - self.limits.window))
-            interval = (newest.t - self._times[first]) / max(self._count - 1 - first, 1)
-            self._correction_blend = min(max(newest.t - self._served, interval), self.limits.window)
+        continued = self._served is not None and self._previous is not None
+        previous_sample, previous_fit = self._previous if continued else (newest, _NO_FIT)
+        self._fit, self._correction, self._correction_start, self._correction_blend = _refit_window(
+            self._times, self._positions, self._orientations, self._count, newest.t, newest.position,
+            newest.orientation, self.limits.window, self.limits.max_extrapolation, continued,
+            self._served if continued else 0.0, previous_sample.t, previous_sample.position,
+            previous_sample.orientation, previous_fit, self._correction, self._correction_start,
+            self._correction_blend)
         self._previous = (newest, self._fit)
 
-    def _fit_window(self, newest: PoseSample) -> np.ndarray:
-        """Quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest."""
-        n = self._count
-        first = int(np.searchsorted(self._times[:n], newest.t - self.limits.window))
-        if n - first < 3:
-            return np.zeros((0, 6))
-        return _fit_samples(self._times[first:n] - newest.t, self._positions[first:n], self._orientations[first:n],
-                            newest.orientation, max(self.limits.window, 1e-9))
+
+_NO_FIT = np.zeros((0, 6))
+
+
+@njit(cache=True)
+def _evaluate_motions(coeffs: np.ndarray, t_newest: float, p_newest: np.ndarray, q_newest: np.ndarray,
+                      max_extrapolation: float, delta: np.ndarray, start: float, blend: float, times: np.ndarray,
+                      out: np.ndarray) -> None:
+    """Packed motions at ``times`` of the fit ``coeffs`` of the window ending at the newest sample, plus the C2
+    correction ``delta`` (see :func:`_apply_correction`)."""
+    _evaluate_fit(coeffs, t_newest, p_newest, q_newest, max_extrapolation, times, out)
+    _apply_correction(delta, start, blend, t_newest + max_extrapolation, times, out)
+
+
+@njit(cache=True)
+def _refit_window(times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, count: int, t_newest: float,
+                  p_newest: np.ndarray, q_newest: np.ndarray, window: float, max_extrapolation: float,
+                  continued: bool, served: float, t_previous: float, p_previous: np.ndarray, q_previous: np.ndarray,
+                  previous_fit: np.ndarray, delta: np.ndarray, start: float,
+                  blend: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(fit, correction, its start, its blend) of the window ending at the newest sample (one call per new sample).
+
+    Fit: quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest, (0, 6)
+    with fewer than 3 samples in the window. If ``continued``, the correction is the difference at ``served``
+    between the previous served motion (previous newest sample and fit, with its correction ``delta``, ``start``,
+    ``blend``) and the new fit; otherwise zero (start and blend kept)."""
+    first = np.searchsorted(times[:count], t_newest - window)
+    if count - first < 3:
+        fit = np.zeros((0, 6))
+    else:
+        fit = _fit_samples(times[first:count] - t_newest, positions[first:count], orientations[first:count],
+                           q_newest, max(window, 1e-9))
+    correction = np.zeros((6, 3))
+    if not continued:
+        return fit, correction, start, blend
+    at = np.array([served])
+    previous, current = np.empty((1, 19)), np.empty((1, 19))
+    _evaluate_motions(previous_fit, t_previous, p_previous, q_previous, max_extrapolation, delta, start, blend, at,
+                      previous)
+    _evaluate_motions(fit, t_newest, p_newest, q_newest, max_extrapolation, correction, start, blend, at, current)
+    interval = (t_newest - times[first]) / max(count - 1 - first, 1)
+    return (fit, _motion_difference(previous[0], current[0]), served,
+            min(max(t_newest - served, interval), window))
 
 
 @njit(cache=True)
@@ -244,6 +266,28 @@ def _quaternion_norm(t: float, position: np.ndarray, orientation: np.ndarray) ->
     """|orientation|, or NaN if any of t, position, orientation is not finite."""
     nan_if_not_finite = (t + np.sum(position) + np.sum(orientation)) * 0.0  # inf * 0 and NaN * 0 are NaN
     return np.sqrt(np.sum(orientation ** 2)) + nan_if_not_finite
+
+
+_ORIGIN = PoseSample(0.0, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))  # reference before the first sample
+
+
+@njit(cache=True)
+def _checked_pose(t: float, position: np.ndarray, orientation: np.ndarray, p_latest: np.ndarray,
+                  q_latest: np.ndarray, has_latest: bool) -> tuple[float, bool, float, np.ndarray, float, float]:
+    """A pose sample checked in one call: (|orientation| after rescaling, NaN if any field is not finite; whether
+    the orientation was rescaled because |q|^2 would overflow; largest |position coordinate|; unit orientation;
+    distance and rotation angle from the latest sample, 0 without one or for an invalid sample)."""
+    scale = np.max(np.abs(orientation))
+    rescaled = 1e100 < scale < np.inf  # |q|^2 would overflow: a non-unit quaternion like any other
+    if rescaled:
+        orientation = orientation / scale
+    norm = _quaternion_norm(t, position, orientation)
+    largest = np.max(np.abs(position))
+    if not norm >= 1e-9:
+        return norm, rescaled, largest, orientation.copy(), 0.0, 0.0
+    unit = orientation / norm
+    distance, angle = _pose_deviation(p_latest, q_latest, position, unit) if has_latest else (0.0, 0.0)
+    return norm, rescaled, largest, unit, distance, angle
 
 
 @njit(cache=True)

@@ -1,0 +1,37 @@
+"""Cold start (issue #12): after `compile_kernels` the node's pose path compiles nothing more."""
+import sys
+
+from geometry_msgs.msg import PoseStamped
+from numba.core.dispatcher import Dispatcher
+from rclpy.serialization import serialize_message
+
+from needle_sim_ros import cdr
+from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.simulation import compile_kernels, simulation_from_parameters, step_wrenches
+
+DEFAULTS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
+
+
+def compiled_specializations() -> dict[str, int]:
+    """Number of compiled signatures of every numba kernel of the package loaded so far (those with any)."""
+    return {f"{module_name}.{name}": len(kernel.signatures)
+            for module_name, module in list(sys.modules.items()) if module_name.startswith("needle_sim_ros")
+            for name, kernel in vars(module).items() if isinstance(kernel, Dispatcher) and kernel.signatures}
+
+
+def test_poses_decoded_like_the_node_does_need_no_kernel_beyond_compile_kernels():
+    compile_kernels(DEFAULTS)
+    compiled = compiled_specializations()
+    sim = simulation_from_parameters(DEFAULTS)
+    message = PoseStamped()
+    message.header.frame_id = "world"
+    wrenches = []
+    for k in range(20):
+        t = 1.0 + 1e-3 * k
+        message.header.stamp.sec, message.header.stamp.nanosec = 1, k * 1_000_000
+        message.pose.position.x, message.pose.position.z, message.pose.orientation.w = 0.4 + 1e-5 * k, 0.3, 1.0
+        pose = cdr.pose_stamped(serialize_message(message))  # the node's decoding: read-only views of the buffer
+        sim.offer_pose(pose.stamp_ns * 1e-9, pose.position, pose.orientation)
+        wrenches += step_wrenches(sim.advance(t + 1e-3, deterministic=False))
+    assert len(wrenches) >= 15
+    assert compiled_specializations() == compiled
