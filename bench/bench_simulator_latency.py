@@ -50,7 +50,7 @@ def stamp_seconds(data: bytes) -> float:
 def pose_path_cost(elements: int, poses: int = 3000) -> None:
     """Print the node's per-pose Python, in this process: offering a pose to the simulation (validation, buffer) and
     the base motion at the next step time (the base-pose refit), median and p90 over ``poses`` poses at 1 kHz."""
-    from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
     from needle_sim_ros.simulation import compile_kernels, simulation_from_parameters
 
     p = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS} | {"needle.elements": elements}

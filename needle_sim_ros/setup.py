@@ -11,7 +11,7 @@ package_name = "needle_sim_ros"
 # Compiles the simulator's numba kernels for its default configuration into the kernel cache (NUMBA_CACHE_DIR if
 # set, else __pycache__ next to the installed modules), so that the first start of a fresh install loads them.
 COMPILE_KERNELS = """
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import compile_kernels
 seconds = compile_kernels({spec.name: spec.default for spec in SIMULATOR_PARAMETERS})
 print(f"needle_sim_ros: compiled the simulator's numba kernels in {seconds:.0f} s")
@@ -34,6 +34,7 @@ class InstallCompilingKernels(install):
         if result.returncode != 0:
             print("needle_sim_ros: warning: compiling the numba kernels failed; the simulator's first start will "
                   "compile them", file=sys.stderr)
+
 
 setup(
     name=package_name,

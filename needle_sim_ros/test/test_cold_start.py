@@ -1,12 +1,15 @@
 """Cold start (issue #12): after `compile_kernels` the node's pose path compiles nothing more."""
+import ast
+import subprocess
 import sys
+from pathlib import Path
 
 from geometry_msgs.msg import PoseStamped
 from numba.core.dispatcher import Dispatcher
 from rclpy.serialization import serialize_message
 
-from needle_sim_ros import cdr
-from needle_sim_ros.nodes.simulator_parameters import SIMULATOR_PARAMETERS
+from needle_sim_ros.messages import cdr
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import compile_kernels, simulation_from_parameters, step_wrenches
 
 DEFAULTS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
@@ -35,3 +38,14 @@ def test_poses_decoded_like_the_node_does_need_no_kernel_beyond_compile_kernels(
         wrenches += step_wrenches(sim.advance(t + 1e-3, deterministic=False))
     assert len(wrenches) >= 15
     assert compiled_specializations() == compiled
+
+
+def test_the_install_hook_compiles_against_the_installed_package():
+    """setup.py's install step (what colcon build runs) compiles the kernels with a snippet of its own; a stale
+    import there would only print a warning at build time and leave every fresh install compiling at first start."""
+    setup = ast.parse((Path(__file__).resolve().parents[1] / "setup.py").read_text())
+    snippet = next(node.value.value for node in setup.body if isinstance(node, ast.Assign)
+                   and getattr(node.targets[0], "id", "") == "COMPILE_KERNELS")
+    result = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert "compiled the simulator's numba kernels" in result.stdout
