@@ -486,11 +486,15 @@ class NeedleSimulation:
 
 
 def model_builder_from_parameters(p: dict) -> ModelBuilder:
-    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them."""
+    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them; an
+    optional non-empty ``needle.element_lengths`` [m] sets the mesh (as in the scenarios) instead of uniform
+    ``needle.elements``."""
     props = needle_properties(p)
+    lengths = p.get("needle.element_lengths") or None
 
     def model_builder(fixtures: tuple = ()) -> tuple[NeedleModel, Integrator]:
-        model = build_model(props, n_elements=p["needle.elements"], axial_gauss=p["needle.axial_gauss_points"],
+        model = build_model(props, n_elements=len(lengths) if lengths else p["needle.elements"],
+                            element_lengths=lengths, axial_gauss=p["needle.axial_gauss_points"],
                             bending_gauss=p["needle.bending_gauss_points"], rayleigh_alpha=p["damping.rayleigh_alpha"],
                             rayleigh_beta=p["damping.rayleigh_beta"], fixtures=fixtures)
         integrator = Integrator(model, method=p["integrator.method"], rho_inf=p["integrator.rho_inf"],
