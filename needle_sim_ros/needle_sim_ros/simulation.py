@@ -362,20 +362,19 @@ class NeedleSimulation:
         # steps whose end time reaches t_target up to the float resolution of the times (0.24 us at epoch times)
         slack = 4.0 * np.spacing(abs(t_target)) + 1e-9 * self.dt
         count = int(np.floor((t_target + slack - self._grid_origin) / self.dt)) - self._step_index
-        while count > 0:
-            times = self._grid_time(self._step_index + np.arange(1, count + 1))
-            motions, rotations = self.base_motions(times)
-            done = 0
+        times = self._grid_time(self._step_index + np.arange(1, max(count, 0) + 1))
+        motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
+        i = 0
+        while i < count:
             if (self.compiled_sequence and self.state.aux is not None
                     and self.integrator.supports_sequence(self.forces)):
-                done = self._step_sequence(times, motions, rotations, records)
+                done = self._step_sequence(times[i:], motions[i:], rotations[i:], records)
                 self._step_index += done
-            if done < count:
-                records.append(self._step_or_restart(BaseMotion.from_packed(motions[done], rotations[done]),
-                                                     times[done]))
+                i += done
+            if i < count:
+                records.append(self._step_or_restart(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
                 self._step_index += 1
-                done += 1
-            count -= done
+                i += 1
         if records and not np.isfinite(self.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
             self.state = self.model.straight_state(self.base, self.state.t)
