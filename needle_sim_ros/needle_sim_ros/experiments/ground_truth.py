@@ -6,8 +6,8 @@ The "real needle" of the synthetic experiments is the ANCF model discretized far
 velocity and acceleration, not the recorded poses) and, for the insertions, by the tissue models with their default
 parameters.
 It is advanced by :class:`needle_sim_ros.simulation.NeedleSimulation` (the simulator's one time loop, the base
-from the protocol's ``base(t)``), like the simulator node, so fixtures and the tissue models' per-step hooks
-behave the same. Unlike the node, it starts from static equilibrium (the real needle
+from the protocol's ``base(t)``, the general step throughout), like the simulator node, so fixtures and the tissue
+models' per-step hooks behave the same. Unlike the node, it starts from static equilibrium (the real needle
 hangs at rest when the recording starts) when the protocol says so.
 """
 from __future__ import annotations
@@ -87,6 +87,7 @@ def truth_simulation(experiment: Experiment, truth: TruthModel) -> NeedleSimulat
                                   extra_forces_builder=tissue_builder if experiment.tissue else None,
                                   max_catch_up=math.inf, clamp_interval=experiment.clamp_interval,
                                   model_builder=model_builder, base_at=experiment.base, restart_on_failure=False)
+    simulation.compiled_sequence = False  # full Newton every step: the bags' truth is reproduced bit for bit
     base = experiment.base(0.0)
     simulation.reset(base, 0.0)
     if experiment.start_in_equilibrium:
