@@ -1,8 +1,9 @@
 """Real-time factor of the needle simulation with the tissue models enabled (issue 5 benchmark).
 
 Runs the ``insertion`` scenario core (10 ANCF elements, dt = 1 ms, 90 mm at 6 mm/s, config/tissue.yaml) once per
-tissue configuration and prints a table: simulated time / wall time of the integration loop (steps plus the
-tissue ``advance`` hooks; > 1 is faster than real time), mean step time, and the final tip position off the
+tissue configuration and prints a table: simulated time / wall time of the simulator's time loop
+(``NeedleSimulation.advance_to``: steps, the tissue ``advance`` hooks and each step's reaction wrench; > 1 is
+faster than real time), mean step time, and the final tip position off the
 insertion axis (y, z; z includes the gravity sag of about -2.8 mm).
 A baseline without tissue (gravity only, same base motion) shows the tissue's cost.
 
