@@ -362,7 +362,9 @@ class NeedleSimulation:
         # steps whose end time reaches t_target up to the float resolution of the times (0.24 us at epoch times)
         slack = 4.0 * np.spacing(abs(t_target)) + 1e-9 * self.dt
         count = int(np.floor((t_target + slack - self._grid_origin) / self.dt)) - self._step_index
-        times = self._grid_time(self._step_index + np.arange(1, max(count, 0) + 1))
+        if count <= 0:
+            return records
+        times = self._grid_time(self._step_index + np.arange(1, count + 1))
         motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
         i = 0
         while i < count:
