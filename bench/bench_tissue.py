@@ -1,8 +1,9 @@
 """Real-time factor of the needle simulation with the tissue models enabled (issue 5 benchmark).
 
 Runs the ``insertion`` scenario core (10 ANCF elements, dt = 1 ms, 90 mm at 6 mm/s, config/tissue.yaml) once per
-tissue configuration and prints a table: simulated time / wall time of the integration loop (steps plus the
-tissue ``advance`` hooks; > 1 is faster than real time), mean step time, and the final tip position off the
+tissue configuration and prints a table: simulated time / wall time of the simulator's time loop
+(``NeedleSimulation.advance_to``: steps, the tissue ``advance`` hooks and each step's reaction wrench; > 1 is
+faster than real time), mean step time, and the final tip position off the
 insertion axis (y, z; z includes the gravity sag of about -2.8 mm).
 A baseline without tissue (gravity only, same base motion) shows the tissue's cost.
 
@@ -33,24 +34,27 @@ CASES = {
 
 
 def baseline_real_time_factor(n_elements: int, dt: float, duration: float) -> float:
-    """Same needle and base motion without tissue (gravity only): simulated / integration wall time."""
+    """Same needle and base motion without tissue (gravity only), advanced by the simulator's time loop (which
+    takes the compiled step sequence here): simulated / integration wall time."""
     import time
 
     import numpy as np
 
-    from needle_sim_ros.model import BaseMotion, Gravity, Integrator, build_model
+    from needle_sim_ros.model import BaseMotion, Integrator, build_model
+    from needle_sim_ros.simulation import NeedleSimulation
 
     model = build_model(NEEDLE, **{**BUILD, "n_elements": n_elements})
-    integrator = Integrator(model, **INTEGRATOR)
     velocity = np.array([0.006, 0.0, 0.0])
     orientation = np.array([0.0, 0.0, 0.0, 1.0])
-    state = model.straight_state(BaseMotion(np.zeros(3), orientation, linear_velocity=velocity))
+
+    def base_at(t: float) -> BaseMotion:
+        return BaseMotion(velocity * t, orientation, linear_velocity=velocity)
+
+    simulation = NeedleSimulation.prescribed(model, Integrator(model, **INTEGRATOR), dt, base_at,
+                                             model.straight_state(base_at(0.0)))
     steps = int(round(duration / dt))
-    forces = [Gravity()]          # one instance: its load distribution is computed once per model
     start = time.perf_counter()
-    for k in range(1, steps + 1):
-        state = integrator.step(state, dt, BaseMotion(velocity * k * dt, orientation, linear_velocity=velocity),
-                                forces).state
+    simulation.advance_to(steps * dt)
     return steps * dt / (time.perf_counter() - start)
 
 

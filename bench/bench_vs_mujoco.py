@@ -12,9 +12,9 @@ ones the segments stretch to 3x their length under the 80 g load) and it has no 
 * Speed: mean wall time per 1 ms step over 3 s of motion after a 10 g tip load is released from static equilibrium
   (each side starts from its own equilibrium), per path of the simulator: gravity only, no gravity, the 10 g load
   kept at the tip, 10 g at mid-span, and the general one-step path (``Integrator.step``, the path state-dependent
-  forces take). Ours is ``NeedleSimulation`` as the node drives it (a pose and ``advance`` per 1 ms, reaction
-  wrench included) and with the poses given first and 50 ms per ``advance_to`` (offline); MuJoCo is ``mj_step``
-  in a loop.
+  forces take, in the same time loop). Ours is ``NeedleSimulation`` as the node drives it (a pose and ``advance``
+  per 1 ms, reaction wrench included) and with the poses given first and 50 ms per ``advance_to`` (offline);
+  MuJoCo is ``mj_step`` in a loop.
 * Accuracy: tip position under the needle's weight plus an 80 g tip mass against the exact elastica
   (``needle_sim_ros.experiments.elastica``, a shooting solution sharing no code with either model); MuJoCo's
   equilibrium is reached by running it with joint damping until it stops.
@@ -136,15 +136,19 @@ def simulator_step_time(gravity: bool, kept_load: float, at_mid: bool, seconds: 
 
 
 def general_step_time(seconds: float) -> float:
-    """Mean wall time per Integrator.step (the general path: full Newton, any force) after the release."""
-    sim = released_simulation(True)
-    integrator = sim.integrator  # configured from the same parameters as the simulator's
-    base, state, forces = BaseMotion(np.zeros(3), IDENTITY), sim.state, [Gravity()]
+    """Mean wall time per step of the general path (Integrator.step: full Newton, any force; reaction wrench
+    included) after the release, the simulator's time loop kept off the compiled sequence."""
+    released = released_simulation(True)
+    base = BaseMotion(np.zeros(3), IDENTITY)
+    sim = NeedleSimulation.prescribed(released.model, released.integrator, DT, lambda t: base, released.state)
+    sim.compiled_sequence = False
     steps = int(seconds / DT)
     start = time.perf_counter()
-    for _ in range(steps):
-        state = integrator.step(state, DT, base, forces).state
-    return (time.perf_counter() - start) / steps
+    sim.advance_to(steps * DT)
+    wall = (time.perf_counter() - start) / steps
+    if sim.statistics.steps != steps:
+        raise RuntimeError(f"the general path did {sim.statistics.steps} steps instead of {steps}")
+    return wall
 
 
 def static_errors(mujoco) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

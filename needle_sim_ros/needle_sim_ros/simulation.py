@@ -2,8 +2,11 @@
 
 A :class:`NeedleSimulation` owns the mutable part of the simulator (the model state, the base-pose trajectory,
 named point loads, tissue forces) and advances the immutable model with fixed steps of ``dt`` up to a requested
-time, taking the base motion at each step's end time from the trajectory. The node feeds it poses and calls
-:meth:`advance` from its real-time loop; the offline pipeline does the same in a plain loop over a bag.
+time, taking the base motion at each step's end time from a provider: the trajectory of the received poses, or
+a prescribed ``base_at(t)`` (:meth:`NeedleSimulation.prescribed`). It is the one time loop that integrates the
+needle: the node feeds it poses and calls :meth:`advance` from its real-time loop, the offline pipeline does the
+same over a bag, and the scenarios, the ground truth of the sample bags and the benchmarks advance a prescribed
+simulation to their sample times.
 
 Two timing rules (:meth:`target_time`):
 * live: integrate up to now, extrapolating the newest pose for at most ``max_extrapolation`` (lowest latency);
@@ -139,7 +142,11 @@ class NeedleSimulation:
     starts in fresh tissue. A step is a transaction (:meth:`step`): a step that fails even after the integrator's
     sub-stepping changes nothing and is counted in ``statistics.failed_steps``; :meth:`advance_to` then restarts
     the needle straight at the current base pose, the forces keeping the state of the last accepted step: the
-    output never contains NaN.
+    output never contains NaN (with ``restart_on_failure`` False it raises the StepFailed instead, state restored).
+
+    ``base_at(t)``: the motion of the clamp point A at time t, used instead of the trajectory (and the flange
+    offset and twist) when given (:meth:`prescribed`). ``compiled_sequence`` False keeps every step on the general
+    path (benchmarks of that path).
 
     ``start_in_equilibrium``: a (re)started needle is at rest in static equilibrium under gravity and the point loads
     (seed 000 eq. 17 without inertia) instead of straight, so it does not first drop and swing (a free 18 G needle
@@ -153,7 +160,8 @@ class NeedleSimulation:
                  pose_timeout: float = 0.1,
                  twist_timeout: float = 0.05, clamp_interval: tuple[float, float] | None = None,
                  model_builder: ModelBuilder | None = None, input_limits: InputLimits = InputLimits(),
-                 start_in_equilibrium: bool = False) -> None:
+                 start_in_equilibrium: bool = False, base_at: Callable[[float], BaseMotion] | None = None,
+                 restart_on_failure: bool = True) -> None:
         if clamp_interval is not None and model_builder is None:
             raise ValueError("a clamp interval needs a model_builder to rebuild the model with the fixture")
         self.model = model
@@ -179,6 +187,21 @@ class NeedleSimulation:
         self.statistics = LoopStatistics()
         self._gravity = Gravity()
         self.start_in_equilibrium = start_in_equilibrium
+        self.base_at = base_at
+        self.restart_on_failure = restart_on_failure
+        self.compiled_sequence = True
+
+    @classmethod
+    def prescribed(cls, model: NeedleModel, integrator: Integrator, dt: float, base_at: Callable[[float], BaseMotion],
+                   state: State, extra_forces: Sequence = ()) -> NeedleSimulation:
+        """A simulation whose base follows ``base_at(t)`` (scenarios, ground truth, benchmarks), started from
+        ``state`` at ``state.t`` with gravity and ``extra_forces`` (checked once, kept: no builder), never skipping
+        time, raising StepFailed where a step fails."""
+        simulation = cls(model, integrator, dt, BaseTrajectory(), max_catch_up=np.inf, base_at=base_at,
+                         restart_on_failure=False)
+        simulation.extra_forces = list(check_forces(list(extra_forces)))
+        simulation.start_from(state)
+        return simulation
 
     # -- configuration -----------------------------------------------------------------------------------
     def rebuild_model(self, model_builder: ModelBuilder) -> None:
@@ -246,6 +269,11 @@ class NeedleSimulation:
     def base_motions(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Motions of the clamp point A at the given times (k,), packed (k, 19) as :meth:`BaseMotion.from_packed`
         takes them, and their rotations (k, 3, 3)."""
+        if self.base_at is not None:
+            motions = [self.base_at(float(t)) for t in times]
+            values = np.array([np.concatenate((m.position, m.orientation, m.linear_velocity, m.angular_velocity,
+                                               m.linear_acceleration, m.angular_acceleration)) for m in motions])
+            return values.reshape(len(times), 19), np.array([m.rotation for m in motions]).reshape(len(times), 3, 3)
         flange = self.trajectory.motions_at(times)
         if self.twist is not None:
             fresh = np.abs(times - self.twist[0]) <= self.twist_timeout
@@ -284,6 +312,14 @@ class NeedleSimulation:
         if self.start_in_equilibrium:
             self.state = self._equilibrium(self.state)
         self._grid_origin, self._step_index = float(t), 0
+
+    def start_from(self, state: State) -> None:
+        """Continue from a given state (e.g. a static equilibrium) at ``state.t`` instead of the straight needle,
+        the base at its motion then; the step grid restarts there."""
+        self.base = state.base if state.base is not None else (
+            self.base_at(state.t) if self.base_at is not None else self.base)
+        self.state = state
+        self._grid_origin, self._step_index = float(state.t), 0
 
     def _equilibrium(self, straight: State) -> State:
         """The needle at rest relative to the base in static equilibrium under gravity and the point loads (tissue,
@@ -326,19 +362,21 @@ class NeedleSimulation:
         # steps whose end time reaches t_target up to the float resolution of the times (0.24 us at epoch times)
         slack = 4.0 * np.spacing(abs(t_target)) + 1e-9 * self.dt
         count = int(np.floor((t_target + slack - self._grid_origin) / self.dt)) - self._step_index
-        while count > 0:
-            times = self._grid_time(self._step_index + np.arange(1, count + 1))
-            motions, rotations = self.base_motions(times)
-            done = 0
-            if self.state.aux is not None and self.integrator.supports_sequence(self.forces):
-                done = self._step_sequence(times, motions, rotations, records)
+        if count <= 0:
+            return records
+        times = self._grid_time(self._step_index + np.arange(1, count + 1))
+        motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
+        i = 0
+        while i < count:
+            if (self.compiled_sequence and self.state.aux is not None
+                    and self.integrator.supports_sequence(self.forces)):
+                done = self._step_sequence(times[i:], motions[i:], rotations[i:], records)
                 self._step_index += done
-            if done < count:
-                records.append(self._step_or_restart(BaseMotion.from_packed(motions[done], rotations[done]),
-                                                     times[done]))
+                i += done
+            if i < count:
+                records.append(self._step_or_restart(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
                 self._step_index += 1
-                done += 1
-            count -= done
+                i += 1
         if records and not np.isfinite(self.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
             self.state = self.model.straight_state(self.base, self.state.t)
@@ -413,11 +451,14 @@ class NeedleSimulation:
 
     def _step_or_restart(self, base_next: BaseMotion, t_next: float) -> StepRecord:
         """:meth:`step`, or if it fails the needle restarted straight at the base (the forces' state is that of the
-        last accepted step: the restarted needle has not moved through the tissue)."""
+        last accepted step: the restarted needle has not moved through the tissue); with ``restart_on_failure``
+        False the StepFailed is raised."""
         start = time.perf_counter()
         try:
             return self.step(base_next, t_next)
         except StepFailed:
+            if not self.restart_on_failure:
+                raise
             self.state, self.base = self.model.straight_state(base_next, float(t_next)), base_next
             return self._finish_step(start, self.forces, 0, 0)
 
@@ -446,11 +487,15 @@ class NeedleSimulation:
 
 
 def model_builder_from_parameters(p: dict) -> ModelBuilder:
-    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them."""
+    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them; an
+    optional non-empty ``needle.element_lengths`` [m] sets the mesh (as in the scenarios) instead of uniform
+    ``needle.elements``."""
     props = needle_properties(p)
+    lengths = p.get("needle.element_lengths") or None
 
     def model_builder(fixtures: tuple = ()) -> tuple[NeedleModel, Integrator]:
-        model = build_model(props, n_elements=p["needle.elements"], axial_gauss=p["needle.axial_gauss_points"],
+        model = build_model(props, n_elements=len(lengths) if lengths else p["needle.elements"],
+                            element_lengths=lengths, axial_gauss=p["needle.axial_gauss_points"],
                             bending_gauss=p["needle.bending_gauss_points"], rayleigh_alpha=p["damping.rayleigh_alpha"],
                             rayleigh_beta=p["damping.rayleigh_beta"], fixtures=fixtures)
         integrator = Integrator(model, method=p["integrator.method"], rho_inf=p["integrator.rho_inf"],

@@ -5,8 +5,9 @@ The "real needle" of the synthetic experiments is the ANCF model discretized far
 (:func:`static_check`), with its own damping, driven by the exact base motion of the protocol (analytic pose,
 velocity and acceleration, not the recorded poses) and, for the insertions, by the tissue models with their default
 parameters.
-It is stepped by :class:`needle_sim_ros.simulation.NeedleSimulation`, like the simulator node, so fixtures and the
-tissue models' per-step hooks behave the same. Unlike the node, it starts from static equilibrium (the real needle
+It is advanced by :class:`needle_sim_ros.simulation.NeedleSimulation` (the simulator's one time loop, the base
+from the protocol's ``base(t)``, the general step throughout), like the simulator node, so fixtures and the tissue
+models' per-step hooks behave the same. Unlike the node, it starts from static equilibrium (the real needle
 hangs at rest when the recording starts) when the protocol says so.
 """
 from __future__ import annotations
@@ -85,14 +86,15 @@ def truth_simulation(experiment: Experiment, truth: TruthModel) -> NeedleSimulat
     simulation = NeedleSimulation(model, integrator, truth.dt, BaseTrajectory(),
                                   extra_forces_builder=tissue_builder if experiment.tissue else None,
                                   max_catch_up=math.inf, clamp_interval=experiment.clamp_interval,
-                                  model_builder=model_builder)
+                                  model_builder=model_builder, base_at=experiment.base, restart_on_failure=False)
+    simulation.compiled_sequence = False  # full Newton every step: the bags' truth is reproduced bit for bit
     base = experiment.base(0.0)
     simulation.reset(base, 0.0)
     if experiment.start_in_equilibrium:
         force = experiment.tip_force(0.0)
         if np.any(force):
             simulation.set_point_load(TIP_WEIGHT, truth.props.length, force)
-        simulation.state = solve_static(simulation.model, base, simulation.forces).state
+        simulation.start_from(solve_static(simulation.model, base, simulation.forces).state)
     return simulation
 
 
@@ -113,23 +115,32 @@ def run_ground_truth(experiment: Experiment, truth: TruthModel, shape_times, wre
     def sample_shape(index: int) -> None:
         shapes[index] = (simulation.shape(shape_samples), simulation.tip())
 
+    progress_every = max(1, int(round(0.1 / dt)))
+    if loaded:  # the tip load changes every step: set it before each step
+        events = range(1, n_steps + 1)
+    else:
+        events = sorted({*(k for k in shape_steps if 0 < k <= n_steps), n_steps,
+                         *range(wrench_every, n_steps + 1, wrench_every),
+                         *range(progress_every, n_steps + 1, progress_every)})
     if 0 in shape_steps:
         sample_shape(shape_steps[0])
-    for k in range(1, n_steps + 1):
+    for k in events:
         t = k * dt
         if loaded:
             simulation.set_point_load(TIP_WEIGHT, truth.props.length, experiment.tip_force(t))
         try:
-            record = simulation.step(experiment.base(t), t)
+            records = simulation.advance_to(t)
         except StepFailed as error:
-            raise RuntimeError(f"ground truth of '{experiment.name}': step at t = {t:.4f} s failed") from error
-        if k % wrench_every == 0:
-            wrench_times.append(t)
-            forces.append(record.wrench.force_base)
-            torques.append(record.wrench.torque_base)
+            raise RuntimeError(f"ground truth of '{experiment.name}': step at t = "
+                               f"{simulation.state.t + dt:.4f} s failed") from error
+        for record in records:
+            if round(record.t / dt) % wrench_every == 0:
+                wrench_times.append(record.t)
+                forces.append(record.wrench.force_base)
+                torques.append(record.wrench.torque_base)
         if k in shape_steps:
             sample_shape(shape_steps[k])
-        if progress is not None and k % max(1, int(round(0.1 / dt))) == 0:
+        if progress is not None and k % progress_every == 0:
             progress(t)
     samples.shapes = [shapes[i][0] for i in range(len(shape_times))]
     samples.tips = [shapes[i][1] for i in range(len(shape_times))]

@@ -13,8 +13,9 @@ import numpy as np
 from needle_vision.parameters import ParamSpec, load_params_file
 
 from needle_sim_ros.model import (BaseMotion, BaseWrench, NeedleModel, NeedleProperties, centerline,
-                                  check_forces, load_needle_config, needle_parameters)
+                                  load_needle_config, needle_parameters)
 from needle_sim_ros.model.config import DEFAULTS, GROUPS
+from needle_sim_ros.simulation import NeedleSimulation
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
@@ -115,23 +116,17 @@ def save_figure(fig, path: Path) -> None:
     plt.close(fig)
 
 
-def integrate_sampled(integrator, state, dt: float, n_steps: int, every: int, base_at: Callable[[float], BaseMotion],
-                      forces, record: Callable) -> tuple:
-    """Integrate n_steps fixed steps with the base at ``base_at(t)``, calling ``record(state, base)`` at the start,
-    every ``every`` steps and at the end; contributions with per-step state (tissue) advance after each step.
-    Returns (state, integration wall time [s] excluding recording, Newton iterations in all)."""
-    base = base_at(state.t)
-    record(state, base)
-    advancing = [force for force in check_forces(forces) if force.stateful]
+def advance_sampled(simulation: NeedleSimulation, n_steps: int, every: int, record: Callable[[], None]) -> tuple:
+    """Advance the simulation (:meth:`NeedleSimulation.advance_to`, the simulator's one time loop) by n_steps
+    steps of its dt, calling ``record()`` at the start, every ``every`` steps and at the end. Returns (integration
+    wall time [s] excluding recording, Newton iterations in all)."""
+    record()
+    origin, dt = simulation.state.t, simulation.dt
     integration_wall, iterations = 0.0, 0
-    for k in range(1, n_steps + 1):
+    for k in [*range(every, n_steps, every), n_steps] if n_steps > 0 else []:
         tick = time.perf_counter()
-        base = base_at(k * dt)
-        result = integrator.step(state, dt, base, forces)
-        state, iterations = result.state, iterations + result.newton_iterations
-        for force in advancing:
-            force.advance(integrator.model, state, base)
+        records = simulation.advance_to(origin + k * dt)
         integration_wall += time.perf_counter() - tick
-        if k % every == 0 or k == n_steps:
-            record(state, base)
-    return state, integration_wall, iterations
+        iterations += sum(step.newton_iterations for step in records)
+        record()
+    return integration_wall, iterations

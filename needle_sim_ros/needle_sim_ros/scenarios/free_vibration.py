@@ -17,7 +17,9 @@ import numpy as np
 from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, PointLoad, build_model, elastic_energy,
                                   gravitational_energy, kinetic_energy, reaction_wrench, solve_static)
 
-from .common import (IDENTITY, add_needle_arguments, figure, integrate_sampled, material, needle_configuration,
+from needle_sim_ros.simulation import NeedleSimulation
+
+from .common import (IDENTITY, add_needle_arguments, advance_sampled, figure, material, needle_configuration,
                      save_figure, shape_json, wrench_json, write_json)
 
 
@@ -33,23 +35,24 @@ def simulate_release(props, build: dict, integrator_kwargs: dict, tip_mass: floa
     model = build_model(props, **build)
     integrator = Integrator(model, **integrator_kwargs)
     base = BaseMotion((0.0, 0.0, 0.0), IDENTITY)
-    forces = [Gravity()]
     g = float(np.linalg.norm(props.gravity))
-    state = solve_static(model, base, [*forces, PointLoad(props.length, (0.0, 0.0, -g * tip_mass))]).state
+    state = solve_static(model, base, [Gravity(), PointLoad(props.length, (0.0, 0.0, -g * tip_mass))]).state
+    simulation = NeedleSimulation.prescribed(model, integrator, dt, lambda t: base, state)
     n_steps = int(round(duration / dt))
     every = max(1, int(round(sample_interval / dt)))
     samples = []
 
-    def record(state, base) -> None:
+    def record() -> None:
+        state = simulation.state
         energies = {"kinetic_energy_j": kinetic_energy(model, state.qd),
                     "elastic_energy_j": elastic_energy(model, state.q),
                     "gravitational_energy_j": gravitational_energy(model, state.q)}
         samples.append({"t_s": state.t, "tip_position_m": state.q[-6:-3].tolist(), **energies,
                         "total_energy_j": sum(energies.values()),
-                        "base_wrench": wrench_json(reaction_wrench(model, state, base, forces))})
+                        "base_wrench": wrench_json(reaction_wrench(model, state, base, simulation.forces))})
 
-    state, integration_wall, iterations = integrate_sampled(integrator, state, dt, n_steps, every, lambda t: base,
-                                                            forces, record)
+    integration_wall, iterations = advance_sampled(simulation, n_steps, every, record)
+    state = simulation.state
     final = samples[-1]
     return {"scenario": "free_vibration", "elements": model.n_elements, "material": material(props),
             "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss,

@@ -23,7 +23,9 @@ from needle_sim_ros.model import (Gravity, Integrator, NeedleProperties, State, 
                                   reaction_wrench, solve_static)
 from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, tissue_readout
 
-from .common import (add_needle_arguments, checked_params_file, figure, integrate_sampled, material,
+from needle_sim_ros.simulation import NeedleSimulation
+
+from .common import (add_needle_arguments, advance_sampled, checked_params_file, figure, material,
                      needle_configuration, save_figure, shape_json, write_json)
 from .insertion_motion import InsertionMotion
 
@@ -66,20 +68,21 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
     model = build_model(props, **build)
     integrator = Integrator(model, **integrator_kwargs)
     tissue = build_tissue_forces(config, model)
-    forces = [Gravity(), *tissue]
     base = motion.base_at(0.0)
     moving = model.straight_state(base, 0.0)       # rigid translation with the base: the needle's velocities
     sagged = solve_static(model, base, forces=[Gravity()]).state
     state = State(sagged.q, moving.qd, np.zeros(model.n_dof), 0.0)     # start in equilibrium under gravity
+    simulation = NeedleSimulation.prescribed(model, integrator, dt, motion.base_at, state, tissue)
     n_steps = int(np.ceil(motion.duration / dt))
     series: dict[str, list] = {key: [] for key in (
         "time_s", "insertion_depth_m", "tip_lateral_deflection_m", "tip_position_m", "tip_offset_m", "tip_tangent",
         "roll_rad",
         "inserted_length_m", "base_force_n", "base_torque_nm", "tissue_tip_force_n", "tissue_axial_force_n")}
 
-    def record(state: State, base) -> None:
+    def record() -> None:
+        state, base = simulation.state, simulation.base
         tip, tip_gradient = state.q[-6:-3], state.q[-3:]
-        wrench = reaction_wrench(model, state, base, forces)
+        wrench = reaction_wrench(model, state, base, simulation.forces)
         readout = tissue_readout(tissue, model, state, base)
         values = (state.t, readout.insertion_depth, float(np.hypot(tip[1], tip[2])), tip.tolist(),
                   [float(tip[1]), float(tip[2])], (tip_gradient / np.linalg.norm(tip_gradient)).tolist(),
@@ -90,8 +93,8 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
             series[key].append(value)
 
     start = time.perf_counter()
-    state, integration_wall, _ = integrate_sampled(integrator, state, dt, n_steps, sample_every, motion.base_at,
-                                                   forces, record)
+    integration_wall, _ = advance_sampled(simulation, n_steps, sample_every, record)
+    state = simulation.state
     wall = time.perf_counter() - start
     winkler = np.asarray(config["tissue.layers.lateral_stiffness"], dtype=float)
     return {

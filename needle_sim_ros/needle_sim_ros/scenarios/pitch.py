@@ -17,7 +17,9 @@ import numpy as np
 from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, Integrator, build_model, centerline,
                                   reaction_wrench, solve_static)
 
-from .common import (add_needle_arguments, figure, integrate_sampled, material, needle_configuration, save_figure,
+from needle_sim_ros.simulation import NeedleSimulation
+
+from .common import (add_needle_arguments, advance_sampled, figure, material, needle_configuration, save_figure,
                      shape_json, wrench_json, write_json)
 
 
@@ -61,21 +63,20 @@ def simulate_pitch(props, build: dict, integrator_kwargs: dict, dt: float, ampli
     model = build_model(props, **build)
     integrator = Integrator(model, **integrator_kwargs)
     motion = pitch_motion(amplitude, frequency)
-    forces = [Gravity()]
-    base = motion(0.0)
-    state = solve_static(model, base, forces).state
+    state = solve_static(model, motion(0.0), [Gravity()]).state
+    simulation = NeedleSimulation.prescribed(model, integrator, dt, motion, state)
     n_steps = int(round(periods / frequency / dt))
     every = max(1, int(round(sample_interval / dt)))
     samples = []
 
-    def record(state, base) -> None:
+    def record() -> None:
+        state, base = simulation.state, simulation.base
         angle = amplitude * math.sin(2.0 * math.pi * frequency * state.t)
         samples.append({"t_s": state.t, "base_pitch_rad": angle, **shape_json(model, state.q, base, n_samples),
                         "centerline_world_m": centerline(model, state.q, n_samples).points.tolist(),
-                        "base_wrench": wrench_json(reaction_wrench(model, state, base, forces))})
+                        "base_wrench": wrench_json(reaction_wrench(model, state, base, simulation.forces))})
 
-    state, integration_wall, iterations = integrate_sampled(integrator, state, dt, n_steps, every, motion, forces,
-                                                            record)
+    integration_wall, iterations = advance_sampled(simulation, n_steps, every, record)
     final = samples[-1]
     return {"scenario": "pitch", "elements": model.n_elements, "material": material(props),
             "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss,

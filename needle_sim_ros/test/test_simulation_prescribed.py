@@ -1,0 +1,94 @@
+"""The simulator's one time loop driven by a prescribed base motion (scenarios, ground truth, benchmarks): the
+compiled sequence where it applies, agreement with stepping the general integrator by hand, failures raised, and
+the mesh of ``needle.element_lengths`` on the node's path."""
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from needle_sim_ros.experiments import EXPERIMENTS, TruthModel, run_ground_truth
+from needle_sim_ros.model import BaseMotion, ForceContribution, GeneralizedForce, Integrator, StepFailed, build_model
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters, simulation_from_parameters
+
+PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
+DT = 1e-3
+
+
+def pitching(t: float) -> BaseMotion:
+    """Base at the origin pitching 10 deg at 0.5 Hz about y (exact rate and acceleration)."""
+    omega, amplitude = 2.0 * math.pi * 0.5, math.radians(10.0)
+    angle = amplitude * math.sin(omega * t)
+    return BaseMotion((0.0, 0.0, 0.0), (0.0, math.sin(0.5 * angle), 0.0, math.cos(0.5 * angle)),
+                      angular_velocity=(0.0, amplitude * omega * math.cos(omega * t), 0.0),
+                      angular_acceleration=(0.0, -amplitude * omega ** 2 * math.sin(omega * t), 0.0))
+
+
+class PoisonedAfter(ForceContribution):
+    """No force until t_bad, NaN after it."""
+
+    state_dependent, time_invariant, stateful = True, False, False
+
+    def __init__(self, t_bad: float) -> None:
+        self.t_bad = t_bad
+
+    def evaluate(self, model, q, qd, t, base):
+        return GeneralizedForce(np.full(model.n_dof, np.nan if t > self.t_bad else 0.0))
+
+
+def test_a_prescribed_simulation_runs_the_compiled_sequence_and_agrees_with_the_general_step():
+    model = build_model(TruthModel().props, n_elements=10)
+    integrator = Integrator(model, newton_tol=1e-9)
+    runs = []
+    original = integrator.step_sequence
+    integrator.step_sequence = lambda *args, **kwargs: runs.append(1) or original(*args, **kwargs)
+    start = model.straight_state(pitching(0.0), 0.0)
+    simulation = NeedleSimulation.prescribed(model, integrator, DT, pitching, start)
+    records = [record for t in (0.05, 0.1, 0.15, 0.2) for record in simulation.advance_to(t)]
+    assert len(records) == 200 and runs and simulation.statistics.failed_steps == 0
+    np.testing.assert_allclose([r.t for r in records], DT * np.arange(1, 201), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(simulation.base.orientation, pitching(0.2).orientation)
+    reference, state = Integrator(model, newton_tol=1e-9), start
+    gravity = simulation.forces
+    for k in range(1, 201):
+        state = reference.step(state, DT, pitching(k * DT), gravity).state
+    np.testing.assert_allclose(simulation.state.q, state.q, rtol=0, atol=1e-9 * model.props.length)
+
+
+def test_a_prescribed_simulation_raises_a_failed_step_with_the_last_accepted_state():
+    model = build_model(TruthModel().props, n_elements=6)
+    start = model.straight_state(pitching(0.0), 0.0)
+    simulation = NeedleSimulation.prescribed(model, Integrator(model), DT, pitching, start,
+                                             extra_forces=[PoisonedAfter(0.0105)])
+    with pytest.raises(StepFailed):
+        simulation.advance_to(0.05)
+    assert simulation.statistics.failed_steps == 1
+    assert simulation.state.t == pytest.approx(0.010) and np.isfinite(simulation.state.q).all()
+
+
+def test_the_node_path_builds_the_mesh_of_element_lengths():
+    lengths = [0.03, 0.03, 0.05, 0.05, 0.06, 0.05]  # a node at 0.16 m: the clamp below starts there
+    p = {**PARAMETERS, "needle.element_lengths": lengths, "fixtures.clamp_interval": [0.16, 0.27]}
+    model, _ = model_builder_from_parameters(p)(())
+    np.testing.assert_allclose(model.element_lengths, lengths)
+    assert model_builder_from_parameters({**PARAMETERS, "needle.element_lengths": []})(())[0].n_elements == \
+        PARAMETERS["needle.elements"]
+    simulation = simulation_from_parameters(p)
+    for k in range(21):
+        simulation.offer_pose(k * DT, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+    simulation.advance(20 * DT, deterministic=True)
+    assert simulation.statistics.failed_steps == 0 and simulation.statistics.steps == 20
+    np.testing.assert_allclose(simulation.model.element_lengths, lengths)
+    assert simulation.model.fixtures[0].interval == (0.16, 0.27)
+
+
+def test_the_ground_truth_runs_in_the_time_loop_and_hangs_on_its_holder_with_its_weight():
+    experiment = dataclasses.replace(EXPERIMENTS["static_tip_load"](), duration=0.2)
+    truth = TruthModel(n_elements=10, dt=DT)
+    samples = run_ground_truth(experiment, truth, shape_times=[0.0, 0.1, 0.2], wrench_rate=50.0, shape_samples=11)
+    np.testing.assert_allclose(samples.wrench_times, 0.02 * np.arange(1, 11), atol=1e-12)
+    props = truth.props
+    weight = props.mass_per_length * props.length * np.asarray(props.gravity)
+    np.testing.assert_allclose(samples.force_base, np.tile(weight, (10, 1)), atol=1e-3 * np.linalg.norm(weight))
+    np.testing.assert_allclose(samples.shapes[-1].points, samples.shapes[0].points, atol=1e-6)
