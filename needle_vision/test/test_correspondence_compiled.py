@@ -6,7 +6,7 @@ import pytest
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.detection.centerline import GAP_PX, extract_centerline
 from needle_vision.detection.curves import arc_length, derivative, interpolate, moving_average
-from needle_vision.matching.correspondence import MatchingConfig, _common_ends, _warp, match_centerlines
+from needle_vision.matching.correspondence import MatchingConfig, _warp, match_centerlines
 from needle_vision.matching.reconstruction import _ends_inside
 
 
@@ -31,6 +31,26 @@ def _in_gaps(t, curve_t):
     for k in np.flatnonzero(np.diff(curve_t) > GAP_PX):
         inside |= (t > curve_t[k]) & (t < curve_t[k + 1])
     return inside
+
+
+def _common_ends(left, right, e, min_sin, tolerance):
+    curves = [left, right]
+    for end in (0, 1):
+        flipped = [curve[::-1] if end == 0 else curve for curve in curves]
+        tangents = [curve[-1] - curve[-6] for curve in flipped]
+        tangents = [tangent / max(np.linalg.norm(tangent), 1e-12) for tangent in tangents]
+        ends_e = [curve[-1, e] for curve in flipped]
+        if min(abs(tangent[e]) for tangent in tangents) < min_sin or abs(ends_e[0] - ends_e[1]) > tolerance:
+            continue
+        moved = []
+        for curve, tangent, end_e in zip(flipped, tangents, ends_e):
+            shift = (0.5 * sum(ends_e) - end_e) / tangent[e]
+            inside = (curve[:-1] - curve[-1]) @ tangent < shift - 0.25
+            inside[:-int(np.ceil(abs(shift))) - 2] = True
+            curve = np.vstack([curve[:-1][inside], curve[-1] + shift * tangent])
+            moved.append(curve[::-1] if end == 0 else curve)
+        curves = moved
+    return curves[0], curves[1]
 
 
 def numpy_match(left, right, e, config, ends_visible):

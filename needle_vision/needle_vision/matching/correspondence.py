@@ -180,29 +180,42 @@ def _match_arcs(s, e_left, t, e_right, t0, min_sin, step_limit, max_error, ends_
     return t_match, anchored, sin_angle, keep
 
 
-def _common_ends(left: np.ndarray, right: np.ndarray, e: int, min_sin: float, tolerance: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+@numba.njit(cache=True, nogil=True)
+def _end_last(curve, end):  # pragma: no cover - compiled
+    """``curve`` with its ``end`` (0: first point, 1: last) last, contiguous."""
+    return np.ascontiguousarray(curve[::-1]) if end == 0 else curve
+
+
+@numba.njit(cache=True, nogil=True)
+def _common_ends(left, right, e, min_sin, tolerance):  # pragma: no cover - compiled
     """Both curves (same direction) with each pair of corresponding ends moved to their mean epipolar
     coordinate: a needle end is one 3D point, on one epipolar line in both images. Each end moves along its
     curve's end tangent (trimmed or extended by at most ``tolerance / min_sin`` px); ends whose tangents run
     within asin(min_sin) of the epipolar lines, or that are more than ``tolerance`` px apart, stay."""
-    curves = [left, right]
-    for end in (0, 1):
-        flipped = [curve[::-1] if end == 0 else curve for curve in curves]  # this end last
-        tangents = [curve[-1] - curve[-6] for curve in flipped]
-        tangents = [tangent / max(np.linalg.norm(tangent), 1e-12) for tangent in tangents]
-        ends_e = [curve[-1, e] for curve in flipped]
-        if min(abs(tangent[e]) for tangent in tangents) < min_sin or abs(ends_e[0] - ends_e[1]) > tolerance:
+    for end in range(2):
+        curves = (_end_last(left, end), _end_last(right, end))  # this end last
+        tangents = []
+        for curve in curves:
+            tangent = curve[-1] - curve[-6]
+            tangents.append(tangent / max(np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1]), 1e-12))
+        ends_e = (curves[0][-1, e], curves[1][-1, e])
+        if min(abs(tangents[0][e]), abs(tangents[1][e])) < min_sin or abs(ends_e[0] - ends_e[1]) > tolerance:
             continue
         moved = []
-        for curve, tangent, end_e in zip(flipped, tangents, ends_e):
-            shift = (0.5 * sum(ends_e) - end_e) / tangent[e]  # [px] along the tangent, outward positive
-            inside = (curve[:-1] - curve[-1]) @ tangent < shift - 0.25
-            inside[:-int(np.ceil(abs(shift))) - 2] = True  # only the last points can lie beyond the new end
-            curve = np.vstack([curve[:-1][inside], curve[-1] + shift * tangent])
-            moved.append(curve[::-1] if end == 0 else curve)
-        curves = moved
-    return curves[0], curves[1]
+        for k in range(2):
+            curve, tangent = curves[k], tangents[k]
+            shift = (0.5 * (ends_e[0] + ends_e[1]) - ends_e[k]) / tangent[e]  # [px] along the tangent, outward +
+            n = curve.shape[0]
+            inside = np.ones(n - 1, np.bool_)  # only the last points can lie beyond the new end
+            for i in range(max(n - 1 - int(np.ceil(abs(shift))) - 2, 0), n - 1):
+                inside[i] = ((curve[i, 0] - curve[-1, 0]) * tangent[0]
+                             + (curve[i, 1] - curve[-1, 1]) * tangent[1]) < shift - 0.25
+            out = np.empty((np.count_nonzero(inside) + 1, 2))
+            out[:-1] = curve[:-1][inside]
+            out[-1] = curve[-1] + shift * tangent
+            moved.append(_end_last(out, end))
+        left, right = moved[0], moved[1]
+    return left, right
 
 
 def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
