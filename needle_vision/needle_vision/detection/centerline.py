@@ -459,6 +459,15 @@ def _scatter(points, first, count):  # pragma: no cover - compiled
     return np.median(residual), np.interp(np.arange(n) * 1.0, np.arange(first, first + count) * 1.0, local)
 
 
+@numba.njit(cache=True, nogil=True)
+def _erase_label(mask, labels, label):  # pragma: no cover - compiled
+    """Zero ``mask`` where ``labels`` equals ``label`` (in place)."""
+    for y in range(mask.shape[0]):
+        for x in range(mask.shape[1]):
+            if labels[y, x] == label:
+                mask[y, x] = 0
+
+
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
     """The longest geodesic path of the largest linked component of ``mask``, then of the next largest ones
     (up to ``count``, at least ``min_length`` coarse pixels long)."""
@@ -470,7 +479,7 @@ def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count:
         if len(path) < 2 or (paths and len(path) < min_length):
             break
         paths.append(path)
-        mask[labels == labels[path[0, 1], path[0, 0]]] = 0
+        _erase_label(mask, labels, labels[path[0, 1], path[0, 0]])
     return paths
 
 
