@@ -146,9 +146,11 @@ def write_inputs(root: Path, rig, pairs: list[tuple[np.ndarray, np.ndarray]]) ->
     return inputs
 
 
-def throughput(rig, scene, imaging, quick: bool) -> None:
+def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: tuple[int, ...] = (1, 2, 4)
+               ) -> None:
     """needle_stereo_offline end to end (decoding, background, measurement, CSV) on the same pairs per input; with
-    --workers >= 2 pairs are also measured concurrently (the CSV is the same)."""
+    --workers >= 2 pairs are also measured concurrently (the CSV is the same). ``only``: inputs whose name
+    contains it; ``worker_counts``: the --workers values."""
     count = 60 if quick else 200
     background = [render_background_pair(rig, np.random.default_rng(2000 + k), scene=scene, imaging=imaging)
                   for k in range(10)]
@@ -178,7 +180,9 @@ def throughput(rig, scene, imaging, quick: bool) -> None:
               "| pairs/s (best / median) | CPU [ms/pair] | decoding only [pairs/s] |")
         print("|---|---|---|---|---|---|")
         for name, arguments in inputs.items():
-            for workers in (1, 2, 4):
+            if only not in name:
+                continue
+            for workers in worker_counts:
                 walls, cpus = [], []
                 for _ in range(3):
                     cpu, start = time.process_time(), time.perf_counter()
@@ -209,12 +213,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer repetitions and calibration seeds")
     parser.add_argument("--only-throughput", action="store_true", help="only the end-to-end table")
+    parser.add_argument("--inputs", default="", help="end to end: only the inputs whose name contains this")
+    parser.add_argument("--workers", default="1,2,4", help="end to end: comma-separated --workers values")
     arguments = parser.parse_args()
+    try:
+        worker_counts = tuple(int(value) for value in arguments.workers.split(","))
+    except ValueError:
+        parser.exit(2, f"bench_vision.py: error: --workers must be integers separated by commas, got "
+                       f"{arguments.workers!r}\n")
     repetitions, seeds = (50, 2) if arguments.quick else (300, 6)
     rig = default_rig()
     scene = make_scene(rig, np.random.default_rng(0))
     imaging = Imaging()
-    throughput(rig, scene, imaging, arguments.quick)
+    throughput(rig, scene, imaging, arguments.quick, arguments.inputs, worker_counts)
     if arguments.only_throughput:
         return
     cv2.setNumThreads(1)  # one core

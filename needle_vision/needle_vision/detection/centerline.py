@@ -24,7 +24,7 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from needle_vision.detection.background import BackgroundModel, downsample
-from needle_vision.detection.curves import arc_length, moving_average
+from needle_vision.detection.curves import arc_length, median, moving_average, step_lengths
 
 
 #: [points] window of the running median that gives each centerline point's local scatter.
@@ -439,6 +439,35 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     return kept, out
 
 
+@numba.njit(cache=True, nogil=True)
+def _scatter(points, first, count):  # pragma: no cover - compiled
+    """Robust scatter [px] across the curve of the ``count`` slice centroids from ``first`` on (residuals to a
+    9-point moving average): the median, and the running median over ``NOISE_WINDOW`` points interpolated to
+    all points (the first and last full windows' at the ends); 0 for 9 points or fewer."""
+    n = points.shape[0]
+    if count <= 9:
+        return 0.0, np.zeros(n)
+    smooth = moving_average(points, 9)
+    residual = np.empty(count)
+    for k in range(count):
+        dx, dy = points[first + k, 0] - smooth[first + k, 0], points[first + k, 1] - smooth[first + k, 1]
+        residual[k] = np.sqrt(dx * dx + dy * dy) * 1.4826 * np.sqrt(9 / 8)
+    window = min(NOISE_WINDOW, count)
+    local = _running_median(residual, window, False)
+    local[:window // 2] = np.median(residual[:window])
+    local[count - window // 2:] = np.median(residual[count - window:])
+    return np.median(residual), np.interp(np.arange(n) * 1.0, np.arange(first, first + count) * 1.0, local)
+
+
+@numba.njit(cache=True, nogil=True)
+def _erase_label(mask, labels, label):  # pragma: no cover - compiled
+    """Zero ``mask`` where ``labels`` equals ``label`` (in place)."""
+    for y in range(mask.shape[0]):
+        for x in range(mask.shape[1]):
+            if labels[y, x] == label:
+                mask[y, x] = 0
+
+
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
     """The longest geodesic path of the largest linked component of ``mask``, then of the next largest ones
     (up to ``count``, at least ``min_length`` coarse pixels long)."""
@@ -450,7 +479,7 @@ def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count:
         if len(path) < 2 or (paths and len(path) < min_length):
             break
         paths.append(path)
-        mask[labels == labels[path[0, 1], path[0, 0]]] = 0
+        _erase_label(mask, labels, labels[path[0, 1], path[0, 0]])
     return paths
 
 
@@ -539,9 +568,9 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     # followed; the floor keeps gaps and background texture out). Beyond them, the partly covered slices at the
     # tips are dropped as before.
     width_contrast = contrast * obliquity
-    median = np.median(width_contrast[strong])
-    keep = (width_contrast >= config.min_contrast_fraction * median) & (np.abs(centroid - predicted) <= wide)
-    full = keep & (width_contrast >= config.min_profile_fraction * median)
+    level = median(width_contrast[strong])
+    keep = (width_contrast >= config.min_contrast_fraction * level) & (np.abs(centroid - predicted) <= wide)
+    full = keep & (width_contrast >= config.min_profile_fraction * level)
     ends = np.flatnonzero(full)
     if len(ends) < 3:
         raise NoNeedleError("the needle's slices have no contrast")
@@ -552,7 +581,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
     # At a hidden stretch the slices may be cut by the occluder's edge (centroid biased): drop those next to it.
     kept = np.flatnonzero(keep)
-    edges = np.flatnonzero(np.linalg.norm(np.diff(points[kept], axis=0), axis=1) > GAP_PX)
+    edges = np.flatnonzero(step_lengths(points[kept]) > GAP_PX)
     for edge in edges:
         keep[kept[max(edge - config.profile_half_width, 0):edge + config.profile_half_width + 2]] = False
     kept = np.flatnonzero(keep)
@@ -572,15 +601,5 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
     # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
-    sliced = np.arange(len(head), len(head) + hi - lo)
-    residual = np.linalg.norm(points - moving_average(points, 9), axis=1)[sliced] * 1.4826 * np.sqrt(9 / 8)
-    if len(sliced) > 9:
-        noise = float(np.median(residual))
-        window = min(NOISE_WINDOW, len(sliced))
-        local = _median_filter(residual, window, "nearest")
-        local[:window // 2] = np.median(residual[:window])  # the first and last full windows' at the ends
-        local[len(local) - window // 2:] = np.median(residual[-window:])
-        local = np.interp(np.arange(len(points)), sliced, local)
-    else:
-        noise, local = 0.0, np.zeros(len(points))
+    noise, local = _scatter(points, len(head), hi - lo)
     return ImageCenterline(points, contrast_kept, noise, local)

@@ -21,6 +21,25 @@ def arc_length(points):  # pragma: no cover - compiled
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def step_lengths(points):  # pragma: no cover - compiled
+    """Distances between consecutive points of ``(n, d)`` points: ``(n - 1,)``."""
+    n, d = points.shape
+    out = np.empty(max(n - 1, 0))
+    for k in range(1, n):
+        step = 0.0
+        for j in range(d):
+            step += (points[k, j] - points[k - 1, j]) * (points[k, j] - points[k - 1, j])
+        out[k - 1] = np.sqrt(step)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def median(values):  # pragma: no cover - compiled
+    """np.median of ``(n,)`` values, compiled (releases the GIL, none of NumPy's per-call overhead)."""
+    return np.median(values)
+
+
 def derivative(values: np.ndarray, parameter: np.ndarray) -> np.ndarray:
     """d values / d parameter of samples ``(n,)`` or ``(n, d)`` at increasing ``parameter (n,)`` (central
     differences, one-sided at the ends)."""

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 
 from needle_vision.detection.centerline import GAP_PX
-from needle_vision.detection.curves import arc_length, derivative, interpolate, moving_average
+from needle_vision.detection.curves import arc_length, interpolate, moving_average
 
 
 class MatchError(ValueError):
@@ -80,58 +80,142 @@ def _warp(e_left, e_right, prior_left, prior_right, prior_weight):  # pragma: no
     return sums / counts, total[n, m] / steps
 
 
-def _coarse_map(s: np.ndarray, e_left: np.ndarray, t: np.ndarray, e_right: np.ndarray,
-                config: MatchingConfig) -> tuple[np.ndarray, float]:
-    """Dense initial ``t(s)`` from warping profiles resampled every ``dtw_spacing_px``; and its mean cost."""
-    spacing = config.dtw_spacing_px
-    s_coarse = np.linspace(0, s[-1], max(int(s[-1] / spacing), 2))
-    t_coarse = np.linspace(0, t[-1], max(int(t[-1] / spacing), 2))
+@numba.njit(cache=True, nogil=True)
+def _coarse_map(s, e_left, t, e_right, spacing, continuity_weight):  # pragma: no cover - compiled
+    """Dense initial ``t(s)`` from warping profiles resampled every ``spacing`` px; and its mean cost."""
+    s_coarse = np.linspace(0.0, s[-1], max(int(s[-1] / spacing), 2))
+    t_coarse = np.linspace(0.0, t[-1], max(int(t[-1] / spacing), 2))
     scale = 0.5 * (s[-1] + t[-1])
     index, cost = _warp(np.interp(s_coarse, s, e_left), np.interp(t_coarse, t, e_right),
-                        s_coarse / s[-1] * scale, t_coarse / t[-1] * scale, config.continuity_weight)
-    return np.interp(s, s_coarse, np.interp(index, np.arange(len(t_coarse)), t_coarse)), cost
+                        s_coarse / s[-1] * scale, t_coarse / t[-1] * scale, continuity_weight)
+    return np.interp(s, s_coarse, np.interp(index, np.arange(t_coarse.shape[0]) * 1.0, t_coarse)), cost
 
 
-def _smooth_runs(points: np.ndarray, window: int) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _smooth_runs(points, window):  # pragma: no cover - compiled
     """Moving average of each run of points between gaps (steps > GAP_PX): never across a hidden stretch."""
-    points = np.asarray(points, float)
-    cuts = np.flatnonzero(np.linalg.norm(np.diff(points, axis=0), axis=1) > GAP_PX) + 1
-    return np.vstack([moving_average(run, window) for run in np.split(points, cuts)])
+    out = np.empty_like(points)
+    first = 0
+    for k in range(1, points.shape[0] + 1):
+        if k == points.shape[0] or np.sqrt(np.sum((points[k] - points[k - 1]) ** 2)) > GAP_PX:
+            out[first:k] = moving_average(points[first:k], window)
+            first = k
+    return out
 
 
-def _in_gaps(t: np.ndarray, curve_t: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _in_gaps(t, curve_t):  # pragma: no cover - compiled
     """Whether each arc length ``t`` falls inside a gap (a step > GAP_PX) of the curve with arc lengths
     ``curve_t``: no point of that curve was seen there."""
-    steps = np.flatnonzero(np.diff(curve_t) > GAP_PX)
-    inside = np.zeros(len(t), bool)
-    for k in steps:
-        inside |= (t > curve_t[k]) & (t < curve_t[k + 1])
+    inside = np.zeros(t.shape[0], np.bool_)
+    for k in range(curve_t.shape[0] - 1):
+        if curve_t[k + 1] - curve_t[k] > GAP_PX:
+            for i in range(t.shape[0]):
+                inside[i] |= curve_t[k] < t[i] < curve_t[k + 1]
     return inside
 
 
-def _common_ends(left: np.ndarray, right: np.ndarray, e: int, min_sin: float, tolerance: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+@numba.njit(cache=True, nogil=True)
+def _derivative(values, parameter):  # pragma: no cover - compiled
+    """d values / d parameter of ``(n,)`` samples (central differences, one-sided at the ends)."""
+    n = values.shape[0]
+    out = np.empty(n)
+    for k in range(1, n - 1):
+        out[k] = (values[k + 1] - values[k - 1]) / (parameter[k + 1] - parameter[k - 1])
+    out[0] = (values[1] - values[0]) / (parameter[1] - parameter[0])
+    out[n - 1] = (values[n - 1] - values[n - 2]) / (parameter[n - 1] - parameter[n - 2])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _match_arcs(s, e_left, t, e_right, t0, min_sin, step_limit, max_error, ends_visible):  # pragma: no cover
+    """Steps 2 and 3 of the module docstring on the arc lengths ``s``, ``t`` and epipolar profiles of two
+    oriented curves, from the warping's ``t0(s)``. Returns (t_match, anchored, sin_angle, keep); anchored
+    has fewer than 2 entries set when there is no anchor pair (then nothing else is meaningful)."""
+    n = s.shape[0]
+    slope_right = _derivative(e_right, t)
+    sin_angle = np.minimum(np.abs(_derivative(e_left, s)), np.abs(np.interp(t0, t, slope_right)))
+    anchored = sin_angle >= min_sin
+    # Sub-pixel: Newton steps on e_right(t) = e_left(s) at the anchors, staying near the warping's guess.
+    t_match = t0.copy()
+    low, high = np.maximum(t0 - step_limit, 0.0), np.minimum(t0 + step_limit, t[-1])
+    for _ in range(4):
+        slope = np.interp(t_match, t, slope_right)
+        at = np.interp(t_match, t, e_right)
+        for k in range(n):
+            update = (e_left[k] - at[k]) / slope[k] if anchored[k] and abs(slope[k]) >= 0.5 * min_sin else 0.0
+            t_match[k] = min(max(t_match[k] + update, low[k]), high[k])
+    residual = e_left - np.interp(t_match, t, e_right)
+    gaps = _in_gaps(t_match, t)
+    anchored &= (np.abs(residual) <= max_error) & (t_match > 0) & (t_match < t[-1]) & ~gaps
+    # Keep the anchors in order: drop those behind the running maximum (noise at near-parallel stretches).
+    highest = -np.inf
+    for k in range(n):
+        if anchored[k]:
+            highest = max(highest, t_match[k])
+            anchored[k] = t_match[k] >= highest - 0.5
+    if ends_visible:
+        for end, other_end, other_e in ((0, 0.0, e_right[0]), (n - 1, t[-1], e_right[-1])):
+            if abs(e_left[end] - other_e) <= 2 * max_error:
+                anchored[end], t_match[end] = True, other_end
+    index = np.flatnonzero(anchored)
+    if index.size < 2:
+        return t_match, anchored, sin_angle, anchored
+    # Continuity between anchors, local-ratio extrapolation beyond them.
+    between = np.interp(s, s[index], t_match[index])
+    for k in range(n):
+        if not anchored[k]:
+            t_match[k] = between[k]
+    for reference, nearby, before in ((index[0], index[:10], True), (index[-1], index[-10:], False)):
+        spread = s[nearby] - np.mean(s[nearby])
+        ratio = np.dot(spread, t_match[nearby]) / np.dot(spread, spread) if np.ptp(s[nearby]) > 0 else t[-1] / s[-1]
+        for k in range(n):
+            if (s[k] < s[reference]) if before else (s[k] > s[reference]):
+                t_match[k] = t_match[reference] + ratio * (s[k] - s[reference])
+    # Points placed by continuity must still (nearly) satisfy the epipolar constraint, and none is matched
+    # into a gap of the right curve: a stretch missing in one image (occlusion) is not bridged.
+    residual = e_left - np.interp(t_match, t, e_right)
+    keep = (t_match >= 0) & (t_match <= t[-1]) & (anchored | (np.abs(residual) <= 2 * max_error))
+    keep &= ~_in_gaps(t_match, t)
+    return t_match, anchored, sin_angle, keep
+
+
+@numba.njit(cache=True, nogil=True)
+def _end_last(curve, end):  # pragma: no cover - compiled
+    """``curve`` with its ``end`` (0: first point, 1: last) last, contiguous."""
+    return np.ascontiguousarray(curve[::-1]) if end == 0 else curve
+
+
+@numba.njit(cache=True, nogil=True)
+def _common_ends(left, right, e, min_sin, tolerance):  # pragma: no cover - compiled
     """Both curves (same direction) with each pair of corresponding ends moved to their mean epipolar
     coordinate: a needle end is one 3D point, on one epipolar line in both images. Each end moves along its
     curve's end tangent (trimmed or extended by at most ``tolerance / min_sin`` px); ends whose tangents run
     within asin(min_sin) of the epipolar lines, or that are more than ``tolerance`` px apart, stay."""
-    curves = [left, right]
-    for end in (0, 1):
-        flipped = [curve[::-1] if end == 0 else curve for curve in curves]  # this end last
-        tangents = [curve[-1] - curve[-6] for curve in flipped]
-        tangents = [tangent / max(np.linalg.norm(tangent), 1e-12) for tangent in tangents]
-        ends_e = [curve[-1, e] for curve in flipped]
-        if min(abs(tangent[e]) for tangent in tangents) < min_sin or abs(ends_e[0] - ends_e[1]) > tolerance:
+    for end in range(2):
+        curves = (_end_last(left, end), _end_last(right, end))  # this end last
+        tangents = []
+        for curve in curves:
+            tangent = curve[-1] - curve[-6]
+            tangents.append(tangent / max(np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1]), 1e-12))
+        ends_e = (curves[0][-1, e], curves[1][-1, e])
+        if min(abs(tangents[0][e]), abs(tangents[1][e])) < min_sin or abs(ends_e[0] - ends_e[1]) > tolerance:
             continue
         moved = []
-        for curve, tangent, end_e in zip(flipped, tangents, ends_e):
-            shift = (0.5 * sum(ends_e) - end_e) / tangent[e]  # [px] along the tangent, outward positive
-            inside = (curve[:-1] - curve[-1]) @ tangent < shift - 0.25
-            inside[:-int(np.ceil(abs(shift))) - 2] = True  # only the last points can lie beyond the new end
-            curve = np.vstack([curve[:-1][inside], curve[-1] + shift * tangent])
-            moved.append(curve[::-1] if end == 0 else curve)
-        curves = moved
-    return curves[0], curves[1]
+        for k in range(2):
+            curve, tangent = curves[k], tangents[k]
+            shift = (0.5 * (ends_e[0] + ends_e[1]) - ends_e[k]) / tangent[e]  # [px] along the tangent, outward +
+            n = curve.shape[0]
+            inside = np.ones(n - 1, np.bool_)  # only the last points can lie beyond the new end
+            for i in range(max(n - 1 - int(np.ceil(abs(shift))) - 2, 0), n - 1):
+                inside[i] = ((curve[i, 0] - curve[-1, 0]) * tangent[0]
+                             + (curve[i, 1] - curve[-1, 1]) * tangent[1]) < shift - 0.25
+            out = np.empty((np.count_nonzero(inside) + 1, 2))
+            out[:-1] = curve[:-1][inside]
+            out[-1] = curve[-1] + shift * tangent
+            moved.append(_end_last(out, end))
+        left, right = moved[0], moved[1]
+    return left, right
 
 
 def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
@@ -144,7 +228,8 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
     stretch runs along the lines (no anchor there)."""
     if len(left) < 5 or len(right) < 5:
         raise MatchError("a centerline has fewer than 5 points")
-    left, right = _smooth_runs(left, 5), _smooth_runs(right, 5)
+    left = _smooth_runs(np.ascontiguousarray(left, dtype=float), 5)
+    right = _smooth_runs(np.ascontiguousarray(right, dtype=float), 5)
     e = epipolar_axis
     s = arc_length(left)
     # Direction of the right curve: from the ends' epipolar coordinates when they tell clearly, else by warping
@@ -155,58 +240,26 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
         directions = [right if same < swapped else right[::-1]]
     else:
         directions = [right, right[::-1]]
+    spacing, weight = config.dtw_spacing_px, config.continuity_weight
+    e_left = np.ascontiguousarray(left[:, e])
     candidates = []
     for oriented in directions:
+        oriented = np.ascontiguousarray(oriented)
         t = arc_length(oriented)
-        t0, cost = _coarse_map(s, left[:, e], t, oriented[:, e], config)
+        t0, cost = _coarse_map(s, e_left, t, np.ascontiguousarray(oriented[:, e]), spacing, weight)
         candidates.append((cost, oriented, t, t0))
     _, right, t, t0 = min(candidates, key=lambda candidate: candidate[0])
     min_sin = np.sin(np.radians(config.min_epipolar_angle_deg))
     if ends_visible:
         left, right = _common_ends(left, right, e, min_sin, 2 * config.max_epipolar_error_px)
         s, t = arc_length(left), arc_length(right)
-        t0, _ = _coarse_map(s, left[:, e], t, right[:, e], config)
-
-    slope_left = derivative(left[:, e], s)
-    slope_right = derivative(right[:, e], t)
-    sin_angle = np.minimum(np.abs(slope_left), np.abs(np.interp(t0, t, slope_right)))
-    anchored = sin_angle >= min_sin
-    # Sub-pixel: Newton steps on e_right(t) = e_left(s) at the anchors, staying near the warping's guess.
-    t_match = t0.copy()
-    step_limit = 2 * config.dtw_spacing_px / min_sin
-    for _ in range(4):
-        slope = np.interp(t_match, t, slope_right)
-        update = np.where(anchored & (np.abs(slope) >= 0.5 * min_sin),
-                          (left[:, e] - np.interp(t_match, t, right[:, e])) / np.where(slope == 0, 1, slope), 0)
-        t_match = np.clip(t_match + update, np.maximum(t0 - step_limit, 0), np.minimum(t0 + step_limit, t[-1]))
-    residual = left[:, e] - np.interp(t_match, t, right[:, e])
-    anchored &= np.abs(residual) <= config.max_epipolar_error_px
-    anchored &= (t_match > 0) & (t_match < t[-1]) & ~_in_gaps(t_match, t)  # clamped at an end or in a gap: no match
-    # Keep the anchors in order: drop those behind the running maximum (noise at near-parallel stretches).
-    index = np.flatnonzero(anchored)
-    if index.size:
-        ordered = t_match[index] >= np.maximum.accumulate(t_match[index]) - 0.5
-        anchored[index[~ordered]] = False
-        index = index[ordered]
-    if ends_visible:
-        for end, other_end in ((0, 0.0), (len(s) - 1, t[-1])):
-            if abs(left[end, e] - (right[0, e] if end == 0 else right[-1, e])) <= 2 * config.max_epipolar_error_px:
-                anchored[end], t_match[end] = True, other_end
-        index = np.flatnonzero(anchored)
-    if index.size < 2:
+        e_left = np.ascontiguousarray(left[:, e])
+        t0, _ = _coarse_map(s, e_left, t, np.ascontiguousarray(right[:, e]), spacing, weight)
+    t_match, anchored, sin_angle, keep = _match_arcs(
+        s, e_left, t, np.ascontiguousarray(right[:, e]), t0, min_sin, 2 * config.dtw_spacing_px / min_sin,
+        config.max_epipolar_error_px, ends_visible)
+    if np.count_nonzero(anchored) < 2:
         raise MatchError("no stretch of the needle crosses the epipolar lines in both images "
                          f"(by >= {config.min_epipolar_angle_deg:g} deg): depth is unobservable")
-    # Continuity between anchors, local-ratio extrapolation beyond them.
-    t_match = np.where(anchored, t_match, np.interp(s, s[index], t_match[index]))
-    for reference, nearby, outside in ((index[0], index[:10], s < s[index[0]]),
-                                       (index[-1], index[-10:], s > s[index[-1]])):
-        spread = s[nearby] - s[nearby].mean()
-        ratio = spread @ t_match[nearby] / (spread @ spread) if np.ptp(s[nearby]) > 0 else t[-1] / s[-1]
-        t_match[outside] = t_match[reference] + ratio * (s[outside] - s[reference])
-    # Points placed by continuity must still (nearly) satisfy the epipolar constraint, and none is matched
-    # into a gap of the right curve: a stretch missing in one image (occlusion) is not bridged.
-    residual = left[:, e] - np.interp(t_match, t, right[:, e])
-    keep = (t_match >= 0) & (t_match <= t[-1]) & (anchored | (np.abs(residual) <= 2 * config.max_epipolar_error_px))
-    keep &= ~_in_gaps(t_match, t)
     matched_right = interpolate(t, right, t_match[keep])
     return Correspondence(left[keep], matched_right, anchored[keep], sin_angle[keep])

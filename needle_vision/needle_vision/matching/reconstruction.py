@@ -16,8 +16,8 @@ import numpy as np
 
 from needle_vision.detection.centerline import ImageCenterline
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
-from needle_vision.detection.curves import (arc_length, derivative, interpolate, local_polynomial_smooth,
-                                            smoothing_noise_gain)
+from needle_vision.detection.curves import (arc_length, derivative, interpolate, local_polynomial_smooth, median,
+                                            smoothing_noise_gain, step_lengths)
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.transform import RigidTransform
 
@@ -107,7 +107,7 @@ def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np
 
 def _runs(points: np.ndarray, split: float) -> list[slice]:
     """The runs of consecutive points not separated by a step longer than ``split`` (a hidden stretch)."""
-    cuts = np.flatnonzero(np.linalg.norm(np.diff(points, axis=0), axis=1) > split) + 1
+    cuts = np.flatnonzero(step_lengths(points) > split) + 1
     bounds = np.concatenate([[0], cuts, [len(points)]])
     return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
 
@@ -130,7 +130,7 @@ def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: in
         if len(index) <= w:
             break
         distance = np.linalg.norm(points[index] - local_polynomial_smooth(points[index], w, 2), axis=1)
-        limit = max(config.outlier_sigma * 1.4826 * np.median(distance), config.outlier_floor)
+        limit = max(config.outlier_sigma * 1.4826 * median(distance), config.outlier_floor)
         outliers = distance > limit
         if not outliers.any():
             break
@@ -187,7 +187,7 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     # Hidden stretches (no point over half the smoothing length) split the points into runs, each cleaned and
     # smoothed on its own; runs too short for the cubic fit are dropped.
     split = 0.5 * config.smoothing_length
-    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    steps = step_lengths(points)
     spacing = float(np.mean(steps[steps <= split])) if np.any(steps <= split) else split
     window = _odd_window(config.smoothing_length, spacing, len(points))
     inliers = np.zeros(len(points), bool)
