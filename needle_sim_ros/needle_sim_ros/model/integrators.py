@@ -35,7 +35,7 @@ from .newton import (CONVERGED, NewtonSolver, assemble_system, keeps_extrapolati
 from .banded import ELEMENT_BANDWIDTH, band_cholesky, cholesky_solve
 from .forces import check_forces
 from .partition import hermite_quintic
-from .sequence import EXTRAPOLATE, SequenceBuffers, integrate_sequence
+from .sequence import EXTRAPOLATE, FACTORED, SequenceBuffers, integrate_sequence
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
 
@@ -56,9 +56,10 @@ class SequenceResult(NamedTuple):
 
 class IntegratorMemory(NamedTuple):
     """What an integrator carries from one step to the next: whether Newton starts from the extrapolating
-    predictor (:meth:`Integrator.snapshot`)."""
+    predictor, and whether the compiled sequence's kept factorization is valid (:meth:`Integrator.snapshot`)."""
 
     extrapolate: bool
+    factored: int
 
 
 class StepResult(NamedTuple):
@@ -160,6 +161,8 @@ class Integrator:
         Force ``advance`` hooks are the caller's job (once per accepted step)."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be finite and > 0, got {dt!r}")
+        if self._sequence is not None:
+            self._sequence.invalidate()  # the sequence's kept factorization is of another motion now
         model = self.model
         n = model.n_dof
         constant, varying, _ = self._split(forces)
@@ -193,11 +196,14 @@ class Integrator:
 
     def snapshot(self) -> IntegratorMemory:
         """The integrator's memory between steps (:meth:`restore` puts it back, e.g. after a failed step)."""
-        return IntegratorMemory(self._extrapolate)
+        factored = int(self._sequence.control[FACTORED]) if self._sequence is not None else 0
+        return IntegratorMemory(self._extrapolate, factored)
 
     def restore(self, memory: IntegratorMemory) -> None:
         """Put back the memory of :meth:`snapshot` (a general step leaves the kept factorization untouched)."""
         self._extrapolate = memory.extrapolate
+        if self._sequence is not None:
+            self._sequence.control[FACTORED] = memory.factored
 
     def step_sequence(self, state: State, dt: float, motions: np.ndarray, rotations: np.ndarray,
                       forces=()) -> SequenceResult:
@@ -206,6 +212,9 @@ class Integrator:
         :mod:`needle_sim_ros.model.sequence`. Only where :meth:`supports_sequence`. The run ends early at a step
         that does not converge: integrate that one with :meth:`step`."""
         buffers = self._sequence_buffers()
+        if buffers.h != dt:
+            buffers.h = dt
+            buffers.invalidate()
         buffers.control[EXTRAPOLATE] = int(self._extrapolate)
         k, n = motions.shape[0], self.model.n_dof
         states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)

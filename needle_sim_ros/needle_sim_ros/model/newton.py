@@ -214,15 +214,15 @@ def newton_control(norm, previous, tol, always_refactor):
 
 @njit(cache=True)
 def newton_solve(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q, residual,
-                 band, pivots, factorization, kl, tol, max_iterations, always_refactor):
+                 band, pivots, factorization, kl, tol, max_iterations, always_refactor, fresh_matrix=True):
     """Newton loop with a constant external force (fast path). Dynamics starts from the predictor, statics from
-    the given values. The first correction assembles and factors the iteration matrix; ``newton_control`` keeps it
-    for chord corrections while they contract fast enough. Returns (status CONVERGED / FAILED / 1 = not converged,
-    iterations, last scaled correction)."""
+    the given values. ``fresh_matrix=False`` starts with chord steps on the factorization already in ``band``
+    (modified Newton across time steps; ``newton_control`` refactors as soon as they contract too slowly).
+    Returns (status CONVERGED / FAILED / 1 = not converged, iterations, last scaled correction)."""
     empty = np.zeros((0, 0))
     if dynamic:
         predict(values, history, prescribed, coef, active, predictor)
-    refactor = True  # a fresh matrix at the first correction
+    refactor = fresh_matrix
     previous = np.inf
     norm = np.inf
     for iteration in range(max_iterations):

@@ -4,11 +4,10 @@ For the common case -- the constrained coordinates driven by the base frame (eqs
 and only state-independent, time-invariant external forces (gravity, world-frame point loads) -- a sequence of k
 steps needs no Python between the steps: per step the base node kinematics are imposed from the packed base
 motion, Newton runs as in :meth:`needle_sim_ros.model.integrators.Integrator.step` (predictor choice and budgets
-alike), and the base reaction wrench (eq. 20) is evaluated. As on the general path, each step assembles and
-factors the iteration matrix at its first correction and keeps it for chord corrections while they contract fast
-enough. (Keeping the matrix across steps instead, modified Newton, cost more than it saved: on a needle released
-from a 10 g tip load 4.2 corrections per step instead of 2.1, on a pitching base 3.0 instead of 1.1.) A step that
-does not converge ends the run; the caller integrates it with the general path (sub-stepping) and continues.
+alike), and the base reaction wrench (eq. 20) is evaluated. The iteration matrix is kept across steps (modified
+Newton): while the steps converge in a single correction no matrix is assembled or factored at all; the
+convergence control refactors as soon as corrections contract too slowly. A step that does not converge ends the
+run; the caller integrates it with the general path (sub-stepping) and continues.
 """
 from __future__ import annotations
 
@@ -21,11 +20,11 @@ from .newton import (CONVERGED, keeps_extrapolating, model_tables, newton_solve,
                      predictor_for_attempt)
 from .reaction import base_constraint_kernel, base_rows, holder_wrench
 
-EXTRAPOLATE = 0  # entry of the control flags
+EXTRAPOLATE, FACTORED = 0, 1  # entries of the control flags
 
 
 class SequenceBuffers:
-    """Work arrays of the compiled step sequence of one model."""
+    """Work arrays of the compiled step sequence of one model, including the factorization kept across steps."""
 
     def __init__(self, model) -> None:
         n = model.n_dof
@@ -38,7 +37,8 @@ class SequenceBuffers:
         self.band = np.zeros((n, band_width_columns(ELEMENT_BANDWIDTH)))
         self.pivots = np.empty(n, dtype=np.int64)
         self.factorization = np.zeros(1, dtype=np.int64)
-        self.control = np.array([1], dtype=np.int64)  # [extrapolate]
+        self.control = np.array([1, 0], dtype=np.int64)  # [extrapolate, factorization in band valid]
+        self.h = 0.0
         groups = model.partition.groups
         self.supported = all(g.fixed is not None or g.frame == "base" for g in groups)
         moving = [g for g in groups if g.fixed is None]
@@ -49,6 +49,10 @@ class SequenceBuffers:
         for group in groups:
             if group.fixed is not None:
                 self.prescribed[:, group.dofs] = group.fixed
+
+    def invalidate(self) -> None:
+        """The factorization no longer belongs to this model's current motion (e.g. after a general step)."""
+        self.control[FACTORED] = 0
 
 
 @njit(cache=True)
@@ -77,12 +81,14 @@ def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterat
             budget = predictor_budget(predictor, max_iterations)
             status, used, norm = newton_solve(values, current, prescribed, coef, True, predictor, active, scale,
                                               tables, axis, ext_Q, residual, band, pivots, factorization, kl, tol,
-                                              budget, False)
+                                              budget, False, control[FACTORED] == 0)
             total += used
+            control[FACTORED] = 1 if status != -1 else 0
             if status == CONVERGED:
                 control[EXTRAPOLATE] = 1 if keeps_extrapolating(predictor, used) else 0
                 break
         if status != CONVERGED:
+            control[FACTORED] = 0
             return i
         current[:, :] = values
         states[i] = values
