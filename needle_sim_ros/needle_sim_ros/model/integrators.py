@@ -225,8 +225,8 @@ class Integrator:
                                   self.max_newton_iterations, buffers.prescribed,
                                   buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
                                   buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, buffers.band,
-                                  buffers.pivots, buffers.factorization, ELEMENT_BANDWIDTH, buffers.control, states,
-                                  wrenches, iterations)
+                                  buffers.pivots, buffers.factorization, ELEMENT_BANDWIDTH, buffers.control,
+                                  buffers.last_motion, states, wrenches, iterations)
         self._extrapolate = bool(buffers.control[EXTRAPOLATE])
         return SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
 
