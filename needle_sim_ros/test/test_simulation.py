@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from needle_sim_ros.model import (BaseMotion, ForceContribution, GeneralizedForce, Gravity, Integrator, PointLoad,
-                                  StepFailed)
+from failing_forces import PoisonedAfter
+from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrator, PointLoad, StepFailed
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
 
@@ -205,18 +205,6 @@ def test_a_failed_step_with_tissue_changes_nothing(law):
             run.offer_pose(t + k * 1e-3, *inserting(t + k * 1e-3))
             run.advance(t + k * 1e-3, deterministic=True)
     assert _simulation_state(sim, False) == _simulation_state(twin, False)
-
-
-class PoisonedAfter(ForceContribution):
-    """No force until t_bad, NaN after it (a tissue law breaking down within a step)."""
-
-    state_dependent, time_invariant, stateful = True, False, False
-
-    def __init__(self, t_bad: float) -> None:
-        self.t_bad = t_bad
-
-    def evaluate(self, model, q, qd, t, base):
-        return GeneralizedForce(np.full(model.n_dof, np.nan if t > self.t_bad else 0.0))
 
 
 def test_a_step_failing_after_converged_sub_steps_restores_the_integrators_memory():

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.experiments import EXPERIMENTS, TruthModel, run_ground_truth
-from needle_sim_ros.model import BaseMotion, ForceContribution, GeneralizedForce, Integrator, StepFailed, build_model
+from failing_forces import PoisonedAfter
+from needle_sim_ros.model import BaseMotion, Integrator, StepFailed, build_model
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters, simulation_from_parameters
 
@@ -23,18 +24,6 @@ def pitching(t: float) -> BaseMotion:
     return BaseMotion((0.0, 0.0, 0.0), (0.0, math.sin(0.5 * angle), 0.0, math.cos(0.5 * angle)),
                       angular_velocity=(0.0, amplitude * omega * math.cos(omega * t), 0.0),
                       angular_acceleration=(0.0, -amplitude * omega ** 2 * math.sin(omega * t), 0.0))
-
-
-class PoisonedAfter(ForceContribution):
-    """No force until t_bad, NaN after it."""
-
-    state_dependent, time_invariant, stateful = True, False, False
-
-    def __init__(self, t_bad: float) -> None:
-        self.t_bad = t_bad
-
-    def evaluate(self, model, q, qd, t, base):
-        return GeneralizedForce(np.full(model.n_dof, np.nan if t > self.t_bad else 0.0))
 
 
 def test_a_prescribed_simulation_runs_the_compiled_sequence_and_agrees_with_the_general_step():
