@@ -1,8 +1,36 @@
+import os
+import subprocess
+import sys
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.install import install
 
 package_name = "needle_vision"
+
+# Compiles the measurement's numba kernels into the kernel cache (NUMBA_CACHE_DIR if set, else __pycache__ next to
+# the installed modules), so that the first pairs of a fresh install are not delayed (and dropped) by compilation.
+COMPILE_KERNELS = """
+from needle_vision.pipeline import compile_kernels
+print(f"needle_vision: compiled the measurement's numba kernels in {compile_kernels():.0f} s")
+"""
+
+
+class InstallCompilingKernels(install):
+    """``install`` (what colcon's ament_python build runs), then compile the numba kernels against the installed
+    modules (numba's cache is keyed by the source file). ``NEEDLE_COMPILE_KERNELS=0`` skips it."""
+
+    def run(self) -> None:
+        super().run()
+        if os.environ.get("NEEDLE_COMPILE_KERNELS", "1") == "0":
+            return
+        path = os.pathsep.join(filter(None, (self.install_lib, os.environ.get("PYTHONPATH"))))
+        result = subprocess.run([sys.executable, "-c", COMPILE_KERNELS], cwd=self.install_lib,
+                                env=dict(os.environ, PYTHONPATH=path))
+        if result.returncode != 0:
+            print("needle_vision: warning: compiling the numba kernels failed; the first pairs will compile them",
+                  file=sys.stderr)
+
 
 setup(
     name=package_name,
@@ -17,6 +45,7 @@ setup(
     install_requires=["setuptools"],
     extras_require={"test": ["pytest"]},
     zip_safe=True,
+    cmdclass={"install": InstallCompilingKernels},
     maintainer="needle_sim developers",
     maintainer_email="dev@needle-sim.invalid",
     description="Stereo needle reconstruction for the needle_sim suite.",

@@ -49,3 +49,4 @@ def test_the_install_hook_compiles_against_the_installed_package():
     result = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     assert "compiled the simulator's numba kernels" in result.stdout
+

@@ -234,3 +234,26 @@ class StereoNeedlePipeline:
                                   2 * config.centerline.profile_half_width)
         motion = self.tracker.update(stamp, measurement.arc_length, measurement.points) if self.tracker else None
         return FrameResult(FrameStatus.MEASURED, measurement, motion, ordering=ordering)
+
+
+def compile_kernels() -> float:
+    """Compile, or load from numba's cache, the measurement's kernels by measuring one rendered pair of a bent
+    needle with the synthetic rig (:mod:`needle_vision.render`), uint8 and uint16; returns the seconds it took.
+    The stereo node runs it before it subscribes, and the package's install step runs it once, so that the first
+    real pairs do not wait for compilation (which drops them)."""
+    import time
+
+    from needle_vision.render import NEEDLE_RADIUS, default_rig, make_scene, render_background_pair, render_stereo_pair
+
+    start = time.perf_counter()
+    rig = default_rig()
+    scene = make_scene(rig, np.random.default_rng(0))
+    arc = np.linspace(0.0, 0.27, 271)
+    bent = np.column_stack([arc, np.zeros_like(arc), -0.2 * arc ** 2])
+    background = render_background_pair(rig, np.random.default_rng(1), scene=scene)
+    needle = render_stereo_pair(rig, bent, NEEDLE_RADIUS, np.random.default_rng(2), scene=scene)
+    for scale, dtype in ((1, np.uint8), (256, np.uint16)):
+        pipeline = StereoNeedlePipeline(rig, StereoConfig(background_frames=1))
+        pipeline.process(0.0, *(np.asarray(image, dtype) * scale for image in background))
+        pipeline.process(1.0, *(np.asarray(image, dtype) * scale for image in needle))
+    return time.perf_counter() - start

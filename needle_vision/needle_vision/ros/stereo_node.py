@@ -34,7 +34,7 @@ from needle_vision.streams.outputs import debug_image, pointcloud2_fields
 from needle_vision.streams.pairing import StampPairer
 from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments, output_from_left,
                                       stereo_config, validate_all)
-from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline
+from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline, compile_kernels
 from needle_vision.ros.ros_parameters import declare_all
 from needle_vision.ros.tf_output import TfOutput, transform_stamped
 from needle_vision.transform import quaternion_from_x_axis
@@ -48,6 +48,8 @@ class NeedleStereoNode(Node):
     def __init__(self) -> None:
         super().__init__("needle_stereo")
         self.values = validate_all(declare_all(self, SPECS))
+        # before subscribing: a pair arriving while the kernels compile would wait, and the ones after it be dropped
+        self.get_logger().info(f"measurement kernels ready in {compile_kernels():.1f} s")
         self.config = stereo_config(self.values)
         self.output_from_left = output_from_left(self.values)
         self.base_poses = base_pose_store(self.values)
