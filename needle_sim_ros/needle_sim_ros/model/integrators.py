@@ -92,6 +92,11 @@ def scheme_coefficients(method: str, rho_inf: float) -> tuple[float, ...]:
     return alpha_m, alpha_f, 0.5 - beta, beta, 1.0 - gamma, gamma
 
 
+def _same_objects(forces, cached) -> bool:
+    """Whether ``forces`` are the very objects of ``cached``, in order (the key of the integrator's caches)."""
+    return len(forces) == len(cached) and all(map(operator.is_, forces, cached))
+
+
 def split_forces(forces) -> tuple[list, list]:
     """(state-independent, state-dependent) contributions, checked against the force protocol."""
     constant, varying = [], []
@@ -240,7 +245,7 @@ class Integrator:
         the same force objects are passed."""
         forces = tuple(forces)
         cached = self._split_cache
-        if len(forces) == len(cached[0]) and all(map(operator.is_, forces, cached[0])):
+        if _same_objects(forces, cached[0]):
             return cached[1:]
         constant, varying = split_forces(forces)
         self._split_cache = (forces, constant, varying, all(force.time_invariant for force in forces))
@@ -254,7 +259,7 @@ class Integrator:
     def _constant_force(self, forces: list, t: float, base: BaseMotion) -> np.ndarray:
         """Sum of the state-independent forces; cached while the same time-invariant load objects are passed."""
         cached_forces, cached = self._constant_cache
-        if len(forces) == len(cached_forces) and all(map(operator.is_, forces, cached_forces)):
+        if _same_objects(forces, cached_forces):
             return cached
         total = constant_force(self.model, forces, t, base)
         if all(force.time_invariant for force in forces):
