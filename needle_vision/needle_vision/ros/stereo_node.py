@@ -48,8 +48,6 @@ class NeedleStereoNode(Node):
     def __init__(self) -> None:
         super().__init__("needle_stereo")
         self.values = validate_all(declare_all(self, SPECS))
-        # before subscribing: a pair arriving while the kernels compile would wait, and the ones after it be dropped
-        self.get_logger().info(f"measurement kernels ready in {compile_kernels():.1f} s")
         self.config = stereo_config(self.values)
         self.output_from_left = output_from_left(self.values)
         self.base_poses = base_pose_store(self.values)
@@ -75,6 +73,9 @@ class NeedleStereoNode(Node):
             for side in ("left", "right"):
                 self.create_subscription(CameraInfo, f"{side}/camera_info",
                                          lambda msg, side=side: self.on_camera_info(side, msg), qos)
+        # after the parameters are checked and the static frames sent, before subscribing: a pair arriving while the
+        # kernels compile would wait, and the ones after it be dropped
+        self.get_logger().info(f"measurement kernels ready in {compile_kernels():.1f} s")
         for side in ("left", "right"):
             self.create_subscription(Image, f"{side}/image_raw", lambda msg, side=side: self.on_image(side, msg), qos)
         if self.values["base_pose.topic"]:
