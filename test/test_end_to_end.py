@@ -112,6 +112,7 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
 
     from needle_sim_ros.base_trajectory import PoseVerdict
     from needle_sim_ros.messages import cdr
+    from needle_sim_ros.messages.shape import model_shape_cdr
     from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
     from needle_sim_ros.offline.stages import SimulatorStage, simulator_values
     from needle_sim_ros.simulation import simulation_from_parameters
@@ -159,7 +160,7 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     assert len(wrenches) == 200 and wrenches == published["wrench"]  # a step per ms up to the newest pose
     stamp = lambda data: data[4:12]  # noqa: E731  (sec, nanosec of the header)
     node_shapes = {stamp(data): data for data in published["shape"]}
-    offline_shapes = [shape.cdr() for kind, shape in offline if kind == "shape"]
+    offline_shapes = [model_shape_cdr(shape, p["frames.world"]) for kind, shape in offline if kind == "shape"]
     assert len(offline_shapes) == 20 and all(stamp(data) in node_shapes for data in offline_shapes)
     assert [node_shapes[stamp(data)] for data in offline_shapes] == offline_shapes
 

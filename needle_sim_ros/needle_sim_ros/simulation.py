@@ -38,12 +38,12 @@ from needle_sim_ros.model import (
     StepFailed,
     build_model,
     check_forces,
-    centerline,
     elastic_energy,
     kinetic_energy,
+    ModelShape,
+    model_shape,
     reaction_wrench,
     solve_static,
-    tip_pose,
 )
 from needle_sim_ros.model.integrators import IntegratorMemory
 from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
@@ -476,11 +476,10 @@ class NeedleSimulation:
         return record
 
     # -- outputs --------------------------------------------------------------------------------------------
-    def shape(self, n_samples: int):
-        return centerline(self.model, self.state.q, n_samples)
-
-    def tip(self):
-        return tip_pose(self.model, self.state.q)
+    def shape(self, n_samples: int) -> ModelShape:
+        """The shape output of the current state (the tip frame carries the base orientation)."""
+        return model_shape(self.model, self.state.q, self.state.t, n_samples,
+                           None if self.base is None else self.base.orientation)
 
     def energies(self) -> tuple[float, float]:
         return kinetic_energy(self.model, self.state.qd), elastic_energy(self.model, self.state.q)
@@ -561,6 +560,5 @@ def compile_kernels(p: dict) -> float:
         if k >= 3:
             scratch.advance((k + 1) * dt, deterministic=False)
     scratch.shape(10)
-    scratch.tip()
     scratch.energies()
     return time.perf_counter() - start

@@ -37,7 +37,7 @@ def test_wrench_at_rest_is_the_weight_plus_the_tip_load_through_the_compiled_pat
     # the needle pulls its holder with its weight and the tip load (the swing decays with beta = 1e-3)
     np.testing.assert_allclose(force, weight + tip_force, atol=2e-3 * np.linalg.norm(weight + tip_force))
     # moment about A of the loads on the deflected needle: tip load at the tip, weight along the centerline
-    line = sim.shape(401)
+    line = sim.shape(401).line
     segment = np.diff(line.reference_arc_length)
     midpoints = 0.5 * (line.points[1:] + line.points[:-1]) - line.points[0]
     moment = np.cross(line.points[-1] - line.points[0], tip_force) + np.sum(
@@ -116,7 +116,7 @@ def test_the_needle_starts_at_rest_in_equilibrium_under_its_weight(in_equilibriu
     for k in range(301):
         sim.offer_pose(k * 1e-3, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
         sim.advance(k * 1e-3, deterministic=True)
-        tips.append(sim.tip()[0][2] - 0.3)
+        tips.append(sim.shape(2).tip_position[2] - 0.3)
     if in_equilibrium:
         assert tips[0] == pytest.approx(-sag, rel=2e-3)
         assert np.abs(np.array(tips) - tips[0]).max() < 1e-3 * sag

@@ -21,8 +21,8 @@ import numpy as np
 from needle_sim_ros.base_trajectory import BaseTrajectory
 from needle_sim_ros.experiments.protocols import Experiment
 from needle_sim_ros.experiments.elastica import elastica_tip
-from needle_sim_ros.model import (BaseMotion, Centerline, Gravity, Integrator, NeedleProperties, PointLoad,
-                                  StepFailed, build_model, solve_static)
+from needle_sim_ros.model import (BaseMotion, Centerline, Gravity, Integrator, ModelShape, NeedleProperties,
+                                  PointLoad, StepFailed, build_model, solve_static)
 from needle_sim_ros.simulation import NeedleSimulation
 
 TIP_WEIGHT = "tip_weight"
@@ -108,12 +108,12 @@ def run_ground_truth(experiment: Experiment, truth: TruthModel, shape_times, wre
     wrench_every = max(1, int(round(1.0 / (wrench_rate * dt))))
     simulation = truth_simulation(experiment, truth)
     samples = TruthSamples(np.asarray(shape_times, dtype=float))
-    shapes: dict[int, tuple] = {}
+    shapes: dict[int, ModelShape] = {}
     wrench_times, forces, torques = [], [], []
     loaded = np.any([np.any(experiment.tip_force(t)) for t in np.linspace(0.0, experiment.duration, 50)])
 
     def sample_shape(index: int) -> None:
-        shapes[index] = (simulation.shape(shape_samples), simulation.tip())
+        shapes[index] = simulation.shape(shape_samples)
 
     progress_every = max(1, int(round(0.1 / dt)))
     if loaded:  # the tip load changes every step: set it before each step
@@ -142,8 +142,8 @@ def run_ground_truth(experiment: Experiment, truth: TruthModel, shape_times, wre
             sample_shape(shape_steps[k])
         if progress is not None and k % progress_every == 0:
             progress(t)
-    samples.shapes = [shapes[i][0] for i in range(len(shape_times))]
-    samples.tips = [shapes[i][1] for i in range(len(shape_times))]
+    samples.shapes = [shapes[i].line for i in range(len(shape_times))]
+    samples.tips = [(shapes[i].tip_position, shapes[i].tip_orientation) for i in range(len(shape_times))]
     samples.wrench_times = np.array(wrench_times)
     samples.force_base, samples.torque_base = np.array(forces).reshape(-1, 3), np.array(torques).reshape(-1, 3)
     return samples

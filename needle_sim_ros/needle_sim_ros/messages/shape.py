@@ -8,6 +8,9 @@ from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from needle_interfaces.msg import NeedleShape, ShapeError
 from std_msgs.msg import Header
 
+from needle_sim_ros.messages import cdr
+from needle_sim_ros.model import ModelShape
+
 
 def _pose(position, quaternion) -> Pose:
     return Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
@@ -28,6 +31,13 @@ def needle_shape_msg(header: Header, source: str, points: np.ndarray, tangents: 
         tip_pose=_pose(tip_position, tip_orientation),
         length=float(arc_length[-1]) if len(arc_length) else 0.0,
     )
+
+
+def model_shape_cdr(shape: ModelShape, frame_id: str) -> bytes:
+    """The simulator's ``needle/shape`` message (NeedleShape, source ``model``) of a shape output, serialized."""
+    stamp = time_msg(shape.t)
+    return cdr.needle_shape(stamp.sec, stamp.nanosec, frame_id, NeedleShape.SOURCE_MODEL, shape.line.points,
+                            shape.line.tangents, shape.line.arc_length, shape.tip_position, shape.tip_orientation)
 
 
 def shape_arrays(msg: NeedleShape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

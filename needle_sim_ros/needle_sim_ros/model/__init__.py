@@ -10,8 +10,8 @@ from .integrators import Integrator, StepFailed, StepResult
 from .kinematics import BaseMotion
 from .mesh import Interpolation
 from .model import NeedleModel, State, build_model
-from .outputs import (Centerline, axial_strain, centerline, curvature, gravitational_energy, kinetic_energy,
-                      tip_pose)
+from .outputs import (Centerline, ModelShape, axial_strain, centerline, curvature, gravitational_energy,
+                      kinetic_energy, model_shape, tip_pose)
 from .properties import NeedleProperties
 from .reaction import BaseWrench, base_constraint_force, reaction_wrench
 from .statics import StaticResult, StaticSolveFailed, solve_static
@@ -22,6 +22,7 @@ __all__ = [
     "MaterialPointForce", "PointForces", "Integrator", "StepResult", "StepFailed", "solve_static", "StaticResult",
     "StaticSolveFailed",
     "reaction_wrench", "base_constraint_force", "BaseWrench", "centerline", "Centerline", "tip_pose",
+    "ModelShape", "model_shape",
     "axial_strain", "curvature", "kinetic_energy", "elastic_energy", "gravitational_energy", "elastic_forces",
     "tangent_stiffness", "load_needle_config", "needle_parameters", "needle_properties",
 ]

@@ -13,8 +13,8 @@ from .kinematics import cross, matrix_quaternion, quaternion_matrix, unit_quater
 from .mesh import Interpolation
 from .model import NeedleModel
 
-__all__ = ["Centerline", "centerline", "tip_pose", "axial_strain", "curvature", "kinetic_energy",
-           "elastic_energy", "gravitational_energy"]
+__all__ = ["Centerline", "centerline", "tip_pose", "ModelShape", "model_shape", "axial_strain", "curvature",
+           "kinetic_energy", "elastic_energy", "gravitational_energy"]
 
 _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(3)
 
@@ -117,3 +117,20 @@ def tip_pose(model: NeedleModel, q: np.ndarray, base_orientation=None,
     y_axis /= np.linalg.norm(y_axis)
     rotation = np.column_stack([x_axis, y_axis, cross(x_axis, y_axis)])
     return q[-6:-3].copy(), matrix_quaternion(rotation)
+
+
+@dataclass(frozen=True)
+class ModelShape:
+    """The simulator's shape output at time ``t`` [s]: the centerline and the tip pose (:func:`tip_pose`, position
+    [m] and orientation x, y, z, w). The node publishes it and the offline stage writes it (``needle/shape``)."""
+
+    t: float
+    line: Centerline
+    tip_position: np.ndarray
+    tip_orientation: np.ndarray
+
+
+def model_shape(model: NeedleModel, q: np.ndarray, t: float, n_samples: int, base_orientation=None) -> ModelShape:
+    """The shape output of state ``q`` at ``t``: ``n_samples`` centerline samples; the tip frame's y, z axes are the
+    base frame's (``base_orientation``) carried along the needle."""
+    return ModelShape(t, centerline(model, q, n_samples), *tip_pose(model, q, base_orientation))

@@ -38,8 +38,8 @@ from needle_vision.parameters import ParameterError
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.geometry import quaternions_from_tangents, tube_triangles
-from needle_sim_ros.messages.shape import time_msg
-from needle_sim_ros.model import State, centerline, elastic_energy, kinetic_energy, tip_pose
+from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
+from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_shape
 from needle_sim_ros.nodes.diagnostics import HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
 from needle_vision.ros.ros_parameters import declare_all, guard_dynamic_updates
@@ -434,22 +434,21 @@ class NeedleSimulatorNode(LifecycleNode):
                 self.tissue_readout())
 
     def snapshot(self, model, state: State, readout) -> dict:
-        """Centerline, tip pose and energies of a state copy (computed outside the lock)."""
-        return {"t": state.t, "line": centerline(model, state.q, self.p["output.shape_samples"]),
-                "tip": tip_pose(model, state.q, None if state.base is None else state.base.orientation),
-                "base": state.base, "energies": (kinetic_energy(model, state.qd),
-                                                              elastic_energy(model, state.q)),
+        """Shape output and energies of a state copy (computed outside the lock)."""
+        orientation = None if state.base is None else state.base.orientation
+        return {"shape": model_shape(model, state.q, state.t, self.p["output.shape_samples"], orientation),
+                "base": state.base, "energies": (kinetic_energy(model, state.qd), elastic_energy(model, state.q)),
                 "readout": readout}
 
     def publish_shape(self, snap: dict) -> None:
-        stamp, frame, line = time_msg(snap["t"]), self.p["frames.world"], snap["line"]
-        self.shape_pub.publish(cdr.needle_shape(stamp.sec, stamp.nanosec, frame, NeedleShape.SOURCE_MODEL,
-                                                line.points, line.tangents, line.arc_length, *snap["tip"]))
+        shape, frame = snap["shape"], self.p["frames.world"]
+        stamp = time_msg(shape.t)
+        self.shape_pub.publish(model_shape_cdr(shape, frame))
         readout = snap["readout"]
         tissue = (np.zeros(6) if readout is None else
                   np.array([readout.insertion_depth, readout.inserted_length, *readout.tip_force, readout.axial_force]))
         self.state_pub.publish(cdr.needle_state(stamp.sec, stamp.nanosec, frame, *tissue, *snap["energies"]))
-        self.tf.send(stamp, snap["base"], snap["tip"])
+        self.tf.send(stamp, snap["base"], (shape.tip_position, shape.tip_orientation))
 
     def publish_periodic_outputs(self, now: float) -> None:
         shape_due = not self.use_sim_time and self.due("shape", now, self.p["rates.shape_hz"])
@@ -464,7 +463,7 @@ class NeedleSimulatorNode(LifecycleNode):
         if shape_due:
             self.publish_shape(snap)
         if visualization_due:
-            stamp, frame, line = time_msg(snap["t"]), self.p["frames.world"], snap["line"]
+            stamp, frame, line = time_msg(snap["shape"].t), self.p["frames.world"], snap["shape"].line
             orientations = quaternions_from_tangents(line.tangents)
             self.path_pub.publish(cdr.path(stamp.sec, stamp.nanosec, frame, line.points, orientations))
             self.pose_array_pub.publish(cdr.pose_array(stamp.sec, stamp.nanosec, frame, line.points, orientations))

@@ -27,6 +27,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo
 
 from needle_sim_ros.messages import cdr
+from needle_sim_ros.messages.shape import model_shape_cdr
 from needle_sim_ros.parameters.experiment import ExperimentConfig
 from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
                                            simulator_values, stereo_values)
@@ -218,9 +219,10 @@ class OfflinePipeline:
             if kind == "wrench":
                 self._write("/wrench", msg, now)
                 continue
-            self._write("/needle/shape", msg.cdr(), now)
+            frame = self.simulator.p["frames.world"]
+            self._write("/needle/shape", model_shape_cdr(msg, frame), now)
             with self._timed("comparison"):
-                errors = self.comparison.on_model(msg)
+                errors = self.comparison.on_model(msg, frame)
             self._compared(errors, now)
 
     def _prime_stereo(self, reader: BagReader, begin: int) -> None:

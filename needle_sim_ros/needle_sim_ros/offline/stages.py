@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -39,7 +38,7 @@ from needle_vision.transform import quaternion_from_x_axis
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.shape import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
-from needle_sim_ros.model import tip_pose
+from needle_sim_ros.model import ModelShape
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
@@ -62,24 +61,6 @@ def validated(specs: list[ParamSpec], values: dict[str, Any], node: str) -> dict
         elif name not in ROS_BUILTIN:
             raise unknown_name_error(name, by_name, f"{node}: ")
     return result
-
-
-@dataclass(frozen=True)
-class ModelShape:
-    """A model centerline as the node's ``needle/shape`` message holds it (``needle_shape_msg``), as arrays."""
-
-    header: Header
-    points: np.ndarray
-    tangents: np.ndarray
-    arc_length: np.ndarray
-    tip_position: np.ndarray
-    tip_orientation: np.ndarray
-
-    def cdr(self) -> bytes:
-        """The serialized NeedleShape (source ``model``)."""
-        stamp = self.header.stamp
-        return cdr.needle_shape(stamp.sec, stamp.nanosec, self.header.frame_id, NeedleShape.SOURCE_MODEL,
-                                self.points, self.tangents, self.arc_length, self.tip_position, self.tip_orientation)
 
 
 class SimulatorStage:
@@ -144,17 +125,8 @@ class SimulatorStage:
             outputs.append(("wrench", data))
             self._steps_since_start += 1
             if self._steps_since_start % self.shape_every == 0:
-                outputs.append(("shape", self.shape()))
+                outputs.append(("shape", self.sim.shape(self.p["output.shape_samples"])))
         return outputs
-
-    def shape(self) -> "ModelShape":
-        line = self.sim.shape(self.p["output.shape_samples"])
-        # as the node's snapshot: the tip frame's y, z axes are the base frame's carried along the needle
-        base = self.sim.base
-        tip_position, tip_orientation = tip_pose(self.sim.model, self.sim.state.q,
-                                                 None if base is None else base.orientation)
-        header = Header(stamp=time_msg(self.sim.state.t), frame_id=self.p["frames.world"])
-        return ModelShape(header, line.points, line.tangents, line.arc_length, tip_position, tip_orientation)
 
     def statistics(self) -> dict[str, Any]:
         stats = self.sim.statistics
@@ -246,9 +218,10 @@ class ComparisonStage:
         self.values = v
         self.session = ComparisonSession(v)
 
-    def on_model(self, shape: ModelShape) -> list[ShapeError]:
-        return self.errors(self.session.add_model(stamp_ns(shape.header), shape.header.frame_id, shape.header,
-                                                  shape.points, shape.arc_length))
+    def on_model(self, shape: ModelShape, frame_id: str) -> list[ShapeError]:
+        header = Header(stamp=time_msg(shape.t), frame_id=frame_id)
+        return self.errors(self.session.add_model(stamp_ns(header), frame_id, header, shape.line.points,
+                                                  shape.line.arc_length))
 
     def on_measured(self, msg: NeedleShape) -> list[ShapeError]:
         points, arc_length, _ = shape_arrays(msg)
