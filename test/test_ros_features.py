@@ -20,7 +20,7 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from rosgraph_msgs.msg import Clock
 from scipy.spatial.transform import Rotation
 
-from test_simulator_node import LENGTH, REPO, Driver, simulator_command, stop, write_params
+from test_simulator_node import LENGTH, REPO, Driver, installed, simulator_command, stop, write_params
 from tf2_msgs_workspace import build_tf2_msgs, environment_with
 
 E, RADIUS, DENSITY, G = 193e9, 0.635e-3, 8000.0, 9.81
@@ -112,9 +112,8 @@ def test_stereo_puts_its_camera_frames_on_tf_static(driver, tf_env, tmp_path):
     path.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
         "left_calibration_file": str(stereo / "left.yaml"), "right_calibration_file": str(stereo / "right.yaml"),
         "output_frame": "world", "output_transform": params["output_transform"]}}}))
-    installed = REPO / "install/needle_vision/lib/needle_vision/needle_stereo"
-    process = subprocess.Popen([str(installed), "--ros-args", "--params-file", str(path)], env=tf_env,
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    process = subprocess.Popen([installed("needle_vision", "needle_stereo"), "--ros-args", "--params-file", str(path)],
+                               env=tf_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     driver.processes.append(process)
     time.sleep(3.0)  # the static transforms are latched: a late listener still gets them
     assert process.poll() is None, process.stdout.read()

@@ -1,7 +1,6 @@
 """needle_simulator as a real node in its own process, driven and read from this process (issue 4)."""
 import math
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -9,6 +8,7 @@ import numpy as np
 import pytest
 import rclpy
 import yaml
+from ament_index_python.packages import get_package_prefix
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape
 from needle_interfaces.srv import ApplyPointLoad, ClearPointLoads
@@ -21,9 +21,14 @@ LENGTH, RADIUS, DENSITY = 0.27, 0.635e-3, 8000.0
 WEIGHT = DENSITY * math.pi * RADIUS**2 * LENGTH * G  # [N] 0.0268 N
 
 
+def installed(package: str, name: str) -> str:
+    """The executable that ``ros2 run <package> <name>`` starts: the sourced install space's (install/ or
+    install-noble/), found as ros2 run finds it (ament index)."""
+    return str(Path(get_package_prefix(package)) / "lib" / package / name)
+
+
 def simulator_command() -> list[str]:
-    installed = REPO / "install/needle_sim_ros/lib/needle_sim_ros/needle_simulator"
-    return [str(installed)] if installed.exists() else [sys.executable, "-m", "needle_sim_ros.nodes.simulator_node"]
+    return [installed("needle_sim_ros", "needle_simulator")]
 
 
 def write_params(tmp_path: Path, **overrides) -> Path:

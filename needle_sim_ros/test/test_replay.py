@@ -1,7 +1,6 @@
 """needle_replay and needle_compare as separate processes: recorded timing and /clock, replay -> compare pipeline
 with MCAP logging finalized on SIGTERM, and clear exits on bad input."""
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -11,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from ament_index_python.packages import get_package_prefix
 from geometry_msgs.msg import Point, WrenchStamped
 from mcap.reader import make_reader
 from needle_interfaces.msg import NeedleShape, ShapeError
@@ -39,10 +39,11 @@ def node(ros_env):
     rclpy.shutdown()
 
 
-def start(ros_env, module: str, *args: str) -> subprocess.Popen:
-    env = dict(ros_env, PYTHONPATH=f"{PACKAGE_ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    return subprocess.Popen([sys.executable, "-m", f"needle_sim_ros.nodes.{module}", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+def start(ros_env, executable: str, *args: str) -> subprocess.Popen:
+    """An installed executable of needle_sim_ros, as ``ros2 run needle_sim_ros <executable>`` starts it."""
+    path = Path(get_package_prefix("needle_sim_ros")) / "lib" / "needle_sim_ros" / executable
+    return subprocess.Popen([str(path), *args], env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
 
 
 def spin_until(node, done, timeout: float) -> None:
@@ -79,7 +80,7 @@ def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(nod
                              QoSProfile(depth=count))
     node.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
                              QoSProfile(depth=1000))
-    player = start(ros_env, "replay_node", str(tmp_path / "wrench.mcap"), "--rate", str(rate), "--clock", "200",
+    player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--rate", str(rate), "--clock", "200",
                    "--wait-for-subscribers", "20", "--delay", "0.5", "--ros-args", "-r", "/wrench:=/replayed/wrench")
     try:
         spin_until(node, lambda: len(arrivals) == count and player.poll() is not None, 40.0)
@@ -138,14 +139,14 @@ def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(no
     shapes_bag(tmp_path / "shapes.mcap", count, offset)
     errors = []
     node.create_subscription(ShapeError, "/shape_error", errors.append, QoSProfile(depth=100))
-    comparer = start(ros_env, "compare_node", "--ros-args",
+    comparer = start(ros_env, "needle_compare", "--ros-args",
                      "-p", f"extrinsic.translation:={CAMERA_TO_MODEL.translation.tolist()}",
                      "-p", f"extrinsic.rotation:={CAMERA_TO_MODEL.as_xyz_quaternion()[3:]}",
                      "-p", "model_frame:=world", "-p", "measured_frame:=camera",
                      "-p", f"log.path:={tmp_path / 'log.mcap'}", "-p", f"summary_path:={tmp_path / 'summary.json'}")
     try:
         spin_until(node, lambda: node.count_publishers("/shape_error") > 0, 20.0)
-        player = start(ros_env, "replay_node", str(tmp_path / "shapes.mcap"), "--wait-for-subscribers", "20",
+        player = start(ros_env, "needle_replay", str(tmp_path / "shapes.mcap"), "--wait-for-subscribers", "20",
                        "--delay", "0.5")
         out, _ = player.communicate(timeout=40)
         assert player.returncode == 0, out

@@ -1,9 +1,7 @@
 """needle_stereo as a separate process, driven over ROS 2 from this test (isolated ROS domain)."""
 import importlib.util
-import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -12,6 +10,7 @@ import pytest
 import yaml
 
 rclpy = pytest.importorskip("rclpy", reason="the node test needs ROS 2 (rclpy)")
+from ament_index_python.packages import get_package_prefix  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
@@ -26,10 +25,11 @@ REPO = PACKAGE.parent
 
 
 def start_node(ros_env: dict, *arguments: str) -> subprocess.Popen:
-    env = dict(ros_env)
-    env["PYTHONPATH"] = os.pathsep.join([str(PACKAGE), env.get("PYTHONPATH", "")])
-    return subprocess.Popen([sys.executable, "-m", "needle_vision.ros.stereo_node", "--ros-args", *arguments],
-                            env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    """The installed needle_stereo (what ``ros2 run needle_vision needle_stereo`` starts: the sourced install
+    space's, whose kernels the install step compiled), from the repository root."""
+    executable = Path(get_package_prefix("needle_vision")) / "lib" / "needle_vision" / "needle_stereo"
+    return subprocess.Popen([str(executable), "--ros-args", *arguments], env=ros_env, cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
 @pytest.mark.parametrize("arguments, named", [
