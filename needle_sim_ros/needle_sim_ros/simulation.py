@@ -45,6 +45,7 @@ from needle_sim_ros.model import (
     reaction_wrench,
     solve_static,
 )
+from needle_sim_ros.model.config import element_lengths
 from needle_sim_ros.model.integrators import IntegratorMemory
 from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
 from needle_sim_ros.tissue import build_tissue_forces
@@ -486,11 +487,10 @@ class NeedleSimulation:
 
 
 def model_builder_from_parameters(p: dict) -> ModelBuilder:
-    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them; an
-    optional non-empty ``needle.element_lengths`` [m] sets the mesh (as in the scenarios) instead of uniform
-    ``needle.elements``."""
+    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them;
+    ``needle.element_lengths`` [m] other than [0.0] sets the mesh instead of uniform ``needle.elements``."""
     props = needle_properties(p)
-    lengths = p.get("needle.element_lengths") or None
+    lengths = element_lengths(p)
 
     def model_builder(fixtures: tuple = ()) -> tuple[NeedleModel, Integrator]:
         model = build_model(props, n_elements=len(lengths) if lengths else p["needle.elements"],

@@ -124,6 +124,26 @@ def test_the_needle_starts_at_rest_in_equilibrium_under_its_weight(in_equilibriu
         assert tips[0] == 0.0 and min(tips) < -0.5 * sag
 
 
+def test_a_non_uniform_mesh_from_needle_element_lengths_sags_as_the_euler_bernoulli_cantilever():
+    """``needle.element_lengths`` (a node parameter) sets the mesh: 4 elements, the short ones at the tip; at the
+    mesh nodes the sag under the needle's weight is the cantilever's w x^2 (6 L^2 - 4 L x + x^2) / (24 E I)
+    (cubic elements are nodally exact for a uniform load; the geometric nonlinearity is ~1e-4)."""
+    assert PARAMETERS["needle.element_lengths"] == [0.0]  # the default: needle.elements uniform elements
+    lengths = [0.1, 0.1, 0.04, 0.03]
+    sim = simulation_from_parameters({**PARAMETERS, "needle.element_lengths": lengths})
+    np.testing.assert_array_equal(sim.model.element_lengths, lengths)
+    props = sim.model.props
+    w, L, EI = props.mass_per_length * 9.81, props.length, props.youngs_modulus * props.second_moment
+    sim.offer_pose(0.0, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+    sim.advance(0.0, deterministic=True)
+    line = sim.shape(28).line  # samples every 10 mm: the nodes 0.1, 0.2, 0.27 m are samples 10, 20, 27
+    for x, index in ((0.1, 10), (0.2, 20), (0.27, 27)):
+        exact = w * x ** 2 * (6 * L ** 2 - 4 * L * x + x ** 2) / (24 * EI)
+        assert line.points[index, 2] - 0.3 == pytest.approx(-exact, rel=2e-3)
+    with pytest.raises(ValueError, match="element_lengths sum to 0.2 m"):
+        simulation_from_parameters({**PARAMETERS, "needle.element_lengths": [0.1, 0.1]})
+
+
 def _tissue_state(forces) -> list[bytes]:
     """The tissue forces' mutable state as bytes (contact, track, anchors, friction states)."""
     return [pickle.dumps(force) for force in forces]

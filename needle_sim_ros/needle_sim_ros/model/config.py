@@ -25,7 +25,7 @@ DEFAULTS: dict[str, Any] = {
     "needle.youngs_modulus": 193e9,
     "needle.density": 8000.0,
     "needle.elements": 10,
-    "needle.element_lengths": None,
+    "needle.element_lengths": [0.0],  # [0.0] (or [] / null in a file): needle.elements uniform elements
     "needle.gravity": [0.0, 0.0, -9.81],
     "needle.axial_gauss_points": 2,   # reduced axial integration: locking-free (README "Needle model")
     "needle.bending_gauss_points": 3,
@@ -101,6 +101,13 @@ def _fixtures(p: Mapping[str, Any]) -> tuple[Fixture, ...]:
                  for a, b in values.reshape(-1, 2))
 
 
+def element_lengths(p: Mapping[str, Any]) -> list[float] | None:
+    """The mesh's element lengths [m] from ``needle.element_lengths``, or None for ``needle.elements`` uniform ones
+    (the value [0.0], [] or null)."""
+    value = p.get("needle.element_lengths")
+    return None if value is None or list(value) in ([], [0.0]) else [float(length) for length in value]
+
+
 def needle_properties(p: Mapping[str, Any]) -> NeedleProperties:
     """NeedleProperties from the flat ``needle.*`` parameters."""
     return NeedleProperties(length=p["needle.length"], radius=p["needle.radius"],
@@ -119,8 +126,8 @@ def load_needle_config(source) -> tuple[NeedleProperties, dict[str, Any], dict[s
              "bending_gauss": int(p["needle.bending_gauss_points"]),
              "rayleigh_alpha": float(p["damping.rayleigh_alpha"]), "rayleigh_beta": float(p["damping.rayleigh_beta"]),
              "fixtures": _fixtures(p)}
-    if p["needle.element_lengths"] is not None:
-        build["element_lengths"] = list(p["needle.element_lengths"])
+    if (lengths := element_lengths(p)) is not None:
+        build["element_lengths"] = lengths
     dt = float(p["integrator.dt"])
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"integrator.dt must be > 0 [s], got {p['integrator.dt']!r}")

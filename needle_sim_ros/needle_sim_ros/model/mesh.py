@@ -110,7 +110,8 @@ class Mesh:
             if lengths.size == 0 or not np.all(np.isfinite(lengths)) or np.any(lengths <= 0):
                 raise ValueError("element_lengths must be a non-empty list of finite lengths > 0 [m]")
             if abs(lengths.sum() - length) > 1e-9 * length:
-                raise ValueError(f"element_lengths sum to {lengths.sum()!r} m, not the needle length {length!r} m")
+                raise ValueError(f"element_lengths sum to {float(lengths.sum()):g} m, "
+                                 f"not the needle length {length:g} m")
             lengths = lengths * (length / lengths.sum())
         nodes = np.concatenate([[0.0], np.cumsum(lengths)])
         nodes[-1] = length

@@ -29,6 +29,12 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("needle.youngs_modulus", MODEL_DEFAULTS["needle.youngs_modulus"], "Young's modulus E [Pa].", 1e6, 1e12),
     ParamSpec("needle.density", MODEL_DEFAULTS["needle.density"], "Density rho [kg/m^3].", 1.0, 1e5),
     ParamSpec("needle.elements", MODEL_DEFAULTS["needle.elements"], "Number of ANCF cable elements.", 1, 200),
+    ParamSpec("needle.element_lengths", MODEL_DEFAULTS["needle.element_lengths"],
+              "Element lengths [m] from the clamp point A to the tip, for a non-uniform mesh (e.g. finer where the "
+              "tissue acts); they must sum to needle.length and then set the number of elements. [0.0]: "
+              "needle.elements elements of equal length.", 0.0, 10.0,
+              check=(lambda v: list(v) in ([], [0.0]) or all(length > 0 for length in v),
+                     "must be [0.0] (uniform) or lengths > 0 [m] summing to needle.length")),
     ParamSpec("needle.gravity", MODEL_DEFAULTS["needle.gravity"],
               "Gravitational acceleration in the world frame [m/s^2].", -100.0, 100.0, length=3),
     ParamSpec("needle.axial_gauss_points", MODEL_DEFAULTS["needle.axial_gauss_points"],
