@@ -22,6 +22,8 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
+from needle_vision.parameters import ParameterError
+
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
 from needle_sim_ros.model import (
     BaseMotion,
@@ -509,8 +511,8 @@ def model_builder_from_parameters(p: dict) -> ModelBuilder:
 def simulation_from_parameters(p: dict) -> NeedleSimulation:
     """The simulator described by the `needle_simulator` parameters (flat dotted names, validated values).
 
-    One construction for the node and the offline pipeline, so both run the same simulator. Raises ValueError
-    for tissue parameters that the tissue models reject.
+    One construction for the node and the offline pipeline, so both run the same simulator. Raises ParameterError
+    for element lengths the mesh rejects, ValueError for tissue parameters that the tissue models reject.
     """
     model_builder = model_builder_from_parameters(p)
     tissue_config = {name: value for name, value in p.items() if name.startswith("tissue.")}
@@ -523,7 +525,10 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
         max_position_jump=p["pose_input.max_position_jump"], max_orientation_jump=p["pose_input.max_orientation_jump"],
         reanchor_after=p["pose_input.reanchor_after"], max_position=p["pose_input.max_position"]))
     clamp = p["fixtures.clamp_interval"]
-    model, integrator = model_builder(())
+    try:
+        model, integrator = model_builder(())
+    except ValueError as error:  # the mesh rejects element lengths that do not sum to the needle length
+        raise ParameterError(f"parameter 'needle.element_lengths': {error}") from error
     if p["tissue.enable"]:
         tissue_builder(model)  # reject bad tissue parameters now, not at the first pose
     sim = NeedleSimulation(

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 from failing_forces import PoisonedAfter
 from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrator, PointLoad, StepFailed
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+from needle_vision.parameters import ParameterError
 from needle_sim_ros.simulation import simulation_from_parameters
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
@@ -140,7 +141,7 @@ def test_a_non_uniform_mesh_from_needle_element_lengths_sags_as_the_euler_bernou
     for x, index in ((0.1, 10), (0.2, 20), (0.27, 27)):
         exact = w * x ** 2 * (6 * L ** 2 - 4 * L * x + x ** 2) / (24 * EI)
         assert line.points[index, 2] - 0.3 == pytest.approx(-exact, rel=2e-3)
-    with pytest.raises(ValueError, match="element_lengths sum to 0.2 m"):
+    with pytest.raises(ParameterError, match="'needle.element_lengths': element_lengths sum to 0.2 m"):
         simulation_from_parameters({**PARAMETERS, "needle.element_lengths": [0.1, 0.1]})
 
 
