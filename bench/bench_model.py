@@ -3,15 +3,15 @@
     cd /work/main && source .venv/needle_env.sh && PYTHONPATH=needle_sim_ros python bench/bench_model.py [--quick]
 
 * start-up: numba compilation with an empty cache (first run after install) and loading from the cache;
-* integration step at dt = 1 ms for 5/10/20/40 elements: the base moves (5 mm/s insertion, 5 deg pitch at
+* integration step at dt = 1 ms for 5/10/20/40 elements through the simulator's one time loop
+  (NeedleSimulation.advance_to, reaction wrench included): the base moves (5 mm/s insertion, 5 deg pitch at
   0.2 Hz), gravity, Rayleigh beta = 1e-4, generalized-alpha (rho_inf = 0.8); real-time factor = dt / step time;
-  one step at a time (Integrator.step, full Newton) and as compiled runs of 10 steps with the reaction wrench
-  (Integrator.step_sequence, modified Newton: the simulator's path without tissue);
+  the general step path (full Newton) and the compiled step sequence (the simulator's path without tissue);
   again with a 20-point MaterialPointForce (a tissue-like lateral spring-damper on the distal half, the path tissue
   models take); plus reaction wrench (eq. 20), a 50-point centerline and BaseMotion.from_flange;
 * static equilibrium under weight + 80 g tip mass from the straight needle (10 elements).
-Times are the best of several repeats (the machine may be shared); BaseMotion objects are built outside the timed
-step loop.
+Times are the best of several repeats (the machine may be shared); the base motion is evaluated per step, as the
+simulator does.
 """
 from __future__ import annotations
 
@@ -26,8 +26,8 @@ import time
 import numpy as np
 
 from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, MaterialPointForce, NeedleProperties,
-                                  PointForces, PointLoad, State, build_model, centerline, reaction_wrench,
-                                  solve_static)
+                                  PointForces, PointLoad, build_model, centerline, reaction_wrench, solve_static)
+from needle_sim_ros.simulation import NeedleSimulation
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
 DT = 1e-3
@@ -37,6 +37,7 @@ import time
 start = time.perf_counter()
 import numpy as np
 from needle_sim_ros.model import *
+from needle_sim_ros.simulation import NeedleSimulation
 props = NeedleProperties(0.27, 0.635e-3, 193e9, 8000.0)
 model = build_model(props, 10, rayleigh_beta=1e-4)
 base = BaseMotion.from_flange((0, 0, 0), (0, 0, 0, 1), (0, 0, 0.1), (0, 0, 0, 1))
@@ -44,8 +45,11 @@ law = lambda r, rx, v, t, b: PointForces(-r, -np.broadcast_to(np.eye(3), (r.shap
 forces = [Gravity(), PointLoad(0.27, (0, 0, -0.1)), MaterialPointForce([0.2, 0.25], [0.01, 0.01], law)]
 state = model.straight_state(base)
 integrator = Integrator(model)
-state = integrator.step(state, 1e-3, base, forces[:2]).state
-state = integrator.step(state, 1e-3, base, forces).state
+simulation = NeedleSimulation.prescribed(model, integrator, 1e-3, lambda t: base, state, forces[1:2])
+simulation.advance_to(0.003)  # the compiled sequence
+simulation = NeedleSimulation.prescribed(model, integrator, 1e-3, lambda t: base, simulation.state, forces[1:])
+simulation.advance_to(0.006)  # the general step path
+state = simulation.state
 static = solve_static(model, base, forces[:2]).state
 reaction_wrench(model, state, base, forces)
 centerline(model, state.q, 50)
@@ -95,46 +99,23 @@ def best_time(function, calls: int, repeats: int) -> float:
     return best
 
 
-def step_benchmark(n_elements: int, forces: list, steps: int, repeats: int) -> tuple[float, float]:
-    """(best mean wall time per step [s], mean Newton iterations per step)."""
+def step_benchmark(n_elements: int, extra_forces: list, steps: int, repeats: int,
+                   compiled: bool) -> tuple[float, float]:
+    """(best mean wall time per step [s], mean Newton iterations per step) of the simulator's one time loop,
+    ``NeedleSimulation.advance_to``, on the prescribed base motion with gravity and ``extra_forces``, reaction wrench
+    included: the compiled step sequence where it applies (``compiled``) or the general step path."""
     model = build_model(NEEDLE, n_elements, rayleigh_beta=1e-4)
-    integrator = Integrator(model)
-    bases = [base_motion(k * DT) for k in range((repeats + 1) * steps + 1)]
-    state = model.straight_state(bases[0])
-    for k in range(1, steps + 1):  # warm-up, leaves the start transient behind
-        state = integrator.step(state, DT, bases[k], forces).state
-    best, iterations = np.inf, 0
+    simulation = NeedleSimulation.prescribed(model, Integrator(model), DT, base_motion,
+                                             model.straight_state(base_motion(0.0)), extra_forces)
+    simulation.compiled_sequence = compiled
+    simulation.advance_to(steps * DT)  # warm-up, leaves the start transient behind
+    best, iterations = np.inf, 0.0
     for r in range(repeats):
-        iterations = 0
         start = time.perf_counter()
-        for k in range((r + 1) * steps + 1, (r + 2) * steps + 1):
-            result = integrator.step(state, DT, bases[k], forces)
-            state, iterations = result.state, iterations + result.newton_iterations
-        best = min(best, (time.perf_counter() - start) / steps)
-    return best, iterations / steps
-
-
-def sequence_benchmark(n_elements: int, steps: int, repeats: int, batch: int = 10) -> float:
-    """Best mean wall time per step [s] of Integrator.step_sequence (compiled runs of ``batch`` steps, reaction
-    wrench included; the simulator's path for gravity and world-frame loads)."""
-    model = build_model(NEEDLE, n_elements, rayleigh_beta=1e-4)
-    integrator = Integrator(model)
-    bases = [base_motion(k * DT) for k in range((repeats + 1) * steps + 1)]
-    packed = np.array([np.concatenate([b.position, b.orientation, b.linear_velocity, b.angular_velocity,
-                                       b.linear_acceleration, b.angular_acceleration]) for b in bases])
-    rotations = np.array([b.rotation for b in bases])
-    state = integrator.step(model.straight_state(bases[0]), DT, bases[1], [Gravity()]).state
-    best, forces = np.inf, [Gravity()]
-    for r in range(repeats + 1):  # the first round warms up
-        start = time.perf_counter()
-        for first in range(r * steps + 2, (r + 1) * steps + 2, batch):
-            result = integrator.step_sequence(state, DT, packed[first:first + batch], rotations[first:first + batch],
-                                              forces)
-            rows = result.states[-1]
-            state = State(rows[0], rows[1], rows[2], state.t + DT * result.done, rows[3])
-        if r:
-            best = min(best, (time.perf_counter() - start) / steps)
-    return best
+        records = simulation.advance_to((r + 2) * steps * DT)
+        best = min(best, (time.perf_counter() - start) / len(records))
+        iterations = sum(record.newton_iterations for record in records) / len(records)
+    return best, iterations
 
 
 def output_times(n_elements: int, repeats: int) -> tuple[float, float]:
@@ -156,14 +137,14 @@ def main() -> None:
         print("| start-up (import, build, steps, static solve, outputs) | seconds |\n|---|---|")
         print(f"| empty numba cache (compilation) | {cold:.1f} |\n| numba cache filled (cache=True) | {warm:.2f} |\n")
 
-    print("| elements | step [us] | real-time factor | compiled sequence, step + wrench [us] | real-time factor "
-          "| step + 20-pt MaterialPointForce [us] | real-time factor "
+    print("| elements | general step + wrench [us] | real-time factor | compiled sequence, step + wrench [us] "
+          "| real-time factor | general step + 20-pt MaterialPointForce [us] | real-time factor "
           "| Newton its/step (plain / with force) | reaction wrench [us] | centerline 50 pts [us] |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for n_elements in (5, 10, 20, 40):
-        plain, plain_its = step_benchmark(n_elements, [Gravity()], steps, repeats)
-        sequence = sequence_benchmark(n_elements, steps, repeats)
-        tissue, tissue_its = step_benchmark(n_elements, [Gravity(), tissue_like_force()], steps, repeats)
+        plain, plain_its = step_benchmark(n_elements, [], steps, repeats, compiled=False)
+        sequence, _ = step_benchmark(n_elements, [], steps, repeats, compiled=True)
+        tissue, tissue_its = step_benchmark(n_elements, [tissue_like_force()], steps, repeats, compiled=False)
         wrench, line = output_times(n_elements, repeats)
         print(f"| {n_elements} | {plain * 1e6:.0f} | {DT / plain:.1f} | {sequence * 1e6:.0f} | {DT / sequence:.1f} "
               f"| {tissue * 1e6:.0f} | {DT / tissue:.1f} "
