@@ -130,3 +130,16 @@ def advance_sampled(simulation: NeedleSimulation, n_steps: int, every: int, reco
         iterations += sum(step.newton_iterations for step in records)
         record()
     return integration_wall, iterations
+
+
+def run_summary(model: NeedleModel, integrator_kwargs: dict, dt: float, n_steps: int, integration_wall: float,
+                iterations: int) -> dict:
+    """The fields every scenario result has: mesh, material, integrator, damping and the integration's effort
+    (``integration_wall`` [s] and ``iterations`` as :func:`advance_sampled` returns them)."""
+    return {"elements": model.n_elements, "material": material(model.props),
+            "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss,
+            "integrator": {**integrator_kwargs},
+            "rayleigh": {"alpha": model.rayleigh_alpha, "beta": model.rayleigh_beta},
+            "dt_s": dt, "steps": n_steps, "simulated_time_s": n_steps * dt,
+            "integration_wall_time_s": integration_wall, "real_time_factor": n_steps * dt / integration_wall,
+            "mean_newton_iterations": iterations / max(n_steps, 1)}

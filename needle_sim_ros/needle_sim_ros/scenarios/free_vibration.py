@@ -19,7 +19,7 @@ from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, PointLoad, bu
 
 from needle_sim_ros.simulation import NeedleSimulation
 
-from .common import (IDENTITY, add_needle_arguments, advance_sampled, figure, material, needle_configuration,
+from .common import (IDENTITY, add_needle_arguments, advance_sampled, figure, needle_configuration, run_summary,
                      save_figure, shape_json, wrench_json, write_json)
 
 
@@ -54,15 +54,10 @@ def simulate_release(props, build: dict, integrator_kwargs: dict, tip_mass: floa
     integration_wall, iterations = advance_sampled(simulation, n_steps, every, record)
     state = simulation.state
     final = samples[-1]
-    return {"scenario": "free_vibration", "elements": model.n_elements, "material": material(props),
-            "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss,
+    return {"scenario": "free_vibration", **run_summary(model, integrator_kwargs, dt, n_steps, integration_wall,
+                                                         iterations),
             "tip_mass_kg": tip_mass, **shape_json(model, state.q, base, n_samples),
-            "base_wrench": final["base_wrench"], "integrator": {**integrator_kwargs},
-            "rayleigh": {"alpha": model.rayleigh_alpha, "beta": model.rayleigh_beta},
-            "dt_s": dt, "steps": n_steps, "simulated_time_s": n_steps * dt,
-            "integration_wall_time_s": integration_wall, "real_time_factor": n_steps * dt / integration_wall,
-            "mean_newton_iterations": iterations / max(n_steps, 1),
-            "wall_time_s": time.perf_counter() - start, "samples": samples}
+            "base_wrench": final["base_wrench"], "wall_time_s": time.perf_counter() - start, "samples": samples}
 
 
 def plot_release(result: dict, path) -> None:

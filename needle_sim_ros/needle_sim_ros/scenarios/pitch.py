@@ -19,7 +19,7 @@ from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, Integrator, buil
 
 from needle_sim_ros.simulation import NeedleSimulation
 
-from .common import (add_needle_arguments, advance_sampled, figure, material, needle_configuration, save_figure,
+from .common import (add_needle_arguments, advance_sampled, figure, needle_configuration, run_summary, save_figure,
                      shape_json, wrench_json, write_json)
 
 
@@ -78,16 +78,10 @@ def simulate_pitch(props, build: dict, integrator_kwargs: dict, dt: float, ampli
 
     integration_wall, iterations = advance_sampled(simulation, n_steps, every, record)
     final = samples[-1]
-    return {"scenario": "pitch", "elements": model.n_elements, "material": material(props),
-            "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss,
+    return {"scenario": "pitch", **run_summary(model, integrator_kwargs, dt, n_steps, integration_wall, iterations),
             "tip_mass_kg": 0.0, "tip_position_m": final["tip_position_m"], "base_wrench": final["base_wrench"],
             "centerline_m": final["centerline_m"], "amplitude_rad": amplitude, "frequency_hz": frequency,
-            "clamp_fraction": clamp_fraction, "integrator": {**integrator_kwargs},
-            "rayleigh": {"alpha": model.rayleigh_alpha, "beta": model.rayleigh_beta},
-            "dt_s": dt, "steps": n_steps, "simulated_time_s": n_steps * dt,
-            "integration_wall_time_s": integration_wall, "real_time_factor": n_steps * dt / integration_wall,
-            "mean_newton_iterations": iterations / max(n_steps, 1),
-            "wall_time_s": time.perf_counter() - start, "samples": samples}
+            "clamp_fraction": clamp_fraction, "wall_time_s": time.perf_counter() - start, "samples": samples}
 
 
 def plot_instants(result: dict, path) -> None:
