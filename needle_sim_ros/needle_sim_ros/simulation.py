@@ -8,8 +8,11 @@ needle: the node feeds it poses and calls :meth:`advance` from its real-time loo
 same over a bag, and the scenarios, the ground truth of the sample bags and the benchmarks advance a prescribed
 simulation to their sample times.
 
-Two timing rules (:meth:`target_time`):
-* live: integrate up to now, extrapolating the newest pose for at most ``max_extrapolation`` (lowest latency);
+Timing rules (:meth:`target_time`):
+* live: integrate up to now, extrapolating the newest pose for at most ``max_extrapolation``;
+* live, ahead to the pose: also integrate the step that ends at or after the newest pose's stamp (at most one step
+  past the clock; its base motion is the fit extrapolated by less than dt), so a pose's wrench is out as soon as
+  the pose is in, without waiting for the step's end time;
 * deterministic (simulated time, offline): integrate up to min(now, newest pose stamp), so poses are always
   interpolated and the result depends on the recorded data only — unless the input timed out, then up to now
   holding the last pose.
@@ -290,11 +293,16 @@ class NeedleSimulation:
         latest = self.trajectory.latest
         return now - latest.t if latest is not None else float("inf")
 
-    def target_time(self, now: float, deterministic: bool) -> float:
+    def target_time(self, now: float, deterministic: bool, ahead_to_pose: bool = False) -> float:
         """Time the model should reach at clock time ``now`` (see the module docstring)."""
         latest = self.trajectory.latest
         if deterministic and latest is not None and now - latest.t <= self.pose_timeout:
             return min(now, latest.t)
+        if ahead_to_pose and latest is not None and latest.t > now - self.dt:
+            # grid indices (a pose within 1 us after a step's end time counts as at it: epoch-time resolution)
+            to_pose = np.ceil((latest.t - self._grid_origin) / self.dt - 1e-3)
+            after_now = np.floor((now - self._grid_origin) / self.dt + 1e-3) + 1
+            return max(now, float(self._grid_time(min(to_pose, after_now))))
         return now
 
     # -- time stepping --------------------------------------------------------------------------------------
@@ -339,12 +347,12 @@ class NeedleSimulation:
         """Forget the state (e.g. the clock jumped back); the next :meth:`reset` starts again."""
         self.state = None
 
-    def advance(self, now: float, deterministic: bool) -> list[StepRecord]:
+    def advance(self, now: float, deterministic: bool, ahead_to_pose: bool = False) -> list[StepRecord]:
         """Integrate up to :meth:`target_time`; a clock that jumped back (looping bag) discards the state."""
         if self.state is not None and now < self.state.t - self.pose_timeout:
             self.trajectory.clear()
             self.discard_state()
-        return self.advance_to(self.target_time(now, deterministic))
+        return self.advance_to(self.target_time(now, deterministic, ahead_to_pose))
 
     def advance_to(self, t_target: float) -> list[StepRecord]:
         """Integrate with fixed steps of dt until the next step would pass t_target.

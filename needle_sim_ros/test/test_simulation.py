@@ -145,6 +145,25 @@ def test_a_non_uniform_mesh_from_needle_element_lengths_sags_as_the_euler_bernou
         simulation_from_parameters({**PARAMETERS, "needle.element_lengths": [0.1, 0.1]})
 
 
+def test_ahead_to_pose_integrates_the_step_that_contains_the_newest_pose_and_no_further():
+    """Live, ahead to the pose (the node's loop.ahead_to_pose): the step ending at or after the newest pose's stamp
+    is integrated at once, though its end time is still ahead of the clock; never more than one step past the
+    clock, and without the option only the steps whose end time has passed."""
+    sim = simulation_from_parameters(PARAMETERS)
+    for k in range(5):
+        sim.offer_pose(k * 1e-3, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+        sim.advance(k * 1e-3, deterministic=False)
+    assert sim.state.t == pytest.approx(4e-3)
+    sim.offer_pose(4.3e-3, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+    assert sim.advance(4.4e-3, deterministic=False) == []  # the step to 5 ms ends in the future
+    records = sim.advance(4.4e-3, deterministic=False, ahead_to_pose=True)
+    assert [record.t for record in records] == [pytest.approx(5e-3)]
+    sim.offer_pose(7.9e-3, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])  # stamped 3.5 ms ahead of the clock
+    records = sim.advance(4.4e-3, deterministic=False, ahead_to_pose=True)
+    assert records == [] and sim.state.t == pytest.approx(5e-3)  # one step past the clock at most
+    assert [r.t for r in sim.advance(5.2e-3, False, True)] == [pytest.approx(6e-3)]
+
+
 def _tissue_state(forces) -> list[bytes]:
     """The tissue forces' mutable state as bytes (contact, track, anchors, friction states)."""
     return [pickle.dumps(force) for force in forces]

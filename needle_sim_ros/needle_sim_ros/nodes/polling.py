@@ -3,13 +3,18 @@
 rclpy's executor builds a wait set and a task for every message: ~100 µs of Python per callback, which at
 1 kHz of base poses costs a tenth of a core and, worse, makes the integration thread wait for the GIL while the
 executor thread works. The simulator's integration loop instead takes the waiting poses itself at each tick,
-right before it steps: no wait set, no thread hand-over, the newest pose is used at once. The subscription is
-a normal one (graph, QoS, remapping, ``ros2 topic info``); it only belongs to a callback group that no executor
-runs.
+right before it steps: no executor, no thread hand-over, the newest pose is used at once; between ticks it
+waits on its own wait set (:class:`MessageWaiter`), so that a pose arriving mid-period is taken at once. The
+subscription is a normal one (graph, QoS, remapping, ``ros2 topic info``); it only belongs to a callback group
+that no executor runs.
 """
 from __future__ import annotations
 
+from typing import Sequence
+
 from rclpy.callback_groups import CallbackGroup
+from rclpy.context import Context
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
 
 
@@ -38,3 +43,21 @@ def drain(subscription: Subscription, limit: int = 10_000) -> int:
             subscription.callback(taken[0])
             count += 1
     return count
+
+
+class MessageWaiter:
+    """Blocks its owner's thread (GIL released) until one of the polled subscriptions has a message waiting, or
+    a timeout passes: rcl's wait set, as ``rclpy.wait_for_message`` uses it, refilled before every wait."""
+
+    def __init__(self, subscriptions: Sequence[Subscription], context: Context) -> None:
+        self._subscriptions = list(subscriptions)
+        self._wait_set = _rclpy.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0, context.handle)
+
+    def wait(self, timeout: float) -> bool:
+        """True if a message arrived within ``timeout`` [s] (it is left in its queue for :func:`drain`)."""
+        wait_set = self._wait_set
+        wait_set.clear_entities()
+        for subscription in self._subscriptions:
+            wait_set.add_subscription(subscription.handle)
+        wait_set.wait(max(int(timeout * 1e9), 0))
+        return bool(wait_set.get_ready_entities("subscription"))

@@ -43,7 +43,7 @@ from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_sh
 from needle_sim_ros.nodes.diagnostics import HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
 from needle_vision.ros.ros_parameters import declare_all, guard_dynamic_updates
-from needle_sim_ros.nodes.polling import PolledCallbackGroup, drain
+from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
 from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.tf_output import SimulatorTf
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
@@ -100,6 +100,7 @@ class NeedleSimulatorNode(LifecycleNode):
                                      qos_profile(self.p["qos.base_pose"], 100), callback_group=polled, raw=True),
             self.create_subscription(TwistStamped, topics["base_twist"], self.on_twist,
                                      qos_profile(self.p["qos.base_pose"], 100), callback_group=polled)]
+        self._pose_waiter = MessageWaiter(self._polled, self.context)
         self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10)
         configured = lambda: self.sim is not None  # noqa: E731
         self.create_service(Trigger, "~/reset", when_configured(configured, self.on_reset))
@@ -335,11 +336,17 @@ class NeedleSimulatorNode(LifecycleNode):
                     break
                 self.warn_throttled("outputs", f"publishing outputs failed: {error!r}")
 
+    @property
+    def ahead_to_pose(self) -> bool:
+        """loop.ahead_to_pose, in wall-clock time (simulated time steps on its clock only: deterministic)."""
+        return self.p["loop.ahead_to_pose"] and not self.use_sim_time
+
     def run_loop(self) -> None:
         """Ticks until shutdown. In wall-clock time each tick is timed to the moment the next step's end time
         passes, so a tick integrates exactly one step and publishes its wrench at once (a tick that has to
-        integrate more is a deadline miss); in simulated time (no relation to this process's clock) ticks come
-        every dt."""
+        integrate more is a deadline miss); between ticks a pose wakes the loop at once, which then integrates
+        the step that ends at or after its stamp (``loop.ahead_to_pose``). In simulated time (no relation to this
+        process's clock) ticks come every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
         if not self.use_sim_time:  # simulated time needs no tick accuracy
@@ -361,7 +368,10 @@ class NeedleSimulatorNode(LifecycleNode):
             if remaining < -10 * period:  # far behind (e.g. suspended): re-phase instead of bursting
                 deadline = time.perf_counter()
             elif remaining > busy:
-                time.sleep(remaining - busy)
+                if not self.ahead_to_pose:
+                    time.sleep(remaining - busy)
+                elif self._pose_waiter.wait(remaining - busy):
+                    continue  # a pose mid-period: its step at once
             while time.perf_counter() < deadline:
                 pass
 
@@ -387,7 +397,7 @@ class NeedleSimulatorNode(LifecycleNode):
                 return
             started = self.sim.started
             failed, skipped = self.sim.statistics.failed_steps, self.sim.statistics.skipped_time
-            records = self.sim.advance(now, deterministic=self.use_sim_time) if started else []
+            records = self.sim.advance(now, self.use_sim_time, self.ahead_to_pose) if started else []
             failed, skipped = self.sim.statistics.failed_steps - failed, self.sim.statistics.skipped_time - skipped
         if skipped:
             self.warn_throttled("skipped", f"the integration lagged more than loop.max_catch_up: {skipped:.3f} s of "

@@ -146,6 +146,11 @@ SIMULATOR_PARAMETERS = [
     # Real-time loop.
     ParamSpec("loop.max_catch_up", 0.05, "Largest lag [s] the loop integrates to catch up; beyond it time is skipped.",
               1e-3, 10.0),
+    ParamSpec("loop.ahead_to_pose", True,
+              "Wall-clock time: on a base pose, integrate at once the step that ends at or after its stamp (at most "
+              "one step past the clock; the base motion extrapolated by less than dt), so its wrench is published "
+              "within the step's computation instead of at the step's end time (pose->wrench latency); false: a "
+              "step is integrated once its end time has passed."),
     ParamSpec("loop.busy_wait", 0.0002, "Spin the last part of each period instead of sleeping, for tick accuracy [s].",
               0.0, 0.01),
     ParamSpec("loop.realtime_priority", 50,
