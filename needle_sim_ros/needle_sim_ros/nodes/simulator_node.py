@@ -343,10 +343,10 @@ class NeedleSimulatorNode(LifecycleNode):
 
     def run_loop(self) -> None:
         """Ticks until shutdown. In wall-clock time each tick is timed to the moment the next step's end time
-        passes, so a tick integrates exactly one step and publishes its wrench at once (a tick that has to
-        integrate more is a deadline miss); between ticks a pose wakes the loop at once, which then integrates
-        the step that ends at or after its stamp (``loop.ahead_to_pose``). In simulated time (no relation to this
-        process's clock) ticks come every dt."""
+        passes, so a tick integrates exactly one step and publishes its wrench at once (a step integrated more than
+        a period after its end time is a deadline miss); between ticks a pose wakes the loop at once, which then
+        integrates the step that ends at or after its stamp (``loop.ahead_to_pose``). In simulated time (no
+        relation to this process's clock) ticks come every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
         if not self.use_sim_time:  # simulated time needs no tick accuracy
@@ -407,11 +407,10 @@ class NeedleSimulatorNode(LifecycleNode):
                                           f"{len(self.sim.point_loads)}): needle reset straight at the base pose")
         if started and not self.sim.started:
             self.get_logger().warning(f"clock jumped back to {now:.3f} s: waiting for a new first pose")
-        if len(records) > 1:  # simulated time has no deadline: several steps per tick are its catch-up
-            if self.use_sim_time:
-                self.catch_up_steps += len(records) - 1
-            else:
-                self.deadline_misses += len(records) - 1
+        if self.use_sim_time:  # simulated time has no deadline: several steps per tick are its catch-up
+            self.catch_up_steps += max(len(records) - 1, 0)
+        else:  # a step integrated more than a period after its end time (not one integrated ahead to a pose)
+            self.deadline_misses += sum(1 for record in records if record.t < now - self.sim.dt)
         if records:
             self.publish_wrenches(records)
 
