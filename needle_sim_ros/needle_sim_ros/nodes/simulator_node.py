@@ -370,10 +370,21 @@ class NeedleSimulatorNode(LifecycleNode):
             elif remaining > busy:
                 if not self.ahead_to_pose:
                     time.sleep(remaining - busy)
-                elif self._pose_waiter.wait(remaining - busy):
+                elif self.wait_for_pose(remaining - busy):
                     continue  # a pose mid-period: its step at once
             while time.perf_counter() < deadline:
                 pass
+
+    def wait_for_pose(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` [s] for a message on the polled subscriptions; sleeps instead if the wait set
+        fails (e.g. the context shutting down under it)."""
+        try:
+            return self._pose_waiter.wait(timeout)
+        except Exception as error:  # noqa: BLE001 - rcl errors of a wait set whose context is going away
+            if not (self._stop.is_set() or not rclpy.ok()):
+                self.warn_throttled("wait", f"waiting for poses failed, sleeping instead: {error!r}")
+            time.sleep(timeout)
+            return False
 
     def request_realtime_priority(self, priority: int) -> None:
         """Put the calling (integration) thread under SCHED_FIFO with the given priority, if asked and allowed."""
