@@ -446,6 +446,9 @@ def run(arguments: argparse.Namespace) -> int:
     partial = output.with_name(output.name + ".part")
     measured = 0
     ordering: Counter = Counter()
+    opencv_threads = cv2.getNumThreads()
+    if arguments.workers > 1:  # pairs run on the workers; OpenCV's own pool would only spin on the same cores
+        cv2.setNumThreads(1)
     try:
         with open(partial, "w", newline="") as stream, \
                 closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded, \
@@ -513,6 +516,7 @@ def run(arguments: argparse.Namespace) -> int:
         partial.replace(output)
     finally:
         partial.unlink(missing_ok=True)
+        cv2.setNumThreads(opencv_threads)
     print(f"{measured} measured pairs -> {output}")
     return 0
 
