@@ -451,8 +451,7 @@ def run(arguments: argparse.Namespace) -> int:
     measured = 0
     ordering: Counter = Counter()
     opencv_threads = cv2.getNumThreads()
-    if arguments.workers > 1:  # pairs run on the workers; OpenCV's own pool would only spin on the same cores
-        cv2.setNumThreads(1)
+    cv2.setNumThreads(1)  # the --workers threads run the pairs; OpenCV's own pool would only spin on the same cores
     try:
         with open(partial, "w", newline="") as stream, \
                 closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded, \
