@@ -5,7 +5,8 @@ Input is either a folder with ``left/`` and ``right/`` sub-folders of images pai
 ``sensor_msgs/CompressedImage`` topics, read as serialized bytes (raw pixels are never copied). Images are
 decoded on a thread pool ahead of the measurement (OpenCV releases the GIL); with ``--workers`` >= 2, pairs are
 also measured concurrently once the background and polarity are settled (the compiled kernels release the GIL too),
-their order-dependent part (base/tip by continuity, tracking, CSV) completed in input order: the same CSV. The
+their order-dependent part (base/tip by continuity, tracking, CSV) completed in input order: the same CSV. OpenCV's
+own thread pool is off during a run (``--workers`` is the parallelism). Grey 8-bit BMPs are read as their rows. The
 calibration comes from camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics.
 Settings are the node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
 ``--output-frame`` override the common ones; ``--base-pose-topic`` reads the needle's base poses from the bag
