@@ -1,9 +1,10 @@
 """sensor_msgs/Image fields <-> numpy (no cv_bridge)."""
+import cv2
 import numpy as np
 import pytest
 
 from needle_vision.streams.image_codec import (ImageFormatError, gray_to_encoding, image_fields, image_message_to_gray,
-                                               image_to_array, image_to_gray)
+                                               image_to_array, image_to_gray, read_gray_bmp)
 
 
 @pytest.mark.parametrize("encoding", ["mono8", "mono16", "bgr8", "rgb8"])
@@ -45,3 +46,26 @@ def test_unusable_images_are_explained(arguments, message):
 def test_array_must_match_encoding():
     with pytest.raises(ImageFormatError, match="does not match"):
         image_fields(np.zeros((2, 2), np.uint16), "mono8")
+
+
+@pytest.mark.parametrize("width", [1, 3, 6, 641])
+def test_grey_bmp_is_read_without_decoding(width):
+    pixels = np.random.default_rng(width).integers(0, 256, (5, width), dtype=np.uint8)
+    data = bytearray(cv2.imencode(".bmp", pixels)[1].tobytes())  # bottom-up rows padded to 4 bytes
+    image = read_gray_bmp(bytes(data))
+    np.testing.assert_array_equal(image, pixels)
+    assert image.flags.c_contiguous
+    offset, stride = int.from_bytes(data[10:14], "little"), (width + 3) & ~3
+    rows = [data[offset + row * stride:offset + (row + 1) * stride] for row in range(5)]
+    top_down = data[:offset] + b"".join(rows[::-1])
+    top_down[22:26] = (-5).to_bytes(4, "little", signed=True)
+    np.testing.assert_array_equal(read_gray_bmp(bytes(top_down)), pixels)
+
+
+def test_other_bmps_are_left_to_opencv():
+    pixels = np.random.default_rng(0).integers(0, 256, (4, 8), dtype=np.uint8)
+    data = bytearray(cv2.imencode(".bmp", pixels)[1].tobytes())
+    tinted = data[:54 + 4 * 7] + b"\x00\x00\x08\x00" + data[54 + 4 * 8:]  # palette entry 7 is not grey
+    for other in (cv2.imencode(".bmp", np.dstack([pixels] * 3))[1].tobytes(), bytes(tinted), bytes(data[:-3]),
+                  cv2.imencode(".png", pixels)[1].tobytes()):
+        assert read_gray_bmp(other) is None

@@ -29,12 +29,14 @@ def read_rows(path: Path) -> tuple[list[str], np.ndarray]:
     return rows[0], np.array([[float(v) if v else np.nan for v in row] for row in rows[1:]])
 
 
-def test_image_folder(tmp_path, rig, background_frames, renders, capsys):
+@pytest.mark.parametrize("suffix", [".png", ".bmp"])  # BMP: grey ones are read as their rows, colour ones decoded
+def test_image_folder(tmp_path, rig, background_frames, renders, capsys, suffix):
     for side, index in (("left", 0), ("right", 1)):
         (tmp_path / "frames" / side).mkdir(parents=True)
         for k, pair in enumerate(background_frames[:3]):
-            cv2.imwrite(str(tmp_path / "frames" / side / f"{k:04d}.png"), pair[index])
-        cv2.imwrite(str(tmp_path / "frames" / side / "0003.png"), renders("planar")[index])
+            image = pair[index] if k else cv2.cvtColor(pair[index], cv2.COLOR_GRAY2BGR)
+            cv2.imwrite(str(tmp_path / "frames" / side / f"{k:04d}{suffix}"), image)
+        cv2.imwrite(str(tmp_path / "frames" / side / f"0003{suffix}"), renders("planar")[index])
     output = tmp_path / "out.csv"
     code = main([str(tmp_path / "frames"), "--params", str(params_file(tmp_path, rig)), "--quiet",
                  "--left-calibration", "package://needle_vision/config/stereo/left.yaml",
@@ -44,7 +46,7 @@ def test_image_folder(tmp_path, rig, background_frames, renders, capsys):
     assert header == ["frame", "stamp", "sample", "arc_length", "x", "y", "z", "uncertainty"]
     assert set(rows[:, 0]) == {3} and rows[0, 1] == pytest.approx(3 / 220.0)  # stamps from --fps
     distance, _ = distance_to_curve(rows[:, 4:7], SHAPES["planar"])
-    assert np.sqrt(np.mean(distance ** 2)) < 1e-4  # PNG is lossless: same accuracy as in memory
+    assert np.sqrt(np.mean(distance ** 2)) < 1e-4  # lossless: same accuracy as in memory
     assert "3  used to build the background model" in capsys.readouterr().out
 
 

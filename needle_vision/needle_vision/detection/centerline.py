@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numba
 import numpy as np
 from scipy.ndimage import median_filter
@@ -66,33 +65,16 @@ class ImageCenterline:
 
 
 @numba.njit(cache=True, nogil=True)
-def _coarse_path(mask, link, index):  # pragma: no cover - compiled
-    """Largest component of the non-zero pixels of ``mask``, pixels linked up to ``link`` pixels apart
-    (Chebyshev), and its longest BFS geodesic: the path (k, 2) as (x, y). ``index`` is an int32 scratch
-    array of the mask's shape (reused between calls: allocating it each time costs more than the search)."""
+def _components(ys, xs, mask, index, link, label, queue):  # pragma: no cover - compiled
+    """Components of the pixels ``(ys, xs)`` (non-zero in ``mask``, numbered by ``index``) linked up to ``link``
+    pixels apart (Chebyshev), numbered in the raster order of their first pixel: ``label`` per pixel is filled
+    in; returns each component's first pixel and size."""
     height, width = mask.shape
-    count = 0
-    for y in range(height):
-        for x in range(width):
-            if mask[y, x]:
-                count += 1
-    ys = np.empty(count, np.int32)
-    xs = np.empty(count, np.int32)
-    count = 0
-    for y in range(height):
-        for x in range(width):
-            if mask[y, x]:
-                index[y, x] = count
-                ys[count] = y
-                xs[count] = x
-                count += 1
-    if count == 0:
-        return np.zeros((0, 2), np.int32)
-    label = -np.ones(count, np.int32)
-    queue = np.empty(count, np.int32)
-    best_size, best_seed = 0, 0
+    label[:] = -1
+    seeds = np.empty(len(ys), np.int32)
+    sizes = np.empty(len(ys), np.int32)
     current = 0
-    for seed in range(count):
+    for seed in range(len(ys)):
         if label[seed] >= 0:
             continue
         label[seed] = current
@@ -110,12 +92,16 @@ def _coarse_path(mask, link, index):  # pragma: no cover - compiled
                             label[q] = current
                             queue[tail] = q
                             tail += 1
-        if tail > best_size:
-            best_size, best_seed = tail, seed
+        seeds[current], sizes[current] = seed, tail
         current += 1
-    hops = -np.ones(count, np.int32)
-    parent = -np.ones(count, np.int32)
-    start = best_seed
+    return seeds[:current], sizes[:current]
+
+
+@numba.njit(cache=True, nogil=True)
+def _geodesic(seed, ys, xs, mask, index, link, hops, parent, queue):  # pragma: no cover - compiled
+    """Longest BFS geodesic (two sweeps) of the component of pixel ``seed``: the path (k, 2) as (x, y)."""
+    height, width = mask.shape
+    start = far = seed
     for sweep in range(2):
         hops[:] = -1
         hops[start] = 0
@@ -137,8 +123,7 @@ def _coarse_path(mask, link, index):  # pragma: no cover - compiled
                             parent[q] = p
                             queue[tail] = q
                             tail += 1
-        if sweep == 0:
-            start = far
+        start = far
     length = hops[far] + 1
     path = np.empty((length, 2), np.int32)
     p = far
@@ -147,6 +132,54 @@ def _coarse_path(mask, link, index):  # pragma: no cover - compiled
         path[k, 1] = ys[p]
         p = parent[p]
     return path
+
+
+@numba.njit(cache=True, nogil=True)
+def _coarse_path_kernel(mask, index, min_length, count):  # pragma: no cover - compiled
+    """Longest geodesic paths of the largest components of the non-zero pixels of ``mask`` (pixels linked up to
+    2 apart, Chebyshev; equal sizes: the first in raster order), largest first; after each path, the components
+    within 3 pixels of it (linked up to 3 apart) are no longer candidates. Stops at ``count`` paths, at a path
+    shorter than 2 points, or at a later one shorter than ``min_length``. ``index`` is an int32 scratch array of
+    the mask's shape. Returns the paths' points (x, y) one after the other and their lengths."""
+    height, width = mask.shape
+    ys = np.empty(height * width, np.int32)  # only the first ``total`` entries are touched
+    xs = np.empty(height * width, np.int32)
+    total = 0
+    for y in range(height):
+        for x in range(width):
+            if mask[y, x]:
+                index[y, x] = total
+                ys[total] = y
+                xs[total] = x
+                total += 1
+    ys, xs = ys[:total], xs[:total]
+    queue = np.empty(total, np.int32)
+    label = np.empty(total, np.int32)
+    seeds, sizes = _components(ys, xs, mask, index, 2, label, queue)
+    group = np.empty(total, np.int32)
+    _components(ys, xs, mask, index, 3, group, queue)
+    erased = np.zeros(total, np.bool_)
+    hops = np.empty(total, np.int32)
+    parent = np.empty(total, np.int32)
+    points = np.empty((count * total, 2), np.int32)
+    lengths = np.zeros(count, np.int64)
+    used, found = 0, 0
+    for k in range(count):
+        best, best_size = -1, 0
+        for c in range(len(seeds)):
+            if sizes[c] > best_size and not erased[group[seeds[c]]]:
+                best, best_size = c, sizes[c]
+        if best < 0:
+            break
+        path = _geodesic(seeds[best], ys, xs, mask, index, 2, hops, parent, queue)
+        if len(path) < 2 or (k > 0 and len(path) < min_length):
+            break
+        points[used:used + len(path)] = path
+        used += len(path)
+        lengths[k] = len(path)
+        found += 1
+        erased[group[seeds[best]]] = True
+    return points[:used].copy(), lengths[:found]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -459,28 +492,11 @@ def _scatter(points, first, count):  # pragma: no cover - compiled
     return np.median(residual), np.interp(np.arange(n) * 1.0, np.arange(first, first + count) * 1.0, local)
 
 
-@numba.njit(cache=True, nogil=True)
-def _erase_label(mask, labels, label):  # pragma: no cover - compiled
-    """Zero ``mask`` where ``labels`` equals ``label`` (in place)."""
-    for y in range(mask.shape[0]):
-        for x in range(mask.shape[1]):
-            if labels[y, x] == label:
-                mask[y, x] = 0
-
-
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
     """The longest geodesic path of the largest linked component of ``mask``, then of the next largest ones
-    (up to ``count``, at least ``min_length`` coarse pixels long)."""
-    mask = mask.copy()
-    _, labels = cv2.connectedComponents(cv2.dilate(mask, np.ones((3, 3), np.uint8)), connectivity=8)
-    paths = []
-    for _ in range(count):
-        path = _coarse_path(mask, 2, scratch)
-        if len(path) < 2 or (paths and len(path) < min_length):
-            break
-        paths.append(path)
-        _erase_label(mask, labels, labels[path[0, 1], path[0, 0]])
-    return paths
+    (up to ``count``, at least ``min_length`` coarse pixels long) away from the components already used."""
+    points, lengths = _coarse_path_kernel(mask, scratch, min_length, count)
+    return np.split(points, np.cumsum(lengths)[:-1]) if len(lengths) else []
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> float:

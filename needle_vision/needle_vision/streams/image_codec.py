@@ -108,6 +108,30 @@ class SerializedImage(NamedTuple):
         return decoded_to_gray(image)
 
 
+_BMP_HEADER = struct.Struct("<2sI4xI")  # "BM", file size, pixel data offset
+#: header size, width, height (< 0: top-down), planes, bits per pixel, compression, image size, resolution x, y,
+#: palette entries (0: all 256)
+_BMP_INFO = struct.Struct("<IiiHHIIiiI")
+
+
+def read_gray_bmp(data: bytes) -> np.ndarray | None:
+    """The pixels of an uncompressed 8-bit BMP with the grey palette (what ``cv2.imwrite`` writes for mono8) as
+    a uint8 array, without decoding: the rows, flipped when stored bottom-up; None for any other BMP."""
+    if len(data) < 54 + 1024:
+        return None
+    magic, _, offset = _BMP_HEADER.unpack_from(data, 0)
+    header, width, height, _, bits, compression, _, _, _, colors = _BMP_INFO.unpack_from(data, 14)
+    stride = (width + 3) & ~3
+    if (magic != b"BM" or header < 40 or bits != 8 or compression != 0 or colors not in (0, 256) or width <= 0
+            or height == 0 or offset < 14 + header + 1024 or len(data) < offset + stride * abs(height)):
+        return None
+    palette = np.frombuffer(data, np.uint8, 1024, 14 + header).reshape(256, 4)
+    if not np.array_equal(palette[:, :3], np.repeat(np.arange(256, dtype=np.uint8)[:, None], 3, axis=1)):
+        return None
+    rows = np.frombuffer(data, np.uint8, stride * abs(height), offset).reshape(abs(height), stride)[:, :width]
+    return np.ascontiguousarray(rows[::-1] if height > 0 else rows)
+
+
 def decoded_to_gray(image: np.ndarray) -> np.ndarray:
     """One grey channel of an image decoded by OpenCV (grey, BGR or BGRA)."""
     if image.ndim == 3:
