@@ -148,6 +148,7 @@ class TissueForce(ForceContribution):
 
 
 LATERAL_GAUSS_POINTS = 3
+_NO_MATRIX = np.zeros((0, 0))
 _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(LATERAL_GAUSS_POINTS)
 
 
@@ -201,6 +202,31 @@ def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_dampi
                 d_dr[k, i, j] = -lateral_stiffness[k] * perpendicular + dt_du * tt
                 d_dv[k, i, j] = -lateral_damping[k] * perpendicular + dt_dv * tt
     return force, d_dr, d_dv
+
+
+@njit(cache=True)
+def point_kinematics(q, qd, slots, S):
+    """Positions and velocities (k, 3) of interpolation points (model.interpolation) at (q, qd)."""
+    k = slots.shape[0]
+    r, v = np.zeros((k, 3)), np.zeros((k, 3))
+    for p in range(k):
+        for a in range(4):
+            first = 3 * slots[p, a]
+            for i in range(3):
+                r[p, i] += S[p, a] * q[first + i]
+                v[p, i] += S[p, a] * qd[first + i]
+    return r, v
+
+
+@njit(cache=True)
+def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, lateral_stiffness, lateral_damping,
+                            stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale, Q, dQ_dq, dQ_dqd):
+    """Kinematics, ``shaft_point_forces`` and assembly of one part's points (ShaftSupport) in one compiled call:
+    adds to Q and, unless dQ_dq is (0, 0) (Q alone), to dQ_dq and dQ_dqd."""
+    r, v = point_kinematics(q, qd, slots, S)
+    force, d_dr, d_dv = shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping,
+                                           stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale)
+    assemble_point_forces(slots, S, S_x, weights, force, d_dr, np.zeros_like(d_dr), d_dv, Q, dQ_dq, dQ_dqd)
 
 
 def needle_points(S: np.ndarray, S_x: np.ndarray, slots: np.ndarray, q: np.ndarray):
@@ -299,8 +325,7 @@ class ShaftSupport(TissueForce):
     @staticmethod
     def _kinematics(fz: "_Frozen", q, qd):
         """Positions and velocities (k, 3) of a part's points."""
-        return (np.einsum("ka,kai->ki", fz.S, q.reshape(-1, 3)[fz.slots]),
-                np.einsum("ka,kai->ki", fz.S, qd.reshape(-1, 3)[fz.slots]))
+        return point_kinematics(q, qd, fz.slots, fz.S)
 
     @staticmethod
     def _law(fz: "_Frozen", r, v):
@@ -308,15 +333,24 @@ class ShaftSupport(TissueForce):
         return shaft_point_forces(r, v, fz.anchor_points, fz.tangents, fz.lateral_stiffness, fz.lateral_damping,
                                   fz.stick_stiffness, *fz.axial)
 
+    def _assemble(self, q, qd, Q, dQ_dq, dQ_dqd) -> None:
+        """Add both parts' generalized forces (and Jacobians unless dQ_dq is (0, 0)) (compiled kernel)."""
+        for fz in self._parts:
+            if fz.weights.size:
+                shaft_generalized_force(q, qd, fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
+                                        fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial,
+                                        Q, dQ_dq, dQ_dqd)
+
     def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
         n = q.size
         Q, dQ_dq, dQ_dqd = np.zeros(n), np.zeros((n, n)), np.zeros((n, n))
-        for fz in self._parts:
-            if fz.weights.size:
-                force, d_dr, d_dv = self._law(fz, *self._kinematics(fz, q, qd))
-                assemble_point_forces(fz.slots, fz.S, fz.S_x, fz.weights, force, d_dr, np.zeros_like(d_dr), d_dv,
-                                      Q, dQ_dq, dQ_dqd)
+        self._assemble(q, qd, Q, dQ_dq, dQ_dqd)
         return GeneralizedForce(Q, dQ_dq, dQ_dqd)
+
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        Q = np.zeros(q.size)
+        self._assemble(q, qd, Q, _NO_MATRIX, _NO_MATRIX)
+        return Q
 
     def total_force(self, model, q, qd, t, base) -> np.ndarray:
         """World resultant [N] of the shaft forces at (q, qd)."""
@@ -479,6 +513,12 @@ class BevelTipForce(TissueForce):
         d_dq[n - 6:n - 3, n - 3:] = jacobian
         return GeneralizedForce(generalized, d_dq, None)
 
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        generalized = np.zeros(q.size)
+        if self._scale != 0.0:
+            generalized[q.size - 6:q.size - 3] = self.tip_force(q, base)[0]
+        return generalized
+
     def advance(self, model, state, base) -> None:
         """Engage at the cut front; eqs. 4-5 scale with the squared edge lengths, so while the bevel enters the
         forces grow with the square of its embedded fraction (tip depth / axial bevel length a)."""
@@ -547,6 +587,12 @@ class TipResistance(TissueForce):
         d_dqd = np.zeros((n, n))
         d_dqd[n - 6:n - 3, n - 6:n - 3] = d_dv
         return GeneralizedForce(generalized, d_dq, d_dqd)
+
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        generalized = np.zeros(q.size)
+        if not self.contact.punctured or self._cutting:
+            generalized[q.size - 6:q.size - 3] = self.tip_force(q, qd)[0]
+        return generalized
 
     def advance(self, model, state, base) -> None:
         contact = self.contact
