@@ -229,12 +229,22 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
     assemble_point_forces(slots, S, S_x, weights, force, d_dr, np.zeros_like(d_dr), d_dv, Q, dQ_dq, dQ_dqd)
 
 
-def needle_points(S: np.ndarray, S_x: np.ndarray, slots: np.ndarray, q: np.ndarray):
+@njit(cache=True)
+def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
-    elements = q.reshape(-1, 3)[slots]
-    gradients = np.einsum("ka,kai->ki", S_x, elements)
-    return (np.einsum("ka,kai->ki", S, elements),
-            gradients / np.linalg.norm(gradients, axis=1)[:, None])
+    k = slots.shape[0]
+    r, tangents = np.zeros((k, 3)), np.zeros((k, 3))
+    for p in range(k):
+        for a in range(4):
+            first = 3 * slots[p, a]
+            for i in range(3):
+                r[p, i] += S[p, a] * q[first + i]
+                tangents[p, i] += S_x[p, a] * q[first + i]
+        norm = np.sqrt(tangents[p, 0] * tangents[p, 0] + tangents[p, 1] * tangents[p, 1]
+                       + tangents[p, 2] * tangents[p, 2])
+        for i in range(3):
+            tangents[p, i] /= norm
+    return r, tangents
 
 
 @njit(cache=True)

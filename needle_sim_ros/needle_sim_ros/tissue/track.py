@@ -48,6 +48,7 @@ class Track:
         self._count = 0
         self._direction = np.array([1.0, 0.0, 0.0])
         self._previous_tip = np.zeros(3)  # the tip position of the previous cut() (the entry point at the start)
+        self._end_tangent: np.ndarray | None = None  # end_tangent() of the current vertices (None: not computed)
 
     @property
     def started(self) -> bool:
@@ -77,6 +78,7 @@ class Track:
         if self._count == self._vertices.shape[0]:
             self._vertices = np.vstack([self._vertices, np.zeros_like(self._vertices)])
             self._arc = np.concatenate([self._arc, np.zeros_like(self._arc)])
+        self._end_tangent = None
         if self._count:
             step = point - self._vertices[self._count - 1]
             self._arc[self._count] = self._arc[self._count - 1] + np.sqrt(step @ step)
@@ -94,6 +96,7 @@ class Track:
         self._vertices[snapshot.count:] = 0.0
         self._arc[snapshot.count:] = 0.0
         self._count, self._direction, self._previous_tip = snapshot.count, snapshot.direction, snapshot.previous_tip
+        self._end_tangent = None
 
     def end_tangent(self) -> np.ndarray:
         """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (the first
@@ -101,8 +104,10 @@ class Track:
         cut front seemed to recede from an advancing tip, the track stopped growing and the tip forces switched off."""
         if self._count < 2:
             return self._direction
-        d = self._vertices[self._count - 1] - self._vertices[max(self._count - 1 - END_CHORD_SEGMENTS, 0)]
-        return d / np.sqrt(d @ d)
+        if self._end_tangent is None:
+            d = self._vertices[self._count - 1] - self._vertices[max(self._count - 1 - END_CHORD_SEGMENTS, 0)]
+            self._end_tangent = d / np.sqrt(d @ d)
+        return self._end_tangent
 
     def coordinate_ahead(self, point: np.ndarray) -> float:
         """Track coordinate of a point near the end, measured along the end tangent (may exceed ``length``)."""
