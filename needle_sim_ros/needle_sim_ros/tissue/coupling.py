@@ -33,7 +33,7 @@ from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
 from .shaft_laws import AxialCoefficients
-from .track import Track, TrackSnapshot
+from .track import Track, TrackSnapshot, locate_on_polyline, project_on_polyline
 
 
 @njit(cache=True)
@@ -295,6 +295,26 @@ def entry_coverage(arc_lengths, depth, inside):
     return coverage
 
 
+@njit(cache=True)
+def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, entry_point,
+                       entry_normal):
+    """Gauss points of the needle's arc interval in cut tissue (``ShaftSupport._lateral_support``): weights,
+    slots, S, S_x (``cut_quadrature``), the rest points on the track (each needle point's projection), the needle
+    tangents and the rest points' depths; none if the interval is empty."""
+    tip_coordinate = project_on_polyline(vertices, arc, end_tangent, q[-6:-3].reshape(1, 3))[0][0]
+    upper = s_tip - max(tip_coordinate - arc[-1], 0.0)
+    lower = max(s_tip - tip_coordinate, 0.0)
+    weights, slots, S, S_x = cut_quadrature(node_arc, element_lengths, lower, upper, xi, w)
+    r, tangents = needle_points(S, S_x, slots, q)
+    coordinate = np.maximum(project_on_polyline(vertices, arc, end_tangent, r)[0], 0.0)
+    points = locate_on_polyline(vertices, arc, end_tangent, coordinate)[0]
+    depth = np.empty(weights.size)
+    for k in range(weights.size):
+        depth[k] = ((points[k, 0] - entry_point[0]) * entry_normal[0] + (points[k, 1] - entry_point[1])
+                    * entry_normal[1] + (points[k, 2] - entry_point[2]) * entry_normal[2])
+    return weights, slots, S, S_x, points, tangents, depth
+
+
 class ShaftSupport(TissueForce):
     """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle.
 
@@ -447,17 +467,11 @@ class ShaftSupport(TissueForce):
         entry surface (s_tip - the tip's track coordinate) to where it leaves the cut track (s_tip - the tip's
         distance beyond the track's end).  Reference arc lengths: the cable is practically inextensible."""
         track, block = self.contact.track, self.contact.block
-        s_tip = float(self.arc_lengths[-1])
-        tip_coordinate = float(track.project(q[-6:-3][None])[0][0])
-        upper = s_tip - max(tip_coordinate - track.length, 0.0)
-        lower = max(s_tip - tip_coordinate, 0.0)
-        if not upper > lower:
+        weights, slots, S, S_x, points, tangents, depth = lateral_quadrature(
+            q, model.mesh.node_arc_length, model.mesh.element_lengths, float(self.arc_lengths[-1]), _GAUSS_XI,
+            _GAUSS_W, track.vertices, track.arc_lengths, track.end_tangent(), block.entry_point, block.entry_normal)
+        if weights.size == 0:
             return _Frozen.inactive()
-        weights, slots, S, S_x = cut_quadrature(model.mesh.node_arc_length, model.mesh.element_lengths, lower, upper,
-                                                _GAUSS_XI, _GAUSS_W)
-        r, tangents = needle_points(S, S_x, slots, q)
-        points = track.locate(track.project(r)[0])[0]
-        depth = block.depth(points)
         stiffness, damping = block.layer_values(("lateral_stiffness", "lateral_damping"), depth)
         zero = np.zeros(weights.size)
         return _Frozen(np.zeros(0, dtype=int), weights, slots, S, S_x, points, tangents, depth,

@@ -59,6 +59,11 @@ class Track:
         return self._vertices[: self._count]
 
     @property
+    def arc_lengths(self) -> np.ndarray:
+        """Cumulative arc length [m] at each vertex."""
+        return self._arc[: self._count]
+
+    @property
     def length(self) -> float:
         return float(self._arc[self._count - 1]) if self._count else 0.0
 
@@ -131,7 +136,7 @@ class Track:
         """Points (k, 3) and unit tangents (k, 3) at track coordinates (k,) (>= 0; beyond ``length`` on the
         straight continuation)."""
         s = np.ascontiguousarray(np.maximum(np.asarray(coordinate, dtype=float), 0.0))
-        return _locate(self._vertices[: self._count], self._arc[: self._count], self.end_tangent(), s)
+        return locate_on_polyline(self._vertices[: self._count], self._arc[: self._count], self.end_tangent(), s)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest track coordinate (k,) and distance (k,) of points (k, 3), over the segments and the straight
@@ -178,7 +183,7 @@ def project_on_polyline(vertices, arc, end_tangent, points):
 
 
 @njit(cache=True)
-def _locate(vertices, arc, end_tangent, s):
+def locate_on_polyline(vertices, arc, end_tangent, s):
     """Interpolate the polyline (vertices, cumulative arc) at coordinates s; straight beyond the end."""
     n = s.size
     points = np.empty((n, 3))
