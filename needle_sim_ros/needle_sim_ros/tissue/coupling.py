@@ -315,6 +315,36 @@ def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc
     return weights, slots, S, S_x, points, tangents, depth
 
 
+@njit(cache=True)
+def shaft_contact_points(q, arc_lengths, candidates, S, S_x, slots, entry_point, entry_normal, thickness,
+                         was_active, active, anchor, vertices, arc, end_tangent):
+    """The shaft points among ``candidates`` inside the tissue (``ShaftSupport.advance``): marks them in
+    ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track, and returns
+    their indices, entry coverage, needle tangents, anchor points on the track and those points' depths, and the
+    axial offsets u = (r - anchor point) . tangent."""
+    r, tangents = needle_points(S[candidates], S_x[candidates], slots[candidates], q)
+    depth = np.empty(candidates.size)
+    for k in range(candidates.size):
+        depth[k] = ((r[k, 0] - entry_point[0]) * entry_normal[0] + (r[k, 1] - entry_point[1]) * entry_normal[1]
+                    + (r[k, 2] - entry_point[2]) * entry_normal[2])
+    inside = (depth > 0.0) & (depth < thickness)
+    coverage = entry_coverage(arc_lengths[candidates], depth, inside)[inside]
+    index, r, tangents = candidates[inside], r[inside], tangents[inside]
+    active[index] = True
+    entering = ~was_active[index]
+    if np.any(entering):                                 # an entering point anchors where it is
+        anchor[index[entering]] = project_on_polyline(vertices, arc, end_tangent, r[entering])[0]
+    points = locate_on_polyline(vertices, arc, end_tangent, np.maximum(anchor[index], 0.0))[0]
+    point_depth = np.empty(index.size)
+    u = np.empty(index.size)
+    for k in range(index.size):
+        point_depth[k] = ((points[k, 0] - entry_point[0]) * entry_normal[0] + (points[k, 1] - entry_point[1])
+                          * entry_normal[1] + (points[k, 2] - entry_point[2]) * entry_normal[2])
+        u[k] = ((r[k, 0] - points[k, 0]) * tangents[k, 0] + (r[k, 1] - points[k, 1]) * tangents[k, 1]
+                + (r[k, 2] - points[k, 2]) * tangents[k, 2])
+    return index, coverage, tangents, points, point_depth, u
+
+
 class ShaftSupport(TissueForce):
     """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle.
 
@@ -437,23 +467,15 @@ class ShaftSupport(TissueForce):
         if self.axial_law is None or candidates.size == 0:
             self._freeze(model)
             return
-        table = self._tables(model)
-        r, tangents = needle_points(table.S[candidates], table.S_x[candidates], table.slots[candidates], state.q)
-        depth = contact.block.depth(r)
-        inside = contact.block.inside(depth)
-        self._coverage = entry_coverage(self.arc_lengths[candidates], depth, inside)[inside]
-        index, r, tangents = candidates[inside], r[inside], tangents[inside]
-        self.active[index] = True
+        table, block = self._tables(model), contact.block
+        index, self._coverage, tangents, points, depth, u = shaft_contact_points(
+            state.q, self.arc_lengths, candidates, table.S, table.S_x, table.slots, block.entry_point,
+            block.entry_normal, block.thickness, was_active, self.active, self.anchor, track.vertices,
+            track.arc_lengths, track.end_tangent())
         if index.size == 0:
             self._freeze(model)
             return
-        entering = ~was_active[index]
-        if np.any(entering):                                 # an entering point anchors where it is
-            self.anchor[index[entering]] = track.project(r[entering])[0]
-        points = track.locate(self.anchor[index])[0]
-        depth = contact.block.depth(points)
         # plastic slip of the anchors along the track
-        u = np.einsum("ki,ki->k", r - points, tangents)
         axial = self.axial_law.coefficients(depth, contact.tip_depth)
         band = axial.coulomb / self.axial_law.stick_stiffness
         slip = u - np.clip(u, -band, band)
