@@ -22,13 +22,15 @@ END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at
 
 
 class TrackSnapshot(NamedTuple):
-    """A track's state (:meth:`Track.snapshot`): its vertex count and capacity, initial direction and the tip
-    position of the previous cut (arrays that the track replaces, never changes in place)."""
+    """A track's state (:meth:`Track.snapshot`): its vertex count and capacity, initial direction, the tip
+    position of the previous cut and the cached end tangent (arrays that the track replaces, never changes in
+    place)."""
 
     count: int
     capacity: int
     direction: np.ndarray
     previous_tip: np.ndarray
+    end_tangent: np.ndarray | None
 
 
 class Track:
@@ -92,7 +94,7 @@ class Track:
 
     def snapshot(self) -> TrackSnapshot:
         """The track's state, for :meth:`restore`."""
-        return TrackSnapshot(self._count, self._arc.size, self._direction, self._previous_tip)
+        return TrackSnapshot(self._count, self._arc.size, self._direction, self._previous_tip, self._end_tangent)
 
     def restore(self, snapshot: TrackSnapshot) -> None:
         if self._arc.size != snapshot.capacity:
@@ -101,7 +103,7 @@ class Track:
         self._vertices[snapshot.count:] = 0.0
         self._arc[snapshot.count:] = 0.0
         self._count, self._direction, self._previous_tip = snapshot.count, snapshot.direction, snapshot.previous_tip
-        self._end_tangent = None
+        self._end_tangent = snapshot.end_tangent
 
     def end_tangent(self) -> np.ndarray:
         """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (the first
