@@ -171,10 +171,14 @@ class _Frozen:
 
     @classmethod
     def inactive(cls) -> "_Frozen":
-        empty = np.zeros(0)
-        return cls(np.zeros(0, dtype=int), empty, np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4)),
-                   np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), empty, empty, empty,
-                   AxialCoefficients(empty, empty, 0.0, 0.0, 0.0), 1.0)
+        """No points (shared: never changed in place, like all frozen data)."""
+        return _INACTIVE
+
+
+_EMPTY = np.zeros(0)
+_INACTIVE = _Frozen(np.zeros(0, dtype=int), _EMPTY, np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4)),
+                    np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), _EMPTY, _EMPTY, _EMPTY,
+                    AxialCoefficients(_EMPTY, _EMPTY, 0.0, 0.0, 0.0), 1.0)
 
 
 @njit(cache=True)
