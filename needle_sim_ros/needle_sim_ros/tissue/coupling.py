@@ -209,17 +209,24 @@ def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_dampi
 
 
 @njit(cache=True)
-def point_kinematics(q, qd, slots, S):
-    """Positions and velocities (k, 3) of interpolation points (model.interpolation) at (q, qd)."""
+def interpolate_pair(slots, S_a, x_a, S_b, x_b):
+    """Two interpolations (k, 3) at interpolation points (model.interpolation): shape functions S_a of
+    coordinates x_a (e.g. S of q: positions) and S_b of x_b (e.g. S of q': velocities, S_x of q: gradients)."""
     k = slots.shape[0]
-    r, v = np.zeros((k, 3)), np.zeros((k, 3))
+    a_values, b_values = np.zeros((k, 3)), np.zeros((k, 3))
     for p in range(k):
         for a in range(4):
             first = 3 * slots[p, a]
             for i in range(3):
-                r[p, i] += S[p, a] * q[first + i]
-                v[p, i] += S[p, a] * qd[first + i]
-    return r, v
+                a_values[p, i] += S_a[p, a] * x_a[first + i]
+                b_values[p, i] += S_b[p, a] * x_b[first + i]
+    return a_values, b_values
+
+
+@njit(cache=True)
+def point_kinematics(q, qd, slots, S):
+    """Positions and velocities (k, 3) of interpolation points (model.interpolation) at (q, qd)."""
+    return interpolate_pair(slots, S, q, S, qd)
 
 
 @njit(cache=True)
@@ -236,14 +243,8 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
 @njit(cache=True)
 def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
-    k = slots.shape[0]
-    r, tangents = np.zeros((k, 3)), np.zeros((k, 3))
-    for p in range(k):
-        for a in range(4):
-            first = 3 * slots[p, a]
-            for i in range(3):
-                r[p, i] += S[p, a] * q[first + i]
-                tangents[p, i] += S_x[p, a] * q[first + i]
+    r, tangents = interpolate_pair(slots, S, q, S_x, q)
+    for p in range(slots.shape[0]):
         norm = np.sqrt(tangents[p, 0] * tangents[p, 0] + tangents[p, 1] * tangents[p, 1]
                        + tangents[p, 2] * tangents[p, 2])
         for i in range(3):
