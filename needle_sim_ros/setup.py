@@ -8,12 +8,18 @@ from setuptools.command.install import install
 
 package_name = "needle_sim_ros"
 
-# Compiles the simulator's numba kernels for its default configuration into the kernel cache (NUMBA_CACHE_DIR if
-# set, else __pycache__ next to the installed modules), so that the first start of a fresh install loads them.
+# Compiles the simulator's numba kernels for its default configuration, and those of its default tissue models (off
+# by default), into the kernel cache (NUMBA_CACHE_DIR if set, else __pycache__ next to the installed modules), so
+# that the first start of a fresh install loads them.
 COMPILE_KERNELS = """
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
-from needle_sim_ros.simulation import compile_kernels
-seconds = compile_kernels({spec.name: spec.default for spec in SIMULATOR_PARAMETERS})
+import time
+from needle_sim_ros.simulation import compile_kernels, compile_tissue_kernels
+defaults = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
+start = time.perf_counter()
+compile_kernels(defaults)
+compile_tissue_kernels(defaults)
+seconds = time.perf_counter() - start
 print(f"needle_sim_ros: compiled the simulator's numba kernels in {seconds:.0f} s")
 """
 

@@ -53,7 +53,7 @@ from needle_sim_ros.model import (
 from needle_sim_ros.model.config import element_lengths
 from needle_sim_ros.model.integrators import IntegratorMemory
 from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
-from needle_sim_ros.tissue import build_tissue_forces
+from needle_sim_ros.tissue import build_tissue_forces, tissue_readout
 
 
 # Largest sum of point-load magnitudes, as a multiple of the needle's bending load scale E I / L^2. Found by
@@ -574,4 +574,31 @@ def compile_kernels(p: dict) -> float:
             scratch.advance((k + 1) * dt, deterministic=False)
     scratch.shape(10)
     scratch.energies()
+    if p["tissue.enable"]:
+        compile_tissue_kernels(p)
     return time.perf_counter() - start
+
+
+def compile_tissue_kernels(p: dict, steps: int = 10) -> None:
+    """Advance scratch needles a few steps with the tip in the configured tissue (the entry surface moved across
+    the needle; before and after the capsule puncture if the insertion profile is on), with the tissue readout,
+    so that the kernels of the tissue models are compiled or loaded from the cache now. The install hook calls it
+    whether or not the tissue is enabled, :func:`compile_kernels` when it is."""
+    model, integrator = model_builder_from_parameters(p)(())
+    config = {name: value for name, value in p.items() if name.startswith("tissue.")}
+    puncture = float(p["tissue.insertion_profile.puncture_depth"]) if p["tissue.insertion_profile.enable"] else 0.0
+    dt = p["integrator.dt"]
+    velocity = np.array([6e-3, 0.0, 0.0])
+
+    def base_at(t: float) -> BaseMotion:
+        return BaseMotion(velocity * t, np.array([0.0, 0.0, 0.0, 1.0]), linear_velocity=velocity)
+
+    for depth in ((0.5 * puncture,) if puncture > 0.0 else ()) + (puncture + 5e-3,):
+        config.update({"tissue.enable": True, "tissue.entry_normal": [1.0, 0.0, 0.0],
+                       "tissue.entry_point": [model.props.length - depth, 0.0, 0.0]})
+        forces = build_tissue_forces(config, model)
+        scratch = NeedleSimulation.prescribed(model, integrator, dt, base_at, model.straight_state(base_at(0.0)),
+                                              forces)
+        scratch.advance_to(steps * dt)
+        tissue_readout(forces, model, scratch.state, scratch.base)
+        scratch.energies()

@@ -11,6 +11,7 @@ from rclpy.serialization import serialize_message
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import compile_kernels, simulation_from_parameters, step_wrenches
+from needle_sim_ros.tissue import tissue_readout
 
 DEFAULTS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
 
@@ -37,6 +38,23 @@ def test_poses_decoded_like_the_node_does_need_no_kernel_beyond_compile_kernels(
         sim.offer_pose(pose.stamp_ns * 1e-9, pose.position, pose.orientation)
         wrenches += step_wrenches(sim.advance(t + 1e-3, deterministic=False))
     assert len(wrenches) >= 15
+    assert compiled_specializations() == compiled
+
+
+def test_an_insertion_needs_no_kernel_beyond_compile_kernels_with_the_tissue_on():
+    """With the tissue enabled, compile_kernels also compiles the tissue models' kernels: a needle pushed into
+    the tissue by the node's pose path compiles nothing more."""
+    p = {**DEFAULTS, "tissue.enable": True}
+    compile_kernels(p)
+    compiled = compiled_specializations()
+    sim = simulation_from_parameters(p)
+    tip_start = p["tissue.entry_point"][0] - 1e-3              # 1 mm before the surface, 6 mm/s into the tissue
+    for k in range(400):
+        t = 1.0 + 1e-3 * k
+        sim.offer_pose(t, [tip_start - sim.model.props.length + 6e-6 * k, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
+        sim.advance(t + 1e-3, deterministic=False)
+    readout = tissue_readout(sim.extra_forces, sim.model, sim.state, sim.base)
+    assert readout.insertion_depth > 5e-4 and sim.statistics.failed_steps == 0
     assert compiled_specializations() == compiled
 
 

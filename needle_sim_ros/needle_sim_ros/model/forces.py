@@ -2,7 +2,8 @@
 
 A point force F at the material point x of element j does the virtual work F^T S(x) delta e_j (eq. 14), hence
 Q_f = sum_i S^T(x_i) F_i (eq. 15); nodal loads add Q_P directly (eq. 16); a line load f per length adds
-int S^T f ds.  Every contribution implements ``evaluate(model, q, qd, t, base) -> GeneralizedForce`` and declares
+int S^T f ds.  Every contribution implements ``evaluate(model, q, qd, t, base) -> GeneralizedForce`` (and may
+override ``generalized_force``, the same Q without Jacobians) and declares
 its capabilities as class attributes (:class:`ForceContribution`), checked by :func:`check_forces` when a force
 list is handed to the integrator, the statics or the simulation.
 """
@@ -45,6 +46,11 @@ class ForceContribution:
 
     def evaluate(self, model, q: np.ndarray, qd: np.ndarray, t: float, base) -> GeneralizedForce:
         raise NotImplementedError
+
+    def generalized_force(self, model, q: np.ndarray, qd: np.ndarray, t: float, base) -> np.ndarray:
+        """Q alone (n_dof,), the same values as ``evaluate(...).Q``: where no Jacobian is needed (Newton chord
+        steps, the reaction wrench).  Contributions with costly Jacobians override it."""
+        return self.evaluate(model, q, qd, t, base).Q
 
 
 CAPABILITIES = ("state_dependent", "time_invariant", "stateful")
@@ -272,14 +278,18 @@ class MaterialPointForce(ForceContribution):
 
 @njit(cache=True)
 def assemble_point_forces(slots, S, S_x, weights, F, dF_dr, dF_drx, dF_dv, Q, dQ_dq, dQ_dqd):
-    """Scatter sum_k w_k S_k^T F_k and its Jacobians (MaterialPointForce) into Q and dense matrices."""
+    """Scatter sum_k w_k S_k^T F_k and its Jacobians (MaterialPointForce) into Q and dense matrices; a (0, 0)
+    dQ_dq skips both Jacobians (Q alone), a (0, 0) dQ_dqd the velocity one."""
     with_velocity = dQ_dqd.shape[0] > 0
+    with_stiffness = dQ_dq.shape[0] > 0
     for k in range(slots.shape[0]):
         for a in range(4):
             ia = 3 * slots[k, a]
             wa = weights[k] * S[k, a]
             for c in range(3):
                 Q[ia + c] += wa * F[k, c]
+            if not with_stiffness:
+                continue
             for b in range(4):
                 ib = 3 * slots[k, b]
                 cr = wa * S[k, b]

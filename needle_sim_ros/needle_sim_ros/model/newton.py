@@ -280,11 +280,14 @@ class NewtonSolver:
         for iteration in range(max_iterations):
             ext_Q, stiffness, damping = constant_Q.copy(), [], []
             for force in varying:
-                generalized = force.evaluate(self.model, q, qd, t, base)
-                ext_Q += load_factor * np.asarray(generalized.Q, dtype=float)
                 if refactor:
+                    generalized = force.evaluate(self.model, q, qd, t, base)
+                    Q = generalized.Q
                     stiffness.append(generalized.dQ_dq)
                     damping.append(generalized.dQ_dqd)
+                else:  # a chord step reuses the factorization: Q alone
+                    Q = force.generalized_force(self.model, q, qd, t, base)
+                ext_Q += Q if load_factor == 1.0 else load_factor * np.asarray(Q, dtype=float)
             if refactor:
                 ext_K, ext_D = self._sum("K", stiffness, load_factor), self._sum("D", damping, load_factor)
                 kl, symmetric = ELEMENT_BANDWIDTH, True

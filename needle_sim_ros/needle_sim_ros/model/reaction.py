@@ -68,7 +68,7 @@ def base_constraint_force(model: NeedleModel, state: State, base: BaseMotion, fo
     """Q_cc on the base node [r_A, r_xA] (6,), eq. 20: the generalized force of the holder on the needle."""
     external = np.zeros(6)
     for force in forces:
-        external += np.asarray(force.evaluate(model, state.q, state.qd, state.t, base).Q)[:6]
+        external += np.asarray(force.generalized_force(model, state.q, state.qd, state.t, base))[:6]
     return base_constraint_kernel(np.ascontiguousarray(state.q[:12]), np.ascontiguousarray(state.qd[:12]),
                                   np.ascontiguousarray(state.qdd[:12]), *base_rows(model),
                                   np.ascontiguousarray(base.axis), external)

@@ -17,6 +17,7 @@ and projected perpendicular to the current tip tangent.  Spinning the base by 18
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -54,14 +55,14 @@ class BevelTip:
         return cls(tip_stiffness, bevel_angle, acting_fraction * bevel_angle,
                    diameter / np.tan(bevel_angle), diameter / np.sin(bevel_angle))
 
-    @property
+    @cached_property
     def axial_force(self) -> float:
         """P of eq. 4 [N]."""
         lam, beta = self.bevel_angle, self.acting_angle
         fraction = (np.tan(lam) - np.tan(beta)) / (1.0 + np.tan(lam) * np.tan(beta))
         return 0.5 * self.tip_stiffness * self.edge_b**2 * np.sin(lam) * fraction
 
-    @property
+    @cached_property
     def transverse_force(self) -> float:
         """Q of eq. 5 [N]."""
         lam, beta = self.bevel_angle, self.acting_angle

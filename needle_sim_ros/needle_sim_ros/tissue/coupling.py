@@ -33,7 +33,7 @@ from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
 from .shaft_laws import AxialCoefficients
-from .track import Track, TrackSnapshot
+from .track import Track, TrackSnapshot, locate_on_polyline, project_on_polyline
 
 
 @njit(cache=True)
@@ -148,6 +148,7 @@ class TissueForce(ForceContribution):
 
 
 LATERAL_GAUSS_POINTS = 3
+_NO_MATRIX = np.zeros((0, 0))
 _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(LATERAL_GAUSS_POINTS)
 
 
@@ -170,10 +171,14 @@ class _Frozen:
 
     @classmethod
     def inactive(cls) -> "_Frozen":
-        empty = np.zeros(0)
-        return cls(np.zeros(0, dtype=int), empty, np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4)),
-                   np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), empty, empty, empty,
-                   AxialCoefficients(empty, empty, 0.0, 0.0, 0.0), 1.0)
+        """No points (shared: never changed in place, like all frozen data)."""
+        return _INACTIVE
+
+
+_EMPTY = np.zeros(0)
+_INACTIVE = _Frozen(np.zeros(0, dtype=int), _EMPTY, np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4)),
+                    np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), _EMPTY, _EMPTY, _EMPTY,
+                    AxialCoefficients(_EMPTY, _EMPTY, 0.0, 0.0, 0.0), 1.0)
 
 
 @njit(cache=True)
@@ -203,12 +208,48 @@ def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_dampi
     return force, d_dr, d_dv
 
 
-def needle_points(S: np.ndarray, S_x: np.ndarray, slots: np.ndarray, q: np.ndarray):
+@njit(cache=True)
+def interpolate_pair(slots, S_a, x_a, S_b, x_b):
+    """Two interpolations (k, 3) at interpolation points (model.interpolation): shape functions S_a of
+    coordinates x_a (e.g. S of q: positions) and S_b of x_b (e.g. S of q': velocities, S_x of q: gradients)."""
+    k = slots.shape[0]
+    a_values, b_values = np.zeros((k, 3)), np.zeros((k, 3))
+    for p in range(k):
+        for a in range(4):
+            first = 3 * slots[p, a]
+            for i in range(3):
+                a_values[p, i] += S_a[p, a] * x_a[first + i]
+                b_values[p, i] += S_b[p, a] * x_b[first + i]
+    return a_values, b_values
+
+
+@njit(cache=True)
+def point_kinematics(q, qd, slots, S):
+    """Positions and velocities (k, 3) of interpolation points (model.interpolation) at (q, qd)."""
+    return interpolate_pair(slots, S, q, S, qd)
+
+
+@njit(cache=True)
+def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, lateral_stiffness, lateral_damping,
+                            stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale, Q, dQ_dq, dQ_dqd):
+    """Kinematics, ``shaft_point_forces`` and assembly of one part's points (ShaftSupport) in one compiled call:
+    adds to Q and, unless dQ_dq is (0, 0) (Q alone), to dQ_dq and dQ_dqd."""
+    r, v = point_kinematics(q, qd, slots, S)
+    force, d_dr, d_dv = shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping,
+                                           stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale)
+    assemble_point_forces(slots, S, S_x, weights, force, d_dr, np.zeros_like(d_dr), d_dv, Q, dQ_dq, dQ_dqd)
+
+
+@njit(cache=True)
+def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
-    elements = q.reshape(-1, 3)[slots]
-    gradients = np.einsum("ka,kai->ki", S_x, elements)
-    return (np.einsum("ka,kai->ki", S, elements),
-            gradients / np.linalg.norm(gradients, axis=1)[:, None])
+    r, tangents = interpolate_pair(slots, S, q, S_x, q)
+    for p in range(slots.shape[0]):
+        norm = np.sqrt(tangents[p, 0] * tangents[p, 0] + tangents[p, 1] * tangents[p, 1]
+                       + tangents[p, 2] * tangents[p, 2])
+        for i in range(3):
+            tangents[p, i] /= norm
+    return r, tangents
 
 
 @njit(cache=True)
@@ -259,6 +300,56 @@ def entry_coverage(arc_lengths, depth, inside):
     return coverage
 
 
+@njit(cache=True)
+def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, entry_point,
+                       entry_normal):
+    """Gauss points of the needle's arc interval in cut tissue (``ShaftSupport._lateral_support``): weights,
+    slots, S, S_x (``cut_quadrature``), the rest points on the track (each needle point's projection), the needle
+    tangents and the rest points' depths; none if the interval is empty."""
+    tip_coordinate = project_on_polyline(vertices, arc, end_tangent, q[-6:-3].reshape(1, 3))[0][0]
+    upper = s_tip - max(tip_coordinate - arc[-1], 0.0)
+    lower = max(s_tip - tip_coordinate, 0.0)
+    weights, slots, S, S_x = cut_quadrature(node_arc, element_lengths, lower, upper, xi, w)
+    r, tangents = needle_points(S, S_x, slots, q)
+    coordinate = np.maximum(project_on_polyline(vertices, arc, end_tangent, r)[0], 0.0)
+    points = locate_on_polyline(vertices, arc, end_tangent, coordinate)[0]
+    depth = np.empty(weights.size)
+    for k in range(weights.size):
+        depth[k] = ((points[k, 0] - entry_point[0]) * entry_normal[0] + (points[k, 1] - entry_point[1])
+                    * entry_normal[1] + (points[k, 2] - entry_point[2]) * entry_normal[2])
+    return weights, slots, S, S_x, points, tangents, depth
+
+
+@njit(cache=True)
+def shaft_contact_points(q, arc_lengths, candidates, S, S_x, slots, entry_point, entry_normal, thickness,
+                         was_active, active, anchor, vertices, arc, end_tangent):
+    """The shaft points among ``candidates`` inside the tissue (``ShaftSupport.advance``): marks them in
+    ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track, and returns
+    their indices, entry coverage, needle tangents, anchor points on the track and those points' depths, and the
+    axial offsets u = (r - anchor point) . tangent."""
+    r, tangents = needle_points(S[candidates], S_x[candidates], slots[candidates], q)
+    depth = np.empty(candidates.size)
+    for k in range(candidates.size):
+        depth[k] = ((r[k, 0] - entry_point[0]) * entry_normal[0] + (r[k, 1] - entry_point[1]) * entry_normal[1]
+                    + (r[k, 2] - entry_point[2]) * entry_normal[2])
+    inside = (depth > 0.0) & (depth < thickness)
+    coverage = entry_coverage(arc_lengths[candidates], depth, inside)[inside]
+    index, r, tangents = candidates[inside], r[inside], tangents[inside]
+    active[index] = True
+    entering = ~was_active[index]
+    if np.any(entering):                                 # an entering point anchors where it is
+        anchor[index[entering]] = project_on_polyline(vertices, arc, end_tangent, r[entering])[0]
+    points = locate_on_polyline(vertices, arc, end_tangent, np.maximum(anchor[index], 0.0))[0]
+    point_depth = np.empty(index.size)
+    u = np.empty(index.size)
+    for k in range(index.size):
+        point_depth[k] = ((points[k, 0] - entry_point[0]) * entry_normal[0] + (points[k, 1] - entry_point[1])
+                          * entry_normal[1] + (points[k, 2] - entry_point[2]) * entry_normal[2])
+        u[k] = ((r[k, 0] - points[k, 0]) * tangents[k, 0] + (r[k, 1] - points[k, 1]) * tangents[k, 1]
+                + (r[k, 2] - points[k, 2]) * tangents[k, 2])
+    return index, coverage, tangents, points, point_depth, u
+
+
 class ShaftSupport(TissueForce):
     """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle.
 
@@ -299,8 +390,7 @@ class ShaftSupport(TissueForce):
     @staticmethod
     def _kinematics(fz: "_Frozen", q, qd):
         """Positions and velocities (k, 3) of a part's points."""
-        return (np.einsum("ka,kai->ki", fz.S, q.reshape(-1, 3)[fz.slots]),
-                np.einsum("ka,kai->ki", fz.S, qd.reshape(-1, 3)[fz.slots]))
+        return point_kinematics(q, qd, fz.slots, fz.S)
 
     @staticmethod
     def _law(fz: "_Frozen", r, v):
@@ -308,15 +398,24 @@ class ShaftSupport(TissueForce):
         return shaft_point_forces(r, v, fz.anchor_points, fz.tangents, fz.lateral_stiffness, fz.lateral_damping,
                                   fz.stick_stiffness, *fz.axial)
 
+    def _assemble(self, q, qd, Q, dQ_dq, dQ_dqd) -> None:
+        """Add both parts' generalized forces (and Jacobians unless dQ_dq is (0, 0)) (compiled kernel)."""
+        for fz in self._parts:
+            if fz.weights.size:
+                shaft_generalized_force(q, qd, fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
+                                        fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial,
+                                        Q, dQ_dq, dQ_dqd)
+
     def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
         n = q.size
         Q, dQ_dq, dQ_dqd = np.zeros(n), np.zeros((n, n)), np.zeros((n, n))
-        for fz in self._parts:
-            if fz.weights.size:
-                force, d_dr, d_dv = self._law(fz, *self._kinematics(fz, q, qd))
-                assemble_point_forces(fz.slots, fz.S, fz.S_x, fz.weights, force, d_dr, np.zeros_like(d_dr), d_dv,
-                                      Q, dQ_dq, dQ_dqd)
+        self._assemble(q, qd, Q, dQ_dq, dQ_dqd)
         return GeneralizedForce(Q, dQ_dq, dQ_dqd)
+
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        Q = np.zeros(q.size)
+        self._assemble(q, qd, Q, _NO_MATRIX, _NO_MATRIX)
+        return Q
 
     def total_force(self, model, q, qd, t, base) -> np.ndarray:
         """World resultant [N] of the shaft forces at (q, qd)."""
@@ -373,23 +472,15 @@ class ShaftSupport(TissueForce):
         if self.axial_law is None or candidates.size == 0:
             self._freeze(model)
             return
-        table = self._tables(model)
-        r, tangents = needle_points(table.S[candidates], table.S_x[candidates], table.slots[candidates], state.q)
-        depth = contact.block.depth(r)
-        inside = contact.block.inside(depth)
-        self._coverage = entry_coverage(self.arc_lengths[candidates], depth, inside)[inside]
-        index, r, tangents = candidates[inside], r[inside], tangents[inside]
-        self.active[index] = True
+        table, block = self._tables(model), contact.block
+        index, self._coverage, tangents, points, depth, u = shaft_contact_points(
+            state.q, self.arc_lengths, candidates, table.S, table.S_x, table.slots, block.entry_point,
+            block.entry_normal, block.thickness, was_active, self.active, self.anchor, track.vertices,
+            track.arc_lengths, track.end_tangent())
         if index.size == 0:
             self._freeze(model)
             return
-        entering = ~was_active[index]
-        if np.any(entering):                                 # an entering point anchors where it is
-            self.anchor[index[entering]] = track.project(r[entering])[0]
-        points = track.locate(self.anchor[index])[0]
-        depth = contact.block.depth(points)
         # plastic slip of the anchors along the track
-        u = np.einsum("ki,ki->k", r - points, tangents)
         axial = self.axial_law.coefficients(depth, contact.tip_depth)
         band = axial.coulomb / self.axial_law.stick_stiffness
         slip = u - np.clip(u, -band, band)
@@ -403,17 +494,11 @@ class ShaftSupport(TissueForce):
         entry surface (s_tip - the tip's track coordinate) to where it leaves the cut track (s_tip - the tip's
         distance beyond the track's end).  Reference arc lengths: the cable is practically inextensible."""
         track, block = self.contact.track, self.contact.block
-        s_tip = float(self.arc_lengths[-1])
-        tip_coordinate = float(track.project(q[-6:-3][None])[0][0])
-        upper = s_tip - max(tip_coordinate - track.length, 0.0)
-        lower = max(s_tip - tip_coordinate, 0.0)
-        if not upper > lower:
+        weights, slots, S, S_x, points, tangents, depth = lateral_quadrature(
+            q, model.mesh.node_arc_length, model.mesh.element_lengths, float(self.arc_lengths[-1]), _GAUSS_XI,
+            _GAUSS_W, track.vertices, track.arc_lengths, track.end_tangent(), block.entry_point, block.entry_normal)
+        if weights.size == 0:
             return _Frozen.inactive()
-        weights, slots, S, S_x = cut_quadrature(model.mesh.node_arc_length, model.mesh.element_lengths, lower, upper,
-                                                _GAUSS_XI, _GAUSS_W)
-        r, tangents = needle_points(S, S_x, slots, q)
-        points = track.locate(track.project(r)[0])[0]
-        depth = block.depth(points)
         stiffness, damping = block.layer_values(("lateral_stiffness", "lateral_damping"), depth)
         zero = np.zeros(weights.size)
         return _Frozen(np.zeros(0, dtype=int), weights, slots, S, S_x, points, tangents, depth,
@@ -478,6 +563,12 @@ class BevelTipForce(TissueForce):
         d_dq = np.zeros((n, n))
         d_dq[n - 6:n - 3, n - 3:] = jacobian
         return GeneralizedForce(generalized, d_dq, None)
+
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        generalized = np.zeros(q.size)
+        if self._scale != 0.0:
+            generalized[q.size - 6:q.size - 3] = self.tip_force(q, base)[0]
+        return generalized
 
     def advance(self, model, state, base) -> None:
         """Engage at the cut front; eqs. 4-5 scale with the squared edge lengths, so while the bevel enters the
@@ -547,6 +638,12 @@ class TipResistance(TissueForce):
         d_dqd = np.zeros((n, n))
         d_dqd[n - 6:n - 3, n - 6:n - 3] = d_dv
         return GeneralizedForce(generalized, d_dq, d_dqd)
+
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        generalized = np.zeros(q.size)
+        if not self.contact.punctured or self._cutting:
+            generalized[q.size - 6:q.size - 3] = self.tip_force(q, qd)[0]
+        return generalized
 
     def advance(self, model, state, base) -> None:
         contact = self.contact

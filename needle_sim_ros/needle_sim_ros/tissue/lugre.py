@@ -90,13 +90,17 @@ def stribeck(theta: np.ndarray, depth):
     return g, dg
 
 
+def stribeck_value(theta: np.ndarray, depth: float) -> float:
+    """g(l) of eq. 2 [N/m] alone, for a scalar depth (per step: no derivatives)."""
+    return max(theta[0] + theta[1] * np.exp(-theta[5] * depth), _G_FLOOR)
+
+
 def state_rate(z, theta, depth, velocity, velocity_scale, derivatives: bool = True):
     """dz/dt of eq. 1a (reading above) and, if ``derivatives``, d/dz and d/dtheta (6,) (else None, None)."""
     sigma0 = theta[2]
     speed = velocity * regularised_sign(velocity, velocity_scale)          # |l'|
     if not derivatives:
-        g = max(theta[0] + theta[1] * np.exp(-theta[5] * depth), _G_FLOOR)
-        return velocity - sigma0 * speed * z / g, None, None
+        return velocity - sigma0 * speed * z / stribeck_value(theta, depth), None, None
     g, dg = stribeck(theta, depth)
     rate = velocity - sigma0 * speed * z / g
     d_dz = -sigma0 * speed / g
@@ -125,8 +129,7 @@ def rk3_step(z: float, theta: np.ndarray, depth: float, velocity: float, dt: flo
     """Kutta's third-order Runge-Kutta scheme for eq. 1a over ``dt`` [s] with the depth advancing at the constant
     ``velocity`` (seed 003 Sec. III discretisation).  The step is split so that each sub-step stays well inside
     RK3's stability region (|dz'/dz| dt <= 1).  Returns (z_next, dz_next/d(z, theta) (7,) or None)."""
-    g = max(theta[0] + theta[1] * np.exp(-theta[5] * depth), _G_FLOOR)
-    stiffness = abs(theta[2] * velocity / g)
+    stiffness = abs(theta[2] * velocity / stribeck_value(theta, depth))
     n_sub = int(min(np.ceil(stiffness * dt), 1000)) if np.isfinite(stiffness) else 1000
     h = dt / max(n_sub, 1)
     z_next, row = _rk3_substep(z, theta, depth, velocity, h, velocity_scale, sensitivities)
@@ -142,7 +145,7 @@ def force_per_length(z, theta, depth, velocity, velocity_scale):
     """The bracket of eq. 1b, the force per inserted length [N/m] (vectorised over velocity), and its derivative
     with respect to the velocity."""
     _, _, sigma0, sigma1, sigma2, alpha = theta
-    g = max(float(stribeck(theta, depth)[0]), _G_FLOOR)
+    g = float(stribeck_value(theta, depth))
     decay = np.exp(-alpha * depth)
     s = regularised_sign(velocity, velocity_scale)
     per_length = sigma0 * z + sigma1 * decay * (s - sigma0 * z / g) + sigma2 * s

@@ -22,13 +22,15 @@ END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at
 
 
 class TrackSnapshot(NamedTuple):
-    """A track's state (:meth:`Track.snapshot`): its vertex count and capacity, initial direction and the tip
-    position of the previous cut (arrays that the track replaces, never changes in place)."""
+    """A track's state (:meth:`Track.snapshot`): its vertex count and capacity, initial direction, the tip
+    position of the previous cut and the cached end tangent (arrays that the track replaces, never changes in
+    place)."""
 
     count: int
     capacity: int
     direction: np.ndarray
     previous_tip: np.ndarray
+    end_tangent: np.ndarray | None
 
 
 class Track:
@@ -48,6 +50,7 @@ class Track:
         self._count = 0
         self._direction = np.array([1.0, 0.0, 0.0])
         self._previous_tip = np.zeros(3)  # the tip position of the previous cut() (the entry point at the start)
+        self._end_tangent: np.ndarray | None = None  # end_tangent() of the current vertices (None: not computed)
 
     @property
     def started(self) -> bool:
@@ -56,6 +59,11 @@ class Track:
     @property
     def vertices(self) -> np.ndarray:
         return self._vertices[: self._count]
+
+    @property
+    def arc_lengths(self) -> np.ndarray:
+        """Cumulative arc length [m] at each vertex."""
+        return self._arc[: self._count]
 
     @property
     def length(self) -> float:
@@ -77,6 +85,7 @@ class Track:
         if self._count == self._vertices.shape[0]:
             self._vertices = np.vstack([self._vertices, np.zeros_like(self._vertices)])
             self._arc = np.concatenate([self._arc, np.zeros_like(self._arc)])
+        self._end_tangent = None
         if self._count:
             step = point - self._vertices[self._count - 1]
             self._arc[self._count] = self._arc[self._count - 1] + np.sqrt(step @ step)
@@ -85,7 +94,7 @@ class Track:
 
     def snapshot(self) -> TrackSnapshot:
         """The track's state, for :meth:`restore`."""
-        return TrackSnapshot(self._count, self._arc.size, self._direction, self._previous_tip)
+        return TrackSnapshot(self._count, self._arc.size, self._direction, self._previous_tip, self._end_tangent)
 
     def restore(self, snapshot: TrackSnapshot) -> None:
         if self._arc.size != snapshot.capacity:
@@ -94,6 +103,7 @@ class Track:
         self._vertices[snapshot.count:] = 0.0
         self._arc[snapshot.count:] = 0.0
         self._count, self._direction, self._previous_tip = snapshot.count, snapshot.direction, snapshot.previous_tip
+        self._end_tangent = snapshot.end_tangent
 
     def end_tangent(self) -> np.ndarray:
         """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (the first
@@ -101,8 +111,10 @@ class Track:
         cut front seemed to recede from an advancing tip, the track stopped growing and the tip forces switched off."""
         if self._count < 2:
             return self._direction
-        d = self._vertices[self._count - 1] - self._vertices[max(self._count - 1 - END_CHORD_SEGMENTS, 0)]
-        return d / np.sqrt(d @ d)
+        if self._end_tangent is None:
+            d = self._vertices[self._count - 1] - self._vertices[max(self._count - 1 - END_CHORD_SEGMENTS, 0)]
+            self._end_tangent = d / np.sqrt(d @ d)
+        return self._end_tangent
 
     def coordinate_ahead(self, point: np.ndarray) -> float:
         """Track coordinate of a point near the end, measured along the end tangent (may exceed ``length``)."""
@@ -126,7 +138,7 @@ class Track:
         """Points (k, 3) and unit tangents (k, 3) at track coordinates (k,) (>= 0; beyond ``length`` on the
         straight continuation)."""
         s = np.ascontiguousarray(np.maximum(np.asarray(coordinate, dtype=float), 0.0))
-        return _locate(self._vertices[: self._count], self._arc[: self._count], self.end_tangent(), s)
+        return locate_on_polyline(self._vertices[: self._count], self._arc[: self._count], self.end_tangent(), s)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest track coordinate (k,) and distance (k,) of points (k, 3), over the segments and the straight
@@ -173,7 +185,7 @@ def project_on_polyline(vertices, arc, end_tangent, points):
 
 
 @njit(cache=True)
-def _locate(vertices, arc, end_tangent, s):
+def locate_on_polyline(vertices, arc, end_tangent, s):
     """Interpolate the polyline (vertices, cumulative arc) at coordinates s; straight beyond the end."""
     n = s.size
     points = np.empty((n, 3))
