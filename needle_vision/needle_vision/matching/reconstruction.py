@@ -105,6 +105,16 @@ def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np
     return centerline.local_noise_px[::8][_nearest(np.ascontiguousarray(rectified[::8]), matched)]
 
 
+def _rectified_tapers(centerline: ImageCenterline, rectified: np.ndarray, rectification: Rectification,
+                      side: str) -> np.ndarray:
+    """``centerline.end_taper_px`` (first and last end) in rectified pixels: the ends' distance to their
+    half-contrast points, rectified."""
+    ends, inner = centerline.points[[0, -1]], centerline.points[[5, -6]]
+    tangent = (ends - inner) / np.maximum(np.linalg.norm(ends - inner, axis=1, keepdims=True), 1e-12)
+    half = rectification.rectify(ends - centerline.end_taper_px[:, None] * tangent, side)
+    return np.linalg.norm(rectified[[0, -1]] - half, axis=1) * np.sign(centerline.end_taper_px)
+
+
 def _runs(points: np.ndarray, split: float) -> list[slice]:
     """The runs of consecutive points not separated by a step longer than ``split`` (a hidden stretch)."""
     cuts = np.flatnonzero(step_lengths(points) > split) + 1
@@ -176,7 +186,9 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     right_rect = rectification.rectify(right.points, "right")
     ends_visible = all(_ends_inside(centerline.points, camera.width, camera.height) for centerline, camera
                        in ((left, rectification.rig.left), (right, rectification.rig.right)))
-    match = match_centerlines(left_rect, right_rect, rectification.epipolar_axis, matching, ends_visible)
+    tapers = (_rectified_tapers(left, left_rect, rectification, "left"),
+              _rectified_tapers(right, right_rect, rectification, "right"))
+    match = match_centerlines(left_rect, right_rect, rectification.epipolar_axis, matching, ends_visible, tapers)
     points = rectification.triangulate(match.left, match.right[:, rectification.disparity_axis])
     depth = np.linalg.norm(points, axis=1)
     valid = np.isfinite(depth) & (depth >= config.min_depth) & (depth <= config.max_depth)
