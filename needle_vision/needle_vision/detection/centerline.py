@@ -338,10 +338,6 @@ def _edge_spread(cross, u):  # pragma: no cover - compiled
     return total / 2
 
 
-#: Distance between the 25 % and 75 % points of a Gaussian-blurred step per unit sigma.
-QUARTILE_SPREAD_PER_SIGMA = 1.349
-
-
 @numba.njit(cache=True, nogil=True)
 def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
     """Fraction of the contrast left at ``s`` by an end whose width falls linearly to nothing over ``taper``
@@ -356,6 +352,39 @@ def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
             total += sign * (z * 0.5 * (1.0 + math.erf(z / np.sqrt(2.0))) + np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi))
         out[k] = sigma / taper * total
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _blurred_band(u, parameters):  # pragma: no cover - compiled
+    """Cross profile at ``u`` of a band (contrast, centre, half width, Gaussian blur sigma = ``parameters``)."""
+    contrast, centre, half_width, sigma = parameters
+    out = np.empty(u.shape[0])
+    for k in range(u.shape[0]):
+        out[k] = 0.5 * contrast * (math.erf((u[k] - centre + half_width) / (np.sqrt(2.0) * sigma))
+                                   - math.erf((u[k] - centre - half_width) / (np.sqrt(2.0) * sigma)))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _side_blur(u, cross):  # pragma: no cover - compiled
+    """Gaussian blur sigma of the needle's side edges: least-squares fit of :func:`_blurred_band` to its cross
+    profile ``cross`` at ``u`` (Gauss-Newton from the profile's peak, area and a 0.6 px blur). Fitted like the end's
+    profile (:func:`_taper_fit`); the quartiles of the interpolated profile read ~1.0 px where the fit gives
+    0.72 px (1.349 sigma for a Gaussian step)."""
+    peak = int(np.argmax(cross))
+    parameters = np.array([cross[peak], u[peak], 0.5 * np.sum(cross) * (u[1] - u[0]) / max(cross[peak], 1e-9), 0.6])
+    jacobian = np.empty((u.shape[0], 4))
+    for _ in range(10):
+        model = _blurred_band(u, parameters)
+        for j in range(4):
+            moved = parameters.copy()
+            moved[j] += 1e-4
+            jacobian[:, j] = (_blurred_band(u, moved) - model) / 1e-4
+        step = np.linalg.lstsq(jacobian, cross - model)[0]
+        parameters += step
+        parameters[2] = max(parameters[2], 0.1)
+        parameters[3] = min(max(parameters[3], 0.2), 3.0)
+    return parameters[3]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -461,8 +490,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     clean = 1.4826 * np.median(np.abs(profile[inside] - level)) < MAX_TAPER_SCATTER * level
     half = end
     if clean and not np.isnan(blur) and spread > TAPER_FACTOR * blur:
-        # The blur along the profile: the side edges' (same optics, pixels and interpolation) and the moving average.
-        sigma = np.sqrt((blur / QUARTILE_SPREAD_PER_SIGMA) ** 2 + 2 * step ** 2 / 3)
+        # The blur along the profile: the side edges' less the interpolation's (their profile is the median over
+        # the needle's sub-pixel phases, the end's is at one phase; bilinear: 1/6 px²), plus the moving average's.
+        sigma = np.sqrt(max(_side_blur(u, cross) ** 2 - 1 / 6, 0.04) + 2 * step ** 2 / 3)
         window = (s >= end - 2 * (spread + blur)) & (s <= end + 2 * (spread + blur))
         middle, taper = _taper_fit(s[window], profile[window] / level, end, 2 * np.sqrt(spread ** 2 - blur ** 2),
                                    sigma)
