@@ -229,11 +229,11 @@ def _common_ends(left, right, e, min_sin, tolerance):  # pragma: no cover - comp
     return left, right
 
 
-def _shared_tapers(left: np.ndarray, right: np.ndarray, tapers: tuple[np.ndarray, np.ndarray], e: int,
-                   min_sin: float) -> tuple[np.ndarray, np.ndarray]:
+@numba.njit(cache=True, nogil=True)
+def _shared_tapers(left, right, tapers_left, tapers_right, e, min_sin):  # pragma: no cover - compiled
     """Both curves (same direction) with each pair of ends that run within asin(min_sin) of the epipolar lines
     put the same taper beyond their half-contrast points. There the end's depth is the two ends' disparity alone,
-    so each view's noise in its taper (a bevel's length, ``tapers``: first and last end [px]) went into it
+    so each view's noise in its taper (a bevel's length; ``tapers_*``: first and last end [px]) went into it
     whole; a bevel is one length on the needle: both views get their mean (the right one's scaled by the ratio
     of the curves' lengths)."""
     ratio = arc_length(right)[-1] / max(arc_length(left)[-1], 1e-12)
@@ -242,10 +242,9 @@ def _shared_tapers(left: np.ndarray, right: np.ndarray, tapers: tuple[np.ndarray
         tangents = (_end_tangent(curves[0]), _end_tangent(curves[1]))
         if max(abs(tangents[0][e]), abs(tangents[1][e])) >= min_sin:
             continue
-        common = 0.5 * (tapers[0][end] + tapers[1][end] / ratio)
-        shifts = (common - tapers[0][end], ratio * common - tapers[1][end])
-        left, right = (_end_last(_moved_end(curve, tangent, shift), end)
-                       for curve, tangent, shift in zip(curves, tangents, shifts))
+        common = 0.5 * (tapers_left[end] + tapers_right[end] / ratio)
+        left = _end_last(_moved_end(curves[0], tangents[0], common - tapers_left[end]), end)
+        right = _end_last(_moved_end(curves[1], tangents[1], ratio * common - tapers_right[end]), end)
     return left, right
 
 
@@ -287,8 +286,9 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
     min_sin = np.sin(np.radians(config.min_epipolar_angle_deg))
     if ends_visible:
         if tapers is not None:
-            left, right = _shared_tapers(left, right, (tapers[0], tapers[1][::-1] if reversed_ else tapers[1]), e,
-                                         min_sin)
+            left, right = _shared_tapers(left, right, np.ascontiguousarray(tapers[0], dtype=float),
+                                         np.ascontiguousarray(tapers[1][::-1] if reversed_ else tapers[1], dtype=float),
+                                         e, min_sin)
         left, right = _common_ends(left, right, e, min_sin, 2 * config.max_epipolar_error_px)
         s, t = arc_length(left), arc_length(right)
         e_left = np.ascontiguousarray(left[:, e])
