@@ -339,49 +339,54 @@ def _edge_spread(cross, u):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
-    """Fraction of the contrast left at ``s`` by an end whose width falls linearly to nothing over ``taper``
-    (centred at ``centre``), seen through a Gaussian blur ``sigma``: the mean of the blurred step
-    Phi((x - s) / sigma) over the taper x, in closed form (G(z) = z Phi(z) + phi(z) integrates Phi)."""
-    taper = max(taper, 1e-3)
-    out = np.empty(s.shape[0])
-    for k in range(s.shape[0]):
-        total = 0.0
-        for sign, x in ((1.0, centre + 0.5 * taper), (-1.0, centre - 0.5 * taper)):
-            z = (x - s[k]) / sigma
-            total += sign * (z * 0.5 * (1.0 + math.erf(z / np.sqrt(2.0))) + np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi))
-        out[k] = sigma / taper * total
-    return out
+def _phi(z):  # pragma: no cover - compiled
+    """Standard normal (cumulative distribution, density) at ``z``."""
+    return 0.5 * (1.0 + math.erf(z / math.sqrt(2.0))), math.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
 
 
 @numba.njit(cache=True, nogil=True)
-def _blurred_band(u, parameters):  # pragma: no cover - compiled
-    """Cross profile at ``u`` of a band (contrast, centre, half width, Gaussian blur sigma = ``parameters``)."""
-    contrast, centre, half_width, sigma = parameters
-    out = np.empty(u.shape[0])
-    for k in range(u.shape[0]):
-        out[k] = 0.5 * contrast * (math.erf((u[k] - centre + half_width) / (np.sqrt(2.0) * sigma))
-                                   - math.erf((u[k] - centre - half_width) / (np.sqrt(2.0) * sigma)))
-    return out
+def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
+    """Fraction of the contrast left at ``s`` by an end whose width falls linearly to nothing over ``taper``
+    (centred at ``centre``), seen through a Gaussian blur ``sigma``: the mean of the blurred step
+    Phi((x - s) / sigma) over the taper x, in closed form (G(z) = z Phi(z) + phi(z) integrates Phi); and its
+    derivatives by the centre and by the taper."""
+    taper = max(taper, 1e-3)
+    value, d_centre, d_taper = np.empty(s.shape[0]), np.empty(s.shape[0]), np.empty(s.shape[0])
+    for k in range(s.shape[0]):
+        outer, inner = (centre + 0.5 * taper - s[k]) / sigma, (centre - 0.5 * taper - s[k]) / sigma
+        big_phi_outer, phi_outer = _phi(outer)
+        big_phi_inner, phi_inner = _phi(inner)
+        value[k] = sigma / taper * (outer * big_phi_outer + phi_outer - inner * big_phi_inner - phi_inner)
+        d_centre[k] = (big_phi_outer - big_phi_inner) / taper
+        d_taper[k] = (0.5 * (big_phi_outer + big_phi_inner) - value[k]) / taper
+    return value, d_centre, d_taper
 
 
 @numba.njit(cache=True, nogil=True)
 def _side_blur(u, cross):  # pragma: no cover - compiled
-    """Gaussian blur sigma of the needle's side edges: least-squares fit of :func:`_blurred_band` to its cross
-    profile ``cross`` at ``u`` (Gauss-Newton from the profile's peak, area and a 0.6 px blur). Fitted like the end's
-    profile (:func:`_taper_fit`); the quartiles of the interpolated profile read ~1.0 px where the fit gives
-    0.72 px (1.349 sigma for a Gaussian step)."""
+    """Gaussian blur sigma of the needle's side edges: least-squares fit of a blurred band (contrast, centre, half
+    width, sigma) to its cross profile ``cross`` at ``u`` (Gauss-Newton from the profile's peak, area and a 0.6 px
+    blur). Fitted like the end's profile (:func:`_taper_fit`); the quartiles of the interpolated profile read
+    ~1.0 px where the fit gives 0.72 px (1.349 sigma for a Gaussian step)."""
     peak = int(np.argmax(cross))
     parameters = np.array([cross[peak], u[peak], 0.5 * np.sum(cross) * (u[1] - u[0]) / max(cross[peak], 1e-9), 0.6])
-    jacobian = np.empty((u.shape[0], 4))
-    for _ in range(10):
-        model = _blurred_band(u, parameters)
-        for j in range(4):
-            moved = parameters.copy()
-            moved[j] += 1e-4
-            jacobian[:, j] = (_blurred_band(u, moved) - model) / 1e-4
-        step = np.linalg.lstsq(jacobian, cross - model)[0]
-        parameters += step
+    for _ in range(4):
+        contrast, centre, half_width, sigma = parameters
+        normal = np.zeros((4, 4))
+        gradient = np.zeros(4)
+        row = np.empty(4)
+        for k in range(u.shape[0]):
+            rising, falling = (u[k] - centre + half_width) / sigma, (u[k] - centre - half_width) / sigma
+            big_phi_rising, phi_rising = _phi(rising)
+            big_phi_falling, phi_falling = _phi(falling)
+            row[0] = big_phi_rising - big_phi_falling
+            row[1] = contrast * (phi_falling - phi_rising) / sigma
+            row[2] = contrast * (phi_rising + phi_falling) / sigma
+            row[3] = contrast * (phi_falling * falling - phi_rising * rising) / sigma
+            residual = cross[k] - contrast * row[0]
+            normal += np.outer(row, row)
+            gradient += residual * row
+        parameters += np.linalg.solve(normal, gradient)
         parameters[2] = max(parameters[2], 0.1)
         parameters[3] = min(max(parameters[3], 0.2), 3.0)
     return parameters[3]
@@ -391,11 +396,8 @@ def _side_blur(u, cross):  # pragma: no cover - compiled
 def _taper_fit(s, profile, centre, taper, sigma):  # pragma: no cover - compiled
     """Least-squares centre and length of the taper of a normalised end ``profile`` (1 inside, 0 beyond)
     sampled at ``s`` (:func:`_tapered_step`, blur ``sigma`` known), from a first guess: Gauss-Newton steps."""
-    delta = 1e-3
-    for _ in range(8):
-        model = _tapered_step(s, centre, taper, sigma)
-        d_centre = (_tapered_step(s, centre + delta, taper, sigma) - model) / delta
-        d_taper = (_tapered_step(s, centre, taper + delta, sigma) - model) / delta
+    for _ in range(6):
+        model, d_centre, d_taper = _tapered_step(s, centre, taper, sigma)
         residual = profile - model
         a, b, c = np.sum(d_centre * d_centre), np.sum(d_centre * d_taper), np.sum(d_taper * d_taper)
         r0, r1 = np.sum(d_centre * residual), np.sum(d_taper * residual)

@@ -285,7 +285,7 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
     _, right, t, t0, reversed_ = min(candidates, key=lambda candidate: candidate[0])
     min_sin = np.sin(np.radians(config.min_epipolar_angle_deg))
     if ends_visible:
-        if tapers is not None:
+        if tapers is not None and (np.any(tapers[0]) or np.any(tapers[1])):
             left, right = _shared_tapers(left, right, np.ascontiguousarray(tapers[0], dtype=float),
                                          np.ascontiguousarray(tapers[1][::-1] if reversed_ else tapers[1], dtype=float),
                                          e, min_sin)

@@ -105,14 +105,17 @@ def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np
     return centerline.local_noise_px[::8][_nearest(np.ascontiguousarray(rectified[::8]), matched)]
 
 
-def _rectified_tapers(centerline: ImageCenterline, rectified: np.ndarray, rectification: Rectification,
-                      side: str) -> np.ndarray:
-    """``centerline.end_taper_px`` (first and last end) in rectified pixels: the ends' distance to their
-    half-contrast points, rectified."""
-    ends, inner = centerline.points[[0, -1]], centerline.points[[5, -6]]
-    tangent = (ends - inner) / np.maximum(np.linalg.norm(ends - inner, axis=1, keepdims=True), 1e-12)
-    half = rectification.rectify(ends - centerline.end_taper_px[:, None] * tangent, side)
-    return np.linalg.norm(rectified[[0, -1]] - half, axis=1) * np.sign(centerline.end_taper_px)
+def _rectified(centerline: ImageCenterline, rectification: Rectification, side: str) -> tuple[np.ndarray,
+                                                                                             np.ndarray]:
+    """The centerline's points rectified, and its ``end_taper_px`` (first and last end) in rectified pixels (scaled
+    like the last 5 px of the curve at each end)."""
+    rectified = rectification.rectify(centerline.points, side)
+    tapers = centerline.end_taper_px
+    if not np.any(tapers):
+        return rectified, tapers
+    scale = [np.linalg.norm(curve[0] - curve[5]) / max(np.linalg.norm(raw[0] - raw[5]), 1e-12)
+             for curve, raw in ((rectified, centerline.points), (rectified[::-1], centerline.points[::-1]))]
+    return rectified, tapers * scale
 
 
 def _runs(points: np.ndarray, split: float) -> list[slice]:
@@ -182,13 +185,12 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     if scatter > config.max_image_scatter:
         raise ImplausibleError(f"implausible: image centerline scatters {scatter:.2f} px across the curve "
                                f"(> {config.max_image_scatter:g} px): low detection confidence")
-    left_rect = rectification.rectify(left.points, "left")
-    right_rect = rectification.rectify(right.points, "right")
+    left_rect, left_tapers = _rectified(left, rectification, "left")
+    right_rect, right_tapers = _rectified(right, rectification, "right")
     ends_visible = all(_ends_inside(centerline.points, camera.width, camera.height) for centerline, camera
                        in ((left, rectification.rig.left), (right, rectification.rig.right)))
-    tapers = (_rectified_tapers(left, left_rect, rectification, "left"),
-              _rectified_tapers(right, right_rect, rectification, "right"))
-    match = match_centerlines(left_rect, right_rect, rectification.epipolar_axis, matching, ends_visible, tapers)
+    match = match_centerlines(left_rect, right_rect, rectification.epipolar_axis, matching, ends_visible,
+                              (left_tapers, right_tapers))
     points = rectification.triangulate(match.left, match.right[:, rectification.disparity_axis])
     depth = np.linalg.norm(points, axis=1)
     valid = np.isfinite(depth) & (depth >= config.min_depth) & (depth <= config.max_depth)
