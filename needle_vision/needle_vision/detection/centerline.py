@@ -384,8 +384,10 @@ def _side_blur(u, cross):  # pragma: no cover - compiled
             row[2] = contrast * (phi_rising + phi_falling) / sigma
             row[3] = contrast * (phi_falling * falling - phi_rising * rising) / sigma
             residual = cross[k] - contrast * row[0]
-            normal += np.outer(row, row)
-            gradient += residual * row
+            for i in range(4):
+                gradient[i] += residual * row[i]
+                for j in range(4):
+                    normal[i, j] += row[i] * row[j]
         parameters += np.linalg.solve(normal, gradient)
         parameters[2] = max(parameters[2], 0.1)
         parameters[3] = min(max(parameters[3], 0.2), 3.0)

@@ -236,12 +236,14 @@ def _shared_tapers(left, right, tapers_left, tapers_right, e, min_sin):  # pragm
     so each view's noise in its taper (a bevel's length; ``tapers_*``: first and last end [px]) went into it
     whole; a bevel is one length on the needle: both views get their mean (the right one's scaled by the ratio
     of the curves' lengths)."""
-    ratio = arc_length(right)[-1] / max(arc_length(left)[-1], 1e-12)
+    ratio = -1.0
     for end in range(2):
         curves = (_end_last(left, end), _end_last(right, end))
         tangents = (_end_tangent(curves[0]), _end_tangent(curves[1]))
         if max(abs(tangents[0][e]), abs(tangents[1][e])) >= min_sin:
             continue
+        if ratio < 0:
+            ratio = arc_length(right)[-1] / max(arc_length(left)[-1], 1e-12)
         common = 0.5 * (tapers_left[end] + tapers_right[end] / ratio)
         left = _end_last(_moved_end(curves[0], tangents[0], common - tapers_left[end]), end)
         right = _end_last(_moved_end(curves[1], tangents[1], ratio * common - tapers_right[end]), end)

@@ -9,6 +9,7 @@ uncertainty propagated from the measured image noise (calibration error is not i
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numba
@@ -113,8 +114,9 @@ def _rectified(centerline: ImageCenterline, rectification: Rectification, side: 
     tapers = centerline.end_taper_px
     if not np.any(tapers):
         return rectified, tapers
-    scale = [np.linalg.norm(curve[0] - curve[5]) / max(np.linalg.norm(raw[0] - raw[5]), 1e-12)
-             for curve, raw in ((rectified, centerline.points), (rectified[::-1], centerline.points[::-1]))]
+    raw = centerline.points
+    scale = (math.dist(rectified[0], rectified[5]) / max(math.dist(raw[0], raw[5]), 1e-12),
+             math.dist(rectified[-1], rectified[-6]) / max(math.dist(raw[-1], raw[-6]), 1e-12))
     return rectified, tapers * scale
 
 
