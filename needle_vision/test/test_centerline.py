@@ -102,3 +102,29 @@ def test_running_median_equals_scipy_median_filter(mode):
         values = rng.normal(size=count) if trial % 2 else rng.integers(0, 4, count).astype(float)
         assert np.array_equal(_running_median(values, size, mode == "mirror"),
                               median_filter(values, size=size, mode=mode)), (count, size)
+
+
+def test_tapered_step_is_the_blurred_linear_taper():
+    """The end model of a bevel (issue 16, tip): against a brute-force convolution of the linear taper with the
+    Gaussian blur (independent quadrature of the width profile)."""
+    from scipy.stats import norm
+
+    from needle_vision.detection.centerline import _tapered_step
+    s = np.linspace(-6.0, 6.0, 49)
+    for taper, sigma in ((2.6, 0.6), (5.6, 0.65), (0.0, 0.7)):
+        x = np.linspace(-15.0, 15.0, 30001)
+        width = np.clip((0.5 * taper - x) / max(taper, 1e-9), 0.0, 1.0) if taper else (x < 0).astype(float)
+        brute = np.array([np.trapezoid(width * norm.pdf(si - x, scale=sigma), x) for si in s])
+        np.testing.assert_allclose(_tapered_step(s + 0.3, 0.3, taper, sigma)[0], brute, atol=5e-4)
+
+
+def test_side_blur_recovers_the_blur_of_a_band():
+    """The side edges' blur from a cross profile: a band of half width 1.27 px blurred by sigma, sampled every
+    0.5 px like the end profile's cross section (closed form: erf edges)."""
+    from scipy.special import erf
+
+    from needle_vision.detection.centerline import _side_blur
+    u = np.arange(-5.0, 5.5, 0.5)
+    for sigma in (0.5, 0.7, 1.0):
+        cross = 0.44 * (erf((u - 0.2 + 1.27) / (np.sqrt(2) * sigma)) - erf((u - 0.2 - 1.27) / (np.sqrt(2) * sigma)))
+        assert _side_blur(u, cross) == pytest.approx(sigma, abs=1e-3)

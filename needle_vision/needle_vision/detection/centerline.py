@@ -16,7 +16,8 @@ extract the background, find the needle points).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -56,12 +57,15 @@ class ImageCenterline:
     """Centerline points ``(n, 2)`` (x, y raw pixels) ordered from one end to the other, their slice contrast
     (sum of relative contrast across the slice), the robust scatter [px] of the points across the curve, and
     that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW`` points: the noise
-    grows where the needle's contrast is lower, e.g. in front of a darker background)."""
+    grows where the needle's contrast is lower, e.g. in front of a darker background); ``end_taper_px``: how far
+    [px] each end (first, last) was put beyond its half-contrast point for a taper (a bevel seen side-on; 0 for a
+    flat end)."""
 
     points: np.ndarray
     contrast: np.ndarray
     noise_px: float
     local_noise_px: np.ndarray
+    end_taper_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -368,6 +372,79 @@ def _edge_spread(cross, u):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _phi(z):  # pragma: no cover - compiled
+    """Standard normal (cumulative distribution, density) at ``z``."""
+    return 0.5 * (1.0 + math.erf(z / math.sqrt(2.0))), math.exp(-0.5 * z * z) / math.sqrt(2.0 * math.pi)
+
+
+@numba.njit(cache=True, nogil=True)
+def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
+    """Fraction of the contrast left at ``s`` by an end whose width falls linearly to nothing over ``taper``
+    (centred at ``centre``), seen through a Gaussian blur ``sigma``: the mean of the blurred step
+    Phi((x - s) / sigma) over the taper x, in closed form (G(z) = z Phi(z) + phi(z) integrates Phi); and its
+    derivatives by the centre and by the taper."""
+    taper = max(taper, 1e-3)
+    value, d_centre, d_taper = np.empty(s.shape[0]), np.empty(s.shape[0]), np.empty(s.shape[0])
+    for k in range(s.shape[0]):
+        outer, inner = (centre + 0.5 * taper - s[k]) / sigma, (centre - 0.5 * taper - s[k]) / sigma
+        big_phi_outer, phi_outer = _phi(outer)
+        big_phi_inner, phi_inner = _phi(inner)
+        value[k] = sigma / taper * (outer * big_phi_outer + phi_outer - inner * big_phi_inner - phi_inner)
+        d_centre[k] = (big_phi_outer - big_phi_inner) / taper
+        d_taper[k] = (0.5 * (big_phi_outer + big_phi_inner) - value[k]) / taper
+    return value, d_centre, d_taper
+
+
+@numba.njit(cache=True, nogil=True)
+def _side_blur(u, cross):  # pragma: no cover - compiled
+    """Gaussian blur sigma of the needle's side edges: least-squares fit of a blurred band (contrast, centre, half
+    width, sigma) to its cross profile ``cross`` at ``u`` (Gauss-Newton from the profile's peak, area and a 0.6 px
+    blur). Fitted like the end's profile (:func:`_taper_fit`); the quartiles of the interpolated profile read
+    ~1.0 px where the fit gives 0.72 px (1.349 sigma for a Gaussian step)."""
+    peak = int(np.argmax(cross))
+    parameters = np.array([cross[peak], u[peak], 0.5 * np.sum(cross) * (u[1] - u[0]) / max(cross[peak], 1e-9), 0.6])
+    for _ in range(4):
+        contrast, centre, half_width, sigma = parameters
+        normal = np.zeros((4, 4))
+        gradient = np.zeros(4)
+        row = np.empty(4)
+        for k in range(u.shape[0]):
+            rising, falling = (u[k] - centre + half_width) / sigma, (u[k] - centre - half_width) / sigma
+            big_phi_rising, phi_rising = _phi(rising)
+            big_phi_falling, phi_falling = _phi(falling)
+            row[0] = big_phi_rising - big_phi_falling
+            row[1] = contrast * (phi_falling - phi_rising) / sigma
+            row[2] = contrast * (phi_rising + phi_falling) / sigma
+            row[3] = contrast * (phi_falling * falling - phi_rising * rising) / sigma
+            residual = cross[k] - contrast * row[0]
+            for i in range(4):
+                gradient[i] += residual * row[i]
+                for j in range(4):
+                    normal[i, j] += row[i] * row[j]
+        parameters += np.linalg.solve(normal, gradient)
+        parameters[2] = max(parameters[2], 0.1)
+        parameters[3] = min(max(parameters[3], 0.2), 3.0)
+    return parameters[3]
+
+
+@numba.njit(cache=True, nogil=True)
+def _taper_fit(s, profile, centre, taper, sigma):  # pragma: no cover - compiled
+    """Least-squares centre and length of the taper of a normalised end ``profile`` (1 inside, 0 beyond)
+    sampled at ``s`` (:func:`_tapered_step`, blur ``sigma`` known), from a first guess: Gauss-Newton steps."""
+    for _ in range(6):
+        model, d_centre, d_taper = _tapered_step(s, centre, taper, sigma)
+        residual = profile - model
+        a, b, c = np.sum(d_centre * d_centre), np.sum(d_centre * d_taper), np.sum(d_taper * d_taper)
+        r0, r1 = np.sum(d_centre * residual), np.sum(d_taper * residual)
+        determinant = a * c - b * b
+        if determinant <= 0:
+            break
+        centre += (c * r0 - b * r1) / determinant
+        taper = max(taper + (a * r1 - b * r0) / determinant, 0.0)
+    return centre, taper
+
+
+@numba.njit(cache=True, nogil=True)
 def _principal_direction(points):  # pragma: no cover - compiled
     """Unit direction of the least-squares line through ``(n, 2)`` points (the covariance's major axis, closed
     form), pointing from the first point to the last; and the points' mean."""
@@ -397,9 +474,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     needle's curvature) fitted to the 80 before them, one pixel apart up to the end. A bevel seen side-on
     tapers the end: where the profile falls (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the
     needle's side edges (and the profile is clean), the end is sqrt(spread² - blur²) beyond the half-contrast
-    point (a linear taper's half length). Returns (number of points kept, the new points ending with the end);
-    kept is -1 where the profile leaves the image or does not fall."""
-    none = (-1, np.zeros((0, 2)))
+    point (a linear taper's half length). Returns (number of points kept, the new points ending with the end,
+    the taper's half length [px]); kept is -1 where the profile leaves the image or does not fall."""
+    none = (-1, np.zeros((0, 2)), 0.0)
     n = points.shape[0]
     if n < 100:
         return none
@@ -448,8 +525,15 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     blur = _edge_spread(cross, u)
     spread = last - first
     clean = 1.4826 * np.median(np.abs(profile[inside] - level)) < MAX_TAPER_SCATTER * level
+    half = end
     if clean and not np.isnan(blur) and spread > TAPER_FACTOR * blur:
-        end += np.sqrt(spread ** 2 - blur ** 2)
+        # The blur along the profile: the side edges' less the interpolation's (their profile is the median over
+        # the needle's sub-pixel phases, the end's is at one phase; bilinear: 1/6 px²), plus the moving average's.
+        sigma = np.sqrt(max(_side_blur(u, cross) ** 2 - 1 / 6, 0.04) + 2 * step ** 2 / 3)
+        window = (s >= end - 2 * (spread + blur)) & (s <= end + 2 * (spread + blur))
+        middle, taper = _taper_fit(s[window], profile[window] / level, end, 2 * np.sqrt(spread ** 2 - blur ** 2),
+                                   sigma)
+        end = middle + 0.5 * taper
     kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
     if kept < 80 or end <= along[kept - 1]:
         return none
@@ -469,7 +553,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         shift = (coefficients[0] * t + coefficients[1]) * t + coefficients[2]
         out[k, 0] = centre[0] + steps[k] * direction[0] + shift * normal[0]
         out[k, 1] = centre[1] + steps[k] * direction[1] + shift * normal[1]
-    return kept, out
+    return kept, out, end - half
 
 
 @numba.njit(cache=True, nogil=True)
@@ -618,4 +702,4 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
         raise NoNeedleError("too few centerline points with enough contrast")
     # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
     noise, local = _scatter(points, len(head), hi - lo)
-    return ImageCenterline(points, contrast_kept, noise, local)
+    return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]))

@@ -187,6 +187,28 @@ def _end_last(curve, end):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _end_tangent(curve):  # pragma: no cover - compiled
+    """Unit direction out of the last point of ``curve`` (from the point 5 before it)."""
+    tangent = curve[-1] - curve[-6]
+    return tangent / max(np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1]), 1e-12)
+
+
+@numba.njit(cache=True, nogil=True)
+def _moved_end(curve, tangent, shift):  # pragma: no cover - compiled
+    """``curve`` with its last point moved ``shift`` px along ``tangent`` (outward +), the points beyond the new
+    end dropped."""
+    n = curve.shape[0]
+    inside = np.ones(n - 1, np.bool_)  # only the last points can lie beyond the new end
+    for i in range(max(n - 1 - int(np.ceil(abs(shift))) - 2, 0), n - 1):
+        inside[i] = ((curve[i, 0] - curve[-1, 0]) * tangent[0]
+                     + (curve[i, 1] - curve[-1, 1]) * tangent[1]) < shift - 0.25
+    out = np.empty((np.count_nonzero(inside) + 1, 2))
+    out[:-1] = curve[:-1][inside]
+    out[-1] = curve[-1] + shift * tangent
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def _common_ends(left, right, e, min_sin, tolerance):  # pragma: no cover - compiled
     """Both curves (same direction) with each pair of corresponding ends moved to their mean epipolar
     coordinate: a needle end is one 3D point, on one epipolar line in both images. Each end moves along its
@@ -194,10 +216,7 @@ def _common_ends(left, right, e, min_sin, tolerance):  # pragma: no cover - comp
     within asin(min_sin) of the epipolar lines, or that are more than ``tolerance`` px apart, stay."""
     for end in range(2):
         curves = (_end_last(left, end), _end_last(right, end))  # this end last
-        tangents = []
-        for curve in curves:
-            tangent = curve[-1] - curve[-6]
-            tangents.append(tangent / max(np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1]), 1e-12))
+        tangents = (_end_tangent(curves[0]), _end_tangent(curves[1]))
         ends_e = (curves[0][-1, e], curves[1][-1, e])
         if min(abs(tangents[0][e]), abs(tangents[1][e])) < min_sin or abs(ends_e[0] - ends_e[1]) > tolerance:
             continue
@@ -205,27 +224,43 @@ def _common_ends(left, right, e, min_sin, tolerance):  # pragma: no cover - comp
         for k in range(2):
             curve, tangent = curves[k], tangents[k]
             shift = (0.5 * (ends_e[0] + ends_e[1]) - ends_e[k]) / tangent[e]  # [px] along the tangent, outward +
-            n = curve.shape[0]
-            inside = np.ones(n - 1, np.bool_)  # only the last points can lie beyond the new end
-            for i in range(max(n - 1 - int(np.ceil(abs(shift))) - 2, 0), n - 1):
-                inside[i] = ((curve[i, 0] - curve[-1, 0]) * tangent[0]
-                             + (curve[i, 1] - curve[-1, 1]) * tangent[1]) < shift - 0.25
-            out = np.empty((np.count_nonzero(inside) + 1, 2))
-            out[:-1] = curve[:-1][inside]
-            out[-1] = curve[-1] + shift * tangent
-            moved.append(_end_last(out, end))
+            moved.append(_end_last(_moved_end(curve, tangent, shift), end))
         left, right = moved[0], moved[1]
     return left, right
 
 
+@numba.njit(cache=True, nogil=True)
+def _shared_tapers(left, right, tapers_left, tapers_right, e, min_sin):  # pragma: no cover - compiled
+    """Both curves (same direction) with each pair of ends that run within asin(min_sin) of the epipolar lines
+    put the same taper beyond their half-contrast points. There the end's depth is the two ends' disparity alone,
+    so each view's noise in its taper (a bevel's length; ``tapers_*``: first and last end [px]) went into it
+    whole; a bevel is one length on the needle: both views get their mean (the right one's scaled by the ratio
+    of the curves' lengths)."""
+    ratio = -1.0
+    for end in range(2):
+        curves = (_end_last(left, end), _end_last(right, end))
+        tangents = (_end_tangent(curves[0]), _end_tangent(curves[1]))
+        if max(abs(tangents[0][e]), abs(tangents[1][e])) >= min_sin:
+            continue
+        if ratio < 0:
+            ratio = arc_length(right)[-1] / max(arc_length(left)[-1], 1e-12)
+        common = 0.5 * (tapers_left[end] + tapers_right[end] / ratio)
+        left = _end_last(_moved_end(curves[0], tangents[0], common - tapers_left[end]), end)
+        right = _end_last(_moved_end(curves[1], tangents[1], ratio * common - tapers_right[end]), end)
+    return left, right
+
+
 def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
-                      config: MatchingConfig = MatchingConfig(), ends_visible: bool = False) -> Correspondence:
+                      config: MatchingConfig = MatchingConfig(), ends_visible: bool = False,
+                      tapers: tuple[np.ndarray, np.ndarray] | None = None) -> Correspondence:
     """Correspond two ordered rectified centerlines ``(n, 2)``, ``(m, 2)`` (either direction for the right).
 
     ``ends_visible``: both curves end at the needle's real ends (not cut by an image border). Then each pair
     of ends within ``2 max_epipolar_error_px`` of one epipolar line are corresponding points: moved onto their
     mean epipolar line where they cross the lines (:func:`_common_ends`), taken as they are where the end
-    stretch runs along the lines (no anchor there)."""
+    stretch runs along the lines (no anchor there); there the two views' ``tapers`` (how far [px] each curve's
+    first and last end lies beyond its half-contrast point, see ``ImageCenterline.end_taper_px``) are shared
+    (:func:`_shared_tapers`)."""
     if len(left) < 5 or len(right) < 5:
         raise MatchError("a centerline has fewer than 5 points")
     left = _smooth_runs(np.ascontiguousarray(left, dtype=float), 5)
@@ -244,13 +279,18 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
     e_left = np.ascontiguousarray(left[:, e])
     candidates = []
     for oriented in directions:
+        reversed_ = oriented is not right
         oriented = np.ascontiguousarray(oriented)
         t = arc_length(oriented)
         t0, cost = _coarse_map(s, e_left, t, np.ascontiguousarray(oriented[:, e]), spacing, weight)
-        candidates.append((cost, oriented, t, t0))
-    _, right, t, t0 = min(candidates, key=lambda candidate: candidate[0])
+        candidates.append((cost, oriented, t, t0, reversed_))
+    _, right, t, t0, reversed_ = min(candidates, key=lambda candidate: candidate[0])
     min_sin = np.sin(np.radians(config.min_epipolar_angle_deg))
     if ends_visible:
+        if tapers is not None and (np.any(tapers[0]) or np.any(tapers[1])):
+            left, right = _shared_tapers(left, right, np.ascontiguousarray(tapers[0], dtype=float),
+                                         np.ascontiguousarray(tapers[1][::-1] if reversed_ else tapers[1], dtype=float),
+                                         e, min_sin)
         left, right = _common_ends(left, right, e, min_sin, 2 * config.max_epipolar_error_px)
         s, t = arc_length(left), arc_length(right)
         e_left = np.ascontiguousarray(left[:, e])

@@ -9,6 +9,7 @@ uncertainty propagated from the measured image noise (calibration error is not i
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numba
@@ -105,6 +106,20 @@ def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np
     return centerline.local_noise_px[::8][_nearest(np.ascontiguousarray(rectified[::8]), matched)]
 
 
+def _rectified(centerline: ImageCenterline, rectification: Rectification, side: str) -> tuple[np.ndarray,
+                                                                                             np.ndarray]:
+    """The centerline's points rectified, and its ``end_taper_px`` (first and last end) in rectified pixels (scaled
+    like the last 5 px of the curve at each end)."""
+    rectified = rectification.rectify(centerline.points, side)
+    tapers = centerline.end_taper_px
+    if not np.any(tapers):
+        return rectified, tapers
+    raw = centerline.points
+    scale = (math.dist(rectified[0], rectified[5]) / max(math.dist(raw[0], raw[5]), 1e-12),
+             math.dist(rectified[-1], rectified[-6]) / max(math.dist(raw[-1], raw[-6]), 1e-12))
+    return rectified, tapers * scale
+
+
 def _runs(points: np.ndarray, split: float) -> list[slice]:
     """The runs of consecutive points not separated by a step longer than ``split`` (a hidden stretch)."""
     cuts = np.flatnonzero(step_lengths(points) > split) + 1
@@ -172,11 +187,12 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     if scatter > config.max_image_scatter:
         raise ImplausibleError(f"implausible: image centerline scatters {scatter:.2f} px across the curve "
                                f"(> {config.max_image_scatter:g} px): low detection confidence")
-    left_rect = rectification.rectify(left.points, "left")
-    right_rect = rectification.rectify(right.points, "right")
+    left_rect, left_tapers = _rectified(left, rectification, "left")
+    right_rect, right_tapers = _rectified(right, rectification, "right")
     ends_visible = all(_ends_inside(centerline.points, camera.width, camera.height) for centerline, camera
                        in ((left, rectification.rig.left), (right, rectification.rig.right)))
-    match = match_centerlines(left_rect, right_rect, rectification.epipolar_axis, matching, ends_visible)
+    match = match_centerlines(left_rect, right_rect, rectification.epipolar_axis, matching, ends_visible,
+                              (left_tapers, right_tapers))
     points = rectification.triangulate(match.left, match.right[:, rectification.disparity_axis])
     depth = np.linalg.norm(points, axis=1)
     valid = np.isfinite(depth) & (depth >= config.min_depth) & (depth <= config.max_depth)
