@@ -7,20 +7,17 @@ faster than real time), mean step time, and the final tip position off the
 insertion axis (y, z; z includes the gravity sag of about -2.8 mm).
 A baseline without tissue (gravity only, same base motion) shows the tissue's cost.
 
-Usage: python bench/bench_tissue.py [--depth 0.09] [--speed 0.006] [--elements 10] [--dt 0.001]
+Usage (the installed package: source .venv/needle_env.sh first):
+    python bench/bench_tissue.py [--depth 0.09] [--speed 0.006] [--elements 10] [--dt 0.001]
 """
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "needle_sim_ros"))
-
-from needle_sim_ros.model import load_needle_config  # noqa: E402
-from needle_sim_ros.scenarios.insertion import InsertionMotion, shipped_tissue_config, simulate_insertion  # noqa: E402
-from needle_sim_ros.tissue.factory import flatten_tissue_config  # noqa: E402
+from needle_sim_ros.model import load_needle_config
+from needle_sim_ros.scenarios.insertion import InsertionMotion, shipped_tissue_config, simulate_insertion
+from needle_sim_ros.tissue.factory import flatten_tissue_config
 
 NEEDLE, BUILD, INTEGRATOR = load_needle_config({})        # the simulator node's defaults (seed 000 needle)
 
