@@ -10,6 +10,7 @@ that no executor runs.
 """
 from __future__ import annotations
 
+from contextlib import ExitStack
 from typing import Sequence
 
 from rclpy.callback_groups import CallbackGroup
@@ -47,17 +48,23 @@ def drain(subscription: Subscription, limit: int = 10_000) -> int:
 
 class MessageWaiter:
     """Blocks its owner's thread (GIL released) until one of the polled subscriptions has a message waiting, or
-    a timeout passes: rcl's wait set, as ``rclpy.wait_for_message`` uses it, refilled before every wait."""
+    a timeout passes: an rcl wait set per wait, used as rclpy's executor uses it (the subscriptions and the
+    context are held in use during the wait, so a node or context torn down meanwhile is destroyed after it)."""
 
     def __init__(self, subscriptions: Sequence[Subscription], context: Context) -> None:
         self._subscriptions = list(subscriptions)
-        self._wait_set = _rclpy.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0, context.handle)
+        self._context = context
 
     def wait(self, timeout: float) -> bool:
         """True if a message arrived within ``timeout`` [s] (it is left in its queue for :func:`drain`)."""
-        wait_set = self._wait_set
-        wait_set.clear_entities()
-        for subscription in self._subscriptions:
-            wait_set.add_subscription(subscription.handle)
-        wait_set.wait(max(int(timeout * 1e9), 0))
-        return bool(wait_set.get_ready_entities("subscription"))
+        with ExitStack() as in_use:
+            for subscription in self._subscriptions:
+                in_use.enter_context(subscription.handle)
+            in_use.enter_context(self._context.handle)
+            wait_set = _rclpy.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0, self._context.handle)
+            in_use.enter_context(wait_set)
+            wait_set.clear_entities()
+            for subscription in self._subscriptions:
+                wait_set.add_subscription(subscription.handle)
+            wait_set.wait(max(int(timeout * 1e9), 0))
+            return bool(wait_set.get_ready_entities("subscription"))
