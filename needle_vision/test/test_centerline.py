@@ -107,6 +107,7 @@ def test_running_median_equals_scipy_median_filter(mode):
 def test_tapered_step_is_the_blurred_linear_taper():
     """The end model of a bevel (issue 16, tip): against a brute-force convolution of the linear taper with the
     Gaussian blur (independent quadrature of the width profile)."""
+    from scipy.integrate import trapezoid  # numpy 1.26 (Ubuntu 24.04) has no np.trapezoid
     from scipy.stats import norm
 
     from needle_vision.detection.centerline import _tapered_step
@@ -114,7 +115,7 @@ def test_tapered_step_is_the_blurred_linear_taper():
     for taper, sigma in ((2.6, 0.6), (5.6, 0.65), (0.0, 0.7)):
         x = np.linspace(-15.0, 15.0, 30001)
         width = np.clip((0.5 * taper - x) / max(taper, 1e-9), 0.0, 1.0) if taper else (x < 0).astype(float)
-        brute = np.array([np.trapezoid(width * norm.pdf(si - x, scale=sigma), x) for si in s])
+        brute = np.array([trapezoid(width * norm.pdf(si - x, scale=sigma), x) for si in s])
         np.testing.assert_allclose(_tapered_step(s + 0.3, 0.3, taper, sigma)[0], brute, atol=5e-4)
 
 
