@@ -1,5 +1,11 @@
-"""The ROS test environment of every test directory (package tests and suite tests): one isolated ROS 2 domain."""
+"""Shared by every test directory (package tests and suite tests): one isolated ROS 2 domain, and a package's
+install-time kernel compilation run as the install step runs it."""
+import ast
 import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Callable
 
 import pytest
 
@@ -22,3 +28,15 @@ def ros_env() -> dict:
             os.environ.pop(key, None)
         else:
             os.environ[key] = value
+
+
+@pytest.fixture(scope="session")
+def run_install_hook() -> Callable[[Path, float], subprocess.CompletedProcess]:
+    """``run(setup_py, timeout)``: the ``COMPILE_KERNELS`` snippet of a package's setup.py (what its install step,
+    run by colcon build, executes against the installed package), run in a child interpreter; its output as text."""
+    def run(setup_py: Path, timeout: float) -> subprocess.CompletedProcess:
+        tree = ast.parse(setup_py.read_text())
+        snippet = next(node.value.value for node in tree.body if isinstance(node, ast.Assign)
+                       and getattr(node.targets[0], "id", "") == "COMPILE_KERNELS")
+        return subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=timeout)
+    return run

@@ -1,6 +1,4 @@
 """Cold start (issue #12): after `compile_kernels` the node's pose path compiles nothing more."""
-import ast
-import subprocess
 import sys
 from pathlib import Path
 
@@ -58,13 +56,9 @@ def test_an_insertion_needs_no_kernel_beyond_compile_kernels_with_the_tissue_on(
     assert compiled_specializations() == compiled
 
 
-def test_the_install_hook_compiles_against_the_installed_package():
+def test_the_install_hook_compiles_against_the_installed_package(run_install_hook):
     """setup.py's install step (what colcon build runs) compiles the kernels with a snippet of its own; a stale
     import there would only print a warning at build time and leave every fresh install compiling at first start."""
-    setup = ast.parse((Path(__file__).resolve().parents[1] / "setup.py").read_text())
-    snippet = next(node.value.value for node in setup.body if isinstance(node, ast.Assign)
-                   and getattr(node.targets[0], "id", "") == "COMPILE_KERNELS")
-    result = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=600)
+    result = run_install_hook(Path(__file__).resolve().parents[1] / "setup.py", 600)
     assert result.returncode == 0, result.stderr
     assert "compiled the simulator's numba kernels" in result.stdout
-
