@@ -171,11 +171,16 @@ class ConstantButMoving(Undeclared, ForceContribution):
     state_dependent, time_invariant, stateful = True, True, False
 
 
+class LocalWithoutBand(Undeclared, ForceContribution):
+    state_dependent, time_invariant, stateful, element_local = True, False, False, True
+
+
 @pytest.mark.parametrize("force, message", [
     (Undeclared(), "Undeclared must declare state_dependent"),
     (ForgetsItsState(), "ForgetsItsState declares stateful = True but has no snapshot, restore"),
     (AdvancesUnseen(), "AdvancesUnseen has advance.. but declares stateful = False"),
-    (ConstantButMoving(), "ConstantButMoving declares time_invariant = True, which excludes state_dependent")])
+    (ConstantButMoving(), "ConstantButMoving declares time_invariant = True, which excludes state_dependent"),
+    (LocalWithoutBand(), "LocalWithoutBand declares element_local = True but has no assemble_banded")])
 def test_contributions_breaking_the_force_protocol_are_refused_by_name(force, message):
     model = build_model(NEEDLE, 2)
     with pytest.raises(TypeError, match=message):
@@ -185,18 +190,49 @@ def test_contributions_breaking_the_force_protocol_are_refused_by_name(force, me
 
 
 def test_every_contribution_declares_its_capabilities():
-    """(state_dependent, time_invariant, stateful) of the product's contributions, tissue from its factory."""
+    """(state_dependent, time_invariant, stateful, element_local) of the product's contributions, tissue from its
+    factory."""
     model = build_model(NEEDLE, 4)
     loads = {"gravity": Gravity(), "point": PointLoad(0.1, (0, 0, 1)), "point base": PointLoad(0.1, (0, 0, 1), "base"),
              "line": LineLoad(0.0, 0.1, (0, 0, 1)), "nodal": NodalLoad(-1, (0, 0, 1)),
              "nodal base": NodalLoad(-1, (0, 0, 1), frame="base"),
              "material points": MaterialPointForce([0.1], [1.0], winkler(1.0))}
     tissue = build_tissue_forces({"tissue.insertion_profile.enable": True}, model)
-    declared = {name: (f.state_dependent, f.time_invariant, f.stateful) for name, f in loads.items()}
-    assert declared == {"gravity": (False, True, False), "point": (False, True, False),
-                        "point base": (False, False, False), "line": (False, True, False),
-                        "nodal": (False, True, False), "nodal base": (False, False, False),
-                        "material points": (True, False, False)}
-    assert [(type(f).__name__, f.state_dependent, f.time_invariant, f.stateful) for f in check_forces(tissue)] == [
-        ("ShaftSupport", True, False, True), ("BevelTipForce", True, False, True), ("TipResistance", True, False, True)]
+    declared = {name: (f.state_dependent, f.time_invariant, f.stateful, f.element_local) for name, f in loads.items()}
+    assert declared == {"gravity": (False, True, False, False), "point": (False, True, False, False),
+                        "point base": (False, False, False, False), "line": (False, True, False, False),
+                        "nodal": (False, True, False, False), "nodal base": (False, False, False, False),
+                        "material points": (True, False, False, True)}
+    assert [(type(f).__name__, f.state_dependent, f.time_invariant, f.stateful, f.element_local)
+            for f in check_forces(tissue)] == [("ShaftSupport", True, False, True, True),
+                                               ("BevelTipForce", True, False, True, True),
+                                               ("TipResistance", True, False, True, True)]
     assert check_forces(loads.values()) == tuple(loads.values())
+
+
+def test_element_local_blocks_and_the_base_wrench():
+    """assemble_banded adds c_q dQ/dq + c_qd dQ/dq' in band layout: equal to the dense Jacobians (themselves checked
+    against finite differences above) for any factors; the base wrench skips an element-local force only where it
+    has no point in the first element, so it equals the wrench from the full Q of every force either way."""
+    from needle_sim_ros.model.banded import ELEMENT_BANDWIDTH, band_to_dense, band_width_columns
+    from needle_sim_ros.model.reaction import base_constraint_kernel, base_rows
+
+    model = build_model(NEEDLE, 5)
+    rng = np.random.default_rng(4)
+    q = model.straight_state(BASE).q + 0.02 * rng.normal(size=model.n_dof)
+    qd = rng.normal(size=model.n_dof)
+    for start in (0.01, 0.15):  # in the first element (0.054 m long) or beyond it
+        force = MaterialPointForce(np.linspace(start, NEEDLE.length, 7), np.full(7, 0.03), nonlinear_law)
+        dense = force.evaluate(model, q, qd, 0.0, BASE)
+        band = np.zeros((model.n_dof, band_width_columns(ELEMENT_BANDWIDTH)))
+        Q = force.assemble_banded(model, q, qd, 0.0, BASE, band, ELEMENT_BANDWIDTH, -2.0, 0.5)
+        np.testing.assert_array_equal(Q, dense.Q)
+        np.testing.assert_allclose(band_to_dense(band, ELEMENT_BANDWIDTH), -2.0 * dense.dQ_dq + 0.5 * dense.dQ_dqd,
+                                   rtol=0, atol=1e-12 * np.abs(dense.dQ_dq).max())
+        assert force.touches_element(model, 0) == (start < model.node_arc_length[1])
+        state = model.straight_state(BASE)
+        state.q, state.qd = q, qd
+        full = base_constraint_kernel(q[:12].copy(), qd[:12].copy(), np.zeros(12), *base_rows(model),
+                                      np.ascontiguousarray(BASE.axis), dense.Q[:6].copy())
+        wrench = reaction_wrench(model, state, BASE, [force])
+        np.testing.assert_array_equal(wrench.force_world, -full[:3])

@@ -131,6 +131,26 @@ def band_structure(matrix: np.ndarray) -> tuple[int, bool]:
     return width, symmetric
 
 
+@njit(cache=True)
+def add_dense_to_band(matrix: np.ndarray, factor: float, band: np.ndarray, kl: int) -> None:
+    """band += factor * matrix for the entries within the bandwidth kl (the caller checked there are no others)."""
+    n = matrix.shape[0]
+    for i in range(n):
+        for j in range(max(0, i - kl), min(n, i + kl + 1)):
+            band[i, j - i + kl] += factor * matrix[i, j]
+
+
+@njit(cache=True)
+def band_symmetric(band: np.ndarray, kl: int) -> bool:
+    """Whether the band matrix (row i, column j at band[i, j - i + kl]) is symmetric."""
+    n = band.shape[0]
+    for i in range(n):
+        for j in range(i + 1, min(n, i + kl + 1)):
+            if band[i, j - i + kl] != band[j, i - j + kl]:
+                return False
+    return True
+
+
 def band_to_dense(band: np.ndarray, kl: int) -> np.ndarray:
     """Dense copy of an (unfactored) band matrix with bandwidth kl."""
     n = band.shape[0]

@@ -5,7 +5,9 @@ Q_f = sum_i S^T(x_i) F_i (eq. 15); nodal loads add Q_P directly (eq. 16); a line
 int S^T f ds.  Every contribution implements ``evaluate(model, q, qd, t, base) -> GeneralizedForce`` (and may
 override ``generalized_force``, the same Q without Jacobians) and declares
 its capabilities as class attributes (:class:`ForceContribution`), checked by :func:`check_forces` when a force
-list is handed to the integrator, the statics or the simulation.
+list is handed to the integrator, the statics or the simulation.  Element-local contributions (forces at material
+points, eq. 15) also assemble their Jacobian blocks straight into the banded iteration matrix through the shared
+compiled kernel ``assemble_point_forces`` (``assemble_banded``), so Newton never builds a dense n x n matrix.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from typing import Callable, ClassVar, NamedTuple
 import numpy as np
 from numba import njit
 
+from .banded import ELEMENT_BANDWIDTH, band_to_dense, band_width_columns
 from .mesh import Interpolation
 
 
@@ -38,11 +41,17 @@ class ForceContribution:
       states) and implements ``advance(model, state, base)``, run once per accepted step, and ``snapshot()`` /
       ``restore(snapshot)``: the simulation snapshots every stateful force before a step and restores it when the
       step fails, so a failed step changes nothing. A snapshot shares no mutable array with the force.
+    * ``element_local`` (default False): its Jacobians couple the coordinates of one element only (forces at material
+      points, eq. 15) and it implements ``assemble_banded``: Q and its Jacobian blocks added to the banded
+      iteration matrix in one compiled pass, and ``touches_element``: whether a point lies in a given element
+      now (the base wrench skips forces off the first element). False: Newton takes the dense Jacobians of
+      ``evaluate``.
     """
 
     state_dependent: ClassVar[bool]
     time_invariant: ClassVar[bool]
     stateful: ClassVar[bool]
+    element_local: ClassVar[bool] = False
 
     def evaluate(self, model, q: np.ndarray, qd: np.ndarray, t: float, base) -> GeneralizedForce:
         raise NotImplementedError
@@ -52,8 +61,29 @@ class ForceContribution:
         steps, the reaction wrench).  Contributions with costly Jacobians override it."""
         return self.evaluate(model, q, qd, t, base).Q
 
+    def assemble_banded(self, model, q: np.ndarray, qd: np.ndarray, t: float, base, band: np.ndarray, kl: int,
+                        c_q: float, c_qd: float) -> np.ndarray:
+        """Q (n_dof,); adds c_q dQ/dq + c_qd dQ/dq' to ``band`` (row i, column j at band[i, j - i + kl], kl >=
+        ELEMENT_BANDWIDTH). Only for ``element_local`` contributions."""
+        raise NotImplementedError
 
-CAPABILITIES = ("state_dependent", "time_invariant", "stateful")
+    def touches_element(self, model, element: int) -> bool:
+        """Whether one of its points lies in ``element`` (Q is zero on the coordinates of elements it does not
+        touch). Only for ``element_local`` contributions."""
+        raise NotImplementedError
+
+
+def banded_evaluation(force: ForceContribution, model, q: np.ndarray, qd: np.ndarray, t: float,
+                      base) -> GeneralizedForce:
+    """``evaluate`` of an element-local contribution from its ``assemble_banded``: dense Jacobians (tests, tools)."""
+    kl = ELEMENT_BANDWIDTH
+    stiffness, damping = (np.zeros((q.size, band_width_columns(kl))) for _ in range(2))
+    Q = force.assemble_banded(model, q, qd, t, base, stiffness, kl, 1.0, 0.0)
+    force.assemble_banded(model, q, qd, t, base, damping, kl, 0.0, 1.0)
+    return GeneralizedForce(Q, band_to_dense(stiffness, kl), band_to_dense(damping, kl))
+
+
+CAPABILITIES = ("state_dependent", "time_invariant", "stateful", "element_local")
 STATE_HOOKS = ("advance", "snapshot", "restore")
 
 
@@ -79,6 +109,10 @@ def check_forces(forces) -> tuple:
         if force.time_invariant and (force.state_dependent or force.stateful):
             raise TypeError(f"force contribution {name} declares time_invariant = True, which excludes "
                             "state_dependent and stateful")
+        missing = [hook for hook in ("assemble_banded", "touches_element")
+                   if getattr(type(force), hook) is getattr(ForceContribution, hook)]
+        if force.element_local and missing:
+            raise TypeError(f"force contribution {name} declares element_local = True but has no {missing[0]}()")
     return forces
 
 
@@ -249,6 +283,7 @@ class MaterialPointForce(ForceContribution):
     state_dependent: ClassVar[bool] = True
     time_invariant: ClassVar[bool] = False
     stateful: ClassVar[bool] = False
+    element_local: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         self.arc_lengths = np.atleast_1d(np.asarray(self.arc_lengths, dtype=float))
@@ -256,46 +291,53 @@ class MaterialPointForce(ForceContribution):
         if not np.all(np.isfinite(self.weights)):
             raise ValueError("MaterialPointForce: weights must be finite")
 
-    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
+    def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
         table = _per_model(self, model, lambda m: m.interpolation(self.arc_lengths))
         r, r_x, v = table.positions(q), table.gradients(q), table.positions(qd)
         forces = self.law(r, r_x, v, t, base)
         k = self.arc_lengths.size
-        zero = np.zeros((k, 3, 3))
-        derivatives = [zero if d is None else np.ascontiguousarray(d, dtype=float)
+        derivatives = [np.zeros((k, 3, 3)) if d is None else np.ascontiguousarray(d, dtype=float)
                        for d in (forces.dF_dr, forces.dF_drx, forces.dF_dv)]
         F = np.ascontiguousarray(forces.F, dtype=float)
         if F.shape != (k, 3) or any(d.shape != (k, 3, 3) for d in derivatives):
             raise ValueError(f"MaterialPointForce law must return F (k, 3) and derivatives (k, 3, 3), k = {k}")
-        n = model.n_dof
-        Q, dQ_dq = np.zeros(n), np.zeros((n, n))
-        dQ_dqd = np.zeros((n, n)) if forces.dF_dv is not None else None
-        assemble_point_forces(table.slots, table.S, table.S_x, self.weights, F, *derivatives, Q, dQ_dq,
-                              dQ_dqd if dQ_dqd is not None else np.zeros((0, 0)))
-        no_stiffness = forces.dF_dr is None and forces.dF_drx is None
-        return GeneralizedForce(Q, None if no_stiffness else dQ_dq, dQ_dqd)
+        Q = np.zeros(model.n_dof)
+        assemble_point_forces(table.slots, table.S, table.S_x, self.weights, F, *derivatives, Q, band, kl, c_q, c_qd)
+        return Q
+
+    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
+        return banded_evaluation(self, model, q, qd, t, base)
+
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        return self.assemble_banded(model, q, qd, t, base, _NO_BAND, 0, 0.0, 0.0)
+
+    def touches_element(self, model, element: int) -> bool:
+        return bool(np.any(_per_model(self, model, lambda m: m.interpolation(self.arc_lengths)).element == element))
+
+
+_NO_BAND = np.zeros((0, 0))
 
 
 @njit(cache=True)
-def assemble_point_forces(slots, S, S_x, weights, F, dF_dr, dF_drx, dF_dv, Q, dQ_dq, dQ_dqd):
-    """Scatter sum_k w_k S_k^T F_k and its Jacobians (MaterialPointForce) into Q and dense matrices; a (0, 0)
-    dQ_dq skips both Jacobians (Q alone), a (0, 0) dQ_dqd the velocity one."""
-    with_velocity = dQ_dqd.shape[0] > 0
-    with_stiffness = dQ_dq.shape[0] > 0
+def assemble_point_forces(slots, S, S_x, weights, F, dF_dr, dF_drx, dF_dv, Q, band, kl, c_q, c_qd):
+    """Scatter sum_k w_k S_k^T F_k (eq. 15) into Q and c_q dQ/dq + c_qd dQ/dq' (chain rule, MaterialPointForce)
+    into the band matrix ``band`` (row i, column j at band[i, j - i + kl]; a point couples the 12 coordinates of
+    its element: kl >= 11); a (0, 0) band: Q alone."""
+    with_matrix = band.shape[0] > 0
     for k in range(slots.shape[0]):
         for a in range(4):
             ia = 3 * slots[k, a]
             wa = weights[k] * S[k, a]
             for c in range(3):
                 Q[ia + c] += wa * F[k, c]
-            if not with_stiffness:
+            if not with_matrix:
                 continue
             for b in range(4):
                 ib = 3 * slots[k, b]
                 cr = wa * S[k, b]
                 cx = wa * S_x[k, b]
                 for c in range(3):
+                    row = ia + c
                     for c2 in range(3):
-                        dQ_dq[ia + c, ib + c2] += cr * dF_dr[k, c, c2] + cx * dF_drx[k, c, c2]
-                        if with_velocity:
-                            dQ_dqd[ia + c, ib + c2] += cr * dF_dv[k, c, c2]
+                        band[row, ib + c2 - row + kl] += (c_q * (cr * dF_dr[k, c, c2] + cx * dF_drx[k, c, c2])
+                                                          + c_qd * cr * dF_dv[k, c, c2])

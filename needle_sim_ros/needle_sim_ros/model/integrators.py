@@ -151,8 +151,7 @@ class Integrator:
         solver = self.solver
         band = solver.band(ELEMENT_BANDWIDTH)
         assemble_system(state.q, state.qd, qdd, solver.tables, np.ascontiguousarray(base.axis), ext_Q,
-                        np.zeros((0, 0)), np.zeros((0, 0)), 0.0, 1.0, 0.0, solver.active, solver.residual, band,
-                        ELEMENT_BANDWIDTH, True)
+                        np.zeros((0, 0)), 0.0, 1.0, 0.0, solver.active, solver.residual, band, ELEMENT_BANDWIDTH, True)
         if not band_cholesky(band, ELEMENT_BANDWIDTH):
             raise StepFailed("initial accelerations: mass matrix not positive definite")
         cholesky_solve(band, ELEMENT_BANDWIDTH, solver.residual)

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .banded import (ELEMENT_BANDWIDTH, band_cholesky, band_factor, band_solve, band_structure, band_width_columns,
-                     cholesky_solve)
+from .banded import (ELEMENT_BANDWIDTH, add_dense_to_band, band_cholesky, band_factor, band_solve, band_structure,
+                     band_symmetric, band_width_columns, cholesky_solve)
 from .damping import add_axial_damping
 from .elastic import add_elastic
 
@@ -31,11 +31,11 @@ def model_tables(model) -> tuple:
 
 
 @njit(cache=True)
-def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_K, ext_D, c_K, c_M, c_C, active, residual, band, kl,
+def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, active, residual, band, kl,
                     with_matrix):
     """residual <- R (zero on constrained rows); if with_matrix, band <- J (identity on constrained rows/cols).
-    tables: ``model_tables``; ext_K / ext_D: dense dQ_ext/dq, dQ_ext/dq' or (0, 0) arrays for zero, with a
-    bandwidth not above kl."""
+    tables: ``model_tables``; ext_band: the external forces' part of J, -(c_K dQ_ext/dq + c_C dQ_ext/dq'), in the
+    layout of ``band`` (same kl), or a (0, 0) array for zero."""
     (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
      damping_transverse, strain_rate_weights) = tables
     n = q.size
@@ -62,15 +62,10 @@ def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_K, ext_D, c_K, c_M, c_C
                     band[row, 3 * s2 + c - row + kl] += c_M * m + c_C * ci
                     for c2 in range(3):
                         band[row, 3 * s2 + c2 - row + kl] += c_C * ca * axis[c] * axis[c2]
-    if with_matrix:
-        if ext_K.shape[0] > 0:
-            for i in range(n):
-                for j in range(max(0, i - kl), min(n, i + kl + 1)):
-                    band[i, j - i + kl] -= c_K * ext_K[i, j]
-        if ext_D.shape[0] > 0:
-            for i in range(n):
-                for j in range(max(0, i - kl), min(n, i + kl + 1)):
-                    band[i, j - i + kl] -= c_C * ext_D[i, j]
+    if with_matrix and ext_band.shape[0] > 0:
+        for i in range(n):
+            for column in range(2 * kl + 1):
+                band[i, column] += ext_band[i, column]
     for i in range(n):
         if not active[i]:
             residual[i] = 0.0
@@ -160,7 +155,7 @@ CHOLESKY, LU = 0, 1
 
 
 @njit(cache=True)
-def iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, ext_K, ext_D, residual, band, pivots,
+def iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, ext_band, residual, band, pivots,
             factorization, kl, refactor, symmetric):
     """One Newton (refactor) or chord correction; updates values (rows q, q', q'', a).
 
@@ -169,13 +164,13 @@ def iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, 
     Returns the scaled correction max_i |dq_i| / scale_i, or -1 for a singular matrix or non-finite values."""
     c_M, c_C = rate_coefficients(coef, dynamic)
     q, qd, qdd = values[0], values[1], values[2]
-    assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_K, ext_D, 1.0, c_M, c_C, active, residual, band, kl, refactor)
+    assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, 1.0, c_M, c_C, active, residual, band, kl, refactor)
     if refactor:
         factorization[0] = CHOLESKY
         if not (symmetric and band_cholesky(band, kl)):
             if symmetric:  # the failed Cholesky overwrote the matrix
-                assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_K, ext_D, 1.0, c_M, c_C, active, residual, band,
-                                kl, True)
+                assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, 1.0, c_M, c_C, active, residual, band, kl,
+                                True)
             factorization[0] = LU
             if not band_factor(band, pivots, kl):
                 return -1.0
@@ -226,7 +221,7 @@ def newton_solve(values, history, prescribed, coef, dynamic, predictor, active, 
     previous = np.inf
     norm = np.inf
     for iteration in range(max_iterations):
-        norm = iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, empty, empty, residual, band,
+        norm = iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, empty, residual, band,
                        pivots, factorization, kl, refactor, True)
         action = newton_control(norm, previous, tol, always_refactor)
         if action == CONVERGED or action == FAILED:
@@ -243,9 +238,10 @@ class NewtonSolver:
     """Buffers and the Python-side Newton loop for one model.
 
     With only a constant external force (``varying`` empty) the whole loop runs compiled (``newton_solve``);
-    otherwise the state-dependent contributions are evaluated before every correction and their Jacobians enter the
-    matrix whenever it is refactored (the band widens if a Jacobian couples farther than one element).
-    Not thread-safe: one solver per thread.
+    otherwise the state-dependent contributions are evaluated before every correction and, whenever the matrix is
+    refactored, their Jacobians enter it through one band buffer: element-local contributions assemble their blocks
+    into it (``assemble_banded``), the others' dense Jacobians are copied in (the band widens if one couples farther
+    than an element). Not thread-safe: one solver per thread.
     """
 
     def __init__(self, model) -> None:
@@ -256,13 +252,14 @@ class NewtonSolver:
         self.residual = np.empty(model.n_dof)
         self.pivots = np.empty(model.n_dof, dtype=np.int64)
         self.factorization = np.zeros(1, dtype=np.int64)
-        self._bands: dict[int, np.ndarray] = {}
-        self._buffers: dict[str, np.ndarray] = {}
+        self._bands: dict[tuple[str, int], np.ndarray] = {}
 
-    def band(self, kl: int) -> np.ndarray:
-        if kl not in self._bands:
-            self._bands[kl] = np.zeros((self.model.n_dof, band_width_columns(kl)))
-        return self._bands[kl]
+    def band(self, kl: int, name: str = "matrix") -> np.ndarray:
+        """The iteration matrix's band buffer (``name`` "external": the external forces' part) for bandwidth kl."""
+        key = (name, kl)
+        if key not in self._bands:
+            self._bands[key] = np.zeros((self.model.n_dof, band_width_columns(kl)))
+        return self._bands[key]
 
     def solve(self, values, history, prescribed, coef, dynamic: bool, axis, constant_Q, varying, t: float, base,
               tol: float, max_iterations: int, always_refactor: bool, load_factor: float = 1.0,
@@ -275,48 +272,46 @@ class NewtonSolver:
                                 self.factorization, ELEMENT_BANDWIDTH, tol, max_iterations, always_refactor)
         if dynamic:
             predict(values, history, prescribed, coef, self.active, predictor)
-        refactor, previous, norm, kl, symmetric = True, np.inf, np.inf, ELEMENT_BANDWIDTH, True
+        c_qd = load_factor * rate_coefficients(coef, dynamic)[1]
+        refactor, previous, norm, kl, symmetric, ext_band = True, np.inf, np.inf, ELEMENT_BANDWIDTH, True, _NO_MATRIX
         q, qd = values[0], values[1]
         for iteration in range(max_iterations):
-            ext_Q, stiffness, damping = constant_Q.copy(), [], []
-            for force in varying:
-                if refactor:
-                    generalized = force.evaluate(self.model, q, qd, t, base)
-                    Q = generalized.Q
-                    stiffness.append(generalized.dQ_dq)
-                    damping.append(generalized.dQ_dqd)
-                else:  # a chord step reuses the factorization: Q alone
-                    Q = force.generalized_force(self.model, q, qd, t, base)
-                ext_Q += Q if load_factor == 1.0 else load_factor * np.asarray(Q, dtype=float)
+            ext_Q = constant_Q.copy()
             if refactor:
-                ext_K, ext_D = self._sum("K", stiffness, load_factor), self._sum("D", damping, load_factor)
-                kl, symmetric = ELEMENT_BANDWIDTH, True
-                for matrix in (ext_K, ext_D):
-                    if matrix.shape[0]:
-                        width, matrix_symmetric = band_structure(matrix)
-                        kl, symmetric = max(kl, width), symmetric and matrix_symmetric
-            norm = iterate(values, history, coef, dynamic, self.active, self.scale, self.tables, axis, ext_Q, ext_K,
-                           ext_D, self.residual, self.band(kl), self.pivots, self.factorization, kl, refactor,
-                           symmetric)
+                ext_band, kl = self._external(varying, q, qd, t, base, load_factor, c_qd, ext_Q)
+                symmetric = band_symmetric(ext_band, kl)
+            else:  # a chord step reuses the factorization: Q alone
+                for force in varying:
+                    Q = force.generalized_force(self.model, q, qd, t, base)
+                    ext_Q += Q if load_factor == 1.0 else load_factor * np.asarray(Q, dtype=float)
+            norm = iterate(values, history, coef, dynamic, self.active, self.scale, self.tables, axis, ext_Q, ext_band,
+                           self.residual, self.band(kl), self.pivots, self.factorization, kl, refactor, symmetric)
             action = newton_control(norm, previous, tol, always_refactor)
             if action == CONVERGED or action == FAILED:
                 return action, iteration + 1, norm
             refactor, previous = action == REFACTOR, norm
         return 1, max_iterations, norm
 
-    def _sum(self, name: str, matrices: list, factor: float) -> np.ndarray:
-        """load factor x the sum of the given Jacobians (None = zero); a (0, 0) array for zero.  A single one is
-        used as is; several are added in a reused buffer (large fresh arrays cost page faults)."""
-        present = [np.asarray(m, dtype=float) for m in matrices if m is not None]
-        if not present:
-            return _NO_MATRIX
-        if len(present) == 1 and factor == 1.0:
-            return present[0]
-        n = self.model.n_dof
-        buffer = self._buffers.get(name)
-        if buffer is None:
-            buffer = self._buffers[name] = np.empty((n, n))
-        np.multiply(present[0], factor, out=buffer)
-        for matrix in present[1:]:
-            buffer += factor * matrix
-        return buffer
+    def _external(self, varying, q, qd, t, base, load_factor: float, c_qd: float,
+                  ext_Q: np.ndarray) -> tuple[np.ndarray, int]:
+        """Add the state-dependent forces' Q (times the load factor) to ext_Q; return their part of the iteration
+        matrix, -load_factor (dQ/dq + c_C dQ/dq'), as a band buffer, and its bandwidth."""
+        model, kl, dense = self.model, ELEMENT_BANDWIDTH, []
+        for force in varying:
+            if not force.element_local:
+                generalized = force.evaluate(model, q, qd, t, base)
+                dense.append(generalized)
+                for matrix in generalized[1:]:
+                    if matrix is not None:
+                        kl = max(kl, band_structure(np.asarray(matrix, dtype=float))[0])
+        ext_band = self.band(kl, "external")
+        ext_band[:, :] = 0.0
+        for generalized in dense:
+            ext_Q += load_factor * np.asarray(generalized.Q, dtype=float)
+            for matrix, factor in zip(generalized[1:], (-load_factor, -c_qd)):
+                if matrix is not None:
+                    add_dense_to_band(np.asarray(matrix, dtype=float), factor, ext_band, kl)
+        for force in varying:
+            if force.element_local:
+                ext_Q += load_factor * force.assemble_banded(model, q, qd, t, base, ext_band, kl, -load_factor, -c_qd)
+        return ext_band, kl

@@ -65,10 +65,12 @@ def base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, be
 
 
 def base_constraint_force(model: NeedleModel, state: State, base: BaseMotion, forces=()) -> np.ndarray:
-    """Q_cc on the base node [r_A, r_xA] (6,), eq. 20: the generalized force of the holder on the needle."""
+    """Q_cc on the base node [r_A, r_xA] (6,), eq. 20: the generalized force of the holder on the needle.
+    Element-local forces off the first element have no share in the base node's rows and are not evaluated."""
     external = np.zeros(6)
     for force in forces:
-        external += np.asarray(force.generalized_force(model, state.q, state.qd, state.t, base))[:6]
+        if not force.element_local or force.touches_element(model, 0):
+            external += np.asarray(force.generalized_force(model, state.q, state.qd, state.t, base))[:6]
     return base_constraint_kernel(np.ascontiguousarray(state.q[:12]), np.ascontiguousarray(state.qd[:12]),
                                   np.ascontiguousarray(state.qdd[:12]), *base_rows(model),
                                   np.ascontiguousarray(base.axis), external)

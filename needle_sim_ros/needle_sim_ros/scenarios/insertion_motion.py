@@ -82,9 +82,11 @@ class InsertionMotion:
         return angle, rate
 
     def base_at(self, t: float) -> BaseMotion:
-        """The base (clamp point A, needle along its x axis) at time t."""
+        """The base (clamp point A, needle along its x axis) at time t: travel along x, roll about x (built packed:
+        finite and a unit quaternion by construction, so without BaseMotion's checks; once per time step)."""
         x, v = self.travel(t)
         roll, rate = self.roll_at(t)
-        orientation = np.array([np.sin(0.5 * roll), 0.0, 0.0, np.cos(0.5 * roll)])
-        return BaseMotion(np.array([x, 0.0, 0.0]), orientation, linear_velocity=np.array([v, 0.0, 0.0]),
-                          angular_velocity=np.array([rate, 0.0, 0.0]))
+        packed = np.zeros(19)  # [position, orientation (x, y, z, w), v, w, a, alpha]
+        packed[0], packed[3], packed[6], packed[7], packed[10] = x, np.sin(0.5 * roll), np.cos(0.5 * roll), v, rate
+        c, s = np.cos(roll), np.sin(roll)
+        return BaseMotion.from_packed(packed, np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]))

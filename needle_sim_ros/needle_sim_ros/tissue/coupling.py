@@ -18,14 +18,13 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from needle_sim_ros.model import ForceContribution, GeneralizedForce
-from needle_sim_ros.model.forces import assemble_point_forces
+from needle_sim_ros.model.forces import assemble_point_forces, banded_evaluation
 from needle_sim_ros.model.mesh import hermite_shapes
 
 from .bevel_tip import BevelTip
@@ -53,6 +52,26 @@ def cutting_force(rx, v, cutting_force, speed_scale):
 def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tip position r and gradient r_x: the last node's coordinates [r, r_x] (model API layout)."""
     return q[-6:-3], q[-3:]
+
+
+_TIP_S = np.array([[0.0, 0.0, 1.0, 0.0]])    # at the last element's end r = e_3 and r_x = e_4 (eq. 4)
+_TIP_S_X = np.array([[0.0, 0.0, 0.0, 1.0]])
+_UNIT_WEIGHT = np.ones(1)
+_NO_DERIVATIVE = np.zeros((1, 3, 3))
+
+
+def assemble_tip_force(n_dof: int, force: np.ndarray, d_dr, d_drx, d_dv, band: np.ndarray, kl: int, c_q: float,
+                       c_qd: float) -> np.ndarray:
+    """Q of a force at the tip (the last element's end point, eq. 15) and its Jacobian blocks from dF/dr, dF/dr_x,
+    dF/dv ((3, 3) or None for zero) added to the band matrix by the shared point-force kernel."""
+    last = n_dof // 3 - 4
+    slots = np.arange(last, last + 4, dtype=np.int64).reshape(1, 4)
+    derivatives = [_NO_DERIVATIVE if d is None else np.ascontiguousarray(d, dtype=float).reshape(1, 3, 3)
+                   for d in (d_dr, d_drx, d_dv)]
+    Q = np.zeros(n_dof)
+    assemble_point_forces(slots, _TIP_S, _TIP_S_X, _UNIT_WEIGHT, np.asarray(force, dtype=float).reshape(1, 3),
+                          *derivatives, Q, band, kl, c_q, c_qd)
+    return Q
 
 
 class ContactSnapshot(NamedTuple):
@@ -127,11 +146,16 @@ class TissueForce(ForceContribution):
     state_dependent = True
     time_invariant = False
     stateful = True
+    element_local = True
     contact: TissueContact
 
     def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
         """World force [N] of this contribution on the tip and on the whole needle at ``state``."""
         raise NotImplementedError
+
+    def touches_element(self, model, element: int) -> bool:
+        """The tip forces act on the last element (ShaftSupport overrides this)."""
+        return element == model.n_elements - 1
 
     def snapshot(self) -> tuple:
         return self.contact.snapshot(), self._own_snapshot()
@@ -152,9 +176,8 @@ _NO_MATRIX = np.zeros((0, 0))
 _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(LATERAL_GAUSS_POINTS)
 
 
-@dataclass(frozen=True)
-class _Frozen:
-    """Per-step frozen data of the active shaft points (n_active entries each)."""
+class _Frozen(NamedTuple):
+    """Per-step frozen data of the active shaft points (n_active entries each); a tuple: built twice per step."""
 
     index: np.ndarray              # indices of the active material points (after the lateral quadrature points)
     weights: np.ndarray            # length share [m] times the share below the surface
@@ -231,13 +254,14 @@ def point_kinematics(q, qd, slots, S):
 
 @njit(cache=True)
 def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, lateral_stiffness, lateral_damping,
-                            stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale, Q, dQ_dq, dQ_dqd):
+                            stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale, Q, band, kl, c_q,
+                            c_qd):
     """Kinematics, ``shaft_point_forces`` and assembly of one part's points (ShaftSupport) in one compiled call:
-    adds to Q and, unless dQ_dq is (0, 0) (Q alone), to dQ_dq and dQ_dqd."""
+    adds to Q and, unless band is (0, 0) (Q alone), c_q dQ/dq + c_qd dQ/dq' to the band matrix."""
     r, v = point_kinematics(q, qd, slots, S)
     force, d_dr, d_dv = shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping,
                                            stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale)
-    assemble_point_forces(slots, S, S_x, weights, force, d_dr, np.zeros_like(d_dr), d_dv, Q, dQ_dq, dQ_dqd)
+    assemble_point_forces(slots, S, S_x, weights, force, d_dr, np.zeros_like(d_dr), d_dv, Q, band, kl, c_q, c_qd)
 
 
 @njit(cache=True)
@@ -398,24 +422,25 @@ class ShaftSupport(TissueForce):
         return shaft_point_forces(r, v, fz.anchor_points, fz.tangents, fz.lateral_stiffness, fz.lateral_damping,
                                   fz.stick_stiffness, *fz.axial)
 
-    def _assemble(self, q, qd, Q, dQ_dq, dQ_dqd) -> None:
-        """Add both parts' generalized forces (and Jacobians unless dQ_dq is (0, 0)) (compiled kernel)."""
+    def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
+        """Both parts' generalized forces and Jacobian blocks (one compiled kernel call per part)."""
+        Q = np.zeros(q.size)
         for fz in self._parts:
             if fz.weights.size:
                 shaft_generalized_force(q, qd, fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
                                         fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial,
-                                        Q, dQ_dq, dQ_dqd)
+                                        Q, band, kl, c_q, c_qd)
+        return Q
 
     def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
-        n = q.size
-        Q, dQ_dq, dQ_dqd = np.zeros(n), np.zeros((n, n)), np.zeros((n, n))
-        self._assemble(q, qd, Q, dQ_dq, dQ_dqd)
-        return GeneralizedForce(Q, dQ_dq, dQ_dqd)
+        return banded_evaluation(self, model, q, qd, t, base)
 
     def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
-        Q = np.zeros(q.size)
-        self._assemble(q, qd, Q, _NO_MATRIX, _NO_MATRIX)
-        return Q
+        return self.assemble_banded(model, q, qd, t, base, _NO_MATRIX, 0, 0.0, 0.0)
+
+    def touches_element(self, model, element: int) -> bool:
+        """Whether a lateral or axial point of this step lies in ``element`` (slots 2 e ... 2 e + 3)."""
+        return any(fz.weights.size and bool(np.any(fz.slots[:, 0] == 2 * element)) for fz in self._parts)
 
     def total_force(self, model, q, qd, t, base) -> np.ndarray:
         """World resultant [N] of the shaft forces at (q, qd)."""
@@ -553,16 +578,14 @@ class BevelTipForce(TissueForce):
     def _restore_own(self, snapshot: float) -> None:
         self._scale = snapshot
 
-    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
-        n = q.size
+    def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
         if self._scale == 0.0:
-            return GeneralizedForce(np.zeros(n))
+            return np.zeros(q.size)
         force, jacobian = self.tip_force(q, base)
-        generalized = np.zeros(n)
-        generalized[n - 6:n - 3] = force
-        d_dq = np.zeros((n, n))
-        d_dq[n - 6:n - 3, n - 3:] = jacobian
-        return GeneralizedForce(generalized, d_dq, None)
+        return assemble_tip_force(q.size, force, None, jacobian, None, band, kl, c_q, c_qd)
+
+    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
+        return banded_evaluation(self, model, q, qd, t, base)
 
     def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
         generalized = np.zeros(q.size)
@@ -625,19 +648,13 @@ class TipResistance(TissueForce):
     def _restore_own(self, snapshot: bool) -> None:
         self._cutting = snapshot
 
-    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
-        n = q.size
+    def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
         if self.contact.punctured and not self._cutting:
-            return GeneralizedForce(np.zeros(n))
-        force, d_dr, d_drx, d_dv = self.tip_force(q, qd)
-        generalized = np.zeros(n)
-        generalized[n - 6:n - 3] = force
-        d_dq = np.zeros((n, n))
-        d_dq[n - 6:n - 3, n - 6:n - 3] = d_dr
-        d_dq[n - 6:n - 3, n - 3:] = d_drx
-        d_dqd = np.zeros((n, n))
-        d_dqd[n - 6:n - 3, n - 6:n - 3] = d_dv
-        return GeneralizedForce(generalized, d_dq, d_dqd)
+            return np.zeros(q.size)
+        return assemble_tip_force(q.size, *self.tip_force(q, qd), band, kl, c_q, c_qd)
+
+    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
+        return banded_evaluation(self, model, q, qd, t, base)
 
     def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
         generalized = np.zeros(q.size)
