@@ -546,7 +546,11 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         t = abscissa[k] - offset
         design[k, 0], design[k, 1], design[k, 2] = t * t, t, 1.0
     coefficients = np.linalg.lstsq(design, lateral)[0]
-    steps = np.append(np.arange(along[kept - 1] + 1.0, end, 1.0), end)
+    # As many points as the centerline's own spacing (the slices' step along the needle) puts up to the end, evenly
+    # spaced: the 3D smoothing fits by point index, so a short last step pushed the end outward.
+    spacing = (along[kept - 1] - along[kept - 21]) / 20
+    count = max(int(round((end - along[kept - 1]) / max(spacing, 0.5))), 1)
+    steps = along[kept - 1] + (end - along[kept - 1]) * np.arange(1, count + 1) / count
     out = np.empty((steps.shape[0], 2))
     for k in range(steps.shape[0]):
         t = steps[k] - offset
