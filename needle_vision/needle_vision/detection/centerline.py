@@ -331,12 +331,13 @@ def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
 
 
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
-#: tapered (a bevel seen side-on). On the renders a flat end's ratio stays below 1.05 (at 1.0, 2 of 4 flat tips
-#: moved 0.06-0.2 mm off) and a 1 mm bevel's at 1.15-1.5 in most views (1.5 missed it: tips 0.3-0.5 mm short).
+#: tapered (a bevel seen side-on). Over 20 noise seeds of the six render shapes a flat end's ratio is 0.85-1.14
+#: and a 1 mm bevel's 1.15-1.75, a 2 mm one's 2.2-3.4 (1.5 missed 1 mm bevels: tips 0.3-0.5 mm short).
 TAPER_FACTOR = 1.15
-#: ... provided the profile scatters less than this fraction of its level along the needle (a weak needle's
-#: noisy profile does not tell a taper).
-MAX_TAPER_SCATTER = 0.05
+#: ... and by more than this many times the profile's relative scatter along the needle (a weak needle's noisy
+#: profile does not tell a taper: a flat end's spread ratio scatters ~3x the profile's scatter about 1). Was a
+#: fixed 5 % scatter limit, which also dropped 2 mm bevels (ratio 3, scatter 5-6 % with the taper's top in it).
+TAPER_SIGNIFICANCE = 5.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -474,7 +475,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     ``half_width + 1`` px of the end (centroids biased by the oblique cut) are replaced by a quadratic (the
     needle's curvature) fitted to the 80 before them, evenly spaced at the centerline's step up to the end. A
     bevel seen side-on tapers the end: where the profile falls (25-75 %) over more than ``TAPER_FACTOR`` times
-    the blur of the needle's side edges (and the profile is clean), a blurred linear taper is fitted to the profile
+    the blur of the needle's side edges (and clearly more than the profile's noise), a blurred linear taper is fitted to the profile
     and the end put half its length beyond its middle (least squares over the whole taper: the half-contrast
     crossing alone moves with the noise of a few samples on a shallow slope). Returns (number of points kept,
     the new points ending with the end, the taper's half length [px]); kept is -1 where the profile leaves the
@@ -533,9 +534,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         return none
     blur = _edge_spread(cross, u)
     spread = last - first
-    clean = 1.4826 * np.median(np.abs(profile[inside] - level)) < MAX_TAPER_SCATTER * level
+    scatter = 1.4826 * np.median(np.abs(profile[inside] - level)) / level
     half_taper = 0.0
-    if clean and not np.isnan(blur) and spread > TAPER_FACTOR * blur:
+    if not np.isnan(blur) and spread > blur * max(TAPER_FACTOR, 1 + TAPER_SIGNIFICANCE * scatter):
         # The blur along the profile: the side edges' less the interpolation's (their profile is the median over
         # the needle's sub-pixel phases, the end's is at one phase; bilinear: 1/6 px²), plus the moving average's.
         sigma = np.sqrt(max(side_sigma ** 2 - 1 / 6, 0.04) + 2 * step ** 2 / 3)
