@@ -400,9 +400,9 @@ def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
 def _side_blur(u, cross):  # pragma: no cover - compiled
     """Gaussian blur sigma of the needle's side edges, and the band's centre and half width: least-squares fit of
     a blurred band (contrast, centre, half width, sigma) to its cross profile ``cross`` at ``u`` (Gauss-Newton
-    from the profile's peak, area and a 0.6 px blur). Fitted like the end's profile (:func:`_taper_fit`); the
-    quartiles of the interpolated profile read ~1.0 px where the fit gives 0.72 px (1.349 sigma for a Gaussian
-    step)."""
+    from the profile's peak, area and a 0.6 px blur; the last estimate where the fit is singular, e.g. a flat
+    profile). Fitted like the end's profile (:func:`_taper_fit`); the quartiles of the interpolated profile read
+    ~1.0 px where the fit gives 0.72 px (1.349 sigma for a Gaussian step)."""
     peak = int(np.argmax(cross))
     parameters = np.array([cross[peak], u[peak], 0.5 * np.sum(cross) * (u[1] - u[0]) / max(cross[peak], 1e-9), 0.6])
     for _ in range(4):
@@ -423,6 +423,8 @@ def _side_blur(u, cross):  # pragma: no cover - compiled
                 gradient[i] += residual * row[i]
                 for j in range(4):
                     normal[i, j] += row[i] * row[j]
+        if not abs(np.linalg.det(normal)) > 1e-12 * np.trace(normal) ** 4:  # no band in the profile (or NaN)
+            break
         parameters += np.linalg.solve(normal, gradient)
         parameters[2] = max(parameters[2], 0.1)
         parameters[3] = min(max(parameters[3], 0.2), 3.0)
