@@ -120,12 +120,17 @@ def test_tapered_step_is_the_blurred_linear_taper():
 
 
 def test_side_blur_recovers_the_blur_of_a_band():
-    """The side edges' blur from a cross profile: a band of half width 1.27 px blurred by sigma, sampled every
-    0.5 px like the end profile's cross section (closed form: erf edges)."""
+    """The side edges' blur, the band's centre and half width from a cross profile: a band of half width 1.27 px
+    centred at 0.2 px, blurred by sigma, sampled every 0.5 px like the end profile's cross section (closed form:
+    erf edges)."""
     from scipy.special import erf
 
     from needle_vision.detection.centerline import _side_blur
     u = np.arange(-5.0, 5.5, 0.5)
     for sigma in (0.5, 0.7, 1.0):
         cross = 0.44 * (erf((u - 0.2 + 1.27) / (np.sqrt(2) * sigma)) - erf((u - 0.2 - 1.27) / (np.sqrt(2) * sigma)))
-        assert _side_blur(u, cross) == pytest.approx(sigma, abs=1e-3)
+        assert _side_blur(u, cross) == pytest.approx((sigma, 0.2, 1.27), abs=1e-3)
+    # Every end runs the fit now (the profile is summed over the band it finds): a profile without a band (no
+    # contrast, or the same everywhere) gives an estimate, not a singular-matrix error.
+    for cross in (np.zeros_like(u), np.full_like(u, 0.3), -np.ones_like(u)):
+        assert np.all(np.isfinite(_side_blur(u, cross)))

@@ -47,7 +47,13 @@ def _common_ends(left, right, e, min_sin, tolerance):
             shift = (0.5 * sum(ends_e) - end_e) / tangent[e]
             inside = (curve[:-1] - curve[-1]) @ tangent < shift - 0.25
             inside[:-int(np.ceil(abs(shift))) - 2] = True
-            curve = np.vstack([curve[:-1][inside], curve[-1] + shift * tangent])
+            kept, new_end = curve[:-1][inside], curve[-1] + shift * tangent
+            if len(kept) < 16:
+                curve = np.vstack([kept, new_end])
+            else:  # the last points evenly spaced at the curve's step, from the 4th last kept one to the new end
+                step = np.linalg.norm(kept[-1] - kept[-11]) / 10
+                count = max(round(np.linalg.norm(new_end - kept[-4]) / max(step, 0.5)), 1)
+                curve = np.vstack([kept[:-3], kept[-4] + np.outer(np.arange(1, count + 1) / count, new_end - kept[-4])])
             moved.append(curve[::-1] if end == 0 else curve)
         curves = moved
     return curves[0], curves[1]

@@ -58,8 +58,8 @@ class ImageCenterline:
     (sum of relative contrast across the slice), the robust scatter [px] of the points across the curve, and
     that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW`` points: the noise
     grows where the needle's contrast is lower, e.g. in front of a darker background); ``end_taper_px``: how far
-    [px] each end (first, last) was put beyond its half-contrast point for a taper (a bevel seen side-on; 0 for a
-    flat end)."""
+    [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen side-on: half its
+    length; 0 for a flat end)."""
 
     points: np.ndarray
     contrast: np.ndarray
@@ -331,12 +331,13 @@ def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
 
 
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
-#: tapered (a bevel seen side-on). On the renders a flat end's ratio stays below 1.05 (at 1.0, 2 of 4 flat tips
-#: moved 0.06-0.2 mm off) and a 1 mm bevel's at 1.15-1.5 in most views (1.5 missed it: tips 0.3-0.5 mm short).
+#: tapered (a bevel seen side-on). Over 20 noise seeds of the six render shapes a flat end's ratio is 0.85-1.14
+#: and a 1 mm bevel's 1.15-1.75, a 2 mm one's 2.2-3.4 (1.5 missed 1 mm bevels: tips 0.3-0.5 mm short).
 TAPER_FACTOR = 1.15
-#: ... provided the profile scatters less than this fraction of its level along the needle (a weak needle's
-#: noisy profile does not tell a taper).
-MAX_TAPER_SCATTER = 0.05
+#: ... and by more than this many times the profile's relative scatter along the needle (a weak needle's noisy
+#: profile does not tell a taper: a flat end's spread ratio scatters ~3x the profile's scatter about 1). Was a
+#: fixed 5 % scatter limit, which also dropped 2 mm bevels (ratio 3, scatter 5-6 % with the taper's top in it).
+TAPER_SIGNIFICANCE = 5.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -397,9 +398,10 @@ def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def _side_blur(u, cross):  # pragma: no cover - compiled
-    """Gaussian blur sigma of the needle's side edges: least-squares fit of a blurred band (contrast, centre, half
-    width, sigma) to its cross profile ``cross`` at ``u`` (Gauss-Newton from the profile's peak, area and a 0.6 px
-    blur). Fitted like the end's profile (:func:`_taper_fit`); the quartiles of the interpolated profile read
+    """Gaussian blur sigma of the needle's side edges, and the band's centre and half width: least-squares fit of
+    a blurred band (contrast, centre, half width, sigma) to its cross profile ``cross`` at ``u`` (Gauss-Newton
+    from the profile's peak, area and a 0.6 px blur; the last estimate where the fit is singular, e.g. a flat
+    profile). Fitted like the end's profile (:func:`_taper_fit`); the quartiles of the interpolated profile read
     ~1.0 px where the fit gives 0.72 px (1.349 sigma for a Gaussian step)."""
     peak = int(np.argmax(cross))
     parameters = np.array([cross[peak], u[peak], 0.5 * np.sum(cross) * (u[1] - u[0]) / max(cross[peak], 1e-9), 0.6])
@@ -421,10 +423,12 @@ def _side_blur(u, cross):  # pragma: no cover - compiled
                 gradient[i] += residual * row[i]
                 for j in range(4):
                     normal[i, j] += row[i] * row[j]
+        if not abs(np.linalg.det(normal)) > 1e-12 * np.trace(normal) ** 4:  # no band in the profile (or NaN)
+            break
         parameters += np.linalg.solve(normal, gradient)
         parameters[2] = max(parameters[2], 0.1)
         parameters[3] = min(max(parameters[3], 0.2), 3.0)
-    return parameters[3]
+    return parameters[3], parameters[1], parameters[2]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -468,14 +472,16 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
     A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely)
-    gives the direction of the profile of the contrast integrated across the needle; the end is where that
-    profile falls to half its level (a flat end is a step blurred symmetrically). The points within
-    ``half_width + 1`` px of the end (centroids biased by the oblique cut) are replaced by a quadratic (the
-    needle's curvature) fitted to the 80 before them, one pixel apart up to the end. A bevel seen side-on
-    tapers the end: where the profile falls (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the
-    needle's side edges (and the profile is clean), the end is sqrt(spread² - blur²) beyond the half-contrast
-    point (a linear taper's half length). Returns (number of points kept, the new points ending with the end,
-    the taper's half length [px]); kept is -1 where the profile leaves the image or does not fall."""
+    gives the direction of the profile of the contrast integrated across the needle's band (its blurred edges
+    included); the end is where that profile falls to half its level (a flat end is a step blurred
+    symmetrically). The points within ``half_width + 1`` px of the end (centroids biased by the oblique cut) are
+    replaced by a quadratic (the needle's curvature) fitted to the 80 before them, evenly spaced at the
+    centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls (25-75 %) over
+    more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its noise), a
+    blurred linear taper is fitted to the profile and the end put half its length beyond its middle (least
+    squares over the whole taper: the half-contrast crossing alone moves with the noise of a few samples on a
+    shallow slope). Returns (number of points kept, the new points ending with the end, the taper's half length
+    [px]); kept is -1 where the profile leaves the image or does not fall."""
     none = (-1, np.zeros((0, 2)), 0.0)
     n = points.shape[0]
     if n < 100:
@@ -510,30 +516,37 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
                     weight = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
                     value += weight * polarity * (b - image[y0 + dy, x0 + dx]) / max(b, 1.0)
             grid[i, j] = value
-    profile = moving_average(grid.sum(axis=1).reshape(-1, 1), 3)[:, 0]
     inside = s <= along[n - 9]
+    rows = grid[inside]
+    cross = np.empty(u.shape[0])
+    for j in range(u.shape[0]):
+        cross[j] = np.median(rows[:, j])
+    # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
+    # margins add noise, not contrast (about a third less noise in the end's position).
+    side_sigma, band_centre, band_half_width = _side_blur(u, cross)
+    band = np.abs(u - band_centre) <= band_half_width + 2 * side_sigma
+    if np.count_nonzero(band) < 3:
+        band[:] = True
+    profile = moving_average(grid[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
     level = np.median(profile[inside])
     first = _crossing(s, profile, 0.75 * level, along[n - 9])
     end = _crossing(s, profile, 0.5 * level, along[n - 9])
     last = _crossing(s, profile, 0.25 * level, along[n - 9])
     if level <= 0 or np.isnan(first) or np.isnan(end) or np.isnan(last):
         return none
-    rows = grid[inside]
-    cross = np.empty(u.shape[0])
-    for j in range(u.shape[0]):
-        cross[j] = np.median(rows[:, j])
     blur = _edge_spread(cross, u)
     spread = last - first
-    clean = 1.4826 * np.median(np.abs(profile[inside] - level)) < MAX_TAPER_SCATTER * level
-    half = end
-    if clean and not np.isnan(blur) and spread > TAPER_FACTOR * blur:
+    scatter = 1.4826 * np.median(np.abs(profile[inside] - level)) / level
+    half_taper = 0.0
+    if not np.isnan(blur) and spread > blur * max(TAPER_FACTOR, 1 + TAPER_SIGNIFICANCE * scatter):
         # The blur along the profile: the side edges' less the interpolation's (their profile is the median over
         # the needle's sub-pixel phases, the end's is at one phase; bilinear: 1/6 px²), plus the moving average's.
-        sigma = np.sqrt(max(_side_blur(u, cross) ** 2 - 1 / 6, 0.04) + 2 * step ** 2 / 3)
+        sigma = np.sqrt(max(side_sigma ** 2 - 1 / 6, 0.04) + 2 * step ** 2 / 3)
         window = (s >= end - 2 * (spread + blur)) & (s <= end + 2 * (spread + blur))
         middle, taper = _taper_fit(s[window], profile[window] / level, end, 2 * np.sqrt(spread ** 2 - blur ** 2),
                                    sigma)
-        end = middle + 0.5 * taper
+        half_taper = 0.5 * taper
+        end = middle + half_taper
     kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
     if kept < 80 or end <= along[kept - 1]:
         return none
@@ -546,14 +559,18 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         t = abscissa[k] - offset
         design[k, 0], design[k, 1], design[k, 2] = t * t, t, 1.0
     coefficients = np.linalg.lstsq(design, lateral)[0]
-    steps = np.append(np.arange(along[kept - 1] + 1.0, end, 1.0), end)
+    # As many points as the centerline's own spacing (the slices' step along the needle) puts up to the end, evenly
+    # spaced: the 3D smoothing fits by point index, so a short last step pushed the end outward.
+    spacing = (along[kept - 1] - along[kept - 21]) / 20
+    count = max(int(round((end - along[kept - 1]) / max(spacing, 0.5))), 1)
+    steps = along[kept - 1] + (end - along[kept - 1]) * np.arange(1, count + 1) / count
     out = np.empty((steps.shape[0], 2))
     for k in range(steps.shape[0]):
         t = steps[k] - offset
         shift = (coefficients[0] * t + coefficients[1]) * t + coefficients[2]
         out[k, 0] = centre[0] + steps[k] * direction[0] + shift * normal[0]
         out[k, 1] = centre[1] + steps[k] * direction[1] + shift * normal[1]
-    return kept, out, end - half
+    return kept, out, half_taper
 
 
 @numba.njit(cache=True, nogil=True)

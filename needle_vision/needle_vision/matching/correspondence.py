@@ -196,15 +196,28 @@ def _end_tangent(curve):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def _moved_end(curve, tangent, shift):  # pragma: no cover - compiled
     """``curve`` with its last point moved ``shift`` px along ``tangent`` (outward +), the points beyond the new
-    end dropped."""
+    end dropped, and the last few points before it evenly spaced at the curve's step (the 3D smoothing fits by
+    point index: an uneven last step moves the end)."""
     n = curve.shape[0]
     inside = np.ones(n - 1, np.bool_)  # only the last points can lie beyond the new end
     for i in range(max(n - 1 - int(np.ceil(abs(shift))) - 2, 0), n - 1):
         inside[i] = ((curve[i, 0] - curve[-1, 0]) * tangent[0]
                      + (curve[i, 1] - curve[-1, 1]) * tangent[1]) < shift - 0.25
-    out = np.empty((np.count_nonzero(inside) + 1, 2))
-    out[:-1] = curve[:-1][inside]
-    out[-1] = curve[-1] + shift * tangent
+    kept = curve[:-1][inside]
+    end = curve[-1] + shift * tangent
+    if kept.shape[0] < 16:
+        out = np.empty((kept.shape[0] + 1, 2))
+        out[:-1] = kept
+        out[-1] = end
+        return out
+    step = np.sqrt(np.sum((kept[-1] - kept[-11]) ** 2)) / 10
+    anchor = kept[-4]
+    gap = np.sqrt(np.sum((end - anchor) ** 2))
+    count = max(int(round(gap / max(step, 0.5))), 1)
+    out = np.empty((kept.shape[0] - 3 + count, 2))
+    out[:kept.shape[0] - 3] = kept[:-3]
+    for j in range(1, count + 1):
+        out[kept.shape[0] - 4 + j] = anchor + (end - anchor) * j / count
     return out
 
 
