@@ -82,8 +82,8 @@ def _odd_window(length: float, spacing: float, count: int, minimum: int = 5) -> 
 
 def _ends_inside(points: np.ndarray, width: int, height: int, margin: float = 5.0) -> bool:
     """Whether both ends of an image centerline lie ``margin`` px inside the image (not cut by its border)."""
-    ends = points[[0, -1]]
-    return bool(np.all((ends >= margin) & (ends <= [width - 1 - margin, height - 1 - margin])))
+    return all(margin <= x <= width - 1 - margin and margin <= y <= height - 1 - margin
+               for x, y in points[[0, -1]].tolist())
 
 
 @numba.njit(cache=True, nogil=True)
@@ -120,11 +120,25 @@ def _rectified(centerline: ImageCenterline, rectification: Rectification, side: 
     return rectified, tapers * scale
 
 
+@numba.njit(cache=True, nogil=True)
+def _run_bounds(points, split):  # pragma: no cover - compiled
+    """0, the index after each step longer than ``split`` between consecutive ``points``, and their count."""
+    steps = step_lengths(points)
+    bounds = np.empty(steps.shape[0] + 2, np.int64)
+    bounds[0] = 0
+    count = 1
+    for k in range(steps.shape[0]):
+        if steps[k] > split:
+            bounds[count] = k + 1
+            count += 1
+    bounds[count] = points.shape[0]
+    return bounds[:count + 1]
+
+
 def _runs(points: np.ndarray, split: float) -> list[slice]:
     """The runs of consecutive points not separated by a step longer than ``split`` (a hidden stretch)."""
-    cuts = np.flatnonzero(step_lengths(points) > split) + 1
-    bounds = np.concatenate([[0], cuts, [len(points)]])
-    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    bounds = _run_bounds(np.ascontiguousarray(points), split).tolist()
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def _smooth_runs(points: np.ndarray, runs: list[slice], length: float, spacing: float) -> tuple[np.ndarray,
