@@ -327,9 +327,9 @@ def load_pairs(source: PairSource, wanted: Callable[[int], bool], workers: int, 
 
 def build_backgrounds(mode: str, source: PairSource, pipeline: StereoNeedlePipeline, frames: slice,
                       arguments: argparse.Namespace, tolerance: float) -> int:
-    """Set the pipeline's background models for ``mode`` (first, median, none or a needle-free input);
-    returns how many leading pairs of ``source`` are background (not measured)."""
-    threshold = pipeline.config.threshold
+    """Set the pipeline's background models for ``mode`` (median, none or a needle-free input); returns how many
+    leading pairs of ``source`` are background: for ``first``, they are read in the same pass as the pairs
+    measured (:func:`run` sets the models from them with :func:`set_backgrounds`), nothing is set here."""
     first = pipeline.config.background_frames
     if mode == "none" or (mode == "first" and first == 0):
         return 0  # per frame (see run) or bootstrapped by the pipeline from the first pair
@@ -338,26 +338,32 @@ def build_backgrounds(mode: str, source: PairSource, pipeline: StereoNeedlePipel
             raise NothingMeasured(f"nothing measured: the input has {source.count} pair(s), not more than "
                                   f"background.frames = {first} (the needle-free pairs at its start); use "
                                   "--background median, none or a needle-free FOLDER|BAG")
-        pairs, used = load_pairs(source, lambda k: k < first, arguments.workers, first), first
-    elif mode == "median":
+        return first
+    if mode == "median":
         start = frames.start or 0
         stop = min(frames.stop or source.count or start + MEDIAN_PAIRS, source.count or 1 << 62)
         picks = set(np.linspace(start, max(stop - 1, start), MEDIAN_PAIRS).round().astype(int).tolist())
-        pairs, used = load_pairs(source, picks.__contains__, arguments.workers, len(picks)), 0
+        pairs = load_pairs(source, picks.__contains__, arguments.workers, len(picks))
     else:
         path = Path(mode)
         if not path.exists():
             raise InputError(f"background '{mode}' is neither first, median, none nor an existing folder or bag")
         separate = open_source(path, arguments.fps, arguments.left_topic, arguments.right_topic, tolerance)
-        pairs, used = load_pairs(separate, lambda k: True, arguments.workers, BACKGROUND_PAIRS), 0
+        pairs = load_pairs(separate, lambda k: True, arguments.workers, BACKGROUND_PAIRS)
+    set_backgrounds(pipeline, mode, pairs)
+    return 0
+
+
+def set_backgrounds(pipeline: StereoNeedlePipeline, mode: str, pairs: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """The pipeline's background models from the needle-free ``pairs`` of ``mode``: their mean, or their per-pixel
+    median for ``median``; no pair or unusable ones: InputError."""
     if not pairs:
         raise InputError(f"background ({mode}): no usable pair")
     try:
         make = BackgroundModel.from_median if mode == "median" else BackgroundModel.from_frames
-        pipeline.backgrounds = tuple(make([pair[k] for pair in pairs], threshold) for k in range(2))
+        pipeline.backgrounds = tuple(make([pair[k] for pair in pairs], pipeline.config.threshold) for k in range(2))
     except ValueError as error:
         raise InputError(f"background ({mode}): {error}") from error
-    return used
 
 
 class NothingMeasured(RuntimeError):
@@ -444,9 +450,12 @@ def run(arguments: argparse.Namespace) -> int:
     tracking = values["tracking.enabled"]
     per_frame = mode == "none"
     half_width = pipeline.config.centerline.profile_half_width
-    jobs = (job for job in source.jobs() if job[0] >= background_pairs and _selected(job[0], frames))
+    # The leading background pairs of mode "first" are read in the same pass (the models are set before the first
+    # pair after them).
+    jobs = (job for job in source.jobs() if job[0] < background_pairs or _selected(job[0], frames))
+    background: list[tuple[np.ndarray, np.ndarray]] = []
     total = None if source.count is None else len(range(*slice(max(frames.start or 0, background_pairs),
-                                                               frames.stop).indices(source.count)))
+                                                               frames.stop).indices(source.count))) + background_pairs
     output = Path(arguments.output)
     partial = output.with_name(output.name + ".part")
     measured = 0
@@ -458,10 +467,6 @@ def run(arguments: argparse.Namespace) -> int:
                 closing(decoded(jobs, arguments.workers, 4 * arguments.workers + 4)) as loaded, \
                 ThreadPoolExecutor(max_workers=1, thread_name_prefix="csv") as csv_thread, \
                 ThreadPoolExecutor(max_workers=arguments.workers, thread_name_prefix="measure") as measuring:
-            comment, columns = csv_header(values["output_frame"] or source.frame_id or "left_optical", tracking)
-            stream.write(comment + "\n")
-            writer = csv.writer(stream)
-            writer.writerow(columns)
             written: deque[Future] = deque()  # CSV rows formatted and written on a thread of their own
             # Pairs measured ahead on the measuring threads once the pipeline is settled (their order-dependent
             # part, base/tip ordering, state and tracking, is completed here in input order).
@@ -486,6 +491,11 @@ def run(arguments: argparse.Namespace) -> int:
                 outcomes[result.status.value if result.status is not FrameStatus.REJECTED
                          else f"rejected: {result.reason}"] += 1
                 if result.status is FrameStatus.MEASURED:
+                    if not measured:  # the frame of a bag's images is known once its first pair is read
+                        comment, columns = csv_header(values["output_frame"] or source.frame_id or "left_optical",
+                                                      tracking)
+                        stream.write(comment + "\n")
+                        csv.writer(stream).writerow(columns)
                     measured += 1
                     ordering[result.ordering] += 1
                     written.append(csv_thread.submit(write_rows, stream, frame, stamp, result, tracking))
@@ -493,6 +503,15 @@ def run(arguments: argparse.Namespace) -> int:
                         written.popleft().result()  # raises what writing raised (e.g. a full disk)
 
             for frame, stamp, future, poses in tqdm(loaded, total=total, unit="pair", disable=arguments.quiet):
+                if frame < background_pairs:
+                    try:
+                        background.append(future.result())
+                    except SkippedPair:
+                        pass
+                    continue
+                if background_pairs and pipeline.backgrounds is None:
+                    set_backgrounds(pipeline, mode, background)
+                    background.clear()
                 if arguments.workers > 1 and not per_frame and pipeline.settled:
                     ahead.append((frame, stamp, future, measuring.submit(_measured, pipeline, future), poses))
                     while len(ahead) > 2 * arguments.workers:
@@ -503,6 +522,8 @@ def run(arguments: argparse.Namespace) -> int:
                 complete(frame, stamp, future, None, poses)
             while ahead:
                 complete(*ahead.popleft())
+            if background_pairs and pipeline.backgrounds is None:  # nothing after the background pairs
+                set_backgrounds(pipeline, mode, background)
             for future in written:
                 future.result()
         outcomes.update(source.skipped or {})

@@ -238,7 +238,8 @@ class StereoNeedlePipeline:
 
 def compile_kernels() -> float:
     """Compile, or load from numba's cache, the measurement's kernels by measuring one rendered pair of a bent
-    needle with the synthetic rig (:mod:`needle_vision.render`), uint8 and uint16; returns the seconds it took.
+    needle with the synthetic rig (:mod:`needle_vision.render`), uint8 and uint16, writable and read-only, ordered
+    either way; returns the seconds it took.
     The stereo node runs it before it subscribes, and the package's install step runs it once, so that the first
     real pairs do not wait for compilation (which drops them)."""
     import time
@@ -255,5 +256,10 @@ def compile_kernels() -> float:
     for scale, dtype in ((1, np.uint8), (256, np.uint16)):
         pipeline = StereoNeedlePipeline(rig, StereoConfig(background_frames=1))
         pipeline.process(0.0, *(np.asarray(image, dtype) * scale for image in background))
-        pipeline.process(1.0, *(np.asarray(image, dtype) * scale for image in needle))
+        images = [np.asarray(image, dtype) * scale for image in needle]
+        measured = pipeline.process(1.0, *images).measurement
+        for image in images:  # a bag's images are read-only views of the file: kernels typed for those too
+            image.setflags(write=False)
+        pipeline.last_base = measured.points[-1]  # and ordered the other way round (reversed arrays)
+        pipeline.process(2.0, *images)
     return time.perf_counter() - start

@@ -1,6 +1,8 @@
 """needle_vision.streams.bag_reader against the mcap library's own reader: the same messages in the same order for every
 way a writer may lay out an MCAP file (chunk compression, no chunks, no index or summary, overlapping chunks)."""
 import mmap
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -8,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType, Writer
 
-from needle_vision.streams.bag_reader import read_messages
+from needle_vision.streams.bag_reader import _populate, read_messages
 
 TOPICS = ("/left/image_raw", "/right/image_raw", "/base_pose")
 
@@ -71,3 +73,32 @@ def test_uncompressed_payloads_are_views_of_the_file(tmp_path):
     message = next(read_messages(path, TOPICS))
     assert isinstance(message.data, memoryview) and isinstance(message.data.obj, mmap.mmap)  # not copied
     assert bytes(message.data) == library(path, TOPICS)[0][2]
+
+
+def test_page_mapping_lets_other_threads_run(tmp_path):
+    """Mapping the pages of a chunk (256 MB here) runs without the GIL: another Python thread keeps running during
+    it (with ``mmap.madvise`` it stopped for the whole call)."""
+    path = tmp_path / "chunk.bin"
+    with open(path, "wb") as stream:
+        stream.truncate(256 << 20)
+    with open(path, "rb") as stream:
+        mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
+    done, gaps = threading.Event(), []
+
+    def spin() -> None:
+        last = time.perf_counter()
+        while not done.is_set():
+            now = time.perf_counter()
+            gaps.append(now - last)
+            last = now
+
+    thread = threading.Thread(target=spin)
+    thread.start()
+    time.sleep(0.02)
+    start = time.perf_counter()
+    _populate(mapped, 0, len(mapped))
+    duration = time.perf_counter() - start
+    done.set()
+    thread.join()
+    assert duration > 0.01  # the pages were mapped here (long enough to tell)
+    assert max(gaps) < 0.5 * duration

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from needle_vision.detection.background import BackgroundModel, downsample
-from needle_vision.detection.curves import arc_length, median, moving_average, step_lengths
+from needle_vision.detection.curves import arc_length, moving_average, step_lengths
 
 
 #: [points] window of the running median that gives each centerline point's local scatter.
@@ -207,6 +207,13 @@ def _refine_path(image, background, polarity, path):  # pragma: no cover - compi
         else:
             out[k, 0], out[k, 1] = path[k, 0], path[k, 1]
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _full_resolution_path(image, background, polarity, path, factor):  # pragma: no cover - compiled
+    """The coarse ``path`` refined (:func:`_refine_path`) in full-resolution coordinates (of the coarse pixel
+    centres), smoothed over 3 points."""
+    return moving_average((_refine_path(image, background, polarity, path) + 0.5) * factor - 0.5, 3)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -593,11 +600,89 @@ def _scatter(points, first, count):  # pragma: no cover - compiled
     return np.median(residual), np.interp(np.arange(n) * 1.0, np.arange(first, first + count) * 1.0, local)
 
 
+@numba.njit(cache=True, nogil=True)
+def _slice_points(image, background, polarity, path, half_width, wide, min_contrast_fraction,
+                  min_profile_fraction):  # pragma: no cover - compiled
+    """The centerline points of the one-pixel slices across ``path`` (:func:`_slices_along`; centroids of a first
+    pass ``wide`` slices, then ``half_width`` ones around them), in path order, with their contrast, their contrast
+    per unit of needle width (independent of the slice's obliquity: low at gaps and partial tips) and two
+    selections: ``keep``, slices with at least ``min_contrast_fraction`` of the needle's median width contrast whose
+    centroid stayed within the first pass, cut to the first and last of the ``full`` ones (also with
+    ``min_profile_fraction`` of it; beyond them, the partly covered slices at the tips are dropped); ``keep`` is
+    empty when fewer than 3 slices have contrast or are full."""
+    along_rows, fixed, predicted, obliquity = _slices_along(path)
+    centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, predicted, wide)
+    centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width)
+    n = contrast.shape[0]
+    points = np.empty((n, 2))
+    for k in range(n):
+        points[k, 0], points[k, 1] = (centroid[k], fixed[k]) if along_rows[k] else (fixed[k], centroid[k])
+    width_contrast = contrast * obliquity
+    none = np.zeros(0, np.bool_)
+    strong = contrast > 0
+    if np.count_nonzero(strong) < 3:
+        return points, contrast, width_contrast, none, none
+    level = np.median(width_contrast[strong])
+    keep = (width_contrast >= min_contrast_fraction * level) & (np.abs(centroid - predicted) <= wide)
+    full = keep & (width_contrast >= min_profile_fraction * level)
+    ends = np.flatnonzero(full)
+    if len(ends) < 3:
+        return points, contrast, width_contrast, none, none
+    keep[:ends[0]] = False
+    keep[ends[-1] + 1:] = False
+    return points, contrast, width_contrast, keep, full
+
+
+@numba.njit(cache=True, nogil=True)
+def _kept_slices(points, keep, full, width_contrast, local, min_profile_fraction,
+                 half_width):  # pragma: no cover - compiled
+    """Indices of the slices kept (:func:`_slice_points`' ``keep`` that are ``full`` or have
+    ``min_profile_fraction`` of the ``local`` median width contrast), less those within ``half_width`` (+1 after)
+    of a hidden stretch (kept points more than GAP_PX apart): there the slices may be cut by the occluder's edge
+    (centroid biased)."""
+    selected = np.flatnonzero(keep)
+    for j in range(selected.shape[0]):
+        k = selected[j]
+        keep[k] = full[k] | (width_contrast[k] >= min_profile_fraction * local[j])
+    kept = np.flatnonzero(keep)
+    edges = np.flatnonzero(step_lengths(points[kept]) > GAP_PX)
+    for edge in edges:
+        keep[kept[max(edge - half_width, 0):edge + half_width + 2]] = False
+    return np.flatnonzero(keep)
+
+
+@numba.njit(cache=True, nogil=True)
+def _with_ends(points, contrast, cut, first_kept, first_points, last_kept, last_points):  # pragma: no cover
+    """The centerline with its last points at each end replaced by the points towards the sub-pixel end
+    (:func:`_end_along_profile` of ``points[:cut][::-1]`` and ``points[cut:]``: kept count, or -1 to keep the end as
+    it is, and new points), with the contrast of the nearest slice kept; and how many points come before and
+    from the slices."""
+    lo = cut - first_kept if first_kept >= 0 else 0
+    hi = cut + last_kept if last_kept >= 0 else points.shape[0]
+    head = first_points.shape[0] if first_kept >= 0 else 0
+    tail = last_points.shape[0] if last_kept >= 0 else 0
+    n = head + hi - lo + tail
+    out = np.empty((n, 2))
+    out_contrast = np.empty(n)
+    for k in range(n):
+        if k < head:
+            out[k] = first_points[head - 1 - k]
+            out_contrast[k] = contrast[lo]
+        elif k < head + hi - lo:
+            out[k] = points[lo + k - head]
+            out_contrast[k] = contrast[lo + k - head]
+        else:
+            out[k] = last_points[k - head - (hi - lo)]
+            out_contrast[k] = contrast[hi - 1]
+    return out, out_contrast, head, hi - lo
+
+
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
     """The longest geodesic path of the largest linked component of ``mask``, then of the next largest ones
     (up to ``count``, at least ``min_length`` coarse pixels long) away from the components already used."""
     points, lengths = _coarse_path_kernel(mask, scratch, min_length, count)
-    return np.split(points, np.cumsum(lengths)[:-1]) if len(lengths) else []
+    bounds = np.cumsum(lengths).tolist()
+    return [points[start:stop] for start, stop in zip([0] + bounds, bounds)]
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> float:
@@ -654,9 +739,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
                           int(config.min_length_px / factor))
     if not paths:
         raise NoNeedleError("no pixel differs enough from the background")
-    # coarse pixel centres -> full-resolution coordinates
-    paths = [moving_average((_refine_path(coarse, background.coarse, polarity, path) + 0.5) * factor - 0.5, 3)
-             for path in paths]
+    paths = [_full_resolution_path(coarse, background.coarse, polarity, path, factor) for path in paths]
     length = arc_length(paths[0])[-1]
     if length < config.min_length_px:
         raise NoNeedleError(f"largest foreground structure is {length:.0f} px long "
@@ -671,37 +754,17 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
         ends.append(end + np.outer([2.0 * factor, factor], direction))
     path = np.vstack([ends[0], path, ends[1][::-1]])
 
-    along_rows, fixed, predicted, obliquity = _slices_along(path)
     wide = config.profile_half_width + factor // 2  # first pass: the coarse path is good to ~factor/2 px
-    centroid, contrast = _slice_centroids(image, background.image, polarity, along_rows, fixed, predicted, wide)
-    centroid, contrast = _slice_centroids(image, background.image, polarity, along_rows, fixed, centroid,
-                                          config.profile_half_width)
-    strong = contrast > 0
-    if np.count_nonzero(strong) < 3:
+    points, contrast, width_contrast, keep, full = _slice_points(
+        image, background.image, polarity, path, config.profile_half_width, wide, config.min_contrast_fraction,
+        config.min_profile_fraction)
+    if len(keep) == 0:
         raise NoNeedleError("the needle's slices have no contrast")
-    # Contrast per unit of needle width (independent of the slice's obliquity): low at gaps and partial tips.
-    # Between the first and last slice with min_profile_fraction of the needle's median contrast, a slice is
-    # compared with the median of its neighbours above a floor (adaptive along the curve: a faded stretch is
-    # followed; the floor keeps gaps and background texture out). Beyond them, the partly covered slices at the
-    # tips are dropped as before.
-    width_contrast = contrast * obliquity
-    level = median(width_contrast[strong])
-    keep = (width_contrast >= config.min_contrast_fraction * level) & (np.abs(centroid - predicted) <= wide)
-    full = keep & (width_contrast >= config.min_profile_fraction * level)
-    ends = np.flatnonzero(full)
-    if len(ends) < 3:
-        raise NoNeedleError("the needle's slices have no contrast")
-    keep[:ends[0]] = False
-    keep[ends[-1] + 1:] = False
+    # Between the first and last full slice a slice is compared with the median of its neighbours above a floor
+    # (adaptive along the curve: a faded stretch is followed; the floor keeps gaps and background texture out).
     local = _median_filter(width_contrast[keep], config.local_window, "mirror")
-    keep[keep] = full[keep] | (width_contrast[keep] >= config.min_profile_fraction * local)
-    points = np.column_stack([np.where(along_rows, centroid, fixed), np.where(along_rows, fixed, centroid)])
-    # At a hidden stretch the slices may be cut by the occluder's edge (centroid biased): drop those next to it.
-    kept = np.flatnonzero(keep)
-    edges = np.flatnonzero(step_lengths(points[kept]) > GAP_PX)
-    for edge in edges:
-        keep[kept[max(edge - config.profile_half_width, 0):edge + config.profile_half_width + 2]] = False
-    kept = np.flatnonzero(keep)
+    kept = _kept_slices(points, keep, full, width_contrast, local, config.min_profile_fraction,
+                        config.profile_half_width)
     if len(kept) < 3:
         raise NoNeedleError("too few centerline points with enough contrast")
     contrast_kept = contrast[kept]
@@ -709,14 +772,9 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     cut = len(points) // 2
     first, last = (_end_along_profile(image, background.image, polarity, np.ascontiguousarray(part),
                                       config.profile_half_width) for part in (points[:cut][::-1], points[cut:]))
-    # The last points at each end are replaced by points towards the sub-pixel end.
-    lo, head = (cut - first[0], first[1][::-1]) if first[0] >= 0 else (0, np.zeros((0, 2)))
-    hi, tail = (cut + last[0], last[1]) if last[0] >= 0 else (len(points), np.zeros((0, 2)))
-    contrast_kept = np.concatenate([np.full(len(head), contrast_kept[lo]), contrast_kept[lo:hi],
-                                    np.full(len(tail), contrast_kept[hi - 1])])
-    points = np.vstack([head, points[lo:hi], tail])
+    points, contrast_kept, head, slices = _with_ends(points, contrast_kept, cut, first[0], first[1], last[0], last[1])
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
     # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
-    noise, local = _scatter(points, len(head), hi - lo)
+    noise, local = _scatter(points, head, slices)
     return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]))

@@ -17,7 +17,7 @@ import numpy as np
 
 from needle_vision.detection.centerline import ImageCenterline
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
-from needle_vision.detection.curves import (arc_length, derivative, interpolate, local_polynomial_smooth, median,
+from needle_vision.detection.curves import (arc_length, local_polynomial_smooth, median,
                                             smoothing_noise_gain, step_lengths)
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.transform import RigidTransform
@@ -82,8 +82,8 @@ def _odd_window(length: float, spacing: float, count: int, minimum: int = 5) -> 
 
 def _ends_inside(points: np.ndarray, width: int, height: int, margin: float = 5.0) -> bool:
     """Whether both ends of an image centerline lie ``margin`` px inside the image (not cut by its border)."""
-    ends = points[[0, -1]]
-    return bool(np.all((ends >= margin) & (ends <= [width - 1 - margin, height - 1 - margin])))
+    return all(margin <= x <= width - 1 - margin and margin <= y <= height - 1 - margin
+               for x, y in points[[0, -1]].tolist())
 
 
 @numba.njit(cache=True, nogil=True)
@@ -120,11 +120,25 @@ def _rectified(centerline: ImageCenterline, rectification: Rectification, side: 
     return rectified, tapers * scale
 
 
+@numba.njit(cache=True, nogil=True)
+def _run_bounds(points, split):  # pragma: no cover - compiled
+    """0, the index after each step longer than ``split`` between consecutive ``points``, and their count."""
+    steps = step_lengths(points)
+    bounds = np.empty(steps.shape[0] + 2, np.int64)
+    bounds[0] = 0
+    count = 1
+    for k in range(steps.shape[0]):
+        if steps[k] > split:
+            bounds[count] = k + 1
+            count += 1
+    bounds[count] = points.shape[0]
+    return bounds[:count + 1]
+
+
 def _runs(points: np.ndarray, split: float) -> list[slice]:
     """The runs of consecutive points not separated by a step longer than ``split`` (a hidden stretch)."""
-    cuts = np.flatnonzero(step_lengths(points) > split) + 1
-    bounds = np.concatenate([[0], cuts, [len(points)]])
-    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    bounds = _run_bounds(np.ascontiguousarray(points), split).tolist()
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def _smooth_runs(points: np.ndarray, runs: list[slice], length: float, spacing: float) -> tuple[np.ndarray,
@@ -234,6 +248,48 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     return Triangulation(output_from_left.apply(points), point_sigma, anchored, spacing, left, right)
 
 
+@numba.njit(cache=True, nogil=True)
+def _resampled(smooth, point_sigma, sample_spacing, max_gap, camera, focal_length):  # pragma: no cover - compiled
+    """The smoothed centerline ``smooth (n, 3)`` resampled every ``sample_spacing`` of arc length (no sliver at the
+    tip): arc lengths, points, unit tangents, 1-sigma uncertainty (interpolated from ``point_sigma``, the end samples'
+    with the localization of the needle's ends, ~END_LOCALIZATION_PX at the distance from the ``camera`` centre;
+    UNMEASURED in gaps) and whether each was measured (no step longer than ``max_gap`` around it)."""
+    arc = arc_length(smooth)
+    length = arc[-1]
+    steps = np.arange(0.0, length, sample_spacing)
+    count = steps.shape[0] + 1
+    if steps.shape[0] > 0 and length - steps[-1] < 0.25 * sample_spacing:
+        count -= 1
+    samples = np.empty(count)
+    samples[:count - 1] = steps[:count - 1]
+    samples[-1] = length
+    resampled = np.empty((count, 3))
+    for j in range(3):
+        resampled[:, j] = np.interp(samples, arc, smooth[:, j])
+    tangents = np.empty((count, 3))
+    for k in range(count):
+        before, after = max(k - 1, 0), min(k + 1, count - 1)  # central differences, one-sided at the ends
+        for j in range(3):
+            tangents[k, j] = (resampled[after, j] - resampled[before, j]) / (samples[after] - samples[before])
+        norm = max(np.sqrt(tangents[k, 0] * tangents[k, 0] + tangents[k, 1] * tangents[k, 1]
+                           + tangents[k, 2] * tangents[k, 2]), 1e-12)
+        for j in range(3):
+            tangents[k, j] /= norm
+    uncertainty = np.interp(samples, arc, point_sigma)
+    for k in (0, count - 1):
+        offset = resampled[k] - camera
+        distance = np.sqrt(offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2])
+        uncertainty[k] = np.hypot(uncertainty[k], END_LOCALIZATION_PX * (distance / focal_length))
+    measured = np.empty(count, np.bool_)
+    last = arc.shape[0] - 1
+    for k in range(count):
+        after = min(max(np.searchsorted(arc, samples[k], side="right"), 1), last)
+        measured[k] = arc[after] - arc[after - 1] <= max_gap
+        if not measured[k]:
+            uncertainty[k] = UNMEASURED
+    return samples, resampled, tangents, uncertainty, measured
+
+
 def order_and_resample(triangulation: Triangulation, rectification: Rectification, config: ReconstructionConfig,
                        output_from_left: RigidTransform, base_hint: np.ndarray | None = None) -> NeedleMeasurement:
     """Order ``triangulation`` from the base (the end nearer to ``base_hint``, else to ``config.base_point``) to the
@@ -245,24 +301,12 @@ def order_and_resample(triangulation: Triangulation, rectification: Rectificatio
         points, point_sigma, anchored = points[::-1], point_sigma[::-1], anchored[::-1]
     smooth, smoothing_gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
     point_sigma = point_sigma * smoothing_gain  # noise kept by the cubic fit
-    arc = arc_length(smooth)
-    length = float(arc[-1])
-    samples = np.append(np.arange(0.0, length, config.sample_spacing), length)
-    if samples[-1] - samples[-2] < 0.25 * config.sample_spacing:  # no sliver at the tip
-        samples = np.delete(samples, -2)
+    samples, resampled, tangents, uncertainty, measured = _resampled(
+        smooth, point_sigma, config.sample_spacing, config.max_gap, output_from_left.translation,
+        rectification.focal_length)
+    length = float(samples[-1])
     if length > config.max_length:
         raise ImplausibleError(f"implausible: measured needle is {length * 1e3:.0f} mm long "
                                f"(> max_length {config.max_length * 1e3:.0f} mm)")
-    # Samples between two triangulated points farther apart than max_gap are interpolated: flag them.
-    step_after = np.searchsorted(arc, samples, side="right").clip(1, len(arc) - 1)
-    measured = np.diff(arc)[step_after - 1] <= config.max_gap
-    resampled = interpolate(arc, smooth, samples)
-    tangents = derivative(resampled, samples)
-    tangents /= np.maximum(np.linalg.norm(tangents, axis=1, keepdims=True), 1e-12)
-    uncertainty = np.interp(samples, arc, point_sigma)
-    # The end samples also carry the localization of the needle's ends along it (sub-pixel edge, ~0.3 px).
-    end_pixel = np.linalg.norm(resampled[[0, -1]] - output_from_left.translation, axis=1) / rectification.focal_length
-    uncertainty[[0, -1]] = np.hypot(uncertainty[[0, -1]], END_LOCALIZATION_PX * end_pixel)
-    uncertainty = np.where(measured, uncertainty, UNMEASURED)
     return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, triangulation.left_centerline,
                              triangulation.right_centerline, float(np.mean(anchored)), measured)
