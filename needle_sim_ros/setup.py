@@ -9,8 +9,8 @@ from setuptools.command.install import install
 package_name = "needle_sim_ros"
 
 # Compiles the simulator's numba kernels for its default configuration, and those of its tissue models (off by
-# default; the default ones, then LuGre with the seed 002 tip: +2.5 s), into the kernel cache (NUMBA_CACHE_DIR if set, else __pycache__ next to the installed modules), so
-# that the first start of a fresh install loads them.
+# default; the default ones, then LuGre with the seed 002 tip: +2.5 s), into the kernel cache (NUMBA_CACHE_DIR if
+# set, else __pycache__ next to the installed modules), so that the first start of a fresh install loads them.
 COMPILE_KERNELS = """
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 import time
