@@ -4,8 +4,8 @@ base driving the constrained coordinates, fixtures, implicit integrators, static
 from .config import load_needle_config, needle_parameters, needle_properties
 from .elastic import elastic_energy, elastic_forces, tangent_stiffness
 from .fixtures import Fixture
-from .forces import (ForceContribution, GeneralizedForce, Gravity, LineLoad, MaterialPointForce, NodalLoad,
-                     PointForces, PointLoad, check_forces)
+from .forces import (ElementLocalForce, ForceContribution, GeneralizedForce, Gravity, LineLoad, MaterialPointForce,
+                     NodalLoad, PointForces, PointLoad, check_forces)
 from .integrators import Integrator, StepFailed, StepResult
 from .kinematics import BaseMotion
 from .mesh import Interpolation
@@ -18,7 +18,8 @@ from .statics import StaticResult, StaticSolveFailed, solve_static
 
 __all__ = [
     "NeedleProperties", "build_model", "NeedleModel", "State", "Interpolation", "BaseMotion", "Fixture",
-    "ForceContribution", "check_forces", "GeneralizedForce", "Gravity", "PointLoad", "NodalLoad", "LineLoad",
+    "ForceContribution", "ElementLocalForce", "check_forces", "GeneralizedForce", "Gravity", "PointLoad", "NodalLoad",
+    "LineLoad",
     "MaterialPointForce", "PointForces", "Integrator", "StepResult", "StepFailed", "solve_static", "StaticResult",
     "StaticSolveFailed",
     "reaction_wrench", "base_constraint_force", "BaseWrench", "centerline", "Centerline", "tip_pose",

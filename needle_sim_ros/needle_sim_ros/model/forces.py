@@ -73,14 +73,24 @@ class ForceContribution:
         raise NotImplementedError
 
 
-def banded_evaluation(force: ForceContribution, model, q: np.ndarray, qd: np.ndarray, t: float,
-                      base) -> GeneralizedForce:
-    """``evaluate`` of an element-local contribution from its ``assemble_banded``: dense Jacobians (tests, tools)."""
-    kl = ELEMENT_BANDWIDTH
-    stiffness, damping = (np.zeros((q.size, band_width_columns(kl))) for _ in range(2))
-    Q = force.assemble_banded(model, q, qd, t, base, stiffness, kl, 1.0, 0.0)
-    force.assemble_banded(model, q, qd, t, base, damping, kl, 0.0, 1.0)
-    return GeneralizedForce(Q, band_to_dense(stiffness, kl), band_to_dense(damping, kl))
+class ElementLocalForce(ForceContribution):
+    """Base of the element-local contributions: ``evaluate`` (dense Jacobians, for tools and tests) and
+    ``generalized_force`` both come from ``assemble_banded``."""
+
+    element_local: ClassVar[bool] = True
+
+    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
+        kl = ELEMENT_BANDWIDTH
+        stiffness, damping = (np.zeros((q.size, band_width_columns(kl))) for _ in range(2))
+        Q = self.assemble_banded(model, q, qd, t, base, stiffness, kl, 1.0, 0.0)
+        self.assemble_banded(model, q, qd, t, base, damping, kl, 0.0, 1.0)
+        return GeneralizedForce(Q, band_to_dense(stiffness, kl), band_to_dense(damping, kl))
+
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        return self.assemble_banded(model, q, qd, t, base, _NO_BAND, 0, 0.0, 0.0)
+
+
+_NO_BAND = np.zeros((0, 0))
 
 
 CAPABILITIES = ("state_dependent", "time_invariant", "stateful", "element_local")
@@ -271,7 +281,7 @@ PointForceLaw = Callable[[np.ndarray, np.ndarray, np.ndarray, float, object], Po
 
 
 @dataclass(eq=False)
-class MaterialPointForce(ForceContribution):
+class MaterialPointForce(ElementLocalForce):
     """Forces from a per-point law at material points s_k with weights w_k (e.g. length shares for a force per
     length): Q = sum_k w_k S^T(s_k) F_k (eq. 15) with the chain-rule Jacobians
         dQ/dq  = sum_k w_k S_k^T (dF/dr S_k + dF/dr_x S_x,k),   dQ/dq' = sum_k w_k S_k^T dF/dv S_k.
@@ -304,12 +314,6 @@ class MaterialPointForce(ForceContribution):
         Q = np.zeros(model.n_dof)
         assemble_point_forces(table.slots, table.S, table.S_x, self.weights, F, *derivatives, Q, band, kl, c_q, c_qd)
         return Q
-
-    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
-        return banded_evaluation(self, model, q, qd, t, base)
-
-    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
-        return self.assemble_banded(model, q, qd, t, base, _NO_BAND, 0, 0.0, 0.0)
 
     def touches_element(self, model, element: int) -> bool:
         return bool(np.any(_per_model(self, model, lambda m: m.interpolation(self.arc_lengths)).element == element))

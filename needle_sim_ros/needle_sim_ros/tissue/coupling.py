@@ -23,8 +23,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from needle_sim_ros.model import ForceContribution, GeneralizedForce
-from needle_sim_ros.model.forces import assemble_point_forces, banded_evaluation
+from needle_sim_ros.model.forces import ElementLocalForce, assemble_point_forces
 from needle_sim_ros.model.mesh import hermite_shapes
 
 from .bevel_tip import BevelTip
@@ -139,14 +138,13 @@ class TissueContact:
             self.at_front = False
 
 
-class TissueForce(ForceContribution):
+class TissueForce(ElementLocalForce):
     """A tissue contribution on ``contact``: state dependent and stateful. Its snapshot is the shared contact's
     state with its own (``_own_snapshot``); contributions sharing a contact restore it to the same values."""
 
     state_dependent = True
     time_invariant = False
     stateful = True
-    element_local = True
     contact: TissueContact
 
     def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
@@ -172,7 +170,6 @@ class TissueForce(ForceContribution):
 
 
 LATERAL_GAUSS_POINTS = 3
-_NO_MATRIX = np.zeros((0, 0))
 _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(LATERAL_GAUSS_POINTS)
 
 
@@ -432,12 +429,6 @@ class ShaftSupport(TissueForce):
                                         Q, band, kl, c_q, c_qd)
         return Q
 
-    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
-        return banded_evaluation(self, model, q, qd, t, base)
-
-    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
-        return self.assemble_banded(model, q, qd, t, base, _NO_MATRIX, 0, 0.0, 0.0)
-
     def touches_element(self, model, element: int) -> bool:
         """Whether a lateral or axial point of this step lies in ``element`` (slots 2 e ... 2 e + 3)."""
         return any(fz.weights.size and bool(np.any(fz.slots[:, 0] == 2 * element)) for fz in self._parts)
@@ -584,9 +575,6 @@ class BevelTipForce(TissueForce):
         force, jacobian = self.tip_force(q, base)
         return assemble_tip_force(q.size, force, None, jacobian, None, band, kl, c_q, c_qd)
 
-    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
-        return banded_evaluation(self, model, q, qd, t, base)
-
     def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
         generalized = np.zeros(q.size)
         if self._scale != 0.0:
@@ -652,9 +640,6 @@ class TipResistance(TissueForce):
         if self.contact.punctured and not self._cutting:
             return np.zeros(q.size)
         return assemble_tip_force(q.size, *self.tip_force(q, qd), band, kl, c_q, c_qd)
-
-    def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
-        return banded_evaluation(self, model, q, qd, t, base)
 
     def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
         generalized = np.zeros(q.size)
