@@ -293,7 +293,6 @@ class MaterialPointForce(ElementLocalForce):
     state_dependent: ClassVar[bool] = True
     time_invariant: ClassVar[bool] = False
     stateful: ClassVar[bool] = False
-    element_local: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         self.arc_lengths = np.atleast_1d(np.asarray(self.arc_lengths, dtype=float))
@@ -317,9 +316,6 @@ class MaterialPointForce(ElementLocalForce):
 
     def touches_element(self, model, element: int) -> bool:
         return bool(np.any(_per_model(self, model, lambda m: m.interpolation(self.arc_lengths)).element == element))
-
-
-_NO_BAND = np.zeros((0, 0))
 
 
 @njit(cache=True)

@@ -283,7 +283,7 @@ class NewtonSolver:
             else:  # a chord step reuses the factorization: Q alone
                 for force in varying:
                     Q = force.generalized_force(self.model, q, qd, t, base)
-                    ext_Q += Q if load_factor == 1.0 else load_factor * np.asarray(Q, dtype=float)
+                    ext_Q += load_factor * np.asarray(Q, dtype=float)
             norm = iterate(values, history, coef, dynamic, self.active, self.scale, self.tables, axis, ext_Q, ext_band,
                            self.residual, self.band(kl), self.pivots, self.factorization, kl, refactor, symmetric)
             action = newton_control(norm, previous, tol, always_refactor)
