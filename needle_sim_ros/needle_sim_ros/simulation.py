@@ -34,6 +34,7 @@ from needle_sim_ros.model import (
     Fixture,
     Gravity,
     Integrator,
+    NeedleData,
     NeedleModel,
     NeedleProperties,
     needle_properties,
@@ -41,19 +42,23 @@ from needle_sim_ros.model import (
     State,
     StaticSolveFailed,
     StepFailed,
+    StepInputs,
+    acting_forces,
     build_model,
     check_forces,
     elastic_energy,
+    initial_force_states,
     kinetic_energy,
     ModelShape,
     model_shape,
     reaction_wrench,
     solve_static,
+    step,
 )
 from needle_sim_ros.model.config import element_lengths
-from needle_sim_ros.model.integrators import IntegratorMemory
 from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
-from needle_sim_ros.tissue import build_tissue_forces, tissue_readout
+from needle_sim_ros.tissue.factory import build_tissue_model
+from needle_sim_ros.tissue.tissue_model import TissueModel, TissueReadout
 
 
 # Largest sum of point-load magnitudes, as a multiple of the needle's bending load scale E I / L^2. Found by
@@ -101,19 +106,6 @@ def step_wrenches(records: Sequence[StepRecord]):
     publishes on ``wrench`` (a step whose wrench is not finite is left out: never NaN on the wire)."""
     return ((record.t, record.wrench.force_base, record.wrench.torque_base) for record in records
             if np.isfinite(record.wrench.force_base).all() and np.isfinite(record.wrench.torque_base).all())
-
-
-class SimulationSnapshot(NamedTuple):
-    """Everything a step changes (:meth:`NeedleSimulation.snapshot`): the needle state, the base motion, the index
-    of the last step on the time grid, the integrator's memory and a snapshot of each stateful force (pairs force,
-    snapshot). The state object is kept as is: the integrator never changes its input, the simulation replaces its
-    state and never changes one in place. The statistics count what happened; they are not state."""
-
-    state: State | None
-    base: BaseMotion | None
-    step_index: int
-    integrator: IntegratorMemory
-    forces: tuple
 
 
 @dataclass
@@ -177,7 +169,7 @@ class NeedleSimulation:
         self._offset_position = np.asarray(flange_offset[0], dtype=float)
         self._offset_rotation = quaternion_matrix(unit_quaternion(flange_offset[1], "flange_offset.orientation"))
         self.extra_forces_builder = extra_forces_builder
-        self.extra_forces: list = []
+        self.extra_forces: list = []  # the model's contributions besides gravity (the tissue)
         self.max_catch_up = max_catch_up
         self.pose_timeout = pose_timeout
         self.twist_timeout = twist_timeout
@@ -186,10 +178,7 @@ class NeedleSimulation:
         self.clamp_interval = clamp_interval
         self.model_builder = model_builder
         self.after_step: Callable[[StepRecord], None] | None = None  # called with the state of each accepted step
-        self.point_loads: dict[str, PointLoad] = {}
-        self.state: State | None = None
-        self._grid_origin, self._step_index = 0.0, 0  # steps end at origin + index dt (set at each reset)
-        self.base: BaseMotion | None = None
+        self.data = NeedleData()  # everything a step changes
         self.statistics = LoopStatistics()
         self._gravity = Gravity()
         self.start_in_equilibrium = start_in_equilibrium
@@ -214,10 +203,38 @@ class NeedleSimulation:
         """Swap in a model built with other run-time parameters, keeping the fixtures in force."""
         self.model_builder = model_builder
         self.model, self.integrator = model_builder(self.model.fixtures)
+        self.data.integrator = self.integrator.snapshot()  # a new integrator starts afresh
+
+    @property
+    def state(self) -> State | None:
+        return self.data.state
+
+    @property
+    def base(self) -> BaseMotion | None:
+        return self.data.base
+
+    @property
+    def point_loads(self) -> dict[str, PointLoad]:
+        return self.data.point_loads
+
+    @property
+    def model_forces(self) -> list:
+        """The model's force contributions: gravity and the extra ones (the point loads are in the data)."""
+        return [self._gravity, *self.extra_forces]
 
     @property
     def forces(self) -> list:
-        return [self._gravity, *self.point_loads.values(), *self.extra_forces]
+        """The contributions acting over the next step (:func:`acting_forces`)."""
+        return acting_forces(self.model_forces, self.data)
+
+    def tissue_readout(self) -> TissueReadout | None:
+        """The tissue readout at the current state (None without tissue or before the start)."""
+        states = iter(self.data.force_states)
+        for force in self.extra_forces:
+            own = next(states) if force.stateful else None
+            if isinstance(force, TissueModel) and self.started:
+                return force.readout(self.model, own, self.state, self.base)
+        return None
 
     def set_point_load(self, name: str, arc_length: float, force_world: np.ndarray) -> None:
         """Set (or replace) a named point load; ValueError if outside the needle, not finite, or if the loads
@@ -300,8 +317,8 @@ class NeedleSimulation:
             return min(now, latest.t)
         if ahead_to_pose and latest is not None and latest.t > now - self.dt:
             # grid indices (a pose within 1 us after a step's end time counts as at it: epoch-time resolution)
-            to_pose = np.ceil((latest.t - self._grid_origin) / self.dt - 1e-3)
-            after_now = np.floor((now - self._grid_origin) / self.dt + 1e-3) + 1
+            to_pose = np.ceil((latest.t - self.data.grid_origin) / self.dt - 1e-3)
+            after_now = np.floor((now - self.data.grid_origin) / self.dt + 1e-3) + 1
             return max(now, float(self._grid_time(min(to_pose, after_now))))
         return now
 
@@ -316,21 +333,25 @@ class NeedleSimulation:
             fixture = Fixture(interval=self.clamp_interval, frame="world",
                               needle_pose=(base.position, base.orientation))
             self.model, self.integrator = self.model_builder((fixture,))
+            self.data.integrator = self.integrator.snapshot()
         if self.extra_forces_builder is not None:
             self.extra_forces = list(check_forces(self.extra_forces_builder(self.model)))
-        self.base = base
-        self.state = self.model.straight_state(base, t)
-        if self.start_in_equilibrium:
-            self.state = self._equilibrium(self.state)
-        self._grid_origin, self._step_index = float(t), 0
+        state = self.model.straight_state(base, t)
+        self._start(self._equilibrium(state) if self.start_in_equilibrium else state, base)
 
     def start_from(self, state: State) -> None:
         """Continue from a given state (e.g. a static equilibrium) at ``state.t`` instead of the straight needle,
         the base at its motion then; the step grid restarts there."""
-        self.base = state.base if state.base is not None else (
-            self.base_at(state.t) if self.base_at is not None else self.base)
-        self.state = state
-        self._grid_origin, self._step_index = float(state.t), 0
+        self._start(state, state.base if state.base is not None else (
+            self.base_at(state.t) if self.base_at is not None else self.base))
+
+    def _start(self, state: State, base: BaseMotion) -> None:
+        """The data of a (re)started needle: its state and base, a new step grid from state.t, fresh force states
+        (the integrator's memory is kept, as a restart keeps the integrator)."""
+        data = self.data
+        data.state, data.base = state, base
+        data.grid_origin, data.step_index = float(state.t), 0
+        data.force_states = initial_force_states(self.model, self.model_forces)
 
     def _equilibrium(self, straight: State) -> State:
         """The needle at rest relative to the base in static equilibrium under gravity and the point loads (tissue,
@@ -345,7 +366,7 @@ class NeedleSimulation:
 
     def discard_state(self) -> None:
         """Forget the state (e.g. the clock jumped back); the next :meth:`reset` starts again."""
-        self.state = None
+        self.data.state = None
 
     def advance(self, now: float, deterministic: bool, ahead_to_pose: bool = False) -> list[StepRecord]:
         """Integrate up to :meth:`target_time`; a clock that jumped back (looping bag) discards the state."""
@@ -364,45 +385,48 @@ class NeedleSimulation:
         records: list[StepRecord] = []
         if self.state is None:
             return records
+        data = self.data
         lag = t_target - self.state.t
         if lag > self.max_catch_up:
             skip = int(np.floor((lag - self.max_catch_up) / self.dt))
-            self._step_index += skip
-            self.state = replace(self.state, t=self._grid_time(self._step_index))
+            data.step_index += skip
+            data.state = replace(self.state, t=self._grid_time(data.step_index))
             self.statistics.skipped_time += skip * self.dt
         # steps whose end time reaches t_target up to the float resolution of the times (0.24 us at epoch times)
         slack = 4.0 * np.spacing(abs(t_target)) + 1e-9 * self.dt
-        count = int(np.floor((t_target + slack - self._grid_origin) / self.dt)) - self._step_index
+        count = int(np.floor((t_target + slack - data.grid_origin) / self.dt)) - data.step_index
         if count <= 0:
             return records
-        times = self._grid_time(self._step_index + np.arange(1, count + 1))
+        times = self._grid_time(data.step_index + np.arange(1, count + 1))
         motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
         i = 0
         while i < count:
             if (self.compiled_sequence and self.state.aux is not None
                     and self.integrator.supports_sequence(self.forces)):
                 done = self._step_sequence(times[i:], motions[i:], rotations[i:], records)
-                self._step_index += done
+                data.step_index += done
                 i += done
             if i < count:
                 records.append(self._step_or_restart(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
-                self._step_index += 1
+                data.step_index += 1
                 i += 1
         if records and not np.isfinite(self.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
-            self.state = self.model.straight_state(self.base, self.state.t)
+            data.state = self.model.straight_state(self.base, self.state.t)
         return records
 
     def _grid_time(self, index):
         """End time of step ``index`` since the (re)start: origin + index dt, rounded once (no accumulation: at
         epoch times a sum of 1 ms steps would drift by 70 ns per step)."""
-        return self._grid_origin + self.dt * index
+        return self.data.grid_origin + self.dt * index
 
     def _step_sequence(self, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                        records: list[StepRecord]) -> int:
         """Steps at the given times in one compiled run (see :meth:`advance_to`); returns how many were done."""
         start = time.perf_counter()
+        self.integrator.restore(self.data.integrator)
         result = self.integrator.step_sequence(self.state, self.dt, motions, rotations, self.forces)
+        self.data.integrator = self.integrator.snapshot()
         wall = (time.perf_counter() - start) / max(result.done, 1)
         stats = self.statistics
         done = result.done
@@ -422,43 +446,21 @@ class NeedleSimulation:
         return result.done
 
     def _set_state(self, rows: np.ndarray, t: float, motion: np.ndarray, rotation: np.ndarray) -> None:
-        self.base = BaseMotion.from_packed(motion, rotation)
-        self.state = State(rows[0], rows[1], rows[2], float(t), rows[3], self.base)
-
-    def snapshot(self) -> SimulationSnapshot:
-        """Everything a step changes, for :meth:`restore` (cheap: a few small arrays per stateful force)."""
-        stateful = tuple((force, force.snapshot()) for force in self.forces if force.stateful)
-        return SimulationSnapshot(self.state, self.base, self._step_index, self.integrator.snapshot(), stateful)
-
-    def restore(self, snapshot: SimulationSnapshot) -> None:
-        """Put the simulation back to ``snapshot`` (taken with the same model and forces)."""
-        self.state, self.base = snapshot.state, snapshot.base
-        self._step_index = snapshot.step_index
-        self.integrator.restore(snapshot.integrator)
-        for force, saved in snapshot.forces:
-            force.restore(saved)
+        base = BaseMotion.from_packed(motion, rotation)
+        self.data.state, self.data.base = State(rows[0], rows[1], rows[2], float(t), rows[3], base), base
 
     def step(self, base_next: BaseMotion, t_next: float) -> StepRecord:
-        """One step with the general integrator path (sub-stepping, state-dependent forces) to t_next, as one
-        transaction: the stateful forces advance once the integrator has accepted the step, and if anything fails
-        the simulation is restored to its :meth:`snapshot` from before the step and the error raised (StepFailed:
-        counted in ``statistics.failed_steps``)."""
+        """One step with the general integrator path (sub-stepping, state-dependent forces) to t_next
+        (:func:`needle_sim_ros.model.step`): if anything fails the data is as before the step and the error raised
+        (StepFailed: counted in ``statistics.failed_steps``)."""
         start = time.perf_counter()
-        forces = self.forces
-        before = self.snapshot()
         try:
-            result = self.integrator.step(self.state, self.dt, base_next, forces)
-            self.state, self.base = result.state, base_next
-            self.state.t = float(t_next)
-            for force in forces:
-                if force.stateful:
-                    force.advance(self.model, self.state, base_next)
-        except BaseException as error:
-            self.restore(before)
-            if isinstance(error, StepFailed):
-                self.statistics.failed_steps += 1
+            output = step(self.model, self.integrator, self.model_forces, self.data,
+                          StepInputs(self.dt, float(t_next), base_next))
+        except StepFailed:
+            self.statistics.failed_steps += 1
             raise
-        return self._finish_step(start, forces, result.newton_iterations, result.substeps)
+        return self._finish_step(start, output.wrench, output.newton_iterations, output.substeps)
 
     def _step_or_restart(self, base_next: BaseMotion, t_next: float) -> StepRecord:
         """:meth:`step`, or if it fails the needle restarted straight at the base (the forces' state is that of the
@@ -470,12 +472,12 @@ class NeedleSimulation:
         except StepFailed:
             if not self.restart_on_failure:
                 raise
-            self.state, self.base = self.model.straight_state(base_next, float(t_next)), base_next
-            return self._finish_step(start, self.forces, 0, 0)
+            self.data.state = self.model.straight_state(base_next, float(t_next))
+            self.data.base = base_next
+            return self._finish_step(start, reaction_wrench(self.model, self.state, base_next, self.forces), 0, 0)
 
-    def _finish_step(self, start: float, forces: list, iterations: int, substeps: int) -> StepRecord:
-        """Reaction wrench, statistics, record and hook of the step that led to the current state."""
-        wrench = reaction_wrench(self.model, self.state, self.base, forces)
+    def _finish_step(self, start: float, wrench: BaseWrench, iterations: int, substeps: int) -> StepRecord:
+        """Statistics, record and hook of the step that led to the current state, with its base wrench."""
         wall = time.perf_counter() - start
         stats = self.statistics
         stats.steps += 1
@@ -526,7 +528,7 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
     tissue_config = {name: value for name, value in p.items() if name.startswith("tissue.")}
 
     def tissue_builder(model: NeedleModel) -> list:
-        return build_tissue_forces(tissue_config, model)
+        return [build_tissue_model(tissue_config, model)]
 
     trajectory = BaseTrajectory(TrajectoryLimits(
         window=p["pose_input.window"], max_extrapolation=p["pose_input.max_extrapolation"],
@@ -596,9 +598,8 @@ def compile_tissue_kernels(p: dict, steps: int = 10) -> None:
     for depth in ((0.5 * puncture,) if puncture > 0.0 else ()) + (puncture + 5e-3,):
         config.update({"tissue.enable": True, "tissue.entry_normal": [1.0, 0.0, 0.0],
                        "tissue.entry_point": [model.props.length - depth, 0.0, 0.0]})
-        forces = build_tissue_forces(config, model)
         scratch = NeedleSimulation.prescribed(model, integrator, dt, base_at, model.straight_state(base_at(0.0)),
-                                              forces)
+                                              [build_tissue_model(config, model)])
         scratch.advance_to(steps * dt)
-        tissue_readout(forces, model, scratch.state, scratch.base)
+        scratch.tissue_readout()
         scratch.energies()

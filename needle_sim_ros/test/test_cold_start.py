@@ -9,7 +9,6 @@ from rclpy.serialization import serialize_message
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import compile_kernels, simulation_from_parameters, step_wrenches
-from needle_sim_ros.tissue import tissue_readout
 
 DEFAULTS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
 
@@ -51,7 +50,7 @@ def test_an_insertion_needs_no_kernel_beyond_compile_kernels_with_the_tissue_on(
         t = 1.0 + 1e-3 * k
         sim.offer_pose(t, [tip_start - sim.model.props.length + 6e-6 * k, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0])
         sim.advance(t + 1e-3, deterministic=False)
-    readout = tissue_readout(sim.extra_forces, sim.model, sim.state, sim.base)
+    readout = sim.tissue_readout()
     assert readout.insertion_depth > 5e-4 and sim.statistics.failed_steps == 0
     assert compiled_specializations() == compiled
 

@@ -7,7 +7,7 @@ from scipy.integrate import simpson
 from needle_sim_ros.model import (BaseMotion, ForceContribution, GeneralizedForce, Gravity, Integrator, LineLoad,
                                   MaterialPointForce, NeedleProperties, NodalLoad, PointForces, PointLoad, build_model,
                                   check_forces, reaction_wrench, solve_static)
-from needle_sim_ros.tissue import build_tissue_forces
+from needle_sim_ros.tissue import build_tissue_model
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
 BASE = BaseMotion((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
@@ -177,7 +177,7 @@ class LocalWithoutBand(Undeclared, ForceContribution):
 
 @pytest.mark.parametrize("force, message", [
     (Undeclared(), "Undeclared must declare state_dependent"),
-    (ForgetsItsState(), "ForgetsItsState declares stateful = True but has no snapshot, restore"),
+    (ForgetsItsState(), "ForgetsItsState declares stateful = True but has no initial_state, at"),
     (AdvancesUnseen(), "AdvancesUnseen has advance.. but declares stateful = False"),
     (ConstantButMoving(), "ConstantButMoving declares time_invariant = True, which excludes state_dependent"),
     (LocalWithoutBand(), "LocalWithoutBand declares element_local = True but has no assemble_banded")])
@@ -197,16 +197,21 @@ def test_every_contribution_declares_its_capabilities():
              "line": LineLoad(0.0, 0.1, (0, 0, 1)), "nodal": NodalLoad(-1, (0, 0, 1)),
              "nodal base": NodalLoad(-1, (0, 0, 1), frame="base"),
              "material points": MaterialPointForce([0.1], [1.0], winkler(1.0))}
-    tissue = build_tissue_forces({"tissue.insertion_profile.enable": True}, model)
+    tissue = build_tissue_model({"tissue.insertion_profile.enable": True}, model)
     declared = {name: (f.state_dependent, f.time_invariant, f.stateful, f.element_local) for name, f in loads.items()}
     assert declared == {"gravity": (False, True, False, False), "point": (False, True, False, False),
                         "point base": (False, False, False, False), "line": (False, True, False, False),
                         "nodal": (False, True, False, False), "nodal base": (False, False, False, False),
                         "material points": (True, False, False, True)}
-    assert [(type(f).__name__, f.state_dependent, f.time_invariant, f.stateful, f.element_local)
-            for f in check_forces(tissue)] == [("ShaftSupport", True, False, True, True),
-                                               ("BevelTipForce", True, False, True, True),
-                                               ("TipResistance", True, False, True, True)]
+    def capabilities(forces):
+        return [(type(f).__name__, f.state_dependent, f.time_invariant, f.stateful, f.element_local)
+                for f in check_forces(forces)]
+    assert capabilities([tissue]) == [("TissueModel", True, False, True, False)]
+    assert capabilities(tissue.at(tissue.initial_state(model))) == [("ShaftForces", True, False, False, True),
+                                                                    ("BevelTipForce", True, False, False, True),
+                                                                    ("TipResistance", True, False, False, True)]
+    with pytest.raises(TypeError, match="TissueModel is stateful: integrate its contributions at"):
+        Integrator(model).step(model.straight_state(BASE), 1e-3, BASE, [Gravity(), tissue])
     assert check_forces(loads.values()) == tuple(loads.values())
 
 

@@ -164,9 +164,9 @@ def test_ahead_to_pose_integrates_the_step_that_contains_the_newest_pose_and_no_
     assert [r.t for r in sim.advance(5.2e-3, False, True)] == [pytest.approx(6e-3)]
 
 
-def _tissue_state(forces) -> list[bytes]:
-    """The tissue forces' mutable state as bytes (contact, track, anchors, friction states)."""
-    return [pickle.dumps(force) for force in forces]
+def _tissue_state(sim) -> bytes:
+    """The tissue's state in the simulation's data as bytes (contact, track, anchors, friction states)."""
+    return pickle.dumps(sim.data.force_states)
 
 
 def _inserted(overrides: dict | None = None, seconds: float = 0.7):
@@ -177,7 +177,7 @@ def _inserted(overrides: dict | None = None, seconds: float = 0.7):
     for k in range(int(round(seconds * 1e3))):
         sim.offer_pose(k * 1e-3, *inserting(k * 1e-3))
         sim.advance(k * 1e-3, deterministic=True)
-    assert sim.extra_forces and sim.extra_forces[0].contact.track.started
+    assert sim.extra_forces and sim.data.force_states[0].contact.track.started
     return sim
 
 
@@ -190,8 +190,7 @@ def test_a_failed_step_leaves_the_tissue_state_as_the_last_accepted_step_made_it
     anchors and friction states are those before the failed step (they used to be advanced with the straight
     needle, which had jumped through the tissue)."""
     sim = _inserted()
-    tissue = sim.extra_forces
-    before = _tissue_state(tissue)
+    before = _tissue_state(sim)
 
     def fail(*args, **kwargs):
         raise StepFailed("forced")
@@ -201,19 +200,20 @@ def test_a_failed_step_leaves_the_tissue_state_as_the_last_accepted_step_made_it
     records = sim.advance(t, deterministic=True)
     assert sim.statistics.failed_steps == 1 and len(records) == 1
     np.testing.assert_array_equal(sim.state.q, sim.model.straight_state(sim.base, t).q)
-    assert _tissue_state(tissue) == before
+    assert _tissue_state(sim) == before
 
 
 def _simulation_state(sim, with_input: bool = True) -> dict[str, bytes]:
-    """Every piece of state a step can change, pickled, read from the objects themselves (not through their
-    snapshots): needle state (t, q, q', q'', a), base motion, step grid, the integrator's memory (its scratch
-    buffers and caches aside), every force (contact, puncture, track, anchors, bevel and cutting phases, LuGre z)
-    and the pose input (``with_input``; its spare buffer rows are uninitialised, so only comparable with itself)."""
+    """Every piece of state a step can change, pickled: each field of the NeedleData (needle state t, q, q', q'',
+    a; base motion; step grid; integrator memory; point loads; the tissue's contact, puncture, track, anchors,
+    bevel and cutting phases, LuGre z and frozen forces), the integrator's own copy of its memory (its scratch
+    buffers and caches aside), the model's force contributions (immutable) and the pose input (``with_input``; its
+    spare buffer rows are uninitialised, so only comparable with itself)."""
     integrator = sim.integrator
     memory = (integrator._extrapolate, None if integrator._sequence is None else integrator._sequence.control)
-    parts = {"state": sim.state, "base": sim.base, "grid": (sim._grid_origin, sim._step_index), "integrator": memory,
-             **({"trajectory": sim.trajectory} if with_input else {})}
-    parts.update({f"force {i} ({type(force).__name__})": force for i, force in enumerate(sim.forces)})
+    parts = {name: getattr(sim.data, name) for name in sim.data.__dataclass_fields__}
+    parts.update({"integrator's memory": memory, **({"trajectory": sim.trajectory} if with_input else {})})
+    parts.update({f"force {i} ({type(force).__name__})": force for i, force in enumerate(sim.model_forces)})
     return {name: pickle.dumps(value) for name, value in parts.items()}
 
 
@@ -254,19 +254,20 @@ def test_a_step_failing_after_converged_sub_steps_restores_the_integrators_memor
     t = sim.state.t + sim.dt
     base = sim.base_motion_at(t)
     sim.extra_forces.append(PoisonedAfter(t - 0.4 * sim.dt))
-    sim.integrator._extrapolate = False
+    sim.data.integrator = sim.data.integrator._replace(extrapolate=False)
+    sim.integrator.restore(sim.data.integrator)
     before = _simulation_state(sim)
     with pytest.raises(StepFailed):
         sim.step(base, t)
     after = _simulation_state(sim)
     assert [name for name in before if after[name] != before[name]] == []
-    assert sim.integrator._extrapolate is False
+    assert sim.data.integrator.extrapolate is False and sim.integrator._extrapolate is False
 
 
 def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
-    """The stateful forces advance one after the other once the integrator has accepted the step; if one fails
-    (here the seed 002 tip, after the shaft support and the bevel tip advanced the shared contact, track, anchors
-    and LuGre z), its error is raised with the whole simulation as before the step."""
+    """The stateful forces advance once the integrator has accepted the step; if one fails (here the tissue, after
+    its contact, track, anchors and LuGre z have advanced, while it freezes the next step's tip forces), its error
+    is raised with the whole simulation as before the step."""
     sim = _inserted(SHAFT_LAWS[1])
     t = sim.state.t + sim.dt
     base = sim.base_motion_at(t)
@@ -274,7 +275,7 @@ def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
 
     def broken(*args):
         raise FloatingPointError("broken tissue law")
-    monkeypatch.setattr(sim.extra_forces[-1], "advance", broken)
+    monkeypatch.setattr(sim.extra_forces[-1], "_forces", broken)
     with pytest.raises(FloatingPointError):
         sim.step(base, t)
     monkeypatch.undo()
@@ -292,3 +293,21 @@ def test_extra_forces_are_checked_against_the_force_protocol_at_the_reset():
     sim.extra_forces_builder = lambda model: [Undeclared()]
     with pytest.raises(TypeError, match="Undeclared must declare state_dependent"):
         sim.offer_pose(0.0, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+
+
+def test_a_copy_of_the_data_replays_an_insertion_exactly():
+    """All of a simulation's state is in its NeedleData: restoring a copy taken mid-insertion (LuGre shaft, seed
+    002 tip) and stepping through the same base motions again gives the same wrenches and data bit for bit."""
+    sim = _inserted(SHAFT_LAWS[1])
+    t0 = sim.state.t
+    motions = [(t0 + k * sim.dt, sim.base_motion_at(t0 + k * sim.dt)) for k in range(1, 41)]
+    saved = sim.data.copy()
+
+    def run() -> tuple[list, dict]:
+        wrenches = [sim.step(base, t).wrench for t, base in motions]
+        return pickle.dumps(wrenches), _simulation_state(sim, False)
+
+    first = run()
+    assert sim.data.force_states[0].contact.track.length > saved.force_states[0].contact.track.length
+    sim.data.restore(saved)
+    assert run() == first

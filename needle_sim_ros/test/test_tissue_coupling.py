@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.model import BaseMotion, Integrator, NeedleProperties, build_model, elastic_energy, kinetic_energy
-from needle_sim_ros.tissue.coupling import BevelTipForce, ShaftSupport, TipResistance
-from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_forces, tissue_readout
+from needle_sim_ros.tissue.coupling import BevelTipForce, ShaftForces, TipResistance
+from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_model
 
 PROPS = NeedleProperties(0.27, 0.635e-3, 193e9, 8000.0, gravity=(0.0, 0.0, 0.0))   # seed 000 needle
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
@@ -17,15 +17,20 @@ def config(**overrides):
     return values
 
 
-def inserted_state(model, forces, depth, velocity=0.0, t=0.0):
-    """Straight needle along x with the tip ``depth`` below the surface, moving at ``velocity``, at time t; every
-    contribution's advance hook has seen it (track started, shaft points anchored)."""
+def inserted_state(model, tissue, depth, velocity=0.0, t=0.0, own=None):
+    """Straight needle along x with the tip ``depth`` below the surface, moving at ``velocity``, at time t, and the
+    tissue state advanced to it from ``own`` (fresh tissue if None): track started, shaft points anchored."""
     base = BaseMotion(np.array([ENTRY_X + depth - PROPS.length, 0.0, 0.0]), IDENTITY,
                       linear_velocity=np.array([velocity, 0.0, 0.0]))
     state = model.straight_state(base, t)
-    for force in forces:
-        force.advance(model, state, base)
-    return state, base
+    own = tissue.advance(model, state, base, tissue.initial_state(model) if own is None else own)
+    return state, base, own
+
+
+def integrate(model, integrator, tissue, state, own, dt, base):
+    """One step under the tissue's contributions of the step, then the tissue advanced (as NeedleData's step)."""
+    state = integrator.step(state, dt, base, tissue.at(own)).state
+    return state, tissue.advance(model, state, base, own)
 
 
 def finite_difference_check(force, model, q, qd, base, h=1e-7):
@@ -62,36 +67,40 @@ def model():
 
 
 def test_shaft_support_jacobians_match_finite_differences_in_stick_and_slip(model):
-    forces = build_tissue_forces(config(bevel_tip__enable=False), model)
-    shaft = forces[0]
-    state, base = inserted_state(model, forces, 0.03)
-    assert shaft.active.sum() >= 10
-    lateral, axial = shaft._parts
+    tissue = build_tissue_model(config(bevel_tip__enable=False), model)
+    state, base, own = inserted_state(model, tissue, 0.03)
+    assert own.shaft.active.sum() >= 10
+    shaft, = tissue.at(own)
+    lateral, axial = shaft.parts
     assert axial.weights.sum() == pytest.approx(0.03)               # weights add up to the inserted length
     # the lateral springs hold the cut part: all of it but the last track spacing at most
-    assert 0.03 - shaft.contact.track.spacing <= lateral.weights.sum() <= 0.03 + 1e-9
+    assert 0.03 - own.contact.track.spacing <= lateral.weights.sum() <= 0.03 + 1e-9
     # push every other anchor beyond the stick band (0.3 mm): those points slip, the others stick
-    active = np.flatnonzero(shaft.active)
-    shaft.anchor[active[::2]] -= 1e-3
-    shaft._freeze(model)
+    anchors = axial.anchor_points.copy()
+    anchors[::2] -= 1e-3 * axial.tangents[::2]
+    shaft = ShaftForces(lateral, axial._replace(anchor_points=anchors))
     q, qd = perturbed(state, np.random.default_rng(4))
     result = finite_difference_check(shaft, model, q, qd, base)
     assert np.abs(result.Q).max() > 0
 
 
 def test_bevel_and_tip_resistance_jacobians_match_finite_differences(model):
-    forces = build_tissue_forces(config(insertion_profile__enable=True, insertion_profile__puncture_depth=0.005,
-                                        insertion_profile__cutting_speed_scale=1e-2), model)
-    bevel = next(f for f in forces if isinstance(f, BevelTipForce))
-    tip = next(f for f in forces if isinstance(f, TipResistance))
+    tissue = build_tissue_model(config(insertion_profile__enable=True, insertion_profile__puncture_depth=0.005,
+                                      insertion_profile__cutting_speed_scale=1e-2), model)
+
+    def tip_forces(own):
+        return (next(f for f in tissue.at(own) if isinstance(f, BevelTipForce)),
+                next(f for f in tissue.at(own) if isinstance(f, TipResistance)))
     # before puncture: capsule stiffness along the entry normal
-    state, base = inserted_state(model, forces, 0.003)
-    assert not tip.contact.punctured
+    state, base, own = inserted_state(model, tissue, 0.003)
+    assert not own.contact.punctured
     q, qd = perturbed(state, np.random.default_rng(5))
-    assert np.abs(finite_difference_check(tip, model, q, qd, base).Q).max() > 0
+    assert np.abs(finite_difference_check(tip_forces(own)[1], model, q, qd, base).Q).max() > 0
     # after puncture, cutting at 6 mm/s (inside the 10 mm/s ramp of F_c): tip force depends on r_x and v
-    state, base = inserted_state(model, forces, 0.02, velocity=0.006, t=1.0)
-    assert tip.contact.punctured and tip.contact.at_front
+    state, base, own = inserted_state(model, tissue, 0.02, velocity=0.006, t=1.0, own=own)
+    assert own.contact.punctured and own.contact.at_front
+    bevel, tip = tip_forces(own)
+    assert tip.cutting and bevel.scale > 0
     q, qd = perturbed(state, np.random.default_rng(6))
     assert np.abs(finite_difference_check(tip, model, q, qd, base).Q).max() > 0
     assert np.abs(finite_difference_check(bevel, model, q, qd, base).Q).max() > 0
@@ -100,21 +109,20 @@ def test_bevel_and_tip_resistance_jacobians_match_finite_differences(model):
 def test_passive_tissue_never_adds_energy(model):
     # Needle 40 mm deep with its base fixed, released with random velocities: the mechanical energy
     # (kinetic + needle elastic + tissue springs) may only decrease under lateral support + Karnopp friction.
-    forces = build_tissue_forces(config(bevel_tip__enable=False), model)
-    shaft = forces[0]
-    state, base = inserted_state(model, forces, 0.04)
+    tissue = build_tissue_model(config(bevel_tip__enable=False), model)
+    state, base, own = inserted_state(model, tissue, 0.04)
     rng = np.random.default_rng(7)
     state.qd[6:] = 0.02 * rng.normal(size=state.qd.size - 6)
     integrator = Integrator(model, method="generalized_alpha", rho_inf=1.0)   # no numerical dissipation
     def energy_of(state):
-        return kinetic_energy(model, state.qd) + elastic_energy(model, state.q) + shaft.elastic_energy(model, state.q)
+        return (kinetic_energy(model, state.qd) + elastic_energy(model, state.q)
+                + tissue.at(own)[0].elastic_energy(model, state.q))
 
     energy = [energy_of(state)]
     for _ in range(200):
-        state = integrator.step(state, 1e-4, base, forces).state
+        state = integrator.step(state, 1e-4, base, tissue.at(own)).state
         energy.append(energy_of(state))
-        for force in forces:
-            force.advance(model, state, base)
+        own = tissue.advance(model, state, base, own)
     energy = np.array(energy)
     # The trapezoidal rule conserves the energy of linear systems exactly; the nonlinear cable and the stick/slip
     # switches inside a step leave single-step errors below 1e-3 of the total (measured 5e-4), so the test
@@ -128,7 +136,8 @@ def test_passive_tissue_never_adds_energy(model):
 def test_friction_work_equals_force_times_distance_in_the_coupled_model(model):
     # Straight insertion without bevel and lateral support: the tissue's axial force is eq. 2, (C_n + b_n v) d,
     # and its work over the insertion is int (C_n + b_n v) x dx = (C_n + b_n v) D^2 / 2.
-    forces = build_tissue_forces(config(bevel_tip__enable=False, shaft__lateral_support=False), model)
+    tissue = build_tissue_model(config(bevel_tip__enable=False, shaft__lateral_support=False), model)
+    own = tissue.initial_state(model)
     speed, dt = 0.006, 2e-3
     velocity = np.array([speed, 0.0, 0.0])
     start = ENTRY_X - PROPS.length - 1e-3
@@ -138,10 +147,8 @@ def test_friction_work_equals_force_times_distance_in_the_coupled_model(model):
     work, depth_history, force_history = 0.0, [], []
     for k in range(1, int(0.031 / speed / dt) + 1):
         base = BaseMotion(np.array([start + speed * k * dt, 0, 0]), IDENTITY, linear_velocity=velocity)
-        state = integrator.step(state, dt, base, forces).state
-        for force in forces:
-            force.advance(model, state, base)
-        readout = tissue_readout(forces, model, state, base)
+        state, own = integrate(model, integrator, tissue, state, own, dt, base)
+        readout = tissue.readout(model, own, state, base)
         work += readout.axial_force * speed * dt
         depth_history.append(readout.insertion_depth)
         force_history.append(readout.axial_force)
@@ -153,34 +160,33 @@ def test_friction_work_equals_force_times_distance_in_the_coupled_model(model):
 
 
 def test_readout_of_a_straight_inserted_needle(model):
-    forces = build_tissue_forces(config(), model)
-    state, base = inserted_state(model, forces, 0.025)
-    readout = tissue_readout(forces, model, state, base)
+    tissue = build_tissue_model(config(), model)
+    state, base, own = inserted_state(model, tissue, 0.025)
+    readout = tissue.readout(model, own, state, base)
     assert readout.insertion_depth == pytest.approx(0.025)
     assert readout.inserted_length == pytest.approx(0.025, abs=1e-9)
-    bevel = forces[1].unit_bevel
+    bevel = tissue.at(own)[1].unit_bevel
     k_t = 9.42e3
     # at the front of a fresh cut: bevel P against the insertion and Q toward +y (the configured bevel side)
     np.testing.assert_allclose(readout.tip_force, k_t * np.array([-bevel.axial_force, bevel.transverse_force, 0]),
                                rtol=1e-9, atol=1e-12)
-    assert tissue_readout([], model, state, base) is None
 
 
 def test_configuration_errors_name_the_parameter(model):
     with pytest.raises(ValueError, match="tissue.shaft.axial_model"):
-        build_tissue_forces(config(shaft__axial_model="coulomb"), model)
+        build_tissue_model(config(shaft__axial_model="coulomb"), model)
     with pytest.raises(ValueError, match="unknown tissue parameters"):
-        build_tissue_forces({"tissue.layers.stiffness": [1.0]}, model)
+        build_tissue_model({"tissue.layers.stiffness": [1.0]}, model)
     with pytest.raises(ValueError, match="tissue.layers.friction_coulomb"):
-        build_tissue_forces(config(layers__friction_coulomb=[6.0, 6.0]), model)
+        build_tissue_model(config(layers__friction_coulomb=[6.0, 6.0]), model)
     assert all(isinstance(description, str) and description for _, description in TISSUE_PARAMETERS.values())
 
 
 def test_params_file_builds_and_its_keys_are_all_known(model):
     from needle_vision.streams.package_files import share_file
     path = share_file("needle_sim_ros", "config/tissue.yaml")  # as installed
-    forces = build_tissue_forces(path, model)
-    assert isinstance(forces[0], ShaftSupport) and isinstance(forces[1], BevelTipForce)
+    tissue = build_tissue_model(path, model)
+    assert tissue.shaft.lateral and tissue.bevel is not None
 
 
 def test_lugre_axial_law_reproduces_the_seed_003_curve_in_the_coupled_model(model):
@@ -189,7 +195,8 @@ def test_lugre_axial_law_reproduces_the_seed_003_curve_in_the_coupled_model(mode
     # 1/alpha = 8 mm, friction growth), and turns negative on retraction.
     from needle_sim_ros.tissue.lugre import LuGreParameters, ModifiedLuGre
 
-    forces = build_tissue_forces(config(bevel_tip__enable=False, shaft__axial_model="lugre"), model)
+    tissue = build_tissue_model(config(bevel_tip__enable=False, shaft__axial_model="lugre"), model)
+    own = tissue.initial_state(model)
     speed, dt = 0.01, 2e-3
     start = ENTRY_X - PROPS.length - 1e-3
     integrator = Integrator(model)
@@ -201,10 +208,8 @@ def test_lugre_axial_law_reproduces_the_seed_003_curve_in_the_coupled_model(mode
     for k, v in enumerate(profile, start=1):
         position += v * dt
         base = BaseMotion(np.array([position, 0, 0]), IDENTITY, linear_velocity=np.array([v, 0, 0]))
-        state = integrator.step(state, dt, base, forces).state
-        for force in forces:
-            force.advance(model, state, base)
-        readout = tissue_readout(forces, model, state, base)
+        state, own = integrate(model, integrator, tissue, state, own, dt, base)
+        readout = tissue.readout(model, own, state, base)
         depths.append(readout.insertion_depth)
         velocities.append(v)
         coupled.append(readout.axial_force)

@@ -34,15 +34,15 @@ def test_inserted_interval_of_a_tilted_straight_needle():
 
 
 def test_track_cuts_locates_and_projects():
-    track = Track(spacing=0.001)
-    track.start(np.array([0.1, 0, 0]), np.array([2.0, 0, 0]))
-    assert track.length == 0.0
+    fresh = Track(spacing=0.001)
+    track = fresh.start(np.array([0.1, 0, 0]), np.array([2.0, 0, 0]))
+    assert not fresh.started and track.started and track.length == 0.0
     points, tangents = track.locate(np.array([0.003]))                 # straight continuation before any cut
     np.testing.assert_allclose(points[0], [0.103, 0, 0])
     tips = [track.vertices[0]]
     for x in np.arange(0.1007, 0.12, 0.0007):                       # tip advancing 0.7 mm a step on a parabola
         tips.append(np.array([x, 0.5 * (x - 0.1) ** 2 / 0.05, 0]))
-        track.cut(tips[-1])
+        track = track.cut(tips[-1])
     tip = tips[-1]
     # path memory: every vertex after the entry point lies on the tip's path (the chords between its positions),
     # exactly one spacing ahead of the previous vertex along its end tangent
@@ -55,7 +55,9 @@ def test_track_cuts_locates_and_projects():
     assert 0.0 <= track.coordinate_ahead(tip) - track.length < track.spacing           # the tip is at the front
     # the polyline through the tip's positions stays on the parabola to within its chord sag kappa s^2 / 8
     assert track.project(tip[None])[1][0] < 1e-5
-    assert not track.cut(track.vertices[-1] + 0.5 * track.spacing * track.end_tangent())
+    short = track.cut(track.vertices[-1] + 0.5 * track.spacing * track.end_tangent())
+    assert short.vertices is track.vertices                            # half a spacing ahead: nothing cut
+    np.testing.assert_array_equal(short.previous_tip, track.vertices[-1] + 0.5 * track.spacing * track.end_tangent())
     points, tangents = track.locate(np.array([0.0, 0.01, track.length + 0.002]))
     np.testing.assert_allclose(points[0], [0.1, 0, 0])
     np.testing.assert_allclose(points[2], track.vertices[-1] + 0.002 * track.end_tangent())
@@ -79,11 +81,10 @@ def test_track_keeps_up_with_a_tip_jittering_sideways():
     0.1 mm segment, which the jitter tilted by up to ~30 deg (the front then receded from the tip and the track
     stopped growing: 62 vertices instead of 80 over 8 mm in an insertion)."""
     rng = np.random.default_rng(3)
-    track = Track(spacing=1e-4)
-    track.start(np.zeros(3), np.array([1.0, 0, 0]))
+    track = Track(spacing=1e-4).start(np.zeros(3), np.array([1.0, 0, 0]))
     for k in range(1, 401):
         tip = np.array([2e-5 * k, *rng.uniform(-3e-5, 3e-5, 2)])
-        track.cut(tip)
+        track = track.cut(tip)
         assert -track.spacing <= track.coordinate_ahead(tip) - track.length < track.spacing
     assert 7.85e-3 < track.length < 9e-3  # the polyline through the jitter is a little longer than the advance
     assert abs(len(track.vertices) - 1 - 80) <= 2

@@ -79,8 +79,8 @@ def truth_simulation(experiment: Experiment, truth: TruthModel) -> NeedleSimulat
         return model, Integrator(model, method="generalized_alpha", rho_inf=truth.rho_inf)
 
     def tissue_builder(model) -> list:
-        from needle_sim_ros.tissue import build_tissue_forces
-        return build_tissue_forces({"tissue.enable": True, **dict(truth.tissue)}, model)
+        from needle_sim_ros.tissue import build_tissue_model
+        return [build_tissue_model({"tissue.enable": True, **dict(truth.tissue)}, model)]
 
     model, integrator = model_builder(())
     simulation = NeedleSimulation(model, integrator, truth.dt, BaseTrajectory(),

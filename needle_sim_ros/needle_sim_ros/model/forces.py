@@ -37,10 +37,12 @@ class ForceContribution:
       iteration); False: Q depends on (t, base) only, both Jacobians zero (evaluated once per step).
     * ``time_invariant``: Q is one constant vector (neither state dependent nor stateful, never mutated): summed
       once and reused; when every force is so, the compiled step sequence applies.
-    * ``stateful``: it keeps state that changes from step to step (tissue contact, track, anchors, friction
-      states) and implements ``advance(model, state, base)``, run once per accepted step, and ``snapshot()`` /
-      ``restore(snapshot)``: the simulation snapshots every stateful force before a step and restores it when the
-      step fails, so a failed step changes nothing. A snapshot shares no mutable array with the force.
+    * ``stateful``: it has state that changes from step to step (tissue contact, track, anchors, friction states),
+      kept as an immutable value in ``NeedleData.force_states``, and implements ``initial_state(model)``,
+      ``advance(model, state, base, own) -> own'`` (once per accepted step; returns the next value, never changes
+      ``own``) and ``at(own)``: the contributions, not stateful themselves, that act over the step starting from
+      ``own``. It is never evaluated itself; the step hands ``at(own)`` to the integrator, and a failed step keeps
+      the old value.
     * ``element_local`` (default False): its Jacobians couple the coordinates of one element only (forces at material
       points, eq. 15) and it implements ``assemble_banded``: Q and its Jacobian blocks added to the banded
       iteration matrix in one compiled pass, and ``touches_element``: whether a point lies in a given element
@@ -94,7 +96,7 @@ _NO_BAND = np.zeros((0, 0))
 
 
 CAPABILITIES = ("state_dependent", "time_invariant", "stateful", "element_local")
-STATE_HOOKS = ("advance", "snapshot", "restore")
+STATE_HOOKS = ("initial_state", "advance", "at")
 
 
 def check_forces(forces) -> tuple:
@@ -103,7 +105,7 @@ def check_forces(forces) -> tuple:
     forces = tuple(forces)
     for force in forces:
         name = type(force).__name__
-        if not callable(getattr(force, "evaluate", None)):
+        if not getattr(force, "stateful", False) and not callable(getattr(force, "evaluate", None)):
             raise TypeError(f"force contribution {name} has no evaluate(model, q, qd, t, base)")
         for capability in CAPABILITIES:
             if not hasattr(type(force), capability) or not isinstance(getattr(force, capability), bool):

@@ -101,6 +101,9 @@ def split_forces(forces) -> tuple[list, list]:
     """(state-independent, state-dependent) contributions, checked against the force protocol."""
     constant, varying = [], []
     for force in check_forces(forces):
+        if force.stateful:
+            raise TypeError(f"force contribution {type(force).__name__} is stateful: integrate its contributions "
+                            "at(state) of the step (model.data.acting_forces)")
         (varying if force.state_dependent else constant).append(force)
     return constant, varying
 

@@ -50,7 +50,6 @@ from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
     TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters, simulation_from_parameters,
     step_wrenches)
-from needle_sim_ros.tissue import tissue_readout
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
 TUBE_COLOR = (0.75, 0.75, 0.8, 1.0)  # RGBA of the needle's Marker tube
@@ -451,7 +450,7 @@ class NeedleSimulatorNode(LifecycleNode):
         """(model, a copy of the state, tissue readout): all the outputs need, taken with the lock held."""
         state = self.sim.state
         return (self.sim.model, State(state.q.copy(), state.qd.copy(), state.qdd, state.t, base=self.sim.base),
-                self.tissue_readout())
+                self.sim.tissue_readout())
 
     def snapshot(self, model, state: State, readout) -> dict:
         """Shape output and energies of a state copy (computed outside the lock)."""
@@ -490,11 +489,6 @@ class NeedleSimulatorNode(LifecycleNode):
             self.marker_pub.publish(cdr.triangle_list_marker(
                 stamp.sec, stamp.nanosec, frame, "needle", 0,
                 tube_triangles(line.points, line.tangents, self.props.radius), TUBE_COLOR))
-
-    def tissue_readout(self):
-        if not self.sim.extra_forces:
-            return None
-        return tissue_readout(self.sim.extra_forces, self.sim.model, self.sim.state, self.sim.base)
 
     def publish_diagnostics_if_due(self, now: float) -> None:
         """Counters of the loop and inputs, and a level with a message that clears when its cause does

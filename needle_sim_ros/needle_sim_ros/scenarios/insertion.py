@@ -21,7 +21,7 @@ from needle_vision.streams.package_files import share_file
 
 from needle_sim_ros.model import (Gravity, Integrator, NeedleProperties, State, build_model, load_needle_config,
                                   reaction_wrench, solve_static)
-from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_forces, tissue_readout
+from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_model
 
 from needle_sim_ros.simulation import NeedleSimulation
 
@@ -67,12 +67,12 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
 
     model = build_model(props, **build)
     integrator = Integrator(model, **integrator_kwargs)
-    tissue = build_tissue_forces(config, model)
     base = motion.base_at(0.0)
     moving = model.straight_state(base, 0.0)       # rigid translation with the base: the needle's velocities
     sagged = solve_static(model, base, forces=[Gravity()]).state
     state = State(sagged.q, moving.qd, np.zeros(model.n_dof), 0.0)     # start in equilibrium under gravity
-    simulation = NeedleSimulation.prescribed(model, integrator, dt, motion.base_at, state, tissue)
+    simulation = NeedleSimulation.prescribed(model, integrator, dt, motion.base_at, state,
+                                             [build_tissue_model(config, model)])
     n_steps = int(np.ceil(motion.duration / dt))
     series: dict[str, list] = {key: [] for key in (
         "time_s", "insertion_depth_m", "tip_lateral_deflection_m", "tip_position_m", "tip_offset_m", "tip_tangent",
@@ -83,7 +83,7 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
         state, base = simulation.state, simulation.base
         tip, tip_gradient = state.q[-6:-3], state.q[-3:]
         wrench = reaction_wrench(model, state, base, simulation.forces)
-        readout = tissue_readout(tissue, model, state, base)
+        readout = simulation.tissue_readout()
         values = (state.t, readout.insertion_depth, float(np.hypot(tip[1], tip[2])), tip.tolist(),
                   [float(tip[1]), float(tip[2])], (tip_gradient / np.linalg.norm(tip_gradient)).tolist(),
                   motion.roll_at(state.t)[0], readout.inserted_length,

@@ -2,8 +2,8 @@
 seed 002 (insertion force profile), seed 003 (modified LuGre), and their coupling to the ANCF needle as force
 contributions. Their identification from data is in :mod:`needle_sim_ros.identification`.
 
-The pure laws import without the ANCF model; ``build_tissue_forces`` and ``tissue_readout`` (which
-need ``needle_sim_ros.model``) are imported on first use.
+The pure laws import without the ANCF model; ``build_tissue_model`` and the ``TissueModel`` (which need
+``needle_sim_ros.model``) are imported on first use.
 """
 from .angular_spring import AngularSpringNeedle
 from .bevel_tip import BevelTip
@@ -12,13 +12,13 @@ from .insertion_profile import InsertionForceProfile
 from .karnopp import KarnoppFriction
 from .lugre import LuGreParameters, ModifiedLuGre
 
-_COUPLING_NAMES = ("build_tissue_forces", "tissue_readout", "TissueReadout", "TISSUE_PARAMETERS")
+_COUPLING_NAMES = ("build_tissue_model", "TISSUE_PARAMETERS", "TissueModel", "TissueReadout")
 
 
 def __getattr__(name: str):
     if name in _COUPLING_NAMES:
-        from . import factory
-        return getattr(factory, name)
+        from . import factory, tissue_model
+        return getattr(factory if hasattr(factory, name) else tissue_model, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

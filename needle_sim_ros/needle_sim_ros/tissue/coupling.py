@@ -1,20 +1,22 @@
-"""Coupling of the tissue laws to the ANCF needle as ForceContribution objects (generalized force + Jacobians).
+"""Coupling of the tissue laws to the ANCF needle: the contact, the shaft support and the tip forces.
 
-* ``TissueContact``: per-step state shared by the contributions: tip depth and axial speed, capsule puncture,
-  the track cut by the tip.  Updated once per accepted step (idempotent, keyed on the state time) from the
-  ``advance`` hook of whichever contribution runs first.
-* ``TissueForce``: the force protocol of the tissue contributions (state dependent, stateful: each snapshot holds
-  the shared contact's state and the contribution's own) and their published resultants (``resultants``).
+Parameters are immutable objects; what changes is a value of the tissue state (``tissue_model.TissueState``)
+that the hooks here return anew, never change in place.
+* ``TissueContact``: the block, the capsule puncture and the track cut by the tip; ``update`` gives the contact
+  (``ContactState``: tip depth and axial speed, puncture, at the cut front, the track) after a step.
 * ``ShaftSupport``: lateral Winkler springs and dampers (per unit length) perpendicular to the needle on the part
   of it that lies in tissue the tip has already cut (path memory, ``track``; the cut front holds nothing
   laterally), integrated by Gauss quadrature; along the needle, the selected axial law of ``shaft_laws`` on
-  material shaft points anchored to the track (stick-slip; without a law the needle slides freely).  Rest points,
-  anchors, tangents and layer parameters are frozen during a step (explicit in the hook, implicit in the
-  forces).  Assembled with the kernel of ``MaterialPointForce`` over the inserted part only.
+  material shaft points anchored to the track (stick-slip; without a law the needle slides freely).  Its
+  ``advance`` gives the points' state (``ShaftState``) and the next step's ``ShaftForces``: rest points, anchors,
+  tangents and layer parameters frozen during a step (explicit in the hook, implicit in the forces), assembled by
+  the shared point-force kernel over the inserted part only.
 * ``BevelTipForce``: P and Q of seed 001 eqs. 4-5 at the tip, in the bevel frame rolled with the base, while the
   tip is at the cut front (cutting or resting on it) below the punctured surface, ramped in over the bevel length.
 * ``TipResistance``: seed 002 at the tip: the capsule stiffness force a1 x + a2 x^2 along the entry normal before
   puncture (conservative), then the cutting force while the tip advances into uncut tissue.
+The force contributions (``ShaftForces``, ``BevelTipForce``, ``TipResistance``) hold one step's frozen data: state
+dependent, element local, without state of their own.
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
 from .shaft_laws import AxialCoefficients
-from .track import Track, TrackSnapshot, locate_on_polyline, project_on_polyline
+from .track import Track, locate_on_polyline, project_on_polyline
 
 
 @njit(cache=True)
@@ -73,8 +75,10 @@ def assemble_tip_force(n_dof: int, force: np.ndarray, d_dr, d_drx, d_dv, band: n
     return Q
 
 
-class ContactSnapshot(NamedTuple):
-    """A copy of a contact's state (:meth:`TissueContact.snapshot`)."""
+class ContactState(NamedTuple):
+    """The needle-tissue contact after a step (part of the tissue state): capsule punctured, tip depth [m] and
+    axial speed [m/s], the step's duration [s], whether the tip is at the cut front, the state time it was updated
+    at (None: never) and the track cut so far."""
 
     punctured: bool
     tip_depth: float
@@ -82,91 +86,64 @@ class ContactSnapshot(NamedTuple):
     step_duration: float
     at_front: bool
     time: float | None
-    track: TrackSnapshot
+    track: Track
 
 
 class TissueContact:
-    """State of the needle-tissue contact shared by the contributions.
+    """How the needle meets the tissue (immutable): the block, the track spacing, and ``puncture_depth``: the depth
+    [m] the tip must reach before the capsule tears and the track starts (seed 002 d1; None: the tissue is cut from
+    first contact)."""
 
-    puncture_depth: depth [m] the tip must reach before the capsule tears and the track starts (seed 002 d1);
-    None: the tissue is cut from first contact.  track: the (empty) track the tip will cut.
-    """
-
-    def __init__(self, block: TissueBlock, track: Track, puncture_depth: float | None = None) -> None:
+    def __init__(self, block: TissueBlock, spacing: float, puncture_depth: float | None = None) -> None:
         self.block = block
         self.puncture_depth = puncture_depth
-        self.track = track
-        self.punctured = False
-        self.tip_depth = 0.0
-        self.tip_axial_speed = 0.0
-        self.step_duration = 0.0
-        self.at_front = False
-        self._time: float | None = None
+        self.initial = ContactState(False, 0.0, 0.0, 0.0, False, None, Track(spacing))
 
-    def snapshot(self) -> ContactSnapshot:
-        """A copy of the contact's state (track included), for :meth:`restore`."""
-        return ContactSnapshot(self.punctured, self.tip_depth, self.tip_axial_speed, self.step_duration,
-                               self.at_front, self._time, self.track.snapshot())
-
-    def restore(self, snapshot: ContactSnapshot) -> None:
-        (self.punctured, self.tip_depth, self.tip_axial_speed, self.step_duration, self.at_front,
-         self._time) = snapshot[:6]
-        self.track.restore(snapshot.track)
-
-    def update(self, model, state, base) -> None:
-        """Advance the contact to ``state`` (once per state time)."""
-        if self._time is not None and state.t == self._time:
-            return
-        self.step_duration = 0.0 if self._time is None else max(state.t - self._time, 0.0)
-        self._time = state.t
-        r_tip, rx_tip = tip_coordinates(state.q)
+    def update(self, contact: ContactState, q: np.ndarray, qd: np.ndarray, t: float) -> ContactState:
+        """The contact advanced to the needle state (q, qd) at time t (unchanged if already at t)."""
+        if contact.time is not None and t == contact.time:
+            return contact
+        r_tip, rx_tip = tip_coordinates(q)
         tangent = rx_tip / np.sqrt(rx_tip @ rx_tip)
-        self.tip_depth = float((r_tip - self.block.entry_point) @ self.block.entry_normal)
-        self.tip_axial_speed = float(state.qd[-6:-3] @ tangent)
-        if not self.punctured and self.tip_depth > (self.puncture_depth or 0.0):
-            self.punctured = True
-        if self.punctured and not self.track.started and self.tip_depth > 0.0:
+        tip_depth = float((r_tip - self.block.entry_point) @ self.block.entry_normal)
+        punctured = contact.punctured or tip_depth > (self.puncture_depth or 0.0)
+        track = contact.track
+        if punctured and not track.started and tip_depth > 0.0:
             normal = self.block.entry_normal
             along = float(tangent @ normal)
-            entry = r_tip - (tangent * self.tip_depth / along if along > 1e-3 else normal * self.tip_depth)
-            self.track.start(entry, tangent)
-        if self.track.started:
-            self.track.cut(r_tip)
-            self.at_front = (self.tip_depth > 0.0
-                             and self.track.coordinate_ahead(r_tip) >= self.track.length - self.track.spacing)
-        else:
-            self.at_front = False
+            entry = r_tip - (tangent * tip_depth / along if along > 1e-3 else normal * tip_depth)
+            track = track.start(entry, tangent)
+        at_front = False
+        if track.started:
+            track = track.cut(r_tip)
+            at_front = tip_depth > 0.0 and track.coordinate_ahead(r_tip) >= track.length - track.spacing
+        return ContactState(punctured, tip_depth, float(qd[-6:-3] @ tangent),
+                            0.0 if contact.time is None else max(t - contact.time, 0.0), at_front, t, track)
 
 
-class TissueForce(ElementLocalForce):
-    """A tissue contribution on ``contact``: state dependent and stateful. Its snapshot is the shared contact's
-    state with its own (``_own_snapshot``); contributions sharing a contact restore it to the same values."""
+class TipForce(ElementLocalForce):
+    """A tissue force at the tip over one step (its data frozen at the step's start): state dependent, acting on
+    the last element."""
 
     state_dependent = True
     time_invariant = False
-    stateful = True
-    contact: TissueContact
-
-    def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
-        """World force [N] of this contribution on the tip and on the whole needle at ``state``."""
-        raise NotImplementedError
+    stateful = False
 
     def touches_element(self, model, element: int) -> bool:
-        """The tip forces act on the last element (ShaftSupport overrides this)."""
         return element == model.n_elements - 1
 
-    def snapshot(self) -> tuple:
-        return self.contact.snapshot(), self._own_snapshot()
+    def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
+        """World force [N] on the tip and on the whole needle at ``state``: the same."""
+        force = self.tip_force_at(state.q, state.qd, base)
+        return force, force
 
-    def restore(self, snapshot: tuple) -> None:
-        self.contact.restore(snapshot[0])
-        self._restore_own(snapshot[1])
-
-    def _own_snapshot(self):
+    def tip_force_at(self, q, qd, base) -> np.ndarray:
         raise NotImplementedError
 
-    def _restore_own(self, snapshot) -> None:
-        raise NotImplementedError
+    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
+        generalized = np.zeros(q.size)
+        generalized[q.size - 6:q.size - 3] = self.tip_force_at(q, qd, base)
+        return generalized
 
 
 LATERAL_GAUSS_POINTS = 3
@@ -371,50 +348,34 @@ def shaft_contact_points(q, arc_lengths, candidates, S, S_x, slots, entry_point,
     return index, coverage, tangents, points, point_depth, u
 
 
-class ShaftSupport(TissueForce):
-    """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle.
+class ShaftState(NamedTuple):
+    """The shaft points' state (part of the tissue state): the track coordinate of each point's stick anchor (k,),
+    which points are inside the tissue (k,) and the axial law's own state (LuGre z [m]; None)."""
 
-    Lateral (``lateral``: per-layer ``lateral_stiffness``, ``lateral_damping`` per unit length): springs and
-    dampers perpendicular to the track on the needle's arc interval lying in tissue the tip has already cut (path
-    memory), integrated with LATERAL_GAUSS_POINTS Gauss points on each element's share of that interval, so the
-    support is exact from the first cut millimetre on, whatever the shaft point spacing.
-    Axial (``axial_law``: one of ``shaft_laws``, or None for none): on the material shaft points at
-    ``arc_lengths`` (k,), base to tip, with length shares ``weights`` (k,) [m], each anchored to the track once
-    inside the tissue (stick-slip); without a law the needle slides freely.  Both are assembled with the model's
-    MaterialPointForce kernel over the points inside the tissue only, so the cost grows with the inserted length.
-    """
+    anchor: np.ndarray
+    active: np.ndarray
+    law: object
 
-    def __init__(self, contact: TissueContact, arc_lengths: np.ndarray, weights: np.ndarray, lateral: bool,
-                 axial_law=None) -> None:
-        self.contact = contact
-        self.arc_lengths = np.asarray(arc_lengths, dtype=float)
-        self.weights = np.asarray(weights, dtype=float)
-        if np.any(np.diff(self.arc_lengths) <= 0) or self.weights.shape != self.arc_lengths.shape:
-            raise ValueError("ShaftSupport: arc_lengths must increase and match weights")
-        self.lateral = lateral
-        self.axial_law = axial_law
-        k = self.arc_lengths.size
-        self.anchor = np.zeros(k)                          # track coordinate of each point's stick anchor
-        self.active = np.zeros(k, dtype=bool)
-        self._coverage = np.zeros(0)                       # share below the surface of each active point
-        self._lateral = _Frozen.inactive()                 # the lateral quadrature points of the next step
-        self._parts = (self._lateral, _Frozen.inactive())  # the next step's lateral and axial points
-        self._margin = 2.0 * float(np.max(np.diff(self.arc_lengths), initial=0.0))
-        self._table = None
 
-    def _tables(self, model):
-        if self._table is None:
-            self._table = model.interpolation(self.arc_lengths)
-        return self._table
+class ShaftForces(ElementLocalForce):
+    """The shaft's lateral and axial point forces over one step (``ShaftSupport.advance``): the lateral
+    quadrature points and the active material points with their rest points, anchors, tangents and law
+    coefficients frozen at the step's start (explicit in the hook, implicit in the forces)."""
 
-    # -- forces ----------------------------------------------------------------------------------------------
+    state_dependent = True
+    time_invariant = False
+    stateful = False
+
+    def __init__(self, lateral: _Frozen, axial: _Frozen) -> None:
+        self.parts = (lateral, axial)
+
     @staticmethod
-    def _kinematics(fz: "_Frozen", q, qd):
+    def _kinematics(fz: _Frozen, q, qd):
         """Positions and velocities (k, 3) of a part's points."""
         return point_kinematics(q, qd, fz.slots, fz.S)
 
     @staticmethod
-    def _law(fz: "_Frozen", r, v):
+    def _law(fz: _Frozen, r, v):
         """Force per unit length (k, 3) on a part's points and dF/dr, dF/dv (k, 3, 3) (anchors frozen)."""
         return shaft_point_forces(r, v, fz.anchor_points, fz.tangents, fz.lateral_stiffness, fz.lateral_damping,
                                   fz.stick_stiffness, *fz.axial)
@@ -422,7 +383,7 @@ class ShaftSupport(TissueForce):
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
         """Both parts' generalized forces and Jacobian blocks (one compiled kernel call per part)."""
         Q = np.zeros(q.size)
-        for fz in self._parts:
+        for fz in self.parts:
             if fz.weights.size:
                 shaft_generalized_force(q, qd, fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
                                         fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial,
@@ -431,11 +392,11 @@ class ShaftSupport(TissueForce):
 
     def touches_element(self, model, element: int) -> bool:
         """Whether a lateral or axial point of this step lies in ``element`` (slots 2 e ... 2 e + 3)."""
-        return any(fz.weights.size and bool(np.any(fz.slots[:, 0] == 2 * element)) for fz in self._parts)
+        return any(fz.weights.size and bool(np.any(fz.slots[:, 0] == 2 * element)) for fz in self.parts)
 
     def total_force(self, model, q, qd, t, base) -> np.ndarray:
         """World resultant [N] of the shaft forces at (q, qd)."""
-        return sum((fz.weights @ self._law(fz, *self._kinematics(fz, q, qd))[0] for fz in self._parts
+        return sum((fz.weights @ self._law(fz, *self._kinematics(fz, q, qd))[0] for fz in self.parts
                     if fz.weights.size), np.zeros(3))
 
     def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
@@ -445,7 +406,7 @@ class ShaftSupport(TissueForce):
     def elastic_energy(self, model, q) -> float:
         """Energy [J] stored in the lateral springs and the sticking axial anchors (stick band |u| <= C/k_a)."""
         energy = 0.0
-        for fz in self._parts:
+        for fz in self.parts:
             if fz.weights.size:
                 offset = self._kinematics(fz, q, np.zeros_like(q))[0] - fz.anchor_points
                 u = np.einsum("ki,ki->k", offset, fz.tangents)
@@ -455,61 +416,80 @@ class ShaftSupport(TissueForce):
                 energy += float(fz.weights @ density)
         return energy
 
-    # -- per-step update -------------------------------------------------------------------------------------
-    def _own_snapshot(self) -> tuple:
-        """Anchors, active points and the frozen data of the next step (the latter never change in place)."""
-        return (self.anchor.copy(), self.active.copy(), self._coverage, self._lateral, self._parts,
-                None if self.axial_law is None else self.axial_law.snapshot())
 
-    def _restore_own(self, snapshot: tuple) -> None:
-        anchor, active, self._coverage, self._lateral, self._parts, law = snapshot
-        self.anchor, self.active = anchor.copy(), active.copy()
-        if self.axial_law is not None:
-            self.axial_law.restore(law)
+NO_SHAFT_FORCES = ShaftForces(_Frozen.inactive(), _Frozen.inactive())  # shared: never changed
 
-    def advance(self, model, state, base) -> None:
-        """Update contact and track, (de)activate points, slip the anchors, freeze the next step's data."""
-        contact = self.contact
-        contact.update(model, state, base)
+
+class ShaftSupport:
+    """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle
+    (immutable; the points' state is a :class:`ShaftState`).
+
+    Lateral (``lateral``: per-layer ``lateral_stiffness``, ``lateral_damping`` per unit length): springs and
+    dampers perpendicular to the track on the needle's arc interval lying in tissue the tip has already cut (path
+    memory), integrated with LATERAL_GAUSS_POINTS Gauss points on each element's share of that interval, so the
+    support is exact from the first cut millimetre on, whatever the shaft point spacing.
+    Axial (``axial_law``: one of ``shaft_laws``, or None for none): on the material shaft points at
+    ``arc_lengths`` (k,), base to tip, with length shares ``weights`` (k,) [m], each anchored to the track once
+    inside the tissue (stick-slip); without a law the needle slides freely.  Both are assembled with the model's
+    point-force kernel over the points inside the tissue only, so the cost grows with the inserted length.
+    """
+
+    def __init__(self, model, block: TissueBlock, arc_lengths: np.ndarray, weights: np.ndarray, lateral: bool,
+                 axial_law=None) -> None:
+        self.block = block
+        self.arc_lengths = np.asarray(arc_lengths, dtype=float)
+        self.weights = np.asarray(weights, dtype=float)
+        if np.any(np.diff(self.arc_lengths) <= 0) or self.weights.shape != self.arc_lengths.shape:
+            raise ValueError("ShaftSupport: arc_lengths must increase and match weights")
+        self.lateral = lateral
+        self.axial_law = axial_law
+        k = self.arc_lengths.size
+        self.initial = ShaftState(np.zeros(k), np.zeros(k, dtype=bool),
+                                  None if axial_law is None else axial_law.initial_state)
+        self._margin = 2.0 * float(np.max(np.diff(self.arc_lengths), initial=0.0))
+        self._table = model.interpolation(self.arc_lengths)
+
+    def advance(self, model, contact: ContactState, q: np.ndarray, shaft: ShaftState) -> tuple[ShaftState,
+                                                                                              ShaftForces]:
+        """The shaft after a step to q (contact updated): the law's state advanced, the points inside the tissue
+        (entering ones anchored), the anchors slipped; and the forces of the next step."""
+        law = shaft.law
         if self.axial_law is not None:
-            self.axial_law.advance(contact.tip_depth, contact.tip_axial_speed, contact.step_duration)
+            law = self.axial_law.advance(law, contact.tip_depth, contact.tip_axial_speed, contact.step_duration)
         track = contact.track
-        was_active = self.active.copy()
-        self.active[:] = False
-        self._lateral = _Frozen.inactive()
+        active = np.zeros(self.arc_lengths.size, dtype=bool)
         if not track.started:
-            self._parts = (self._lateral, _Frozen.inactive())
-            return
-        if self.lateral:
-            self._lateral = self._lateral_support(model, state.q)
+            return ShaftState(shaft.anchor, active, law), NO_SHAFT_FORCES
+        lateral = self._lateral_support(model, contact, q) if self.lateral else _Frozen.inactive()
         # a point an arc length a behind the tip is at most a shallower than the tip, so only points closer to the
         # tip than its depth can be inside; one more spacing gives the outer neighbours for entry_coverage
         candidates = np.flatnonzero(self.arc_lengths > self.arc_lengths[-1] - contact.tip_depth - self._margin)
         if self.axial_law is None or candidates.size == 0:
-            self._freeze(model)
-            return
-        table, block = self._tables(model), contact.block
-        index, self._coverage, tangents, points, depth, u = shaft_contact_points(
-            state.q, self.arc_lengths, candidates, table.S, table.S_x, table.slots, block.entry_point,
-            block.entry_normal, block.thickness, was_active, self.active, self.anchor, track.vertices,
-            track.arc_lengths, track.end_tangent())
+            return ShaftState(shaft.anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
+        table, block = self._table, self.block
+        anchor = shaft.anchor.copy()
+        index, coverage, tangents, points, depth, u = shaft_contact_points(
+            q, self.arc_lengths, candidates, table.S, table.S_x, table.slots, block.entry_point, block.entry_normal,
+            block.thickness, shaft.active, active, anchor, track.vertices, track.arc_lengths, track.end_tangent())
         if index.size == 0:
-            self._freeze(model)
-            return
+            return ShaftState(anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
         # plastic slip of the anchors along the track
-        axial = self.axial_law.coefficients(depth, contact.tip_depth)
+        axial = self.axial_law.coefficients(law, depth, contact.tip_depth)
         band = axial.coulomb / self.axial_law.stick_stiffness
         slip = u - np.clip(u, -band, band)
-        self.anchor[index] += slip
+        anchor[index] += slip
         points = points + slip[:, None] * tangents         # same segment to first order; relocated next step
-        self._freeze(model, points, tangents, depth, axial)
+        zero = np.zeros(index.size)
+        frozen = _Frozen(index, self.weights[index] * coverage, table.slots[index], table.S[index], table.S_x[index],
+                         points, tangents, depth, zero, zero, axial, float(self.axial_law.stick_stiffness))
+        return ShaftState(anchor, active, law), ShaftForces(lateral, frozen)
 
-    def _lateral_support(self, model, q: np.ndarray) -> "_Frozen":
+    def _lateral_support(self, model, contact: ContactState, q: np.ndarray) -> _Frozen:
         """Gauss points, weights, frozen rest points on the track (each point's own projection) and needle tangents,
         layer stiffness and damping of the needle's arc interval in cut tissue: from where the needle crosses the
         entry surface (s_tip - the tip's track coordinate) to where it leaves the cut track (s_tip - the tip's
         distance beyond the track's end).  Reference arc lengths: the cable is practically inextensible."""
-        track, block = self.contact.track, self.contact.block
+        track, block = contact.track, self.block
         weights, slots, S, S_x, points, tangents, depth = lateral_quadrature(
             q, model.mesh.node_arc_length, model.mesh.element_lengths, float(self.arc_lengths[-1]), _GAUSS_XI,
             _GAUSS_W, track.vertices, track.arc_lengths, track.end_tangent(), block.entry_point, block.entry_normal)
@@ -520,134 +500,71 @@ class ShaftSupport(TissueForce):
         return _Frozen(np.zeros(0, dtype=int), weights, slots, S, S_x, points, tangents, depth,
                        stiffness, damping, AxialCoefficients(zero, zero, 0.0, 0.0, 0.0), 1.0)
 
-    def _freeze(self, model, points=None, tangents=None, depth=None, axial=None) -> None:
-        """Freeze the next step's data: the lateral quadrature points and the active material points' anchors,
-        tangents, axial law coefficients and weights (located on the track and looked up unless given)."""
-        index = np.flatnonzero(self.active)
-        if index.size == 0 or self.axial_law is None:
-            self._parts = (self._lateral, _Frozen.inactive())
-            return
-        table = self._tables(model)
-        if points is None:
-            points, tangents = self.contact.track.locate(self.anchor[index])
-            depth = self.contact.block.depth(points)
-        axial = axial if axial is not None else self.axial_law.coefficients(depth, self.contact.tip_depth)
-        zero = np.zeros(index.size)
-        self._parts = (self._lateral, _Frozen(
-            index, self.weights[index] * self._coverage, table.slots[index], table.S[index], table.S_x[index],
-            points, tangents, depth, zero, zero, axial, float(self.axial_law.stick_stiffness)))
 
+class BevelTipForce(TipForce):
+    """Seed 001 eqs. 4-5 at the tip over one step: F = K_T (-P1 t + Q1 n) with P1, Q1 the forces of ``unit_bevel``
+    per unit K_T, ``scale`` K_T of the tip's layer times the bevel's embedded share (0: not engaged), n the bevel side
+    ``side_base`` (base frame, unit) rolled with the base orientation."""
 
-class BevelTipForce(TissueForce):
-    """Seed 001 eqs. 4-5 at the tip: F = K_T (-P1 t + Q1 n) with P1, Q1 the forces of ``bevel`` per unit K_T, K_T
-    of the tip's layer, n the bevel side (``bevel_side_base``, base frame) rolled with the base orientation."""
-
-    def __init__(self, contact: TissueContact, bevel: BevelTip, bevel_side_base: np.ndarray) -> None:
-        self.contact = contact
-        self.unit_bevel = BevelTip(1.0, bevel.bevel_angle, bevel.acting_angle, bevel.edge_a, bevel.edge_b)
-        side = np.asarray(bevel_side_base, dtype=float)
-        if side.shape != (3,) or abs(side[0]) > 0.999 * np.linalg.norm(side) or not np.linalg.norm(side) > 0:
-            raise ValueError("bevel_tip.side must be a 3-vector in the base frame not along the needle (x) axis")
-        self.bevel_side_base = side / np.linalg.norm(side)
-        self._scale = 0.0
+    def __init__(self, unit_bevel: BevelTip, side_base: np.ndarray, scale: float) -> None:
+        self.unit_bevel = unit_bevel
+        self.side_base = side_base
+        self.scale = scale
 
     def tip_force(self, q, base) -> tuple[np.ndarray, np.ndarray]:
         """World tip force [N] and dF/dr_x (3, 3) at coordinates q."""
-        if self._scale == 0.0:
+        if self.scale == 0.0:
             return np.zeros(3), np.zeros((3, 3))
-        side = base.rotation @ self.bevel_side_base
-        force, jacobian = self.unit_bevel.tip_force(tip_coordinates(q)[1], side)
-        return self._scale * force, self._scale * jacobian
+        force, jacobian = self.unit_bevel.tip_force(tip_coordinates(q)[1], base.rotation @ self.side_base)
+        return self.scale * force, self.scale * jacobian
 
-    def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
-        force = self.tip_force(state.q, base)[0]
-        return force, force
-
-    def _own_snapshot(self) -> float:
-        return self._scale
-
-    def _restore_own(self, snapshot: float) -> None:
-        self._scale = snapshot
+    def tip_force_at(self, q, qd, base) -> np.ndarray:
+        return self.tip_force(q, base)[0]
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        if self._scale == 0.0:
+        if self.scale == 0.0:
             return np.zeros(q.size)
         force, jacobian = self.tip_force(q, base)
         return assemble_tip_force(q.size, force, None, jacobian, None, band, kl, c_q, c_qd)
 
-    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
-        generalized = np.zeros(q.size)
-        if self._scale != 0.0:
-            generalized[q.size - 6:q.size - 3] = self.tip_force(q, base)[0]
-        return generalized
 
-    def advance(self, model, state, base) -> None:
-        """Engage at the cut front; eqs. 4-5 scale with the squared edge lengths, so while the bevel enters the
-        forces grow with the square of its embedded fraction (tip depth / axial bevel length a)."""
-        contact = self.contact
-        contact.update(model, state, base)
-        engaged = contact.punctured and contact.at_front
-        embedded = min(contact.tip_depth / max(self.unit_bevel.edge_a, 1e-12), 1.0)
-        self._scale = (float(contact.block.layer_value("tip_stiffness", contact.tip_depth)) * embedded**2
-                       if engaged else 0.0)
-
-
-class TipResistance(TissueForce):
-    """Seed 002 at the tip: capsule stiffness before puncture, cutting force F_c while cutting.
+class TipResistance(TipForce):
+    """Seed 002 at the tip over one step: capsule stiffness before puncture, cutting force F_c while cutting.
 
     The capsule force -(a1 x + a2 x^2) n (x = tip depth, n = entry normal) is elastic.  The cutting force
     -F_c clip(v_t / v_c, 0, 1) t resists only forward motion of the tip at the cut front (t tip tangent,
     v_t its axial speed, ``cutting_speed_scale`` v_c regularises the onset), so it never adds energy.
     """
 
-    def __init__(self, contact: TissueContact, profile: InsertionForceProfile, cutting_speed_scale: float) -> None:
-        if not cutting_speed_scale > 0.0:
-            raise ValueError(f"insertion_profile.cutting_speed_scale must be > 0, got {cutting_speed_scale!r}")
-        self.contact = contact
+    def __init__(self, block: TissueBlock, profile: InsertionForceProfile, cutting_speed_scale: float,
+                 punctured: bool, cutting: bool) -> None:
+        self.block = block
         self.profile = profile
         self.cutting_speed_scale = cutting_speed_scale
-        self._cutting = False
+        self.punctured = punctured
+        self.cutting = cutting
 
     def tip_force(self, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """World tip force and its derivatives with respect to the tip r, r_x and velocity."""
-        contact = self.contact
         r, rx = tip_coordinates(q)
         zero = np.zeros((3, 3))
-        if not contact.punctured:
-            x = float(contact.block.depth(r))
+        if not self.punctured:
+            x = float(self.block.depth(r))
             if x <= 0.0:
                 return np.zeros(3), zero, zero, zero
-            n = contact.block.entry_normal
+            n = self.block.entry_normal
             return (-self.profile.stiffness_force(x) * n, -self.profile.stiffness_slope(x) * np.outer(n, n),
                     zero, zero)
-        if not self._cutting:
+        if not self.cutting:
             return np.zeros(3), zero, zero, zero
         force, d_drx, d_dv = cutting_force(np.ascontiguousarray(rx), np.ascontiguousarray(qd[-6:-3]),
                                            self.profile.cutting_force, self.cutting_speed_scale)
         return force, zero, d_drx, d_dv
 
-    def resultants(self, model, state, base) -> tuple[np.ndarray, np.ndarray]:
-        force = self.tip_force(state.q, state.qd)[0]
-        return force, force
-
-    def _own_snapshot(self) -> bool:
-        return self._cutting
-
-    def _restore_own(self, snapshot: bool) -> None:
-        self._cutting = snapshot
+    def tip_force_at(self, q, qd, base) -> np.ndarray:
+        return self.tip_force(q, qd)[0]
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        if self.contact.punctured and not self._cutting:
+        if self.punctured and not self.cutting:
             return np.zeros(q.size)
         return assemble_tip_force(q.size, *self.tip_force(q, qd), band, kl, c_q, c_qd)
-
-    def generalized_force(self, model, q, qd, t, base) -> np.ndarray:
-        generalized = np.zeros(q.size)
-        if not self.contact.punctured or self._cutting:
-            generalized[q.size - 6:q.size - 3] = self.tip_force(q, qd)[0]
-        return generalized
-
-    def advance(self, model, state, base) -> None:
-        contact = self.contact
-        contact.update(model, state, base)
-        self._cutting = contact.punctured and contact.at_front and contact.tip_depth < contact.block.thickness

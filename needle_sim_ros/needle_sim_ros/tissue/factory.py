@@ -1,4 +1,4 @@
-"""Tissue configuration (ROS 2 params under ``tissue.``) -> ForceContribution list, and the published readout.
+"""Tissue configuration (ROS 2 params under ``tissue.``) -> the TissueModel.
 
 ``TISSUE_PARAMETERS`` lists every key with its default and meaning (SI units); ``config/tissue.yaml`` sets them.
 Per-layer parameters are parallel arrays under ``tissue.layers.`` (one entry per layer, entry surface first).
@@ -9,16 +9,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from needle_sim_ros.model import centerline
 from needle_sim_ros.model.config import parameter_tree
 
 from .bevel_tip import BevelTip
-from .coupling import BevelTipForce, ShaftSupport, TipResistance, TissueContact, TissueForce, tip_coordinates
-from .geometry import LAYER_PARAMETERS, TissueBlock, TissueLayer, inserted_interval
+from .coupling import ShaftSupport, TissueContact
+from .geometry import LAYER_PARAMETERS, TissueBlock, TissueLayer
 from .insertion_profile import InsertionForceProfile
 from .lugre import LuGreParameters, ModifiedLuGre
-from .track import Track
 from .shaft_laws import KarnoppShaftFriction, LuGreShaftForce, ProfileShaftFriction
+from .tissue_model import TissueModel
 
 AXIAL_MODELS = ("karnopp", "insertion_profile", "lugre", "none")
 
@@ -141,8 +140,8 @@ def shaft_points(length: float, spacing: float) -> tuple[np.ndarray, np.ndarray]
     return np.linspace(0.0, length, n + 1), weights
 
 
-def build_tissue_forces(config, model) -> list:
-    """ForceContribution list for the enabled tissue models (see TISSUE_PARAMETERS) on ``model``."""
+def build_tissue_model(config, model) -> TissueModel:
+    """The tissue model of the enabled tissue laws (see TISSUE_PARAMETERS) on the needle ``model``."""
     cfg = TissueConfig.from_any(config)
     block = cfg.block()
     axial_model = cfg["tissue.shaft.axial_model"]
@@ -150,54 +149,21 @@ def build_tissue_forces(config, model) -> list:
         raise ValueError(f"tissue.shaft.axial_model must be one of {AXIAL_MODELS}, got {axial_model!r}")
     profile_enabled = bool(cfg["tissue.insertion_profile.enable"])
     profile = cfg.profile() if profile_enabled or axial_model == "insertion_profile" else None
-    track = Track(float(cfg["tissue.track.spacing"]))
-    contact = TissueContact(block, track, profile.puncture_depth if profile_enabled else None)
+    contact = TissueContact(block, float(cfg["tissue.track.spacing"]),
+                            profile.puncture_depth if profile_enabled else None)
     stick_stiffness = float(cfg["tissue.shaft.stick_stiffness"])
     axial_law = {"karnopp": lambda: KarnoppShaftFriction(block, stick_stiffness),
                  "insertion_profile": lambda: ProfileShaftFriction(profile, stick_stiffness),
                  "lugre": lambda: LuGreShaftForce(cfg.lugre()),
                  "none": lambda: None}[axial_model]()
-    length = float(model.props.length)
-    arc_lengths, weights = shaft_points(length, float(cfg["tissue.shaft.point_spacing"]))
-    forces: list = [ShaftSupport(contact, arc_lengths, weights, bool(cfg["tissue.shaft.lateral_support"]),
-                                 axial_law)]
+    arc_lengths, weights = shaft_points(float(model.props.length), float(cfg["tissue.shaft.point_spacing"]))
+    shaft = ShaftSupport(model, block, arc_lengths, weights, bool(cfg["tissue.shaft.lateral_support"]), axial_law)
+    bevel = None
     if cfg["tissue.bevel_tip.enable"]:
         diameter = float(cfg["tissue.bevel_tip.diameter"]) or 2.0 * float(model.props.radius)
-        bevel = BevelTip.for_diameter(1.0, float(cfg["tissue.bevel_tip.bevel_angle"]),
-                                      float(cfg["tissue.bevel_tip.acting_fraction"]), diameter)
-        forces.append(BevelTipForce(contact, bevel, cfg.vector("tissue.bevel_tip.side", 3)))
-    if profile_enabled:
-        forces.append(TipResistance(contact, profile, float(cfg["tissue.insertion_profile.cutting_speed_scale"])))
-    return forces
-
-
-@dataclass(frozen=True)
-class TissueReadout:
-    """What the simulator publishes: insertion_depth [m] (tip depth below the entry surface, >= 0),
-    inserted_length [m] (needle arc length below the surface), tip_force [N] (world force of the tissue on the
-    tip: bevel + cutting/capsule), axial_force [N] (total tissue force on the needle along the base x axis,
-    positive when it resists insertion, i.e. what the holder's force sensor sees from the tissue)."""
-
-    insertion_depth: float
-    inserted_length: float
-    tip_force: np.ndarray
-    axial_force: float
-
-
-def tissue_readout(forces, model, state, base) -> TissueReadout | None:
-    """Readout of the tissue contributions in ``forces`` (None if there are none) at ``state``."""
-    tissue = [f for f in forces if isinstance(f, TissueForce)]
-    if not tissue:
-        return None
-    contact = tissue[0].contact
-    r_tip, _ = tip_coordinates(state.q)
-    depth = max(float(contact.block.depth(r_tip)), 0.0)
-    line = centerline(model, state.q, max(4 * model.n_nodes, 16))
-    s_entry, s_tip = inserted_interval(contact.block, line.points, line.arc_length)
-    tip_force = np.zeros(3)
-    total = np.zeros(3)
-    for force in tissue:
-        on_tip, on_needle = force.resultants(model, state, base)
-        tip_force += on_tip
-        total += on_needle
-    return TissueReadout(depth, s_tip - s_entry, tip_force, float(-total @ base.rotation[:, 0]))
+        bevel = (BevelTip.for_diameter(1.0, float(cfg["tissue.bevel_tip.bevel_angle"]),
+                                       float(cfg["tissue.bevel_tip.acting_fraction"]), diameter),
+                 cfg.vector("tissue.bevel_tip.side", 3))
+    tip_resistance = ((profile, float(cfg["tissue.insertion_profile.cutting_speed_scale"])) if profile_enabled
+                      else None)
+    return TissueModel(contact, shaft, bevel, tip_resistance)

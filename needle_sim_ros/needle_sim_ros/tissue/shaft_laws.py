@@ -40,16 +40,13 @@ class AxialCoefficients(NamedTuple):
 
 
 class StatelessLaw:
-    """An axial law without state of its own (nothing to advance, snapshot or restore)."""
+    """An axial law without state of its own (its state in the tissue state is None)."""
 
-    def advance(self, insertion_depth: float, insertion_speed: float, dt: float) -> None:
+    initial_state = None
+
+    def advance(self, law_state: None, insertion_depth: float, insertion_speed: float, dt: float) -> None:
         """Stateless."""
-
-    def snapshot(self) -> None:
         return None
-
-    def restore(self, snapshot: None) -> None:
-        """Stateless."""
 
 
 class KarnoppShaftFriction(StatelessLaw):
@@ -61,7 +58,7 @@ class KarnoppShaftFriction(StatelessLaw):
         self.block = block
         self.stick_stiffness = stick_stiffness
 
-    def coefficients(self, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
+    def coefficients(self, law_state: None, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
         coulomb, viscous = self.block.layer_values(("friction_coulomb", "friction_viscous"), anchor_depth)
         return AxialCoefficients(coulomb, viscous, 0.0, 0.0, 0.0)
 
@@ -75,7 +72,7 @@ class ProfileShaftFriction(StatelessLaw):
         self.profile = profile
         self.stick_stiffness = stick_stiffness
 
-    def coefficients(self, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
+    def coefficients(self, law_state: None, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
         limit = 0.0
         if insertion_depth > 0.0:
             limit = max(float(self.profile.friction_force(insertion_depth)), 0.0) / insertion_depth
@@ -83,30 +80,25 @@ class ProfileShaftFriction(StatelessLaw):
 
 
 class LuGreShaftForce:
-    """Seed 003 eqs. 1-2 as a traction per inserted length (reading in ``lugre``)."""
+    """Seed 003 eqs. 1-2 as a traction per inserted length (reading in ``lugre``); its state is the bristle
+    state z [m]."""
 
     stick_stiffness = 1.0      # unused: C = 0, the bristle state carries the stick
+    initial_state = 0.0
 
     def __init__(self, model: ModifiedLuGre) -> None:
         self.model = model
         self.theta = model.parameters.as_array()
-        self.z = 0.0
 
-    def coefficients(self, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
+    def coefficients(self, z: float, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
         depth = max(insertion_depth, 0.0)
-        at_rest = float(force_per_length(self.z, self.theta, depth, 0.0, self.model.velocity_scale)[0])
-        sliding = float(force_per_length(self.z, self.theta, depth, np.inf, self.model.velocity_scale)[0])
+        at_rest = float(force_per_length(z, self.theta, depth, 0.0, self.model.velocity_scale)[0])
+        sliding = float(force_per_length(z, self.theta, depth, np.inf, self.model.velocity_scale)[0])
         zero = np.zeros(anchor_depth.shape)
         return AxialCoefficients(zero, zero, at_rest, sliding - at_rest, self.model.velocity_scale)
 
-    def advance(self, insertion_depth: float, insertion_speed: float, dt: float) -> None:
-        """Advance z over the step (RK3) with l = insertion depth and l' = the tip's axial speed."""
+    def advance(self, z: float, insertion_depth: float, insertion_speed: float, dt: float) -> float:
+        """z advanced over the step (RK3) with l = insertion depth and l' = the tip's axial speed."""
         if dt > 0.0:
-            self.z = self.model.step(self.z, max(insertion_depth, 0.0), insertion_speed, dt)
-
-    def snapshot(self) -> float:
-        """The bristle state z [m]."""
-        return self.z
-
-    def restore(self, snapshot: float) -> None:
-        self.z = snapshot
+            return self.model.step(z, max(insertion_depth, 0.0), insertion_speed, dt)
+        return z

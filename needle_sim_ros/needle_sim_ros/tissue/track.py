@@ -12,8 +12,6 @@ place, so a re-insertion follows it until the tip passes its end, then cuts new 
 """
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 from numba import njit
 
@@ -21,131 +19,92 @@ from numba import njit
 END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at the default 0.1 mm spacing)
 
 
-class TrackSnapshot(NamedTuple):
-    """A track's state (:meth:`Track.snapshot`): its vertex count and capacity, initial direction, the tip
-    position of the previous cut and the cached end tangent (arrays that the track replaces, never changes in
-    place)."""
-
-    count: int
-    capacity: int
-    direction: np.ndarray
-    previous_tip: np.ndarray
-    end_tangent: np.ndarray | None
-
-
 class Track:
-    """Mutable polyline from the entry point; ``length`` is its arc length [m] (0 right after the entry).
+    """Immutable polyline from the entry point (a value of the tissue state in ``NeedleData``: :meth:`start` and
+    :meth:`cut` return a new track, the arrays of one are never changed); ``length`` is its arc length [m] (0 right
+    after the entry, none before it has started).
 
-    Coordinates beyond its end are measured along its end tangent (the initial direction while it has one
-    vertex); they lie in uncut tissue. The vertex buffers only grow at their end and are zero beyond it, so a
-    snapshot is a count (O(1)) and a restore zeroes what was added since.
+    Coordinates beyond its end are measured along its end tangent (the initial direction while it has one vertex);
+    they lie in uncut tissue.
     """
 
-    def __init__(self, spacing: float, capacity: int = 256) -> None:
+    __slots__ = ("spacing", "vertices", "arc_lengths", "direction", "previous_tip", "_end_tangent")
+
+    def __init__(self, spacing: float, vertices: np.ndarray = np.zeros((0, 3)), arc_lengths: np.ndarray = np.zeros(0),
+                 direction: np.ndarray = np.array([1.0, 0.0, 0.0]), previous_tip: np.ndarray = np.zeros(3),
+                 end_tangent: np.ndarray | None = None) -> None:
         if not spacing > 0.0:
             raise ValueError(f"tissue.track.spacing must be > 0, got {spacing!r}")
         self.spacing = spacing
-        self._vertices = np.zeros((capacity, 3))
-        self._arc = np.zeros(capacity)
-        self._count = 0
-        self._direction = np.array([1.0, 0.0, 0.0])
-        self._previous_tip = np.zeros(3)  # the tip position of the previous cut() (the entry point at the start)
-        self._end_tangent: np.ndarray | None = None  # end_tangent() of the current vertices (None: not computed)
+        self.vertices = vertices          # (count, 3) [m]
+        self.arc_lengths = arc_lengths    # (count,) cumulative arc length [m] at each vertex
+        self.direction = direction        # the unit direction at the entry
+        self.previous_tip = previous_tip  # the tip position of the previous cut() (the entry point at the start)
+        self._end_tangent = end_tangent if end_tangent is not None else self._chord_tangent()
+
+    def __reduce__(self):
+        return Track, (self.spacing, self.vertices, self.arc_lengths, self.direction, self.previous_tip,
+                       self._end_tangent)
 
     @property
     def started(self) -> bool:
-        return self._count >= 1
-
-    @property
-    def vertices(self) -> np.ndarray:
-        return self._vertices[: self._count]
-
-    @property
-    def arc_lengths(self) -> np.ndarray:
-        """Cumulative arc length [m] at each vertex."""
-        return self._arc[: self._count]
+        return self.arc_lengths.size >= 1
 
     @property
     def length(self) -> float:
-        return float(self._arc[self._count - 1]) if self._count else 0.0
+        return float(self.arc_lengths[-1]) if self.arc_lengths.size else 0.0
 
-    def start(self, entry_point: np.ndarray, direction: np.ndarray) -> None:
-        """Begin the track at ``entry_point`` heading along ``direction``."""
+    def start(self, entry_point: np.ndarray, direction: np.ndarray) -> Track:
+        """A track beginning at ``entry_point`` heading along ``direction``."""
         norm = np.linalg.norm(direction)
         if not norm > 0.0:
             raise ValueError("track start: direction must be non-zero")
-        self._count = 0
-        self._vertices[:] = 0.0
-        self._arc[:] = 0.0
-        self._direction = np.asarray(direction, dtype=float) / norm
-        self._append(np.asarray(entry_point, dtype=float))
-        self._previous_tip = np.array(entry_point, dtype=float)
+        entry = np.array(entry_point, dtype=float)
+        return Track(self.spacing, entry.reshape(1, 3), np.zeros(1), np.asarray(direction, dtype=float) / norm,
+                     entry)
 
-    def _append(self, point: np.ndarray) -> None:
-        if self._count == self._vertices.shape[0]:
-            self._vertices = np.vstack([self._vertices, np.zeros_like(self._vertices)])
-            self._arc = np.concatenate([self._arc, np.zeros_like(self._arc)])
-        self._end_tangent = None
-        if self._count:
-            step = point - self._vertices[self._count - 1]
-            self._arc[self._count] = self._arc[self._count - 1] + np.sqrt(step @ step)
-        self._vertices[self._count] = point
-        self._count += 1
-
-    def snapshot(self) -> TrackSnapshot:
-        """The track's state, for :meth:`restore`."""
-        return TrackSnapshot(self._count, self._arc.size, self._direction, self._previous_tip, self._end_tangent)
-
-    def restore(self, snapshot: TrackSnapshot) -> None:
-        if self._arc.size != snapshot.capacity:
-            self._vertices = self._vertices[:snapshot.capacity].copy()
-            self._arc = self._arc[:snapshot.capacity].copy()
-        self._vertices[snapshot.count:] = 0.0
-        self._arc[snapshot.count:] = 0.0
-        self._count, self._direction, self._previous_tip = snapshot.count, snapshot.direction, snapshot.previous_tip
-        self._end_tangent = snapshot.end_tangent
-
-    def end_tangent(self) -> np.ndarray:
+    def _chord_tangent(self) -> np.ndarray:
         """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (the first
         direction while there is none). One 0.1 mm segment would carry the tip's lateral jitter: tilted by it, the
         cut front seemed to recede from an advancing tip, the track stopped growing and the tip forces switched off."""
-        if self._count < 2:
-            return self._direction
-        if self._end_tangent is None:
-            d = self._vertices[self._count - 1] - self._vertices[max(self._count - 1 - END_CHORD_SEGMENTS, 0)]
-            self._end_tangent = d / np.sqrt(d @ d)
+        count = self.arc_lengths.size
+        if count < 2:
+            return self.direction
+        d = self.vertices[count - 1] - self.vertices[max(count - 1 - END_CHORD_SEGMENTS, 0)]
+        return d / np.sqrt(d @ d)
+
+    def end_tangent(self) -> np.ndarray:
         return self._end_tangent
 
     def coordinate_ahead(self, point: np.ndarray) -> float:
         """Track coordinate of a point near the end, measured along the end tangent (may exceed ``length``)."""
-        return self.length + float((point - self._vertices[self._count - 1]) @ self.end_tangent())
+        return self.length + float((point - self.vertices[-1]) @ self._end_tangent)
 
-    def cut(self, tip_position: np.ndarray) -> bool:
-        """Extend the track while the tip is ``spacing`` or more beyond its end, each vertex where the straight path
-        from the previous tip position crosses ``spacing`` ahead of the end; True if it grew."""
-        tip = np.asarray(tip_position, dtype=float)
-        previous, grew = self._previous_tip, False
-        while (ahead := self.coordinate_ahead(tip) - self.length) >= self.spacing:
-            behind = self.coordinate_ahead(previous) - self.length
+    def cut(self, tip_position: np.ndarray) -> Track:
+        """The track extended while the tip is ``spacing`` or more beyond its end, each vertex where the straight
+        path from the previous tip position crosses ``spacing`` ahead of the end."""
+        tip = np.array(tip_position, dtype=float)
+        previous, track = self.previous_tip, self
+        while (ahead := track.coordinate_ahead(tip) - track.length) >= self.spacing:
+            behind = track.coordinate_ahead(previous) - track.length
             fraction = (self.spacing - behind) / (ahead - behind) if behind < self.spacing else 0.0
             previous = previous + fraction * (tip - previous)
-            self._append(previous)
-            grew = True
-        self._previous_tip = tip.copy()
-        return grew
+            step = previous - track.vertices[-1]
+            track = Track(self.spacing, np.vstack([track.vertices, previous]),
+                          np.append(track.arc_lengths, track.length + np.sqrt(step @ step)), self.direction)
+        return Track(self.spacing, track.vertices, track.arc_lengths, self.direction, tip, track._end_tangent)
 
     def locate(self, coordinate) -> tuple[np.ndarray, np.ndarray]:
         """Points (k, 3) and unit tangents (k, 3) at track coordinates (k,) (>= 0; beyond ``length`` on the
         straight continuation)."""
         s = np.ascontiguousarray(np.maximum(np.asarray(coordinate, dtype=float), 0.0))
-        return locate_on_polyline(self._vertices[: self._count], self._arc[: self._count], self.end_tangent(), s)
+        return locate_on_polyline(self.vertices, self.arc_lengths, self._end_tangent, s)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest track coordinate (k,) and distance (k,) of points (k, 3), over the segments and the straight
         continuation beyond the end (compiled)."""
         points = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
-        return project_on_polyline(self._vertices[: self._count], self._arc[: self._count], self.end_tangent(),
-                                   points)
+        return project_on_polyline(self.vertices, self.arc_lengths, self._end_tangent, points)
 
 
 @njit(cache=True)

@@ -1,0 +1,115 @@
+"""All mutable state of a simulated needle, and the one step that advances it (MuJoCo's mjData and mj_step).
+
+The :class:`NeedleModel`, the integrator's settings and the force contributions' parameters never change while a
+needle is simulated; everything that does is in one :class:`NeedleData`. :func:`step` advances it by one step
+in fixed phases and changes it only once the step has succeeded: a failed step leaves it bit for bit as it was.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import NamedTuple
+
+from .forces import PointLoad, check_forces
+from .integrators import Integrator, IntegratorMemory
+from .kinematics import BaseMotion
+from .model import NeedleModel, State
+from .reaction import BaseWrench, reaction_wrench
+
+
+@dataclass
+class NeedleData:
+    """Everything a step changes, in one place:
+
+    * ``state``: t, q, q', q'' and the integrator's history a of the last accepted step (None: not started);
+    * ``base``: the base motion (clamp point A) at t;
+    * ``grid_origin`` [s], ``step_index``: steps end at grid_origin + step_index dt (set at each (re)start);
+    * ``integrator``: the integrator's memory between steps: which predictor Newton starts from, whether the kept
+      factorization of the compiled sequence is valid (the factorization itself is the integrator's scratch);
+    * ``point_loads``: the named external point loads (world frame);
+    * ``force_states``: the state of each stateful force contribution, in the order of the contributions (the
+      tissue: contact, puncture, track, shaft anchors, LuGre bristle state, the next step's frozen forces).
+
+    Every value is replaced, never changed in place (states, base motions, force states), so :meth:`copy` copies
+    references and :meth:`restore` puts them back: both cost microseconds whatever the tissue holds.
+    """
+
+    state: State | None = None
+    base: BaseMotion | None = None
+    grid_origin: float = 0.0
+    step_index: int = 0
+    integrator: IntegratorMemory = IntegratorMemory(True, 0)
+    point_loads: dict[str, PointLoad] = field(default_factory=dict)
+    force_states: tuple = ()
+
+    def copy(self) -> NeedleData:
+        return replace(self, point_loads=dict(self.point_loads))
+
+    def restore(self, saved: NeedleData) -> None:
+        """Put back the values of ``saved`` (a :meth:`copy`)."""
+        self.state, self.base, self.grid_origin, self.step_index = (saved.state, saved.base, saved.grid_origin,
+                                                                    saved.step_index)
+        self.integrator, self.point_loads, self.force_states = (saved.integrator, dict(saved.point_loads),
+                                                                saved.force_states)
+
+
+class StepInputs(NamedTuple):
+    """What drives one step: its length dt [s], its end time [s] on the time loop's grid (t + dt up to rounding)
+    and the base motion then."""
+
+    dt: float
+    t_next: float
+    base_next: BaseMotion
+
+
+class StepOutput(NamedTuple):
+    """What a step produced: the base wrench (eq. 20) and the integrator's effort."""
+
+    wrench: BaseWrench
+    newton_iterations: int
+    substeps: int
+
+
+def initial_force_states(model: NeedleModel, forces) -> tuple:
+    """The initial state of each stateful contribution in ``forces`` (checked against the force protocol)."""
+    return tuple(force.initial_state(model) for force in check_forces(forces) if force.stateful)
+
+
+def acting_forces(forces, data: NeedleData) -> list:
+    """The contributions acting over the step that starts from ``data``: those of ``forces`` without state, the
+    point loads, then each stateful one's contributions ``at`` its state in ``data``."""
+    acting = [force for force in forces if not force.stateful]
+    acting.extend(data.point_loads.values())
+    states = iter(data.force_states)
+    for force in forces:
+        if force.stateful:
+            acting.extend(force.at(next(states)))
+    return acting
+
+
+def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, inputs: StepInputs) -> StepOutput:
+    """One step of ``data`` (started) to ``inputs.t_next`` under the contributions ``forces``, in fixed phases:
+
+    1. inputs: the contributions acting over the step (:func:`acting_forces`), the integrator's memory;
+    2. integrate: predictor, Newton, sub-stepping (:meth:`Integrator.step`; StepFailed if it cannot);
+    3. accept: each stateful contribution advances its state to the new needle state;
+    4. commit: ``data`` takes the new state, base, force states and integrator memory (the step index is the
+       time loop's); any error before this leaves ``data`` as it was, the integrator's memory with it;
+    5. outputs: the base wrench of the new state under the contributions of the next step.
+    """
+    base_next = inputs.base_next
+    integrator.restore(data.integrator)
+    try:
+        result = integrator.step(data.state, inputs.dt, base_next, acting_forces(forces, data))
+        state = result.state
+        state.t = float(inputs.t_next)
+        states, stateful = iter(data.force_states), []
+        for force in forces:
+            if force.stateful:
+                stateful.append(force.advance(model, state, base_next, next(states)))
+    except BaseException:
+        integrator.restore(data.integrator)
+        raise
+    data.state, data.base, data.force_states = state, base_next, tuple(stateful)
+    data.integrator = integrator.snapshot()
+    wrench = reaction_wrench(model, state, base_next, acting_forces(forces, data))
+    return StepOutput(wrench, result.newton_iterations, result.substeps)
