@@ -99,11 +99,18 @@ CAPABILITIES = ("state_dependent", "time_invariant", "stateful", "element_local"
 STATE_HOOKS = ("initial_state", "advance", "at")
 
 
+_CHECKED_CLASSES: set[type] = set()  # classes that passed and declare every capability as a plain class attribute
+
+
 def check_forces(forces) -> tuple:
     """The contributions as a tuple, each checked against the :class:`ForceContribution` protocol; TypeError naming
-    the class of the first one that breaks it."""
+    the class of the first one that breaks it. A class that passed with its capabilities plain class attributes
+    (not properties, so the same for every instance) is not checked again (the tissue makes new contributions at
+    every step)."""
     forces = tuple(forces)
     for force in forces:
+        if type(force) in _CHECKED_CLASSES:
+            continue
         name = type(force).__name__
         if not getattr(force, "stateful", False) and not callable(getattr(force, "evaluate", None)):
             raise TypeError(f"force contribution {name} has no evaluate(model, q, qd, t, base)")
@@ -125,6 +132,8 @@ def check_forces(forces) -> tuple:
                    if getattr(type(force), hook) is getattr(ForceContribution, hook)]
         if force.element_local and missing:
             raise TypeError(f"force contribution {name} declares element_local = True but has no {missing[0]}()")
+        if all(isinstance(getattr(type(force), capability), bool) for capability in CAPABILITIES):
+            _CHECKED_CLASSES.add(type(force))
     return forces
 
 
