@@ -1,12 +1,13 @@
 """The simulator's clock-driven core: fixed-step ANCF integration towards a target time (ROS-free).
 
-A :class:`NeedleSimulation` owns the mutable part of the simulator (the model state, the base-pose trajectory,
-named point loads, tissue forces) and advances the immutable model with fixed steps of ``dt`` up to a requested
-time, taking the base motion at each step's end time from a provider: the trajectory of the received poses, or
-a prescribed ``base_at(t)`` (:meth:`NeedleSimulation.prescribed`). It is the one time loop that integrates the
-needle: the node feeds it poses and calls :meth:`advance` from its real-time loop, the offline pipeline does the
-same over a bag, and the scenarios, the ground truth of the sample bags and the benchmarks advance a prescribed
-simulation to their sample times.
+A :class:`NeedleSimulation` owns the mutable part of the simulator (its ``NeedleData``: needle state, step grid,
+integrator memory, point loads, tissue state; and the base-pose trajectory) and advances it with the one step of
+``model.data`` (fixed steps of ``dt``, the compiled step sequence where it applies) up to a requested time, taking
+the base motion at each step's end time from a provider: the trajectory of the received poses, or a prescribed
+``base_at(t)`` (:meth:`NeedleSimulation.prescribed`). It is the one time loop that integrates the needle: the node
+feeds it poses and calls :meth:`advance` from its real-time loop, the offline pipeline does the same over a bag, and
+the scenarios, the ground truth of the sample bags and the benchmarks advance a prescribed simulation to their sample
+times.
 
 Timing rules (:meth:`target_time`):
 * live: integrate up to now, extrapolating the newest pose for at most ``max_extrapolation``;
@@ -134,13 +135,14 @@ class NeedleSimulation:
     needle is (re)started — the distal 40 % in the dynamic experiment of seed 000, Fig. 8. Since the clamp pose is
     known only then, the model is rebuilt with that :class:`Fixture` by ``model_builder(fixtures)`` at each reset.
 
-    ``extra_forces_builder(model)`` makes the extra force contributions (e.g. tissue models with their own state:
-    track, stick anchors) evaluated every step in addition to gravity and the named point loads; they are made
-    anew at every reset (and checked against the force protocol, :func:`check_forces`), so a restarted needle
-    starts in fresh tissue. A step is a transaction (:meth:`step`): a step that fails even after the integrator's
-    sub-stepping changes nothing and is counted in ``statistics.failed_steps``; :meth:`advance_to` then restarts
-    the needle straight at the current base pose, the forces keeping the state of the last accepted step: the
-    output never contains NaN (with ``restart_on_failure`` False it raises the StepFailed instead, state restored).
+    ``extra_forces_builder(model)`` makes the extra force contributions (e.g. the tissue model, whose state --
+    track, stick anchors -- is kept in the data) acting every step in addition to gravity and the named point
+    loads; they are made anew at every reset (and checked against the force protocol, :func:`check_forces`), with
+    fresh states, so a restarted needle starts in fresh tissue. A step that fails even after the integrator's
+    sub-stepping changes nothing (:meth:`step`) and is counted in ``statistics.failed_steps``; :meth:`advance_to`
+    then restarts the needle straight at the current base pose, the forces keeping the state of the last accepted
+    step: the output never contains NaN (with ``restart_on_failure`` False it raises the StepFailed instead, the
+    data as before the step).
 
     ``base_at(t)``: the motion of the clamp point A at time t, used instead of the trajectory (and the flange
     offset and twist) when given (:meth:`prescribed`). ``compiled_sequence`` False keeps every step on the general
