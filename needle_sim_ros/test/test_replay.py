@@ -97,8 +97,8 @@ def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(nod
     slope = theilslopes(received, expected)[0]
     assert slope == pytest.approx(1.0, abs=0.01)
     # Jitter: deviation of each arrival from the schedule, after removing the constant transport latency (sleep
-    # overshoot, scheduling of two processes on a shared 2-core machine). Bounds: median 2 ms (measured 0.1-0.3 ms on
-    # a quiet machine, 1.02 ms once at load 4) and 90th percentile 5 ms (the message spacing); a replay that bunched
+    # overshoot, scheduling of two processes on a shared 2-core machine). Bounds: median 2 ms (1.02 ms once at load
+    # 4) and 90th percentile 5 ms (the message spacing); a replay that bunched
     # the messages or ignored the rate would lag by tens to hundreds of ms. The worst case is not bounded: a loaded
     # machine can stall any process for tens of ms.
     lag = np.abs((received - expected) - np.median(received - expected))
