@@ -57,6 +57,7 @@ from needle_sim_ros.model import (
     step,
 )
 from needle_sim_ros.model.config import element_lengths
+from needle_sim_ros.model.sequence import IntegratorMemory
 from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
 from needle_sim_ros.tissue.factory import build_tissue_model
 from needle_sim_ros.tissue.tissue_model import TissueModel, TissueReadout
@@ -180,7 +181,7 @@ class NeedleSimulation:
         self.clamp_interval = clamp_interval
         self.model_builder = model_builder
         self.after_step: Callable[[StepRecord], None] | None = None  # called with the state of each accepted step
-        self.data = NeedleData()  # everything a step changes
+        self.data = NeedleData(integrator=IntegratorMemory(model.n_dof))  # everything a step changes
         self.statistics = LoopStatistics()
         self._gravity = Gravity()
         self.start_in_equilibrium = start_in_equilibrium
@@ -205,7 +206,7 @@ class NeedleSimulation:
         """Swap in a model built with other run-time parameters, keeping the fixtures in force."""
         self.model_builder = model_builder
         self.model, self.integrator = model_builder(self.model.fixtures)
-        self.data.integrator = self.integrator.snapshot()  # a new integrator starts afresh
+        self.data.integrator = IntegratorMemory(self.model.n_dof)  # a new integrator starts afresh
 
     @property
     def state(self) -> State | None:
@@ -335,7 +336,7 @@ class NeedleSimulation:
             fixture = Fixture(interval=self.clamp_interval, frame="world",
                               needle_pose=(base.position, base.orientation))
             self.model, self.integrator = self.model_builder((fixture,))
-            self.data.integrator = self.integrator.snapshot()
+            self.data.integrator = IntegratorMemory(self.model.n_dof)
         if self.extra_forces_builder is not None:
             self.extra_forces = list(check_forces(self.extra_forces_builder(self.model)))
         state = self.model.straight_state(base, t)
@@ -426,9 +427,8 @@ class NeedleSimulation:
                        records: list[StepRecord]) -> int:
         """Steps at the given times in one compiled run (see :meth:`advance_to`); returns how many were done."""
         start = time.perf_counter()
-        self.integrator.restore(self.data.integrator)
-        result = self.integrator.step_sequence(self.state, self.dt, motions, rotations, self.forces)
-        self.data.integrator = self.integrator.snapshot()
+        result = self.integrator.step_sequence(self.state, self.dt, motions, rotations, self.forces,
+                                               self.data.integrator)
         wall = (time.perf_counter() - start) / max(result.done, 1)
         stats = self.statistics
         done = result.done

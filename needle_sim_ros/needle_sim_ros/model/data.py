@@ -10,7 +10,8 @@ from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 from .forces import PointLoad, check_forces
-from .integrators import Integrator, IntegratorMemory
+from .integrators import Integrator
+from .sequence import IntegratorMemory
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
 from .reaction import BaseWrench, reaction_wrench
@@ -23,32 +24,34 @@ class NeedleData:
     * ``state``: t, q, q', q'' and the integrator's history a of the last accepted step (None: not started);
     * ``base``: the base motion (clamp point A) at t;
     * ``grid_origin`` [s], ``step_index``: steps end at grid_origin + step_index dt (set at each (re)start);
-    * ``integrator``: the integrator's memory between steps: which predictor Newton starts from, whether the kept
-      factorization of the compiled sequence is valid (the factorization itself is the integrator's scratch);
+    * ``integrator``: the integrator's memory between steps: which predictor Newton starts from, and the
+      factorization the compiled sequence keeps across steps while the base holds still (with its validity, step
+      length and base motion);
     * ``point_loads``: the named external point loads (world frame);
     * ``force_states``: the state of each stateful force contribution, in the order of the contributions (the
       tissue: contact, puncture, track, shaft anchors, LuGre bristle state, the next step's frozen forces).
 
-    Every value is replaced, never changed in place (states, base motions, force states), so :meth:`copy` copies
-    references and :meth:`restore` puts them back: both cost microseconds whatever the tissue holds.
+    Every value but the integrator's memory is replaced, never changed in place (states, base motions, force
+    states), so :meth:`copy` copies references and the memory's few small arrays, and :meth:`restore` puts them
+    back: both cost microseconds whatever the tissue holds.
     """
 
     state: State | None = None
     base: BaseMotion | None = None
     grid_origin: float = 0.0
     step_index: int = 0
-    integrator: IntegratorMemory = IntegratorMemory(True, 0)
+    integrator: IntegratorMemory = field(default_factory=lambda: IntegratorMemory(0))
     point_loads: dict[str, PointLoad] = field(default_factory=dict)
     force_states: tuple = ()
 
     def copy(self) -> NeedleData:
-        return replace(self, point_loads=dict(self.point_loads))
+        return replace(self, point_loads=dict(self.point_loads), integrator=self.integrator.copy())
 
     def restore(self, saved: NeedleData) -> None:
         """Put back the values of ``saved`` (a :meth:`copy`)."""
         self.state, self.base, self.grid_origin, self.step_index = (saved.state, saved.base, saved.grid_origin,
                                                                     saved.step_index)
-        self.integrator, self.point_loads, self.force_states = (saved.integrator, dict(saved.point_loads),
+        self.integrator, self.point_loads, self.force_states = (saved.integrator.copy(), dict(saved.point_loads),
                                                                 saved.force_states)
 
 
@@ -92,14 +95,14 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
     1. inputs: the contributions acting over the step (:func:`acting_forces`), the integrator's memory;
     2. integrate: predictor, Newton, sub-stepping (:meth:`Integrator.step`; StepFailed if it cannot);
     3. accept: each stateful contribution advances its state to the new needle state;
-    4. commit: ``data`` takes the new state, base, force states and integrator memory (the step index is the
-       time loop's); any error before this leaves ``data`` as it was, the integrator's memory with it;
+    4. commit: ``data`` takes the new state, base and force states (the step index is the time loop's); any error
+       before this leaves ``data`` as it was (the integrator's memory, updated in place, is put back);
     5. outputs: the base wrench of the new state under the contributions of the next step.
     """
     base_next = inputs.base_next
-    integrator.restore(data.integrator)
+    control = data.integrator.control.copy()
     try:
-        result = integrator.step(data.state, inputs.dt, base_next, acting_forces(forces, data))
+        result = integrator.step(data.state, inputs.dt, base_next, acting_forces(forces, data), data.integrator)
         state = result.state
         state.t = float(inputs.t_next)
         states, stateful = iter(data.force_states), []
@@ -107,9 +110,8 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
             if force.stateful:
                 stateful.append(force.advance(model, state, base_next, next(states)))
     except BaseException:
-        integrator.restore(data.integrator)
+        data.integrator.control[:] = control
         raise
     data.state, data.base, data.force_states = state, base_next, tuple(stateful)
-    data.integrator = integrator.snapshot()
     wrench = reaction_wrench(model, state, base_next, acting_forces(forces, data))
     return StepOutput(wrench, result.newton_iterations, result.substeps)

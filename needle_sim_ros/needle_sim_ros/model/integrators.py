@@ -35,7 +35,7 @@ from .newton import (CONVERGED, NewtonSolver, assemble_system, keeps_extrapolati
 from .banded import ELEMENT_BANDWIDTH, band_cholesky, cholesky_solve
 from .forces import check_forces
 from .partition import hermite_quintic
-from .sequence import EXTRAPOLATE, FACTORED, SequenceBuffers, integrate_sequence
+from .sequence import EXTRAPOLATE, IntegratorMemory, SequenceBuffers, integrate_sequence
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
 
@@ -52,14 +52,6 @@ class SequenceResult(NamedTuple):
     states: np.ndarray
     wrenches: np.ndarray
     iterations: np.ndarray
-
-
-class IntegratorMemory(NamedTuple):
-    """What an integrator carries from one step to the next: whether Newton starts from the extrapolating
-    predictor, and whether the compiled sequence's kept factorization is valid (:meth:`Integrator.snapshot`)."""
-
-    extrapolate: bool
-    factored: int
 
 
 class StepResult(NamedTuple):
@@ -118,7 +110,9 @@ def constant_force(model: NeedleModel, forces, t: float, base: BaseMotion) -> np
 
 class Integrator:
     """Fixed-step implicit integrator (module docstring). newton_tol: bound on the scaled Newton correction.
-    Keeps work buffers: use one integrator per thread."""
+    Keeps work buffers: use one integrator per thread. What carries from one step to the next is an
+    :class:`IntegratorMemory` (the needle's data holds it); without one the steps use the integrator's own
+    ``memory``."""
 
     def __init__(self, model: NeedleModel, method: str = "generalized_alpha", rho_inf: float = 0.8,
                  newton_tol: float = 1e-6, max_newton_iterations: int = 10, max_substep_halvings: int = 4) -> None:
@@ -139,7 +133,7 @@ class Integrator:
         self._constant_cache: tuple[tuple, np.ndarray] = ((), np.zeros(model.n_dof))
         self._split_cache: tuple[tuple, list, list, bool] = ((), [], [], True)
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
-        self._extrapolate = True
+        self.memory = IntegratorMemory(model.n_dof)
         self._sequence: SequenceBuffers | None = None
 
     def initial_accelerations(self, state: State, forces=(), base: BaseMotion | None = None) -> np.ndarray:
@@ -163,13 +157,14 @@ class Integrator:
             raise StepFailed(f"initial accelerations are not finite at t = {state.t}")
         return qdd
 
-    def step(self, state: State, dt: float, base_next: BaseMotion, forces=()) -> StepResult:
-        """Advance from state.t to state.t + dt with the base at base_next (pose, twist, acceleration at t + dt).
-        Force ``advance`` hooks are the caller's job (once per accepted step)."""
+    def step(self, state: State, dt: float, base_next: BaseMotion, forces=(),
+             memory: IntegratorMemory | None = None) -> StepResult:
+        """Advance from state.t to state.t + dt with the base at base_next (pose, twist, acceleration at t + dt),
+        updating ``memory``. Stateful contributions are the caller's job (``model.data.step``)."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be finite and > 0, got {dt!r}")
-        if self._sequence is not None:
-            self._sequence.invalidate()  # the sequence's kept factorization is of another motion now
+        memory = memory or self.memory
+        memory.invalidate()  # the sequence's kept factorization is of another motion now
         model = self.model
         n = model.n_dof
         constant, varying, _ = self._split(forces)
@@ -186,7 +181,8 @@ class Integrator:
         failure = ""
         for halvings in range(self.max_substep_halvings + 1):
             n_sub = 2**halvings
-            outcome = self._attempt(history, end, dt, n_sub, state.t, base_next, axis, constant, varying)
+            outcome = self._attempt(history, end, dt, n_sub, state.t, base_next, axis, constant, varying,
+                                    memory.control)
             if isinstance(outcome, str):
                 failure = outcome
                 continue
@@ -201,28 +197,17 @@ class Integrator:
         world, and every force is time-invariant (gravity, world-frame point loads)."""
         return self._sequence_buffers().supported and self._split(forces)[2]
 
-    def snapshot(self) -> IntegratorMemory:
-        """The integrator's memory between steps (:meth:`restore` puts it back, e.g. after a failed step)."""
-        factored = int(self._sequence.control[FACTORED]) if self._sequence is not None else 0
-        return IntegratorMemory(self._extrapolate, factored)
-
-    def restore(self, memory: IntegratorMemory) -> None:
-        """Put back the memory of :meth:`snapshot` (a general step leaves the kept factorization untouched)."""
-        self._extrapolate = memory.extrapolate
-        if self._sequence is not None:
-            self._sequence.control[FACTORED] = memory.factored
-
     def step_sequence(self, state: State, dt: float, motions: np.ndarray, rotations: np.ndarray,
-                      forces=()) -> SequenceResult:
+                      forces=(), memory: IntegratorMemory | None = None) -> SequenceResult:
         """Up to k steps of dt from ``state`` (which must carry ``aux``), the base at each step's end given packed
         (k, 19) with rotations (k, 3, 3) (:meth:`BaseMotion.from_packed`); compiled, see
         :mod:`needle_sim_ros.model.sequence`. Only where :meth:`supports_sequence`. The run ends early at a step
         that does not converge: integrate that one with :meth:`step`."""
         buffers = self._sequence_buffers()
-        if buffers.h != dt:
-            buffers.h = dt
-            buffers.invalidate()
-        buffers.control[EXTRAPOLATE] = int(self._extrapolate)
+        memory = memory or self.memory
+        if memory.h != dt:
+            memory.h = dt
+            memory.invalidate()
         k, n = motions.shape[0], self.model.n_dof
         states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)
         history = buffers.history
@@ -231,10 +216,9 @@ class Integrator:
         done = integrate_sequence(history, motions, rotations, self._coefficients(dt), ext_Q, self.newton_tol,
                                   self.max_newton_iterations, buffers.prescribed,
                                   buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
-                                  buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, buffers.band,
-                                  buffers.pivots, buffers.factorization, ELEMENT_BANDWIDTH, buffers.control,
-                                  buffers.last_motion, states, wrenches, iterations)
-        self._extrapolate = bool(buffers.control[EXTRAPOLATE])
+                                  buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, memory.band,
+                                  memory.pivots, memory.factorization, ELEMENT_BANDWIDTH, memory.control,
+                                  memory.last_motion, states, wrenches, iterations)
         return SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
 
     def _sequence_buffers(self) -> SequenceBuffers:
@@ -268,8 +252,9 @@ class Integrator:
             self._constant_cache = (tuple(forces), total)
         return total
 
-    def _attempt(self, history, end, dt, n_sub, t0, base, axis, constant, varying):
-        """Integrate n_sub equal sub-steps; (values (4, n), iterations, norm) or a failure message."""
+    def _attempt(self, history, end, dt, n_sub, t0, base, axis, constant, varying, control):
+        """Integrate n_sub equal sub-steps; (values (4, n), iterations, norm) or a failure message. ``control``:
+        the memory's flags (the predictor choice is updated in place)."""
         h = dt / n_sub
         coef = self._coefficients(h)
         constrained = self.model.partition.constrained_dofs
@@ -283,7 +268,7 @@ class Integrator:
                                                              k / n_sub)
             ext_Q = self._constant_force(constant, t, base)
             for attempt in range(2):
-                predictor = predictor_for_attempt(attempt, self._extrapolate)
+                predictor = predictor_for_attempt(attempt, control[EXTRAPOLATE] == 1)
                 budget = predictor_budget(predictor, self.max_newton_iterations)
                 values = np.empty_like(history)
                 status, iterations, norm = self.solver.solve(values, current, prescribed, coef, True, axis, ext_Q,
@@ -292,7 +277,7 @@ class Integrator:
                 total += iterations
                 if status == CONVERGED:
                     # extrapolate again once q_n converges quickly (smooth motion); keep q_n after a failure
-                    self._extrapolate = keeps_extrapolating(predictor, iterations)
+                    control[EXTRAPOLATE] = int(keeps_extrapolating(predictor, iterations))
                     break
             if status != CONVERGED:
                 reason = "singular or non-finite" if status < 0 else f"no convergence in {iterations} iterations"

@@ -27,7 +27,8 @@ EXTRAPOLATE, FACTORED = 0, 1  # entries of the control flags
 
 
 class SequenceBuffers:
-    """Work arrays of the compiled step sequence of one model, including the factorization kept across steps."""
+    """Work arrays of the compiled step sequence of one model (the factorization kept across steps is in the
+    ``IntegratorMemory`` of the needle's data)."""
 
     def __init__(self, model) -> None:
         n = model.n_dof
@@ -37,12 +38,6 @@ class SequenceBuffers:
         self.scale = model.increment_scale
         self.history = np.empty((4, n))  # rows q, q', q'', a of the start state
         self.residual = np.empty(n)
-        self.band = np.zeros((n, band_width_columns(ELEMENT_BANDWIDTH)))
-        self.pivots = np.empty(n, dtype=np.int64)
-        self.factorization = np.zeros(1, dtype=np.int64)
-        self.control = np.array([1, 0], dtype=np.int64)  # [extrapolate, factorization in band valid]
-        self.last_motion = np.full(19, np.nan)  # packed base motion of the last step (the matrix's motion)
-        self.h = 0.0
         groups = model.partition.groups
         self.supported = all(g.fixed is not None or g.frame == "base" for g in groups)
         moving = [g for g in groups if g.fixed is None]
@@ -54,9 +49,34 @@ class SequenceBuffers:
             if group.fixed is not None:
                 self.prescribed[:, group.dofs] = group.fixed
 
+
+class IntegratorMemory:
+    """What the integrator carries from one step to the next (part of the needle's data, changed in place by the
+    integrator): ``control`` [extrapolate, factored]: whether Newton starts from the extrapolating predictor and
+    whether the kept factorization is valid; the kept factorization of the compiled sequence (``band``, ``pivots``,
+    ``factorization``), the step length ``h`` and the packed base motion ``last_motion`` it was made for."""
+
+    def __init__(self, n_dof: int) -> None:
+        self.control = np.array([1, 0], dtype=np.int64)
+        self.band = np.zeros((n_dof, band_width_columns(ELEMENT_BANDWIDTH)))
+        self.pivots = np.zeros(n_dof, dtype=np.int64)
+        self.factorization = np.zeros(1, dtype=np.int64)
+        self.last_motion = np.full(19, np.nan)
+        self.h = 0.0
+
+    @property
+    def extrapolate(self) -> bool:
+        return bool(self.control[EXTRAPOLATE])
+
     def invalidate(self) -> None:
-        """The factorization no longer belongs to this model's current motion (e.g. after a general step)."""
+        """The kept factorization no longer belongs to the current motion (e.g. after a general step)."""
         self.control[FACTORED] = 0
+
+    def copy(self) -> IntegratorMemory:
+        memory = IntegratorMemory.__new__(IntegratorMemory)
+        memory.__dict__.update({name: value.copy() if isinstance(value, np.ndarray) else value
+                                for name, value in self.__dict__.items()})
+        return memory
 
 
 @njit(cache=True)
