@@ -403,9 +403,10 @@ class NeedleSimulation:
         times = self._grid_time(data.step_index + np.arange(1, count + 1))
         motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
         i = 0
+        # the compiled sequence cannot advance the state of stateful contributions (the tissue) between its steps
+        sequence = self.compiled_sequence and not any(force.stateful for force in self.extra_forces)
         while i < count:
-            if (self.compiled_sequence and self.state.aux is not None
-                    and self.integrator.supports_sequence(self.forces)):
+            if sequence and self.state.aux is not None and self.integrator.supports_sequence(self.forces):
                 done = self._step_sequence(times[i:], motions[i:], rotations[i:], records)
                 data.step_index += done
                 i += done
