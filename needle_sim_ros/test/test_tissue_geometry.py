@@ -3,7 +3,17 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.tissue.geometry import TissueBlock, TissueLayer, inserted_interval
-from needle_sim_ros.tissue.track import Track
+from needle_sim_ros.tissue.track import Track, locate_on_polyline, project_on_polyline
+
+
+def locate(track: Track, coordinate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points and unit tangents of the track at coordinates (compiled kernel)."""
+    return locate_on_polyline(track.vertices, track.arc_lengths, track.end_tangent(), coordinate)
+
+
+def project(track: Track, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest track coordinates and distances of points (compiled kernel)."""
+    return project_on_polyline(track.vertices, track.arc_lengths, track.end_tangent(), np.ascontiguousarray(points))
 
 
 def layer(thickness, stiffness=1.0):
@@ -37,7 +47,7 @@ def test_track_cuts_locates_and_projects():
     fresh = Track(spacing=0.001)
     track = fresh.start(np.array([0.1, 0, 0]), np.array([2.0, 0, 0]))
     assert not fresh.started and track.started and track.length == 0.0
-    points, tangents = track.locate(np.array([0.003]))                 # straight continuation before any cut
+    points, tangents = locate(track, np.array([0.003]))                 # straight continuation before any cut
     np.testing.assert_allclose(points[0], [0.103, 0, 0])
     tips = [track.vertices[0]]
     for x in np.arange(0.1007, 0.12, 0.0007):                       # tip advancing 0.7 mm a step on a parabola
@@ -54,16 +64,16 @@ def test_track_cuts_locates_and_projects():
     assert np.all((segments >= track.spacing * (1 - 1e-9)) & (segments < track.spacing * 1.01))
     assert 0.0 <= track.coordinate_ahead(tip) - track.length < track.spacing           # the tip is at the front
     # the polyline through the tip's positions stays on the parabola to within its chord sag kappa s^2 / 8
-    assert track.project(tip[None])[1][0] < 1e-5
+    assert project(track, tip[None])[1][0] < 1e-5
     short = track.cut(track.vertices[-1] + 0.5 * track.spacing * track.end_tangent())
     assert short.vertices is track.vertices                            # half a spacing ahead: nothing cut
     np.testing.assert_array_equal(short.previous_tip, track.vertices[-1] + 0.5 * track.spacing * track.end_tangent())
-    points, tangents = track.locate(np.array([0.0, 0.01, track.length + 0.002]))
+    points, tangents = locate(track, np.array([0.0, 0.01, track.length + 0.002]))
     np.testing.assert_allclose(points[0], [0.1, 0, 0])
     np.testing.assert_allclose(points[2], track.vertices[-1] + 0.002 * track.end_tangent())
     np.testing.assert_allclose(np.linalg.norm(tangents, axis=1), 1.0)
     normal = np.cross(tangents, [0, 0, 1.0])                        # offsets perpendicular to the track
-    coordinate, distance = track.project(points + 1e-4 * normal)
+    coordinate, distance = project(track, points + 1e-4 * normal)
     np.testing.assert_allclose(coordinate, [0.0, 0.01, track.length + 0.002], atol=1e-7)
     np.testing.assert_allclose(distance, 1e-4, rtol=1e-3)
 

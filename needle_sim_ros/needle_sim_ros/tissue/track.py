@@ -94,18 +94,6 @@ class Track:
                           np.append(track.arc_lengths, track.length + np.sqrt(step @ step)), self.direction)
         return Track(self.spacing, track.vertices, track.arc_lengths, self.direction, tip, track._end_tangent)
 
-    def locate(self, coordinate) -> tuple[np.ndarray, np.ndarray]:
-        """Points (k, 3) and unit tangents (k, 3) at track coordinates (k,) (>= 0; beyond ``length`` on the
-        straight continuation)."""
-        s = np.ascontiguousarray(np.maximum(np.asarray(coordinate, dtype=float), 0.0))
-        return locate_on_polyline(self.vertices, self.arc_lengths, self._end_tangent, s)
-
-    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Closest track coordinate (k,) and distance (k,) of points (k, 3), over the segments and the straight
-        continuation beyond the end (compiled)."""
-        points = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
-        return project_on_polyline(self.vertices, self.arc_lengths, self._end_tangent, points)
-
 
 @njit(cache=True)
 def project_on_polyline(vertices, arc, end_tangent, points):
