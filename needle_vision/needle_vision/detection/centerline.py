@@ -12,7 +12,8 @@ extract the background, find the needle points).
    of the pixel-integrated profile leaves a small aliasing error that oscillates with the sub-pixel phase:
    up to ~0.04 px for a 2.5 px wide needle imaged with no lens blur, negligible with a realistic blur
    (Gaussian point spread sigma >= 0.5 px). Weak slices (gaps, beyond the ends) are dropped.
-3. The ends to sub-pixel from the contrast profile along the needle's end direction (:func:`_end_along_profile`).
+3. The ends to sub-pixel from the covered fraction's profile along the needle's end direction
+   (:func:`_end_along_profile`).
 """
 from __future__ import annotations
 
@@ -512,14 +513,14 @@ def _column_medians(rows):  # pragma: no cover - compiled
 def _end_along_profile(image, background, polarity, points, half_width, step=0.25):  # pragma: no cover - compiled
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
-    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely)
-    gives the direction of the profile of the contrast integrated across the needle's band (its blurred edges
-    included); the end is where that profile falls to half its level (a flat end is a step blurred
-    symmetrically). The points within ``half_width + 1`` px of the end (centroids biased by the oblique cut) are
-    replaced by a quadratic (the needle's curvature) fitted to the 80 before them, evenly spaced at the
-    centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls (25-75 %) over
-    more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its noise), a
-    blurred linear taper is fitted to the profile and the end put half its length beyond its middle (least
+    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely) gives
+    the direction of the profile of the covered fraction (B - I) / (B - N) integrated across the needle's band (its
+    blurred edges included; N the needle's own intensity); the end is where that profile falls to half its level (a
+    flat end is a step blurred symmetrically). The points within ``half_width + 1`` px of the end (centroids biased
+    by the oblique cut) are replaced by a quadratic (the needle's curvature) fitted to the 80 before them, evenly
+    spaced at the centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls
+    (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its
+    noise), a blurred linear taper is fitted to the profile and the end put half its length beyond its middle (least
     squares over the whole taper: the half-contrast crossing alone moves with the noise of a few samples on a
     shallow slope). Returns (number of points kept, the new points ending with the end, the taper's half length
     [px]); kept is -1 where the profile leaves the image or does not fall."""
