@@ -595,7 +595,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
                                    sigma)
         half_taper = 0.5 * taper
         end = middle + half_taper
-    kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
+    # The slices within the taper (a bevel: the band narrows from one side, its centroids move towards the other) and
+    # within half_width + 1 of the end are replaced. (along increases towards the end)
+    kept = int(np.searchsorted(along, end - 2 * half_taper - half_width - 1))
     if kept < 80 or end <= along[kept - 1]:
         return none
     # Quadratic lateral offset against the distance along the line (least squares, centred abscissa).
