@@ -129,7 +129,7 @@ def test_side_blur_recovers_the_blur_of_a_band():
     u = np.arange(-5.0, 5.5, 0.5)
     for sigma in (0.5, 0.7, 1.0):
         cross = 0.44 * (erf((u - 0.2 + 1.27) / (np.sqrt(2) * sigma)) - erf((u - 0.2 - 1.27) / (np.sqrt(2) * sigma)))
-        assert _side_blur(u, cross) == pytest.approx((sigma, 0.2, 1.27), abs=1e-3)
+        assert _side_blur(u, cross) == pytest.approx((sigma, 0.2, 1.27, 0.88), abs=1e-3)
     # Every end runs the fit now (the profile is summed over the band it finds): a profile without a band (no
     # contrast, or the same everywhere) gives an estimate, not a singular-matrix error.
     for cross in (np.zeros_like(u), np.full_like(u, 0.3), -np.ones_like(u)):

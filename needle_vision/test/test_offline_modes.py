@@ -77,6 +77,21 @@ def test_frames_and_output_frame(tmp_path, rig, folders):
     assert max(errors.values()) < 1e-4
 
 
+def test_csv_header_names_the_selected_frame_on_a_bag(tmp_path, rig, background_frames, renders):
+    """On a bag, whose image headers name 'left_optical' (the default), the CSV's first line names the frame
+    selected with --output-frame, and the points are in it (output_transform: the world here)."""
+    frames = [(1.0 + 0.01 * k, *pair) for k, pair in enumerate(background_frames[:3] + [renders("planar")])]
+    bag = tmp_path / "frames.mcap"
+    write_bag(bag, rig, frames)
+    output = tmp_path / "out.csv"
+    assert main([str(bag), "--params", str(params_file(tmp_path, rig)), "--output", str(output), "--quiet",
+                 "--output-frame", "needle_table"]) == 0
+    with open(output) as stream:
+        assert "points in frame 'needle_table'" in stream.readline()
+    _, rows = read_rows(output)
+    assert np.sqrt(np.mean(distance_to_curve(rows[:, 4:7], SHAPES["planar"])[0] ** 2)) < 1e-4
+
+
 def test_needle_free_frames_measure_nothing(tmp_path, rig, background_frames):
     """Pairs without a needle: nothing measured, exit status 1, no CSV (uniform noise frames are the detection's
     business: they are not rejected yet)."""

@@ -12,7 +12,8 @@ extract the background, find the needle points).
    of the pixel-integrated profile leaves a small aliasing error that oscillates with the sub-pixel phase:
    up to ~0.04 px for a 2.5 px wide needle imaged with no lens blur, negligible with a realistic blur
    (Gaussian point spread sigma >= 0.5 px). Weak slices (gaps, beyond the ends) are dropped.
-3. The ends to sub-pixel from the contrast profile along the needle's end direction (:func:`_end_along_profile`).
+3. The ends to sub-pixel from the covered fraction's profile along the needle's end direction
+   (:func:`_end_along_profile`).
 """
 from __future__ import annotations
 
@@ -405,7 +406,7 @@ def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def _side_blur(u, cross):  # pragma: no cover - compiled
-    """Gaussian blur sigma of the needle's side edges, and the band's centre and half width: least-squares fit of
+    """Gaussian blur sigma of the needle's side edges, and the band's centre, half width and contrast: fit of
     a blurred band (contrast, centre, half width, sigma) to its cross profile ``cross`` at ``u`` (Gauss-Newton
     from the profile's peak, area and a 0.6 px blur; the last estimate where the fit is singular, e.g. a flat
     profile). Fitted like the end's profile (:func:`_taper_fit`); the quartiles of the interpolated profile read
@@ -435,7 +436,7 @@ def _side_blur(u, cross):  # pragma: no cover - compiled
         parameters += np.linalg.solve(normal, gradient)
         parameters[2] = max(parameters[2], 0.1)
         parameters[3] = min(max(parameters[3], 0.2), 3.0)
-    return parameters[3], parameters[1], parameters[2]
+    return parameters[3], parameters[1], parameters[2], parameters[0]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -475,17 +476,51 @@ def _principal_direction(points):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _contrast_grid(image, background, polarity, centre, direction, s, u, needle):  # pragma: no cover - compiled
+    """The contrast interpolated bilinearly on the grid ``centre + s direction + u normal``: relative to the
+    background, (B - I) / B (signed by ``polarity``), or, given the needle's own intensity ``needle`` > 0, the
+    covered fraction (B - I) / (B - N) (its denominator at least |B - N| / 4 and 1)."""
+    normal = np.array([-direction[1], direction[0]])
+    height, width = image.shape
+    grid = np.empty((s.shape[0], u.shape[0]))
+    for i in range(s.shape[0]):
+        for j in range(u.shape[0]):
+            x = centre[0] + s[i] * direction[0] + u[j] * normal[0]
+            y = centre[1] + s[i] * direction[1] + u[j] * normal[1]
+            x0, y0 = min(int(x), width - 2), min(int(y), height - 2)
+            fx, fy = x - x0, y - y0
+            value = 0.0
+            for dy in range(2):
+                for dx in range(2):
+                    b = float(background[y0 + dy, x0 + dx])
+                    weight = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+                    scale = max(b, 1.0) if needle <= 0 else max(polarity * (b - needle), 0.25 * abs(b - needle), 1.0)
+                    value += weight * polarity * (b - image[y0 + dy, x0 + dx]) / scale
+            grid[i, j] = value
+    return grid
+
+
+@numba.njit(cache=True, nogil=True)
+def _column_medians(rows):  # pragma: no cover - compiled
+    """Median of each column of ``rows``."""
+    out = np.empty(rows.shape[1])
+    for j in range(rows.shape[1]):
+        out[j] = np.median(rows[:, j])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def _end_along_profile(image, background, polarity, points, half_width, step=0.25):  # pragma: no cover - compiled
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
-    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely)
-    gives the direction of the profile of the contrast integrated across the needle's band (its blurred edges
-    included); the end is where that profile falls to half its level (a flat end is a step blurred
-    symmetrically). The points within ``half_width + 1`` px of the end (centroids biased by the oblique cut) are
-    replaced by a quadratic (the needle's curvature) fitted to the 80 before them, evenly spaced at the
-    centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls (25-75 %) over
-    more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its noise), a
-    blurred linear taper is fitted to the profile and the end put half its length beyond its middle (least
+    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely) gives
+    the direction of the profile of the covered fraction (B - I) / (B - N) integrated across the needle's band (its
+    blurred edges included; N the needle's own intensity); the end is where that profile falls to half its level (a
+    flat end is a step blurred symmetrically). The points within ``half_width + 1`` px of the end (centroids biased
+    by the oblique cut) are replaced by a quadratic (the needle's curvature) fitted to the 80 before them, evenly
+    spaced at the centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls
+    (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its
+    noise), a blurred linear taper is fitted to the profile and the end put half its length beyond its middle (least
     squares over the whole taper: the half-contrast crossing alone moves with the noise of a few samples on a
     shallow slope). Returns (number of points kept, the new points ending with the end, the taper's half length
     [px]); kept is -1 where the profile leaves the image or does not fall."""
@@ -508,29 +543,12 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
             y = centre[1] + corner_s * direction[1] + corner_u * normal[1]
             if x < 0 or y < 0 or x > width - 1 or y > height - 1:
                 return none
-    # The relative contrast (B - I) / B interpolated bilinearly on the (s, u) grid.
-    grid = np.empty((s.shape[0], u.shape[0]))
-    for i in range(s.shape[0]):
-        for j in range(u.shape[0]):
-            x = centre[0] + s[i] * direction[0] + u[j] * normal[0]
-            y = centre[1] + s[i] * direction[1] + u[j] * normal[1]
-            x0, y0 = min(int(x), width - 2), min(int(y), height - 2)
-            fx, fy = x - x0, y - y0
-            value = 0.0
-            for dy in range(2):
-                for dx in range(2):
-                    b = float(background[y0 + dy, x0 + dx])
-                    weight = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
-                    value += weight * polarity * (b - image[y0 + dy, x0 + dx]) / max(b, 1.0)
-            grid[i, j] = value
+    grid = _contrast_grid(image, background, polarity, centre, direction, s, u, 0.0)
     inside = s <= along[n - 9]
-    rows = grid[inside]
-    cross = np.empty(u.shape[0])
-    for j in range(u.shape[0]):
-        cross[j] = np.median(rows[:, j])
+    cross = _column_medians(grid[inside])
     # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
     # margins add noise, not contrast (about a third less noise in the end's position).
-    side_sigma, band_centre, band_half_width = _side_blur(u, cross)
+    side_sigma, band_centre, band_half_width, band_contrast = _side_blur(u, cross)
     band = np.abs(u - band_centre) <= band_half_width + 2 * side_sigma
     if np.count_nonzero(band) < 3:
         band[:] = True
@@ -544,8 +562,31 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     blur = _edge_spread(cross, u)
     spread = last - first
     scatter = 1.4826 * np.median(np.abs(profile[inside] - level)) / level
+    tapered = not np.isnan(blur) and spread > blur * max(TAPER_FACTOR, 1 + TAPER_SIGNIFICANCE * scatter)
+    # The relative contrast is the covered fraction times 1 - N / B: the background's texture modulates it along
+    # the needle (albedo +-10 % over ~4 px: a taper's fitted middle 0.1 px off, differently in each view, where
+    # the end's depth is their disparity). The needle's own intensity N (smooth: the light's), from the band's
+    # fitted contrast over the harmonic mean of B, gives the covered fraction (B - I) / (B - N) to locate the end.
+    # (Whether the end is tapered is decided above: the thresholds are those measured on the relative contrast.)
+    if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
+        inverse = 0.0
+        for i in range(s.shape[0]):
+            for j in range(u.shape[0]):
+                if inside[i] and band[j]:
+                    x = centre[0] + s[i] * direction[0] + u[j] * normal[0]
+                    y = centre[1] + s[i] * direction[1] + u[j] * normal[1]
+                    inverse += 1.0 / max(float(background[int(y + 0.5), int(x + 0.5)]), 1.0)
+        needle = (1.0 - polarity * band_contrast) * np.count_nonzero(inside) * np.count_nonzero(band) / inverse
+        covered = _contrast_grid(image, background, polarity, centre, direction, s, u, needle)
+        covered_profile = moving_average(covered[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
+        covered_level = np.median(covered_profile[inside])
+        covered_first = _crossing(s, covered_profile, 0.75 * covered_level, along[n - 9])
+        covered_end = _crossing(s, covered_profile, 0.5 * covered_level, along[n - 9])
+        covered_last = _crossing(s, covered_profile, 0.25 * covered_level, along[n - 9])
+        if covered_level > 0 and not (np.isnan(covered_first) or np.isnan(covered_end) or np.isnan(covered_last)):
+            profile, level, end, spread = covered_profile, covered_level, covered_end, covered_last - covered_first
     half_taper = 0.0
-    if not np.isnan(blur) and spread > blur * max(TAPER_FACTOR, 1 + TAPER_SIGNIFICANCE * scatter):
+    if tapered and spread > blur:
         # The blur along the profile: the side edges' less the interpolation's (their profile is the median over
         # the needle's sub-pixel phases, the end's is at one phase; bilinear: 1/6 px²), plus the moving average's.
         sigma = np.sqrt(max(side_sigma ** 2 - 1 / 6, 0.04) + 2 * step ** 2 / 3)
@@ -554,7 +595,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
                                    sigma)
         half_taper = 0.5 * taper
         end = middle + half_taper
-    kept = int(np.searchsorted(along, end - half_width - 1))  # along increases towards the end
+    # The slices within the taper (a bevel: the band narrows from one side, its centroids move towards the other) and
+    # within half_width + 1 of the end are replaced. (along increases towards the end)
+    kept = int(np.searchsorted(along, end - 2 * half_taper - half_width - 1))
     if kept < 80 or end <= along[kept - 1]:
         return none
     # Quadratic lateral offset against the distance along the line (least squares, centred abscissa).
