@@ -54,6 +54,7 @@ from needle_sim_ros.model import (
     model_shape,
     reaction_wrench,
     solve_static,
+    stateful_forces,
     step,
 )
 from needle_sim_ros.model.config import element_lengths
@@ -232,10 +233,10 @@ class NeedleSimulation:
 
     def tissue_readout(self) -> TissueReadout | None:
         """The tissue readout at the current state (None without tissue or before the start)."""
-        states = iter(self.data.force_states)
-        for force in self.extra_forces:
-            own = next(states) if force.stateful else None
-            if isinstance(force, TissueModel) and self.started:
+        if not self.started:
+            return None
+        for force, own in stateful_forces(self.model_forces, self.data.force_states):
+            if isinstance(force, TissueModel):
                 return force.readout(self.model, own, self.state, self.base)
         return None
 

@@ -36,11 +36,11 @@ class NeedleData:
     back: both cost microseconds whatever the tissue holds.
     """
 
+    integrator: IntegratorMemory
     state: State | None = None
     base: BaseMotion | None = None
     grid_origin: float = 0.0
     step_index: int = 0
-    integrator: IntegratorMemory = field(default_factory=lambda: IntegratorMemory(0))
     point_loads: dict[str, PointLoad] = field(default_factory=dict)
     force_states: tuple = ()
 
@@ -77,15 +77,18 @@ def initial_force_states(model: NeedleModel, forces) -> tuple:
     return tuple(force.initial_state(model) for force in check_forces(forces) if force.stateful)
 
 
+def stateful_forces(forces, force_states: tuple):
+    """(contribution, its state) for each stateful contribution in ``forces`` (``NeedleData.force_states`` order)."""
+    return zip([force for force in forces if force.stateful], force_states, strict=True)
+
+
 def acting_forces(forces, data: NeedleData) -> list:
     """The contributions acting over the step that starts from ``data``: those of ``forces`` without state, the
     point loads, then each stateful one's contributions ``at`` its state in ``data``."""
     acting = [force for force in forces if not force.stateful]
     acting.extend(data.point_loads.values())
-    states = iter(data.force_states)
-    for force in forces:
-        if force.stateful:
-            acting.extend(force.at(next(states)))
+    for force, own in stateful_forces(forces, data.force_states):
+        acting.extend(force.at(own))
     return acting
 
 
@@ -105,10 +108,8 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
         result = integrator.step(data.state, inputs.dt, base_next, acting_forces(forces, data), data.integrator)
         state = result.state
         state.t = float(inputs.t_next)
-        states, stateful = iter(data.force_states), []
-        for force in forces:
-            if force.stateful:
-                stateful.append(force.advance(model, state, base_next, next(states)))
+        stateful = [force.advance(model, state, base_next, own)
+                    for force, own in stateful_forces(forces, data.force_states)]
     except BaseException:
         data.integrator.control[:] = control
         raise

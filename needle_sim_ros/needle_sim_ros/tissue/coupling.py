@@ -100,9 +100,7 @@ class TissueContact:
         self.initial = ContactState(False, 0.0, 0.0, 0.0, False, None, Track(spacing))
 
     def update(self, contact: ContactState, q: np.ndarray, qd: np.ndarray, t: float) -> ContactState:
-        """The contact advanced to the needle state (q, qd) at time t (unchanged if already at t)."""
-        if contact.time is not None and t == contact.time:
-            return contact
+        """The contact advanced to the needle state (q, qd) at time t."""
         r_tip, rx_tip = tip_coordinates(q)
         tangent = rx_tip / np.sqrt(rx_tip @ rx_tip)
         tip_depth = float((r_tip - self.block.entry_point) @ self.block.entry_normal)

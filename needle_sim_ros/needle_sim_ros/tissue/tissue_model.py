@@ -9,7 +9,7 @@ never changed in place, so a copy of the data is a copy of references and a fail
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -62,9 +62,7 @@ class TissueModel(ForceContribution):
             side = np.asarray(bevel[1], dtype=float)
             if side.shape != (3,) or abs(side[0]) > 0.999 * np.linalg.norm(side) or not np.linalg.norm(side) > 0:
                 raise ValueError("bevel_tip.side must be a 3-vector in the base frame not along the needle (x) axis")
-            unit = bevel[0]
-            bevel = (BevelTip(1.0, unit.bevel_angle, unit.acting_angle, unit.edge_a, unit.edge_b),
-                     side / np.linalg.norm(side))
+            bevel = (replace(bevel[0], tip_stiffness=1.0), side / np.linalg.norm(side))
         if tip_resistance is not None and not tip_resistance[1] > 0.0:
             raise ValueError(f"insertion_profile.cutting_speed_scale must be > 0, got {tip_resistance[1]!r}")
         self.contact = contact
