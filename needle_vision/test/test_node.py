@@ -153,8 +153,11 @@ def test_singular_right_projection_is_refused_without_a_crash(ros_env, rig):
         ros = rig.with_ros_rectification()
         fields = {side: camera_info_fields(camera) for side, camera in (("left", ros.left), ("right", ros.right))}
         fields["right"]["p"] = list(fields["right"]["p"][:8]) + [0.0] * 4
+        # camera_info is subscribed before the kernels load (seconds on a loaded machine), the outputs after them:
+        # the node spins, and reads what was sent, once its outputs exist
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and min(p.get_subscription_count() for p in infos.values()) < 1:
+        while time.monotonic() < deadline and (min(p.get_subscription_count() for p in infos.values()) < 1
+                                               or node.count_publishers("needle/measured_shape") < 1):
             rclpy.spin_once(node, timeout_sec=0.1)
         end = time.monotonic() + 2.0
         while time.monotonic() < end:
