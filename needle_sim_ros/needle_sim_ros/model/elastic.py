@@ -52,6 +52,8 @@ def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_
     rxx = np.empty(3)
     f1 = np.empty(3)
     f2 = np.empty(3)
+    h1 = np.empty(3)
+    h2 = np.empty(3)
     f11 = np.empty((3, 3))
     f12 = np.empty((3, 3))
     f22 = np.empty((3, 3))
@@ -104,10 +106,10 @@ def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_
             ig4 = ig3 / g
             energy += 0.5 * w * h * ig3
             for c in range(3):
-                h1 = 2.0 * p * rx[c] - 2.0 * s * rxx[c]       # dh/dr_x
-                h2 = 2.0 * g * rxx[c] - 2.0 * s * rx[c]       # dh/dr_xx
-                f1[c] = h1 * ig3 - 6.0 * h * ig4 * rx[c]      # d(kappa^2)/dr_x
-                f2[c] = h2 * ig3                              # d(kappa^2)/dr_xx
+                h1[c] = 2.0 * p * rx[c] - 2.0 * s * rxx[c]    # dh/dr_x
+                h2[c] = 2.0 * g * rxx[c] - 2.0 * s * rx[c]    # dh/dr_xx
+                f1[c] = h1[c] * ig3 - 6.0 * h * ig4 * rx[c]   # d(kappa^2)/dr_x
+                f2[c] = h2[c] * ig3                           # d(kappa^2)/dr_xx
             half_w = 0.5 * w
             for a in range(4):
                 for c in range(3):
@@ -115,17 +117,14 @@ def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_
             if with_stiffness:
                 ig5 = ig4 / g
                 for c in range(3):
-                    h1c = 2.0 * p * rx[c] - 2.0 * s * rxx[c]
                     for c2 in range(3):
-                        h1c2 = 2.0 * p * rx[c2] - 2.0 * s * rxx[c2]
-                        h2c2 = 2.0 * g * rxx[c2] - 2.0 * s * rx[c2]
                         delta = 1.0 if c == c2 else 0.0
                         hh11 = 2.0 * p * delta - 2.0 * rxx[c] * rxx[c2]
                         hh12 = 4.0 * rx[c] * rxx[c2] - 2.0 * s * delta - 2.0 * rxx[c] * rx[c2]
                         hh22 = 2.0 * g * delta - 2.0 * rx[c] * rx[c2]
-                        f11[c, c2] = (hh11 * ig3 - 6.0 * ig4 * (h1c * rx[c2] + rx[c] * h1c2)
+                        f11[c, c2] = (hh11 * ig3 - 6.0 * ig4 * (h1[c] * rx[c2] + rx[c] * h1[c2])
                                       + 48.0 * h * ig5 * rx[c] * rx[c2] - 6.0 * h * ig4 * delta)
-                        f12[c, c2] = hh12 * ig3 - 6.0 * ig4 * rx[c] * h2c2
+                        f12[c, c2] = hh12 * ig3 - 6.0 * ig4 * rx[c] * h2[c2]
                         f22[c, c2] = hh22 * ig3
                 for a in range(4):
                     for b in range(a, 4):
