@@ -24,6 +24,11 @@ class InstallCompilingKernels(install):
         super().run()
         if os.environ.get("NEEDLE_COMPILE_KERNELS", "1") == "0":
             return
+        # numba checks only a kernel's own file: a cached caller would keep the old code of a changed callee in
+        # another module, so the installed package's kernels are all compiled anew
+        kernel_caches = os.path.join(self.install_lib, package_name, "**", "__pycache__", "*.nb[ic]")
+        for stale in glob(kernel_caches, recursive=True):
+            os.remove(stale)
         path = os.pathsep.join(filter(None, (self.install_lib, os.environ.get("PYTHONPATH"))))
         result = subprocess.run([sys.executable, "-c", COMPILE_KERNELS], cwd=self.install_lib,
                                 env=dict(os.environ, PYTHONPATH=path))

@@ -100,6 +100,9 @@ src_hash=$(cd "$REPO" && find "${src_dirs[@]}" -type f \
              -not -path '*/__pycache__/*' -not -name '*.pyc' -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INSTALL/setup.bash" ]; then
   mkdir -p "$REPO/$BUILD"
+  # numba checks only a kernel's own file, so a cached caller would keep a changed callee's old code: the install
+  # step compiles every kernel anew into an empty cache
+  rm -rf "$REPO/$BUILD/numba_cache"
   step "building the colcon workspace (needle_interfaces, needle_sim_ros, needle_vision)"
   (cd "$REPO" && colcon --log-base "$BUILD/colcon_log" build --build-base "$BUILD" --install-base "$INSTALL" \
       --base-paths needle_interfaces needle_sim_ros needle_vision \
