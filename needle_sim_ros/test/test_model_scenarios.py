@@ -60,3 +60,27 @@ def test_free_vibration_energy_series(tmp_path):
 def test_bad_arguments_give_an_error_code(capsys):
     assert main(["static", "--tip-mass", "-0.1"]) == 2
     assert "tip-mass" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option", ["--json", "--plot"])
+def test_unwritable_outputs_are_refused_before_the_run(tmp_path, capsys, option):
+    """A folder as the output, or a file in the way of its folder: exit 2 naming the option, before simulating."""
+    (tmp_path / "a_file").write_text("")
+    for target in (tmp_path, tmp_path / "a_file" / "out.json"):
+        assert main(["free_vibration", "--duration", "100", option, str(target)]) == 2  # 100 s: would take minutes
+        assert f"error: {option} '{target}'" in capsys.readouterr().err
+
+
+def test_a_failed_write_leaves_no_file(tmp_path):
+    from needle_sim_ros.output_files import write_atomically
+
+    target = tmp_path / "result.json"
+    target.write_text("old")
+
+    def failing(path):
+        path.write_text("half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError):
+        write_atomically(target, failing)
+    assert target.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["result.json"]

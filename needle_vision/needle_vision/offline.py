@@ -110,6 +110,9 @@ def _bag_files(path: Path) -> list[Path]:
     files = [path] if path.is_file() else sorted(path.glob("*.mcap")) if path.is_dir() else []
     if not files:
         raise InputError(f"'{path}' is neither an .mcap file, a rosbag2 folder nor a folder with left/ and right/")
+    for file in files:
+        if file.stat().st_size == 0:
+            raise InputError(f"cannot read '{file}': the file is empty (0 bytes)")
     return files
 
 
@@ -121,7 +124,7 @@ def _bag_records(path: Path, topics: list[str]) -> Iterator[BagMessage]:
         except InputError:
             raise
         except Exception as error:  # noqa: BLE001 - the mcap reader raises many kinds on corrupt files
-            raise InputError(f"cannot read '{file}': {error or type(error).__name__}") from error
+            raise InputError(f"cannot read '{file}': {str(error) or type(error).__name__}") from error
 
 
 def _bag_count(path: Path, topic: str) -> int | None:
@@ -176,7 +179,7 @@ def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRi
                     if len(infos) == 2:
                         break
         except Exception as error:  # noqa: BLE001 - corrupt file
-            raise InputError(f"cannot read '{file}': {error or type(error).__name__}") from error
+            raise InputError(f"cannot read '{file}': {str(error) or type(error).__name__}") from error
         if len(infos) == 2:
             break
     if len(infos) < 2:

@@ -1,5 +1,6 @@
 """needle_stereo_offline on an image folder and on an MCAP bag made here."""
 import csv
+import re
 from pathlib import Path
 
 import cv2
@@ -137,6 +138,12 @@ def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
     corrupt = tmp_path / "corrupt.mcap"
     corrupt.write_bytes(b"\x89MCAP0\r\n" + bytes(100))
     assert "cannot read" in error(str(corrupt), *calibration)
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    assert "the file is empty (0 bytes)" in error(str(empty), *calibration)
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(bytes(64))
+    assert re.search(r"cannot read '.*garbage.mcap': \S", error(str(garbage), *calibration))  # the reason given
     plain = tmp_path / "plain"
     plain.mkdir()
     assert "neither an .mcap file" in error(str(plain), *calibration)

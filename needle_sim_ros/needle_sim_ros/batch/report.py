@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 from dataclasses import asdict
 from pathlib import Path
 
@@ -13,13 +12,12 @@ import yaml
 
 from needle_sim_ros.batch.identify import FitParameter, FitResult
 from needle_sim_ros.batch.task import TaskSpec, resolved_overrides
+from needle_sim_ros.output_files import write_atomically
 from needle_sim_ros.parameters.experiment import load_experiment
 
 
 def _write(path: Path, text: str) -> None:
-    temporary = path.with_name(f".{path.name}.partial")
-    temporary.write_text(text)
-    os.replace(temporary, path)
+    write_atomically(path, lambda temporary: temporary.write_text(text))
 
 
 def params_file_text(fits: list[FitParameter], result: FitResult, reference: TaskSpec) -> str:

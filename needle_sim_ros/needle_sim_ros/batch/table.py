@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +9,7 @@ import pandas as pd
 
 from needle_sim_ros.batch.grid import ParameterSet, column
 from needle_sim_ros.batch.task import METRICS
+from needle_sim_ros.output_files import write_atomically
 
 TAIL = ("wall_s", "status", "error")
 
@@ -33,18 +33,12 @@ def build_table(rows: list[dict[str, Any]], parameter_sets: list[ParameterSet], 
     return table
 
 
-def _atomic(path: Path, write) -> None:
-    temporary = path.with_name(f".{path.name}.partial")
-    write(temporary)
-    os.replace(temporary, path)
-
-
 def write_table(table: pd.DataFrame, output_dir: Path) -> tuple[Path, Path]:
     """``results.parquet`` and ``results.csv`` (unavailable values: null / empty cells)."""
     output_dir.mkdir(parents=True, exist_ok=True)
     parquet, csv = output_dir / "results.parquet", output_dir / "results.csv"
-    _atomic(parquet, lambda p: table.to_parquet(p, index=False))
-    _atomic(csv, lambda p: table.to_csv(p, index=False, na_rep=""))
+    write_atomically(parquet, lambda p: table.to_parquet(p, index=False))
+    write_atomically(csv, lambda p: table.to_csv(p, index=False, na_rep=""))
     return parquet, csv
 
 

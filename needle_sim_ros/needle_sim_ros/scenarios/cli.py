@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from needle_sim_ros.output_files import check_output_file
+
 from . import free_vibration, insertion, pitch, static
 
 SCENARIOS = (static, pitch, free_vibration, insertion)
@@ -28,8 +30,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        for option in ("json", "plot"):  # before the run: a long run must not fail at its end
+            if getattr(args, option) is not None:
+                check_output_file(getattr(args, option), f"--{option}")
         return args.run(args)
-    except (ValueError, FileNotFoundError) as error:
+    except (ValueError, OSError) as error:
         print(f"needle_scenario {args.scenario}: error: {error}", file=sys.stderr)
         return 2
 

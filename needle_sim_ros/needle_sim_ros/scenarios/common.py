@@ -15,6 +15,7 @@ from needle_vision.parameters import ParamSpec, load_params_file
 from needle_sim_ros.model import (BaseMotion, BaseWrench, NeedleModel, NeedleProperties, centerline,
                                   load_needle_config, needle_parameters)
 from needle_sim_ros.model.config import DEFAULTS, GROUPS
+from needle_sim_ros.output_files import write_atomically
 from needle_sim_ros.simulation import NeedleSimulation
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
@@ -93,8 +94,7 @@ def shape_json(model: NeedleModel, q: np.ndarray, base: BaseMotion, n_samples: i
 
 def write_json(path: Path | None, result: dict) -> None:
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(result, indent=1))
+        write_atomically(path, lambda temporary: temporary.write_text(json.dumps(result, indent=1)))
 
 
 def figure(n_axes: int = 1, size=(7.0, 4.5)):
@@ -110,9 +110,8 @@ def figure(n_axes: int = 1, size=(7.0, 4.5)):
 def save_figure(fig, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_atomically(path, lambda temporary: fig.savefig(temporary, dpi=120))
     plt.close(fig)
 
 
