@@ -28,7 +28,7 @@ from numba import njit
 from needle_sim_ros.model.forces import ElementLocalForce, assemble_point_forces
 from needle_sim_ros.model.mesh import hermite_shapes
 
-from .bevel_tip import BevelTip
+from .bevel_tip import BevelTip, tip_force_kernel
 from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
@@ -58,21 +58,38 @@ def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 _TIP_S = np.array([[0.0, 0.0, 1.0, 0.0]])    # at the last element's end r = e_3 and r_x = e_4 (eq. 4)
 _TIP_S_X = np.array([[0.0, 0.0, 0.0, 1.0]])
 _UNIT_WEIGHT = np.ones(1)
-_NO_DERIVATIVE = np.zeros((1, 3, 3))
+_NO_DERIVATIVE = np.zeros((3, 3))
+
+
+@njit(cache=True)
+def tip_point_force(force, d_dr, d_drx, d_dv, Q, band, kl, c_q, c_qd):
+    """Add a force (3,) at the tip (the last element's end point, eq. 15) to Q and its Jacobian blocks from dF/dr,
+    dF/dr_x, dF/dv (3, 3) to the band matrix by the shared point-force kernel."""
+    last = Q.size // 3 - 4
+    slots = np.arange(last, last + 4).reshape(1, 4)
+    assemble_point_forces(slots, _TIP_S, _TIP_S_X, _UNIT_WEIGHT, force.reshape(1, 3), d_dr.reshape(1, 3, 3),
+                          d_drx.reshape(1, 3, 3), d_dv.reshape(1, 3, 3), Q, band, kl, c_q, c_qd)
 
 
 def assemble_tip_force(n_dof: int, force: np.ndarray, d_dr, d_drx, d_dv, band: np.ndarray, kl: int, c_q: float,
                        c_qd: float) -> np.ndarray:
-    """Q of a force at the tip (the last element's end point, eq. 15) and its Jacobian blocks from dF/dr, dF/dr_x,
-    dF/dv ((3, 3) or None for zero) added to the band matrix by the shared point-force kernel."""
-    last = n_dof // 3 - 4
-    slots = np.arange(last, last + 4, dtype=np.int64).reshape(1, 4)
-    derivatives = [_NO_DERIVATIVE if d is None else np.ascontiguousarray(d, dtype=float).reshape(1, 3, 3)
-                   for d in (d_dr, d_drx, d_dv)]
+    """Q of a force at the tip and its Jacobian blocks from dF/dr, dF/dr_x, dF/dv ((3, 3) or None for zero) added
+    to the band matrix (``tip_point_force``)."""
+    derivatives = [_NO_DERIVATIVE if d is None else np.ascontiguousarray(d, dtype=float) for d in (d_dr, d_drx, d_dv)]
     Q = np.zeros(n_dof)
-    assemble_point_forces(slots, _TIP_S, _TIP_S_X, _UNIT_WEIGHT, np.asarray(force, dtype=float).reshape(1, 3),
-                          *derivatives, Q, band, kl, c_q, c_qd)
+    tip_point_force(np.ascontiguousarray(force, dtype=float), *derivatives, Q, band, kl, c_q, c_qd)
     return Q
+
+
+@njit(cache=True)
+def bevel_tip_assembly(q, rotation, side_base, axial_force, transverse_force, scale, Q, band, kl, c_q, c_qd):
+    """``BevelTipForce.assemble_banded`` in one compiled call: ``tip_force_kernel`` per unit K_T at the bevel
+    side rolled with the base, scaled, assembled by ``tip_point_force``; False if that side is along the tip
+    tangent."""
+    force, jacobian, ok = tip_force_kernel(q[-3:].copy(), rotation @ side_base, axial_force, transverse_force)
+    if ok:
+        tip_point_force(scale * force, _NO_DERIVATIVE, scale * jacobian, _NO_DERIVATIVE, Q, band, kl, c_q, c_qd)
+    return ok
 
 
 class ContactState(NamedTuple):
@@ -520,10 +537,12 @@ class BevelTipForce(TipForce):
         return self.tip_force(q, base)[0]
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        if self.scale == 0.0:
-            return np.zeros(q.size)
-        force, jacobian = self.tip_force(q, base)
-        return assemble_tip_force(q.size, force, None, jacobian, None, band, kl, c_q, c_qd)
+        Q = np.zeros(q.size)
+        unit = self.unit_bevel
+        if self.scale != 0.0 and not bevel_tip_assembly(q, base.rotation, self.side_base, unit.axial_force,
+                                                        unit.transverse_force, self.scale, Q, band, kl, c_q, c_qd):
+            raise ValueError("bevel side direction is parallel to the needle tip tangent")
+        return Q
 
 
 class TipResistance(TipForce):
