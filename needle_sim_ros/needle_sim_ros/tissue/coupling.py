@@ -106,6 +106,14 @@ class ContactState(NamedTuple):
     track: Track
 
 
+@njit(cache=True)
+def tip_contact(q, qd, entry_point, entry_normal):
+    """Unit tangent, depth below the entry surface [m] and axial speed [m/s] of the tip at (q, qd)."""
+    rx_tip = q[-3:].copy()
+    tangent = rx_tip / np.sqrt(rx_tip @ rx_tip)
+    return tangent, (q[-6:-3] - entry_point) @ entry_normal, qd[-6:-3].copy() @ tangent
+
+
 class TissueContact:
     """How the needle meets the tissue (immutable): the block, the track spacing, and ``puncture_depth``: the depth
     [m] the tip must reach before the capsule tears and the track starts (seed 002 d1; None: the tissue is cut from
@@ -118,9 +126,8 @@ class TissueContact:
 
     def update(self, contact: ContactState, q: np.ndarray, qd: np.ndarray, t: float) -> ContactState:
         """The contact advanced to the needle state (q, qd) at time t."""
-        r_tip, rx_tip = tip_coordinates(q)
-        tangent = rx_tip / np.sqrt(rx_tip @ rx_tip)
-        tip_depth = float((r_tip - self.block.entry_point) @ self.block.entry_normal)
+        r_tip = q[-6:-3]
+        tangent, tip_depth, tip_axial_speed = tip_contact(q, qd, self.block.entry_point, self.block.entry_normal)
         punctured = contact.punctured or tip_depth > (self.puncture_depth or 0.0)
         track = contact.track
         if punctured and not track.started and tip_depth > 0.0:
@@ -132,7 +139,7 @@ class TissueContact:
         if track.started:
             track = track.cut(r_tip)
             at_front = tip_depth > 0.0 and track.coordinate_ahead(r_tip) >= track.length - track.spacing
-        return ContactState(punctured, tip_depth, float(qd[-6:-3] @ tangent),
+        return ContactState(punctured, tip_depth, tip_axial_speed,
                             0.0 if contact.time is None else max(t - contact.time, 0.0), at_front, t, track)
 
 
