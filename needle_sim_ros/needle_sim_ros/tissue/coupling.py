@@ -370,6 +370,23 @@ def shaft_contact_points(q, arc_lengths, candidates, S, S_x, slots, entry_point,
     return index, coverage, tangents, points, point_depth, u
 
 
+@njit(cache=True)
+def slip_anchors(anchor, index, u, coulomb, stick_stiffness, points, tangents, weights, coverage, slots, S, S_x):
+    """Plastic slip of the active points' anchors along the track (``ShaftSupport.advance``): each anchor (track
+    coordinate) and anchor point slides by the part of the axial offset u beyond the stick band C / k_a (the point
+    stays on the same segment to first order; relocated next step). Returns the points' weights (length share times
+    coverage) and interpolation tables."""
+    for k in range(index.size):
+        band = coulomb[k] / stick_stiffness
+        held = u[k] if u[k] > -band else -band
+        held = held if held < band else band
+        slip = u[k] - held
+        anchor[index[k]] += slip
+        for i in range(3):
+            points[k, i] += slip * tangents[k, i]
+    return weights[index] * coverage, slots[index], S[index], S_x[index]
+
+
 class ShaftState(NamedTuple):
     """The shaft points' state (part of the tissue state): the track coordinate of each point's stick anchor (k,),
     which points are inside the tissue (k,) and the axial law's own state (LuGre z [m]; None)."""
@@ -495,15 +512,13 @@ class ShaftSupport:
             block.thickness, shaft.active, active, anchor, track.vertices, track.arc_lengths, track.end_tangent())
         if index.size == 0:
             return ShaftState(anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
-        # plastic slip of the anchors along the track
         axial = self.axial_law.coefficients(law, depth, contact.tip_depth)
-        band = axial.coulomb / self.axial_law.stick_stiffness
-        slip = u - np.clip(u, -band, band)
-        anchor[index] += slip
-        points = points + slip[:, None] * tangents         # same segment to first order; relocated next step
+        weights, slots, S, S_x = slip_anchors(anchor, index, u, axial.coulomb, self.axial_law.stick_stiffness,
+                                              points, tangents, self.weights, coverage, table.slots, table.S,
+                                              table.S_x)
         zero = np.zeros(index.size)
-        frozen = _Frozen(index, self.weights[index] * coverage, table.slots[index], table.S[index], table.S_x[index],
-                         points, tangents, depth, zero, zero, axial, float(self.axial_law.stick_stiffness))
+        frozen = _Frozen(index, weights, slots, S, S_x, points, tangents, depth, zero, zero, axial,
+                         float(self.axial_law.stick_stiffness))
         return ShaftState(anchor, active, law), ShaftForces(lateral, frozen)
 
     def _lateral_support(self, model, contact: ContactState, q: np.ndarray) -> _Frozen:
