@@ -387,6 +387,15 @@ def slip_anchors(anchor, index, u, coulomb, stick_stiffness, points, tangents, w
     return weights[index] * coverage, slots[index], S[index], S_x[index]
 
 
+@njit(cache=True)
+def first_slot_in(slots, slot):
+    """Whether a point's first slot (its element's first node slot) is ``slot``."""
+    for k in range(slots.shape[0]):
+        if slots[k, 0] == slot:
+            return True
+    return False
+
+
 class ShaftState(NamedTuple):
     """The shaft points' state (part of the tissue state): the track coordinate of each point's stick anchor (k,),
     which points are inside the tissue (k,) and the axial law's own state (LuGre z [m]; None)."""
@@ -431,7 +440,7 @@ class ShaftForces(ElementLocalForce):
 
     def touches_element(self, model, element: int) -> bool:
         """Whether a lateral or axial point of this step lies in ``element`` (slots 2 e ... 2 e + 3)."""
-        return any(fz.weights.size and bool(np.any(fz.slots[:, 0] == 2 * element)) for fz in self.parts)
+        return any(first_slot_in(fz.slots, 2 * element) for fz in self.parts)
 
     def total_force(self, model, q, qd, t, base) -> np.ndarray:
         """World resultant [N] of the shaft forces at (q, qd)."""
