@@ -261,6 +261,14 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
 
 
 @njit(cache=True)
+def shaft_forces_assembly(q, qd, lateral, axial, Q, band, kl, c_q, c_qd):
+    """``shaft_generalized_force`` of the lateral, then the axial part (``ShaftForces``: each part's arguments
+    slots ... velocity_scale as a tuple) in one compiled call."""
+    shaft_generalized_force(q, qd, *lateral, Q, band, kl, c_q, c_qd)
+    shaft_generalized_force(q, qd, *axial, Q, band, kl, c_q, c_qd)
+
+
+@njit(cache=True)
 def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
     r, tangents = interpolate_pair(slots, S, q, S_x, q)
@@ -416,6 +424,9 @@ class ShaftForces(ElementLocalForce):
 
     def __init__(self, lateral: _Frozen, axial: _Frozen) -> None:
         self.parts = (lateral, axial)
+        self._arguments = tuple((fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
+                                 fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial)
+                                for fz in self.parts)
 
     @staticmethod
     def _kinematics(fz: _Frozen, q, qd):
@@ -429,13 +440,9 @@ class ShaftForces(ElementLocalForce):
                                   fz.stick_stiffness, *fz.axial)
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        """Both parts' generalized forces and Jacobian blocks (one compiled kernel call per part)."""
+        """Both parts' generalized forces and Jacobian blocks (one compiled kernel call)."""
         Q = np.zeros(q.size)
-        for fz in self.parts:
-            if fz.weights.size:
-                shaft_generalized_force(q, qd, fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
-                                        fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial,
-                                        Q, band, kl, c_q, c_qd)
+        shaft_forces_assembly(q, qd, *self._arguments, Q, band, kl, c_q, c_qd)
         return Q
 
     def touches_element(self, model, element: int) -> bool:
