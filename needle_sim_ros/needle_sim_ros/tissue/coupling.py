@@ -92,6 +92,14 @@ def bevel_tip_assembly(q, rotation, side_base, axial_force, transverse_force, sc
     return ok
 
 
+@njit(cache=True)
+def cutting_assembly(q, qd, force_magnitude, speed_scale, Q, band, kl, c_q, c_qd):
+    """``TipResistance.assemble_banded`` while cutting in one compiled call: ``cutting_force`` at the tip
+    assembled by ``tip_point_force``."""
+    force, d_drx, d_dv = cutting_force(q[-3:].copy(), qd[-6:-3].copy(), force_magnitude, speed_scale)
+    tip_point_force(force, _NO_DERIVATIVE, d_drx, d_dv, Q, band, kl, c_q, c_qd)
+
+
 class ContactState(NamedTuple):
     """The needle-tissue contact after a step (part of the tissue state): capsule punctured, tip depth [m] and
     axial speed [m/s], the step's duration [s], whether the tip is at the cut front, the state time it was updated
@@ -620,6 +628,9 @@ class TipResistance(TipForce):
         return self.tip_force(q, qd)[0]
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        if self.punctured and not self.cutting:
-            return np.zeros(q.size)
-        return assemble_tip_force(q.size, *self.tip_force(q, qd), band, kl, c_q, c_qd)
+        if not self.punctured:
+            return assemble_tip_force(q.size, *self.tip_force(q, qd), band, kl, c_q, c_qd)
+        Q = np.zeros(q.size)
+        if self.cutting:
+            cutting_assembly(q, qd, self.profile.cutting_force, self.cutting_speed_scale, Q, band, kl, c_q, c_qd)
+        return Q
