@@ -357,12 +357,13 @@ def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc
 
 
 @njit(cache=True)
-def shaft_contact_points(q, arc_lengths, candidates, S, S_x, slots, entry_point, entry_normal, thickness,
+def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_point, entry_normal, thickness,
                          was_active, active, anchor, vertices, arc, end_tangent):
-    """The shaft points among ``candidates`` inside the tissue (``ShaftSupport.advance``): marks them in
-    ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track, and returns
-    their indices, entry coverage, needle tangents, anchor points on the track and those points' depths, and the
-    axial offsets u = (r - anchor point) . tangent."""
+    """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``):
+    marks them in ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track,
+    and returns their indices, entry coverage, needle tangents, anchor points on the track and those points'
+    depths, and the axial offsets u = (r - anchor point) . tangent."""
+    candidates = np.flatnonzero(arc_lengths > candidate_arc)
     r, tangents = needle_points(S[candidates], S_x[candidates], slots[candidates], q)
     depth = np.empty(candidates.size)
     for k in range(candidates.size):
@@ -524,16 +525,16 @@ class ShaftSupport:
         if not track.started:
             return ShaftState(shaft.anchor, active, law), NO_SHAFT_FORCES
         lateral = self._lateral_support(model, contact, q) if self.lateral else _Frozen.inactive()
-        # a point an arc length a behind the tip is at most a shallower than the tip, so only points closer to the
-        # tip than its depth can be inside; one more spacing gives the outer neighbours for entry_coverage
-        candidates = np.flatnonzero(self.arc_lengths > self.arc_lengths[-1] - contact.tip_depth - self._margin)
-        if self.axial_law is None or candidates.size == 0:
+        if self.axial_law is None:
             return ShaftState(shaft.anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
         table, block = self._table, self.block
         anchor = shaft.anchor.copy()
+        # a point an arc length a behind the tip is at most a shallower than the tip, so only points closer to the
+        # tip than its depth can be inside; one more spacing gives the outer neighbours for entry_coverage
         index, coverage, tangents, points, depth, u = shaft_contact_points(
-            q, self.arc_lengths, candidates, table.S, table.S_x, table.slots, block.entry_point, block.entry_normal,
-            block.thickness, shaft.active, active, anchor, track.vertices, track.arc_lengths, track.end_tangent())
+            q, self.arc_lengths, self.arc_lengths[-1] - contact.tip_depth - self._margin, table.S, table.S_x,
+            table.slots, block.entry_point, block.entry_normal, block.thickness, shaft.active, active, anchor,
+            track.vertices, track.arc_lengths, track.end_tangent())
         if index.size == 0:
             return ShaftState(anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
         axial = self.axial_law.coefficients(law, depth, contact.tip_depth)
