@@ -126,9 +126,7 @@ class BaseMotion:
         """From already validated packed fields (19,) [position, orientation, v, w, a, alpha] and the matching
         rotation matrix, without copying or checking (the compiled paths produce these)."""
         motion = object.__new__(cls)
-        for name, part in _FIELDS:
-            object.__setattr__(motion, name, values[part])
-        object.__setattr__(motion, "rotation", rotation)
+        motion.__dict__.update({name: values[part] for name, part in _FIELDS}, rotation=rotation)  # frozen: no setattr
         return motion
 
     @classmethod

@@ -305,7 +305,7 @@ class NewtonSolver:
                     if matrix is not None:
                         kl = max(kl, band_structure(np.asarray(matrix, dtype=float))[0])
         ext_band = self.band(kl, "external")
-        ext_band[:, :] = 0.0
+        ext_band.fill(0.0)
         for generalized in dense:
             ext_Q += load_factor * np.asarray(generalized.Q, dtype=float)
             for matrix, factor in zip(generalized[1:], (-load_factor, -c_qd)):

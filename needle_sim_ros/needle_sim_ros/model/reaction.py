@@ -64,16 +64,21 @@ def base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, be
     return result
 
 
-def base_constraint_force(model: NeedleModel, state: State, base: BaseMotion, forces=()) -> np.ndarray:
-    """Q_cc on the base node [r_A, r_xA] (6,), eq. 20: the generalized force of the holder on the needle.
-    Element-local forces off the first element have no share in the base node's rows and are not evaluated."""
+def _base_external(model: NeedleModel, state: State, base: BaseMotion, forces) -> np.ndarray:
+    """The external forces' share of the base node's rows (6,). Element-local forces off the first element have
+    none and are not evaluated."""
     external = np.zeros(6)
     for force in forces:
         if not force.element_local or force.touches_element(model, 0):
             external += np.asarray(force.generalized_force(model, state.q, state.qd, state.t, base))[:6]
+    return external
+
+
+def base_constraint_force(model: NeedleModel, state: State, base: BaseMotion, forces=()) -> np.ndarray:
+    """Q_cc on the base node [r_A, r_xA] (6,), eq. 20: the generalized force of the holder on the needle."""
     return base_constraint_kernel(np.ascontiguousarray(state.q[:12]), np.ascontiguousarray(state.qd[:12]),
                                   np.ascontiguousarray(state.qdd[:12]), *base_rows(model),
-                                  np.ascontiguousarray(base.axis), external)
+                                  np.ascontiguousarray(base.axis), _base_external(model, state, base, forces))
 
 
 @njit(cache=True)
@@ -88,11 +93,22 @@ def holder_wrench(r_xA: np.ndarray, constraint: np.ndarray, rotation: np.ndarray
     return result
 
 
+@njit(cache=True)
+def base_wrench_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
+                       strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, rotation, external):
+    """``holder_wrench`` of ``base_constraint_kernel`` in one compiled call from the whole q, q', q'' (which are
+    read on the base element's 12 coordinates only) and the base rotation (its first column is the axis)."""
+    constraint = base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, bending_S_xx,
+                                        bending_weights, strain_rate_weights, mass_rows, isotropic_rows,
+                                        transverse_rows, rotation[:, 0], external)
+    return holder_wrench(q[3:6], constraint, rotation)
+
+
 def reaction_wrench(model: NeedleModel, state: State, base: BaseMotion | None = None, forces=()) -> BaseWrench:
     """Wrench of the needle on its holder at A (module docstring); ``forces`` as used for the step."""
     base = base or state.base
     if base is None:
         raise ValueError("reaction_wrench needs the base motion (argument base or state.base)")
-    constraint = base_constraint_force(model, state, base, forces)
-    w = holder_wrench(np.ascontiguousarray(state.q[3:6]), constraint, base.rotation)
+    w = base_wrench_kernel(state.q, state.qd, state.qdd, *base_rows(model), base.rotation,
+                           _base_external(model, state, base, forces))
     return BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12])

@@ -79,14 +79,14 @@ class BevelTip:
         """
         rx = np.ascontiguousarray(tip_gradient, dtype=float)
         side = np.ascontiguousarray(bevel_side_world, dtype=float)
-        force, jacobian, ok = _tip_force(rx, side, self.axial_force, self.transverse_force)
+        force, jacobian, ok = tip_force_kernel(rx, side, self.axial_force, self.transverse_force)
         if not ok:
             raise ValueError("bevel side direction is parallel to the needle tip tangent")
         return force, jacobian
 
 
 @njit(cache=True)
-def _tip_force(rx, side, p, q):
+def tip_force_kernel(rx, side, p, q):
     """F = -P t + Q n with t = r_x/|r_x|, n = unit part of ``side`` normal to t, and dF/dr_x (runs per Newton
     iteration in the 1 kHz loop, hence compiled)."""
     rx_norm = np.sqrt(rx @ rx)

@@ -28,7 +28,7 @@ from numba import njit
 from needle_sim_ros.model.forces import ElementLocalForce, assemble_point_forces
 from needle_sim_ros.model.mesh import hermite_shapes
 
-from .bevel_tip import BevelTip
+from .bevel_tip import BevelTip, tip_force_kernel
 from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
@@ -58,21 +58,46 @@ def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 _TIP_S = np.array([[0.0, 0.0, 1.0, 0.0]])    # at the last element's end r = e_3 and r_x = e_4 (eq. 4)
 _TIP_S_X = np.array([[0.0, 0.0, 0.0, 1.0]])
 _UNIT_WEIGHT = np.ones(1)
-_NO_DERIVATIVE = np.zeros((1, 3, 3))
+_NO_DERIVATIVE = np.zeros((3, 3))
+
+
+@njit(cache=True)
+def tip_point_force(force, d_dr, d_drx, d_dv, Q, band, kl, c_q, c_qd):
+    """Add a force (3,) at the tip (the last element's end point, eq. 15) to Q and its Jacobian blocks from dF/dr,
+    dF/dr_x, dF/dv (3, 3) to the band matrix by the shared point-force kernel."""
+    last = Q.size // 3 - 4
+    slots = np.arange(last, last + 4).reshape(1, 4)
+    assemble_point_forces(slots, _TIP_S, _TIP_S_X, _UNIT_WEIGHT, force.reshape(1, 3), d_dr.reshape(1, 3, 3),
+                          d_drx.reshape(1, 3, 3), d_dv.reshape(1, 3, 3), Q, band, kl, c_q, c_qd)
 
 
 def assemble_tip_force(n_dof: int, force: np.ndarray, d_dr, d_drx, d_dv, band: np.ndarray, kl: int, c_q: float,
                        c_qd: float) -> np.ndarray:
-    """Q of a force at the tip (the last element's end point, eq. 15) and its Jacobian blocks from dF/dr, dF/dr_x,
-    dF/dv ((3, 3) or None for zero) added to the band matrix by the shared point-force kernel."""
-    last = n_dof // 3 - 4
-    slots = np.arange(last, last + 4, dtype=np.int64).reshape(1, 4)
-    derivatives = [_NO_DERIVATIVE if d is None else np.ascontiguousarray(d, dtype=float).reshape(1, 3, 3)
-                   for d in (d_dr, d_drx, d_dv)]
+    """Q of a force at the tip and its Jacobian blocks from dF/dr, dF/dr_x, dF/dv ((3, 3) or None for zero) added
+    to the band matrix (``tip_point_force``)."""
+    derivatives = [_NO_DERIVATIVE if d is None else np.ascontiguousarray(d, dtype=float) for d in (d_dr, d_drx, d_dv)]
     Q = np.zeros(n_dof)
-    assemble_point_forces(slots, _TIP_S, _TIP_S_X, _UNIT_WEIGHT, np.asarray(force, dtype=float).reshape(1, 3),
-                          *derivatives, Q, band, kl, c_q, c_qd)
+    tip_point_force(np.ascontiguousarray(force, dtype=float), *derivatives, Q, band, kl, c_q, c_qd)
     return Q
+
+
+@njit(cache=True)
+def bevel_tip_assembly(q, rotation, side_base, axial_force, transverse_force, scale, Q, band, kl, c_q, c_qd):
+    """``BevelTipForce.assemble_banded`` in one compiled call: ``tip_force_kernel`` per unit K_T at the bevel
+    side rolled with the base, scaled, assembled by ``tip_point_force``; False if that side is along the tip
+    tangent."""
+    force, jacobian, ok = tip_force_kernel(q[-3:].copy(), rotation @ side_base, axial_force, transverse_force)
+    if ok:
+        tip_point_force(scale * force, _NO_DERIVATIVE, scale * jacobian, _NO_DERIVATIVE, Q, band, kl, c_q, c_qd)
+    return ok
+
+
+@njit(cache=True)
+def cutting_assembly(q, qd, force_magnitude, speed_scale, Q, band, kl, c_q, c_qd):
+    """``TipResistance.assemble_banded`` while cutting in one compiled call: ``cutting_force`` at the tip
+    assembled by ``tip_point_force``."""
+    force, d_drx, d_dv = cutting_force(q[-3:].copy(), qd[-6:-3].copy(), force_magnitude, speed_scale)
+    tip_point_force(force, _NO_DERIVATIVE, d_drx, d_dv, Q, band, kl, c_q, c_qd)
 
 
 class ContactState(NamedTuple):
@@ -89,6 +114,14 @@ class ContactState(NamedTuple):
     track: Track
 
 
+@njit(cache=True)
+def tip_contact(q, qd, entry_point, entry_normal):
+    """Unit tangent, depth below the entry surface [m] and axial speed [m/s] of the tip at (q, qd)."""
+    rx_tip = q[-3:].copy()
+    tangent = rx_tip / np.sqrt(rx_tip @ rx_tip)
+    return tangent, (q[-6:-3] - entry_point) @ entry_normal, qd[-6:-3].copy() @ tangent
+
+
 class TissueContact:
     """How the needle meets the tissue (immutable): the block, the track spacing, and ``puncture_depth``: the depth
     [m] the tip must reach before the capsule tears and the track starts (seed 002 d1; None: the tissue is cut from
@@ -101,9 +134,8 @@ class TissueContact:
 
     def update(self, contact: ContactState, q: np.ndarray, qd: np.ndarray, t: float) -> ContactState:
         """The contact advanced to the needle state (q, qd) at time t."""
-        r_tip, rx_tip = tip_coordinates(q)
-        tangent = rx_tip / np.sqrt(rx_tip @ rx_tip)
-        tip_depth = float((r_tip - self.block.entry_point) @ self.block.entry_normal)
+        r_tip = q[-6:-3]
+        tangent, tip_depth, tip_axial_speed = tip_contact(q, qd, self.block.entry_point, self.block.entry_normal)
         punctured = contact.punctured or tip_depth > (self.puncture_depth or 0.0)
         track = contact.track
         if punctured and not track.started and tip_depth > 0.0:
@@ -115,7 +147,7 @@ class TissueContact:
         if track.started:
             track = track.cut(r_tip)
             at_front = tip_depth > 0.0 and track.coordinate_ahead(r_tip) >= track.length - track.spacing
-        return ContactState(punctured, tip_depth, float(qd[-6:-3] @ tangent),
+        return ContactState(punctured, tip_depth, tip_axial_speed,
                             0.0 if contact.time is None else max(t - contact.time, 0.0), at_front, t, track)
 
 
@@ -237,6 +269,14 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
 
 
 @njit(cache=True)
+def shaft_forces_assembly(q, qd, lateral, axial, Q, band, kl, c_q, c_qd):
+    """``shaft_generalized_force`` of the lateral, then the axial part (``ShaftForces``: each part's arguments
+    slots ... velocity_scale as a tuple) in one compiled call."""
+    shaft_generalized_force(q, qd, *lateral, Q, band, kl, c_q, c_qd)
+    shaft_generalized_force(q, qd, *axial, Q, band, kl, c_q, c_qd)
+
+
+@njit(cache=True)
 def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
     r, tangents = interpolate_pair(slots, S, q, S_x, q)
@@ -317,12 +357,13 @@ def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc
 
 
 @njit(cache=True)
-def shaft_contact_points(q, arc_lengths, candidates, S, S_x, slots, entry_point, entry_normal, thickness,
+def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_point, entry_normal, thickness,
                          was_active, active, anchor, vertices, arc, end_tangent):
-    """The shaft points among ``candidates`` inside the tissue (``ShaftSupport.advance``): marks them in
-    ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track, and returns
-    their indices, entry coverage, needle tangents, anchor points on the track and those points' depths, and the
-    axial offsets u = (r - anchor point) . tangent."""
+    """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``):
+    marks them in ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track,
+    and returns their indices, entry coverage, needle tangents, anchor points on the track and those points'
+    depths, and the axial offsets u = (r - anchor point) . tangent."""
+    candidates = np.flatnonzero(arc_lengths > candidate_arc)
     r, tangents = needle_points(S[candidates], S_x[candidates], slots[candidates], q)
     depth = np.empty(candidates.size)
     for k in range(candidates.size):
@@ -346,6 +387,32 @@ def shaft_contact_points(q, arc_lengths, candidates, S, S_x, slots, entry_point,
     return index, coverage, tangents, points, point_depth, u
 
 
+@njit(cache=True)
+def slip_anchors(anchor, index, u, coulomb, stick_stiffness, points, tangents, weights, coverage, slots, S, S_x):
+    """Plastic slip of the active points' anchors along the track (``ShaftSupport.advance``): each anchor (track
+    coordinate) and anchor point slides by the part of the axial offset u beyond the stick band C / k_a (the point
+    stays on the same segment to first order; relocated next step). Returns the points' weights (length share times
+    coverage) and interpolation tables."""
+    for k in range(index.size):
+        band = coulomb[k] / stick_stiffness
+        held = u[k] if u[k] > -band else -band
+        held = held if held < band else band
+        slip = u[k] - held
+        anchor[index[k]] += slip
+        for i in range(3):
+            points[k, i] += slip * tangents[k, i]
+    return weights[index] * coverage, slots[index], S[index], S_x[index]
+
+
+@njit(cache=True)
+def first_slot_in(slots, slot):
+    """Whether a point's first slot (its element's first node slot) is ``slot``."""
+    for k in range(slots.shape[0]):
+        if slots[k, 0] == slot:
+            return True
+    return False
+
+
 class ShaftState(NamedTuple):
     """The shaft points' state (part of the tissue state): the track coordinate of each point's stick anchor (k,),
     which points are inside the tissue (k,) and the axial law's own state (LuGre z [m]; None)."""
@@ -366,6 +433,9 @@ class ShaftForces(ElementLocalForce):
 
     def __init__(self, lateral: _Frozen, axial: _Frozen) -> None:
         self.parts = (lateral, axial)
+        self._arguments = tuple((fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
+                                 fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial)
+                                for fz in self.parts)
 
     @staticmethod
     def _kinematics(fz: _Frozen, q, qd):
@@ -379,18 +449,14 @@ class ShaftForces(ElementLocalForce):
                                   fz.stick_stiffness, *fz.axial)
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        """Both parts' generalized forces and Jacobian blocks (one compiled kernel call per part)."""
+        """Both parts' generalized forces and Jacobian blocks (one compiled kernel call)."""
         Q = np.zeros(q.size)
-        for fz in self.parts:
-            if fz.weights.size:
-                shaft_generalized_force(q, qd, fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
-                                        fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial,
-                                        Q, band, kl, c_q, c_qd)
+        shaft_forces_assembly(q, qd, *self._arguments, Q, band, kl, c_q, c_qd)
         return Q
 
     def touches_element(self, model, element: int) -> bool:
         """Whether a lateral or axial point of this step lies in ``element`` (slots 2 e ... 2 e + 3)."""
-        return any(fz.weights.size and bool(np.any(fz.slots[:, 0] == 2 * element)) for fz in self.parts)
+        return any(first_slot_in(fz.slots, 2 * element) for fz in self.parts)
 
     def total_force(self, model, q, qd, t, base) -> np.ndarray:
         """World resultant [N] of the shaft forces at (q, qd)."""
@@ -459,27 +525,25 @@ class ShaftSupport:
         if not track.started:
             return ShaftState(shaft.anchor, active, law), NO_SHAFT_FORCES
         lateral = self._lateral_support(model, contact, q) if self.lateral else _Frozen.inactive()
-        # a point an arc length a behind the tip is at most a shallower than the tip, so only points closer to the
-        # tip than its depth can be inside; one more spacing gives the outer neighbours for entry_coverage
-        candidates = np.flatnonzero(self.arc_lengths > self.arc_lengths[-1] - contact.tip_depth - self._margin)
-        if self.axial_law is None or candidates.size == 0:
+        if self.axial_law is None:
             return ShaftState(shaft.anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
         table, block = self._table, self.block
         anchor = shaft.anchor.copy()
+        # a point an arc length a behind the tip is at most a shallower than the tip, so only points closer to the
+        # tip than its depth can be inside; one more spacing gives the outer neighbours for entry_coverage
         index, coverage, tangents, points, depth, u = shaft_contact_points(
-            q, self.arc_lengths, candidates, table.S, table.S_x, table.slots, block.entry_point, block.entry_normal,
-            block.thickness, shaft.active, active, anchor, track.vertices, track.arc_lengths, track.end_tangent())
+            q, self.arc_lengths, self.arc_lengths[-1] - contact.tip_depth - self._margin, table.S, table.S_x,
+            table.slots, block.entry_point, block.entry_normal, block.thickness, shaft.active, active, anchor,
+            track.vertices, track.arc_lengths, track.end_tangent())
         if index.size == 0:
             return ShaftState(anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
-        # plastic slip of the anchors along the track
         axial = self.axial_law.coefficients(law, depth, contact.tip_depth)
-        band = axial.coulomb / self.axial_law.stick_stiffness
-        slip = u - np.clip(u, -band, band)
-        anchor[index] += slip
-        points = points + slip[:, None] * tangents         # same segment to first order; relocated next step
+        weights, slots, S, S_x = slip_anchors(anchor, index, u, axial.coulomb, self.axial_law.stick_stiffness,
+                                              points, tangents, self.weights, coverage, table.slots, table.S,
+                                              table.S_x)
         zero = np.zeros(index.size)
-        frozen = _Frozen(index, self.weights[index] * coverage, table.slots[index], table.S[index], table.S_x[index],
-                         points, tangents, depth, zero, zero, axial, float(self.axial_law.stick_stiffness))
+        frozen = _Frozen(index, weights, slots, S, S_x, points, tangents, depth, zero, zero, axial,
+                         float(self.axial_law.stick_stiffness))
         return ShaftState(anchor, active, law), ShaftForces(lateral, frozen)
 
     def _lateral_support(self, model, contact: ContactState, q: np.ndarray) -> _Frozen:
@@ -520,10 +584,12 @@ class BevelTipForce(TipForce):
         return self.tip_force(q, base)[0]
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        if self.scale == 0.0:
-            return np.zeros(q.size)
-        force, jacobian = self.tip_force(q, base)
-        return assemble_tip_force(q.size, force, None, jacobian, None, band, kl, c_q, c_qd)
+        Q = np.zeros(q.size)
+        unit = self.unit_bevel
+        if self.scale != 0.0 and not bevel_tip_assembly(q, base.rotation, self.side_base, unit.axial_force,
+                                                        unit.transverse_force, self.scale, Q, band, kl, c_q, c_qd):
+            raise ValueError("bevel side direction is parallel to the needle tip tangent")
+        return Q
 
 
 class TipResistance(TipForce):
@@ -563,6 +629,9 @@ class TipResistance(TipForce):
         return self.tip_force(q, qd)[0]
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        if self.punctured and not self.cutting:
-            return np.zeros(q.size)
-        return assemble_tip_force(q.size, *self.tip_force(q, qd), band, kl, c_q, c_qd)
+        if not self.punctured:
+            return assemble_tip_force(q.size, *self.tip_force(q, qd), band, kl, c_q, c_qd)
+        Q = np.zeros(q.size)
+        if self.cutting:
+            cutting_assembly(q, qd, self.profile.cutting_force, self.cutting_speed_scale, Q, band, kl, c_q, c_qd)
+        return Q

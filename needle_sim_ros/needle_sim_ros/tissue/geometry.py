@@ -7,6 +7,7 @@ infinite).  Lateral extent is unbounded.  The depth of a point is its distance b
 """
 from __future__ import annotations
 
+from bisect import bisect_right
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +65,7 @@ class TissueBlock:
         object.__setattr__(self, "entry_point", point)
         object.__setattr__(self, "entry_normal", normal / norm)
         object.__setattr__(self, "_bottoms", np.cumsum([layer.thickness for layer in self.layers]))
+        object.__setattr__(self, "_bottom_list", self._bottoms.tolist())
         object.__setattr__(self, "_table", {name: np.array([getattr(layer, name) for layer in self.layers] + [0.0])
                                             for name in LAYER_PARAMETERS})
 
@@ -82,10 +84,10 @@ class TissueBlock:
 
     def layer_index(self, depth) -> np.ndarray:
         """Index of the layer containing each depth; ``len(layers)`` outside the block."""
-        depth = np.asarray(depth, dtype=float)
-        if depth.ndim == 0:
-            return np.int64(_layer_index(self._bottoms, depth.reshape(1))[0])
-        return _layer_index(self._bottoms, np.ascontiguousarray(depth))
+        if isinstance(depth, float) or np.ndim(depth) == 0:  # one depth (the tip's, every step): bisection
+            depth = float(depth)
+            return np.int64(bisect_right(self._bottom_list, depth) if depth > 0.0 else len(self._bottom_list))
+        return _layer_index(self._bottoms, np.ascontiguousarray(depth, dtype=float))
 
     def layer_value(self, name: str, depth) -> np.ndarray:
         """Per-layer parameter ``name`` at each depth (0 outside the block)."""

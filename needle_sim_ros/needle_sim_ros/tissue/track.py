@@ -40,7 +40,7 @@ class Track:
         self.arc_lengths = arc_lengths    # (count,) cumulative arc length [m] at each vertex
         self.direction = direction        # the unit direction at the entry
         self.previous_tip = previous_tip  # the tip position of the previous cut() (the entry point at the start)
-        self._end_tangent = end_tangent if end_tangent is not None else self._chord_tangent()
+        self._end_tangent = end_tangent if end_tangent is not None else chord_tangent(vertices, direction)
 
     def __reduce__(self):
         return Track, (self.spacing, self.vertices, self.arc_lengths, self.direction, self.previous_tip,
@@ -63,16 +63,6 @@ class Track:
         return Track(self.spacing, entry.reshape(1, 3), np.zeros(1), np.asarray(direction, dtype=float) / norm,
                      entry)
 
-    def _chord_tangent(self) -> np.ndarray:
-        """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (the first
-        direction while there is none). One 0.1 mm segment would carry the tip's lateral jitter: tilted by it, the
-        cut front seemed to recede from an advancing tip, the track stopped growing and the tip forces switched off."""
-        count = self.arc_lengths.size
-        if count < 2:
-            return self.direction
-        d = self.vertices[count - 1] - self.vertices[max(count - 1 - END_CHORD_SEGMENTS, 0)]
-        return d / np.sqrt(d @ d)
-
     def end_tangent(self) -> np.ndarray:
         return self._end_tangent
 
@@ -82,17 +72,46 @@ class Track:
 
     def cut(self, tip_position: np.ndarray) -> Track:
         """The track extended while the tip is ``spacing`` or more beyond its end, each vertex where the straight
-        path from the previous tip position crosses ``spacing`` ahead of the end."""
+        path from the previous tip position crosses ``spacing`` ahead of the end (``cut_polyline``)."""
         tip = np.array(tip_position, dtype=float)
-        previous, track = self.previous_tip, self
-        while (ahead := track.coordinate_ahead(tip) - track.length) >= self.spacing:
-            behind = track.coordinate_ahead(previous) - track.length
-            fraction = (self.spacing - behind) / (ahead - behind) if behind < self.spacing else 0.0
-            previous = previous + fraction * (tip - previous)
-            step = previous - track.vertices[-1]
-            track = Track(self.spacing, np.vstack([track.vertices, previous]),
-                          np.append(track.arc_lengths, track.length + np.sqrt(step @ step)), self.direction)
-        return Track(self.spacing, track.vertices, track.arc_lengths, self.direction, tip, track._end_tangent)
+        vertices, arc_lengths, end_tangent = cut_polyline(self.vertices, self.arc_lengths, self._end_tangent,
+                                                          self.previous_tip, tip, self.spacing)
+        return Track(self.spacing, vertices, arc_lengths, self.direction, tip, end_tangent)
+
+
+@njit(cache=True)
+def chord_tangent(vertices, direction):
+    """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (``direction``
+    while there is none). One 0.1 mm segment would carry the tip's lateral jitter: tilted by it, the cut front
+    seemed to recede from an advancing tip, the track stopped growing and the tip forces switched off."""
+    count = vertices.shape[0]
+    if count < 2:
+        return direction
+    d = vertices[count - 1] - vertices[max(count - 1 - END_CHORD_SEGMENTS, 0)]
+    return d / np.sqrt(d @ d)
+
+
+@njit(cache=True)
+def cut_polyline(vertices, arc, end_tangent, previous, tip, spacing):
+    """``Track.cut`` on the track's arrays (compiled: it runs every step): vertices, arc lengths and end tangent
+    of the track grown from the previous tip position toward ``tip``. Coordinates beyond the end as in
+    ``Track.coordinate_ahead``."""
+    while True:
+        count = arc.size
+        length = arc[count - 1]
+        end = vertices[count - 1]
+        ahead = length + (tip - end) @ end_tangent - length
+        if not ahead >= spacing:
+            return vertices, arc, end_tangent
+        behind = length + (previous - end) @ end_tangent - length
+        fraction = (spacing - behind) / (ahead - behind) if behind < spacing else 0.0
+        previous = previous + fraction * (tip - previous)
+        step = previous - end
+        grown, grown_arc = np.empty((count + 1, 3)), np.empty(count + 1)
+        grown[:count], grown_arc[:count] = vertices, arc
+        grown[count], grown_arc[count] = previous, length + np.sqrt(step @ step)
+        vertices, arc = grown, grown_arc
+        end_tangent = chord_tangent(vertices, end_tangent)
 
 
 @njit(cache=True)
