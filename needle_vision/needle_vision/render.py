@@ -273,22 +273,26 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
         near = np.linalg.norm(pixels - end, axis=1) < half_width.max() + 5 + 4 * blur_sigma_px  # + extension
         coverage[near] *= _end_fraction(-(pixels[near] - end) @ outward, outward, blur_sigma_px)
     if bevel_length > 0:
-        # The band beyond the wedge: from the bevel's start on the far edge to the point on the near edge, then
-        # straight on past every candidate pixel (the band, extended straight, covers it exactly).
+        # Subtract the band beyond the wedge: from the bevel's start on the far edge to the point on the near
+        # edge, then straight on. Pixels whose quadrature samples all lie past the tip (``reach``: the pixel's
+        # half diagonal and the outermost node) lose the whole band; those before the bevel none of it.
         from_tip = np.linalg.norm(points - points[-1], axis=1)
         start = min(np.searchsorted(-from_tip, -bevel_length), len(points) - 1)  # first vertex within the bevel
         before = max(start - 1, 0)
         fraction = np.clip((from_tip[before] - bevel_length) / max(from_tip[before] - from_tip[start], 1e-12), 0, 1)
         bevel_start = project(points[before] + fraction * (points[start] - points[before]))[0]
-        outward = end_tangents[1]
+        start_half_width = half_width[before] + fraction * (half_width[start] - half_width[before])
+        tip, outward = centres[-1], end_tangents[1]
         side = np.array([-outward[1], outward[0]])  # the straight edge's side
-        beyond = margin + 2 + 4 * blur_sigma_px
-        tip, start_half_width = centres[-1], half_width[before] + fraction * (half_width[start] - half_width[before])
+        reach = np.sqrt(0.5) + (_GAUSS_HERMITE[0].max() * blur_sigma_px if blur_sigma_px > 0 else 0.0)
         removed = np.array([bevel_start - start_half_width * side, tip + half_width[-1] * side,
-                            tip + half_width[-1] * side + beyond * outward, tip - half_width[-1] * side
-                            + beyond * outward])
-        near = np.linalg.norm(pixels - tip, axis=1) < np.linalg.norm(tip - bevel_start) + beyond + margin
-        coverage[near] -= _polygon_coverage(pixels[near], removed, blur_sigma_px, outward)
+                            tip + (half_width[-1] * side + (2 * reach + 1) * outward),
+                            tip - (half_width[-1] * side - (2 * reach + 1) * outward)])
+        along = (pixels - tip) @ outward
+        near = np.linalg.norm(pixels - tip, axis=1) < np.linalg.norm(tip - bevel_start) + 2 * margin + reach
+        coverage[near & (along > reach)] = 0.0
+        wedge = near & (along <= reach) & (along >= (bevel_start - tip) @ outward - reach)
+        coverage[wedge] -= _polygon_coverage(pixels[wedge], removed, blur_sigma_px, outward)
     keep = coverage > 0
     return rows[keep] + lo[1], cols[keep] + lo[0], coverage[keep]
 
