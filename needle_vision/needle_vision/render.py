@@ -163,13 +163,52 @@ def _end_fraction(along: np.ndarray, tangent: np.ndarray, blur_sigma: float) -> 
     return sum(w * _box_filtered_step(along - blur_sigma * g, a, b) for g, w in zip(nodes, weights))
 
 
+def _polygon_square_area(polygon: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Area of a polygon ``(k, 2)`` within the unit squares centred at ``centres`` ``(n, 2)`` (exact; Green's
+    theorem: the area is the boundary integral of the x extent clamped to the square, over y within it)."""
+    x0, x1 = centres[:, 0] - 0.5, centres[:, 0] + 0.5
+    y0, y1 = centres[:, 1] - 0.5, centres[:, 1] + 0.5
+
+    def clamped_integral(x: np.ndarray) -> np.ndarray:  # integral of clamp(s, x0, x1) - x0 from x0 to x
+        inside = np.clip(x, x0, x1) - x0
+        return 0.5 * inside ** 2 + (x1 - x0) * np.maximum(x - x1, 0.0)
+
+    area = np.zeros(len(centres))
+    for (xa, ya), (xb, yb) in zip(polygon, np.roll(polygon, -1, axis=0)):
+        if ya == yb:
+            continue
+        low, high = np.clip(min(ya, yb), y0, y1), np.clip(max(ya, yb), y0, y1)
+        slope = (xb - xa) / (yb - ya)
+        x_low, x_high = xa + (low - ya) * slope, xa + (high - ya) * slope
+        if abs(slope) < 1e-9:
+            integral = (np.clip(x_low, x0, x1) - x0) * (high - low)
+        else:
+            integral = (clamped_integral(x_high) - clamped_integral(x_low)) / slope
+        area += np.sign(yb - ya) * integral
+    return np.abs(area)
+
+
+def _polygon_coverage(pixels: np.ndarray, polygon: np.ndarray, blur_sigma: float, axis: np.ndarray) -> np.ndarray:
+    """Response of unit pixels centred at ``pixels`` to a polygon: its area fraction within each pixel, averaged
+    over an isotropic Gaussian point spread of ``blur_sigma`` [px] (2D Gauss-Hermite quadrature on the unit
+    ``axis`` and its normal: across a band along ``axis`` the nodes are :func:`_band_coverage`'s)."""
+    if blur_sigma <= 0:
+        return _polygon_square_area(polygon, pixels)
+    nodes, weights = _GAUSS_HERMITE
+    normal = np.array([-axis[1], axis[0]])
+    return sum(wa * wn * _polygon_square_area(polygon, pixels + blur_sigma * (ga * axis + gn * normal))
+               for ga, wa in zip(nodes, weights) for gn, wn in zip(nodes, weights))
+
+
 def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius: float, blur_sigma_px: float = 0.0,
                     max_spacing_px: float = 0.5, bevel_length: float = 0.0
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel response to a tube (flat ends) around a centerline given in the camera's optical frame: the
     covered fraction of each pixel's area, through a Gaussian point spread of ``blur_sigma_px``.
-    ``bevel_length`` > 0 [m]: the last end is bevelled as seen side-on: over that length of the centerline the
-    band narrows linearly to nothing at the end, one silhouette edge straight up to the tip (the bevel's point).
+    ``bevel_length`` > 0 [m]: the last end is bevelled as seen side-on: its silhouette is a wedge, one edge
+    straight up to the tip (the bevel's point, on the side of the image normal (-d_y, d_x) of the end direction
+    d), the other converging on it linearly from ``bevel_length`` before the tip; the wedge's exact area coverage
+    is blurred by the point spread in both directions (along the needle too).
 
     Returns ``(rows, cols, coverage)`` of the pixels the tube touches. The centerline is resampled so that its
     projection has vertices at most ``max_spacing_px`` apart; the local half-width is the projected distance
@@ -190,10 +229,6 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
     lateral_norm = np.linalg.norm(lateral, axis=1, keepdims=True)
     lateral = np.where(lateral_norm > 1e-12, lateral / np.maximum(lateral_norm, 1e-12), [1.0, 0.0, 0.0])
     half_width = 0.5 * np.linalg.norm(project(points + radius * lateral) - project(points - radius * lateral), axis=1)
-    from_tip = np.linalg.norm(points - points[-1], axis=1) if bevel_length > 0 else np.full(len(points), np.inf)
-    remaining = np.clip(from_tip / max(bevel_length, 1e-12), 0.0, 1.0)  # fraction of the width left
-    shift = half_width * (1 - remaining)  # the band's centre moves towards the straight edge
-    half_width = half_width * remaining
 
     # Candidate pixels: a thick polyline around the projected centerline, within the image.
     margin = int(np.ceil(half_width.max() + 2 + 4 * blur_sigma_px))
@@ -207,13 +242,12 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
     rows, cols = np.nonzero(mask)
     pixels = np.column_stack([cols + lo[0], rows + lo[1]]).astype(float)
 
-    # The tube is cut flat at both ends: extend the band straight by a few pixels, measure the distance to it,
-    # then multiply by the covered fraction along the axis near each end.
+    # Extend the band straight by a few pixels beyond both ends and measure the distance to it; a flat end then
+    # multiplies by the covered fraction along the axis, a bevel subtracts the band beyond its wedge.
     end_tangents = [centres[0] - centres[1], centres[-1] - centres[-2]]
     end_tangents = [t / np.linalg.norm(t) for t in end_tangents]
     extended = np.vstack([centres[0] + 3 * end_tangents[0], centres, centres[-1] + 3 * end_tangents[1]])
     extended_half_width = np.concatenate([half_width[:1], half_width, half_width[-1:]])
-    extended_shift = np.concatenate([shift[:1], shift, shift[-1:]])
 
     # Closest point on the projected polyline (nearest vertex, then its two segments).
     _, nearest = cKDTree(extended).query(pixels)
@@ -231,12 +265,34 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
         best_distance = np.where(better, distance, best_distance)
         best[better] = np.column_stack([normal, (1 - t) * extended_half_width[first]
                                         + t * extended_half_width[first + 1],
-                                        np.einsum("ij,ij->i", offset, normal)
-                                        - (1 - t) * extended_shift[first] - t * extended_shift[first + 1]])[better]
+                                        np.einsum("ij,ij->i", offset, normal)])[better]
     coverage = _band_coverage(best[:, 3], best[:, :2], best[:, 2], blur_sigma_px)
-    for end, outward in ((centres[0], end_tangents[0]), (centres[-1], end_tangents[1])):
+    ends = ((centres[0], end_tangents[0]),) if bevel_length > 0 else ((centres[0], end_tangents[0]),
+                                                                       (centres[-1], end_tangents[1]))
+    for end, outward in ends:
         near = np.linalg.norm(pixels - end, axis=1) < half_width.max() + 5 + 4 * blur_sigma_px  # + extension
         coverage[near] *= _end_fraction(-(pixels[near] - end) @ outward, outward, blur_sigma_px)
+    if bevel_length > 0:
+        # Subtract the band beyond the wedge: from the bevel's start on the far edge to the point on the near
+        # edge, then straight on. Pixels whose quadrature samples all lie past the tip (``reach``: the pixel's
+        # half diagonal and the outermost node) lose the whole band; those before the bevel none of it.
+        from_tip = np.linalg.norm(points - points[-1], axis=1)
+        start = min(np.searchsorted(-from_tip, -bevel_length), len(points) - 1)  # first vertex within the bevel
+        before = max(start - 1, 0)
+        fraction = np.clip((from_tip[before] - bevel_length) / max(from_tip[before] - from_tip[start], 1e-12), 0, 1)
+        bevel_start = project(points[before] + fraction * (points[start] - points[before]))[0]
+        start_half_width = half_width[before] + fraction * (half_width[start] - half_width[before])
+        tip, outward = centres[-1], end_tangents[1]
+        side = np.array([-outward[1], outward[0]])  # the straight edge's side
+        reach = np.sqrt(0.5) + (_GAUSS_HERMITE[0].max() * blur_sigma_px if blur_sigma_px > 0 else 0.0)
+        removed = np.array([bevel_start - start_half_width * side, tip + half_width[-1] * side,
+                            tip + (half_width[-1] * side + (2 * reach + 1) * outward),
+                            tip - (half_width[-1] * side - (2 * reach + 1) * outward)])
+        along = (pixels - tip) @ outward
+        near = np.linalg.norm(pixels - tip, axis=1) < np.linalg.norm(tip - bevel_start) + 2 * margin + reach
+        coverage[near & (along > reach)] = 0.0
+        wedge = near & (along <= reach) & (along >= (bevel_start - tip) @ outward - reach)
+        coverage[wedge] -= _polygon_coverage(pixels[wedge], removed, blur_sigma_px, outward)
     keep = coverage > 0
     return rows[keep] + lo[1], cols[keep] + lo[0], coverage[keep]
 
