@@ -23,6 +23,9 @@ import numpy as np
 from numba import njit
 
 
+SIDE_ALONG_TANGENT = "bevel side direction is parallel to the needle tip tangent"
+
+
 @dataclass(frozen=True)
 class BevelTip:
     """Bevel geometry and tissue tip stiffness (seed 001 Sec. IV and Fig. 2).
@@ -81,7 +84,7 @@ class BevelTip:
         side = np.ascontiguousarray(bevel_side_world, dtype=float)
         force, jacobian, ok = tip_force_kernel(rx, side, self.axial_force, self.transverse_force)
         if not ok:
-            raise ValueError("bevel side direction is parallel to the needle tip tangent")
+            raise ValueError(SIDE_ALONG_TANGENT)
         return force, jacobian
 
 

@@ -28,7 +28,7 @@ from numba import njit
 from needle_sim_ros.model.forces import ElementLocalForce, assemble_point_forces
 from needle_sim_ros.model.mesh import hermite_shapes
 
-from .bevel_tip import BevelTip, tip_force_kernel
+from .bevel_tip import SIDE_ALONG_TANGENT, BevelTip, tip_force_kernel
 from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
@@ -588,7 +588,7 @@ class BevelTipForce(TipForce):
         unit = self.unit_bevel
         if self.scale != 0.0 and not bevel_tip_assembly(q, base.rotation, self.side_base, unit.axial_force,
                                                         unit.transverse_force, self.scale, Q, band, kl, c_q, c_qd):
-            raise ValueError("bevel side direction is parallel to the needle tip tangent")
+            raise ValueError(SIDE_ALONG_TANGENT)
         return Q
 
 
