@@ -404,11 +404,19 @@ class NeedleSimulation:
         times = self._grid_time(data.step_index + np.arange(1, count + 1))
         motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
         i = 0
-        # the compiled sequence cannot advance the state of stateful contributions (the tissue) between its steps
-        sequence = self.compiled_sequence and not any(force.stateful for force in self.extra_forces)
+        # the compiled sequence cannot advance the state of stateful contributions between its steps; one that runs
+        # compiled itself (the tissue) takes the run, a step at a time if a hook reads each step's state
+        stateful = [force for force in self.extra_forces if force.stateful]
+        sequence = self.compiled_sequence and not stateful
+        run = stateful[0] if self.compiled_sequence and len(stateful) == 1 and stateful[0].compiled_run else None
         while i < count:
             if sequence and self.state.aux is not None and self.integrator.supports_sequence(self.forces):
                 done = self._step_sequence(times[i:], motions[i:], rotations[i:], records)
+                data.step_index += done
+                i += done
+            elif run is not None and self.state.aux is not None:
+                stop = i + 1 if self.after_step is not None else count
+                done = self._run_steps(run, times[i:stop], motions[i:stop], rotations[i:stop], records)
                 data.step_index += done
                 i += done
             if i < count:
@@ -431,6 +439,12 @@ class NeedleSimulation:
         start = time.perf_counter()
         result = self.integrator.step_sequence(self.state, self.dt, motions, rotations, self.forces,
                                                self.data.integrator)
+        self._record_run(result, start, times, motions, rotations, records)
+        return result.done
+
+    def _record_run(self, result, start: float, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
+                    records: list[StepRecord]) -> None:
+        """Records, hook calls, statistics and the final state of a compiled run started at ``start``."""
         wall = (time.perf_counter() - start) / max(result.done, 1)
         stats = self.statistics
         done = result.done
@@ -447,6 +461,21 @@ class NeedleSimulation:
             stats.steps += done
             stats.step_wall_times.extend([wall] * done)
             stats.max_newton_iterations = max(stats.max_newton_iterations, int(result.iterations.max()))
+
+    def _run_steps(self, run, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
+                   records: list[StepRecord]) -> int:
+        """Steps at the given times in one compiled run of the stateful contribution ``run`` (the tissue) where the
+        other contributions are time-invariant (see :meth:`advance_to`); returns how many were done."""
+        data = self.data
+        others = [*(force for force in self.model_forces if not force.stateful), *data.point_loads.values()]
+        if not self.integrator.supports_sequence(others):
+            return 0
+        start = time.perf_counter()
+        (own,) = data.force_states
+        result, own = run.run_steps(self.model, self.integrator, self.state, own, self.dt, times, motions, rotations,
+                                    others, data.integrator)
+        data.force_states = (own,)
+        self._record_run(result, start, times, motions, rotations, records)
         return result.done
 
     def _set_state(self, rows: np.ndarray, t: float, motion: np.ndarray, rotation: np.ndarray) -> None:

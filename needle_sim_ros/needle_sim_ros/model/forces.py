@@ -48,12 +48,16 @@ class ForceContribution:
       iteration matrix in one compiled pass, and ``touches_element``: whether a point lies in a given element
       now (the base wrench skips forces off the first element). False: Newton takes the dense Jacobians of
       ``evaluate``.
+    * ``compiled_run`` (default False): a stateful contribution that also integrates a run of steps with its state
+      advanced in one compiled call, ``run_steps(model, integrator, state, own, dt, times, motions, rotations,
+      forces, memory) -> (SequenceResult, own')`` (the simulator's fast path, like the step sequence).
     """
 
     state_dependent: ClassVar[bool]
     time_invariant: ClassVar[bool]
     stateful: ClassVar[bool]
     element_local: ClassVar[bool] = False
+    compiled_run: ClassVar[bool] = False
 
     def evaluate(self, model, q: np.ndarray, qd: np.ndarray, t: float, base) -> GeneralizedForce:
         raise NotImplementedError
@@ -95,7 +99,7 @@ class ElementLocalForce(ForceContribution):
 _NO_BAND = np.zeros((0, 0))
 
 
-CAPABILITIES = ("state_dependent", "time_invariant", "stateful", "element_local")
+CAPABILITIES = ("state_dependent", "time_invariant", "stateful", "element_local", "compiled_run")
 STATE_HOOKS = ("initial_state", "advance", "at")
 
 
@@ -132,6 +136,9 @@ def check_forces(forces) -> tuple:
                    if getattr(type(force), hook) is getattr(ForceContribution, hook)]
         if force.element_local and missing:
             raise TypeError(f"force contribution {name} declares element_local = True but has no {missing[0]}()")
+        if force.compiled_run and not (force.stateful and callable(getattr(force, "run_steps", None))):
+            raise TypeError(f"force contribution {name} declares compiled_run = True but is not stateful with "
+                            "run_steps()")
         if all(isinstance(getattr(type(force), capability), bool) for capability in CAPABILITIES):
             _CHECKED_CLASSES.add(type(force))
     return forces
@@ -333,9 +340,15 @@ class MaterialPointForce(ElementLocalForce):
 def assemble_point_forces(slots, S, S_x, weights, F, dF_dr, dF_drx, dF_dv, Q, band, kl, c_q, c_qd):
     """Scatter sum_k w_k S_k^T F_k (eq. 15) into Q and c_q dQ/dq + c_qd dQ/dq' (chain rule, MaterialPointForce)
     into the band matrix ``band`` (row i, column j at band[i, j - i + kl]; a point couples the 12 coordinates of
-    its element: kl >= 11); a (0, 0) band: Q alone."""
+    its element: kl >= 11); a (0, 0) band: Q alone; dF_drx of no points ((0, 3, 3)): zero."""
     with_matrix = band.shape[0] > 0
+    with_gradient = dF_drx.shape[0] > 0
+    position = np.empty((3, 3))  # c_q dF/dr + c_qd dF/dv of the point
     for k in range(slots.shape[0]):
+        if with_matrix:
+            for c in range(3):
+                for c2 in range(3):
+                    position[c, c2] = c_q * dF_dr[k, c, c2] + c_qd * dF_dv[k, c, c2]
         for a in range(4):
             ia = 3 * slots[k, a]
             wa = weights[k] * S[k, a]
@@ -346,9 +359,11 @@ def assemble_point_forces(slots, S, S_x, weights, F, dF_dr, dF_drx, dF_dv, Q, ba
             for b in range(4):
                 ib = 3 * slots[k, b]
                 cr = wa * S[k, b]
-                cx = wa * S_x[k, b]
+                cx = c_q * wa * S_x[k, b]
                 for c in range(3):
                     row = ia + c
                     for c2 in range(3):
-                        band[row, ib + c2 - row + kl] += (c_q * (cr * dF_dr[k, c, c2] + cx * dF_drx[k, c, c2])
-                                                          + c_qd * cr * dF_dv[k, c, c2])
+                        entry = cr * position[c, c2]
+                        if with_gradient:
+                            entry += cx * dF_drx[k, c, c2]
+                        band[row, ib + c2 - row + kl] += entry

@@ -221,6 +221,21 @@ class Integrator:
                                   memory.last_motion, states, wrenches, iterations)
         return SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
 
+    def run_arguments(self, forces, dt: float, t_next: float,
+                      memory: IntegratorMemory | None = None) -> tuple[tuple, np.ndarray]:
+        """The needle's part of a compiled run with state-dependent contributions besides ``forces`` (which must be
+        time-invariant, :meth:`supports_sequence`), e.g. ``tissue.sequence``: (coefficients, tolerance, iteration
+        limit, base node buffers, active mask, scales, model tables, base rows and work arrays, bandwidth) and
+        the constant external force. A fresh matrix every step, as :meth:`step`: the memory's kept
+        factorization is invalidated."""
+        buffers, solver = self._sequence_buffers(), self.solver
+        (memory or self.memory).invalidate()
+        needle = (self._coefficients(dt), self.newton_tol, self.max_newton_iterations, buffers.prescribed,
+                  buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active, buffers.scale,
+                  buffers.tables, buffers.base_rows, buffers.residual, solver.band(ELEMENT_BANDWIDTH),
+                  solver.band(ELEMENT_BANDWIDTH, "external"), solver.pivots, solver.factorization, ELEMENT_BANDWIDTH)
+        return needle, self._constant_force(self._split(forces)[0], t_next, None)
+
     def _sequence_buffers(self) -> SequenceBuffers:
         if self._sequence is None:
             self._sequence = SequenceBuffers(self.model)

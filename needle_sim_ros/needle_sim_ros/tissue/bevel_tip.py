@@ -91,7 +91,9 @@ class BevelTip:
 @njit(cache=True)
 def tip_force_kernel(rx, side, p, q):
     """F = -P t + Q n with t = r_x/|r_x|, n = unit part of ``side`` normal to t, and dF/dr_x (runs per Newton
-    iteration in the 1 kHz loop, hence compiled)."""
+    iteration in the 1 kHz loop, hence compiled, in scalar loops: no small-matrix products).
+    dF/dr_x = (-P I + Q dn/dm dm/dt) dt/dr_x with dt/dr_x = (I - t t^T)/|r_x|, m = side - (side.t) t,
+    dm/dt = -(t side^T + (side.t) I), dn/dm = (I - n n^T)/|m|."""
     rx_norm = np.sqrt(rx @ rx)
     t = rx / rx_norm
     along = side @ t
@@ -102,10 +104,16 @@ def tip_force_kernel(rx, side, p, q):
     if m_norm < 1e-9 * np.sqrt(side @ side) or m_norm == 0.0:
         return force, jacobian, False
     n = m / m_norm
-    force[:] = -p * t + q * n
-    eye = np.eye(3)
-    dt_drx = (eye - np.outer(t, t)) / rx_norm
-    dm_dt = -(np.outer(t, side) + along * eye)
-    dn_dm = (eye - np.outer(n, n)) / m_norm
-    jacobian[:, :] = (-p * eye + q * (dn_dm @ dm_dt)) @ dt_drx
+    n_t = n @ t
+    for i in range(3):
+        force[i] = -p * t[i] + q * n[i]
+    outer = np.empty((3, 3))  # B = -P I + Q dn/dm dm/dt
+    for i in range(3):
+        for j in range(3):
+            dn_dt = -(t[i] * side[j] + (along if i == j else 0.0) - n[i] * n_t * side[j] - along * n[i] * n[j])
+            outer[i, j] = (-p if i == j else 0.0) + q * dn_dt / m_norm
+    for i in range(3):
+        b_t = outer[i, 0] * t[0] + outer[i, 1] * t[1] + outer[i, 2] * t[2]
+        for j in range(3):
+            jacobian[i, j] = (outer[i, j] - b_t * t[j]) / rx_norm
     return force, jacobian, True

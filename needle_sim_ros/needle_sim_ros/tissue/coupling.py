@@ -1,16 +1,16 @@
 """Coupling of the tissue laws to the ANCF needle: the contact, the shaft support and the tip forces.
 
 Parameters are immutable objects; what changes is a value of the tissue state (``tissue_model.TissueState``)
-that the hooks here return anew, never change in place.
-* ``TissueContact``: the block, the capsule puncture and the track cut by the tip; ``update`` gives the contact
-  (``ContactState``: tip depth and axial speed, puncture, at the cut front, the track) after a step.
+that ``advance`` (compiled, on arrays) gives anew after each step, never changed in place.
+* ``TissueContact``: the block, the capsule puncture and the track cut by the tip; the contact (``ContactState``:
+  tip depth and axial speed, puncture, at the cut front, the track) after a step.
 * ``ShaftSupport``: lateral Winkler springs and dampers (per unit length) perpendicular to the needle on the part
   of it that lies in tissue the tip has already cut (path memory, ``track``; the cut front holds nothing
   laterally), integrated by Gauss quadrature; along the needle, the selected axial law of ``shaft_laws`` on
-  material shaft points anchored to the track (stick-slip; without a law the needle slides freely).  Its
-  ``advance`` gives the points' state (``ShaftState``) and the next step's ``ShaftForces``: rest points, anchors,
-  tangents and layer parameters frozen during a step (explicit in the hook, implicit in the forces), assembled by
-  the shared point-force kernel over the inserted part only.
+  material shaft points anchored to the track (stick-slip; without a law the needle slides freely).  The points'
+  state (``ShaftState``) and the next step's ``ShaftForces``: rest points, anchors, tangents and layer parameters
+  frozen during a step (explicit in the hook, implicit in the forces), assembled by the shared point-force kernel
+  over the inserted part only.
 * ``BevelTipForce``: P and Q of seed 001 eqs. 4-5 at the tip, in the bevel frame rolled with the base, while the
   tip is at the cut front (cutting or resting on it) below the punctured surface, ramped in over the bevel length.
 * ``TipResistance``: seed 002 at the tip: the capsule stiffness force a1 x + a2 x^2 along the entry normal before
@@ -32,22 +32,28 @@ from .bevel_tip import SIDE_ALONG_TANGENT, BevelTip, tip_force_kernel
 from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
-from .shaft_laws import AxialCoefficients
+from .shaft_laws import AxialCoefficients, ShaftLaw
 from .track import Track, locate_on_polyline, project_on_polyline
 
 
 @njit(cache=True)
 def cutting_force(rx, v, cutting_force, speed_scale):
-    """-F_c clip(v.t / v_c, 0, 1) t (t = r_x/|r_x|) and its derivatives with respect to r_x and v (compiled)."""
+    """-F_c clip(v.t / v_c, 0, 1) t (t = r_x/|r_x|) and its derivatives with respect to r_x and v (compiled, in
+    scalar loops): d/dr_x = -F_c (ramp I + slope t v^T)(I - t t^T)/|r_x|, d/dv = -F_c slope t t^T."""
     rx_norm = np.sqrt(rx @ rx)
     t = rx / rx_norm
-    argument = (v @ t) / speed_scale
+    v_t = v @ t
+    argument = v_t / speed_scale
     ramp = min(max(argument, 0.0), 1.0)
     slope = 1.0 / speed_scale if 0.0 < argument < 1.0 else 0.0
-    eye = np.eye(3)
-    dt_drx = (eye - np.outer(t, t)) / rx_norm
-    d_drx = -cutting_force * ((ramp * eye + slope * np.outer(t, v)) @ dt_drx)
-    return -cutting_force * ramp * t, d_drx, -cutting_force * slope * np.outer(t, t)
+    d_drx, d_dv = np.empty((3, 3)), np.empty((3, 3))
+    for i in range(3):
+        c_t = ramp * t[i] + slope * t[i] * v_t
+        for j in range(3):
+            c_ij = (ramp if i == j else 0.0) + slope * t[i] * v[j]
+            d_drx[i, j] = -cutting_force * (c_ij - c_t * t[j]) / rx_norm
+            d_dv[i, j] = -cutting_force * slope * t[i] * t[j]
+    return -cutting_force * ramp * t, d_drx, d_dv
 
 
 def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -55,6 +61,7 @@ def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return q[-6:-3], q[-3:]
 
 
+_NO_GRADIENT = np.zeros((0, 3, 3))  # the shaft's point forces do not depend on r_x
 _TIP_S = np.array([[0.0, 0.0, 1.0, 0.0]])    # at the last element's end r = e_3 and r_x = e_4 (eq. 4)
 _TIP_S_X = np.array([[0.0, 0.0, 0.0, 1.0]])
 _UNIT_WEIGHT = np.ones(1)
@@ -71,33 +78,41 @@ def tip_point_force(force, d_dr, d_drx, d_dv, Q, band, kl, c_q, c_qd):
                           d_drx.reshape(1, 3, 3), d_dv.reshape(1, 3, 3), Q, band, kl, c_q, c_qd)
 
 
-def assemble_tip_force(n_dof: int, force: np.ndarray, d_dr, d_drx, d_dv, band: np.ndarray, kl: int, c_q: float,
-                       c_qd: float) -> np.ndarray:
-    """Q of a force at the tip and its Jacobian blocks from dF/dr, dF/dr_x, dF/dv ((3, 3) or None for zero) added
-    to the band matrix (``tip_point_force``)."""
-    derivatives = [_NO_DERIVATIVE if d is None else np.ascontiguousarray(d, dtype=float) for d in (d_dr, d_drx, d_dv)]
-    Q = np.zeros(n_dof)
-    tip_point_force(np.ascontiguousarray(force, dtype=float), *derivatives, Q, band, kl, c_q, c_qd)
-    return Q
-
-
 @njit(cache=True)
 def bevel_tip_assembly(q, rotation, side_base, axial_force, transverse_force, scale, Q, band, kl, c_q, c_qd):
     """``BevelTipForce.assemble_banded`` in one compiled call: ``tip_force_kernel`` per unit K_T at the bevel
     side rolled with the base, scaled, assembled by ``tip_point_force``; False if that side is along the tip
     tangent."""
-    force, jacobian, ok = tip_force_kernel(q[-3:].copy(), rotation @ side_base, axial_force, transverse_force)
+    side = np.zeros(3)
+    for i in range(3):
+        side[i] = rotation[i, 0] * side_base[0] + rotation[i, 1] * side_base[1] + rotation[i, 2] * side_base[2]
+    force, jacobian, ok = tip_force_kernel(q[-3:].copy(), side, axial_force, transverse_force)
     if ok:
         tip_point_force(scale * force, _NO_DERIVATIVE, scale * jacobian, _NO_DERIVATIVE, Q, band, kl, c_q, c_qd)
     return ok
 
 
 @njit(cache=True)
-def cutting_assembly(q, qd, force_magnitude, speed_scale, Q, band, kl, c_q, c_qd):
-    """``TipResistance.assemble_banded`` while cutting in one compiled call: ``cutting_force`` at the tip
-    assembled by ``tip_point_force``."""
-    force, d_drx, d_dv = cutting_force(q[-3:].copy(), qd[-6:-3].copy(), force_magnitude, speed_scale)
-    tip_point_force(force, _NO_DERIVATIVE, d_drx, d_dv, Q, band, kl, c_q, c_qd)
+def capsule_force(r, entry_point, entry_normal, a1, a2):
+    """Seed 002 eq. 1 before puncture: -(a1 x + a2 x^2) n at the tip depth x = n . (r - p0) > 0 (n the entry
+    normal; zero above the surface) and its derivative with respect to r (conservative)."""
+    x = (r - entry_point) @ entry_normal
+    if x <= 0.0:
+        return np.zeros(3), np.zeros((3, 3))
+    return -(a1 * x + a2 * x * x) * entry_normal, -(a1 + 2.0 * a2 * x) * np.outer(entry_normal, entry_normal)
+
+
+@njit(cache=True)
+def tip_resistance_assembly(q, qd, punctured, cutting, entry_point, entry_normal, a1, a2, cutting_force_magnitude,
+                            speed_scale, Q, band, kl, c_q, c_qd):
+    """``TipResistance.assemble_banded`` in one compiled call: the capsule force before puncture, the cutting
+    force while cutting, assembled by ``tip_point_force``."""
+    if not punctured:
+        force, d_dr = capsule_force(q[-6:-3].copy(), entry_point, entry_normal, a1, a2)
+        tip_point_force(force, d_dr, _NO_DERIVATIVE, _NO_DERIVATIVE, Q, band, kl, c_q, c_qd)
+    elif cutting:
+        force, d_drx, d_dv = cutting_force(q[-3:].copy(), qd[-6:-3].copy(), cutting_force_magnitude, speed_scale)
+        tip_point_force(force, _NO_DERIVATIVE, d_drx, d_dv, Q, band, kl, c_q, c_qd)
 
 
 class ContactState(NamedTuple):
@@ -125,30 +140,12 @@ def tip_contact(q, qd, entry_point, entry_normal):
 class TissueContact:
     """How the needle meets the tissue (immutable): the block, the track spacing, and ``puncture_depth``: the depth
     [m] the tip must reach before the capsule tears and the track starts (seed 002 d1; None: the tissue is cut from
-    first contact)."""
+    first contact). ``advance.advance_contact`` advances a ``ContactState``."""
 
     def __init__(self, block: TissueBlock, spacing: float, puncture_depth: float | None = None) -> None:
         self.block = block
         self.puncture_depth = puncture_depth
         self.initial = ContactState(False, 0.0, 0.0, 0.0, False, None, Track(spacing))
-
-    def update(self, contact: ContactState, q: np.ndarray, qd: np.ndarray, t: float) -> ContactState:
-        """The contact advanced to the needle state (q, qd) at time t."""
-        r_tip = q[-6:-3]
-        tangent, tip_depth, tip_axial_speed = tip_contact(q, qd, self.block.entry_point, self.block.entry_normal)
-        punctured = contact.punctured or tip_depth > (self.puncture_depth or 0.0)
-        track = contact.track
-        if punctured and not track.started and tip_depth > 0.0:
-            normal = self.block.entry_normal
-            along = float(tangent @ normal)
-            entry = r_tip - (tangent * tip_depth / along if along > 1e-3 else normal * tip_depth)
-            track = track.start(entry, tangent)
-        at_front = False
-        if track.started:
-            track = track.cut(r_tip)
-            at_front = tip_depth > 0.0 and track.coordinate_ahead(r_tip) >= track.length - track.spacing
-        return ContactState(punctured, tip_depth, tip_axial_speed,
-                            0.0 if contact.time is None else max(t - contact.time, 0.0), at_front, t, track)
 
 
 class TipForce(ElementLocalForce):
@@ -200,6 +197,18 @@ class _Frozen(NamedTuple):
     def inactive(cls) -> "_Frozen":
         """No points (shared: never changed in place, like all frozen data)."""
         return _INACTIVE
+
+    @property
+    def fields(self) -> tuple:
+        """The kernels' form (``advance.FROZEN_FIELDS``)."""
+        return (*self[:10], *self.axial, self.stick_stiffness)
+
+    @classmethod
+    def from_fields(cls, fields: tuple) -> "_Frozen":
+        """From a kernel's frozen part (``advance.FROZEN_FIELDS``); the shared inactive part if it has no points."""
+        if fields[1].size == 0:
+            return _INACTIVE
+        return cls(*fields[:10], AxialCoefficients(*fields[10:15]), fields[15])
 
 
 _EMPTY = np.zeros(0)
@@ -265,7 +274,7 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
     r, v = point_kinematics(q, qd, slots, S)
     force, d_dr, d_dv = shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping,
                                            stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale)
-    assemble_point_forces(slots, S, S_x, weights, force, d_dr, np.zeros_like(d_dr), d_dv, Q, band, kl, c_q, c_qd)
+    assemble_point_forces(slots, S, S_x, weights, force, d_dr, _NO_GRADIENT, d_dv, Q, band, kl, c_q, c_qd)
 
 
 @njit(cache=True)
@@ -496,71 +505,27 @@ class ShaftSupport:
     ``arc_lengths`` (k,), base to tip, with length shares ``weights`` (k,) [m], each anchored to the track once
     inside the tissue (stick-slip); without a law the needle slides freely.  Both are assembled with the model's
     point-force kernel over the points inside the tissue only, so the cost grows with the inserted length.
+    ``advance.advance_shaft`` advances a ``ShaftState`` with ``kernel_arguments``.
     """
 
     def __init__(self, model, block: TissueBlock, arc_lengths: np.ndarray, weights: np.ndarray, lateral: bool,
-                 axial_law=None) -> None:
+                 axial_law: ShaftLaw | None = None) -> None:
         self.block = block
         self.arc_lengths = np.asarray(arc_lengths, dtype=float)
         self.weights = np.asarray(weights, dtype=float)
         if np.any(np.diff(self.arc_lengths) <= 0) or self.weights.shape != self.arc_lengths.shape:
             raise ValueError("ShaftSupport: arc_lengths must increase and match weights")
         self.lateral = lateral
-        self.axial_law = axial_law
+        self.axial_law = axial_law or ShaftLaw()
         k = self.arc_lengths.size
-        self.initial = ShaftState(np.zeros(k), np.zeros(k, dtype=bool),
-                                  None if axial_law is None else axial_law.initial_state)
-        self._margin = 2.0 * float(np.max(np.diff(self.arc_lengths), initial=0.0))
-        self._table = model.interpolation(self.arc_lengths)
-
-    def advance(self, model, contact: ContactState, q: np.ndarray, shaft: ShaftState) -> tuple[ShaftState,
-                                                                                              ShaftForces]:
-        """The shaft after a step to q (contact updated): the law's state advanced, the points inside the tissue
-        (entering ones anchored), the anchors slipped; and the forces of the next step."""
-        law = shaft.law
-        if self.axial_law is not None:
-            law = self.axial_law.advance(law, contact.tip_depth, contact.tip_axial_speed, contact.step_duration)
-        track = contact.track
-        active = np.zeros(self.arc_lengths.size, dtype=bool)
-        if not track.started:
-            return ShaftState(shaft.anchor, active, law), NO_SHAFT_FORCES
-        lateral = self._lateral_support(model, contact, q) if self.lateral else _Frozen.inactive()
-        if self.axial_law is None:
-            return ShaftState(shaft.anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
-        table, block = self._table, self.block
-        anchor = shaft.anchor.copy()
-        # a point an arc length a behind the tip is at most a shallower than the tip, so only points closer to the
-        # tip than its depth can be inside; one more spacing gives the outer neighbours for entry_coverage
-        index, coverage, tangents, points, depth, u = shaft_contact_points(
-            q, self.arc_lengths, self.arc_lengths[-1] - contact.tip_depth - self._margin, table.S, table.S_x,
-            table.slots, block.entry_point, block.entry_normal, block.thickness, shaft.active, active, anchor,
-            track.vertices, track.arc_lengths, track.end_tangent())
-        if index.size == 0:
-            return ShaftState(anchor, active, law), ShaftForces(lateral, _Frozen.inactive())
-        axial = self.axial_law.coefficients(law, depth, contact.tip_depth)
-        weights, slots, S, S_x = slip_anchors(anchor, index, u, axial.coulomb, self.axial_law.stick_stiffness,
-                                              points, tangents, self.weights, coverage, table.slots, table.S,
-                                              table.S_x)
-        zero = np.zeros(index.size)
-        frozen = _Frozen(index, weights, slots, S, S_x, points, tangents, depth, zero, zero, axial,
-                         float(self.axial_law.stick_stiffness))
-        return ShaftState(anchor, active, law), ShaftForces(lateral, frozen)
-
-    def _lateral_support(self, model, contact: ContactState, q: np.ndarray) -> _Frozen:
-        """Gauss points, weights, frozen rest points on the track (each point's own projection) and needle tangents,
-        layer stiffness and damping of the needle's arc interval in cut tissue: from where the needle crosses the
-        entry surface (s_tip - the tip's track coordinate) to where it leaves the cut track (s_tip - the tip's
-        distance beyond the track's end).  Reference arc lengths: the cable is practically inextensible."""
-        track, block = contact.track, self.block
-        weights, slots, S, S_x, points, tangents, depth = lateral_quadrature(
-            q, model.mesh.node_arc_length, model.mesh.element_lengths, float(self.arc_lengths[-1]), _GAUSS_XI,
-            _GAUSS_W, track.vertices, track.arc_lengths, track.end_tangent(), block.entry_point, block.entry_normal)
-        if weights.size == 0:
-            return _Frozen.inactive()
-        stiffness, damping = block.layer_values(("lateral_stiffness", "lateral_damping"), depth)
-        zero = np.zeros(weights.size)
-        return _Frozen(np.zeros(0, dtype=int), weights, slots, S, S_x, points, tangents, depth,
-                       stiffness, damping, AxialCoefficients(zero, zero, 0.0, 0.0, 0.0), 1.0)
+        self.initial = ShaftState(np.zeros(k), np.zeros(k, dtype=bool), self.axial_law.initial_state)
+        margin = 2.0 * float(np.max(np.diff(self.arc_lengths), initial=0.0))
+        table = model.interpolation(self.arc_lengths)
+        law = self.axial_law
+        self.kernel_arguments = (self.arc_lengths, self.weights, margin, table.S, table.S_x, table.slots,
+                                 bool(lateral), law.kind, law.parameters, float(law.stick_stiffness),
+                                 block.entry_point, block.entry_normal, *block.kernel_tables,
+                                 model.mesh.node_arc_length, model.mesh.element_lengths, _GAUSS_XI, _GAUSS_W)
 
 
 class BevelTipForce(TipForce):
@@ -610,18 +575,15 @@ class TipResistance(TipForce):
 
     def tip_force(self, q, qd) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """World tip force and its derivatives with respect to the tip r, r_x and velocity."""
-        r, rx = tip_coordinates(q)
         zero = np.zeros((3, 3))
         if not self.punctured:
-            x = float(self.block.depth(r))
-            if x <= 0.0:
-                return np.zeros(3), zero, zero, zero
-            n = self.block.entry_normal
-            return (-self.profile.stiffness_force(x) * n, -self.profile.stiffness_slope(x) * np.outer(n, n),
-                    zero, zero)
+            profile, block = self.profile, self.block
+            force, d_dr = capsule_force(np.ascontiguousarray(q[-6:-3]), block.entry_point, block.entry_normal,
+                                        profile.a1, profile.a2)
+            return force, d_dr, zero, zero
         if not self.cutting:
             return np.zeros(3), zero, zero, zero
-        force, d_drx, d_dv = cutting_force(np.ascontiguousarray(rx), np.ascontiguousarray(qd[-6:-3]),
+        force, d_drx, d_dv = cutting_force(np.ascontiguousarray(q[-3:]), np.ascontiguousarray(qd[-6:-3]),
                                            self.profile.cutting_force, self.cutting_speed_scale)
         return force, zero, d_drx, d_dv
 
@@ -629,9 +591,9 @@ class TipResistance(TipForce):
         return self.tip_force(q, qd)[0]
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
-        if not self.punctured:
-            return assemble_tip_force(q.size, *self.tip_force(q, qd), band, kl, c_q, c_qd)
         Q = np.zeros(q.size)
-        if self.cutting:
-            cutting_assembly(q, qd, self.profile.cutting_force, self.cutting_speed_scale, Q, band, kl, c_q, c_qd)
+        profile, block = self.profile, self.block
+        tip_resistance_assembly(q, qd, self.punctured, self.cutting, block.entry_point, block.entry_normal,
+                                profile.a1, profile.a2, profile.cutting_force, self.cutting_speed_scale, Q, band, kl,
+                                c_q, c_qd)
         return Q

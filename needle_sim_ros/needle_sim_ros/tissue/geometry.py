@@ -7,13 +7,12 @@ infinite).  Lateral extent is unbounded.  The depth of a point is its distance b
 """
 from __future__ import annotations
 
-from bisect import bisect_right
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
-# Per-layer parameter names (all SI), in config and in TissueLayer.
+# Per-layer parameter names (all SI), in config and in TissueLayer; in this order the rows of the kernels' table.
 LAYER_PARAMETERS = {
     "thickness": "layer thickness along the entry normal [m] (.inf for the last layer)",
     "lateral_stiffness": "Winkler foundation stiffness: lateral force per unit length per unit offset [N/m^2]",
@@ -22,6 +21,10 @@ LAYER_PARAMETERS = {
     "friction_viscous": "Karnopp viscous friction per unit length b_n [N s/m^2] (seed 001 eq. 2: 120)",
     "tip_stiffness": "bevel-tip tissue property K_T [N/m^2] (seed 001 eqs. 4-5: 9.42e3)",
 }
+ROW = {name: row for row, name in enumerate(LAYER_PARAMETERS)}
+LATERAL_ROWS = np.array([ROW["lateral_stiffness"], ROW["lateral_damping"]])
+FRICTION_ROWS = np.array([ROW["friction_coulomb"], ROW["friction_viscous"]])
+TIP_STIFFNESS_ROW = ROW["tip_stiffness"]
 
 
 @dataclass(frozen=True)
@@ -65,9 +68,8 @@ class TissueBlock:
         object.__setattr__(self, "entry_point", point)
         object.__setattr__(self, "entry_normal", normal / norm)
         object.__setattr__(self, "_bottoms", np.cumsum([layer.thickness for layer in self.layers]))
-        object.__setattr__(self, "_bottom_list", self._bottoms.tolist())
-        object.__setattr__(self, "_table", {name: np.array([getattr(layer, name) for layer in self.layers] + [0.0])
-                                            for name in LAYER_PARAMETERS})
+        table = np.array([[getattr(layer, name) for layer in self.layers] + [0.0] for name in LAYER_PARAMETERS])
+        object.__setattr__(self, "kernel_tables", (self._bottoms, table))
 
     @property
     def thickness(self) -> float:
@@ -84,19 +86,17 @@ class TissueBlock:
 
     def layer_index(self, depth) -> np.ndarray:
         """Index of the layer containing each depth; ``len(layers)`` outside the block."""
-        if isinstance(depth, float) or np.ndim(depth) == 0:  # one depth (the tip's, every step): bisection
-            depth = float(depth)
-            return np.int64(bisect_right(self._bottom_list, depth) if depth > 0.0 else len(self._bottom_list))
-        return _layer_index(self._bottoms, np.ascontiguousarray(depth, dtype=float))
+        flat = np.ascontiguousarray(depth, dtype=float).reshape(-1)
+        return _layer_index(self._bottoms, flat).reshape(np.shape(depth))
 
     def layer_value(self, name: str, depth) -> np.ndarray:
         """Per-layer parameter ``name`` at each depth (0 outside the block)."""
-        return self._table[name][self.layer_index(depth)]
+        return self.kernel_tables[1][ROW[name]][self.layer_index(depth)]
 
     def layer_values(self, names, depth) -> tuple[np.ndarray, ...]:
         """Several per-layer parameters at each depth (one layer lookup)."""
         index = self.layer_index(depth)
-        return tuple(self._table[name][index] for name in names)
+        return tuple(self.kernel_tables[1][ROW[name]][index] for name in names)
 
 
 def inserted_interval(block: TissueBlock, points: np.ndarray, arc_length: np.ndarray) -> tuple[float, float]:
@@ -116,6 +116,25 @@ def inserted_interval(block: TissueBlock, points: np.ndarray, arc_length: np.nda
     i = outside[-1]
     fraction = depth[i] / (depth[i] - depth[i + 1])          # depth[i] <= 0 < depth[i+1]
     return float(arc_length[i] + fraction * (arc_length[i + 1] - arc_length[i])), s_tip
+
+
+@njit(cache=True)
+def layer_rows(bottoms, table, depth, rows):
+    """Rows ``rows`` of the layer ``table`` (``TissueBlock.kernel_tables``) at each depth (n,): (len(rows), n),
+    0 outside the block."""
+    index = _layer_index(bottoms, depth)
+    values = np.empty((rows.size, depth.size))
+    for r in range(rows.size):
+        for k in range(depth.size):
+            values[r, k] = table[rows[r], index[k]]
+    return values
+
+
+@njit(cache=True)
+def layer_row(bottoms, table, depth, row):
+    """Row ``row`` of the layer table at one depth (0 outside the block)."""
+    index = np.searchsorted(bottoms, depth, side="right") if depth > 0.0 else bottoms.size
+    return table[row, index]
 
 
 @njit(cache=True)

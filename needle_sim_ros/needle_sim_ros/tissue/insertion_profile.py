@@ -15,8 +15,22 @@ Signs: all forces here are magnitudes resisting insertion (positive while insert
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def fourier_series(parameters, x):
+    """Eq. 2 at one depth x [m] from ``parameters`` = [w_1..w_M, A_0..A_M, B_1..B_M]
+    (``InsertionForceProfile.series_parameters``)."""
+    m = (parameters.size - 1) // 3
+    total = parameters[m]
+    for i in range(m):
+        phase = x * parameters[i]
+        total += parameters[m + 1 + i] * np.cos(phase) + parameters[2 * m + 1 + i] * np.sin(phase)
+    return total
 
 
 @dataclass(frozen=True)
@@ -59,13 +73,16 @@ class InsertionForceProfile:
         """dF_s/dx [N/m]."""
         return self.a1 + 2.0 * self.a2 * np.asarray(x, dtype=float)
 
+    @cached_property
+    def series_parameters(self) -> np.ndarray:
+        """[w_1..w_M, A_0..A_M, B_1..B_M] (``fourier_series``)."""
+        return np.array([*self.frequencies, *self.cos_coefficients, *self.sin_coefficients], dtype=float)
+
     def friction_force(self, x):
-        """Eq. 2 [N]."""
+        """Eq. 2 [N] (``fourier_series`` at each depth)."""
         x = np.asarray(x, dtype=float)
-        w = np.asarray(self.frequencies, dtype=float)
-        phase = np.multiply.outer(x, w)
-        return (self.cos_coefficients[0] + np.cos(phase) @ np.asarray(self.cos_coefficients[1:])
-                + np.sin(phase) @ np.asarray(self.sin_coefficients))
+        parameters = self.series_parameters
+        return np.reshape([fourier_series(parameters, value) for value in x.ravel()], x.shape)
 
     def friction_slope(self, x):
         """dF_f/dx [N/m]."""

@@ -36,6 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 PARAMETER_NAMES = ("f1", "f2", "sigma0", "sigma1", "sigma2", "alpha")
 PARAMETER_UNITS = ("N/m", "N/m", "N/m^2", "N/m", "N/m", "1/m")
@@ -141,15 +142,45 @@ def rk3_step(z: float, theta: np.ndarray, depth: float, velocity: float, dt: flo
     return z_next, row
 
 
+@njit(cache=True)
+def bristle_step(z, theta, depth, velocity, dt, velocity_scale):
+    """``rk3_step`` without sensitivities in one compiled call (the simulator advances z every step): the same
+    sub-steps, rates and stage depths."""
+    f1, f2, sigma0, alpha = theta[0], theta[1], theta[2], theta[5]
+    stiffness = abs(sigma0 * velocity / max(f1 + f2 * np.exp(-alpha * depth), _G_FLOOR))
+    n_sub = int(min(np.ceil(stiffness * dt), 1000.0)) if np.isfinite(stiffness) else 1000
+    h = dt / max(n_sub, 1)
+    if velocity_scale <= 0.0:
+        speed = velocity * np.sign(velocity)
+    else:
+        speed = velocity * np.tanh(velocity / velocity_scale)
+    for i in range(max(n_sub, 1)):
+        start = depth + i * h * velocity if i > 0 else depth
+        k1 = velocity - sigma0 * speed * z / max(f1 + f2 * np.exp(-alpha * start), _G_FLOOR)
+        k2 = velocity - sigma0 * speed * (z + 0.5 * h * k1) / max(
+            f1 + f2 * np.exp(-alpha * (start + 0.5 * h * velocity)), _G_FLOOR)
+        k3 = velocity - sigma0 * speed * (z - h * k1 + 2.0 * h * k2) / max(
+            f1 + f2 * np.exp(-alpha * (start + h * velocity)), _G_FLOOR)
+        z = z + h / 6.0 * (k1 + 4.0 * k2 + k3)
+    return z
+
+
+def bracket(z, theta, depth, sign):
+    """The bracket of eq. 1b [N/m] at a scalar depth for the (regularised) velocity sign ``sign`` (any shape)."""
+    sigma0, sigma1, sigma2, alpha = theta[2], theta[3], theta[4], theta[5]
+    g = max(theta[0] + theta[1] * np.exp(-alpha * depth), _G_FLOOR)
+    return sigma0 * z + sigma1 * np.exp(-alpha * depth) * (sign - sigma0 * z / g) + sigma2 * sign
+
+
+bracket_kernel = njit(cache=True)(bracket)  # the simulator's per-step coefficients (``shaft_laws``)
+
+
 def force_per_length(z, theta, depth, velocity, velocity_scale):
     """The bracket of eq. 1b, the force per inserted length [N/m] (vectorised over velocity), and its derivative
     with respect to the velocity."""
-    _, _, sigma0, sigma1, sigma2, alpha = theta
-    g = float(stribeck_value(theta, depth))
-    decay = np.exp(-alpha * depth)
-    s = regularised_sign(velocity, velocity_scale)
-    per_length = sigma0 * z + sigma1 * decay * (s - sigma0 * z / g) + sigma2 * s
-    return per_length, (sigma1 * decay + sigma2) * regularised_sign_slope(velocity, velocity_scale)
+    sigma1, sigma2, alpha = theta[3], theta[4], theta[5]
+    per_length = bracket(z, theta, depth, regularised_sign(velocity, velocity_scale))
+    return per_length, (sigma1 * np.exp(-alpha * depth) + sigma2) * regularised_sign_slope(velocity, velocity_scale)
 
 
 def axial_force(z, theta, depth, velocity, velocity_scale):
@@ -187,8 +218,9 @@ class ModifiedLuGre:
             raise ValueError("ModifiedLuGre: need sigma0 > 0 and g(l) = f1 + f2 exp(-alpha l) > 0 for all l >= 0")
 
     def step(self, z: float, depth: float, velocity: float, dt: float) -> float:
-        """Advance the bristle state z over dt (RK3)."""
-        return float(rk3_step(z, self.parameters.as_array(), depth, velocity, dt, self.velocity_scale, False)[0])
+        """Advance the bristle state z over dt (RK3, ``bristle_step``)."""
+        return bristle_step(float(z), self.parameters.as_array(), float(depth), float(velocity), float(dt),
+                            self.velocity_scale)
 
     def force(self, z, depth, velocity) -> float:
         """Axial force f [N] resisting the motion (positive while inserting)."""

@@ -22,10 +22,13 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from .geometry import TissueBlock
-from .insertion_profile import InsertionForceProfile
-from .lugre import ModifiedLuGre, force_per_length
+from .geometry import FRICTION_ROWS, LAYER_PARAMETERS, TissueBlock, layer_rows
+from .insertion_profile import InsertionForceProfile, fourier_series
+from .lugre import ModifiedLuGre, bracket_kernel, bristle_step
+
+NO_LAW, KARNOPP, PROFILE, LUGRE = 0, 1, 2, 3  # ``kind`` of each law: how the compiled kernels below read it
 
 
 class AxialCoefficients(NamedTuple):
@@ -39,66 +42,94 @@ class AxialCoefficients(NamedTuple):
     velocity_scale: float
 
 
-class StatelessLaw:
-    """An axial law without state of its own (its state in the tissue state is None)."""
-
-    initial_state = None
-
-    def advance(self, law_state: None, insertion_depth: float, insertion_speed: float, dt: float) -> None:
-        """Stateless."""
-        return None
-
-
-class KarnoppShaftFriction(StatelessLaw):
-    """Seed 001 eq. 2 with the stick band of ``karnopp.KarnoppFriction``; C_n, b_n per layer."""
-
-    def __init__(self, block: TissueBlock, stick_stiffness: float) -> None:
-        if not stick_stiffness > 0.0:
-            raise ValueError(f"tissue.shaft.stick_stiffness must be > 0, got {stick_stiffness!r}")
-        self.block = block
-        self.stick_stiffness = stick_stiffness
-
-    def coefficients(self, law_state: None, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
-        coulomb, viscous = self.block.layer_values(("friction_coulomb", "friction_viscous"), anchor_depth)
-        return AxialCoefficients(coulomb, viscous, 0.0, 0.0, 0.0)
-
-
-class ProfileShaftFriction(StatelessLaw):
-    """Seed 002 eq. 2 friction F_f(x) spread over the inserted length x, with a stick band of stiffness k_a."""
-
-    def __init__(self, profile: InsertionForceProfile, stick_stiffness: float) -> None:
-        if not stick_stiffness > 0.0:
-            raise ValueError(f"tissue.shaft.stick_stiffness must be > 0, got {stick_stiffness!r}")
-        self.profile = profile
-        self.stick_stiffness = stick_stiffness
-
-    def coefficients(self, law_state: None, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
+@njit(cache=True)
+def law_coefficients(kind, parameters, law_state, anchor_depth, insertion_depth, bottoms, table):
+    """The traction law's coefficients (``AxialCoefficients`` fields) of a law ``kind`` with its ``parameters``
+    and state for points with anchors at ``anchor_depth`` (n,) while the tip is at ``insertion_depth``; ``bottoms``
+    and ``table``: the block's layer tables (``TissueBlock.kernel_tables``)."""
+    n = anchor_depth.size
+    if kind == KARNOPP:
+        values = layer_rows(bottoms, table, anchor_depth, FRICTION_ROWS)
+        return values[0].copy(), values[1].copy(), 0.0, 0.0, 0.0
+    if kind == PROFILE:
         limit = 0.0
         if insertion_depth > 0.0:
-            limit = max(float(self.profile.friction_force(insertion_depth)), 0.0) / insertion_depth
-        return AxialCoefficients(np.full(anchor_depth.shape, limit), np.zeros(anchor_depth.shape), 0.0, 0.0, 0.0)
+            limit = max(fourier_series(parameters, insertion_depth), 0.0) / insertion_depth
+        return np.full(n, limit), np.zeros(n), 0.0, 0.0, 0.0
+    if kind == LUGRE:
+        theta, depth = parameters[:6], max(insertion_depth, 0.0)
+        at_rest = bracket_kernel(law_state, theta, depth, 0.0)
+        sliding = bracket_kernel(law_state, theta, depth, 1.0)
+        return np.zeros(n), np.zeros(n), at_rest, sliding - at_rest, parameters[6]
+    return np.zeros(n), np.zeros(n), 0.0, 0.0, 0.0
 
 
-class LuGreShaftForce:
-    """Seed 003 eqs. 1-2 as a traction per inserted length (reading in ``lugre``); its state is the bristle
-    state z [m]."""
+@njit(cache=True)
+def law_advance(kind, parameters, law_state, insertion_depth, insertion_speed, dt):
+    """The law's state after a step of dt [s] (LuGre: z by RK3 with l = insertion depth and l' = the tip's axial
+    speed; the other laws have none)."""
+    if kind == LUGRE and dt > 0.0:
+        return bristle_step(law_state, parameters[:6], max(insertion_depth, 0.0), insertion_speed, dt, parameters[6])
+    return law_state
 
-    stick_stiffness = 1.0      # unused: C = 0, the bristle state carries the stick
+
+_NO_LAYERS = (np.array([np.inf]), np.zeros((len(LAYER_PARAMETERS), 2)))
+
+
+class ShaftLaw:
+    """An axial law: its ``kind``, ``parameters`` (array), ``stick_stiffness`` k_a [N/m^2] and initial state, read by
+    the compiled kernels; ``coefficients`` and ``advance`` call them."""
+
+    kind = NO_LAW
     initial_state = 0.0
+    stick_stiffness = 1.0
+    parameters = np.zeros(0)
+    block: TissueBlock | None = None
+
+    def coefficients(self, law_state: float, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
+        bottoms, table = _NO_LAYERS if self.block is None else self.block.kernel_tables
+        return AxialCoefficients(*law_coefficients(self.kind, self.parameters, float(law_state),
+                                                   np.ascontiguousarray(anchor_depth, dtype=float),
+                                                   float(insertion_depth), bottoms, table))
+
+    def advance(self, law_state: float, insertion_depth: float, insertion_speed: float, dt: float) -> float:
+        return law_advance(self.kind, self.parameters, float(law_state), float(insertion_depth),
+                           float(insertion_speed), float(dt))
+
+
+def _stick_stiffness(value: float) -> float:
+    if not value > 0.0:
+        raise ValueError(f"tissue.shaft.stick_stiffness must be > 0, got {value!r}")
+    return float(value)
+
+
+class KarnoppShaftFriction(ShaftLaw):
+    """Seed 001 eq. 2 with the stick band of ``karnopp.KarnoppFriction``; C_n, b_n per layer."""
+
+    kind = KARNOPP
+
+    def __init__(self, block: TissueBlock, stick_stiffness: float) -> None:
+        self.block = block
+        self.stick_stiffness = _stick_stiffness(stick_stiffness)
+
+
+class ProfileShaftFriction(ShaftLaw):
+    """Seed 002 eq. 2 friction F_f(x) spread over the inserted length x, with a stick band of stiffness k_a."""
+
+    kind = PROFILE
+
+    def __init__(self, profile: InsertionForceProfile, stick_stiffness: float) -> None:
+        self.profile = profile
+        self.parameters = profile.series_parameters
+        self.stick_stiffness = _stick_stiffness(stick_stiffness)
+
+
+class LuGreShaftForce(ShaftLaw):
+    """Seed 003 eqs. 1-2 as a traction per inserted length (reading in ``lugre``); its state is the bristle
+    state z [m]; k_a is unused (C = 0, the bristle state carries the stick)."""
+
+    kind = LUGRE
 
     def __init__(self, model: ModifiedLuGre) -> None:
         self.model = model
-        self.theta = model.parameters.as_array()
-
-    def coefficients(self, z: float, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
-        depth = max(insertion_depth, 0.0)
-        at_rest = float(force_per_length(z, self.theta, depth, 0.0, self.model.velocity_scale)[0])
-        sliding = float(force_per_length(z, self.theta, depth, np.inf, self.model.velocity_scale)[0])
-        zero = np.zeros(anchor_depth.shape)
-        return AxialCoefficients(zero, zero, at_rest, sliding - at_rest, self.model.velocity_scale)
-
-    def advance(self, z: float, insertion_depth: float, insertion_speed: float, dt: float) -> float:
-        """z advanced over the step (RK3) with l = insertion depth and l' = the tip's axial speed."""
-        if dt > 0.0:
-            return self.model.step(z, max(insertion_depth, 0.0), insertion_speed, dt)
-        return z
+        self.parameters = np.append(model.parameters.as_array(), model.velocity_scale)

@@ -16,12 +16,16 @@ import numpy as np
 
 from needle_sim_ros.model import centerline
 from needle_sim_ros.model.forces import ForceContribution
+from needle_sim_ros.model.integrators import SequenceResult
 
+from .advance import advance_contact, advance_shaft, tip_parameters
 from .bevel_tip import BevelTip
 from .coupling import (NO_SHAFT_FORCES, BevelTipForce, ContactState, ShaftForces, ShaftState, ShaftSupport,
-                       TipResistance, TissueContact, tip_coordinates)
+                       TipResistance, TissueContact, _Frozen, tip_coordinates)
+from .track import Track
 from .geometry import inserted_interval
 from .insertion_profile import InsertionForceProfile
+from .sequence import integrate_tissue_sequence
 
 
 class TissueState(NamedTuple):
@@ -54,6 +58,7 @@ class TissueModel(ForceContribution):
     state_dependent = True
     time_invariant = False
     stateful = True
+    compiled_run = True
 
     def __init__(self, contact: TissueContact, shaft: ShaftSupport,
                  bevel: tuple[BevelTip, np.ndarray] | None = None,
@@ -69,35 +74,84 @@ class TissueModel(ForceContribution):
         self.shaft = shaft
         self.bevel = bevel
         self.tip_resistance = tip_resistance
+        block = contact.block
+        self.contact_arguments = (block.entry_point, block.entry_normal, contact.puncture_depth or 0.0,
+                                  contact.initial.track.spacing)
+        unit, side = bevel if bevel is not None else (None, np.zeros(3))
+        profile, speed_scale = tip_resistance if tip_resistance is not None else (None, 1.0)
+        self.tip_arguments = (unit is not None, unit.axial_force if unit else 0.0,
+                              unit.transverse_force if unit else 0.0, side, unit.edge_a if unit else 1.0,
+                              profile is not None, block.entry_point, block.entry_normal,
+                              *((profile.a1, profile.a2, profile.cutting_force) if profile else (0.0, 0.0, 0.0)),
+                              float(speed_scale))
 
     def initial_state(self, model) -> TissueState:
         """Fresh tissue: not punctured, no track, no shaft point inside."""
         contact = self.contact.initial
         shaft = self.shaft.initial
-        return TissueState(contact, shaft, self._forces(contact, shaft, NO_SHAFT_FORCES))
+        return TissueState(contact, shaft, self._forces(contact, NO_SHAFT_FORCES))
 
     def advance(self, model, state, base, tissue: TissueState) -> TissueState:
-        """The tissue after the accepted step to ``state`` (see the module docstring)."""
-        contact = self.contact.update(tissue.contact, state.q, state.qd, state.t)
-        shaft, shaft_forces = self.shaft.advance(model, contact, state.q, tissue.shaft)
-        return TissueState(contact, shaft, self._forces(contact, shaft, shaft_forces))
+        """The tissue after the accepted step to ``state`` (see the module docstring; ``advance``)."""
+        contact = tissue.contact
+        advanced = advance_contact(contact.punctured, np.nan if contact.time is None else contact.time,
+                                   *contact.track.kernel_arrays, state.q, state.qd, float(state.t),
+                                   *self.contact_arguments)
+        shaft = tissue.shaft
+        law_state, anchor, active, lateral, axial = advance_shaft(
+            state.q, advanced[5], advanced[6], advanced[9], *advanced[1:4], shaft.anchor, shaft.active,
+            float(shaft.law), *self.shaft.kernel_arguments)
+        return self.state_from_arrays(advanced, float(state.t), law_state, anchor, active, lateral, axial)
 
-    def _forces(self, contact: ContactState, shaft: ShaftState, shaft_forces: ShaftForces) -> tuple:
-        """The contributions of the next step: the shaft's, the bevel tip's (engaged at the cut front; eqs. 4-5
-        scale with the squared edge lengths, so while the bevel enters the forces grow with the square of its
-        embedded fraction, tip depth / axial bevel length a) and the seed 002 tip's."""
+    def run_steps(self, model, integrator, state, tissue: TissueState, dt: float, times: np.ndarray,
+                  motions: np.ndarray, rotations: np.ndarray, forces, memory) -> tuple[SequenceResult, TissueState]:
+        """Steps of dt from ``state`` (with ``aux``) to the end times (k,), the base at each given packed (k, 19)
+        with rotations (k, 3, 3), under ``forces`` (time-invariant) and the tissue, in one compiled call
+        (``tissue.sequence``); the run ends early at a step that does not converge (integrate that one with the
+        general step). Returns the steps done and the tissue state after them."""
+        k, n = times.size, model.n_dof
+        needle, constant_Q = integrator.run_arguments(forces, dt, float(times[0]), memory)
+        history = np.empty((4, n))
+        history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
+        states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)
+        contact, shaft = tissue.contact, tissue.shaft
+        arrays = (contact.punctured, contact.tip_depth, contact.tip_axial_speed, contact.step_duration,
+                  contact.at_front, *contact.track.kernel_arrays)
+        lateral, axial = (part.fields for part in tissue.forces[0].parts)
+        done, arrays, _, (law_state, anchor, active), lateral, axial = integrate_tissue_sequence(
+            history, times, motions, rotations, needle, constant_Q, memory.control, arrays,
+            np.nan if contact.time is None else contact.time, (float(shaft.law), shaft.anchor, shaft.active),
+            lateral, axial, self.contact_arguments, self.shaft.kernel_arguments, self.tip_arguments, states,
+            wrenches, iterations)
+        result = SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
+        if done == 0:
+            return result, tissue
+        return result, self.state_from_arrays(arrays, float(times[done - 1]), law_state, anchor, active, lateral,
+                                              axial)
+
+    def state_from_arrays(self, contact: tuple, t: float, law_state: float, anchor: np.ndarray, active: np.ndarray,
+                          lateral: tuple, axial: tuple) -> TissueState:
+        """The tissue state of the compiled advance's results at time t: ``advance_contact``'s tuple and
+        ``advance_shaft``'s law state, anchors, active points and frozen parts."""
+        punctured, tip_depth, tip_speed, duration, at_front = contact[:5]
+        track = Track(self.contact.initial.track.spacing, *contact[5:])
+        contact_state = ContactState(bool(punctured), float(tip_depth), float(tip_speed), float(duration),
+                                     bool(at_front), t, track)
+        shaft_forces = ShaftForces(_Frozen.from_fields(lateral), _Frozen.from_fields(axial))
+        return TissueState(contact_state, ShaftState(anchor, active, law_state),
+                           self._forces(contact_state, shaft_forces))
+
+    def _forces(self, contact: ContactState, shaft_forces: ShaftForces) -> tuple:
+        """The contributions of the next step: the shaft's, the bevel tip's and the seed 002 tip's
+        (``advance.tip_parameters``)."""
         forces: list = [shaft_forces]
+        block = self.contact.block
+        scale, cutting = tip_parameters(contact.punctured, contact.at_front, contact.tip_depth, self.tip_arguments[4],
+                                        *block.kernel_tables)
         if self.bevel is not None:
-            unit, side = self.bevel
-            engaged = contact.punctured and contact.at_front
-            embedded = min(contact.tip_depth / max(unit.edge_a, 1e-12), 1.0)
-            scale = (float(self.contact.block.layer_value("tip_stiffness", contact.tip_depth)) * embedded**2
-                     if engaged else 0.0)
-            forces.append(BevelTipForce(unit, side, scale))
+            forces.append(BevelTipForce(*self.bevel, float(scale)))
         if self.tip_resistance is not None:
-            block = self.contact.block
-            cutting = contact.punctured and contact.at_front and contact.tip_depth < block.thickness
-            forces.append(TipResistance(block, *self.tip_resistance, contact.punctured, cutting))
+            forces.append(TipResistance(block, *self.tip_resistance, contact.punctured, bool(cutting)))
         return tuple(forces)
 
     def at(self, tissue: TissueState) -> tuple:

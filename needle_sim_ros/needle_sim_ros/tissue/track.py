@@ -66,6 +66,11 @@ class Track:
     def end_tangent(self) -> np.ndarray:
         return self._end_tangent
 
+    @property
+    def kernel_arrays(self) -> tuple:
+        """(vertices, arc_lengths, direction, previous_tip, end tangent): the track in the compiled advance."""
+        return self.vertices, self.arc_lengths, self.direction, self.previous_tip, self._end_tangent
+
     def coordinate_ahead(self, point: np.ndarray) -> float:
         """Track coordinate of a point near the end, measured along the end tangent (may exceed ``length``)."""
         return self.length + float((point - self.vertices[-1]) @ self._end_tangent)
@@ -114,15 +119,45 @@ def cut_polyline(vertices, arc, end_tangent, previous, tip, spacing):
         end_tangent = chord_tangent(vertices, end_tangent)
 
 
+PROJECTION_BLOCK = 16  # segments per bounding sphere of ``project_on_polyline``'s search
+
+
+@njit(cache=True)
+def segment_blocks(vertices, arc):
+    """Bounding spheres (centres (b, 3), radii (b,)) of the polyline's segments in blocks of PROJECTION_BLOCK,
+    radii widened by far more than the rounding of the distances they bound."""
+    segments = arc.size - 1
+    blocks = (segments + PROJECTION_BLOCK - 1) // PROJECTION_BLOCK
+    centres, radii = np.empty((blocks, 3)), np.empty(blocks)
+    for b in range(blocks):
+        first, last = b * PROJECTION_BLOCK, min((b + 1) * PROJECTION_BLOCK, segments)
+        radius = 0.0
+        for i in range(3):
+            centres[b, i] = 0.5 * (vertices[first, i] + vertices[last, i])
+        for j in range(first, last + 1):
+            d2 = 0.0
+            for i in range(3):
+                d2 += (vertices[j, i] - centres[b, i]) ** 2
+            radius = max(radius, d2)
+        radii[b] = np.sqrt(radius) * (1.0 + 1e-9) + 1e-12
+    return centres, radii
+
+
 @njit(cache=True)
 def project_on_polyline(vertices, arc, end_tangent, points):
     """Closest coordinate (k,) and distance (k,) of points on the polyline (vertices, cumulative arc) and on its
-    straight continuation beyond the end along end_tangent."""
+    straight continuation beyond the end along end_tangent: the first closest in the order continuation, then
+    segments base to tip. Blocks of segments whose bounding sphere lies farther than an upper bound of the
+    closest distance (the nearest sphere's far side) are skipped: they cannot hold it, so the result is the full
+    scan's, at a cost that grows with the track length by the block count only."""
     count = arc.size
     n = points.shape[0]
     coordinate = np.empty(n)
     distance = np.empty(n)
     end = vertices[count - 1]
+    centres, radii = segment_blocks(vertices, arc)
+    blocks = radii.size
+    centre_distance = np.empty(blocks)
     for k in range(n):
         p = points[k]
         beyond = max((p[0] - end[0]) * end_tangent[0] + (p[1] - end[1]) * end_tangent[1]
@@ -131,20 +166,31 @@ def project_on_polyline(vertices, arc, end_tangent, points):
         for i in range(3):
             d = p[i] - end[i] - beyond * end_tangent[i]
             best += d * d
-        for j in range(count - 1):
-            a, b = vertices[j], vertices[j + 1]
-            length2 = 0.0
-            along = 0.0
-            for i in range(3):
-                length2 += (b[i] - a[i]) ** 2
-                along += (p[i] - a[i]) * (b[i] - a[i])
-            fraction = min(max(along / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
+        bound = best
+        for b in range(blocks):
             d2 = 0.0
             for i in range(3):
-                d = p[i] - a[i] - fraction * (b[i] - a[i])
-                d2 += d * d
-            if d2 < best:
-                best, best_coordinate = d2, arc[j] + fraction * (arc[j + 1] - arc[j])
+                d2 += (p[i] - centres[b, i]) ** 2
+            centre_distance[b] = np.sqrt(d2)
+            bound = min(bound, (centre_distance[b] + radii[b]) ** 2)
+        bound = bound * (1.0 + 1e-9) + 1e-24
+        for b in range(blocks):
+            gap = centre_distance[b] - radii[b]
+            if gap > 0.0 and gap * gap > bound:
+                continue
+            for j in range(b * PROJECTION_BLOCK, min((b + 1) * PROJECTION_BLOCK, count - 1)):
+                length2 = 0.0
+                along = 0.0
+                for i in range(3):
+                    length2 += (vertices[j + 1, i] - vertices[j, i]) ** 2
+                    along += (p[i] - vertices[j, i]) * (vertices[j + 1, i] - vertices[j, i])
+                fraction = min(max(along / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
+                d2 = 0.0
+                for i in range(3):
+                    d = p[i] - vertices[j, i] - fraction * (vertices[j + 1, i] - vertices[j, i])
+                    d2 += d * d
+                if d2 < best:
+                    best, best_coordinate = d2, arc[j] + fraction * (arc[j + 1] - arc[j])
         coordinate[k] = best_coordinate
         distance[k] = np.sqrt(best)
     return coordinate, distance
