@@ -187,17 +187,21 @@ class NeedleSimulation:
         self._gravity = Gravity()
         self.start_in_equilibrium = start_in_equilibrium
         self.base_at = base_at
+        self.motions_at: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
         self.restart_on_failure = restart_on_failure
         self.compiled_sequence = True
 
     @classmethod
     def prescribed(cls, model: NeedleModel, integrator: Integrator, dt: float, base_at: Callable[[float], BaseMotion],
-                   state: State, extra_forces: Sequence = ()) -> NeedleSimulation:
+                   state: State, extra_forces: Sequence = (),
+                   motions_at: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None) -> NeedleSimulation:
         """A simulation whose base follows ``base_at(t)`` (scenarios, ground truth, benchmarks), started from
         ``state`` at ``state.t`` with gravity and ``extra_forces`` (checked once, kept: no builder), never skipping
-        time, raising StepFailed where a step fails."""
+        time, raising StepFailed where a step fails. ``motions_at(times)``: the same motions for many times at once,
+        packed as :meth:`base_motions` returns them (a run of steps then calls no Python per step)."""
         simulation = cls(model, integrator, dt, BaseTrajectory(), max_catch_up=np.inf, base_at=base_at,
                          restart_on_failure=False)
+        simulation.motions_at = motions_at
         simulation.extra_forces = list(check_forces(list(extra_forces)))
         simulation.start_from(state)
         return simulation
@@ -296,6 +300,8 @@ class NeedleSimulation:
     def base_motions(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Motions of the clamp point A at the given times (k,), packed (k, 19) as :meth:`BaseMotion.from_packed`
         takes them, and their rotations (k, 3, 3)."""
+        if self.motions_at is not None:
+            return self.motions_at(times)
         if self.base_at is not None:
             motions = [self.base_at(float(t)) for t in times]
             values = np.array([np.concatenate((m.position, m.orientation, m.linear_velocity, m.angular_velocity,

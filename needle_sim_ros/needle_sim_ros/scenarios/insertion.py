@@ -72,7 +72,7 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
     sagged = solve_static(model, base, forces=[Gravity()]).state
     state = State(sagged.q, moving.qd, np.zeros(model.n_dof), 0.0)     # start in equilibrium under gravity
     simulation = NeedleSimulation.prescribed(model, integrator, dt, motion.base_at, state,
-                                             [build_tissue_model(config, model)])
+                                             [build_tissue_model(config, model)], motion.motions_at)
     n_steps = int(np.ceil(motion.duration / dt))
     series: dict[str, list] = {key: [] for key in (
         "time_s", "insertion_depth_m", "tip_lateral_deflection_m", "tip_position_m", "tip_offset_m", "tip_tangent",
@@ -86,7 +86,7 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
         readout = simulation.tissue_readout()
         values = (state.t, readout.insertion_depth, float(np.hypot(tip[1], tip[2])), tip.tolist(),
                   [float(tip[1]), float(tip[2])], (tip_gradient / np.linalg.norm(tip_gradient)).tolist(),
-                  motion.roll_at(state.t)[0], readout.inserted_length,
+                  float(motion.roll_at(state.t)[0]), readout.inserted_length,
                   wrench.force_base.tolist(), wrench.torque_base.tolist(), readout.tip_force.tolist(),
                   readout.axial_force)
         for key, value in zip(series, values):

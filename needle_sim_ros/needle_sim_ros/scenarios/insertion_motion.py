@@ -56,37 +56,48 @@ class InsertionMotion:
         """Time [s] to pass every waypoint."""
         return float(self._times[-1])
 
-    def travel(self, t: float) -> tuple[float, float]:
-        """Base position along x [m] and its velocity [m/s] at time t (piecewise linear through the waypoints)."""
-        t = min(max(t, 0.0), self.duration)
-        i = min(int(np.searchsorted(self._times, t, side="right")) - 1, len(self.waypoints) - 1)
+    def travel(self, t):
+        """Base position along x [m] and its velocity [m/s] at time(s) t (piecewise linear through the waypoints)."""
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        i = np.minimum(np.searchsorted(self._times, t, side="right") - 1, len(self.waypoints) - 1)
         span = self._times[i + 1] - self._times[i]
         direction = np.sign(self._positions[i + 1] - self._positions[i])
-        velocity = direction * self.speed if t < self.duration and span > 0.0 else 0.0
-        return float(self._positions[i] + direction * self.speed * (t - self._times[i])), float(velocity)
+        velocity = np.where((t < self.duration) & (span > 0.0), direction * self.speed, 0.0)
+        return self._positions[i] + direction * self.speed * (t - self._times[i]), velocity
 
-    def roll_at(self, t: float) -> tuple[float, float]:
-        """Roll angle [rad] of the base and its rate [rad/s] at time t."""
-        angle, rate = self.roll, 0.0
+    def roll_at(self, t):
+        """Roll angle [rad] of the base and its rate [rad/s] at time(s) t."""
+        t = np.asarray(t, dtype=float)
+        angle, rate = np.full(t.shape, self.roll), np.zeros(t.shape)
         if self.duty_cycle > 0.0:
             turn = 2.0 * np.pi / self.spin_rate                     # one full turn per period
             period = turn / self.duty_cycle
-            cycles, phase = divmod(t, period)
-            spinning = max(phase - (period - turn), 0.0)
-            angle += 2.0 * np.pi * cycles + self.spin_rate * spinning
-            rate += self.spin_rate if spinning > 0.0 else 0.0
+            cycles, phase = np.divmod(t, period)
+            spinning = np.maximum(phase - (period - turn), 0.0)
+            angle = angle + 2.0 * np.pi * cycles + self.spin_rate * spinning
+            rate = rate + np.where(spinning > 0.0, self.spin_rate, 0.0)
         for start, duration, change in self.roll_changes:
-            u = min(max((t - start) / duration, 0.0), 1.0)
-            angle += change * u * u * (3.0 - 2.0 * u)
-            rate += change * 6.0 * u * (1.0 - u) / duration
+            u = np.clip((t - start) / duration, 0.0, 1.0)
+            angle = angle + change * u * u * (3.0 - 2.0 * u)
+            rate = rate + change * 6.0 * u * (1.0 - u) / duration
         return angle, rate
 
-    def base_at(self, t: float) -> BaseMotion:
-        """The base (clamp point A, needle along its x axis) at time t: travel along x, roll about x (built packed:
-        finite and a unit quaternion by construction, so without BaseMotion's checks; once per time step)."""
-        x, v = self.travel(t)
-        roll, rate = self.roll_at(t)
-        packed = np.zeros(19)  # [position, orientation (x, y, z, w), v, w, a, alpha]
-        packed[0], packed[3], packed[6], packed[7], packed[10] = x, np.sin(0.5 * roll), np.cos(0.5 * roll), v, rate
+    def motions_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The base (clamp point A, needle along its x axis) at each time (k,): travel along x, roll about x, packed
+        (k, 19) as ``BaseMotion.from_packed`` takes it, and the rotations (k, 3, 3) (finite and unit quaternions by
+        construction; the simulator's time loop takes a run of steps at once)."""
+        x, v = self.travel(times)
+        roll, rate = self.roll_at(times)
+        packed = np.zeros((np.size(times), 19))  # [position, orientation (x, y, z, w), v, w, a, alpha]
+        packed[:, 0], packed[:, 3], packed[:, 6], packed[:, 7], packed[:, 10] = (x, np.sin(0.5 * roll),
+                                                                               np.cos(0.5 * roll), v, rate)
         c, s = np.cos(roll), np.sin(roll)
-        return BaseMotion.from_packed(packed, np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]))
+        rotations = np.zeros((np.size(times), 3, 3))
+        rotations[:, 0, 0], rotations[:, 1, 1], rotations[:, 1, 2], rotations[:, 2, 1], rotations[:, 2, 2] = (
+            1.0, c, -s, s, c)
+        return packed, rotations
+
+    def base_at(self, t: float) -> BaseMotion:
+        """The base at time t (``motions_at``)."""
+        packed, rotations = self.motions_at(np.array([t], dtype=float))
+        return BaseMotion.from_packed(packed[0], rotations[0])

@@ -90,12 +90,13 @@ def advance_shaft(q, vertices, arc, end_tangent, tip_depth, tip_speed, step_dura
     neighbours for the entry coverage) are candidates."""
     law_state = law_advance(law_kind, law_parameters, law_state, tip_depth, tip_speed, step_duration)
     active = np.zeros(arc_lengths.size, dtype=np.bool_)
-    lateral_frozen = inactive_part()
     if arc.size == 0:
-        return law_state, anchor, active, lateral_frozen, inactive_part()
+        return law_state, anchor, active, inactive_part(), inactive_part()
     if lateral:
         lateral_frozen = lateral_part(q, node_arc, element_lengths, arc_lengths[-1], xi, w, vertices, arc,
                                       end_tangent, entry_point, entry_normal, bottoms, table)
+    else:
+        lateral_frozen = inactive_part()
     if law_kind == NO_LAW:
         return law_state, anchor, active, lateral_frozen, inactive_part()
     anchor = anchor.copy()

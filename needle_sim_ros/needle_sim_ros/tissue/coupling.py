@@ -33,7 +33,7 @@ from .geometry import TissueBlock
 from .insertion_profile import InsertionForceProfile
 from .karnopp import axial_traction
 from .shaft_laws import AxialCoefficients, ShaftLaw
-from .track import Track, locate_on_polyline, project_on_polyline
+from .track import Track, locate_on_polyline, project_on_blocks, project_on_polyline, segment_blocks
 
 
 @njit(cache=True)
@@ -351,12 +351,13 @@ def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc
     """Gauss points of the needle's arc interval in cut tissue (``ShaftSupport._lateral_support``): weights,
     slots, S, S_x (``cut_quadrature``), the rest points on the track (each needle point's projection), the needle
     tangents and the rest points' depths; none if the interval is empty."""
-    tip_coordinate = project_on_polyline(vertices, arc, end_tangent, q[-6:-3].reshape(1, 3))[0][0]
+    centres, radii = segment_blocks(vertices, arc)
+    tip_coordinate = project_on_blocks(vertices, arc, end_tangent, q[-6:-3].reshape(1, 3), centres, radii)[0][0]
     upper = s_tip - max(tip_coordinate - arc[-1], 0.0)
     lower = max(s_tip - tip_coordinate, 0.0)
     weights, slots, S, S_x = cut_quadrature(node_arc, element_lengths, lower, upper, xi, w)
     r, tangents = needle_points(S, S_x, slots, q)
-    coordinate = np.maximum(project_on_polyline(vertices, arc, end_tangent, r)[0], 0.0)
+    coordinate = np.maximum(project_on_blocks(vertices, arc, end_tangent, r, centres, radii)[0], 0.0)
     points = locate_on_polyline(vertices, arc, end_tangent, coordinate)[0]
     depth = np.empty(weights.size)
     for k in range(weights.size):

@@ -147,15 +147,20 @@ def segment_blocks(vertices, arc):
 def project_on_polyline(vertices, arc, end_tangent, points):
     """Closest coordinate (k,) and distance (k,) of points on the polyline (vertices, cumulative arc) and on its
     straight continuation beyond the end along end_tangent: the first closest in the order continuation, then
-    segments base to tip. Blocks of segments whose bounding sphere lies farther than an upper bound of the
-    closest distance (the nearest sphere's far side) are skipped: they cannot hold it, so the result is the full
-    scan's, at a cost that grows with the track length by the block count only."""
+    segments base to tip (``project_on_blocks`` with the polyline's ``segment_blocks``)."""
+    return project_on_blocks(vertices, arc, end_tangent, points, *segment_blocks(vertices, arc))
+
+
+@njit(cache=True)
+def project_on_blocks(vertices, arc, end_tangent, points, centres, radii):
+    """``project_on_polyline`` with the polyline's ``segment_blocks``: blocks whose bounding sphere lies farther
+    than an upper bound of the closest distance (the nearest sphere's far side) are skipped; they cannot hold it,
+    so the result is the full scan's, at a cost that grows with the track length by the block count only."""
     count = arc.size
     n = points.shape[0]
     coordinate = np.empty(n)
     distance = np.empty(n)
     end = vertices[count - 1]
-    centres, radii = segment_blocks(vertices, arc)
     blocks = radii.size
     centre_distance = np.empty(blocks)
     for k in range(n):
