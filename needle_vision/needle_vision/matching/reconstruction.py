@@ -17,8 +17,7 @@ import numpy as np
 
 from needle_vision.detection.centerline import ImageCenterline
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
-from needle_vision.detection.curves import (arc_length, local_polynomial_smooth, median,
-                                            smoothing_noise_gain, step_lengths)
+from needle_vision.detection.curves import arc_length, local_polynomial_smooth, median, step_lengths
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.transform import RigidTransform
 
@@ -149,17 +148,45 @@ def _smooth_along(points, abscissa, window):  # pragma: no cover - compiled
     n, half = points.shape[0], window // 2
     out = np.empty_like(points)
     gain = np.empty(n)
-    basis = np.empty((window, 4))
+    moments = np.empty(7)
+    normal = np.empty((4, 4))
+    coefficients = np.empty(4)
     for k in range(n):
         first = min(max(k - half, 0), n - window)
         scale = max(abscissa[first + window - 1] - abscissa[first], 1e-12)
-        for j in range(window):
-            t = (abscissa[first + j] - abscissa[k]) / scale
-            basis[j, 0], basis[j, 1], basis[j, 2], basis[j, 3] = 1.0, t, t * t, t * t * t
-        weights = np.linalg.solve(basis.T @ basis, basis.T)[0]  # the fit's value at t = 0
-        for d in range(3):
-            out[k, d] = weights @ points[first:first + window, d]
-        gain[k] = np.sqrt(weights @ weights)
+        moments[:] = 0.0
+        for j in range(first, first + window):
+            t = (abscissa[j] - abscissa[k]) / scale
+            power = 1.0
+            for m in range(7):
+                moments[m] += power
+                power *= t
+        # The value at t = 0 of the fit is c . points with c_j = basis(t_j) . solve(normal, e0) (Cholesky).
+        for a in range(4):
+            for b in range(a + 1):
+                value = moments[a + b]
+                for m in range(b):
+                    value -= normal[a, m] * normal[b, m]
+                normal[a, b] = np.sqrt(max(value, 1e-300)) if a == b else value / normal[b, b]
+        for a in range(4):  # forward: L y = e0
+            value = 1.0 if a == 0 else 0.0
+            for m in range(a):
+                value -= normal[a, m] * coefficients[m]
+            coefficients[a] = value / normal[a, a]
+        for a in range(3, -1, -1):  # back: L^T c = y
+            value = coefficients[a]
+            for m in range(a + 1, 4):
+                value -= normal[m, a] * coefficients[m]
+            coefficients[a] = value / normal[a, a]
+        out[k, :] = 0.0
+        total = 0.0
+        for j in range(first, first + window):
+            t = (abscissa[j] - abscissa[k]) / scale
+            weight = coefficients[0] + t * (coefficients[1] + t * (coefficients[2] + t * coefficients[3]))
+            for d in range(3):
+                out[k, d] += weight * points[j, d]
+            total += weight * weight
+        gain[k] = np.sqrt(total)
     return out, gain
 
 
