@@ -45,10 +45,11 @@ def test_s_curve_bent_out_of_the_image_plane(rig, backgrounds, renders):
 
 def test_stretch_seen_nearly_end_on(rig, backgrounds, renders):
     """A 40 mm stretch 18 deg off the viewing rays, ~3x foreshortened: one image pixel spans > 1 mm of needle
-    there, so parts of it are flagged unmeasured (max_gap) but never elsewhere (measured: 0.034 mm RMS, tip
-    0.02 mm, coverage 91 %)."""
+    there, so parts of it are flagged unmeasured (max_gap) but never elsewhere (measured: 0.031 mm RMS, tip
+    0.02 mm, coverage 91 %). The 3D smoothing's cubic runs along the arc length: in the point index, it bent the
+    curve where the points thin out (0.034 mm RMS; over 20 seeds up to 0.037, now 0.034)."""
     measurement = _measure(rig, backgrounds, renders("end_on"))
-    _, arc = _check(measurement, "end_on", 0.85)
+    _, arc = _check(measurement, "end_on", 0.85, max_rms=0.032e-3)
     length = _length(SHAPES["end_on"])
     end_on = (arc > 0.42 * length) & (arc < 0.63 * length)
     assert np.all(measurement.measured[~end_on])
