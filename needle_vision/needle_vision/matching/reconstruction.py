@@ -153,15 +153,36 @@ def _smooth_along(points, abscissa, window):  # pragma: no cover - compiled
     coefficients = np.empty(4)
     for k in range(n):
         first = min(max(k - half, 0), n - window)
-        scale = max(abscissa[first + window - 1] - abscissa[first], 1e-12)
-        moments[:] = 0.0
+        inverse_scale = 1.0 / max(abscissa[first + window - 1] - abscissa[first], 1e-12)
+        m1 = m2 = m3 = m4 = m5 = m6 = 0.0
+        x0 = x1 = x2 = x3 = y0 = y1 = y2 = y3 = z0 = z1 = z2 = z3 = 0.0
         for j in range(first, first + window):
-            t = (abscissa[j] - abscissa[k]) / scale
-            power = 1.0
-            for m in range(7):
-                moments[m] += power
-                power *= t
-        # The value at t = 0 of the fit is c . points with c_j = basis(t_j) . solve(normal, e0) (Cholesky).
+            t = (abscissa[j] - abscissa[k]) * inverse_scale
+            t2 = t * t
+            t3 = t2 * t
+            m1 += t
+            m2 += t2
+            m3 += t3
+            m4 += t2 * t2
+            m5 += t2 * t3
+            m6 += t3 * t3
+            x, y, z = points[j, 0], points[j, 1], points[j, 2]
+            x0 += x
+            x1 += t * x
+            x2 += t2 * x
+            x3 += t3 * x
+            y0 += y
+            y1 += t * y
+            y2 += t2 * y
+            y3 += t3 * y
+            z0 += z
+            z1 += t * z
+            z2 += t2 * z
+            z3 += t3 * z
+        m0 = float(window)
+        moments[0], moments[1], moments[2], moments[3], moments[4], moments[5], moments[6] = m0, m1, m2, m3, m4, m5, m6
+        # The fit's value at t = 0 is c . (the sums of t^a times the points) with c = solve(normal, e0) (Cholesky of
+        # the moment matrix); its white-noise gain is sqrt(c0) (the hat matrix row's squared norm: e0' normal^-1 e0).
         for a in range(4):
             for b in range(a + 1):
                 value = moments[a + b]
@@ -178,15 +199,11 @@ def _smooth_along(points, abscissa, window):  # pragma: no cover - compiled
             for m in range(a + 1, 4):
                 value -= normal[m, a] * coefficients[m]
             coefficients[a] = value / normal[a, a]
-        out[k, :] = 0.0
-        total = 0.0
-        for j in range(first, first + window):
-            t = (abscissa[j] - abscissa[k]) / scale
-            weight = coefficients[0] + t * (coefficients[1] + t * (coefficients[2] + t * coefficients[3]))
-            for d in range(3):
-                out[k, d] += weight * points[j, d]
-            total += weight * weight
-        gain[k] = np.sqrt(total)
+        c0, c1, c2, c3 = coefficients[0], coefficients[1], coefficients[2], coefficients[3]
+        out[k, 0] = c0 * x0 + c1 * x1 + c2 * x2 + c3 * x3
+        out[k, 1] = c0 * y0 + c1 * y1 + c2 * y2 + c3 * y3
+        out[k, 2] = c0 * z0 + c1 * z1 + c2 * z2 + c3 * z3
+        gain[k] = np.sqrt(max(coefficients[0], 0.0))
     return out, gain
 
 
