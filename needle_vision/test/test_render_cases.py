@@ -97,7 +97,8 @@ def test_bevelled_tip(rig, backgrounds, scene, name, bevel, seed):
     four sensor-noise seeds (before: 1 mm bevel 0.09-0.37 mm, hook 0.33; 2 mm: hook 0.85 mm, then 0.25 mm at 4007
     while the profile was the background-relative contrast, whose texture put the left view's taper middle 0.1 px
     short). Measured over 20 seeds k = 0..19 (the bevel rendered as the blurred wedge): 1 mm 0.01-0.27 mm, 2 mm
-    0.01-0.23 mm, the hook's 2 mm 0.02-0.18 mm (the renderer's short taper before: 0.03-0.24, 0.01-0.22, 0.01-0.19).
+    0.01-0.23 mm, the hook's 2 mm 0.02-0.18 mm; with the end extrapolated from band-only centroids 0.01-0.14,
+    0.01-0.18 and 0.01-0.18 mm (the renderer's short taper before: 0.03-0.24, 0.01-0.22, 0.01-0.19).
     3007 failed the no-invented-points check (a 2 mm straight sample 2-3 mm before the tip 0.16 mm off against
     3 sigma = 0.15 mm: its end extrapolated from slices within the bevel's taper, see
     test_bevelled_end_lies_on_the_needle_axis). 1007 failed the straight needle's tip: see
