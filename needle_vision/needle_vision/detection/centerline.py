@@ -652,7 +652,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         design[k, 0], design[k, 1], design[k, 2] = t * t, t, 1.0
     coefficients = np.linalg.lstsq(design, lateral)[0]
     # As many points as the centerline's own spacing (the slices' step along the needle) puts up to the end, evenly
-    # spaced: the 3D smoothing fits by point index, so a short last step pushed the end outward.
+    # spaced: the 3D smoothing's first pass fits by point index, so a short last step pushed the end outward.
     spacing = (along[kept - 1] - along[kept - 21]) / 20
     count = max(int(round((end - along[kept - 1]) / max(spacing, 0.5))), 1)
     steps = along[kept - 1] + (end - along[kept - 1]) * np.arange(1, count + 1) / count

@@ -3,7 +3,7 @@
 
 Rectify the points, correspond them (:mod:`needle_vision.matching.correspondence`), triangulate them into the raw left
 optical frame, reject outliers (depth range, then robust distance to a smoothed curve), order from the base
-(the end nearer the configured base point) to the tip, smooth with a local cubic fit over
+(the end nearer the configured base point) to the tip, smooth with a local cubic fit along the arc length over
 ``smoothing_length`` and resample every ``sample_spacing`` of arc length. Each sample carries a 1-sigma
 uncertainty propagated from the measured image noise (calibration error is not included).
 """
