@@ -5,7 +5,7 @@ import pytest
 from vision_shapes import SHAPES, distance_to_curve
 from needle_vision.detection.centerline import extract_centerline
 from needle_vision.matching.correspondence import MatchingConfig
-from needle_vision.matching.reconstruction import ReconstructionConfig, reconstruct_centerline
+from needle_vision.matching.reconstruction import ReconstructionConfig, _smooth_along, reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import world_from_camera
 from needle_vision.transform import RigidTransform
@@ -105,3 +105,20 @@ def test_tip_localized_within_a_fifth_of_a_millimetre(measure, name):
     measurement = measure(name)
     assert np.linalg.norm(measurement.points[-1] - SHAPES[name][-1]) <= 0.2e-3
     assert np.linalg.norm(measurement.points[0] - SHAPES[name][0]) <= 0.2e-3
+
+
+def test_local_cubic_along_an_uneven_abscissa():
+    """The 3D smoothing's local cubic runs along the arc length, not the point index: points spaced 0.4 mm, then 2 mm
+    (a stretch seen nearly end-on), then 0.4 mm. A cubic in that abscissa is reproduced exactly (the cubic in the
+    index put points 1.5 mm along and 0.06 mm off the curve), and each point's noise gain is the norm of its row of
+    the least-squares hat matrix (closed form: numpy's pseudo-inverse of the window's Vandermonde matrix)."""
+    abscissa = np.concatenate([np.arange(30) * 0.4e-3, 12e-3 + np.arange(10) * 2e-3, 32e-3 + np.arange(30) * 0.4e-3])
+    s = abscissa - abscissa.mean()
+    points = np.column_stack([s, 2 * s ** 2 - 30 * s ** 3, 0.5 * s ** 3])
+    window = 21
+    smooth, gain = _smooth_along(points, abscissa, window)
+    assert np.abs(smooth - points).max() < 1e-12
+    for k in (0, 5, 29, 35, 69):
+        first = min(max(k - window // 2, 0), len(points) - window)
+        vandermonde = np.vander(abscissa[first:first + window] - abscissa[k], 4, increasing=True)
+        assert gain[k] == pytest.approx(np.linalg.norm(np.linalg.pinv(vandermonde)[0]), rel=1e-9)

@@ -103,10 +103,3 @@ def local_polynomial_smooth(values: np.ndarray, window: int, order: int = 3) -> 
     out[-half:] = projector[-half:] @ values[-window:]
     return out
 
-
-def smoothing_noise_gain(count: int, window: int, order: int = 3) -> np.ndarray:
-    """Factor by which :func:`local_polynomial_smooth` of ``count`` samples scales white noise at each sample:
-    the centre of the window's, up to ~3x more at the first and last ``window // 2`` (extrapolated)."""
-    gains = np.linalg.norm(_polynomial_projector(window, order), axis=1)
-    half = window // 2
-    return np.concatenate([gains[:half], np.full(count - 2 * half, gains[half]), gains[-half:]])

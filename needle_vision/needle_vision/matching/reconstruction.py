@@ -3,7 +3,7 @@
 
 Rectify the points, correspond them (:mod:`needle_vision.matching.correspondence`), triangulate them into the raw left
 optical frame, reject outliers (depth range, then robust distance to a smoothed curve), order from the base
-(the end nearer the configured base point) to the tip, smooth with a local cubic fit over
+(the end nearer the configured base point) to the tip, smooth with a local cubic fit along the arc length over
 ``smoothing_length`` and resample every ``sample_spacing`` of arc length. Each sample carries a 1-sigma
 uncertainty propagated from the measured image noise (calibration error is not included).
 """
@@ -17,8 +17,7 @@ import numpy as np
 
 from needle_vision.detection.centerline import ImageCenterline
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
-from needle_vision.detection.curves import (arc_length, local_polynomial_smooth, median,
-                                            smoothing_noise_gain, step_lengths)
+from needle_vision.detection.curves import arc_length, local_polynomial_smooth, median, step_lengths
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.transform import RigidTransform
 
@@ -141,12 +140,84 @@ def _runs(points: np.ndarray, split: float) -> list[slice]:
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
+@numba.njit(cache=True, nogil=True)
+def _smooth_along(points, abscissa, window):  # pragma: no cover - compiled
+    """Local cubic fit of ``points (n, 3)`` against ``abscissa (n,)`` over the ``window`` (odd, <= n) points centred
+    on each (the first/last full window's fit for the first/last ``window // 2``): the fitted points and each one's
+    white-noise gain (the norm of its row of the fit's hat matrix)."""
+    n, half = points.shape[0], window // 2
+    out = np.empty_like(points)
+    gain = np.empty(n)
+    moments = np.empty(7)
+    normal = np.empty((4, 4))
+    coefficients = np.empty(4)
+    for k in range(n):
+        first = min(max(k - half, 0), n - window)
+        inverse_scale = 1.0 / max(abscissa[first + window - 1] - abscissa[first], 1e-12)
+        m1 = m2 = m3 = m4 = m5 = m6 = 0.0
+        x0 = x1 = x2 = x3 = y0 = y1 = y2 = y3 = z0 = z1 = z2 = z3 = 0.0
+        for j in range(first, first + window):
+            t = (abscissa[j] - abscissa[k]) * inverse_scale
+            t2 = t * t
+            t3 = t2 * t
+            m1 += t
+            m2 += t2
+            m3 += t3
+            m4 += t2 * t2
+            m5 += t2 * t3
+            m6 += t3 * t3
+            x, y, z = points[j, 0], points[j, 1], points[j, 2]
+            x0 += x
+            x1 += t * x
+            x2 += t2 * x
+            x3 += t3 * x
+            y0 += y
+            y1 += t * y
+            y2 += t2 * y
+            y3 += t3 * y
+            z0 += z
+            z1 += t * z
+            z2 += t2 * z
+            z3 += t3 * z
+        m0 = float(window)
+        moments[0], moments[1], moments[2], moments[3], moments[4], moments[5], moments[6] = m0, m1, m2, m3, m4, m5, m6
+        # The fit's value at t = 0 is c . (the sums of t^a times the points) with c = solve(normal, e0) (Cholesky of
+        # the moment matrix); its white-noise gain is sqrt(c0) (the hat matrix row's squared norm: e0' normal^-1 e0).
+        for a in range(4):
+            for b in range(a + 1):
+                value = moments[a + b]
+                for m in range(b):
+                    value -= normal[a, m] * normal[b, m]
+                normal[a, b] = np.sqrt(max(value, 1e-300)) if a == b else value / normal[b, b]
+        for a in range(4):  # forward: L y = e0
+            value = 1.0 if a == 0 else 0.0
+            for m in range(a):
+                value -= normal[a, m] * coefficients[m]
+            coefficients[a] = value / normal[a, a]
+        for a in range(3, -1, -1):  # back: L^T c = y
+            value = coefficients[a]
+            for m in range(a + 1, 4):
+                value -= normal[m, a] * coefficients[m]
+            coefficients[a] = value / normal[a, a]
+        c0, c1, c2, c3 = coefficients[0], coefficients[1], coefficients[2], coefficients[3]
+        out[k, 0] = c0 * x0 + c1 * x1 + c2 * x2 + c3 * x3
+        out[k, 1] = c0 * y0 + c1 * y1 + c2 * y2 + c3 * y3
+        out[k, 2] = c0 * z0 + c1 * z1 + c2 * z2 + c3 * z3
+        gain[k] = np.sqrt(max(coefficients[0], 0.0))
+    return out, gain
+
+
 def _smooth_runs(points: np.ndarray, runs: list[slice], length: float, spacing: float) -> tuple[np.ndarray,
                                                                                                  np.ndarray]:
-    """Local cubic smoothing over ``length`` of each run separately, and its noise gain at each point."""
-    windows = [_odd_window(length, spacing, run.stop - run.start) for run in runs]
-    return (np.vstack([local_polynomial_smooth(points[run], w, 3) for run, w in zip(runs, windows)]),
-            np.concatenate([smoothing_noise_gain(run.stop - run.start, w, 3) for run, w in zip(runs, windows)]))
+    """Local cubic smoothing over ``length`` of each run separately, and its noise gain at each point. The cubic's
+    abscissa is the arc length of the run smoothed by point index (the points' own steps carry their noise): where
+    the points thin out (a stretch seen nearly end-on) a cubic in the index bends the curve."""
+    parts = []
+    for run in runs:
+        window = _odd_window(length, spacing, run.stop - run.start)
+        rough = local_polynomial_smooth(points[run], window, 3)
+        parts.append(_smooth_along(np.ascontiguousarray(points[run]), arc_length(rough), window))
+    return np.vstack([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: int) -> np.ndarray:
