@@ -86,25 +86,30 @@ FAST = {"reassoc", "contract"}
 
 @njit(cache=True, fastmath=FAST)
 def band_cholesky(band: np.ndarray, kl: int) -> bool:
-    """In-place Cholesky factor L (lower band) of a symmetric matrix, row by row: each entry is a dot product of two
-    contiguous row stretches.  False if the matrix is not positive definite."""
+    """In-place Cholesky factor L (lower band) of a symmetric matrix, column by column: each column is scaled by its
+    pivot and its outer product subtracted from the kl x kl block below, row stretch by row stretch (independent
+    updates that LLVM vectorizes; a row-by-row dot-product order is a chain of dependent short sums, 2.8x slower at
+    66 dof, kl = 11).  Reads and writes the lower band and the diagonal only.  False if the matrix is not positive
+    definite."""
     n = band.shape[0]
-    for i in range(n):
-        row = band[i]
-        first = max(0, kl - i)  # the row's first stored column (matrix column i - kl + first)
-        for c in range(first, kl):  # L[i, j], j = i - kl + c
-            pivot_row = band[i - kl + c]
-            shift = kl - c  # matrix column k is at row[k - i + kl] and at pivot_row[k - i + kl + shift]
-            total = row[np.uint64(c)]
-            for m in range(first, c):
-                total -= row[np.uint64(m)] * pivot_row[np.uint64(m + shift)]
-            row[np.uint64(c)] = total / pivot_row[kl]
-        total = row[kl]
-        for m in range(first, kl):
-            total -= row[np.uint64(m)] ** 2
+    column = np.empty(kl + 1)  # L[j + r, j], r = 1 .. kl
+    for j in range(n):
+        total = band[j, kl]
         if not total > 0.0:  # also catches NaN
             return False
-        row[kl] = np.sqrt(total)
+        diagonal = np.sqrt(total)
+        band[j, kl] = diagonal
+        inverse = 1.0 / diagonal
+        last = min(kl, n - 1 - j)
+        for r in range(1, last + 1):
+            value = band[j + r, kl - r] * inverse
+            band[j + r, kl - r] = value
+            column[r] = value
+        for r in range(1, last + 1):
+            row = band[j + r]  # matrix column j + s of row j + r is at row[kl - r + s]
+            below = column[r]
+            for s in range(1, r + 1):
+                row[np.uint64(kl - r + s)] -= below * column[s]
     return True
 
 
