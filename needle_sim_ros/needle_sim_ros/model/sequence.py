@@ -80,6 +80,15 @@ class IntegratorMemory:
 
 
 @njit(cache=True)
+def impose_base(motion, rotation, base_local_r, base_local_rx, base_nodes, prescribed):
+    """The base nodes' prescribed rows (q, q', q'') from a packed base motion (19,) and its rotation (eqs. 18-19);
+    returns the base axis (the rotation's first column)."""
+    rigid_node_kinematics(motion[0:3], rotation, motion[7:10], motion[10:13], motion[13:16], motion[16:19],
+                          base_local_r, base_local_rx, base_nodes, prescribed)
+    return rotation[:, 0].copy()
+
+
+@njit(cache=True)
 def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed, base_nodes,
                        base_local_r, base_local_rx, active, scale, tables, rows, residual, band, pivots,
                        factorization, kl, control, last_motion, states, wrenches, iterations):
@@ -95,9 +104,7 @@ def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterat
     for i in range(motions.shape[0]):
         m = motions[i]
         rotation = rotations[i]
-        rigid_node_kinematics(m[0:3], rotation, m[7:10], m[10:13], m[13:16], m[16:19], base_local_r,
-                              base_local_rx, base_nodes, prescribed)
-        axis = rotation[:, 0].copy()
+        axis = impose_base(m, rotation, base_local_r, base_local_rx, base_nodes, prescribed)
         moved = np.any(m != last_motion)
         last_motion[:] = m
         total = 0

@@ -17,11 +17,10 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros.model.banded import band_symmetric
-from needle_sim_ros.model.kinematics import rigid_node_kinematics
 from needle_sim_ros.model.newton import (CONVERGED, FAILED, REFACTOR, iterate, keeps_extrapolating, newton_control,
                                          predict, predictor_budget, predictor_for_attempt, rate_coefficients)
 from needle_sim_ros.model.reaction import base_wrench_kernel
-from needle_sim_ros.model.sequence import EXTRAPOLATE
+from needle_sim_ros.model.sequence import EXTRAPOLATE, impose_base
 
 from .advance import advance_contact, advance_shaft, tip_parameters
 from .coupling import bevel_tip_assembly, first_slot_in, shaft_forces_assembly, tip_resistance_assembly
@@ -117,11 +116,8 @@ def integrate_tissue_sequence(history, times, motions, rotations, needle, consta
     no_band = np.zeros((0, 0))
     bevel_scale, cutting = tip_parameters(contact[0], contact[4], contact[1], edge_a, bottoms, table)
     for i in range(times.size):
-        m = motions[i]
         rotation = rotations[i]
-        rigid_node_kinematics(m[0:3], rotation, m[7:10], m[10:13], m[13:16], m[16:19], base_local_r,
-                              base_local_rx, base_nodes, prescribed)
-        axis = rotation[:, 0].copy()
+        axis = impose_base(motions[i], rotation, base_local_r, base_local_rx, base_nodes, prescribed)
         total = 0
         status = -1
         for attempt in range(2):
