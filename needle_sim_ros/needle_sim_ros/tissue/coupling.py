@@ -278,6 +278,13 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
 
 
 @njit(cache=True)
+def shaft_arguments(part):
+    """``shaft_generalized_force``'s arguments slots ... velocity_scale of a frozen part (``advance.FROZEN_FIELDS``)."""
+    return (part[2], part[3], part[4], part[1], part[5], part[6], part[8], part[9], part[15], part[10], part[11],
+            part[12], part[13], part[14])
+
+
+@njit(cache=True)
 def shaft_forces_assembly(q, qd, lateral, axial, Q, band, kl, c_q, c_qd):
     """``shaft_generalized_force`` of the lateral, then the axial part (``ShaftForces``: each part's arguments
     slots ... velocity_scale as a tuple) in one compiled call."""
@@ -348,7 +355,7 @@ def entry_coverage(arc_lengths, depth, inside):
 @njit(cache=True)
 def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, entry_point,
                        entry_normal):
-    """Gauss points of the needle's arc interval in cut tissue (``ShaftSupport._lateral_support``): weights,
+    """Gauss points of the needle's arc interval in cut tissue (``advance.lateral_part``): weights,
     slots, S, S_x (``cut_quadrature``), the rest points on the track (each needle point's projection), the needle
     tangents and the rest points' depths; none if the interval is empty."""
     centres, radii = segment_blocks(vertices, arc)
@@ -443,9 +450,7 @@ class ShaftForces(ElementLocalForce):
 
     def __init__(self, lateral: _Frozen, axial: _Frozen) -> None:
         self.parts = (lateral, axial)
-        self._arguments = tuple((fz.slots, fz.S, fz.S_x, fz.weights, fz.anchor_points, fz.tangents,
-                                 fz.lateral_stiffness, fz.lateral_damping, fz.stick_stiffness, *fz.axial)
-                                for fz in self.parts)
+        self._arguments = tuple(shaft_arguments.py_func(fz.fields) for fz in self.parts)
 
     @staticmethod
     def _kinematics(fz: _Frozen, q, qd):

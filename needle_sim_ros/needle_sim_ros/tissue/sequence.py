@@ -23,14 +23,8 @@ from needle_sim_ros.model.reaction import base_wrench_kernel
 from needle_sim_ros.model.sequence import EXTRAPOLATE, impose_base
 
 from .advance import advance_contact, advance_shaft, tip_parameters
-from .coupling import bevel_tip_assembly, first_slot_in, shaft_forces_assembly, tip_resistance_assembly
-
-
-@njit(cache=True)
-def shaft_arguments(part):
-    """``shaft_generalized_force``'s arguments slots ... velocity_scale of a frozen part (``FROZEN_FIELDS``)."""
-    return (part[2], part[3], part[4], part[1], part[5], part[6], part[8], part[9], part[15], part[10], part[11],
-            part[12], part[13], part[14])
+from .coupling import (bevel_tip_assembly, first_slot_in, shaft_arguments, shaft_forces_assembly,
+                       tip_resistance_assembly)
 
 
 @njit(cache=True)
@@ -94,19 +88,19 @@ def tissue_newton(values, history, prescribed, coef, predictor, active, scale, t
 
 @njit(cache=True)
 def integrate_tissue_sequence(history, times, motions, rotations, needle, constant_Q, control, contact, contact_time,
-                              shaft, lateral, axial, contact_arguments, shaft_arguments_, tip, states, wrenches,
+                              shaft, lateral, axial, contact_arguments, shaft_constants, tip, states, wrenches,
                               iterations):
     """Integrate from history (rows q, q', q'', a) one step per end time (k,) and packed base motion (k, 19) with
     rotations (k, 3, 3), the tissue advanced after each. ``needle``: ``Integrator.run_arguments``; ``contact``:
     ``advance_contact``'s tuple, ``contact_time`` its time (NaN: never); ``shaft``: (law state, anchors, active);
     ``lateral``, ``axial``: the frozen parts of the first step; ``contact_arguments``: (entry point, entry normal,
-    puncture depth, track spacing); ``shaft_arguments_``: ``ShaftSupport.kernel_arguments``. Writes each step's
+    puncture depth, track spacing); ``shaft_constants``: ``ShaftSupport.kernel_arguments``. Writes each step's
     rows, wrench (``holder_wrench``) and Newton corrections into states, wrenches, iterations. Returns (steps done:
     k, or the index of the first step that did not converge; the tissue state after them as passed in)."""
     (coef, tol, max_iterations, prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables, rows,
      residual, band, ext_band, pivots, factorization, kl) = needle
     entry_point, entry_normal, puncture_depth, spacing = contact_arguments
-    edge_a, bottoms, table = tip[4], shaft_arguments_[12], shaft_arguments_[13]
+    edge_a, bottoms, table = tip[4], shaft_constants[12], shaft_constants[13]
     law_state, anchor, was_active = shaft
     values = np.empty_like(history)
     current = history.copy()
@@ -142,7 +136,7 @@ def integrate_tissue_sequence(history, times, motions, rotations, needle, consta
         contact_time = times[i]
         law_state, anchor, was_active, lateral, axial = advance_shaft(
             q, contact[5], contact[6], contact[9], contact[1], contact[2], contact[3], anchor, was_active, law_state,
-            *shaft_arguments_)
+            *shaft_constants)
         bevel_scale, cutting = tip_parameters(contact[0], contact[4], contact[1], edge_a, bottoms, table)
         external[:] = constant_Q[:6]
         if single_element or first_slot_in(lateral[2], 0) or first_slot_in(axial[2], 0):  # touches the base's rows

@@ -79,8 +79,9 @@ class TissueModel(ForceContribution):
                                   contact.initial.track.spacing)
         unit, side = bevel if bevel is not None else (None, np.zeros(3))
         profile, speed_scale = tip_resistance if tip_resistance is not None else (None, 1.0)
+        self.bevel_edge = unit.edge_a if unit else 1.0  # a [m]: the bevel's embedded fraction is depth / a
         self.tip_arguments = (unit is not None, unit.axial_force if unit else 0.0,
-                              unit.transverse_force if unit else 0.0, side, unit.edge_a if unit else 1.0,
+                              unit.transverse_force if unit else 0.0, side, self.bevel_edge,
                               profile is not None, block.entry_point, block.entry_normal,
                               *((profile.a1, profile.a2, profile.cutting_force) if profile else (0.0, 0.0, 0.0)),
                               float(speed_scale))
@@ -146,7 +147,7 @@ class TissueModel(ForceContribution):
         (``advance.tip_parameters``)."""
         forces: list = [shaft_forces]
         block = self.contact.block
-        scale, cutting = tip_parameters(contact.punctured, contact.at_front, contact.tip_depth, self.tip_arguments[4],
+        scale, cutting = tip_parameters(contact.punctured, contact.at_front, contact.tip_depth, self.bevel_edge,
                                         *block.kernel_tables)
         if self.bevel is not None:
             forces.append(BevelTipForce(*self.bevel, float(scale)))
