@@ -315,24 +315,27 @@ def _evaluate_fit(coeffs: np.ndarray, t_newest: float, p_newest: np.ndarray, q_n
     """Packed motions (BaseTrajectory.motions_at) from the fit coefficients (3, 6) or (0, 6)."""
     out[:, :] = 0.0
     rotation = quaternion_matrix(q_newest)
+    value = np.empty(6)
     for i in range(times.size):
         if coeffs.shape[0] < 3:
             out[i, 0:3] = p_newest
             out[i, 3:7] = q_newest
             continue
         tau = min(times[i], t_newest + max_extrapolation) - t_newest
-        value = coeffs[0] + coeffs[1] * tau + coeffs[2] * tau * tau
+        for j in range(6):
+            value[j] = coeffs[0, j] + coeffs[1, j] * tau + coeffs[2, j] * tau * tau
         out[i, 0:3] = value[:3]
         out[i, 3:7] = quaternion.multiply(q_newest, quaternion.from_rotation_vector(value[3:]))
         if times[i] > t_newest + max_extrapolation:
             continue  # held: at rest
-        rate = coeffs[1] + 2.0 * coeffs[2] * tau
         # Within a 20 ms window the relative rotation is small, so the world angular velocity is R_ref d(phi)/dt up
         # to O(|phi|) terms (the exact map is the right Jacobian of SO(3), identity at phi = 0).
-        out[i, 7:10] = rate[:3]
-        out[i, 10:13] = rotation @ rate[3:]
-        out[i, 13:16] = 2.0 * coeffs[2, :3]
-        out[i, 16:19] = rotation @ (2.0 * coeffs[2, 3:])
+        for j in range(3):
+            out[i, 7 + j] = coeffs[1, j] + 2.0 * coeffs[2, j] * tau
+            out[i, 13 + j] = 2.0 * coeffs[2, j]
+            for k in range(3):
+                out[i, 10 + j] += rotation[j, k] * (coeffs[1, 3 + k] + 2.0 * coeffs[2, 3 + k] * tau)
+                out[i, 16 + j] += rotation[j, k] * (2.0 * coeffs[2, 3 + k])
 
 
 @njit(cache=True)
@@ -393,7 +396,8 @@ def _quadratic_fit(times: np.ndarray, values: np.ndarray, scale: float) -> np.nd
         for p in range(5):
             s[p] += power
             if p < 3:
-                rhs[p] += power * values[k]
+                for column in range(values.shape[1]):  # no temporary array per sample and power
+                    rhs[p, column] += power * values[k, column]
             power *= x[k]
     # symmetric 3 x 3 inverse by cofactors (the normal matrix of >= 3 distinct times is positive definite)
     a, b, c, d, e = s[0], s[1], s[2], s[3], s[4]

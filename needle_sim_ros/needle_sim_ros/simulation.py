@@ -20,6 +20,7 @@ Timing rules (:meth:`target_time`):
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, NamedTuple, Sequence
@@ -393,18 +394,19 @@ class NeedleSimulation:
         through the integrator's compiled sequence where it applies (:meth:`Integrator.supports_sequence`).
         """
         records: list[StepRecord] = []
-        if self.state is None:
-            return records
         data = self.data
-        lag = t_target - self.state.t
+        if data.state is None:
+            return records
+        dt = self.dt
+        lag = t_target - data.state.t
         if lag > self.max_catch_up:
-            skip = int(np.floor((lag - self.max_catch_up) / self.dt))
+            skip = math.floor((lag - self.max_catch_up) / dt)
             data.step_index += skip
-            data.state = replace(self.state, t=self._grid_time(data.step_index))
-            self.statistics.skipped_time += skip * self.dt
+            data.state = replace(data.state, t=self._grid_time(data.step_index))
+            self.statistics.skipped_time += skip * dt
         # steps whose end time reaches t_target up to the float resolution of the times (0.24 us at epoch times)
-        slack = 4.0 * np.spacing(abs(t_target)) + 1e-9 * self.dt
-        count = int(np.floor((t_target + slack - data.grid_origin) / self.dt)) - data.step_index
+        slack = 4.0 * math.ulp(abs(t_target)) + 1e-9 * dt
+        count = math.floor((t_target + slack - data.grid_origin) / dt) - data.step_index
         if count <= 0:
             return records
         times = self._grid_time(data.step_index + np.arange(1, count + 1))
@@ -416,11 +418,13 @@ class NeedleSimulation:
         sequence = self.compiled_sequence and not stateful
         run = stateful[0] if self.compiled_sequence and len(stateful) == 1 and stateful[0].compiled_run else None
         while i < count:
-            if sequence and self.state.aux is not None and self.integrator.supports_sequence(self.forces):
-                done = self._step_sequence(times[i:], motions[i:], rotations[i:], records)
-                data.step_index += done
-                i += done
-            elif run is not None and self.state.aux is not None:
+            if sequence and data.state.aux is not None:
+                forces = self.forces
+                if self.integrator.supports_sequence(forces):
+                    done = self._step_sequence(forces, times[i:], motions[i:], rotations[i:], records)
+                    data.step_index += done
+                    i += done
+            elif run is not None and data.state.aux is not None:
                 stop = i + 1 if self.after_step is not None else count
                 done = self._run_steps(run, times[i:stop], motions[i:stop], rotations[i:stop], records)
                 data.step_index += done
@@ -429,9 +433,9 @@ class NeedleSimulation:
                 records.append(self._step_or_restart(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
                 data.step_index += 1
                 i += 1
-        if records and not np.isfinite(self.state.q).all():  # never carry a non-finite state on
+        if records and not np.isfinite(data.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
-            data.state = self.model.straight_state(self.base, self.state.t)
+            data.state = self.model.straight_state(self.base, data.state.t)
         return records
 
     def _grid_time(self, index):
@@ -439,31 +443,32 @@ class NeedleSimulation:
         epoch times a sum of 1 ms steps would drift by 70 ns per step)."""
         return self.data.grid_origin + self.dt * index
 
-    def _step_sequence(self, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
+    def _step_sequence(self, forces: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                        records: list[StepRecord]) -> int:
-        """Steps at the given times in one compiled run (see :meth:`advance_to`); returns how many were done."""
+        """Steps at the given times in one compiled run under ``forces`` (see :meth:`advance_to`); returns how many
+        were done."""
         start = time.perf_counter()
-        result = self.integrator.step_sequence(self.state, self.dt, motions, rotations, self.forces,
-                                               self.data.integrator)
+        result = self.integrator.step_sequence(self.state, self.dt, motions, rotations, forces, self.data.integrator)
         self._record_run(result, start, times, motions, rotations, records)
         return result.done
 
     def _record_run(self, result, start: float, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                     records: list[StepRecord]) -> None:
         """Records, hook calls, statistics and the final state of a compiled run started at ``start``."""
-        wall = (time.perf_counter() - start) / max(result.done, 1)
-        stats = self.statistics
         done = result.done
+        wall = (time.perf_counter() - start) / max(done, 1)
+        hook = self.after_step
         for i in range(done):
             w = result.wrenches[i]
             record = StepRecord(float(times[i]), BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]),
                                 int(result.iterations[i]), 1, wall)
             records.append(record)
-            if self.after_step is not None:  # the hook reads the state of its step
+            if hook is not None:  # the hook reads the state of its step
                 self._set_state(result.states[i], times[i], motions[i], rotations[i])
-                self.after_step(record)
+                hook(record)
         if done:
             self._set_state(result.states[done - 1], times[done - 1], motions[done - 1], rotations[done - 1])
+            stats = self.statistics
             stats.steps += done
             stats.step_wall_times.extend([wall] * done)
             stats.max_newton_iterations = max(stats.max_newton_iterations, int(result.iterations.max()))
