@@ -91,84 +91,86 @@ def stribeck(theta: np.ndarray, depth):
     return g, dg
 
 
+@njit(cache=True)
 def stribeck_value(theta: np.ndarray, depth: float) -> float:
     """g(l) of eq. 2 [N/m] alone, for a scalar depth (per step: no derivatives)."""
     return max(theta[0] + theta[1] * np.exp(-theta[5] * depth), _G_FLOOR)
 
 
-def state_rate(z, theta, depth, velocity, velocity_scale, derivatives: bool = True):
-    """dz/dt of eq. 1a (reading above) and, if ``derivatives``, d/dz and d/dtheta (6,) (else None, None)."""
+@njit(cache=True)
+def _stage_rate(z, theta, depth, velocity, speed, rate_slope):
+    """dz/dt of eq. 1a (reading above) at one RK3 stage; with a (7,) ``rate_slope``, d(dz/dt)/d(z, theta) into it
+    (a (0,) array: none)."""
     sigma0 = theta[2]
-    speed = velocity * regularised_sign(velocity, velocity_scale)          # |l'|
-    if not derivatives:
-        return velocity - sigma0 * speed * z / stribeck_value(theta, depth), None, None
-    g, dg = stribeck(theta, depth)
-    rate = velocity - sigma0 * speed * z / g
-    d_dz = -sigma0 * speed / g
-    d_dtheta = sigma0 * speed * z / g**2 * dg
-    d_dtheta[2] -= speed * z / g
-    return rate, d_dz, d_dtheta
-
-
-def _rk3_substep(z, theta, depth, velocity, dt, velocity_scale, sensitivities):
-    half_depth, end_depth = depth + 0.5 * dt * velocity, depth + dt * velocity
-    k1, a1, b1 = state_rate(z, theta, depth, velocity, velocity_scale, sensitivities)
-    k2, a2, b2 = state_rate(z + 0.5 * dt * k1, theta, half_depth, velocity, velocity_scale, sensitivities)
-    k3, a3, b3 = state_rate(z - dt * k1 + 2.0 * dt * k2, theta, end_depth, velocity, velocity_scale, sensitivities)
-    z_next = z + dt / 6.0 * (k1 + 4.0 * k2 + k3)
-    if not sensitivities:
-        return z_next, None
-    eye = np.eye(7)
-    dk1 = a1 * eye[0] + np.concatenate([[0.0], b1])
-    dk2 = a2 * (eye[0] + 0.5 * dt * dk1) + np.concatenate([[0.0], b2])
-    dk3 = a3 * (eye[0] - dt * dk1 + 2.0 * dt * dk2) + np.concatenate([[0.0], b3])
-    return z_next, eye[0] + dt / 6.0 * (dk1 + 4.0 * dk2 + dk3)
-
-
-def rk3_step(z: float, theta: np.ndarray, depth: float, velocity: float, dt: float, velocity_scale: float,
-             sensitivities: bool = True):
-    """Kutta's third-order Runge-Kutta scheme for eq. 1a over ``dt`` [s] with the depth advancing at the constant
-    ``velocity`` (seed 003 Sec. III discretisation).  The step is split so that each sub-step stays well inside
-    RK3's stability region (|dz'/dz| dt <= 1).  Returns (z_next, dz_next/d(z, theta) (7,) or None)."""
-    stiffness = abs(theta[2] * velocity / stribeck_value(theta, depth))
-    n_sub = int(min(np.ceil(stiffness * dt), 1000)) if np.isfinite(stiffness) else 1000
-    h = dt / max(n_sub, 1)
-    z_next, row = _rk3_substep(z, theta, depth, velocity, h, velocity_scale, sensitivities)
-    for i in range(1, n_sub):
-        z_next, step_row = _rk3_substep(z_next, theta, depth + i * h * velocity, velocity, h, velocity_scale,
-                                        sensitivities)
-        if sensitivities:
-            row = step_row[0] * row + np.concatenate([[0.0], step_row[1:]])
-    return z_next, row
+    g = stribeck_value(theta, depth)
+    if rate_slope.size:
+        decay = np.exp(-theta[5] * depth)
+        ratio = sigma0 * speed * z / (g * g)
+        rate_slope[:] = 0.0
+        rate_slope[0] = -sigma0 * speed / g
+        rate_slope[1] = ratio                                  # dg/df1 = 1
+        rate_slope[2] = ratio * decay                          # dg/df2 = exp(-alpha l)
+        rate_slope[3] = -speed * z / g
+        rate_slope[6] = ratio * (-theta[1] * depth * decay)    # dg/dalpha
+    return velocity - sigma0 * speed * z / g
 
 
 @njit(cache=True)
-def bristle_step(z, theta, depth, velocity, dt, velocity_scale):
-    """``rk3_step`` without sensitivities in one compiled call (the simulator advances z every step): the same
-    sub-steps, rates and stage depths."""
-    f1, f2, sigma0, alpha = theta[0], theta[1], theta[2], theta[5]
-    stiffness = abs(sigma0 * velocity / max(f1 + f2 * np.exp(-alpha * depth), _G_FLOOR))
+def bristle_step(z, theta, depth, velocity, dt, velocity_scale, row):
+    """Kutta's third-order Runge-Kutta scheme for eq. 1a over ``dt`` [s] with the depth advancing at the constant
+    ``velocity`` (seed 003 Sec. III discretisation), compiled: the simulator advances z with it every step, the
+    EKF (``rk3_step``) also takes its sensitivities. The step is split so that each sub-step stays well inside
+    RK3's stability region (|dz'/dz| dt <= 1). Returns z_next; a (7,) ``row`` receives dz_next/d(z, theta)
+    (a (0,) array: not computed)."""
+    stiffness = abs(theta[2] * velocity / stribeck_value(theta, depth))
     n_sub = int(min(np.ceil(stiffness * dt), 1000.0)) if np.isfinite(stiffness) else 1000
     h = dt / max(n_sub, 1)
     if velocity_scale <= 0.0:
         speed = velocity * np.sign(velocity)
     else:
         speed = velocity * np.tanh(velocity / velocity_scale)
+    n = row.size
+    d1, d2, d3, step_row = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     for i in range(max(n_sub, 1)):
         start = depth + i * h * velocity if i > 0 else depth
-        k1 = velocity - sigma0 * speed * z / max(f1 + f2 * np.exp(-alpha * start), _G_FLOOR)
-        k2 = velocity - sigma0 * speed * (z + 0.5 * h * k1) / max(
-            f1 + f2 * np.exp(-alpha * (start + 0.5 * h * velocity)), _G_FLOOR)
-        k3 = velocity - sigma0 * speed * (z - h * k1 + 2.0 * h * k2) / max(
-            f1 + f2 * np.exp(-alpha * (start + h * velocity)), _G_FLOOR)
+        k1 = _stage_rate(z, theta, start, velocity, speed, d1)
+        k2 = _stage_rate(z + 0.5 * h * k1, theta, start + 0.5 * h * velocity, velocity, speed, d2)
+        k3 = _stage_rate(z - h * k1 + 2.0 * h * k2, theta, start + h * velocity, velocity, speed, d3)
         z = z + h / 6.0 * (k1 + 4.0 * k2 + k3)
+        if n:  # stage sensitivities dk_s = a_s (e_0 + stage combination) + [0, b_s]; d1..d3 hold a_s, b_s
+            a1, a2, a3 = d1[0], d2[0], d3[0]
+            d1[0] = 0.0
+            d2[0] = 0.0
+            d3[0] = 0.0
+            for j in range(n):
+                unit = 1.0 if j == 0 else 0.0
+                dk1 = a1 * unit + d1[j]
+                dk2 = a2 * (unit + 0.5 * h * dk1) + d2[j]
+                dk3 = a3 * (unit - h * dk1 + 2.0 * h * dk2) + d3[j]
+                step_row[j] = unit + h / 6.0 * (dk1 + 4.0 * dk2 + dk3)
+            if i == 0:
+                row[:] = step_row
+            else:
+                scale = step_row[0]
+                row[0] = scale * row[0]
+                for j in range(1, n):
+                    row[j] = scale * row[j] + step_row[j]
     return z
+
+
+def rk3_step(z: float, theta: np.ndarray, depth: float, velocity: float, dt: float,
+             velocity_scale: float) -> tuple[float, np.ndarray]:
+    """(z_next, dz_next/d(z, theta) (7,)) of one RK3 step (``bristle_step``), for the estimator."""
+    row = np.empty(7)
+    z_next = bristle_step(float(z), np.asarray(theta, dtype=float), float(depth), float(velocity), float(dt),
+                          float(velocity_scale), row)
+    return z_next, row
 
 
 def bracket(z, theta, depth, sign):
     """The bracket of eq. 1b [N/m] at a scalar depth for the (regularised) velocity sign ``sign`` (any shape)."""
     sigma0, sigma1, sigma2, alpha = theta[2], theta[3], theta[4], theta[5]
-    g = max(theta[0] + theta[1] * np.exp(-alpha * depth), _G_FLOOR)
+    g = stribeck_value(theta, depth)
     return sigma0 * z + sigma1 * np.exp(-alpha * depth) * (sign - sigma0 * z / g) + sigma2 * sign
 
 
@@ -220,7 +222,7 @@ class ModifiedLuGre:
     def step(self, z: float, depth: float, velocity: float, dt: float) -> float:
         """Advance the bristle state z over dt (RK3, ``bristle_step``)."""
         return bristle_step(float(z), self.parameters.as_array(), float(depth), float(velocity), float(dt),
-                            self.velocity_scale)
+                            self.velocity_scale, np.empty(0))
 
     def force(self, z, depth, velocity) -> float:
         """Axial force f [N] resisting the motion (positive while inserting)."""

@@ -69,7 +69,8 @@ def law_advance(kind, parameters, law_state, insertion_depth, insertion_speed, d
     """The law's state after a step of dt [s] (LuGre: z by RK3 with l = insertion depth and l' = the tip's axial
     speed; the other laws have none)."""
     if kind == LUGRE and dt > 0.0:
-        return bristle_step(law_state, parameters[:6], max(insertion_depth, 0.0), insertion_speed, dt, parameters[6])
+        return bristle_step(law_state, parameters[:6], max(insertion_depth, 0.0), insertion_speed, dt, parameters[6],
+                            np.empty(0))
     return law_state
 
 
