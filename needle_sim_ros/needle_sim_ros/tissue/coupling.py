@@ -20,6 +20,7 @@ dependent, element local, without state of their own.
 """
 from __future__ import annotations
 
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -450,7 +451,12 @@ class ShaftForces(ElementLocalForce):
 
     def __init__(self, lateral: _Frozen, axial: _Frozen) -> None:
         self.parts = (lateral, axial)
-        self._arguments = tuple(shaft_arguments.py_func(fz.fields) for fz in self.parts)
+
+    @cached_property
+    def _arguments(self) -> tuple:
+        """The point-force kernel's arguments of both parts (made at the first evaluation: a compiled run of
+        steps never evaluates these objects, it takes the parts' fields)."""
+        return tuple(shaft_arguments.py_func(fz.fields) for fz in self.parts)
 
     @staticmethod
     def _kinematics(fz: _Frozen, q, qd):
