@@ -14,8 +14,12 @@ node's step grid at every phase), and measures
 * deadline misses: the node's own counter from /diagnostics (periods in which the loop had to integrate more
   than one step to catch up), relative to the steps taken.
 
+With ``--echo`` the simulator is replaced by the transport floor of this machine: a process that answers each pose
+with a wrench stamped with the pose's stamp, taken and published as the simulator's loop does (the same polled
+subscription, wait set, QoS and ready-made CDR bytes), no simulation. The simulator cannot be faster than it.
+
 Usage: python bench/bench_simulator_latency.py [--duration 60] [--elements 10] [--jitter 0.8] [--realtime-priority 0]
-                                             [--param loop.ahead_to_pose=false ...]
+                                             [--param loop.ahead_to_pose=false ...] [--echo]
        python bench/bench_simulator_latency.py --pose-path   (the node's per-pose Python only, in-process)
 """
 from __future__ import annotations
@@ -75,6 +79,31 @@ def pose_path_cost(elements: int, poses: int = 3000) -> None:
           f"median {np.median(costs[:, 1]):.1f} us (p90 {np.percentile(costs[:, 1], 90):.1f})")
 
 
+def serve_echo() -> None:
+    """The ``--echo`` process: each base pose answered at once with a wrench carrying the pose's stamp."""
+    from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
+    from needle_sim_ros.nodes.simulator_node import qos_profile
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+
+    defaults = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
+    rclpy.init()
+    node = rclpy.create_node("latency_echo")
+    wrench_pub = node.create_publisher(WrenchStamped, "wrench", qos_profile(defaults["qos.wrench"], 100))
+    template = bytearray(serialize_message(WrenchStamped(header=Header(frame_id="needle_base"))))
+
+    def on_pose(data: bytes) -> None:
+        template[4:12] = data[4:12]  # the pose's stamp (sec, nanosec)
+        wrench_pub.publish(bytes(template))
+
+    subscription = node.create_subscription(PoseStamped, "base_pose", on_pose,
+                                            qos_profile(defaults["qos.base_pose"], 100),
+                                            callback_group=PolledCallbackGroup(), raw=True)
+    waiter = MessageWaiter([subscription], node.context)
+    while rclpy.ok():
+        if waiter.wait(0.1):
+            drain(subscription)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--duration", type=float, default=60.0, help="measurement time [s]")
@@ -87,9 +116,15 @@ def main() -> int:
                         help="another needle_simulator parameter (YAML value), e.g. loop.ahead_to_pose=false")
     parser.add_argument("--pose-path", action="store_true",
                         help="only measure the node's per-pose Python in this process (no simulator process)")
+    parser.add_argument("--echo", action="store_true",
+                        help="measure the transport floor: an echo process instead of the simulator")
+    parser.add_argument("--serve-echo", action="store_true", help=argparse.SUPPRESS)  # the --echo process itself
     args = parser.parse_args()
     if args.pose_path:
         pose_path_cost(args.elements)
+        return 0
+    if args.serve_echo:
+        serve_echo()
         return 0
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -106,7 +141,9 @@ def main() -> int:
     params.write_text(yaml.safe_dump({"/**": {"ros__parameters": overrides}}))
     executable = REPO / "install/needle_sim_ros/lib/needle_sim_ros/needle_simulator"
     load_before = os.getloadavg()[0]  # the machine may be shared: latency depends on it
-    simulator = subprocess.Popen([str(executable), "--ros-args", "--params-file", str(params)], env=env)
+    command = [sys.executable, __file__, "--serve-echo"] if args.echo else [str(executable), "--ros-args",
+                                                                              "--params-file", str(params)]
+    simulator = subprocess.Popen(command, env=env)
 
     rclpy.init()
     node = rclpy.create_node("latency_bench")
@@ -176,7 +213,8 @@ def main() -> int:
     step_mean = [float(d["step_time_mean_ms"]) for d in diagnostics if "step_time_mean_ms" in d]
     miss_rate = (misses[-1] - misses[0]) / max(steps[-1] - steps[0], 1) if len(steps) > 1 else float("nan")
 
-    print(f"\nneedle_simulator, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
+    subject = "echo (transport floor, no simulation)" if args.echo else "needle_simulator"
+    print(f"\n{subject}, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
           f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}; "
           f"load average (1 min) {load_before:.2f} before, {os.getloadavg()[0]:.2f} after")
     print("| metric | value | target |")
