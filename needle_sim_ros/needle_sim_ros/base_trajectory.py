@@ -358,6 +358,7 @@ def _apply_correction(delta: np.ndarray, start: float, blend: float, hold_time: 
     """Add c(tau) = (d0 + d1 tau + d2 tau^2 / 2) g(tau), tau = t - start, to the packed motions ``out`` (position and
     world rotation vector, with their first two derivatives), g = 1 - (10 x^3 - 15 x^4 + 6 x^5), x = tau / blend:
     c, c', c'' equal the differences at tau = 0 and vanish from tau = blend on. Held (at rest) times are left."""
+    c, c1, c2 = np.empty(3), np.empty(3), np.empty(3)
     for i in range(times.size):
         tau = times[i] - start
         if tau < 0.0 or tau >= blend or times[i] > hold_time:
@@ -367,10 +368,11 @@ def _apply_correction(delta: np.ndarray, start: float, blend: float, hold_time: 
         g1 = -30.0 * x * x * (1.0 - x) * (1.0 - x) / blend
         g2 = -60.0 * x * (1.0 - x) * (1.0 - 2.0 * x) / (blend * blend)
         for block in range(2):
-            d0, d1, d2 = delta[3 * block], delta[3 * block + 1], delta[3 * block + 2]
-            value = d0 + d1 * tau + 0.5 * d2 * tau * tau
-            rate = d1 + d2 * tau
-            c, c1, c2 = value * g, rate * g + value * g1, d2 * g + 2.0 * rate * g1 + value * g2
+            for j in range(3):  # scalar: no temporary arrays per time
+                d0, d1, d2 = delta[3 * block, j], delta[3 * block + 1, j], delta[3 * block + 2, j]
+                value = d0 + d1 * tau + 0.5 * d2 * tau * tau
+                rate = d1 + d2 * tau
+                c[j], c1[j], c2[j] = value * g, rate * g + value * g1, d2 * g + 2.0 * rate * g1 + value * g2
             if block == 0:
                 out[i, 0:3] += c
                 out[i, 7:10] += c1
