@@ -106,10 +106,13 @@ class StepRecord(NamedTuple):
 
 
 def step_wrenches(records: Sequence[StepRecord]):
-    """(end time, force, torque) of each step's wrench on the holder in the base frame: what the simulator
-    publishes on ``wrench`` (a step whose wrench is not finite is left out: never NaN on the wire)."""
-    return ((record.t, record.wrench.force_base, record.wrench.torque_base) for record in records
-            if np.isfinite(record.wrench.force_base).all() and np.isfinite(record.wrench.torque_base).all())
+    """(end time, force, torque) of each step's wrench on the holder in the base frame, force and torque as lists of
+    floats: what the simulator publishes on ``wrench`` (a step whose wrench is not finite is left out: never NaN on
+    the wire)."""
+    for record in records:
+        force, torque = record.wrench.force_base.tolist(), record.wrench.torque_base.tolist()
+        if all(map(math.isfinite, force)) and all(map(math.isfinite, torque)):
+            yield record.t, force, torque
 
 
 @dataclass
