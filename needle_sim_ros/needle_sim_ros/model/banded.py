@@ -105,31 +105,46 @@ def band_cholesky(band: np.ndarray, kl: int) -> bool:
             value = band[j + r, kl - r] * inverse
             band[j + r, kl - r] = value
             column[r] = value
-        for r in range(1, last + 1):
-            row = band[j + r]  # matrix column j + s of row j + r is at row[kl - r + s]
-            below = column[r]
-            for s in range(1, r + 1):
-                row[np.uint64(kl - r + s)] -= below * column[s]
+        if last == kl == ELEMENT_BANDWIDTH:  # the needle's case: constant bounds, fully unrolled (1.5x faster)
+            for r in range(1, ELEMENT_BANDWIDTH + 1):
+                row = band[j + r]
+                below = column[r]
+                for s in range(1, r + 1):
+                    row[ELEMENT_BANDWIDTH - r + s] -= below * column[s]
+        else:
+            for r in range(1, last + 1):
+                row = band[j + r]  # matrix column j + s of row j + r is at row[kl - r + s]
+                below = column[r]
+                for s in range(1, r + 1):
+                    row[np.uint64(kl - r + s)] -= below * column[s]
     return True
 
 
 @njit(cache=True, fastmath=FAST)
 def cholesky_solve(band: np.ndarray, kl: int, rhs: np.ndarray) -> None:
-    """Solve L L^T x = rhs in place with the factor of ``band_cholesky`` (both sweeps read L by rows)."""
+    """Solve L L^T x = rhs in place with the factor of ``band_cholesky`` (both sweeps read L by rows; rows with a
+    full window of the needle's bandwidth with constant bounds, unrolled: 1.4x faster)."""
     n = band.shape[0]
     for i in range(n):
         row = band[i]
-        first = max(0, kl - i)
         total = rhs[i]
-        for m in range(first, kl):
-            total -= row[np.uint64(m)] * rhs[np.uint64(i - kl + m)]
+        if kl == ELEMENT_BANDWIDTH and i >= kl:
+            for m in range(ELEMENT_BANDWIDTH):
+                total -= row[m] * rhs[i - ELEMENT_BANDWIDTH + m]
+        else:
+            for m in range(max(0, kl - i), kl):
+                total -= row[np.uint64(m)] * rhs[np.uint64(i - kl + m)]
         rhs[i] = total / row[kl]
     for i in range(n - 1, -1, -1):
         row = band[i]
         value = rhs[i] / row[kl]
         rhs[i] = value
-        for m in range(max(0, kl - i), kl):
-            rhs[np.uint64(i - kl + m)] -= row[np.uint64(m)] * value
+        if kl == ELEMENT_BANDWIDTH and i >= kl:
+            for m in range(ELEMENT_BANDWIDTH):
+                rhs[i - ELEMENT_BANDWIDTH + m] -= row[m] * value
+        else:
+            for m in range(max(0, kl - i), kl):
+                rhs[np.uint64(i - kl + m)] -= row[np.uint64(m)] * value
 
 
 @njit(cache=True)

@@ -41,9 +41,13 @@ def elastic_tables(mesh: Mesh, props: NeedleProperties, axial_gauss: int, bendin
 
 @njit(cache=True, fastmath=FAST)
 def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
-                forces, band, kl, stiffness_factor, with_stiffness):
+                forces, band, kl, stiffness_factor, with_stiffness, rate_weights=None, rate_factor=0.0):
     """Add Q_el(q) to ``forces`` and, if with_stiffness, stiffness_factor * K (K = -dQ_el/dq) to ``band``
-    (bandwidth kl >= 11). Returns the elastic energy Pi (eq. 9)."""
+    (bandwidth kl >= 11). Returns the elastic energy Pi (eq. 9).
+
+    Given the axial strain-rate weights of ``damping`` (beta EA w at the axial points), the matrix of that damping,
+    rate_factor * int beta EA S_x^T S_x (x) r_x r_x^T (-dQ_d,a/dq', ``add_axial_damping``), is added too: it has
+    the blocks of the axial stiffness at the same points, so it costs no loop of its own."""
     n_elements = axial_S_x.shape[0]
     energy = 0.0
     element_force = np.empty(12)
@@ -75,10 +79,12 @@ def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_
                 for c in range(3):
                     element_force[3 * a + c] -= w * eps * d[a] * rx[c]
             if with_stiffness:
+                w_k = stiffness_factor * w
+                w_rx = w_k if rate_weights is None else w_k + rate_factor * rate_weights[j, point]
                 for c in range(3):
                     for c2 in range(3):
-                        f11[c, c2] = w * rx[c] * rx[c2]
-                    f11[c, c] += w * eps
+                        f11[c, c2] = w_rx * rx[c] * rx[c2]
+                    f11[c, c] += w_k * eps
                 for a in range(4):
                     for b in range(a, 4):
                         dab = d[a] * d[b]
@@ -126,12 +132,13 @@ def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_
                                       + 48.0 * h * ig5 * rx[c] * rx[c2] - 6.0 * h * ig4 * delta)
                         f12[c, c2] = hh12 * ig3 - 6.0 * ig4 * rx[c] * h2[c2]
                         f22[c, c2] = hh22 * ig3
+                w_k = stiffness_factor * half_w
                 for a in range(4):
                     for b in range(a, 4):
-                        k11 = half_w * d[a] * d[b]
-                        k12 = half_w * d[a] * dd[b]
-                        k21 = half_w * dd[a] * d[b]
-                        k22 = half_w * dd[a] * dd[b]
+                        k11 = w_k * d[a] * d[b]
+                        k12 = w_k * d[a] * dd[b]
+                        k21 = w_k * dd[a] * d[b]
+                        k22 = w_k * dd[a] * dd[b]
                         for c in range(3):
                             for c2 in range(3):
                                 element_stiffness[3 * a + c, 3 * b + c2] += (
@@ -147,7 +154,7 @@ def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_
         if with_stiffness:
             for i in range(12):
                 for k in range(12):
-                    band[first + i, k - i + kl] += stiffness_factor * element_stiffness[i, k]
+                    band[first + i, k - i + kl] += element_stiffness[i, k]
     return energy
 
 

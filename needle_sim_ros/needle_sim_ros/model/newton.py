@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .banded import (ELEMENT_BANDWIDTH, add_dense_to_band, band_cholesky, band_factor, band_solve, band_structure,
+from .banded import (ELEMENT_BANDWIDTH, FAST, add_dense_to_band, band_cholesky, band_factor, band_solve, band_structure,
                      band_symmetric, band_width_columns, cholesky_solve)
 from .damping import add_axial_damping
 from .elastic import add_elastic
@@ -30,7 +30,7 @@ def model_tables(model) -> tuple:
     return (*model.elastic, model.mass_slots, *model.damping)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FAST)
 def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, active, residual, band, kl,
                     with_matrix):
     """residual <- R (zero on constrained rows); if with_matrix, band <- J (identity on constrained rows/cols).
@@ -43,25 +43,40 @@ def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, ac
     if with_matrix:
         band[:, :] = 0.0
     add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, residual, band, kl,
-                c_K, with_matrix)
-    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, residual, band, kl, c_C, with_matrix)
+                c_K, with_matrix, strain_rate_weights, c_C)  # with the axial damping's matrix
+    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, residual, band, kl, c_C, False)
     for i in range(n):
         residual[i] = -residual[i] - ext_Q[i]
     n_slots = mass_slots.shape[0]
+    a0, a1, a2 = axis[0], axis[1], axis[2]
     for s in range(n_slots):
         for s2 in range(max(0, s - 3), min(n_slots, s + 4)):
             m = mass_slots[s, s2]
             ci = damping_isotropic[s, s2]
             ca = damping_transverse[s, s2]
-            along = axis[0] * qd[3 * s2] + axis[1] * qd[3 * s2 + 1] + axis[2] * qd[3 * s2 + 2]
-            for c in range(3):
-                residual[3 * s + c] += m * qdd[3 * s2 + c] + ci * qd[3 * s2 + c] + ca * axis[c] * along
-            if with_matrix:
-                for c in range(3):
-                    row = 3 * s + c
-                    band[row, 3 * s2 + c - row + kl] += c_M * m + c_C * ci
-                    for c2 in range(3):
-                        band[row, 3 * s2 + c2 - row + kl] += c_C * ca * axis[c] * axis[c2]
+            if m == 0.0 and ci == 0.0 and ca == 0.0:  # slots of different elements
+                continue
+            v0, v1, v2 = qd[3 * s2], qd[3 * s2 + 1], qd[3 * s2 + 2]
+            transverse = ca * (a0 * v0 + a1 * v1 + a2 * v2)
+            residual[3 * s] += m * qdd[3 * s2] + ci * v0 + transverse * a0
+            residual[3 * s + 1] += m * qdd[3 * s2 + 1] + ci * v1 + transverse * a1
+            residual[3 * s + 2] += m * qdd[3 * s2 + 2] + ci * v2 + transverse * a2
+            if with_matrix:  # the 3 x 3 block (c_M m + c_C ci) I + c_C ca t t^T at rows 3 s, columns 3 s2
+                isotropic = c_M * m + c_C * ci
+                along = c_C * ca
+                offset = 3 * (s2 - s) + kl
+                first = band[3 * s]  # matrix column 3 s2 + c2 of row 3 s + c at band[3 s + c, offset + c2 - c]
+                second = band[3 * s + 1]
+                third = band[3 * s + 2]
+                first[offset] += isotropic + along * a0 * a0
+                first[offset + 1] += along * a0 * a1
+                first[offset + 2] += along * a0 * a2
+                second[offset - 1] += along * a1 * a0
+                second[offset] += isotropic + along * a1 * a1
+                second[offset + 1] += along * a1 * a2
+                third[offset - 2] += along * a2 * a0
+                third[offset - 1] += along * a2 * a1
+                third[offset] += isotropic + along * a2 * a2
     if with_matrix and ext_band.shape[0] > 0:
         for i in range(n):
             for column in range(2 * kl + 1):
