@@ -458,6 +458,9 @@ class ShaftForces(ElementLocalForce):
         steps never evaluates these objects, it takes the parts' fields)."""
         return tuple(shaft_arguments.py_func(fz.fields) for fz in self.parts)
 
+    def __getstate__(self) -> dict:
+        return {"parts": self.parts}  # the arguments are a cache, not state
+
     @staticmethod
     def _kinematics(fz: _Frozen, q, qd):
         """Positions and velocities (k, 3) of a part's points."""
