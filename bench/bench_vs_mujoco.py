@@ -9,12 +9,14 @@ clamps the base by pinning the first two vertices (position and slope), its edge
 equality constraints made as stiff as the time step allows: solref 2 dt, solimp 0.9999; with MuJoCo's default
 ones the segments stretch to 3x their length under the 80 g load) and it has no material damping.
 
-* Speed: mean wall time per 1 ms step over 3 s of motion after a 10 g tip load is released from static equilibrium
+* Speed: mean time per 1 ms step over 3 s of motion after a 10 g tip load is released from static equilibrium
   (each side starts from its own equilibrium), per path of the simulator: gravity only, no gravity, the 10 g load
   kept at the tip, 10 g at mid-span, and the general one-step path (``Integrator.step``, the path state-dependent
   forces take, in the same time loop). Ours is ``NeedleSimulation`` as the node drives it (a pose and ``advance``
   per 1 ms, reaction wrench included) and with the poses given first and 50 ms per ``advance_to`` (offline);
-  MuJoCo is ``mj_step`` in a loop.
+  MuJoCo is ``mj_step`` in a loop. Time is this process's CPU time (both sides run on one thread): on a shared
+  machine the time other processes or the hypervisor take is not charged to either side; each path's runs
+  alternate between the two sides, the best run of each is reported.
 * Accuracy: tip position under the needle's weight plus an 80 g tip mass against the exact elastica
   (``needle_sim_ros.experiments.elastica``, a shooting solution sharing no code with either model); MuJoCo's
   equilibrium is reached by running it with joint damping until it stops.
@@ -39,6 +41,7 @@ SEGMENTS, DT, G = 10, 1e-3, 9.81
 RELEASED_MASS, STATIC_MASS = 0.010, 0.080  # [kg]
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 CHUNK = 0.05  # [s] simulated per advance_to on the offline path (= loop.max_catch_up: nothing skipped)
+CLOCK = time.process_time  # CPU time of this process (see the module docstring)
 
 
 def mujoco_rod(mujoco, gravity: bool):
@@ -80,7 +83,7 @@ def mujoco_settle(mujoco, model, data, tip_load: float, seconds: float = 40.0) -
 
 
 def mujoco_step_time(mujoco, gravity: bool, kept_load: float, at_mid: bool, seconds: float) -> float:
-    """Mean wall time per mj_step after the 10 g tip load is released (or moved/kept as given)."""
+    """Mean time per mj_step after the 10 g tip load is released (or moved/kept as given)."""
     model, data = mujoco_rod(mujoco, gravity)
     mujoco_settle(mujoco, model, data, RELEASED_MASS * G)
     data.xfrc_applied[:] = 0.0
@@ -89,13 +92,13 @@ def mujoco_step_time(mujoco, gravity: bool, kept_load: float, at_mid: bool, seco
                 else mujoco_tip_body(mujoco, model))
         data.xfrc_applied[body, 2] = -kept_load
     steps = int(seconds / DT)
-    start = time.perf_counter()
+    start = CLOCK()
     for _ in range(steps):
         mujoco.mj_step(model, data)
-    wall = (time.perf_counter() - start) / steps
+    per_step = (CLOCK() - start) / steps
     if not np.isfinite(data.qpos).all():
         raise RuntimeError("MuJoCo diverged")
-    return wall
+    return per_step
 
 
 def released_simulation(gravity: bool) -> NeedleSimulation:
@@ -110,13 +113,13 @@ def released_simulation(gravity: bool) -> NeedleSimulation:
 
 
 def simulator_step_time(gravity: bool, kept_load: float, at_mid: bool, seconds: float, batched: bool) -> float:
-    """Mean wall time per 1 ms step of NeedleSimulation: one pose + advance per step (node), or the poses given
+    """Mean time per 1 ms step of NeedleSimulation: one pose + advance per step (node), or the poses given
     first and 50 ms per advance_to (offline)."""
     sim = released_simulation(gravity)
     if kept_load:
         sim.set_point_load("bench", LENGTH / 2 if at_mid else LENGTH, np.array([0.0, 0.0, -kept_load]))
     steps = int(round(seconds / DT))
-    start = time.perf_counter()
+    start = CLOCK()
     if batched:
         for k in range(1, steps + 1):
             sim.offer_pose(k * DT, np.zeros(3), IDENTITY)
@@ -126,29 +129,29 @@ def simulator_step_time(gravity: bool, kept_load: float, at_mid: bool, seconds: 
         for k in range(1, steps + 1):
             sim.offer_pose(k * DT, np.zeros(3), IDENTITY)
             sim.advance(k * DT, deterministic=True)
-    wall = (time.perf_counter() - start) / steps
+    per_step = (CLOCK() - start) / steps
     stats = sim.statistics
     if stats.failed_steps or stats.skipped_time or not np.isfinite(sim.state.q).all():
         raise RuntimeError("the simulator failed or skipped a step")
     if abs(sim.state.t - seconds) > 0.5 * DT:
         raise RuntimeError(f"the simulator reached {sim.state.t} s instead of {seconds} s")
-    return wall
+    return per_step
 
 
 def general_step_time(seconds: float) -> float:
-    """Mean wall time per step of the general path (Integrator.step: full Newton, any force; reaction wrench
+    """Mean time per step of the general path (Integrator.step: full Newton, any force; reaction wrench
     included) after the release, the simulator's time loop kept off the compiled sequence."""
     released = released_simulation(True)
     base = BaseMotion(np.zeros(3), IDENTITY)
     sim = NeedleSimulation.prescribed(released.model, released.integrator, DT, lambda t: base, released.state)
     sim.compiled_sequence = False
     steps = int(seconds / DT)
-    start = time.perf_counter()
+    start = CLOCK()
     sim.advance_to(steps * DT)
-    wall = (time.perf_counter() - start) / steps
+    per_step = (CLOCK() - start) / steps
     if sim.statistics.steps != steps:
         raise RuntimeError(f"the general path did {sim.statistics.steps} steps instead of {steps}")
-    return wall
+    return per_step
 
 
 def static_errors(mujoco) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -196,15 +199,15 @@ def main() -> None:
              ("10 g at mid-span, gravity", True, RELEASED_MASS * G, True)]
     print("| path | MuJoCo [us/step] | node: pose + advance per step [us] | speed vs MuJoCo "
           "| offline: 50 ms per advance_to [us] | speed vs MuJoCo |\n|---|---|---|---|---|---|")
-    best = lambda run: min(run() for _ in range(args.repeats))
     compile_kernels(PARAMETERS)
     for name, gravity, load, at_mid in paths:
-        theirs = best(lambda: mujoco_step_time(mujoco, gravity, load, at_mid, args.seconds))
-        node = best(lambda: simulator_step_time(gravity, load, at_mid, args.seconds, False))
-        offline = best(lambda: simulator_step_time(gravity, load, at_mid, args.seconds, True))
+        runs = [(mujoco_step_time(mujoco, gravity, load, at_mid, args.seconds),
+                 simulator_step_time(gravity, load, at_mid, args.seconds, False),
+                 simulator_step_time(gravity, load, at_mid, args.seconds, True)) for _ in range(args.repeats)]
+        theirs, node, offline = np.min(runs, axis=0)
         print(f"| {name} | {theirs * 1e6:.1f} | {node * 1e6:.1f} | {theirs / node:.2f}x | {offline * 1e6:.1f} "
               f"| {theirs / offline:.2f}x |")
-    general = best(lambda: general_step_time(args.seconds))
+    general = min(general_step_time(args.seconds) for _ in range(args.repeats))
     print(f"\nGeneral path (Integrator.step, released 10 g, gravity): {general * 1e6:.1f} us/step")
 
 
