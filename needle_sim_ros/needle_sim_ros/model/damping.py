@@ -53,8 +53,9 @@ def damping_tables(mass_slots: np.ndarray, elastic: ElasticTables, alpha: float,
 
 
 @njit(cache=True)
-def add_axial_damping(q, qd, axial_S_x, strain_rate_weights, forces, band, kl, rate_factor, with_matrix):
-    """forces += Q_d,a = -int beta EA (r_x . r_x') S_x^T r_x;  band += rate_factor * (-dQ_d,a/dq')."""
+def add_axial_damping(q, qd, axial_S_x, strain_rate_weights, forces):
+    """forces += Q_d,a = -int beta EA (r_x . r_x') S_x^T r_x. Its matrix (-dQ_d,a/dq') has the axial stiffness's
+    blocks at the same points: ``add_elastic`` adds it with them."""
     rx = np.empty(3)
     rxd = np.empty(3)
     for j in range(axial_S_x.shape[0]):
@@ -74,11 +75,3 @@ def add_axial_damping(q, qd, axial_S_x, strain_rate_weights, forces, band, kl, r
             for a in range(4):
                 for c in range(3):
                     forces[first + 3 * a + c] -= w * rate * d[a] * rx[c]
-            if with_matrix:
-                for a in range(4):
-                    for b in range(4):
-                        dab = rate_factor * w * d[a] * d[b]
-                        for c in range(3):
-                            row = first + 3 * a + c
-                            for c2 in range(3):
-                                band[row, first + 3 * b + c2 - row + kl] += dab * rx[c] * rx[c2]

@@ -44,7 +44,7 @@ def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, ac
         band[:, :] = 0.0
     add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, residual, band, kl,
                 c_K, with_matrix, strain_rate_weights, c_C)  # with the axial damping's matrix
-    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, residual, band, kl, c_C, False)
+    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, residual)
     for i in range(n):
         residual[i] = -residual[i] - ext_Q[i]
     n_slots = mass_slots.shape[0]

@@ -51,7 +51,7 @@ def base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, be
     no_band = np.zeros((1, 1))
     add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, internal, no_band, 0,
                 0.0, False)
-    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, internal, no_band, 0, 0.0, False)
+    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, internal)
     result = np.empty(6)
     for s in range(2):
         for c in range(3):
