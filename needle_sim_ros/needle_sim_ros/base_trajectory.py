@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -43,9 +44,9 @@ class PoseVerdict(Enum):
     RESTARTED = "accepted after a gap in the input, away from the held pose: needle restarted at rest there"
 
 
-@dataclass(frozen=True)
-class PoseSample:
-    """One measured base pose: time [s], position [m] and unit quaternion (x, y, z, w), world frame."""
+class PoseSample(NamedTuple):
+    """One measured base pose: time [s], position [m] and unit quaternion (x, y, z, w), world frame (a tuple: one
+    is made per pose, at up to 1 kHz)."""
 
     t: float
     position: np.ndarray

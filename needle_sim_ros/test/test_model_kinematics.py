@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, NeedleProperties, PointLoad, build_model, centerline,
                                   solve_static, tip_pose)
+from needle_sim_ros.messages.geometry import tube_triangles
 from needle_sim_ros.model.partition import hermite_quintic
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
@@ -122,3 +123,61 @@ def test_centerline_and_tip_pose_of_a_planar_bend():
                        (Rotation.from_euler("y", angle) * rolled).as_matrix(), atol=1e-9)
     with pytest.raises(ValueError, match="n_samples"):
         centerline(model, state.q, 1)
+
+
+HELIX_RADIUS, HELIX_PITCH = 0.03, 0.02  # a, b of r(s) = (b s / c, a cos(s / c), a sin(s / c)), c^2 = a^2 + b^2
+
+
+def helix_frame(s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Point, unit tangent, Frenet normal and binormal of the helix at arc length s."""
+    a, b = HELIX_RADIUS, HELIX_PITCH
+    c = math.hypot(a, b)
+    angle = s / c
+    point = np.array([b * s / c, a * math.cos(angle), a * math.sin(angle)])
+    tangent = np.array([b, -a * math.sin(angle), a * math.cos(angle)]) / c
+    normal = np.array([0.0, -math.cos(angle), -math.sin(angle)])
+    return point, tangent, normal, np.cross(tangent, normal)
+
+
+def twist_free_normal(s: float) -> np.ndarray:
+    """The Frenet normal at s = 0 carried along the helix without twist: the Frenet normal turned by -tau s about
+    the tangent (torsion tau = b / c^2)."""
+    _, _, normal, binormal = helix_frame(s)
+    angle = -HELIX_PITCH / (HELIX_RADIUS**2 + HELIX_PITCH**2) * s
+    return math.cos(angle) * normal + math.sin(angle) * binormal
+
+
+def test_centerline_and_tip_frame_of_a_helix_against_its_closed_form():
+    """Nodes on a helix (:func:`helix_frame`): the centerline follows it, its arc length is s, and the tip frame's
+    y axis is the base's normal carried without twist (:func:`twist_free_normal`)."""
+    n_elements = 40  # the cubic interpolation is off the helix by < 1e-7 m
+    model = build_model(NEEDLE, n_elements)
+    nodes = np.linspace(0.0, NEEDLE.length, n_elements + 1)
+    q = np.concatenate([np.concatenate(helix_frame(s)[:2]) for s in nodes])
+    line = centerline(model, q, 101)
+    helix = np.array([helix_frame(s)[0] for s in line.reference_arc_length])
+    assert np.abs(line.points - helix).max() < 5e-7  # 0.9e-7
+    assert np.abs(line.arc_length - line.reference_arc_length).max() < 1e-6  # 3e-7
+    _, t0, n0, b0 = helix_frame(0.0)
+    base = Rotation.from_matrix(np.column_stack([t0, n0, b0]))
+    _, orientation = tip_pose(model, q, base_orientation=base.as_quat())
+    t_tip, y_tip = helix_frame(NEEDLE.length)[1], twist_free_normal(NEEDLE.length)  # turned by 4.2 rad
+    expected = np.column_stack([t_tip, y_tip, np.cross(t_tip, y_tip)])
+    assert np.abs(Rotation.from_quat(orientation).as_matrix() - expected).max() < 5e-4  # 1.2e-4 (81 samples)
+
+
+def test_tube_rings_a_helix_without_twist():
+    """The RViz tube around 201 helix samples: every vertex lies on a ring of the tube's radius perpendicular to
+    the tangent, and each ring's first vertex follows the twist-free normal (here the first ring's normal
+    e_z x t(0) is e_y, minus the Frenet normal at the helix's start)."""
+    radius, sides = 1e-3, 8
+    s = np.linspace(0.0, NEEDLE.length, 201)
+    frames = [helix_frame(value) for value in s]
+    points, tangents = np.array([f[0] for f in frames]), np.array([f[1] for f in frames])
+    vertices = tube_triangles(points, tangents, radius, sides).reshape(len(s) - 1, sides, 6, 3)
+    rings = vertices[:, :, 0]  # corner a of each quad: ring i, vertex j
+    offsets = rings - points[:-1, None, :]
+    assert np.allclose(np.linalg.norm(offsets, axis=2), radius, rtol=1e-12, atol=0)
+    assert np.abs(np.einsum("kjd,kd->kj", offsets, tangents[:-1])).max() < 1e-15
+    expected = -np.array([twist_free_normal(value) for value in s[:-1]])
+    assert np.abs(offsets[:, 0] / radius - expected).max() < 1e-3  # 3e-4

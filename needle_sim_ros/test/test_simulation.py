@@ -12,6 +12,7 @@ from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrat
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_vision.parameters import ParameterError
 from needle_sim_ros.simulation import simulation_from_parameters
+from needle_sim_ros.tissue import tissue_model
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
 
@@ -264,8 +265,8 @@ def test_a_step_failing_after_converged_sub_steps_restores_the_integrators_memor
 
 def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
     """The stateful forces advance once the integrator has accepted the step; if one fails (here the tissue, after
-    its contact, track, anchors and LuGre z have advanced, while it freezes the next step's tip forces), its error
-    is raised with the whole simulation as before the step."""
+    its contact and track have advanced, while it advances the shaft's anchors and LuGre z), its error is raised
+    with the whole simulation as before the step."""
     sim = _inserted(SHAFT_LAWS[1])
     t = sim.state.t + sim.dt
     base = sim.base_motion_at(t)
@@ -273,7 +274,7 @@ def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
 
     def broken(*args):
         raise FloatingPointError("broken tissue law")
-    monkeypatch.setattr(sim.extra_forces[-1], "_forces", broken)
+    monkeypatch.setattr(tissue_model, "advance_shaft", broken)
     with pytest.raises(FloatingPointError):
         sim.step(base, t)
     monkeypatch.undo()

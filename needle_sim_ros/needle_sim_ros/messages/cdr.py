@@ -130,9 +130,19 @@ def path(sec: int, nanosec: int, frame_id: str, points: np.ndarray, quaternions:
     buffer = _Buffer()
     _header(buffer, sec, nanosec, frame_id)
     buffer.uint32(len(points))
-    for pose in np.hstack([points, quaternions]):
+    poses = np.ascontiguousarray(np.hstack([points, quaternions]), dtype="<f8").reshape(-1, 7)
+    if len(poses):  # the first pose may start 4 bytes off the 8-byte grid; each after it starts on it
         _header(buffer, sec, nanosec, frame_id)
-        buffer.doubles(pose)
+        buffer.doubles(poses[0])
+    if len(poses) > 1:  # the same header bytes and padding before every later pose: one block
+        prefix = _Buffer()
+        _header(prefix, sec, nanosec, frame_id)
+        prefix.align(8)
+        head = np.frombuffer(b"".join(prefix.parts), np.uint8)
+        block = np.empty((len(poses) - 1, head.size + 56), np.uint8)
+        block[:, :head.size] = head
+        block[:, head.size:] = poses[1:].view(np.uint8)
+        buffer._add(block.tobytes())
     return buffer.bytes()
 
 

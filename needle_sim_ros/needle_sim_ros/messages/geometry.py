@@ -3,15 +3,17 @@ the triangles of a tube around it (for nav_msgs/Path, PoseArray and the Marker t
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
+
+from needle_sim_ros.model.kinematics import cross
+from needle_sim_ros.model.outputs import transported_normals
 
 
 def quaternions_from_tangents(tangents: np.ndarray) -> np.ndarray:
     """Unit quaternions (x, y, z, w) of frames whose x axis is each tangent, with the least rotation from world x."""
     t = tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
-    x = np.array([1.0, 0.0, 0.0])
-    axis = np.cross(x, t)
     w = 1.0 + t[:, 0]
-    q = np.column_stack([axis, w])
+    q = np.column_stack([np.zeros(len(t)), -t[:, 2], t[:, 1], w])  # axis e_x x t
     opposite = w < 1e-9  # tangent along -x: rotate by pi about z
     q[opposite] = [0.0, 0.0, 1.0, 0.0]
     return q / np.linalg.norm(q, axis=1, keepdims=True)
@@ -27,22 +29,37 @@ def polyline_tangents(points: np.ndarray) -> np.ndarray:
 def tube_triangles(points: np.ndarray, tangents: np.ndarray, radius: float, sides: int = 8) -> np.ndarray:
     """Triangle-list vertices (m, 3) of a tube of the given radius around a centerline.
 
-    Cross-section frames are carried along the curve by parallel transport (no twist), so the tube does not
-    spin with the curve's Frenet frame and stays well defined where the curvature vanishes.
+    Cross-section frames are carried along the curve by parallel transport (no twist,
+    :func:`~needle_sim_ros.model.outputs.transported_normals`), so the tube does not spin with the curve's Frenet
+    frame and stays well defined where the curvature vanishes.
     """
-    t = tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
+    t = np.ascontiguousarray(tangents / np.linalg.norm(tangents, axis=1, keepdims=True))
     helper = np.array([0.0, 0.0, 1.0]) if abs(t[0, 2]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    normals = np.empty_like(t)
-    n = np.cross(helper, t[0])
-    normals[0] = n / np.linalg.norm(n)
-    for i in range(1, len(t)):
-        n = normals[i - 1] - np.dot(normals[i - 1], t[i]) * t[i]
-        normals[i] = n / np.linalg.norm(n)
-    binormals = np.cross(t, normals)
+    first = cross(helper, t[0])
     angles = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
-    rings = points[:, None, :] + radius * (np.cos(angles)[None, :, None] * normals[:, None, :]
-                                           + np.sin(angles)[None, :, None] * binormals[:, None, :])
-    a, b = rings[:-1], rings[1:]
-    a_next, b_next = np.roll(a, -1, axis=1), np.roll(b, -1, axis=1)
-    quads = np.stack([a, b, b_next, a, b_next, a_next], axis=2)  # two triangles per quad
-    return quads.reshape(-1, 3)
+    return _tube_vertices(np.ascontiguousarray(points, dtype=float), t,
+                          transported_normals(t, first / np.linalg.norm(first)), float(radius), np.cos(angles),
+                          np.sin(angles))
+
+
+@njit(cache=True)
+def _tube_vertices(points, tangents, normals, radius, cosines, sines):
+    """Rings of points + radius (cos n + sin (t x n)) at each centerline point, and two triangles per quad between
+    neighbouring rings: (a_j, b_j, b_j+1), (a_j, b_j+1, a_j+1), (6 (k - 1) sides, 3)."""
+    k, sides = points.shape[0], cosines.size
+    rings = np.empty((k, sides, 3))
+    for i in range(k):
+        binormal = cross(tangents[i], normals[i])
+        for j in range(sides):
+            for d in range(3):
+                rings[i, j, d] = points[i, d] + radius * (cosines[j] * normals[i, d] + sines[j] * binormal[d])
+    vertices = np.empty((max(k - 1, 0), sides, 6, 3))
+    for i in range(k - 1):
+        for j in range(sides):
+            following = (j + 1) % sides
+            for d in range(3):
+                a, b, b_next, a_next = rings[i, j, d], rings[i + 1, j, d], rings[i + 1, following, d], rings[
+                    i, following, d]
+                vertices[i, j, 0, d], vertices[i, j, 1, d], vertices[i, j, 2, d] = a, b, b_next
+                vertices[i, j, 3, d], vertices[i, j, 4, d], vertices[i, j, 5, d] = a, b_next, a_next
+    return vertices.reshape(-1, 3)

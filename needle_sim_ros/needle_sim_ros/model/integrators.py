@@ -133,6 +133,7 @@ class Integrator:
         self._constant_cache: tuple[tuple, np.ndarray] = ((), np.zeros(model.n_dof))
         self._split_cache: tuple[tuple, list, list, bool] = ((), [], [], True)
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
+        self._run_cache: tuple[tuple, tuple] = ((), ())
         self.memory = IntegratorMemory(model.n_dof)
         self._sequence: SequenceBuffers | None = None
 
@@ -228,13 +229,16 @@ class Integrator:
         limit, base node buffers, active mask, scales, model tables, base rows and work arrays, bandwidth) and
         the constant external force. A fresh matrix every step, as :meth:`step`: the memory's kept
         factorization is invalidated."""
-        buffers, solver = self._sequence_buffers(), self.solver
         (memory or self.memory).invalidate()
-        needle = (self._coefficients(dt), self.newton_tol, self.max_newton_iterations, buffers.prescribed,
-                  buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active, buffers.scale,
-                  buffers.tables, buffers.base_rows, buffers.residual, solver.band(ELEMENT_BANDWIDTH),
-                  solver.band(ELEMENT_BANDWIDTH, "external"), solver.pivots, solver.factorization, ELEMENT_BANDWIDTH)
-        return needle, self._constant_force(self._split(forces)[0], t_next, None)
+        key = (dt, self.newton_tol, self.max_newton_iterations)
+        if self._run_cache[0] != key:  # the same work arrays every call: the tuple is made once per key
+            buffers, solver = self._sequence_buffers(), self.solver
+            self._run_cache = (key, (
+                self._coefficients(dt), self.newton_tol, self.max_newton_iterations, buffers.prescribed,
+                buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active, buffers.scale,
+                buffers.tables, buffers.base_rows, buffers.residual, solver.band(ELEMENT_BANDWIDTH),
+                solver.band(ELEMENT_BANDWIDTH, "external"), solver.pivots, solver.factorization, ELEMENT_BANDWIDTH))
+        return self._run_cache[1], self._constant_force(self._split(forces)[0], t_next, None)
 
     def _sequence_buffers(self) -> SequenceBuffers:
         if self._sequence is None:

@@ -13,8 +13,8 @@ from .kinematics import cross, matrix_quaternion, quaternion_matrix, unit_quater
 from .mesh import Interpolation
 from .model import NeedleModel
 
-__all__ = ["Centerline", "centerline", "tip_pose", "ModelShape", "model_shape", "axial_strain", "curvature",
-           "kinetic_energy", "elastic_energy", "gravitational_energy"]
+__all__ = ["Centerline", "centerline", "tip_pose", "transported_normals", "ModelShape", "model_shape", "axial_strain",
+           "curvature", "kinetic_energy", "elastic_energy", "gravitational_energy"]
 
 _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(3)
 
@@ -44,15 +44,49 @@ def centerline(model: NeedleModel, q: np.ndarray, n_samples: int) -> Centerline:
     if not (isinstance(n_samples, (int, np.integer)) and n_samples >= 2):
         raise ValueError(f"n_samples must be an integer >= 2, got {n_samples!r}")
     samples, gauss = _sampling(model, int(n_samples))
-    slots = np.asarray(q, dtype=float).reshape(-1, 3)
-    points = samples.P @ slots
-    gradients = samples.P_x @ slots
-    tangents = gradients / np.sqrt(np.einsum("ki,ki->k", gradients, gradients))[:, None]
-    s = samples.arc_length
-    gauss_gradients = gauss.P_x @ slots
-    stretch = np.sqrt(np.einsum("ki,ki->k", gauss_gradients, gauss_gradients)).reshape(-1, 3) @ _GAUSS_W
-    arc = np.concatenate([[0.0], np.cumsum(0.5 * (s[1:] - s[:-1]) * stretch)])
-    return Centerline(points, tangents, arc, s.copy())
+    slots = np.ascontiguousarray(q, dtype=float).reshape(-1, 3)
+    points, tangents, arc = _centerline_arrays(samples.S, samples.S_x, samples.slots, gauss.S_x, gauss.slots,
+                                               samples.arc_length, _GAUSS_W, slots)
+    return Centerline(points, tangents, arc, samples.arc_length.copy())
+
+
+@njit(cache=True)
+def _slot_rows(table: np.ndarray, slots: np.ndarray, q_slots: np.ndarray) -> np.ndarray:
+    """sum_a table[k, a] e_slots[k, a] (eq. 3) at each point k of an interpolation table: r, r_x or r_xx (k, 3)."""
+    rows = np.zeros((table.shape[0], 3))
+    for k in range(table.shape[0]):
+        for a in range(4):
+            weight, slot = table[k, a], slots[k, a]
+            for i in range(3):
+                rows[k, i] += weight * q_slots[slot, i]
+    return rows
+
+
+@njit(cache=True)
+def _unit_tangents(S_x: np.ndarray, slots: np.ndarray, q_slots: np.ndarray) -> np.ndarray:
+    """r_x / |r_x| at each point of an interpolation table, (k, 3)."""
+    tangents = _slot_rows(S_x, slots, q_slots)
+    for k in range(tangents.shape[0]):
+        norm = np.sqrt(tangents[k, 0] ** 2 + tangents[k, 1] ** 2 + tangents[k, 2] ** 2)
+        for i in range(3):
+            tangents[k, i] /= norm
+    return tangents
+
+
+@njit(cache=True)
+def _centerline_arrays(S, S_x, slots, gauss_S_x, gauss_slots, s, gauss_w, q_slots):
+    """Points r (n, 3), unit tangents (n, 3) at the samples and the deformed arc length from A (n,): the integral of
+    |r_x| over each gap between samples by Gauss-Legendre with the weights ``gauss_w``."""
+    n, m = S.shape[0], gauss_w.size
+    gradients = _slot_rows(gauss_S_x, gauss_slots, q_slots)
+    arc = np.zeros(n)
+    for j in range(n - 1):
+        stretch = 0.0
+        for g in range(m):
+            p = j * m + g
+            stretch += gauss_w[g] * np.sqrt(gradients[p, 0] ** 2 + gradients[p, 1] ** 2 + gradients[p, 2] ** 2)
+        arc[j + 1] = arc[j] + 0.5 * (s[j + 1] - s[j]) * stretch
+    return _slot_rows(S, slots, q_slots), _unit_tangents(S_x, slots, q_slots), arc
 
 
 def axial_strain(model: NeedleModel, q: np.ndarray, s) -> np.ndarray:
@@ -83,16 +117,48 @@ def gravitational_energy(model: NeedleModel, q: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _transport(tangents: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Parallel-transport a normal along a polyline of unit tangents (minimal rotation between neighbours)."""
-    u = normal.copy()
-    for k in range(tangents.shape[0] - 1):
-        a, b = tangents[k], tangents[k + 1]
-        c = np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-        cu = np.array([c[1] * u[2] - c[2] * u[1], c[2] * u[0] - c[0] * u[2], c[0] * u[1] - c[1] * u[0]])
-        ccu = np.array([c[1] * cu[2] - c[2] * cu[1], c[2] * cu[0] - c[0] * cu[2], c[0] * cu[1] - c[1] * cu[0]])
-        u = u + cu + ccu / (1.0 + a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
-    return u
+def transported_normals(tangents: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """A normal of tangents[0] carried along a polyline of unit tangents (k, 3) by the least rotation taking each
+    tangent to the next, u <- u + c x u + c x (c x u) / (1 + a.b) with c = a x b (parallel transport: the frame
+    does not twist about the curve); the normal at each tangent, (k, 3)."""
+    normals = np.empty((tangents.shape[0], 3))
+    u0, u1, u2 = normal[0], normal[1], normal[2]
+    for k in range(tangents.shape[0]):
+        normals[k, 0], normals[k, 1], normals[k, 2] = u0, u1, u2
+        if k + 1 == tangents.shape[0]:
+            break
+        a0, a1, a2 = tangents[k, 0], tangents[k, 1], tangents[k, 2]
+        b0, b1, b2 = tangents[k + 1, 0], tangents[k + 1, 1], tangents[k + 1, 2]
+        c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        d0, d1, d2 = c1 * u2 - c2 * u1, c2 * u0 - c0 * u2, c0 * u1 - c1 * u0
+        f = 1.0 / (1.0 + a0 * b0 + a1 * b1 + a2 * b2)
+        u0, u1, u2 = (u0 + d0 + (c1 * d2 - c2 * d1) * f, u1 + d1 + (c2 * d0 - c0 * d2) * f,
+                      u2 + d2 + (c0 * d1 - c1 * d0) * f)
+    return normals
+
+
+@njit(cache=True)
+def _tip_rotation(S_x: np.ndarray, slots: np.ndarray, q_slots: np.ndarray, base_rotation: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the tip frame (see :func:`tip_pose`) from the tangents at the points of an interpolation
+    table along the whole needle; ``base_rotation`` (3, 3), or (0, 0) for the minimal rotation onto r_xA."""
+    tangents = _unit_tangents(S_x, slots, q_slots)
+    t0 = tangents[0]
+    if base_rotation.size:
+        normal = base_rotation[:, 1].copy()
+    elif t0[0] > -1.0 + 1e-12:  # the minimal rotation e_x -> t0 applied to e_y
+        normal = np.array([-t0[1], 1.0 - t0[1] ** 2 / (1.0 + t0[0]), -t0[1] * t0[2] / (1.0 + t0[0])])
+    else:
+        normal = np.array([0.0, 1.0, 0.0])
+    x_axis = tangents[-1]
+    y_axis = transported_normals(tangents, normal - (normal @ t0) * t0)[-1]
+    y_axis = y_axis - (y_axis @ x_axis) * x_axis
+    y_axis /= np.sqrt(y_axis @ y_axis)
+    rotation = np.empty((3, 3))
+    rotation[:, 0], rotation[:, 1], rotation[:, 2] = x_axis, y_axis, cross(x_axis, y_axis)
+    return rotation
+
+
+_NO_ROTATION = np.zeros((0, 0))
 
 
 def tip_pose(model: NeedleModel, q: np.ndarray, base_orientation=None,
@@ -100,22 +166,11 @@ def tip_pose(model: NeedleModel, q: np.ndarray, base_orientation=None,
     """Tip position and orientation (x, y, z, w): x axis = tip tangent; y, z = the base frame's y, z axes
     parallel-transported along the centerline (a torsion-free cable's cross sections do not twist).
     Without base_orientation the base frame is the minimal rotation of the world frame onto r_xA."""
-    q = np.asarray(q, dtype=float)
-    gradients = _sampling(model, samples_per_element * model.n_elements + 1)[0].gradients(q)
-    tangents = gradients / np.sqrt(np.einsum("ki,ki->k", gradients, gradients))[:, None]
-    t0 = tangents[0]
-    if base_orientation is not None:
-        normal = quaternion_matrix(unit_quaternion(base_orientation, "base_orientation"))[:, 1]
-    elif t0[0] > -1.0 + 1e-12:
-        # the minimal rotation e_x -> t0 applied to e_y
-        normal = np.array([-t0[1], 1.0 - t0[1] ** 2 / (1.0 + t0[0]), -t0[1] * t0[2] / (1.0 + t0[0])])
-    else:
-        normal = np.array([0.0, 1.0, 0.0])
-    x_axis = tangents[-1]
-    y_axis = _transport(tangents, normal - (normal @ t0) * t0)
-    y_axis = y_axis - (y_axis @ x_axis) * x_axis
-    y_axis /= np.linalg.norm(y_axis)
-    rotation = np.column_stack([x_axis, y_axis, cross(x_axis, y_axis)])
+    q = np.ascontiguousarray(q, dtype=float)
+    table = _sampling(model, samples_per_element * model.n_elements + 1)[0]
+    base_rotation = _NO_ROTATION if base_orientation is None else quaternion_matrix(
+        unit_quaternion(base_orientation, "base_orientation"))
+    rotation = _tip_rotation(table.S_x, table.slots, q.reshape(-1, 3), base_rotation)
     return q[-6:-3].copy(), matrix_quaternion(rotation)
 
 

@@ -9,8 +9,8 @@ never changed in place, so a copy of the data is a copy of references and a fail
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
-from typing import NamedTuple
 
 import numpy as np
 
@@ -28,13 +28,42 @@ from .insertion_profile import InsertionForceProfile
 from .sequence import integrate_tissue_sequence
 
 
-class TissueState(NamedTuple):
-    """The tissue's state after a step: the contact (puncture, tip depth and speed, track), the shaft points
-    (anchors, active points, the axial law's state) and the contributions acting over the next step."""
+class TissueState:
+    """The tissue's state after a step, as the compiled advance returns it (``kernel``): the contact arrays
+    (``advance_contact``'s tuple: puncture, tip depth and speed, step duration, at the cut front, the track's
+    arrays), the state time of that contact (NaN: never updated), the axial law's state, the shaft points' anchors
+    and active flags, and the frozen lateral and axial parts of the next step (``advance.FROZEN_FIELDS``).
 
-    contact: ContactState
-    shaft: ShaftState
-    forces: tuple
+    The next compiled step takes these arrays as they are; the objects the general path and the readout use --
+    ``contact``, ``shaft`` and ``forces`` (the contributions acting over the next step) -- are built from them on
+    first use. A value: never changed in place (what is built is a view of the same arrays)."""
+
+    __slots__ = ("tissue", "kernel", "_views")
+
+    def __init__(self, tissue: TissueModel, kernel: tuple) -> None:
+        self.tissue = tissue
+        self.kernel = kernel
+        self._views: tuple | None = None
+
+    def __reduce__(self):
+        return TissueState, (self.tissue, self.kernel)
+
+    @property
+    def contact(self) -> ContactState:
+        return self._built()[0]
+
+    @property
+    def shaft(self) -> ShaftState:
+        return self._built()[1]
+
+    @property
+    def forces(self) -> tuple:
+        return self._built()[2]
+
+    def _built(self) -> tuple:
+        if self._views is None:
+            self._views = self.tissue.views(self.kernel)
+        return self._views
 
 
 @dataclass(frozen=True)
@@ -88,21 +117,21 @@ class TissueModel(ForceContribution):
 
     def initial_state(self, model) -> TissueState:
         """Fresh tissue: not punctured, no track, no shaft point inside."""
-        contact = self.contact.initial
-        shaft = self.shaft.initial
-        return TissueState(contact, shaft, self._forces(contact, NO_SHAFT_FORCES))
+        contact, shaft = self.contact.initial, self.shaft.initial
+        lateral, axial = (part.fields for part in NO_SHAFT_FORCES.parts)
+        arrays = (contact.punctured, contact.tip_depth, contact.tip_axial_speed, contact.step_duration,
+                  contact.at_front, *contact.track.kernel_arrays)
+        return TissueState(self, (arrays, np.nan, float(shaft.law), shaft.anchor, shaft.active, lateral, axial))
 
     def advance(self, model, state, base, tissue: TissueState) -> TissueState:
         """The tissue after the accepted step to ``state`` (see the module docstring; ``advance``)."""
-        contact = tissue.contact
-        advanced = advance_contact(contact.punctured, np.nan if contact.time is None else contact.time,
-                                   *contact.track.kernel_arrays, state.q, state.qd, float(state.t),
+        arrays, contact_time, law_state, anchor, active, _, _ = tissue.kernel
+        advanced = advance_contact(arrays[0], contact_time, *arrays[5:], state.q, state.qd, float(state.t),
                                    *self.contact_arguments)
-        shaft = tissue.shaft
         law_state, anchor, active, lateral, axial = advance_shaft(
-            state.q, advanced[5], advanced[6], advanced[9], *advanced[1:4], shaft.anchor, shaft.active,
-            float(shaft.law), *self.shaft.kernel_arguments)
-        return self.state_from_arrays(advanced, float(state.t), law_state, anchor, active, lateral, axial)
+            state.q, advanced[5], advanced[6], advanced[9], *advanced[1:4], anchor, active, law_state,
+            *self.shaft.kernel_arguments)
+        return TissueState(self, (advanced, float(state.t), law_state, anchor, active, lateral, axial))
 
     def run_steps(self, model, integrator, state, tissue: TissueState, dt: float, times: np.ndarray,
                   motions: np.ndarray, rotations: np.ndarray, forces, memory) -> tuple[SequenceResult, TissueState]:
@@ -115,32 +144,25 @@ class TissueModel(ForceContribution):
         history = np.empty((4, n))
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
         states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)
-        contact, shaft = tissue.contact, tissue.shaft
-        arrays = (contact.punctured, contact.tip_depth, contact.tip_axial_speed, contact.step_duration,
-                  contact.at_front, *contact.track.kernel_arrays)
-        lateral, axial = (part.fields for part in tissue.forces[0].parts)
-        done, arrays, _, (law_state, anchor, active), lateral, axial = integrate_tissue_sequence(
-            history, times, motions, rotations, needle, constant_Q, memory.control, arrays,
-            np.nan if contact.time is None else contact.time, (float(shaft.law), shaft.anchor, shaft.active),
-            lateral, axial, self.contact_arguments, self.shaft.kernel_arguments, self.tip_arguments, states,
-            wrenches, iterations)
+        arrays, contact_time, law_state, anchor, active, lateral, axial = tissue.kernel
+        done, arrays, contact_time, shaft, lateral, axial = integrate_tissue_sequence(
+            history, times, motions, rotations, needle, constant_Q, memory.control, arrays, contact_time,
+            (law_state, anchor, active), lateral, axial, self.contact_arguments, self.shaft.kernel_arguments,
+            self.tip_arguments, states, wrenches, iterations)
         result = SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
         if done == 0:
             return result, tissue
-        return result, self.state_from_arrays(arrays, float(times[done - 1]), law_state, anchor, active, lateral,
-                                              axial)
+        return result, TissueState(self, (arrays, contact_time, *shaft, lateral, axial))
 
-    def state_from_arrays(self, contact: tuple, t: float, law_state: float, anchor: np.ndarray, active: np.ndarray,
-                          lateral: tuple, axial: tuple) -> TissueState:
-        """The tissue state of the compiled advance's results at time t: ``advance_contact``'s tuple and
-        ``advance_shaft``'s law state, anchors, active points and frozen parts."""
-        punctured, tip_depth, tip_speed, duration, at_front = contact[:5]
-        track = Track(self.contact.initial.track.spacing, *contact[5:])
-        contact_state = ContactState(bool(punctured), float(tip_depth), float(tip_speed), float(duration),
-                                     bool(at_front), t, track)
+    def views(self, kernel: tuple) -> tuple[ContactState, ShaftState, tuple]:
+        """The contact, the shaft state and the next step's contributions of a :class:`TissueState`'s arrays."""
+        arrays, contact_time, law_state, anchor, active, lateral, axial = kernel
+        punctured, tip_depth, tip_speed, duration, at_front = arrays[:5]
+        track = Track(self.contact.initial.track.spacing, *arrays[5:])
+        contact = ContactState(bool(punctured), float(tip_depth), float(tip_speed), float(duration), bool(at_front),
+                               None if math.isnan(contact_time) else float(contact_time), track)
         shaft_forces = ShaftForces(_Frozen.from_fields(lateral), _Frozen.from_fields(axial))
-        return TissueState(contact_state, ShaftState(anchor, active, law_state),
-                           self._forces(contact_state, shaft_forces))
+        return contact, ShaftState(anchor, active, law_state), self._forces(contact, shaft_forces)
 
     def _forces(self, contact: ContactState, shaft_forces: ShaftForces) -> tuple:
         """The contributions of the next step: the shaft's, the bevel tip's and the seed 002 tip's
