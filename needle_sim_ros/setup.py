@@ -14,10 +14,12 @@ package_name = "needle_sim_ros"
 COMPILE_KERNELS = """
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 import time
+from needle_sim_ros.messages.geometry import compile_geometry_kernels
 from needle_sim_ros.simulation import compile_kernels, compile_tissue_kernels
 defaults = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
 start = time.perf_counter()
 compile_kernels(defaults)
+compile_geometry_kernels()
 compile_tissue_kernels(defaults)
 compile_tissue_kernels({**defaults, "tissue.shaft.axial_model": "lugre", "tissue.insertion_profile.enable": True})
 seconds = time.perf_counter() - start

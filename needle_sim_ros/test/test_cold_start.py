@@ -7,6 +7,7 @@ from numba.core.dispatcher import Dispatcher
 from rclpy.serialization import serialize_message
 
 from needle_sim_ros.messages import cdr
+from needle_sim_ros.messages.geometry import compile_geometry_kernels, tube_triangles
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import compile_kernels, simulation_from_parameters, step_wrenches
 
@@ -35,6 +36,22 @@ def test_poses_decoded_like_the_node_does_need_no_kernel_beyond_compile_kernels(
         sim.offer_pose(pose.stamp_ns * 1e-9, pose.position, pose.orientation)
         wrenches += step_wrenches(sim.advance(t + 1e-3, deterministic=False))
     assert len(wrenches) >= 15
+    assert compiled_specializations() == compiled
+
+
+def test_the_outputs_need_no_kernel_beyond_compile_kernels():
+    """The node's outputs (shape, energies, the RViz tube) after compile_kernels and compile_geometry_kernels, as
+    its on_configure calls them: nothing compiles in the output thread (that would hold the GIL for a second)."""
+    compile_kernels(DEFAULTS)
+    compile_geometry_kernels()
+    compiled = compiled_specializations()
+    sim = simulation_from_parameters(DEFAULTS)
+    sim.offer_pose(1.0, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+    sim.advance(1.002, deterministic=False)
+    shape = sim.shape(DEFAULTS["output.shape_samples"])
+    sim.energies()
+    tube = tube_triangles(shape.line.points, shape.line.tangents, sim.model.props.radius)
+    assert tube.shape == (6 * 8 * (DEFAULTS["output.shape_samples"] - 1), 3)
     assert compiled_specializations() == compiled
 
 

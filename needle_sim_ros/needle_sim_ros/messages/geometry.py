@@ -63,3 +63,11 @@ def _tube_vertices(points, tangents, normals, radius, cosines, sines):
                 vertices[i, j, 0, d], vertices[i, j, 1, d], vertices[i, j, 2, d] = a, b, b_next
                 vertices[i, j, 3, d], vertices[i, j, 4, d], vertices[i, j, 5, d] = a, b_next, a_next
     return vertices.reshape(-1, 3)
+
+
+def compile_geometry_kernels() -> None:
+    """Compile the tube's kernels now (or load them from the cache), not at a node's first visualization output
+    (compiling holds the GIL for about a second)."""
+    straight = np.zeros((3, 3))
+    straight[:, 0] = [0.0, 0.1, 0.2]
+    tube_triangles(straight, np.tile([1.0, 0.0, 0.0], (3, 1)), 1e-3)

@@ -37,7 +37,7 @@ from needle_vision.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.messages import cdr
-from needle_sim_ros.messages.geometry import quaternions_from_tangents, tube_triangles
+from needle_sim_ros.messages.geometry import compile_geometry_kernels, quaternions_from_tangents, tube_triangles
 from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
 from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_shape
 from needle_sim_ros.nodes.diagnostics import HealthMonitor
@@ -134,7 +134,10 @@ class NeedleSimulatorNode(LifecycleNode):
             self.get_logger().error(f"configure failed: {self.configure_error}")
             return TransitionCallbackReturn.FAILURE
         # Before any topic is active: once active the node steps at full speed from the first pose.
-        self.get_logger().info(f"compiled/loaded the numerical kernels in {compile_kernels(self.p):.1f} s")
+        start = time.perf_counter()
+        compile_kernels(self.p)
+        compile_geometry_kernels()
+        self.get_logger().info(f"compiled/loaded the numerical kernels in {time.perf_counter() - start:.1f} s")
         with self._lock:
             self.sim, self.props = sim, sim.model.props
             if self.use_sim_time:
