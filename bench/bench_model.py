@@ -9,6 +9,7 @@
   the general step path (full Newton) and the compiled step sequence (the simulator's path without tissue);
   again with a 20-point MaterialPointForce (a tissue-like lateral spring-damper on the distal half, the path tissue
   models take); plus reaction wrench (eq. 20), a 50-point centerline and BaseMotion.from_flange;
+* the node's outputs besides the wrench: shape output, NeedleShape and Path messages, RViz tube;
 * static equilibrium under weight + 80 g tip mass from the straight needle (10 elements).
 Times are the best of several repeats (the machine may be shared); the base motion is evaluated per step, as the
 simulator does.
@@ -126,6 +127,32 @@ def output_times(n_elements: int, repeats: int) -> tuple[float, float]:
             best_time(lambda: centerline(model, state.q, 50), 200, repeats))
 
 
+def output_message_times(repeats: int) -> list[tuple[str, float]]:
+    """(output, best time per call [s]) of what the simulator node publishes besides the wrench (10 elements,
+    50 samples): the shape output and its message at rates.shape_hz, the RViz path and tube at
+    rates.visualization_hz."""
+    from needle_sim_ros.messages import cdr
+    from needle_sim_ros.messages.geometry import quaternions_from_tangents, tube_triangles
+    from needle_sim_ros.messages.shape import model_shape_cdr
+    from needle_sim_ros.model import model_shape
+
+    model = build_model(NEEDLE, 10, rayleigh_beta=1e-4)
+    base, forces = base_motion(0.1), [Gravity()]
+    state = Integrator(model).step(model.straight_state(base_motion(0.0)), 0.1, base, forces).state
+    shape = model_shape(model, state.q, 0.1, 50, base.orientation)
+    line = shape.line
+    quaternions = quaternions_from_tangents(line.tangents)
+    outputs = {
+        "shape: 50-sample centerline and tip frame (model_shape)": lambda: model_shape(model, state.q, 0.1, 50,
+                                                                                      base.orientation),
+        "NeedleShape message (CDR)": lambda: model_shape_cdr(shape, "world"),
+        "path orientations (quaternions_from_tangents)": lambda: quaternions_from_tangents(line.tangents),
+        "nav_msgs/Path message (CDR)": lambda: cdr.path(0, 0, "world", line.points, quaternions),
+        "RViz tube, 8 sides (tube_triangles)": lambda: tube_triangles(line.points, line.tangents, NEEDLE.radius),
+    }
+    return [(name, best_time(function, 200, repeats)) for name, function in outputs.items()]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="fewer steps and repeats, no start-up measurement")
@@ -154,6 +181,9 @@ def main() -> None:
                                                       (0.0, 0.0, 0.0, 1.0), (0.005, 0, 0), (0, 0.1, 0)),
                        2000, repeats)
     print(f"\nBaseMotion.from_flange: {flange * 1e6:.0f} us per call")
+    print("\n| node output (10 elements, 50 samples) | us per call |\n|---|---|")
+    for name, seconds in output_message_times(repeats):
+        print(f"| {name} | {seconds * 1e6:.0f} |")
 
     model = build_model(NEEDLE, 10)
     base = BaseMotion((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
