@@ -1,5 +1,6 @@
 """The tissue's compiled run of steps (``tissue.sequence``) against the general step (``model.data.step`` with
-``TissueModel.advance``): the same needle states, wrenches and tissue states, bit for bit, for every axial law,
+``TissueModel.advance``): the same needle states, wrenches and tissue states (bit for bit with requirements.lock,
+to the last bits with noble's numpy/numba, see RATE_TOLERANCE) for every axial law,
 through the capsule puncture and the bevel's engagement; and the track projection's pruned search against a
 brute-force projection."""
 import numpy as np
@@ -43,8 +44,23 @@ def insert(compiled: bool, overrides: dict, monkeypatch, seconds: float = 1.2):
     return sim, records, len(calls)
 
 
+# The two paths run the same compiled functions in the same order; with numpy 2.5 / numba 0.68 (requirements.lock) they
+# agree bit for bit. With noble's numpy 1.26 / numba 0.59 the seed 002 tip cases differ in the last bits from some
+# step on (wrenches <= 1.4e-10 relative, q 2e-15, rates 5e-10, accelerations 7.5e-9: the stiff axial modes amplify
+# one rounding). Bounds: 1e-9 relative for positions and wrenches, 1e-6 for rates and accelerations; every discrete
+# part of the tissue state (puncture, cut front, track vertices, active points) the same.
+RATE_TOLERANCE, VALUE_TOLERANCE = 1e-6, 1e-9
+
+
+def relative_difference(a, b) -> float:
+    """max |a - b| over max |a|, |b| (0 for two zero arrays)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    scale = max(np.abs(a).max(initial=0.0), np.abs(b).max(initial=0.0))
+    return float(np.abs(a - b).max(initial=0.0) / scale) if scale > 0.0 else 0.0
+
+
 @pytest.mark.parametrize("law", LAWS)
-def test_the_compiled_run_is_the_general_step_bit_for_bit(law, monkeypatch):
+def test_the_compiled_run_is_the_general_step(law, monkeypatch):
     general, general_records, general_advances = insert(False, LAWS[law], monkeypatch)
     compiled, compiled_records, compiled_advances = insert(True, LAWS[law], monkeypatch)
     contact = general.data.force_states[0].contact
@@ -52,31 +68,40 @@ def test_the_compiled_run_is_the_general_step_bit_for_bit(law, monkeypatch):
     assert general_advances == len(general_records) > 1000 and compiled_advances <= 2  # the paths taken
     for a, b in zip(general_records, compiled_records, strict=True):
         assert a.t == b.t
-        np.testing.assert_array_equal(a.wrench.force_base, b.wrench.force_base)
-        np.testing.assert_array_equal(a.wrench.torque_base, b.wrench.torque_base)
-    for name in ("q", "qd", "qdd", "aux"):
-        np.testing.assert_array_equal(getattr(general.state, name), getattr(compiled.state, name))
-    assert_same(general.data.force_states, compiled.data.force_states)
-    np.testing.assert_array_equal(general.tissue_readout().tip_force, compiled.tissue_readout().tip_force)
+        assert relative_difference(a.wrench.force_base, b.wrench.force_base) <= VALUE_TOLERANCE
+        assert relative_difference(a.wrench.torque_base, b.wrench.torque_base) <= VALUE_TOLERANCE
+    assert relative_difference(general.state.q, compiled.state.q) <= VALUE_TOLERANCE
+    for name in ("qd", "qdd", "aux"):
+        assert relative_difference(getattr(general.state, name), getattr(compiled.state, name)) <= RATE_TOLERANCE
+    assert_same(general.data.force_states, compiled.data.force_states, RATE_TOLERANCE)
+    assert relative_difference(general.tissue_readout().tip_force,
+                               compiled.tissue_readout().tip_force) <= VALUE_TOLERANCE
 
 
-def assert_same(a, b, path: str = "force_states") -> None:
-    """Equal values all the way down (tuples, objects' attributes, arrays with their dtypes, numbers)."""
+def assert_same(a, b, tolerance: float = 0.0, path: str = "force_states") -> None:
+    """Equal values all the way down (tuples, objects' attributes, arrays with their dtypes and shapes, numbers);
+    floating-point values within ``tolerance`` relative (:func:`relative_difference`), all others exactly."""
     assert type(a) is type(b), path
     if isinstance(a, np.ndarray):
-        assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b), path
+        assert a.dtype == b.dtype and a.shape == b.shape, path
+        if a.dtype.kind == "f":
+            assert relative_difference(a, b) <= tolerance or np.array_equal(a, b, equal_nan=True), path
+        else:
+            assert np.array_equal(a, b), path
     elif isinstance(a, (tuple, list)):
         assert len(a) == len(b), path
         for i, (x, y) in enumerate(zip(a, b)):
-            assert_same(x, y, f"{path}[{i}]")
+            assert_same(x, y, tolerance, f"{path}[{i}]")
     elif isinstance(a, dict):
         assert a.keys() == b.keys(), path
         for key in a:
-            assert_same(a[key], b[key], f"{path}.{key}")
-    elif hasattr(a, "__slots__"):  # the track
-        assert_same(a.__reduce__()[1], b.__reduce__()[1], path)
+            assert_same(a[key], b[key], tolerance, f"{path}.{key}")
+    elif hasattr(a, "__slots__"):  # the track, the tissue state
+        assert_same(a.__reduce__()[1], b.__reduce__()[1], tolerance, path)
     elif hasattr(a, "__dict__"):
-        assert_same(vars(a), vars(b), path)
+        assert_same(vars(a), vars(b), tolerance, path)
+    elif isinstance(a, float):
+        assert a == b or (a != a and b != b) or relative_difference(a, b) <= tolerance, path
     else:
         assert a == b or (a != a and b != b), path
 
