@@ -91,6 +91,19 @@ class Interpolation:
         return self.P_xx @ np.asarray(q, dtype=float).reshape(-1, 3)
 
 
+@njit(cache=True)
+def interpolate(slots: np.ndarray, S: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """sum_a S[k, a] x_slot(k, a) (eq. 3) at each point k of an interpolation table (``Interpolation``: its
+    ``slots`` and one of S, S_x, S_xx) of coordinates x in the model layout: r, r_x or r_xx of q, r' of q', (k, 3)."""
+    values = np.zeros((slots.shape[0], 3))
+    for k in range(slots.shape[0]):
+        for a in range(4):
+            first = 3 * slots[k, a]
+            for i in range(3):
+                values[k, i] += S[k, a] * x[first + i]
+    return values
+
+
 @dataclass(frozen=True)
 class Mesh:
     """Element lengths l_j (n_elements,) and reference arc length of each node (n_elements + 1,)."""

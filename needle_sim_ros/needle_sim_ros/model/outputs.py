@@ -10,7 +10,7 @@ from numba import njit
 from .elastic import elastic_energy
 from .forces import Gravity
 from .kinematics import cross, matrix_quaternion, quaternion_matrix, unit_quaternion
-from .mesh import Interpolation
+from .mesh import Interpolation, interpolate
 from .model import NeedleModel
 
 __all__ = ["Centerline", "centerline", "tip_pose", "transported_normals", "ModelShape", "model_shape", "axial_strain",
@@ -44,28 +44,15 @@ def centerline(model: NeedleModel, q: np.ndarray, n_samples: int) -> Centerline:
     if not (isinstance(n_samples, (int, np.integer)) and n_samples >= 2):
         raise ValueError(f"n_samples must be an integer >= 2, got {n_samples!r}")
     samples, gauss = _sampling(model, int(n_samples))
-    slots = np.ascontiguousarray(q, dtype=float).reshape(-1, 3)
     points, tangents, arc = _centerline_arrays(samples.S, samples.S_x, samples.slots, gauss.S_x, gauss.slots,
-                                               samples.arc_length, _GAUSS_W, slots)
+                                               samples.arc_length, _GAUSS_W, np.ascontiguousarray(q, dtype=float))
     return Centerline(points, tangents, arc, samples.arc_length.copy())
 
 
 @njit(cache=True)
-def _slot_rows(table: np.ndarray, slots: np.ndarray, q_slots: np.ndarray) -> np.ndarray:
-    """sum_a table[k, a] e_slots[k, a] (eq. 3) at each point k of an interpolation table: r, r_x or r_xx (k, 3)."""
-    rows = np.zeros((table.shape[0], 3))
-    for k in range(table.shape[0]):
-        for a in range(4):
-            weight, slot = table[k, a], slots[k, a]
-            for i in range(3):
-                rows[k, i] += weight * q_slots[slot, i]
-    return rows
-
-
-@njit(cache=True)
-def _unit_tangents(S_x: np.ndarray, slots: np.ndarray, q_slots: np.ndarray) -> np.ndarray:
+def _unit_tangents(S_x: np.ndarray, slots: np.ndarray, q: np.ndarray) -> np.ndarray:
     """r_x / |r_x| at each point of an interpolation table, (k, 3)."""
-    tangents = _slot_rows(S_x, slots, q_slots)
+    tangents = interpolate(slots, S_x, q)
     for k in range(tangents.shape[0]):
         norm = np.sqrt(tangents[k, 0] ** 2 + tangents[k, 1] ** 2 + tangents[k, 2] ** 2)
         for i in range(3):
@@ -74,11 +61,11 @@ def _unit_tangents(S_x: np.ndarray, slots: np.ndarray, q_slots: np.ndarray) -> n
 
 
 @njit(cache=True)
-def _centerline_arrays(S, S_x, slots, gauss_S_x, gauss_slots, s, gauss_w, q_slots):
+def _centerline_arrays(S, S_x, slots, gauss_S_x, gauss_slots, s, gauss_w, q):
     """Points r (n, 3), unit tangents (n, 3) at the samples and the deformed arc length from A (n,): the integral of
     |r_x| over each gap between samples by Gauss-Legendre with the weights ``gauss_w``."""
     n, m = S.shape[0], gauss_w.size
-    gradients = _slot_rows(gauss_S_x, gauss_slots, q_slots)
+    gradients = interpolate(gauss_slots, gauss_S_x, q)
     arc = np.zeros(n)
     for j in range(n - 1):
         stretch = 0.0
@@ -86,7 +73,7 @@ def _centerline_arrays(S, S_x, slots, gauss_S_x, gauss_slots, s, gauss_w, q_slot
             p = j * m + g
             stretch += gauss_w[g] * np.sqrt(gradients[p, 0] ** 2 + gradients[p, 1] ** 2 + gradients[p, 2] ** 2)
         arc[j + 1] = arc[j] + 0.5 * (s[j + 1] - s[j]) * stretch
-    return _slot_rows(S, slots, q_slots), _unit_tangents(S_x, slots, q_slots), arc
+    return interpolate(slots, S, q), _unit_tangents(S_x, slots, q), arc
 
 
 def axial_strain(model: NeedleModel, q: np.ndarray, s) -> np.ndarray:
@@ -138,10 +125,10 @@ def transported_normals(tangents: np.ndarray, normal: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _tip_rotation(S_x: np.ndarray, slots: np.ndarray, q_slots: np.ndarray, base_rotation: np.ndarray) -> np.ndarray:
+def _tip_rotation(S_x: np.ndarray, slots: np.ndarray, q: np.ndarray, base_rotation: np.ndarray) -> np.ndarray:
     """Rotation matrix of the tip frame (see :func:`tip_pose`) from the tangents at the points of an interpolation
     table along the whole needle; ``base_rotation`` (3, 3), or (0, 0) for the minimal rotation onto r_xA."""
-    tangents = _unit_tangents(S_x, slots, q_slots)
+    tangents = _unit_tangents(S_x, slots, q)
     t0 = tangents[0]
     if base_rotation.size:
         normal = base_rotation[:, 1].copy()
@@ -170,7 +157,7 @@ def tip_pose(model: NeedleModel, q: np.ndarray, base_orientation=None,
     table = _sampling(model, samples_per_element * model.n_elements + 1)[0]
     base_rotation = _NO_ROTATION if base_orientation is None else quaternion_matrix(
         unit_quaternion(base_orientation, "base_orientation"))
-    rotation = _tip_rotation(table.S_x, table.slots, q.reshape(-1, 3), base_rotation)
+    rotation = _tip_rotation(table.S_x, table.slots, q, base_rotation)
     return q[-6:-3].copy(), matrix_quaternion(rotation)
 
 

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros.model.forces import ElementLocalForce, assemble_point_forces
-from needle_sim_ros.model.mesh import hermite_shapes
+from needle_sim_ros.model.mesh import hermite_shapes, interpolate
 
 from .bevel_tip import SIDE_ALONG_TANGENT, BevelTip, tip_force_kernel
 from .geometry import TissueBlock
@@ -249,15 +249,7 @@ def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_dampi
 def interpolate_pair(slots, S_a, x_a, S_b, x_b):
     """Two interpolations (k, 3) at interpolation points (model.interpolation): shape functions S_a of
     coordinates x_a (e.g. S of q: positions) and S_b of x_b (e.g. S of q': velocities, S_x of q: gradients)."""
-    k = slots.shape[0]
-    a_values, b_values = np.zeros((k, 3)), np.zeros((k, 3))
-    for p in range(k):
-        for a in range(4):
-            first = 3 * slots[p, a]
-            for i in range(3):
-                a_values[p, i] += S_a[p, a] * x_a[first + i]
-                b_values[p, i] += S_b[p, a] * x_b[first + i]
-    return a_values, b_values
+    return interpolate(slots, S_a, x_a), interpolate(slots, S_b, x_b)
 
 
 @njit(cache=True)
