@@ -13,13 +13,18 @@ Timing rules (:meth:`target_time`):
 * live: integrate up to now, extrapolating the newest pose for at most ``max_extrapolation``;
 * live, ahead to the pose: also integrate the step that ends at or after the newest pose's stamp (at most one step
   past the clock; its base motion is the fit extrapolated by less than dt), so a pose's wrench is out as soon as
-  the pose is in, without waiting for the step's end time;
+  the pose is in, without waiting for the step's end time. The step grid then follows the phase of the pose
+  stream (:meth:`NeedleSimulation.lock_phase`): once the poses arrive at a consistent phase (a robot at a fixed
+  rate), the grid is shifted so that the steps end half a step after them, and each pose is in a step of its own
+  even with jitter up to half a step (on a grid through the poses, half of them would fall just after a step end
+  and find their step already integrated by the clock, or push the next one a step ahead);
 * deterministic (simulated time, offline): integrate up to min(now, newest pose stamp), so poses are always
   interpolated and the result depends on the recorded data only — unless the input timed out, then up to now
   holding the last pose.
 """
 from __future__ import annotations
 
+import cmath
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -71,6 +76,14 @@ from needle_sim_ros.tissue.tissue_model import TissueModel, TissueReadout
 # the seed 000 needle) compressive and 30 E I / L^2 transverse, while 25 E I / L^2 (8.45 N) compressive fails half
 # the steps; 20 keeps a margin (6.8 N).
 POINT_LOAD_LIMIT = 20.0
+
+# Phase lock of the step grid to the pose stream (live, ahead to the pose): the running mean of the poses' phase
+# phasor weighs each new pose by PHASE_SMOOTHING (~1/0.01 = 100 poses); the grid is shifted once the mean's length
+# (1 for poses at one phase; 0.23 for a uniform jitter of +-0.4 steps; ~0.07 for poses at random phases) is at
+# least PHASE_COHERENCE and its phase more than PHASE_TOLERANCE steps from mid-step.
+PHASE_SMOOTHING = 0.01
+PHASE_COHERENCE = 0.15
+PHASE_TOLERANCE = 0.1
 
 
 def max_point_load(props: NeedleProperties) -> float:
@@ -281,9 +294,13 @@ class NeedleSimulation:
             self.trajectory.offer(t, position, orientation)
             self.reset(self.base_motion_at(t), t)
             return PoseVerdict.RESTARTED
-        first = not self.started and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)
-        if verdict is PoseVerdict.REANCHORED or first:
+        accepted = verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)
+        if verdict is PoseVerdict.REANCHORED or (accepted and not self.started):
             self.reset(self.base_motion_at(t), t)
+        elif accepted:
+            data = self.data
+            x = (float(t) - data.grid_origin) / self.dt
+            data.pose_phase += PHASE_SMOOTHING * (cmath.exp(2j * math.pi * (x - math.floor(x))) - data.pose_phase)
         return verdict
 
     def set_twist(self, t: float, linear_velocity: np.ndarray, angular_velocity: np.ndarray) -> None:
@@ -364,7 +381,7 @@ class NeedleSimulation:
         (the integrator's memory is kept, as a restart keeps the integrator)."""
         data = self.data
         data.state, data.base = state, base
-        data.grid_origin, data.step_index = float(state.t), 0
+        data.grid_origin, data.step_index, data.pose_phase = float(state.t), 0, 0j
         data.force_states = initial_force_states(self.model, self.model_forces)
 
     def _equilibrium(self, straight: State) -> State:
@@ -387,7 +404,25 @@ class NeedleSimulation:
         if self.state is not None and now < self.state.t - self.pose_timeout:
             self.trajectory.clear()
             self.discard_state()
+        if ahead_to_pose and not deterministic and self.state is not None:
+            self.lock_phase()
         return self.advance_to(self.target_time(now, deterministic, ahead_to_pose))
+
+    def lock_phase(self) -> float:
+        """Shift the step grid so that its steps end half a step after the poses' mean phase (``pose_phase``), if
+        the poses come at a consistent phase (:data:`PHASE_COHERENCE`) more than :data:`PHASE_TOLERANCE` steps from
+        mid-step. The next step then lasts (1 + shift) dt, shift in [-0.5, 0.5); the later ones dt. Returns the
+        shift [steps] (0: none)."""
+        data = self.data
+        if abs(data.pose_phase) < PHASE_COHERENCE:
+            return 0.0
+        mean = cmath.phase(data.pose_phase) / (2.0 * math.pi)  # the poses' mean phase after the step ends
+        shift = (mean - 0.5) - math.floor(mean)  # mean - 0.5 wrapped to [-0.5, 0.5)
+        if abs(shift) <= PHASE_TOLERANCE:
+            return 0.0
+        data.grid_origin += shift * self.dt
+        data.pose_phase *= cmath.exp(-2j * math.pi * shift)
+        return shift
 
     def advance_to(self, t_target: float) -> list[StepRecord]:
         """Integrate with fixed steps of dt until the next step would pass t_target.
@@ -415,6 +450,12 @@ class NeedleSimulation:
         times = self._grid_time(data.step_index + np.arange(1, count + 1))
         motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
         i = 0
+        first_dt = float(times[0]) - data.state.t
+        if abs(first_dt - dt) > 0.05 * dt + 4.0 * math.ulp(abs(t_target)):  # after a grid shift (lock_phase)
+            records.append(self._step_or_restart(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
+                                                 first_dt))
+            data.step_index += 1
+            i = 1
         # the compiled sequence cannot advance the state of stateful contributions between its steps; one that runs
         # compiled itself (the tissue) takes the run, a step at a time if a hook reads each step's state
         stateful = [force for force in self.extra_forces if force.stateful]
@@ -496,26 +537,26 @@ class NeedleSimulation:
         base = BaseMotion.from_packed(motion, rotation)
         self.data.state, self.data.base = State(rows[0], rows[1], rows[2], float(t), rows[3], base), base
 
-    def step(self, base_next: BaseMotion, t_next: float) -> StepRecord:
-        """One step with the general integrator path (sub-stepping, state-dependent forces) to t_next
-        (:func:`needle_sim_ros.model.step`): if anything fails the data is as before the step and the error raised
-        (StepFailed: counted in ``statistics.failed_steps``)."""
+    def step(self, base_next: BaseMotion, t_next: float, dt: float | None = None) -> StepRecord:
+        """One step of ``dt`` (default: the simulation's) with the general integrator path (sub-stepping,
+        state-dependent forces) to t_next (:func:`needle_sim_ros.model.step`): if anything fails the data is as
+        before the step and the error raised (StepFailed: counted in ``statistics.failed_steps``)."""
         start = time.perf_counter()
         try:
             output = step(self.model, self.integrator, self.model_forces, self.data,
-                          StepInputs(self.dt, float(t_next), base_next))
+                          StepInputs(self.dt if dt is None else dt, float(t_next), base_next))
         except StepFailed:
             self.statistics.failed_steps += 1
             raise
         return self._finish_step(start, output.wrench, output.newton_iterations, output.substeps)
 
-    def _step_or_restart(self, base_next: BaseMotion, t_next: float) -> StepRecord:
+    def _step_or_restart(self, base_next: BaseMotion, t_next: float, dt: float | None = None) -> StepRecord:
         """:meth:`step`, or if it fails the needle restarted straight at the base (the forces' state is that of the
         last accepted step: the restarted needle has not moved through the tissue); with ``restart_on_failure``
         False the StepFailed is raised."""
         start = time.perf_counter()
         try:
-            return self.step(base_next, t_next)
+            return self.step(base_next, t_next, dt)
         except StepFailed:
             if not self.restart_on_failure:
                 raise

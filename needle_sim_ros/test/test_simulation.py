@@ -11,6 +11,7 @@ from failing_forces import PoisonedAfter
 from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrator, PointLoad, StepFailed
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_vision.parameters import ParameterError
+from needle_sim_ros import simulation
 from needle_sim_ros.simulation import simulation_from_parameters
 from needle_sim_ros.tissue import tissue_model
 
@@ -163,6 +164,59 @@ def test_ahead_to_pose_integrates_the_step_that_contains_the_newest_pose_and_no_
     records = sim.advance(4.4e-3, deterministic=False, ahead_to_pose=True)
     assert records == [] and sim.state.t == pytest.approx(5e-3)  # one step past the clock at most
     assert [r.t for r in sim.advance(5.2e-3, False, True)] == [pytest.approx(6e-3)]
+
+
+def live_pose_stream(period: float, jitter: float, poses: int, delay: float = 2e-4, t0: float = 1.8e9):
+    """The node's live loop (loop.ahead_to_pose) fed a pitching base at ``period`` [s], stamps jittered uniformly by
+    +-jitter/2 steps, each pose taken ``delay`` after its stamp; the clock's ticks come half a period after a step's
+    end time (the node's wait for a late pose). Returns the simulation, the records, and per pose after the first
+    300 (lock-in): whether its stamp was already integrated when it came, the steps its advance made, and the steps
+    the ticks made before it."""
+    sim = simulation_from_parameters(PARAMETERS)
+    stamps = t0 + np.arange(poses) * period + np.random.default_rng(0).uniform(-0.5, 0.5, poses) * jitter * 1e-3
+    records, late, per_pose, ticked = [], [], [], []
+    for k, stamp in enumerate(stamps):
+        arrival, ticks = stamp + delay, 0
+        while sim.started and sim.state.t + 1.5e-3 <= arrival:
+            tick = sim.advance(sim.state.t + 1.5e-3, deterministic=False, ahead_to_pose=True)
+            records += tick
+            ticks += len(tick)
+        already = sim.started and stamp <= sim.state.t
+        sim.offer_pose(stamp, *pitching(stamp - t0))
+        made = sim.advance(arrival, deterministic=False, ahead_to_pose=True)
+        records += made
+        if k >= 300:
+            late.append(already), per_pose.append(len(made)), ticked.append(ticks)
+    return sim, records, np.array(late), np.array(per_pose), np.array(ticked)
+
+
+@pytest.mark.parametrize("period, jitter", [(1e-3, 0.8), (1.0005e-3, 0.2)], ids=["jitter 0.8 steps", "500 ppm drift"])
+def test_the_step_grid_locks_to_the_phase_of_the_pose_stream(period, jitter, monkeypatch):
+    """Live, ahead to the pose, a 1 kHz pose stream (jittered by +-0.4 steps, or by +-0.1 with a clock 500 ppm slower
+    than the node's): once locked, every pose lands in a step of its own, integrated when it comes (none finds its stamp
+    already integrated, the clock integrates no step); the grid shifts follow the drift, the steps after a shift
+    (0.5 to 1.5 dt) leave no mark on the wrench. On a grid through the poses (no lock) poses do find their step
+    integrated."""
+    sim, records, late, per_pose, ticked = live_pose_stream(period, jitter, 2000)
+    assert not late.any() and (per_pose == 1).all() and not ticked.any()
+    times = np.array([record.t for record in records])
+    forces = np.array([record.wrench.force_base for record in records])
+    steps, change = np.diff(times), np.abs(np.diff(forces, axis=0)).max(axis=1)
+    shifted = np.flatnonzero(np.abs(steps - 1e-3) > 5e-5)
+    assert len(shifted) >= (5 if period != 1e-3 else 1) and np.all((steps > 4.9e-4) & (steps < 1.51e-3))
+    regular = np.setdiff1d(np.arange(100, len(change)), shifted)
+    assert change[shifted[shifted >= 100]].max(initial=0.0) <= change[regular].max()
+    assert sim.statistics.failed_steps == 0
+    monkeypatch.setattr(simulation, "PHASE_COHERENCE", np.inf)
+    _, _, late, per_pose, ticked = live_pose_stream(period, jitter, 2000)
+    assert (late | (per_pose != 1) | (ticked > 0)).sum() >= 10
+
+
+def test_poses_without_a_common_phase_leave_the_step_grid_where_it_is():
+    """Poses every 1.5 steps alternate between two phases half a step apart: no consistent phase, no shift."""
+    sim, records, late, per_pose, ticked = live_pose_stream(1.5e-3, 0.05, 600)
+    assert abs(sim.data.pose_phase) < simulation.PHASE_COHERENCE
+    assert np.allclose(np.diff([r.t for r in records]), 1e-3, atol=1e-6)  # no step but of dt: never shifted
 
 
 def _tissue_state(sim) -> bytes:

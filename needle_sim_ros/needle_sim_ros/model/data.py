@@ -23,7 +23,10 @@ class NeedleData:
 
     * ``state``: t, q, q', q'' and the integrator's history a of the last accepted step (None: not started);
     * ``base``: the base motion (clamp point A) at t;
-    * ``grid_origin`` [s], ``step_index``: steps end at grid_origin + step_index dt (set at each (re)start);
+    * ``grid_origin`` [s], ``step_index``: steps end at grid_origin + step_index dt (set at each (re)start; the
+      live time loop may shift the origin by less than a step to keep the grid half a step from the poses);
+    * ``pose_phase``: the poses' phase on the step grid, a running mean of exp(2 pi i x) over the accepted poses,
+      x = (pose time - grid_origin) / dt (0 at each (re)start; see ``NeedleSimulation.lock_phase``);
     * ``integrator``: the integrator's memory between steps: which predictor Newton starts from, and the
       factorization the compiled sequence keeps across steps while the base holds still (with its validity, step
       length and base motion);
@@ -41,6 +44,7 @@ class NeedleData:
     base: BaseMotion | None = None
     grid_origin: float = 0.0
     step_index: int = 0
+    pose_phase: complex = 0j
     point_loads: dict[str, PointLoad] = field(default_factory=dict)
     force_states: tuple = ()
 
@@ -49,8 +53,8 @@ class NeedleData:
 
     def restore(self, saved: NeedleData) -> None:
         """Put back the values of ``saved`` (a :meth:`copy`)."""
-        self.state, self.base, self.grid_origin, self.step_index = (saved.state, saved.base, saved.grid_origin,
-                                                                    saved.step_index)
+        self.state, self.base, self.grid_origin, self.step_index, self.pose_phase = (
+            saved.state, saved.base, saved.grid_origin, saved.step_index, saved.pose_phase)
         self.integrator, self.point_loads, self.force_states = (saved.integrator.copy(), dict(saved.point_loads),
                                                                 saved.force_states)
 

@@ -347,10 +347,13 @@ class NeedleSimulatorNode(LifecycleNode):
         """Ticks until shutdown. In wall-clock time each tick is timed to the moment the next step's end time
         passes, so a tick integrates exactly one step and publishes its wrench at once (a step integrated more than
         a period after its end time is a deadline miss); between ticks a pose wakes the loop at once, which then
-        integrates the step that ends at or after its stamp (``loop.ahead_to_pose``). In simulated time (no
-        relation to this process's clock) ticks come every dt."""
+        integrates the step that ends at or after its stamp (``loop.ahead_to_pose``; the tick then waits half a
+        period more for a late pose, so that the pose, not an extrapolation, drives its step: the grid is half a
+        step from the poses, ``NeedleSimulation.lock_phase``). In simulated time (no relation to this process's
+        clock) ticks come every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
+        grace = 0.5 * period if self.ahead_to_pose else 0.0
         if not self.use_sim_time:  # simulated time needs no tick accuracy
             self.request_realtime_priority(self.p["loop.realtime_priority"])
         deadline = time.perf_counter()
@@ -363,7 +366,7 @@ class NeedleSimulatorNode(LifecycleNode):
                 self.warn_throttled("loop", f"integration loop iteration failed: {error!r}")
             state = self.sim.state if self.active else None
             if not self.use_sim_time and state is not None:
-                deadline = time.perf_counter() + (state.t + period - self.now_seconds())
+                deadline = time.perf_counter() + (state.t + period + grace - self.now_seconds())
             else:
                 deadline += period
             remaining = deadline - time.perf_counter()
