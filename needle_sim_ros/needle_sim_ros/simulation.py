@@ -348,9 +348,9 @@ class NeedleSimulation:
             return min(now, latest.t)
         if ahead_to_pose and latest is not None and latest.t > now - self.dt:
             # grid indices (a pose within 1 us after a step's end time counts as at it: epoch-time resolution)
-            to_pose = np.ceil((latest.t - self.data.grid_origin) / self.dt - 1e-3)
-            after_now = np.floor((now - self.data.grid_origin) / self.dt + 1e-3) + 1
-            return max(now, float(self._grid_time(min(to_pose, after_now))))
+            to_pose = math.ceil((latest.t - self.data.grid_origin) / self.dt - 1e-3)
+            after_now = math.floor((now - self.data.grid_origin) / self.dt + 1e-3) + 1
+            return max(now, self._grid_time(min(to_pose, after_now)))
         return now
 
     # -- time stepping --------------------------------------------------------------------------------------

@@ -48,23 +48,36 @@ def drain(subscription: Subscription, limit: int = 10_000) -> int:
 
 class MessageWaiter:
     """Blocks its owner's thread (GIL released) until one of the polled subscriptions has a message waiting, or
-    a timeout passes: an rcl wait set per wait, used as rclpy's executor uses it (the subscriptions and the
-    context are held in use during the wait, so a node or context torn down meanwhile is destroyed after it)."""
+    a timeout passes. One rcl wait set, made at the first wait and kept (made anew per wait, as rclpy's executor
+    does, it costs as much CPU as the rest of the wait); the subscriptions and the context are held in use during
+    each wait, so a node or context torn down meanwhile is destroyed after it, and :meth:`close` destroys the wait
+    set once no wait uses it. One thread waits on it."""
 
     def __init__(self, subscriptions: Sequence[Subscription], context: Context) -> None:
         self._subscriptions = list(subscriptions)
         self._context = context
+        self._wait_set = None
 
-    def wait(self, timeout: float) -> bool:
-        """True if a message arrived within ``timeout`` [s] (it is left in its queue for :func:`drain`)."""
+    def wait(self, timeout: float) -> list[Subscription]:
+        """The subscriptions with a message waiting within ``timeout`` [s] (left in their queues for :func:`drain`);
+        empty if none came."""
         with ExitStack() as in_use:
             for subscription in self._subscriptions:
                 in_use.enter_context(subscription.handle)
             in_use.enter_context(self._context.handle)
-            wait_set = _rclpy.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0, self._context.handle)
+            if self._wait_set is None:
+                self._wait_set = _rclpy.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0, self._context.handle)
+            wait_set = self._wait_set
             in_use.enter_context(wait_set)
             wait_set.clear_entities()
             for subscription in self._subscriptions:
                 wait_set.add_subscription(subscription.handle)
             wait_set.wait(max(int(timeout * 1e9), 0))
-            return bool(wait_set.get_ready_entities("subscription"))
+            ready = wait_set.get_ready_entities("subscription")
+            return [subscription for subscription in self._subscriptions if subscription.handle.pointer in ready]
+
+    def close(self) -> None:
+        """Destroy the wait set (after the wait in progress, if any); a later :meth:`wait` makes a new one."""
+        wait_set, self._wait_set = self._wait_set, None
+        if wait_set is not None:
+            wait_set.destroy_when_not_in_use()
