@@ -83,7 +83,7 @@ POINT_LOAD_LIMIT = 20.0
 # least PHASE_COHERENCE and its phase more than PHASE_TOLERANCE steps from mid-step.
 PHASE_SMOOTHING = 0.01
 PHASE_COHERENCE = 0.15
-PHASE_TOLERANCE = 0.1
+PHASE_TOLERANCE = 0.15
 
 
 def max_point_load(props: NeedleProperties) -> float:
@@ -481,6 +481,11 @@ class NeedleSimulation:
             self.statistics.failed_steps += 1
             data.state = self.model.straight_state(self.base, data.state.t)
         return records
+
+    @property
+    def next_step_end(self) -> float:
+        """End time [s] of the next step on the grid (a shifted grid's next step is shorter or longer than dt)."""
+        return self._grid_time(self.data.step_index + 1)
 
     def _grid_time(self, index):
         """End time of step ``index`` since the (re)start: origin + index dt, rounded once (no accumulation: at

@@ -168,7 +168,7 @@ def test_ahead_to_pose_integrates_the_step_that_contains_the_newest_pose_and_no_
 
 def live_pose_stream(period: float, jitter: float, poses: int, delay: float = 2e-4, t0: float = 1.8e9):
     """The node's live loop (loop.ahead_to_pose) fed a pitching base at ``period`` [s], stamps jittered uniformly by
-    +-jitter/2 steps, each pose taken ``delay`` after its stamp; the clock's ticks come half a period after a step's
+    +-jitter/2 steps, each pose taken ``delay`` after its stamp; the clock's ticks come a quarter period after a step's
     end time (the node's wait for a late pose). Returns the simulation, the records, and per pose after the first
     300 (lock-in): whether its stamp was already integrated when it came, the steps its advance made, and the steps
     the ticks made before it."""
@@ -177,8 +177,8 @@ def live_pose_stream(period: float, jitter: float, poses: int, delay: float = 2e
     records, late, per_pose, ticked = [], [], [], []
     for k, stamp in enumerate(stamps):
         arrival, ticks = stamp + delay, 0
-        while sim.started and sim.state.t + 1.5e-3 <= arrival:
-            tick = sim.advance(sim.state.t + 1.5e-3, deterministic=False, ahead_to_pose=True)
+        while sim.started and sim.next_step_end + 2.5e-4 <= arrival:
+            tick = sim.advance(sim.next_step_end + 2.5e-4, deterministic=False, ahead_to_pose=True)
             records += tick
             ticks += len(tick)
         already = sim.started and stamp <= sim.state.t
@@ -203,7 +203,7 @@ def test_the_step_grid_locks_to_the_phase_of_the_pose_stream(period, jitter, mon
     forces = np.array([record.wrench.force_base for record in records])
     steps, change = np.diff(times), np.abs(np.diff(forces, axis=0)).max(axis=1)
     shifted = np.flatnonzero(np.abs(steps - 1e-3) > 5e-5)
-    assert len(shifted) >= (5 if period != 1e-3 else 1) and np.all((steps > 4.9e-4) & (steps < 1.51e-3))
+    assert len(shifted) >= (3 if period != 1e-3 else 1) and np.all((steps > 4.9e-4) & (steps < 1.51e-3))
     regular = np.setdiff1d(np.arange(100, len(change)), shifted)
     assert change[shifted[shifted >= 100]].max(initial=0.0) <= change[regular].max()
     assert sim.statistics.failed_steps == 0

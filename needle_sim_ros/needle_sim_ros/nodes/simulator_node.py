@@ -352,13 +352,13 @@ class NeedleSimulatorNode(LifecycleNode):
         """Ticks until shutdown. In wall-clock time each tick is timed to the moment the next step's end time
         passes, so a tick integrates exactly one step and publishes its wrench at once (a step integrated more than
         a period after its end time is a deadline miss); between ticks a pose wakes the loop at once, which then
-        integrates the step that ends at or after its stamp (``loop.ahead_to_pose``; the tick then waits half a
+        integrates the step that ends at or after its stamp (``loop.ahead_to_pose``; the tick then waits a quarter
         period more for a late pose, so that the pose, not an extrapolation, drives its step: the grid is half a
-        step from the poses, ``NeedleSimulation.lock_phase``). In simulated time (no relation to this process's
-        clock) ticks come every dt."""
+        step from the poses, ``NeedleSimulation.lock_phase``; longer waits made more deadline misses here). In
+        simulated time (no relation to this process's clock) ticks come every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
-        grace = 0.5 * period if self.ahead_to_pose else 0.0
+        grace = 0.25 * period if self.ahead_to_pose else 0.0
         if not self.use_sim_time:  # simulated time needs no tick accuracy
             self.request_realtime_priority(self.p["loop.realtime_priority"])
         deadline = time.perf_counter()
@@ -370,9 +370,8 @@ class NeedleSimulatorNode(LifecycleNode):
                 if self._stop.is_set() or not rclpy.ok():
                     break
                 self.warn_throttled("loop", f"integration loop iteration failed: {error!r}")
-            state = self.sim.state if self.active else None
-            if not self.use_sim_time and state is not None:
-                deadline = time.perf_counter() + (state.t + period + grace - self.now_seconds())
+            if not self.use_sim_time and self.active and self.sim.started:
+                deadline = time.perf_counter() + (self.sim.next_step_end + grace - self.now_seconds())
             else:
                 deadline += period
             remaining = deadline - time.perf_counter()

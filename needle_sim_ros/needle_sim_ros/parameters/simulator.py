@@ -151,7 +151,7 @@ SIMULATOR_PARAMETERS = [
               "one step past the clock; the base motion extrapolated by less than dt), so its wrench is published "
               "within the step's computation instead of at the step's end time (pose->wrench latency); the step "
               "grid follows the poses' phase (steps end half a step after them) and a step no pose reached is "
-              "integrated half a period after its end time; false: a step is integrated once its end time has "
+              "integrated a quarter period after its end time; false: a step is integrated once its end time has "
               "passed."),
     ParamSpec("loop.busy_wait", 0.0002, "Spin the last part of each period instead of sleeping, for tick accuracy [s].",
               0.0, 0.01),
