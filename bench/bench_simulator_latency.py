@@ -2,8 +2,9 @@
 
 Starts the simulator in its own process (10 elements, dt = 1 ms, wall-clock time, its default configuration:
 integration thread at SCHED_FIFO priority 50 if permitted), publishes base poses at 1 kHz from this process (a
-slow sinusoidal pitch, like a robot driver would; publish times jittered by +-0.4 ms so that the poses meet the
-node's step grid at every phase), and measures
+slow sinusoidal pitch, like a robot driver would; publish times jittered by +-0.4 ms, a harsher driver than most:
+with the node's grid locked half a step from the poses, a pose later than +0.25 ms plus its transport meets a step
+already integrated), and measures
 
 * latency: from publishing a pose (its stamp) to receiving the first wrench whose step time is at or after that
   stamp and that arrives after the pose was sent, i.e. the first wrench integrated up to the pose's instant that
@@ -164,7 +165,8 @@ def main() -> int:
     # it, so it should take as little as possible of the two cores the node runs on as well.
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    threading.Thread(target=executor.spin, daemon=True).start()
+    spinning = threading.Thread(target=executor.spin, daemon=True)
+    spinning.start()
     receiving = threading.Event()
     receiving.set()
 
@@ -180,7 +182,22 @@ def main() -> int:
 
     receiver = threading.Thread(target=receive_wrenches, daemon=True)
     receiver.start()
+
+    def stop() -> None:
+        receiving.clear()
+        receiver.join()
+        executor.shutdown()
+        spinning.join()
+        node.destroy_node()
+        rclpy.shutdown()
+        simulator.terminate()
+        simulator.wait()
     while pub.get_subscription_count() == 0:
+        if simulator.poll() is not None:  # e.g. a --param the node refused (its own message is above)
+            print(f"error: the {'echo' if args.echo else 'simulator'} process exited with status "
+                  f"{simulator.returncode} before subscribing", file=sys.stderr)
+            stop()
+            return 2
         time.sleep(0.1)
 
     template = bytearray(serialize_message(PoseStamped(header=Header(frame_id="world"))))
@@ -208,11 +225,7 @@ def main() -> int:
             pose_stamps.append(t)
         k += 1
     time.sleep(0.5)
-    receiving.clear()
-    receiver.join()
-    executor.shutdown()
-    simulator.terminate()
-    simulator.wait()
+    stop()
 
     received = np.array(wrenches)
     sent = np.array(pose_stamps)  # a pose's stamp is its publication time
