@@ -46,7 +46,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
-from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup
+from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -84,7 +84,6 @@ def pose_path_cost(elements: int, poses: int = 3000) -> None:
 
 def serve_echo() -> None:
     """The ``--echo`` process: each base pose answered at once with a wrench carrying the pose's stamp."""
-    from needle_sim_ros.nodes.polling import drain
     from needle_sim_ros.nodes.simulator_node import qos_profile
     from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 
@@ -155,8 +154,9 @@ def main() -> int:
     wrenches: list[tuple[float, float, float]] = []
     diagnostics: list[dict] = []
     # raw: only the stamp is needed (bytes 4-12 of the CDR payload); no Python message objects
-    wrench_sub = node.create_subscription(WrenchStamped, "wrench", lambda data: None, qos_profile_sensor_data,
-                                          raw=True, callback_group=PolledCallbackGroup())
+    wrench_sub = node.create_subscription(WrenchStamped, "wrench", lambda data, info: wrenches.append(
+        (stamp_seconds(data), info["received_timestamp"] * 1e-9, time.time())), qos_profile_sensor_data, raw=True,
+        callback_group=PolledCallbackGroup())
     node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diagnostics.append(
         {kv.key: kv.value for kv in m.status[0].values}) if m.status else None, 10)
     # Wrenches are taken on their own thread, blocked in a wait set between messages (no executor: ~0.1 ms of
@@ -174,10 +174,7 @@ def main() -> int:
         waiter = MessageWaiter([wrench_sub], node.context)
         while receiving.is_set():
             if waiter.wait(0.05):
-                with wrench_sub.handle:
-                    while (taken := wrench_sub.handle.take_message(WrenchStamped, True)) is not None:
-                        data, info = taken
-                        wrenches.append((stamp_seconds(data), info["received_timestamp"] * 1e-9, time.time()))
+                drain(wrench_sub)
         waiter.close()
 
     receiver = threading.Thread(target=receive_wrenches, daemon=True)

@@ -72,3 +72,30 @@ def test_1khz_wrench_stream_has_no_loss_under_reliable_qos(node, ros_env):
         f"received {len(sequence)} of {count}, in order: {sequence == sorted(sequence)}"
     elapsed = float(out.split(" in ")[1].split()[0])
     assert elapsed < count / 1000.0 * 1.1, f"publisher could not hold 1 kHz: {elapsed:.3f} s for {count} messages"
+
+
+def test_polled_subscriptions_deliver_like_an_executor(node):
+    """The simulator's polled input (``nodes.polling``): the wait set reports the subscription that has a message,
+    ``drain`` hands each message to the callback with its message info if the callback takes one (rclpy's own rule),
+    and the kept wait set serves every wait."""
+    from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
+
+    plain, with_info = [], []
+    group = PolledCallbackGroup()
+    subscriptions = [node.create_subscription(WrenchStamped, "polled", plain.append, 10, callback_group=group),
+                     node.create_subscription(WrenchStamped, "polled_info", lambda msg, info: with_info.append(
+                         (msg, info)), 10, callback_group=group)]
+    publishers = [node.create_publisher(WrenchStamped, topic, 10) for topic in ("polled", "polled_info")]
+    waiter = MessageWaiter(subscriptions, node.context)
+    assert waiter.wait(0.01) == []
+    for round_ in range(3):
+        publishers[round_ % 2].publish(WrenchStamped())
+        deadline = time.monotonic() + 5.0
+        while not (ready := waiter.wait(0.1)) and time.monotonic() < deadline:
+            pass
+        assert ready == [subscriptions[round_ % 2]]
+        assert drain(ready[0]) == 1
+    waiter.close()
+    assert len(plain) == 2 and all(isinstance(msg, WrenchStamped) for msg in plain)
+    assert len(with_info) == 1 and isinstance(with_info[0][0], WrenchStamped)
+    assert with_info[0][1]["received_timestamp"] > 0

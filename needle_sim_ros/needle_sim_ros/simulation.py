@@ -84,6 +84,9 @@ POINT_LOAD_LIMIT = 20.0
 PHASE_SMOOTHING = 0.01
 PHASE_COHERENCE = 0.15
 PHASE_TOLERANCE = 0.15
+# How long [steps] past its end time the live loop's clock waits for a late pose before it integrates a step that no
+# pose reached (half a step made more deadline misses on the benchmark's VM).
+LATE_POSE_WAIT = 0.25
 
 
 def max_point_load(props: NeedleProperties) -> float:
@@ -408,21 +411,18 @@ class NeedleSimulation:
             self.lock_phase()
         return self.advance_to(self.target_time(now, deterministic, ahead_to_pose))
 
-    def lock_phase(self) -> float:
+    def lock_phase(self) -> None:
         """Shift the step grid so that its steps end half a step after the poses' mean phase (``pose_phase``), if
         the poses come at a consistent phase (:data:`PHASE_COHERENCE`) more than :data:`PHASE_TOLERANCE` steps from
-        mid-step. The next step then lasts (1 + shift) dt, shift in [-0.5, 0.5); the later ones dt. Returns the
-        shift [steps] (0: none)."""
+        mid-step. The next step then lasts (1 + shift) dt, shift in [-0.5, 0.5); the later ones dt."""
         data = self.data
         if abs(data.pose_phase) < PHASE_COHERENCE:
-            return 0.0
+            return
         mean = cmath.phase(data.pose_phase) / (2.0 * math.pi)  # the poses' mean phase after the step ends
         shift = (mean - 0.5) - math.floor(mean)  # mean - 0.5 wrapped to [-0.5, 0.5)
-        if abs(shift) <= PHASE_TOLERANCE:
-            return 0.0
-        data.grid_origin += shift * self.dt
-        data.pose_phase *= cmath.exp(-2j * math.pi * shift)
-        return shift
+        if abs(shift) > PHASE_TOLERANCE:
+            data.grid_origin += shift * self.dt
+            data.pose_phase *= cmath.exp(-2j * math.pi * shift)
 
     def advance_to(self, t_target: float) -> list[StepRecord]:
         """Integrate with fixed steps of dt until the next step would pass t_target.

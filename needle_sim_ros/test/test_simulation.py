@@ -177,8 +177,8 @@ def live_pose_stream(period: float, jitter: float, poses: int, delay: float = 2e
     records, late, per_pose, ticked = [], [], [], []
     for k, stamp in enumerate(stamps):
         arrival, ticks = stamp + delay, 0
-        while sim.started and sim.next_step_end + 2.5e-4 <= arrival:
-            tick = sim.advance(sim.next_step_end + 2.5e-4, deterministic=False, ahead_to_pose=True)
+        while sim.started and (tick_time := sim.next_step_end + simulation.LATE_POSE_WAIT * 1e-3) <= arrival:
+            tick = sim.advance(tick_time, deterministic=False, ahead_to_pose=True)
             records += tick
             ticks += len(tick)
         already = sim.started and stamp <= sim.state.t

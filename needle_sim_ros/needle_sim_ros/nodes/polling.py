@@ -33,15 +33,16 @@ class PolledCallbackGroup(CallbackGroup):
 
 
 def drain(subscription: Subscription, limit: int = 10_000) -> int:
-    """Run the subscription's callback on every message waiting in its queue, oldest first (at most ``limit``);
-    returns how many there were."""
+    """Run the subscription's callback on every message waiting in its queue, oldest first (at most ``limit``),
+    with the message info if the callback takes it, as rclpy's executor calls it; returns how many there were."""
     count = 0
+    with_info = subscription._callback_type is Subscription.CallbackType.WithMessageInfo  # as the executor reads it
     with subscription.handle:
         while count < limit:
             taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
             if taken is None:
                 break
-            subscription.callback(taken[0])
+            subscription.callback(*(taken if with_info else taken[:1]))
             count += 1
     return count
 

@@ -48,8 +48,8 @@ from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.tf_output import SimulatorTf
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
-    TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters, simulation_from_parameters,
-    step_wrenches)
+    LATE_POSE_WAIT, TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters,
+    simulation_from_parameters, step_wrenches)
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
 TUBE_COLOR = (0.75, 0.75, 0.8, 1.0)  # RGBA of the needle's Marker tube
@@ -352,13 +352,13 @@ class NeedleSimulatorNode(LifecycleNode):
         """Ticks until shutdown. In wall-clock time each tick is timed to the moment the next step's end time
         passes, so a tick integrates exactly one step and publishes its wrench at once (a step integrated more than
         a period after its end time is a deadline miss); between ticks a pose wakes the loop at once, which then
-        integrates the step that ends at or after its stamp (``loop.ahead_to_pose``; the tick then waits a quarter
-        period more for a late pose, so that the pose, not an extrapolation, drives its step: the grid is half a
-        step from the poses, ``NeedleSimulation.lock_phase``; longer waits made more deadline misses here). In
+        integrates the step that ends at or after its stamp (``loop.ahead_to_pose``; the tick then waits
+        ``LATE_POSE_WAIT`` of a period more for a late pose, so that the pose, not an extrapolation, drives its step:
+        the grid is half a step from the poses, ``NeedleSimulation.lock_phase``). In
         simulated time (no relation to this process's clock) ticks come every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
-        grace = 0.25 * period if self.ahead_to_pose else 0.0
+        grace = LATE_POSE_WAIT * period if self.ahead_to_pose else 0.0
         if not self.use_sim_time:  # simulated time needs no tick accuracy
             self.request_realtime_priority(self.p["loop.realtime_priority"])
         deadline = time.perf_counter()
