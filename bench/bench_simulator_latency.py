@@ -13,7 +13,9 @@ already integrated), and measures
   (rclpy MessageInfo ``received_timestamp``, taken by the DDS reader), so the delay before this process's own
   receiving thread takes the message is not charged to the node; that delay is shown separately (callback);
 * deadline misses: the node's own counter from /diagnostics (periods in which the loop had to integrate more
-  than one step to catch up), relative to the steps taken.
+  than one step to catch up), relative to the steps taken;
+* poses late for their step: the node's ``poses_late_for_their_step`` relative to the accepted poses (a pose whose
+  step was integrated before it arrived: its latency is about a step longer).
 
 With ``--echo`` the simulator is replaced by the transport floor of this machine: a process that answers each pose
 with a wrench stamped with the pose's stamp, taken and published as the simulator's loop does (the same polled
@@ -199,7 +201,7 @@ def main() -> int:
 
     template = bytearray(serialize_message(PoseStamped(header=Header(frame_id="world"))))
     pose_offset = len(template) - 56  # the pose's 7 doubles end the message
-    pose_stamps = []
+    pose_stamps, publish_delays = [], []
     period = 1.0 / args.rate
     # publish times jittered by up to +-jitter/2 periods: the poses meet the node's 1 ms step grid at every phase
     phase = np.random.default_rng(0).uniform(-0.5, 0.5, 100_000) * args.jitter
@@ -211,6 +213,7 @@ def main() -> int:
         remaining = target - time.perf_counter()
         if remaining > 0:
             time.sleep(remaining)
+        late = time.perf_counter() - target
         t = time.time()
         half_pitch = 0.5 * math.radians(5.0 * math.sin(2 * math.pi * 0.2 * t))  # about world y
         sec = math.floor(t)
@@ -220,6 +223,7 @@ def main() -> int:
         pub.publish(bytes(template))
         if time.perf_counter() - start > warmup:
             pose_stamps.append(t)
+            publish_delays.append(late)
         k += 1
     time.sleep(0.5)
     stop()
@@ -242,6 +246,9 @@ def main() -> int:
     misses = [int(d["deadline_misses"]) for d in diagnostics if "deadline_misses" in d]
     step_mean = [float(d["step_time_mean_ms"]) for d in diagnostics if "step_time_mean_ms" in d]
     miss_rate = (misses[-1] - misses[0]) / max(steps[-1] - steps[0], 1) if len(steps) > 1 else float("nan")
+    late = [(int(d["poses_late_for_their_step"]), int(d["poses_accepted"])) for d in diagnostics
+            if "poses_late_for_their_step" in d]
+    late_rate = (late[-1][0] - late[0][0]) / max(late[-1][1] - late[0][1], 1) if len(late) > 1 else float("nan")
 
     subject = "echo (transport floor, no simulation)" if args.echo else "needle_simulator"
     print(f"\n{subject}, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
@@ -256,7 +263,10 @@ def main() -> int:
     print(f"| latency to the bench's Python callback p50 / p99 | {np.percentile(latency_callback, 50):.3f} / "
           f"{np.percentile(latency_callback, 99):.3f} ms | |")
     print(f"| wrench messages received | {len(wrenches)} | |")
+    print(f"| pose publication after its jittered time p50 / p99 | {1e3 * np.percentile(publish_delays, 50):.3f} / "
+          f"{1e3 * np.percentile(publish_delays, 99):.3f} ms | |")
     print(f"| deadline misses | {100 * miss_rate:.3f} % | < 0.1 % |")
+    print(f"| poses late for their step (node diagnostics) | {100 * late_rate:.3f} % | |")
     print(f"| mean step time (node) | {np.mean(step_mean[1:]) if len(step_mean) > 1 else float('nan'):.3f} ms | |")
     return 0
 

@@ -140,6 +140,10 @@ class LoopStatistics:
     skipped_time: float = 0.0
     max_newton_iterations: int = 0
     straight_starts: int = 0  # starts in the straight state because no static equilibrium was found
+    # accepted poses stamped at or before the integrated time: their step was integrated before they arrived (with
+    # the base extrapolated), so the first wrench that uses them is the next step's (live: a pose stream whose
+    # timing spreads over more than a step puts two poses in one step)
+    late_poses: int = 0
     step_wall_times: list[float] = field(default_factory=list)
 
     def take_step_times(self) -> np.ndarray:
@@ -302,6 +306,8 @@ class NeedleSimulation:
             self.reset(self.base_motion_at(t), t)
         elif accepted:
             data = self.data
+            if t <= data.state.t:
+                self.statistics.late_poses += 1
             x = (float(t) - data.grid_origin) / self.dt
             data.pose_phase += PHASE_SMOOTHING * (cmath.exp(2j * math.pi * (x - math.floor(x))) - data.pose_phase)
         return verdict

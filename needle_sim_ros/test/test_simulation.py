@@ -166,6 +166,24 @@ def test_ahead_to_pose_integrates_the_step_that_contains_the_newest_pose_and_no_
     assert [r.t for r in sim.advance(5.2e-3, False, True)] == [pytest.approx(6e-3)]
 
 
+def test_a_pose_whose_step_was_integrated_before_it_came_is_counted_late():
+    """Live, ahead to the pose: a pose stamped within a step already integrated (by the pose before it, here) is
+    counted in ``statistics.late_poses`` (the node's ``poses_late_for_their_step``); poses in steps still ahead,
+    and rejected ones, are not."""
+    sim = simulation_from_parameters(PARAMETERS)
+    for k in range(5):
+        sim.offer_pose(k * 1e-3, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+        sim.advance(k * 1e-3, deterministic=False, ahead_to_pose=True)
+    sim.offer_pose(4.3e-3, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+    sim.advance(4.4e-3, deterministic=False, ahead_to_pose=True)  # the step to 5 ms, at once
+    assert sim.statistics.late_poses == 0 and sim.state.t == pytest.approx(5e-3)
+    sim.offer_pose(4.8e-3, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])  # in the step just integrated
+    sim.offer_pose(4.9e-3, [0.0, 0.0, np.nan], [0.0, 0.0, 0.0, 1.0])  # rejected
+    assert sim.statistics.late_poses == 1
+    sim.offer_pose(5.2e-3, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])  # in the next step
+    assert sim.statistics.late_poses == 1
+
+
 def live_pose_stream(period: float, jitter: float, poses: int, delay: float = 2e-4, t0: float = 1.8e9):
     """The node's live loop (loop.ahead_to_pose) fed a pitching base at ``period`` [s], stamps jittered uniformly by
     +-jitter/2 steps, each pose taken ``delay`` after its stamp; the clock's ticks come a quarter period after a step's

@@ -525,6 +525,7 @@ class NeedleSimulatorNode(LifecycleNode):
                     "step_time_max_ms": float(step_times.max() * 1e3) if step_times.size else 0.0,
                     "max_newton_iterations": stats.max_newton_iterations,
                     "failed_steps": stats.failed_steps,
+                    "poses_late_for_their_step": stats.late_poses,
                     "skipped_time_s": stats.skipped_time,
                     "pose_age_s": sim.pose_age(self.now_seconds()),
                     "point_loads": len(sim.point_loads)})
