@@ -53,6 +53,15 @@ from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, dra
 REPO = Path(__file__).resolve().parents[1]
 
 
+def counter_rate(diagnostics: list[dict], counter: str, total: str) -> float:
+    """Increase of the node's diagnostic ``counter`` over that of ``total`` between the first and the last report
+    that carry both (NaN with fewer than two)."""
+    pairs = [(int(d[counter]), int(d[total])) for d in diagnostics if counter in d and total in d]
+    if len(pairs) < 2:
+        return float("nan")
+    return (pairs[-1][0] - pairs[0][0]) / max(pairs[-1][1] - pairs[0][1], 1)
+
+
 def stamp_seconds(data: bytes) -> float:
     sec, nanosec = struct.unpack_from("<iI", data, 4)
     return sec + nanosec * 1e-9
@@ -242,13 +251,9 @@ def main() -> int:
         return (earliest[index[valid]] - sent[valid]) * 1e3
 
     latency, latency_callback = latency_ms(received[:, 1]), latency_ms(received[:, 2])
-    steps = [int(d["steps"]) for d in diagnostics if "steps" in d]
-    misses = [int(d["deadline_misses"]) for d in diagnostics if "deadline_misses" in d]
     step_mean = [float(d["step_time_mean_ms"]) for d in diagnostics if "step_time_mean_ms" in d]
-    miss_rate = (misses[-1] - misses[0]) / max(steps[-1] - steps[0], 1) if len(steps) > 1 else float("nan")
-    late = [(int(d["poses_late_for_their_step"]), int(d["poses_accepted"])) for d in diagnostics
-            if "poses_late_for_their_step" in d]
-    late_rate = (late[-1][0] - late[0][0]) / max(late[-1][1] - late[0][1], 1) if len(late) > 1 else float("nan")
+    miss_rate = counter_rate(diagnostics, "deadline_misses", "steps")
+    late_rate = counter_rate(diagnostics, "poses_late_for_their_step", "poses_accepted")
 
     subject = "echo (transport floor, no simulation)" if args.echo else "needle_simulator"
     print(f"\n{subject}, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
