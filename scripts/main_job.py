@@ -8,8 +8,11 @@
 2. Live: starts the installed executables (install/<pkg>/lib/<pkg>/, where ``ros2 run`` looks) with simulated
    time: ``needle_simulator``, ``needle_stereo`` (bags with images) and ``needle_compare`` (recording MCAP, writing a
    JSON summary), each with its node config file and the bag's experiment file (config/experiments/<bag>.yaml);
-   waits until they are connected; then ``needle_replay`` plays the bag with /clock. When the bag is done and the
-   last comparison is in, the nodes are stopped with SIGINT (the comparison finalizes its log).
+   and ``needle_replay`` paused (``--start-paused``, publishing the bag's start time on /clock); waits until every
+   node is up and reports on /diagnostics that each of its inputs the bag plays has matched the replay's publisher
+   and that its clock is at the bag's start (discovery is two-sided: what the replay publishes before that is
+   lost); then resumes the replay. When the bag is done and the last comparison is in, the nodes are stopped with
+   SIGINT (the comparison finalizes its log).
 3. Prints the RMSE summary, how many measurements were compared, the simulator's diagnostics, the model's and the
    measurement's own error against the ground truth (synthetic bags) and where the MCAP log, summary and plots are
    (out/<bag>/live).
@@ -177,27 +180,35 @@ class Monitor:
         from needle_interfaces.msg import ShapeError
         from rclpy.qos import QoSProfile
         from rosgraph_msgs.msg import Clock
+        from std_srvs.srv import Trigger
+        from needle_vision.ros.input_status import input_status_name
         from rclpy.signals import SignalHandlerOptions
-        self.rclpy = rclpy
+        self.rclpy, self.input_status_name = rclpy, input_status_name
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl+C stays a KeyboardInterrupt here
         self.node = rclpy.create_node("needle_main_job")
         self.clock_ns = 0
         self.errors: list[float] = []
         self.diagnostics: dict[str, str] = {}
+        self.inputs: dict[str, tuple[int, dict[str, int]]] = {}  # node -> (its clock [ns], publishers per input)
         self.node.create_subscription(Clock, "/clock", self._on_clock, QoSProfile(depth=1))
         self.node.create_subscription(ShapeError, "shape_error", lambda m: self.errors.append(m.rmse),
                                       QoSProfile(depth=100))
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, QoSProfile(depth=10))
         self.get_state = self.node.create_client(GetState, "/needle_simulator/get_state")
         self.get_state_request = GetState.Request()
+        self.resume = self.node.create_client(Trigger, "/needle_replay/resume")
 
     def _on_clock(self, msg) -> None:
         self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
 
     def _on_diagnostics(self, msg) -> None:
         for status in msg.status:
-            if status.name.startswith("needle_simulator"):
+            node = status.name.rsplit(": ", 1)[0]
+            if status.name == "needle_simulator: integration":
                 self.diagnostics = {kv.key: kv.value for kv in status.values}
+            elif status.name == self.input_status_name(node):
+                clock_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                self.inputs[node] = (clock_ns, {kv.key: int(kv.value) for kv in status.values})
 
     def spin(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -227,6 +238,29 @@ class Monitor:
         while not future.done() and time.monotonic() < end:
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
         return future.done() and future.result() is not None and future.result().current_state.label == "active"
+
+    def inputs_missing(self, nodes: list[str], played: list[str], start_ns: int) -> list[str]:
+        """What keeps the bag from being played: nodes not reporting their inputs yet, clocks not at the bag's start,
+        played topics a node subscribes but has not matched a publisher on (its own report)."""
+        missing = []
+        for node in nodes:
+            clock_ns, counts = self.inputs.get(node, (None, {}))
+            if clock_ns is None:
+                missing.append(f"{node}: no input report")
+            elif clock_ns < start_ns:
+                missing.append(f"{node}: clock not at the bag's start")
+            missing += [f"{node}: no publisher matched on {topic}" for topic in played if counts.get(topic) == 0]
+        return missing
+
+    def call_resume(self) -> bool:
+        """needle_replay's ~/resume; False if it did not answer within 5 s."""
+        if not self.resume.wait_for_service(timeout_sec=5.0):
+            return False
+        future = self.resume.call_async(self.resume.srv_type.Request())
+        end = time.monotonic() + 5.0
+        while not future.done() and time.monotonic() < end:
+            self.rclpy.spin_once(self.node, timeout_sec=0.05)
+        return future.done() and future.result() is not None and future.result().success
 
     def close(self) -> None:
         self.node.destroy_node()
@@ -288,17 +322,6 @@ def run(args: argparse.Namespace) -> int:
                                           "-p", "log.overwrite:=true", "-p", f"summary_path:={summary_path}",
                                           "-r", "model/shape:=needle/shape",
                                           "-r", "measured/shape:=needle/measured_shape"], args.from_source)
-        monitor = Monitor()
-        say("waiting for the nodes to connect ...")
-        deadline = time.monotonic() + START_TIMEOUT
-        while not (monitor.connected(stereo, fbg=not stereo) and monitor.simulator_active()):
-            monitor.spin(0.2)
-            failed = [c for c in children.started if c.failed()]
-            if failed or time.monotonic() > deadline:
-                for child in failed:
-                    say(f"{child.name} exited with status {child.process.returncode}:\n{child.tail()}")
-                say("the nodes did not come up" if not failed else "a node failed at start")
-                return 1
         from needle_sim_ros.recording import BagReader
         reader = BagReader(bag)
         duration = (reader.end_time_ns - reader.start_time_ns) / 1e9
@@ -306,11 +329,30 @@ def run(args: argparse.Namespace) -> int:
                               *(() if stereo else ("/needle/measured_shape",))) if t in reader.topics]
         if stereo and not stereo_params.get("left_calibration_file", ""):
             topics += [t for t in ("/left/camera_info", "/right/camera_info") if t in reader.topics]
+        replay = children.start("needle_replay", [str(bag), "--clock", str(CLOCK_HZ), "--rate", str(args.rate),
+                                                   "--start-paused", "--wait-for-subscribers", "10", "--topics",
+                                                   *topics], args.from_source)
+        monitor = Monitor()
+        say("waiting for the nodes to come up and match the replay's publishers ...")
+        nodes = [c.name for c in children.started if c is not replay]
+        deadline = time.monotonic() + START_TIMEOUT
+        while True:
+            monitor.spin(0.2)
+            missing = monitor.inputs_missing(nodes, topics, reader.start_time_ns)
+            if not missing and monitor.connected(stereo, fbg=not stereo) and monitor.simulator_active():
+                break
+            failed = [c for c in children.started if c.failed()]
+            if failed or time.monotonic() > deadline:
+                for child in failed:
+                    say(f"{child.name} exited with status {child.process.returncode}:\n{child.tail()}")
+                say(f"the nodes did not come up ({'; '.join(missing) or 'not connected'})" if not failed else
+                    "a node failed at start")
+                return 1
+        if not monitor.call_resume():
+            say(f"needle_replay did not resume:\n{replay.tail()}")
+            return 1
         say(f"nodes connected; playing {duration:.2f} s of bag at {args.rate:g}x with /clock "
             f"({expected} measurements expected)")
-        replay = children.start("needle_replay", [str(bag), "--clock", str(CLOCK_HZ), "--rate", str(args.rate),
-                                                   "--wait-for-subscribers", "10", "--delay", "0.5", "--topics",
-                                                   *topics], args.from_source)
         next_report = time.monotonic() + 1.0
         while replay.process.poll() is None:
             monitor.spin(0.1)

@@ -11,15 +11,19 @@ import numpy as np
 import pytest
 import rclpy
 from ament_index_python.packages import get_package_prefix
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point, WrenchStamped
 from mcap.reader import make_reader
 from needle_interfaces.msg import NeedleShape, ShapeError
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
+from std_srvs.srv import Trigger
 from scipy.stats import theilslopes
 from scipy.spatial.transform import Rotation
 
+from needle_vision.ros.input_status import InputStatus, input_status_name
 from needle_vision.transform import RigidTransform
 
 from needle_sim_ros.recording import McapBagWriter, OfferedQos, PlaybackSchedule
@@ -52,6 +56,31 @@ def spin_until(node, done, timeout: float) -> None:
         rclpy.spin_once(node, timeout_sec=0.01)
 
 
+def resume(node) -> None:
+    """Call the paused needle_replay's ~/resume."""
+    client = node.create_client(Trigger, "/needle_replay/resume")
+    assert client.wait_for_service(timeout_sec=10.0)
+    future = client.call_async(Trigger.Request())
+    spin_until(node, future.done, 10.0)
+    assert future.result().success
+    node.destroy_client(client)
+
+
+def play_when_matched(node, ros_env, bag: Path, subscriber: str, topics: tuple[str, ...], *args: str):
+    """needle_replay started paused and resumed once ``subscriber`` reports each of ``topics`` matched from its own
+    side (its input report on /diagnostics), so that no message is lost to discovery."""
+    matched: dict[str, int] = {}
+    reports = node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: matched.update(
+        {kv.key: int(kv.value) for s in m.status if s.name == input_status_name(subscriber) for kv in s.values}),
+        QoSProfile(depth=10))
+    player = start(ros_env, "needle_replay", str(bag), "--start-paused", *args)
+    spin_until(node, lambda: all(matched.get(t, 0) > 0 for t in topics), 20.0)
+    node.destroy_subscription(reports)
+    assert all(matched.get(t, 0) > 0 for t in topics), matched
+    resume(node)
+    return player
+
+
 def test_playback_schedule_maps_bag_time_to_wall_time():
     schedule = PlaybackSchedule(bag_start_ns=1_000, wall_start_ns=50, rate=2.0)
     assert schedule.wall_time_ns(1_000 + 400) == 50 + 200
@@ -75,13 +104,13 @@ def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(nod
     count, period_ns, rate = 100, 10_000_000, 2.0          # 1 s of 100 Hz wrench, played in 0.5 s
     stamps = wrench_bag(tmp_path / "wrench.mcap", count, period_ns)
     arrivals, clocks = [], []
-    node.create_subscription(WrenchStamped, "/replayed/wrench",
-                             lambda m: arrivals.append((time.monotonic_ns(), int(m.wrench.force.x))),
-                             QoSProfile(depth=count))
+    InputStatus(node).track(node.create_subscription(
+        WrenchStamped, "/replayed/wrench", lambda m: arrivals.append((time.monotonic_ns(), int(m.wrench.force.x))),
+        QoSProfile(depth=count)))
     node.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
                              QoSProfile(depth=1000))
-    player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--rate", str(rate), "--clock", "200",
-                   "--wait-for-subscribers", "20", "--delay", "0.5", "--ros-args", "-r", "/wrench:=/replayed/wrench")
+    player = play_when_matched(node, ros_env, tmp_path / "wrench.mcap", "replay_test", ("/replayed/wrench",),
+                               "--rate", str(rate), "--clock", "200", "--ros-args", "-r", "/wrench:=/replayed/wrench")
     try:
         spin_until(node, lambda: len(arrivals) == count and player.poll() is not None, 40.0)
         out, _ = player.communicate(timeout=10)
@@ -110,6 +139,47 @@ def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(nod
     assert len(clocks) > 50
     assert np.all(np.diff(clocks) >= 0)
     assert stamps[0] <= clocks[0] and clocks[-1] <= stamps[-1] + 20_000_000
+
+
+def test_a_paused_replay_holds_the_start_time_until_resumed_and_subscribers_report_their_own_match(ros_env, tmp_path):
+    """--start-paused: nothing is played and /clock holds the bag's start until ~/resume; the subscribing node's
+    input report (needle_vision.ros.input_status) turns from no publisher to one matched, stamped with its /clock."""
+    count = 20
+    wrench_bag(tmp_path / "wrench.mcap", count, 10_000_000)
+    rclpy.init()
+    node = rclpy.create_node("paused_replay_test", parameter_overrides=[Parameter("use_sim_time", value=True)])
+    arrivals, clocks, reports = [], [], []
+    try:
+        inputs = InputStatus(node)
+        inputs.track(node.create_subscription(WrenchStamped, "/paused/wrench", lambda m: arrivals.append(
+            int(m.wrench.force.x)), QoSProfile(depth=count)))
+        node.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
+                                 QoSProfile(depth=1000))
+        node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: reports.extend(
+            (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, s) for s in m.status
+            if s.name == input_status_name("paused_replay_test")), QoSProfile(depth=10))
+        spin_until(node, lambda: reports, 10.0)
+        assert reports and reports[0][1].values[0].key == "/paused/wrench" and reports[0][1].values[0].value == "0"
+        assert reports[0][1].level == bytes([1])  # WARN: no publisher
+        player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--clock", "100", "--start-paused",
+                       "--ros-args", "-r", "/wrench:=/paused/wrench")
+        try:
+            spin_until(node, lambda: reports[-1][1].values[0].value == "1" and reports[-1][0] == BAG_START_NS, 20.0)
+            assert reports[-1][1].values[0].value == "1" and reports[-1][1].level == bytes([0]), reports[-1]
+            assert reports[-1][0] == BAG_START_NS  # the node's clock: the paused replay's start time
+            spin_until(node, lambda: False, 0.5)
+            assert arrivals == [] and len(clocks) > 10 and set(clocks) == {BAG_START_NS}
+            resume(node)
+            spin_until(node, lambda: len(arrivals) == count and player.poll() is not None, 20.0)
+            out, _ = player.communicate(timeout=10)
+        finally:
+            player.kill()
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    assert player.returncode == 0, out
+    assert arrivals == list(range(count)), out
+    assert max(clocks) > BAG_START_NS
 
 
 def shapes_bag(path: Path, count: int, offset: float) -> None:
@@ -148,8 +218,8 @@ def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(no
                      "-p", f"log.path:={tmp_path / 'log.mcap'}", "-p", f"summary_path:={tmp_path / 'summary.json'}")
     try:
         spin_until(node, lambda: node.count_publishers("/shape_error") > 0, 20.0)
-        player = start(ros_env, "needle_replay", str(tmp_path / "shapes.mcap"), "--wait-for-subscribers", "20",
-                       "--delay", "0.5")
+        player = play_when_matched(node, ros_env, tmp_path / "shapes.mcap", "needle_compare",
+                                   ("/model/shape", "/measured/shape"))
         out, _ = player.communicate(timeout=40)
         assert player.returncode == 0, out
         # Every measurement but the last is decided by the next model shape (the last waits for one).

@@ -29,6 +29,7 @@ from needle_vision.parameters import ParameterError
 from needle_sim_ros.comparison import CenterlineSamples, ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import centerline_display
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
+from needle_vision.ros.input_status import InputStatus
 from needle_vision.ros.ros_parameters import declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
 from needle_sim_ros.nodes.runner import run_node
@@ -92,18 +93,21 @@ class CompareNode(Node):
         self._next_display_ns = 0
         if self.recorder is not None and v["log.tf"]:
             self._record_tf()
-        self.create_subscription(NeedleShape, "model/shape", self.on_model, QoSProfile(depth=50))
+        inputs = InputStatus(self)
+        inputs.track(self.create_subscription(NeedleShape, "model/shape", self.on_model, QoSProfile(depth=50)))
         if v["measured_input"] == "shape":
-            self.create_subscription(NeedleShape, "measured/shape", self.on_measured_shape, QoSProfile(depth=10))
+            inputs.track(self.create_subscription(NeedleShape, "measured/shape", self.on_measured_shape,
+                                                  QoSProfile(depth=10)))
         else:
-            self.create_subscription(PointCloud2, "measured/points", self.on_measured_points, QoSProfile(depth=10))
+            inputs.track(self.create_subscription(PointCloud2, "measured/points", self.on_measured_points,
+                                                  QoSProfile(depth=10)))
         input_qos = QoSProfile(depth=100) if v["qos.inputs"] == "reliable" else QoSProfile(
             depth=100, reliability=qos_profile_sensor_data.reliability)
         for topic, message_type in (("base_pose", PoseStamped), ("wrench", WrenchStamped)):
             if self.resolve_topic_name(topic) in self.logged:
-                self.create_subscription(message_type, topic,
-                                         lambda data, t=topic, m=message_type: self.log(t, data, m),
-                                         input_qos, raw=True)
+                inputs.track(self.create_subscription(message_type, topic,
+                                                      lambda data, t=topic, m=message_type: self.log(t, data, m),
+                                                      input_qos, raw=True))
 
     def _open_recording(self) -> TopicRecorder:
         v = self.values

@@ -1,12 +1,17 @@
 """needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
 
     needle_replay BAG [--rate R] [--start-offset S] [--loop] [--topics T ...] [--clock [HZ]] [--delay S]
-                      [--wait-for-subscribers S] [--ros-args -r FROM:=TO ...]
+                      [--wait-for-subscribers S] [--start-paused] [--ros-args -r FROM:=TO ...]
 
 BAG is a .mcap file or a bag directory. Messages are published as the recorded CDR bytes (no deserialization) with
 the QoS the recorded publishers offered; ``--clock`` publishes the playback time on /clock for use_sim_time.
 Topics are renamed with ROS remapping rules (``--ros-args -r /wrench:=/replayed/wrench``), which apply to the
 recorded (absolute) topic names.
+
+``--start-paused`` creates the publishers and waits for a call of the service ``~/resume`` (std_srvs/Trigger)
+before playing, publishing the start time on /clock meanwhile (with ``--clock``): whoever calls it can first make
+sure that every subscriber has matched the publishers from its own side, which ``--wait-for-subscribers`` cannot
+see (messages published before that are lost; ``needle_vision.ros.input_status``).
 """
 from __future__ import annotations
 
@@ -19,6 +24,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
+from std_srvs.srv import Trigger
 
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
 from needle_sim_ros.recording import BagReadError, BagReader, PlaybackSchedule
@@ -54,6 +60,8 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
                         help="wait S seconds before playing (after --wait-for-subscribers)")
     parser.add_argument("--wait-for-subscribers", type=_non_negative, default=0.0, metavar="S",
                         help="wait up to S seconds until every topic has a subscriber")
+    parser.add_argument("--start-paused", action="store_true",
+                        help="wait for a call of the service ~/resume (std_srvs/Trigger) before playing")
     parser.add_argument("--stop-on-corrupt", action="store_true",
                         help="stop at a corrupt chunk (default: skip it, count it and warn)")
     parser.add_argument("--allow-type-mismatch", action="store_true", help="also play topics whose recorded type "
@@ -83,6 +91,23 @@ class ReplayNode(Node):
                 message_type, topic, playback_qos(recorded.offered_qos))
         self.clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1)) if args.clock else None
         self.published = 0
+        self.resumed = not args.start_paused
+        if args.start_paused:
+            self.create_service(Trigger, "~/resume", self.on_resume)
+
+    def on_resume(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """Served only while paused: the playing loop does not spin."""
+        self.resumed, response.success, response.message = True, True, "playing"
+        return response
+
+    def wait_for_resume(self) -> None:
+        """Serve ~/resume until it is called, the start time on /clock meanwhile."""
+        start = self.reader.start_time_ns + round(self.args.start_offset * 1e9)
+        period = 1.0 / self.args.clock if self.args.clock else 0.1
+        while rclpy.ok() and not self.resumed:
+            if self.clock_publisher is not None:
+                self.publish_clock(start)
+            rclpy.spin_once(self, timeout_sec=period)
 
     def wait_for_subscribers(self, timeout: float) -> None:
         deadline = time.monotonic() + timeout
@@ -126,6 +151,7 @@ class ReplayNode(Node):
         return True
 
     def play(self) -> None:
+        self.wait_for_resume()
         if self.args.wait_for_subscribers:
             self.wait_for_subscribers(self.args.wait_for_subscribers)
         if self.args.delay:  # after discovery, lets reliable connections settle before the first message

@@ -42,6 +42,7 @@ from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
 from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_shape
 from needle_sim_ros.nodes.diagnostics import HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
+from needle_vision.ros.input_status import InputStatus
 from needle_vision.ros.ros_parameters import declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
 from needle_sim_ros.nodes.runner import run_node
@@ -100,7 +101,8 @@ class NeedleSimulatorNode(LifecycleNode):
             self.create_subscription(TwistStamped, topics["base_twist"], self.on_twist,
                                      qos_profile(self.p["qos.base_pose"], 100), callback_group=polled)]
         self._pose_waiter = MessageWaiter(self._polled, self.context)
-        self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10)
+        InputStatus(self).track(*self._polled,
+                                self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10))
         configured = lambda: self.sim is not None  # noqa: E731
         self.create_service(Trigger, "~/reset", when_configured(configured, self.on_reset))
         self.create_service(ApplyPointLoad, "~/apply_point_load", when_configured(configured, self.on_apply_point_load))
@@ -218,7 +220,7 @@ class NeedleSimulatorNode(LifecycleNode):
             verdict = self.sim.offer_pose(stamp, pose.position, pose.orientation)
             self.counters[verdict] += 1
         if self.sim.started and not started:
-            self.get_logger().info("first base pose received: needle initialised at rest at it")
+            self.get_logger().info(f"first base pose received (stamp {stamp:.6f} s): needle initialised at rest at it")
         if verdict is PoseVerdict.NORMALIZED:
             self.warn_throttled("normalized", "base pose quaternion was not unit length: normalized")
         elif verdict is PoseVerdict.RESTARTED:

@@ -35,6 +35,7 @@ from needle_vision.streams.pairing import StampPairer
 from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments, output_from_left,
                                       stereo_config, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline, compile_kernels
+from needle_vision.ros.input_status import InputStatus
 from needle_vision.ros.ros_parameters import declare_all
 from needle_vision.ros.tf_output import TfOutput, transform_stamped
 from needle_vision.transform import quaternion_from_x_axis
@@ -59,6 +60,7 @@ class NeedleStereoNode(Node):
         self._reported_drops = 0
         self._image_frame = ""  # frame_id of the left images (the raw left optical frame)
         self.tf = TfOutput(self)
+        self.inputs = InputStatus(self)
         qos = qos_profile_sensor_data if self.values["image_qos"] == "sensor_data" else \
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         if self.values["left_calibration_file"]:
@@ -71,16 +73,17 @@ class NeedleStereoNode(Node):
             self.send_camera_frames(rig)
         else:
             for side in ("left", "right"):
-                self.create_subscription(CameraInfo, f"{side}/camera_info",
-                                         lambda msg, side=side: self.on_camera_info(side, msg), qos)
+                self.inputs.track(self.create_subscription(CameraInfo, f"{side}/camera_info",
+                                                           lambda msg, side=side: self.on_camera_info(side, msg), qos))
         # after the parameters are checked and the static frames sent, before subscribing: a pair arriving while the
         # kernels compile would wait, and the ones after it be dropped
         self.get_logger().info(f"measurement kernels ready in {compile_kernels():.1f} s")
         for side in ("left", "right"):
-            self.create_subscription(Image, f"{side}/image_raw", lambda msg, side=side: self.on_image(side, msg), qos)
+            self.inputs.track(self.create_subscription(Image, f"{side}/image_raw",
+                                                       lambda msg, side=side: self.on_image(side, msg), qos))
         if self.values["base_pose.topic"]:
-            self.create_subscription(PoseStamped, self.values["base_pose.topic"], self.on_base_pose,
-                                     qos_profile_sensor_data, raw=True)
+            self.inputs.track(self.create_subscription(PoseStamped, self.values["base_pose.topic"], self.on_base_pose,
+                                                       qos_profile_sensor_data, raw=True))
         self.tf_buffer = self.base_tf_buffer()
         self.cloud_pub = self.create_publisher(PointCloud2, "needle/measured_points", 10)
         self.shape_pub = self.create_publisher(NeedleShape, "needle/measured_shape", 10)
