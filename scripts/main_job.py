@@ -13,7 +13,8 @@
    and that its clock is at the bag's start (discovery is two-sided: what the replay publishes before that is
    lost); then resumes the replay. When the bag is done and the last comparison is in, the nodes are stopped with
    SIGINT (the comparison finalizes its log).
-3. Prints the RMSE summary, how many measurements were compared, the simulator's diagnostics, the model's and the
+3. Prints the RMSE summary, how many measurements were compared, the simulator's and the stereo's last reports on
+   /diagnostics (the simulator's comes once a second of bag time: it counts the steps up to then), the model's and the
    measurement's own error against the ground truth (synthetic bags) and where the MCAP log, summary and plots are
    (out/<bag>/live).
 
@@ -188,8 +189,7 @@ class Monitor:
         self.node = rclpy.create_node("needle_main_job")
         self.clock_ns = 0
         self.errors: list[float] = []
-        self.diagnostics: dict[str, str] = {}
-        self.inputs: dict[str, tuple[int, dict[str, int]]] = {}  # node -> (its clock [ns], publishers per input)
+        self.reports: dict[str, tuple[int, dict[str, str]]] = {}  # status name -> (its node's clock [ns], values)
         self.node.create_subscription(Clock, "/clock", self._on_clock, QoSProfile(depth=1))
         self.node.create_subscription(ShapeError, "shape_error", lambda m: self.errors.append(m.rmse),
                                       QoSProfile(depth=100))
@@ -202,13 +202,13 @@ class Monitor:
         self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
 
     def _on_diagnostics(self, msg) -> None:
+        clock_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         for status in msg.status:
-            node = status.name.rsplit(": ", 1)[0]
-            if status.name == "needle_simulator: integration":
-                self.diagnostics = {kv.key: kv.value for kv in status.values}
-            elif status.name == self.input_status_name(node):
-                clock_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                self.inputs[node] = (clock_ns, {kv.key: int(kv.value) for kv in status.values})
+            self.reports[status.name] = (clock_ns, {kv.key: kv.value for kv in status.values})
+
+    def report(self, name: str) -> dict[str, str]:
+        """The values of the last status ``name`` on /diagnostics (empty if none came)."""
+        return self.reports.get(name, (0, {}))[1]
 
     def spin(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -244,12 +244,12 @@ class Monitor:
         played topics a node subscribes but has not matched a publisher on (its own report)."""
         missing = []
         for node in nodes:
-            clock_ns, counts = self.inputs.get(node, (None, {}))
+            clock_ns, counts = self.reports.get(self.input_status_name(node), (None, {}))
             if clock_ns is None:
                 missing.append(f"{node}: no input report")
             elif clock_ns < start_ns:
                 missing.append(f"{node}: clock not at the bag's start")
-            missing += [f"{node}: no publisher matched on {topic}" for topic in played if counts.get(topic) == 0]
+            missing += [f"{node}: no publisher matched on {topic}" for topic in played if counts.get(topic) == "0"]
         return missing
 
     def call_resume(self) -> bool:
@@ -373,7 +373,10 @@ def run(args: argparse.Namespace) -> int:
         while len(monitor.errors) < expected and time.monotonic() < drain_end:
             monitor.spin(0.2)
         monitor.spin(0.5)
-        diagnostics = dict(monitor.diagnostics)
+        diagnostics = monitor.report("needle_simulator: integration")
+        diagnostics_bag_time = (monitor.reports.get("needle_simulator: integration", (0, {}))[0]
+                                - reader.start_time_ns) / 1e9
+        stereo_pairs = monitor.report("needle_stereo: measurement")
         cpu = {c.name: c.cpu_seconds() for c in children.started if c.process.poll() is None}
         say(f"bag done: {len(monitor.errors)} comparisons seen; stopping the nodes")
         for child in reversed(children.started):
@@ -389,6 +392,7 @@ def run(args: argparse.Namespace) -> int:
         summary["versus_ground_truth"] = versus_ground_truth(log)
         summary["expected_measurements"] = expected
         summary["simulator_diagnostics"] = diagnostics
+        summary["stereo_diagnostics"] = stereo_pairs
         summary["cpu_seconds"] = cpu
         summary["plots"] = [str(p) for p in write_plots(log, out / "plots", experiment.settings.plot_instants, name)]
         summary_path.write_text(json.dumps(summary, indent=2) + "\n")
@@ -404,8 +408,15 @@ def run(args: argparse.Namespace) -> int:
                 f"{offline['comparison']['compared']} measurements, {offline['timing']['real_time_factor']:.2f}x "
                 f"real time ({root / 'offline'})")
         if diagnostics:
-            say(f"  simulator: {diagnostics.get('steps')} steps, mean step {diagnostics.get('step_time_mean_ms')} ms, "
-                f"skipped {diagnostics.get('skipped_time_s')} s, failed steps {diagnostics.get('failed_steps')}")
+            started = float(diagnostics.get("started_at_s", "nan")) - reader.start_time_ns / 1e9
+            say(f"  simulator (last report, bag time {diagnostics_bag_time:.2f} s): {diagnostics.get('steps')} steps, "
+                f"needle started at bag time {started:.3f} s, mean step "
+                f"{diagnostics.get('step_time_mean_ms')} ms, skipped {diagnostics.get('skipped_time_s')} s, failed "
+                f"steps {diagnostics.get('failed_steps')}")
+        if stereo_pairs:
+            say("  stereo pairs: " + ", ".join(f"{key[len('pairs_'):].replace('_', ' ')} {value}"
+                                               for key, value in stereo_pairs.items() if key.startswith("pairs_"))
+                + f"; frames without a partner {stereo_pairs.get('frames_unpaired')}")
         say("  CPU time of the nodes [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in cpu.items() if v is not None))
         say(f"MCAP log: {log_path}")
         say(f"summary:  {summary_path}")

@@ -199,10 +199,13 @@ def wait_for_diagnostic(drv, process, predicate, what, timeout=20.0, send=True):
 
 
 def test_diagnostics_raise_and_clear(driver, ros_env, tmp_path):
+    begun = time.time()
     process = start(driver, ros_env, tmp_path, **{"rates.diagnostics_hz": 5.0})
     wait_for(driver, lambda: driver.wrenches, process, what="a wrench")
-    level, message, _ = wait_for_diagnostic(driver, process, lambda lv, m, v: lv == 0, "OK while posing")
+    level, message, values = wait_for_diagnostic(driver, process, lambda lv, m, v: lv == 0, "OK while posing")
     assert message == "running"
+    # the stamp of the pose the needle started at: one of the driver's, in full (not rounded to 6 digits)
+    assert begun <= float(values["started_at_s"]) <= time.time() and len(values["started_at_s"].split(".")[1]) == 6
     # rejected input: a NaN pose -> WARN naming it, then OK again in a later window
     driver.pose(position=(math.nan, 0.0, 0.3))
     level, message, values = wait_for_diagnostic(driver, process, lambda lv, m, v: lv == 1, "WARN after a NaN pose")

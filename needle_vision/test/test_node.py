@@ -11,6 +11,7 @@ import yaml
 
 rclpy = pytest.importorskip("rclpy", reason="the node test needs ROS 2 (rclpy)")
 from ament_index_python.packages import get_package_prefix  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
@@ -81,6 +82,10 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
         node.create_subscription(NeedleShape, "needle/measured_shape", received["shape"].append, 10)
         node.create_subscription(PointCloud2, "needle/measured_points", received["cloud"].append, 10)
         node.create_subscription(Image, "needle/debug_image", received["debug"].append, 10)
+        statuses = []  # the node's measurement reports
+        node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: statuses.extend(
+            {kv.key: kv.value for kv in s.values} | {"level": s.level[0], "message": s.message} for s in m.status
+            if s.name == "needle_stereo: measurement"), 10)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         images = {side: node.create_publisher(Image, f"{side}/image_raw", reliable) for side in ("left", "right")}
         infos = {side: node.create_publisher(CameraInfo, f"{side}/camera_info", reliable) for side in ("left", "right")}
@@ -113,13 +118,31 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
             end = time.monotonic() + 0.5
             while time.monotonic() < end:
                 rclpy.spin_once(node, timeout_sec=0.05)
+        # a left frame without its right one, then a pair in an encoding the node does not read
+        images["left"].publish(_image_msg(needle[0], 1.06, "left_optical"))
+        for side in ("left", "right"):
+            images[side].publish(_image_msg(needle[0], 1.07, f"{side}_optical", encoding="yuv422"))
         end = time.monotonic() + 30  # the first pair loads compiled kernels; debug images (2.3 MB) trail the shapes
         while time.monotonic() < end and (len(received["shape"]) < 3 or not any(
                 image.width == 1440 for image in received["debug"])):  # the half-size pair's may come first
             rclpy.spin_once(node, timeout_sec=0.1)
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not (statuses and statuses[-1]["pairs_skipped_bad_encoding"] == "1"):
+            rclpy.spin_once(node, timeout_sec=0.1)
     finally:
         output = _stop(node, process)
 
+    # What became of the pairs, on /diagnostics: WARN in the report after the skip, naming what happened since the
+    # previous report.
+    assert statuses and statuses[-1]["pairs_skipped_bad_encoding"] == "1", (statuses[-1:], output)
+    last = statuses[-1]
+    counted = ("pairs_measured", "pairs_background", "pairs_rejected", "pairs_skipped_bad_encoding", "frames_unpaired",
+               "rejected_bad input")
+    assert {k: last.get(k) for k in counted} == {
+        "pairs_measured": "3", "pairs_background": "2", "pairs_rejected": "1", "pairs_skipped_bad_encoding": "1",
+        "frames_unpaired": "1", "rejected_bad input": "1"}, statuses
+    warned = [status for status in statuses if status["level"] == 1]
+    assert any("1 pairs skipped bad encoding" in status["message"] for status in warned), statuses
     stamps = [shape.header.stamp.sec + shape.header.stamp.nanosec * 1e-9 for shape in received["shape"]]
     assert len(stamps) == 3, output  # the three good needle pairs (reliable transport)
     assert all(abs(stamp - 1.03) > 1e-3 for stamp in stamps)  # nothing for the wrong-size pair

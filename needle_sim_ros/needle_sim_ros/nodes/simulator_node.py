@@ -14,6 +14,7 @@ In wall-clock mode it integrates up to now, extrapolating the newest pose for at
 from __future__ import annotations
 
 import gc
+import math
 import os
 import sys
 import threading
@@ -79,6 +80,7 @@ class NeedleSimulatorNode(LifecycleNode):
         self.use_sim_time = self.get_parameter("use_sim_time").value
         self.counters = {verdict: 0 for verdict in PoseVerdict}
         self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0, "twist_rejected": 0, "tip_load_rejected": 0}
+        self.started_at = math.nan  # stamp [s] of the pose the needle last (re)started at
         self.deadline_misses = 0
         self.catch_up_steps = 0
         self.health = HealthMonitor()
@@ -219,6 +221,8 @@ class NeedleSimulatorNode(LifecycleNode):
             started = self.sim.started
             verdict = self.sim.offer_pose(stamp, pose.position, pose.orientation)
             self.counters[verdict] += 1
+        if (self.sim.started and not started) or verdict in (PoseVerdict.RESTARTED, PoseVerdict.REANCHORED):
+            self.started_at = stamp
         if self.sim.started and not started:
             self.get_logger().info(f"first base pose received (stamp {stamp:.6f} s): needle initialised at rest at it")
         if verdict is PoseVerdict.NORMALIZED:
@@ -528,6 +532,7 @@ class NeedleSimulatorNode(LifecycleNode):
                     "max_newton_iterations": stats.max_newton_iterations,
                     "failed_steps": stats.failed_steps,
                     "poses_late_for_their_step": stats.late_poses,
+                    "started_at_s": f"{self.started_at:.6f}",  # an epoch time in full, not .6g
                     "skipped_time_s": stats.skipped_time,
                     "pose_age_s": sim.pose_age(self.now_seconds()),
                     "point_loads": len(sim.point_loads)})

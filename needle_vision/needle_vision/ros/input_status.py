@@ -9,6 +9,8 @@ its first ``/clock``), so a player can also tell that the node follows its clock
 """
 from __future__ import annotations
 
+from typing import Callable
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -25,10 +27,12 @@ def input_status_name(node_name: str) -> str:
 
 
 class InputStatus:
-    """Reports the matched publishers of the subscriptions given to :meth:`track`."""
+    """Reports the matched publishers of the subscriptions given to :meth:`track`, and in the same array the
+    node's ``more_statuses()`` (e.g. the stereo node's pair counts)."""
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: Node, more_statuses: Callable[[], list[DiagnosticStatus]] = list) -> None:
         self._node = node
+        self._more_statuses = more_statuses
         self._subscriptions: list[Subscription] = []
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         node.create_timer(INPUT_STATUS_PERIOD, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -49,4 +53,4 @@ class InputStatus:
                                   "every input has a publisher",
                                   values=[KeyValue(key=topic, value=str(count)) for topic, count in counts.items()])
         self._publisher.publish(DiagnosticArray(header=Header(stamp=self._node.get_clock().now().to_msg()),
-                                                status=[status]))
+                                                status=[status, *self._more_statuses()]))

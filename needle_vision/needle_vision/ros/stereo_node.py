@@ -3,15 +3,18 @@
 Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``, ``right/camera_info`` (stereo_image_proc
 naming; remap as needed); pairs frames by stamp; publishes ``needle/measured_points`` (sensor_msgs/PointCloud2:
 the centerline samples, x y z float32, plus vx..vz, ax..az when tracking), ``needle/measured_shape``
-(needle_interfaces/NeedleShape with per-sample uncertainty) and ``needle/debug_image`` (bgr8, centerlines
-drawn). Base and tip are told apart by the needle's base pose: ``base_pose`` (geometry_msgs/PoseStamped, read
-raw) and, where tf2_ros is installed, the TF frame ``base_pose.frame``. Everything else happens in the ROS-free
+(needle_interfaces/NeedleShape with per-sample uncertainty), ``needle/debug_image`` (bgr8, centerlines
+drawn) and, twice a second, its input report and what became of the pairs on ``/diagnostics``
+(:mod:`needle_vision.ros.input_status`, :mod:`needle_vision.ros.measurement_status`). Base and tip are told apart
+by the needle's base pose: ``base_pose`` (geometry_msgs/PoseStamped, read raw) and, where tf2_ros is installed,
+the TF frame ``base_pose.frame``. Everything else happens in the ROS-free
 :class:`needle_vision.pipeline.StereoNeedlePipeline`.
 """
 from __future__ import annotations
 
 import sys
 import time
+from collections import Counter
 from typing import Any
 
 import cv2
@@ -36,6 +39,7 @@ from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, ch
                                       stereo_config, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline, compile_kernels
 from needle_vision.ros.input_status import InputStatus
+from needle_vision.ros.measurement_status import MeasurementStatus
 from needle_vision.ros.ros_parameters import declare_all
 from needle_vision.ros.tf_output import TfOutput, transform_stamped
 from needle_vision.transform import quaternion_from_x_axis
@@ -60,7 +64,9 @@ class NeedleStereoNode(Node):
         self._reported_drops = 0
         self._image_frame = ""  # frame_id of the left images (the raw left optical frame)
         self.tf = TfOutput(self)
-        self.inputs = InputStatus(self)
+        self.measurement_status = MeasurementStatus(self.get_name())
+        self.inputs = InputStatus(self, lambda: [self.measurement_status.status(
+            self.pairer.dropped, self.pipeline.rejections if self.pipeline else Counter())])
         qos = qos_profile_sensor_data if self.values["image_qos"] == "sensor_data" else \
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         if self.values["left_calibration_file"]:
@@ -182,18 +188,21 @@ class NeedleStereoNode(Node):
         if pair is None:
             return
         if self.pipeline is None:
+            self.measurement_status.count("skipped_no_calibration")
             self.warn("calibration", "no usable stereo calibration yet (waiting for left/camera_info and "
                                      "right/camera_info): frame skipped")
             return
         try:
             images = [image_message_to_gray(pair.left), image_message_to_gray(pair.right)]
         except ImageFormatError as error:
+            self.measurement_status.count("skipped_bad_encoding")
             self.warn("encoding", f"image skipped: {error}")
             return
         self._image_frame = pair.left.header.frame_id
         if self.tf_buffer is not None:
             self.look_up_base(pair.left.header)
         result = self.pipeline.process(pair.stamp, *images)
+        self.measurement_status.count(result.status.name.lower())
         if result.status is FrameStatus.REJECTED:
             counts = ", ".join(f"{kind} {count}" for kind, count in self.pipeline.rejections.most_common())
             self.warn("rejected", f"nothing published for the pair at {pair.stamp:.6f} s: {result.reason} "
