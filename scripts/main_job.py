@@ -176,39 +176,28 @@ class Monitor:
 
     def __init__(self) -> None:
         import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
         from lifecycle_msgs.srv import GetState
         from needle_interfaces.msg import ShapeError
         from rclpy.qos import QoSProfile
         from rosgraph_msgs.msg import Clock
         from std_srvs.srv import Trigger
-        from needle_vision.ros.input_status import input_status_name
+        from needle_vision.ros.input_status import InputReports
         from rclpy.signals import SignalHandlerOptions
-        self.rclpy, self.input_status_name = rclpy, input_status_name
+        self.rclpy = rclpy
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl+C stays a KeyboardInterrupt here
         self.node = rclpy.create_node("needle_main_job")
         self.clock_ns = 0
         self.errors: list[float] = []
-        self.reports: dict[str, tuple[int, dict[str, str]]] = {}  # status name -> (its node's clock [ns], values)
         self.node.create_subscription(Clock, "/clock", self._on_clock, QoSProfile(depth=1))
         self.node.create_subscription(ShapeError, "shape_error", lambda m: self.errors.append(m.rmse),
                                       QoSProfile(depth=100))
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, QoSProfile(depth=10))
         self.get_state = self.node.create_client(GetState, "/needle_simulator/get_state")
         self.get_state_request = GetState.Request()
         self.resume = self.node.create_client(Trigger, "/needle_replay/resume")
+        self.reports = InputReports(self.node)  # /diagnostics: the nodes' input reports (needle_replay reads them too)
 
     def _on_clock(self, msg) -> None:
         self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
-
-    def _on_diagnostics(self, msg) -> None:
-        clock_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        for status in msg.status:
-            self.reports[status.name] = (clock_ns, {kv.key: kv.value for kv in status.values})
-
-    def report(self, name: str) -> dict[str, str]:
-        """The values of the last status ``name`` on /diagnostics (empty if none came)."""
-        return self.reports.get(name, (0, {}))[1]
 
     def spin(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -238,19 +227,6 @@ class Monitor:
         while not future.done() and time.monotonic() < end:
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
         return future.done() and future.result() is not None and future.result().current_state.label == "active"
-
-    def inputs_missing(self, nodes: list[str], played: list[str], start_ns: int) -> list[str]:
-        """What keeps the bag from being played: nodes not reporting their inputs yet, clocks not at the bag's start,
-        played topics a node subscribes but has not matched a publisher on (its own report)."""
-        missing = []
-        for node in nodes:
-            clock_ns, counts = self.reports.get(self.input_status_name(node), (None, {}))
-            if clock_ns is None:
-                missing.append(f"{node}: no input report")
-            elif clock_ns < start_ns:
-                missing.append(f"{node}: clock not at the bag's start")
-            missing += [f"{node}: no publisher matched on {topic}" for topic in played if counts.get(topic) == "0"]
-        return missing
 
     def call_resume(self) -> bool:
         """needle_replay's ~/resume; False if it did not answer within 5 s."""
@@ -334,11 +310,10 @@ def run(args: argparse.Namespace) -> int:
                                                    *topics], args.from_source)
         monitor = Monitor()
         say("waiting for the nodes to come up and match the replay's publishers ...")
-        nodes = [c.name for c in children.started if c is not replay]
         deadline = time.monotonic() + START_TIMEOUT
         while True:
             monitor.spin(0.2)
-            missing = monitor.inputs_missing(nodes, topics, reader.start_time_ns)
+            missing = monitor.reports.waiting(topics, time.monotonic(), reader.start_time_ns)
             if not missing and monitor.connected(stereo, fbg=not stereo) and monitor.simulator_active():
                 break
             failed = [c for c in children.started if c.failed()]
@@ -373,10 +348,9 @@ def run(args: argparse.Namespace) -> int:
         while len(monitor.errors) < expected and time.monotonic() < drain_end:
             monitor.spin(0.2)
         monitor.spin(0.5)
-        diagnostics = monitor.report("needle_simulator: integration")
-        diagnostics_bag_time = (monitor.reports.get("needle_simulator: integration", (0, {}))[0]
-                                - reader.start_time_ns) / 1e9
-        stereo_pairs = monitor.report("needle_stereo: measurement")
+        report_clock_ns, diagnostics = monitor.reports.latest("needle_simulator: integration")
+        diagnostics_bag_time = (report_clock_ns - reader.start_time_ns) / 1e9
+        stereo_pairs = monitor.reports.latest("needle_stereo: measurement")[1]
         cpu = {c.name: c.cpu_seconds() for c in children.started if c.process.poll() is None}
         say(f"bag done: {len(monitor.errors)} comparisons seen; stopping the nodes")
         for child in reversed(children.started):

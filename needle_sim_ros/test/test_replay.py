@@ -66,21 +66,6 @@ def resume(node) -> None:
     node.destroy_client(client)
 
 
-def play_when_matched(node, ros_env, bag: Path, subscriber: str, topics: tuple[str, ...], *args: str):
-    """needle_replay started paused and resumed once ``subscriber`` reports each of ``topics`` matched from its own
-    side (its input report on /diagnostics), so that no message is lost to discovery."""
-    matched: dict[str, int] = {}
-    reports = node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: matched.update(
-        {kv.key: int(kv.value) for s in m.status if s.name == input_status_name(subscriber) for kv in s.values}),
-        QoSProfile(depth=10))
-    player = start(ros_env, "needle_replay", str(bag), "--start-paused", *args)
-    spin_until(node, lambda: all(matched.get(t, 0) > 0 for t in topics), 20.0)
-    node.destroy_subscription(reports)
-    assert all(matched.get(t, 0) > 0 for t in topics), matched
-    resume(node)
-    return player
-
-
 def test_playback_schedule_maps_bag_time_to_wall_time():
     schedule = PlaybackSchedule(bag_start_ns=1_000, wall_start_ns=50, rate=2.0)
     assert schedule.wall_time_ns(1_000 + 400) == 50 + 200
@@ -109,8 +94,8 @@ def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(nod
         QoSProfile(depth=count)))
     node.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec),
                              QoSProfile(depth=1000))
-    player = play_when_matched(node, ros_env, tmp_path / "wrench.mcap", "replay_test", ("/replayed/wrench",),
-                               "--rate", str(rate), "--clock", "200", "--ros-args", "-r", "/wrench:=/replayed/wrench")
+    player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--rate", str(rate), "--clock", "200",
+                   "--wait-for-subscribers", "20", "--ros-args", "-r", "/wrench:=/replayed/wrench")
     try:
         spin_until(node, lambda: len(arrivals) == count and player.poll() is not None, 40.0)
         out, _ = player.communicate(timeout=10)
@@ -218,8 +203,7 @@ def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(no
                      "-p", f"log.path:={tmp_path / 'log.mcap'}", "-p", f"summary_path:={tmp_path / 'summary.json'}")
     try:
         spin_until(node, lambda: node.count_publishers("/shape_error") > 0, 20.0)
-        player = play_when_matched(node, ros_env, tmp_path / "shapes.mcap", "needle_compare",
-                                   ("/model/shape", "/measured/shape"))
+        player = start(ros_env, "needle_replay", str(tmp_path / "shapes.mcap"), "--wait-for-subscribers", "20")
         out, _ = player.communicate(timeout=40)
         assert player.returncode == 0, out
         # Every measurement but the last is decided by the next model shape (the last waits for one).

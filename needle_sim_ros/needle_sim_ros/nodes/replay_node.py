@@ -8,16 +8,20 @@ the QoS the recorded publishers offered; ``--clock`` publishes the playback time
 Topics are renamed with ROS remapping rules (``--ros-args -r /wrench:=/replayed/wrench``), which apply to the
 recorded (absolute) topic names.
 
-``--start-paused`` creates the publishers and waits for a call of the service ``~/resume`` (std_srvs/Trigger)
-before playing, publishing the start time on /clock meanwhile (with ``--clock``): whoever calls it can first make
-sure that every subscriber has matched the publishers from its own side, which ``--wait-for-subscribers`` cannot
-see (messages published before that are lost; ``needle_vision.ros.input_status``).
+``--wait-for-subscribers S`` waits until every played topic has a subscriber and every subscriber that reports its
+inputs on /diagnostics (this suite's nodes: ``needle_vision.ros.input_status``) has matched the topic from its own
+side, following the start time on /clock with ``--clock``: discovery is two-sided, and messages published before
+the subscriber has matched the publisher are lost. ``--start-paused`` waits for a call of the service ``~/resume``
+(std_srvs/Trigger) first, for whoever starts the nodes to say when they are ready. Both hold the start time on
+/clock meanwhile.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
+from typing import Callable
 
 import rclpy
 from rclpy.node import Node
@@ -25,6 +29,8 @@ from rclpy.qos import QoSProfile
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
+
+from needle_vision.ros.input_status import InputReports
 
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
 from needle_sim_ros.recording import BagReadError, BagReader, PlaybackSchedule
@@ -59,7 +65,8 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--delay", type=_non_negative, default=0.0,
                         help="wait S seconds before playing (after --wait-for-subscribers)")
     parser.add_argument("--wait-for-subscribers", type=_non_negative, default=0.0, metavar="S",
-                        help="wait up to S seconds until every topic has a subscriber")
+                        help="wait up to S seconds until every topic has a subscriber, matched from the "
+                        "subscriber's side where it reports its inputs")
     parser.add_argument("--start-paused", action="store_true",
                         help="wait for a call of the service ~/resume (std_srvs/Trigger) before playing")
     parser.add_argument("--stop-on-corrupt", action="store_true",
@@ -100,24 +107,30 @@ class ReplayNode(Node):
         self.resumed, response.success, response.message = True, True, "playing"
         return response
 
-    def wait_for_resume(self) -> None:
-        """Serve ~/resume until it is called, the start time on /clock meanwhile."""
-        start = self.reader.start_time_ns + round(self.args.start_offset * 1e9)
-        period = 1.0 / self.args.clock if self.args.clock else 0.1
-        while rclpy.ok() and not self.resumed:
+    @property
+    def start_time_ns(self) -> int:
+        return self.reader.start_time_ns + round(self.args.start_offset * 1e9)
+
+    def hold_clock(self, done: Callable[[], bool], timeout: float = math.inf) -> None:
+        """Spin until ``done()`` or ``timeout`` [s], the start time on /clock meanwhile."""
+        deadline = time.monotonic() + timeout
+        period = 1.0 / self.args.clock if self.args.clock else 0.01
+        while rclpy.ok() and not done() and time.monotonic() < deadline:
             if self.clock_publisher is not None:
-                self.publish_clock(start)
+                self.publish_clock(self.start_time_ns)
             rclpy.spin_once(self, timeout_sec=period)
 
     def wait_for_subscribers(self, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        while rclpy.ok() and time.monotonic() < deadline:
-            if all(p.get_subscription_count() > 0 for p in self.publishers_by_topic.values()):
-                return
-            time.sleep(0.01)
-        lonely = [t for t, p in self.publishers_by_topic.items() if p.get_subscription_count() == 0]
-        if lonely:
-            self.get_logger().warning(f"no subscriber after {timeout} s on: {', '.join(lonely)}")
+        """Up to ``timeout`` [s] until every played topic has a subscriber and each subscriber that reports its
+        inputs has matched it from its own side (and, with --clock, follows the start time on /clock)."""
+        reports = InputReports(self)
+        topics = [p.topic_name for p in self.publishers_by_topic.values()]
+        clock_ns = self.start_time_ns if self.clock_publisher is not None else None
+        self.hold_clock(lambda: not reports.waiting(topics, time.monotonic(), clock_ns), timeout)
+        waiting = reports.waiting(topics, time.monotonic(), clock_ns)
+        reports.close()
+        if waiting:
+            self.get_logger().warning(f"playing after {timeout} s without: {'; '.join(waiting)}")
 
     def publish_clock(self, bag_time_ns: int) -> None:
         sec, nanosec = divmod(bag_time_ns, 1_000_000_000)
@@ -127,7 +140,7 @@ class ReplayNode(Node):
 
     def play_once(self) -> bool:
         """Publish every selected message at its due time; False if interrupted."""
-        start = self.reader.start_time_ns + round(self.args.start_offset * 1e9)
+        start = self.start_time_ns
         schedule = PlaybackSchedule(start, time.monotonic_ns(), self.args.rate)
         clock_period = round(1e9 / self.args.clock) if self.args.clock else 0
         next_clock = schedule.wall_start_ns
@@ -151,7 +164,7 @@ class ReplayNode(Node):
         return True
 
     def play(self) -> None:
-        self.wait_for_resume()
+        self.hold_clock(lambda: self.resumed)
         if self.args.wait_for_subscribers:
             self.wait_for_subscribers(self.args.wait_for_subscribers)
         if self.args.delay:  # after discovery, lets reliable connections settle before the first message

@@ -5,7 +5,8 @@ subscription has matched the publisher, and what it publishes in between never a
 knows its side, so each node reports it, twice a second of steady time (also while a simulated clock stands still):
 a ``DiagnosticStatus`` named ``<node>: inputs`` whose values are the resolved input topics with their matched
 publisher counts, WARN while one has none. The header stamp is the node's clock (with ``use_sim_time``: zero until
-its first ``/clock``), so a player can also tell that the node follows its clock (``scripts/main_job.py``).
+its first ``/clock``), so a player can also tell that the node follows its clock. :class:`InputReports` reads them
+(``needle_replay --wait-for-subscribers``).
 """
 from __future__ import annotations
 
@@ -54,3 +55,52 @@ class InputStatus:
                                   values=[KeyValue(key=topic, value=str(count)) for topic, count in counts.items()])
         self._publisher.publish(DiagnosticArray(header=Header(stamp=self._node.get_clock().now().to_msg()),
                                                 status=[status, *self._more_statuses()]))
+
+
+REPORT_GRACE = 1.5  # [s] a subscriber without an input report this long after it appeared is taken to send none
+
+
+class InputReports:
+    """The reading side, for a player (``needle_replay --wait-for-subscribers``): which subscribers of the topics it
+    is about to publish have not matched them yet by their own reports (and the last status of every name on
+    /diagnostics). A subscriber that sends no report (not one
+    of these nodes) counts as matched once the publisher sees it and :data:`REPORT_GRACE` has passed."""
+
+    def __init__(self, node: Node) -> None:
+        self._node = node
+        self._reports: dict[str, tuple[int, dict[str, str]]] = {}  # status name -> (node's clock [ns], values)
+        self._first_seen: dict[str, float] = {}  # subscriber node -> steady time [s] it was first seen
+        self._subscription = node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        clock_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        for status in msg.status:
+            self._reports[status.name] = (clock_ns, {kv.key: kv.value for kv in status.values})
+
+    def latest(self, status_name: str) -> tuple[int, dict[str, str]]:
+        """The last status of that name on /diagnostics: its node's clock [ns] and values ((0, {}) if none came)."""
+        return self._reports.get(status_name, (0, {}))
+
+    def waiting(self, topics: list[str], now: float, clock_ns: int | None = None) -> list[str]:
+        """What a publisher of the (resolved) ``topics`` still waits for at steady time ``now`` [s]: a subscriber at
+        all, a subscriber's report, its match, and (``clock_ns``: the player's /clock) its clock at ``clock_ns``."""
+        waiting = []
+        for topic in topics:
+            subscribers = self._node.get_subscriptions_info_by_topic(topic)
+            if not subscribers:
+                waiting.append(f"{topic}: no subscriber")
+            for info in subscribers:
+                name = info.node_name
+                seen = self._first_seen.setdefault(name, now)
+                report = self._reports.get(input_status_name(name))
+                if report is None:
+                    if now - seen < REPORT_GRACE:
+                        waiting.append(f"{topic}: no input report from {name} yet")
+                elif report[1].get(topic) == "0":
+                    waiting.append(f"{topic}: {name} has not matched a publisher")
+                elif clock_ns is not None and report[0] < clock_ns:
+                    waiting.append(f"{topic}: {name} has not received /clock")
+        return waiting
+
+    def close(self) -> None:
+        self._node.destroy_subscription(self._subscription)

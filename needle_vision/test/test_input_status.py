@@ -1,0 +1,59 @@
+"""InputReports: what a player still waits for, from the subscribers' own input reports (no ROS graph: a stand-in
+node with the graph query and the /diagnostics subscription)."""
+from types import SimpleNamespace
+
+import pytest
+
+pytest.importorskip("rclpy", reason="the input reports are ROS messages (diagnostic_msgs)")
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
+
+from needle_vision.ros.input_status import REPORT_GRACE, InputReports, input_status_name  # noqa: E402
+
+START_NS = 1_700_000_000_000_000_000
+
+
+class GraphStandIn:
+    """The two things InputReports asks of its node: the subscribers of a topic, and the /diagnostics callback."""
+
+    def __init__(self, subscribers: dict[str, list[str]]) -> None:
+        self.subscribers = subscribers
+        self.deliver = None
+
+    def create_subscription(self, _type, topic, callback, _qos):
+        assert topic == "/diagnostics"
+        self.deliver = callback
+        return object()
+
+    def get_subscriptions_info_by_topic(self, topic: str) -> list:
+        return [SimpleNamespace(node_name=name) for name in self.subscribers.get(topic, [])]
+
+
+def report(node_name: str, clock_ns: int, counts: dict[str, int]) -> DiagnosticArray:
+    msg = DiagnosticArray(status=[DiagnosticStatus(name=input_status_name(node_name), values=[
+        KeyValue(key=topic, value=str(count)) for topic, count in counts.items()])])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(clock_ns, 1_000_000_000)
+    return msg
+
+
+def test_a_player_waits_for_each_reporting_subscriber_to_match_and_follow_the_clock():
+    graph = GraphStandIn({"/base_pose": ["needle_simulator", "rviz"], "/tip_load": ["needle_simulator"]})
+    reports = InputReports(graph)
+    topics = ["/base_pose", "/tip_load", "/images"]
+    waiting = reports.waiting(topics, now=0.0, clock_ns=START_NS)
+    assert "/images: no subscriber" in waiting
+    assert "/base_pose: no input report from needle_simulator yet" in waiting
+    assert "/base_pose: no input report from rviz yet" in waiting
+    graph.subscribers["/images"] = ["needle_stereo"]
+    graph.deliver(report("needle_simulator", 0, {"/base_pose": 0, "/tip_load": 1}))
+    graph.deliver(report("needle_stereo", START_NS, {"/images": 1}))
+    waiting = reports.waiting(topics, now=REPORT_GRACE + 0.1, clock_ns=START_NS)
+    # rviz sends no report: after the grace its subscription (seen by the publisher) is taken as matched
+    assert waiting == ["/base_pose: needle_simulator has not matched a publisher",
+                       "/tip_load: needle_simulator has not received /clock"]
+    graph.deliver(report("needle_simulator", START_NS, {"/base_pose": 1, "/tip_load": 1}))
+    assert reports.waiting(topics, now=REPORT_GRACE + 0.2, clock_ns=START_NS) == []
+    # without a played /clock the stamps do not matter
+    graph.deliver(report("needle_simulator", 0, {"/base_pose": 1, "/tip_load": 1}))
+    assert reports.waiting(topics, now=REPORT_GRACE + 0.3) == []
+    assert reports.latest(input_status_name("needle_stereo")) == (START_NS, {"/images": "1"})
+    assert reports.latest("nobody: inputs") == (0, {})
