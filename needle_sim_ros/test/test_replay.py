@@ -142,7 +142,7 @@ def test_a_paused_replay_holds_the_start_time_until_resumed_and_subscribers_repo
                                  QoSProfile(depth=1000))
         node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: reports.extend(
             (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, s) for s in m.status
-            if s.name == input_status_name("paused_replay_test")), QoSProfile(depth=10))
+            if s.name == input_status_name("/", "paused_replay_test")), QoSProfile(depth=10))
         spin_until(node, lambda: reports, 10.0)
         assert reports and reports[0][1].values[0].key == "/paused/wrench" and reports[0][1].values[0].value == "0"
         assert reports[0][1].level == bytes([1])  # WARN: no publisher

@@ -25,35 +25,40 @@ class GraphStandIn:
         return object()
 
     def get_subscriptions_info_by_topic(self, topic: str) -> list:
-        return [SimpleNamespace(node_name=name) for name in self.subscribers.get(topic, [])]
+        return [SimpleNamespace(node_namespace=name.rsplit("/", 1)[0] or "/", node_name=name.rsplit("/", 1)[1])
+                for name in self.subscribers.get(topic, [])]
 
 
-def report(node_name: str, clock_ns: int, counts: dict[str, int]) -> DiagnosticArray:
-    msg = DiagnosticArray(status=[DiagnosticStatus(name=input_status_name(node_name), values=[
+def report(node: str, clock_ns: int, counts: dict[str, int]) -> DiagnosticArray:
+    msg = DiagnosticArray(status=[DiagnosticStatus(name=f"{node}: inputs", values=[
         KeyValue(key=topic, value=str(count)) for topic, count in counts.items()])])
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(clock_ns, 1_000_000_000)
     return msg
 
 
 def test_a_player_waits_for_each_reporting_subscriber_to_match_and_follow_the_clock():
-    graph = GraphStandIn({"/base_pose": ["needle_simulator", "rviz"], "/tip_load": ["needle_simulator"]})
+    graph = GraphStandIn({"/base_pose": ["/needle_simulator", "/rviz"], "/tip_load": ["/needle_simulator"]})
     reports = InputReports(graph)
     topics = ["/base_pose", "/tip_load", "/images"]
     waiting = reports.waiting(topics, now=0.0, clock_ns=START_NS)
     assert "/images: no subscriber" in waiting
-    assert "/base_pose: no input report from needle_simulator yet" in waiting
-    assert "/base_pose: no input report from rviz yet" in waiting
-    graph.subscribers["/images"] = ["needle_stereo"]
-    graph.deliver(report("needle_simulator", 0, {"/base_pose": 0, "/tip_load": 1}))
-    graph.deliver(report("needle_stereo", START_NS, {"/images": 1}))
+    assert "/base_pose: no input report from /needle_simulator yet" in waiting
+    assert "/base_pose: no input report from /rviz yet" in waiting
+    # a node of the same name in another namespace (another robot) is another subscriber, with its own report
+    graph.subscribers["/images"] = ["/needle_stereo", "/robot2/needle_stereo"]
+    graph.deliver(report("/needle_simulator", 0, {"/base_pose": 0, "/tip_load": 1}))
+    graph.deliver(report("/needle_stereo", START_NS, {"/images": 1}))
+    graph.deliver(report("/robot2/needle_stereo", START_NS, {"/images": 0}))
+    assert "/images: /robot2/needle_stereo has not matched a publisher" in reports.waiting(topics, 0.1, START_NS)
+    graph.deliver(report("/robot2/needle_stereo", START_NS, {"/images": 1}))
     waiting = reports.waiting(topics, now=REPORT_GRACE + 0.1, clock_ns=START_NS)
     # rviz sends no report: after the grace its subscription (seen by the publisher) is taken as matched
-    assert waiting == ["/base_pose: needle_simulator has not matched a publisher",
-                       "/tip_load: needle_simulator has not received /clock"]
-    graph.deliver(report("needle_simulator", START_NS, {"/base_pose": 1, "/tip_load": 1}))
+    assert waiting == ["/base_pose: /needle_simulator has not matched a publisher",
+                       "/tip_load: /needle_simulator has not received /clock"]
+    graph.deliver(report("/needle_simulator", START_NS, {"/base_pose": 1, "/tip_load": 1}))
     assert reports.waiting(topics, now=REPORT_GRACE + 0.2, clock_ns=START_NS) == []
     # without a played /clock the stamps do not matter
-    graph.deliver(report("needle_simulator", 0, {"/base_pose": 1, "/tip_load": 1}))
+    graph.deliver(report("/needle_simulator", 0, {"/base_pose": 1, "/tip_load": 1}))
     assert reports.waiting(topics, now=REPORT_GRACE + 0.3) == []
-    assert reports.latest(input_status_name("needle_stereo")) == (START_NS, {"/images": "1"})
+    assert reports.latest(input_status_name("/", "needle_stereo")) == (START_NS, {"/images": "1"})
     assert reports.latest("nobody: inputs") == (0, {})

@@ -2,11 +2,11 @@
 
 DDS discovery is two-sided: a publisher can see a subscription (``get_subscription_count``) before the
 subscription has matched the publisher, and what it publishes in between never arrives. Only the subscribing node
-knows its side, so each node reports it, twice a second of steady time (also while a simulated clock stands still):
-a ``DiagnosticStatus`` named ``<node>: inputs`` whose values are the resolved input topics with their matched
-publisher counts, WARN while one has none. The header stamp is the node's clock (with ``use_sim_time``: zero until
-its first ``/clock``), so a player can also tell that the node follows its clock. :class:`InputReports` reads them
-(``needle_replay --wait-for-subscribers``).
+knows its side, so each node reports it, twice a second of steady time (also while a simulated clock stands
+still): a ``DiagnosticStatus`` named ``/<namespace>/<node>: inputs`` whose values are the resolved input topics
+with their matched publisher counts, WARN while one has none. The header stamp is the node's clock (with
+``use_sim_time``: zero until its first ``/clock``), so a player can also tell that the node follows its clock.
+:class:`InputReports` reads them (``needle_replay --wait-for-subscribers``).
 """
 from __future__ import annotations
 
@@ -22,9 +22,10 @@ INPUT_STATUS_PERIOD = 0.5  # [s] of steady time between reports
 OK, WARN = 0, 1  # diagnostic_msgs/DiagnosticStatus levels
 
 
-def input_status_name(node_name: str) -> str:
-    """The status name a node's input report has."""
-    return f"{node_name}: inputs"
+def input_status_name(namespace: str, node_name: str) -> str:
+    """The status name a node's input report has: its fully qualified name (nodes of one name in two namespaces,
+    e.g. two robots, report apart)."""
+    return f"{namespace.rstrip('/')}/{node_name}: inputs"
 
 
 class InputStatus:
@@ -49,7 +50,7 @@ class InputStatus:
         counts = self.counts()
         unconnected = [topic for topic, count in counts.items() if count == 0]
         status = DiagnosticStatus(level=bytes([WARN if unconnected else OK]), hardware_id="needle_sim",
-                                  name=input_status_name(self._node.get_name()),
+                                  name=input_status_name(self._node.get_namespace(), self._node.get_name()),
                                   message=f"no publisher on {', '.join(unconnected)}" if unconnected else
                                   "every input has a publisher",
                                   values=[KeyValue(key=topic, value=str(count)) for topic, count in counts.items()])
@@ -90,9 +91,10 @@ class InputReports:
             if not subscribers:
                 waiting.append(f"{topic}: no subscriber")
             for info in subscribers:
-                name = info.node_name
+                status_name = input_status_name(info.node_namespace, info.node_name)
+                name = status_name.rsplit(": ", 1)[0]
                 seen = self._first_seen.setdefault(name, now)
-                report = self._reports.get(input_status_name(name))
+                report = self._reports.get(status_name)
                 if report is None:
                     if now - seen < REPORT_GRACE:
                         waiting.append(f"{topic}: no input report from {name} yet")
