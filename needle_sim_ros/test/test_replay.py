@@ -237,6 +237,19 @@ def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(no
     assert "rosbag2" in metadata and attachments == ["needle_compare_parameters.yaml"]
 
 
+@pytest.mark.parametrize("waiting", [["--start-paused"], ["--wait-for-subscribers", "60"], []])
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_a_stopped_replay_exits_cleanly_however_it_waits(ros_env, tmp_path, waiting, stop):
+    """SIGINT/SIGTERM while paused, while waiting for subscribers or while playing: exit 0, no traceback."""
+    wrench_bag(tmp_path / "wrench.mcap", 1000, 10_000_000)  # 10 s
+    player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--clock", *waiting)
+    time.sleep(3.0)
+    assert player.poll() is None
+    player.send_signal(stop)
+    out, _ = player.communicate(timeout=20)
+    assert player.returncode == 0 and "Traceback" not in out and "context is invalid" not in out, out
+
+
 @pytest.mark.parametrize("module, args, message", [
     ("compare_node", ["--ros-args", "-p", "extrinsic.rotation:=[0.0, 0.0, 0.0, 0.0]"], "extrinsic.rotation"),
     ("compare_node", ["--ros-args", "-p", "measured_input:=cloud"], "measured_input"),

@@ -24,6 +24,8 @@ import time
 from typing import Callable
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.utilities import remove_ros_args
@@ -196,12 +198,16 @@ def main(argv: list[str] | None = None) -> int:
             status = 2
         else:
             node.play()
-            node.get_logger().info(f"played {node.published} messages from {args.bag}")
+            # after a SIGINT/SIGTERM the node's /rosout publisher is gone: the console logger then
+            (node.get_logger() if rclpy.ok() else logger).info(f"played {node.published} messages from {args.bag}")
     except BagReadError as error:
         node.get_logger().fatal(str(error))
         status = 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # SIGINT/SIGTERM while spinning (paused or waiting)
         pass
+    except RCLError:  # a publish raced the shutdown by SIGINT/SIGTERM
+        if rclpy.ok():
+            raise
     finally:
         if reader.corrupt_chunks:
             node.get_logger().warning(f"skipped {reader.corrupt_chunks} corrupt chunk(s) of '{args.bag}'")
