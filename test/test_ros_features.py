@@ -202,20 +202,23 @@ def test_diagnostics_raise_and_clear(driver, ros_env, tmp_path):
     begun = time.time()
     process = start(driver, ros_env, tmp_path, **{"rates.diagnostics_hz": 5.0})
     wait_for(driver, lambda: driver.wrenches, process, what="a wrench")
-    level, message, values = wait_for_diagnostic(driver, process, lambda lv, m, v: lv == 0, "OK while posing")
-    assert message == "running"
+    # Each cause is looked for by its message: on a loaded machine a deadline-miss WARN may come and go beside it.
+    level, message, values = wait_for_diagnostic(driver, process, lambda lv, m, v: "waiting for" not in m,
+                                                 "a report after the first pose")
+    assert (level, message) == (0, "running") or "missed their deadline" in message, message
     # the stamp of the pose the needle started at: one of the driver's, in full (not rounded to 6 digits)
     assert begun <= float(values["started_at_s"]) <= time.time() and len(values["started_at_s"].split(".")[1]) == 6
-    # rejected input: a NaN pose -> WARN naming it, then OK again in a later window
+    # rejected input: a NaN pose -> WARN naming it, then cleared in a later window
     driver.pose(position=(math.nan, 0.0, 0.3))
-    level, message, values = wait_for_diagnostic(driver, process, lambda lv, m, v: lv == 1, "WARN after a NaN pose")
-    assert "rejected input: 1 poses" in message and values["poses_not_finite"] == "1"
-    wait_for_diagnostic(driver, process, lambda lv, m, v: lv == 0, "OK once the NaN pose is past")
-    # lost pose input: WARN holding, then OK when poses come back
-    level, message, _ = wait_for_diagnostic(driver, process, lambda lv, m, v: lv == 1, "WARN without poses",
-                                            send=False)
-    assert "holding the last pose" in message
-    wait_for_diagnostic(driver, process, lambda lv, m, v: lv == 0, "OK with poses again")
+    level, message, values = wait_for_diagnostic(driver, process, lambda lv, m, v: "rejected input" in m,
+                                                 "WARN after a NaN pose")
+    assert level == 1 and "rejected input: 1 poses" in message and values["poses_not_finite"] == "1"
+    wait_for_diagnostic(driver, process, lambda lv, m, v: "rejected input" not in m, "cleared after the NaN pose")
+    # lost pose input: WARN holding, then cleared when poses come back
+    level, _, _ = wait_for_diagnostic(driver, process, lambda lv, m, v: "holding the last pose" in m,
+                                      "WARN without poses", send=False)
+    assert level == 1
+    wait_for_diagnostic(driver, process, lambda lv, m, v: "holding the last pose" not in m, "cleared with poses again")
 
 
 def test_catching_up_simulated_time_is_not_a_deadline_miss(driver, ros_env, tmp_path):
