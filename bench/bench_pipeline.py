@@ -60,8 +60,8 @@ def offline_rows(directory: Path, repeats: int) -> list[str]:
 
 
 def live_rows(rates: list[float], directory: Path, from_source: bool) -> list[str]:
-    rows = ["| rate | compared / expected | dropped | simulator skipped [s] | mean step [ms] | RMSE mean [mm] | "
-            "CPU s: simulator / stereo / compare |", "|---|---|---|---|---|---|---|"]
+    rows = ["| rate | compared / expected | dropped | needle started at [s of bag] | simulator skipped [s] | "
+            "mean step [ms] | RMSE mean [mm] | CPU s: simulator / stereo / compare |", "|---" * 8 + "|"]
     env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     for rate in rates:
         root = directory / f"live_{rate:g}"
@@ -71,14 +71,15 @@ def live_rows(rates: list[float], directory: Path, from_source: bool) -> list[st
         result = subprocess.run(command + (["--from-source"] if from_source else []), env=env, capture_output=True,
                                 text=True, timeout=600)
         if result.returncode != 0 or not (out / "summary.json").is_file():
-            rows.append(f"| {rate:g} | main job failed (status {result.returncode}) | | | | | |")
+            rows.append(f"| {rate:g} | main job failed (status {result.returncode}) | | | | | | |")
             continue
         summary = json.loads((out / "summary.json").read_text())
         c, d, cpu = summary["comparison"], summary["simulator_diagnostics"], summary["cpu_seconds"]
         expected = summary["expected_measurements"]
         rmse = f"{c['rmse_mean_m'] * 1e3:.3f}" if c["rmse_mean_m"] is not None else "n/a"
         rows.append(f"| {rate:g} | {c['compared']} / {expected} | {expected - c['compared']} | "
-                    f"{d.get('skipped_time_s', '?')} | {float(d.get('step_time_mean_ms', 'nan')):.3f} | {rmse} | "
+                    f"{summary['needle_started_at_s']:.3f} | {d.get('skipped_time_s', '?')} | "
+                    f"{float(d.get('step_time_mean_ms', 'nan')):.3f} | {rmse} | "
                     + " / ".join(f"{cpu.get(n) or 0:.1f}"
                                  for n in ("needle_simulator", "needle_stereo", "needle_compare"))
                     + " |")

@@ -367,6 +367,8 @@ def run(args: argparse.Namespace) -> int:
         summary["expected_measurements"] = expected
         summary["simulator_diagnostics"] = diagnostics
         summary["stereo_diagnostics"] = stereo_pairs
+        # bag time [s] of the pose the needle (last) started at: 0 when the simulator got the bag's first pose
+        summary["needle_started_at_s"] = float(diagnostics.get("started_at_s", "nan")) - reader.start_time_ns / 1e9
         summary["cpu_seconds"] = cpu
         summary["plots"] = [str(p) for p in write_plots(log, out / "plots", experiment.settings.plot_instants, name)]
         summary_path.write_text(json.dumps(summary, indent=2) + "\n")
@@ -382,9 +384,8 @@ def run(args: argparse.Namespace) -> int:
                 f"{offline['comparison']['compared']} measurements, {offline['timing']['real_time_factor']:.2f}x "
                 f"real time ({root / 'offline'})")
         if diagnostics:
-            started = float(diagnostics.get("started_at_s", "nan")) - reader.start_time_ns / 1e9
             say(f"  simulator (last report, bag time {diagnostics_bag_time:.2f} s): {diagnostics.get('steps')} steps, "
-                f"needle started at bag time {started:.3f} s, mean step "
+                f"needle started at bag time {summary['needle_started_at_s']:.3f} s, mean step "
                 f"{diagnostics.get('step_time_mean_ms')} ms, skipped {diagnostics.get('skipped_time_s')} s, failed "
                 f"steps {diagnostics.get('failed_steps')}")
         if stereo_pairs:

@@ -217,7 +217,7 @@ def test_live_pipeline_of_node_processes_driven_by_replay(ros_env, tmp_path):
     assert summary["comparison"]["rmse_max_m"] < PAPER_RMSE
     assert "RMSE mean" in result.stdout and str(out / "needle_compare.mcap") in result.stdout
     # the replay played only once the nodes had matched it from their side: the needle started at the bag's first pose
-    assert "needle started at bag time 0.000 s" in result.stdout, result.stdout[-2000:]
+    assert abs(summary["needle_started_at_s"]) < 2.5e-3, result.stdout[-2000:]  # half the bag's pose period
     assert int(summary["stereo_diagnostics"]["pairs_measured"]) >= summary["comparison"]["compared"]
     assert_log_decodes_identically(out / "needle_compare.mcap")
 
