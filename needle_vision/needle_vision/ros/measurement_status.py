@@ -11,8 +11,9 @@ from collections import Counter
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
+from needle_vision.ros.input_status import OK, WARN
+
 OUTCOMES = ("measured", "background", "rejected", "skipped_no_calibration", "skipped_bad_encoding")
-OK, WARN = 0, 1  # diagnostic_msgs/DiagnosticStatus levels
 
 
 class MeasurementStatus:
