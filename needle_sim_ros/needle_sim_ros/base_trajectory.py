@@ -10,10 +10,14 @@ such motion.
 
 Each new sample changes the fit, so the fit's value at the last time already served to the integrator moves by up
 to the fit residual (~0.5 um for a cosine speed ramp sampled at 200 Hz). A prescribed base that jumps by that much
-rings the axially stiff needle (EA/L ~ 1e6 N/m) and the reaction wrench chatters. A new fit therefore starts with
-a correction that continues the previous motion at that time in position, velocity and acceleration (C2) and
-fades out with a quintic blend by the new newest sample (at least one mean sample interval, at most ``window``), so
-that corrections do not pile up: the served motion stays twice continuously differentiable.
+rings the axially stiff needle (EA/L ~ 1e6 N/m) and the reaction wrench chatters. A new fit therefore comes with
+a correction that continues the previously served motion at that time in position, velocity and acceleration (C2)
+and fades out with a quintic blend by the new newest sample (at least one mean sample interval, at most
+``window``): the served motion stays twice continuously differentiable. It is the current fit plus every
+correction still fading out, and a new correction makes up only for the change of the fit (and the hold): it
+never restates the earlier ones. (Restating them, one correction that replaced the last, was unstable when samples
+came ahead of the served time: each restated correction faded faster than the one before, and with 1 kHz poses
+integrated at a 200 Hz clock the served base oscillated with 1e6 rad/s^2 and most steps failed.)
 
 ROS-free: the node converts messages into :class:`PoseSample` and asks :meth:`BaseTrajectory.motion_at`.
 """
@@ -94,12 +98,13 @@ class BaseTrajectory:
         self._rejected: list[PoseSample] = []
         self._fit: np.ndarray | None = None  # quadratic coefficients, recomputed only when a sample arrives
         self._served: float | None = None  # latest time whose motion was served (the integrator's history)
-        # C2 correction of the current fit that continues the previous fit at ``_served``: its start time and the
-        # differences (previous minus current) of [position, velocity, acceleration, rotation vector (world),
-        # angular velocity, angular acceleration] there, (6, 3)
-        self._correction_start = 0.0
-        self._correction_blend = 1.0  # [s]
-        self._correction = np.zeros((6, 3))
+        # The C2 corrections still fading out (module docstring), oldest first: the differences (previous minus
+        # current served motion) of [position, velocity, acceleration, rotation vector (world), angular velocity,
+        # angular acceleration] at their start times, (k, 6, 3), the start times and blend lengths [s]
+        self._corrections = np.zeros((CORRECTION_CAPACITY, 6, 3))
+        self._correction_starts = np.zeros(CORRECTION_CAPACITY)
+        self._correction_blends = np.ones(CORRECTION_CAPACITY)
+        self._correction_count = 0
         self._previous: tuple[PoseSample, np.ndarray] | None = None  # newest sample and fit of the previous fit
 
     @property
@@ -112,7 +117,7 @@ class BaseTrajectory:
         self._rejected.clear()
         self._fit = None
         self._served = None
-        self._correction[:] = 0.0
+        self._correction_count = 0
         self._previous = None
 
     def _append(self, sample: PoseSample) -> None:
@@ -203,63 +208,73 @@ class BaseTrajectory:
     def _evaluate(self, times: np.ndarray, out: np.ndarray) -> None:
         newest = self._latest
         _evaluate_motions(self._fit, newest.t, newest.position, newest.orientation, self.limits.max_extrapolation,
-                          self._correction, self._correction_start, self._correction_blend, times, out)
+                          self._corrections, self._correction_starts, self._correction_blends,
+                          self._correction_count, times, out)
 
     def _refit(self, newest: PoseSample) -> None:
         """Fit the window ending at ``newest``; continue the previous served motion at the last served time."""
         continued = self._served is not None and self._previous is not None
         previous_sample, previous_fit = self._previous if continued else (newest, _NO_FIT)
-        self._fit, self._correction, self._correction_start, self._correction_blend = _refit_window(
+        self._fit, self._correction_count = _refit_window(
             self._times, self._positions, self._orientations, self._count, newest.t, newest.position,
             newest.orientation, self.limits.window, self.limits.max_extrapolation, continued,
             self._served if continued else 0.0, previous_sample.t, previous_sample.position,
-            previous_sample.orientation, previous_fit, self._correction, self._correction_start,
-            self._correction_blend)
+            previous_sample.orientation, previous_fit, self._corrections, self._correction_starts,
+            self._correction_blends, self._correction_count)
         self._previous = (newest, self._fit)
 
 
 _NO_FIT = np.zeros((0, 6))
+CORRECTION_CAPACITY = 128  # corrections kept at once (~40 with 1 kHz samples); beyond, the oldest is dropped
 
 
 @njit(cache=True)
 def _evaluate_motions(coeffs: np.ndarray, t_newest: float, p_newest: np.ndarray, q_newest: np.ndarray,
-                      max_extrapolation: float, delta: np.ndarray, start: float, blend: float, times: np.ndarray,
-                      out: np.ndarray) -> None:
-    """Packed motions at ``times`` of the fit ``coeffs`` of the window ending at the newest sample, plus the C2
-    correction ``delta`` (see :func:`_apply_correction`)."""
+                      max_extrapolation: float, deltas: np.ndarray, starts: np.ndarray, blends: np.ndarray,
+                      corrections: int, times: np.ndarray, out: np.ndarray) -> None:
+    """Packed motions at ``times`` of the fit ``coeffs`` of the window ending at the newest sample, plus the first
+    ``corrections`` C2 corrections (see :func:`_apply_correction`)."""
     _evaluate_fit(coeffs, t_newest, p_newest, q_newest, max_extrapolation, times, out)
-    _apply_correction(delta, start, blend, t_newest + max_extrapolation, times, out)
+    for k in range(corrections):
+        _apply_correction(deltas[k], starts[k], blends[k], t_newest + max_extrapolation, times, out)
 
 
 @njit(cache=True)
 def _refit_window(times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, count: int, t_newest: float,
                   p_newest: np.ndarray, q_newest: np.ndarray, window: float, max_extrapolation: float,
                   continued: bool, served: float, t_previous: float, p_previous: np.ndarray, q_previous: np.ndarray,
-                  previous_fit: np.ndarray, delta: np.ndarray, start: float,
-                  blend: float) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """(fit, correction, its start, its blend) of the window ending at the newest sample (one call per new sample).
+                  previous_fit: np.ndarray, deltas: np.ndarray, starts: np.ndarray, blends: np.ndarray,
+                  corrections: int) -> tuple[np.ndarray, int]:
+    """(fit, number of corrections) of the window ending at the newest sample (one call per new sample).
 
     Fit: quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest, (0, 6)
-    with fewer than 3 samples in the window. If ``continued``, the correction is the difference at ``served``
-    between the previous served motion (previous newest sample and fit, with its correction ``delta``, ``start``,
-    ``blend``) and the new fit; otherwise zero (start and blend kept)."""
+    with fewer than 3 samples in the window. If ``continued``, the corrections (``deltas``, ``starts``, ``blends``,
+    changed in place) lose those that ended a window before ``served`` and gain the difference at ``served``
+    between the previous served motion (previous newest sample and fit, with the corrections) and the new one (the
+    new fit, with the same corrections); otherwise there are none."""
     first = np.searchsorted(times[:count], t_newest - window)
     if count - first < 3:
         fit = np.zeros((0, 6))
     else:
         fit = _fit_samples(times[first:count] - t_newest, positions[first:count], orientations[first:count],
                            q_newest, max(window, 1e-9))
-    correction = np.zeros((6, 3))
     if not continued:
-        return fit, correction, start, blend
+        return fit, 0
     at = np.array([served])
     previous, current = np.empty((1, 19)), np.empty((1, 19))
-    _evaluate_motions(previous_fit, t_previous, p_previous, q_previous, max_extrapolation, delta, start, blend, at,
-                      previous)
-    _evaluate_motions(fit, t_newest, p_newest, q_newest, max_extrapolation, correction, start, blend, at, current)
+    _evaluate_motions(previous_fit, t_previous, p_previous, q_previous, max_extrapolation, deltas, starts, blends,
+                      corrections, at, previous)
+    _evaluate_motions(fit, t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends, corrections,
+                      at, current)
+    kept = 0
+    for k in range(corrections):  # the times still evaluated are after served - window; a full list drops its oldest
+        if starts[k] + blends[k] > served - window and not (k == 0 and corrections == deltas.shape[0]):
+            deltas[kept], starts[kept], blends[kept] = deltas[k], starts[k], blends[k]
+            kept += 1
     interval = (t_newest - times[first]) / max(count - 1 - first, 1)
-    return (fit, _motion_difference(previous[0], current[0]), served,
-            min(max(t_newest - served, interval), window))
+    deltas[kept] = _motion_difference(previous[0], current[0])
+    starts[kept], blends[kept] = served, min(max(t_newest - served, interval), window)
+    return fit, kept + 1
 
 
 @njit(cache=True)
