@@ -456,17 +456,20 @@ class NeedleSimulation:
         times = self._grid_time(data.step_index + np.arange(1, count + 1))
         motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
         i = 0
-        first_dt = float(times[0]) - data.state.t
-        if abs(first_dt - dt) > 0.05 * dt + 4.0 * math.ulp(abs(t_target)):  # after a grid shift (lock_phase)
-            records.append(self._step_or_restart(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
-                                                 first_dt))
-            data.step_index += 1
-            i = 1
         # the compiled sequence cannot advance the state of stateful contributions between its steps; one that runs
         # compiled itself (the tissue) takes the run, a step at a time if a hook reads each step's state
         stateful = [force for force in self.extra_forces if force.stateful]
         sequence = self.compiled_sequence and not stateful
         run = stateful[0] if self.compiled_sequence and len(stateful) == 1 and stateful[0].compiled_run else None
+        first_dt = float(times[0]) - data.state.t
+        if abs(first_dt - dt) > 0.05 * dt + 4.0 * math.ulp(abs(t_target)):  # after a grid shift (lock_phase)
+            forces = self.forces
+            if not (sequence and data.state.aux is not None and self.integrator.supports_sequence(forces)
+                    and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
+                records.append(self._step_or_restart(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
+                                                     first_dt))
+            data.step_index += 1
+            i = 1
         while i < count:
             if sequence and data.state.aux is not None:
                 forces = self.forces
@@ -499,11 +502,12 @@ class NeedleSimulation:
         return self.data.grid_origin + self.dt * index
 
     def _step_sequence(self, forces: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
-                       records: list[StepRecord]) -> int:
-        """Steps at the given times in one compiled run under ``forces`` (see :meth:`advance_to`); returns how many
-        were done."""
+                       records: list[StepRecord], dt: float | None = None) -> int:
+        """Steps of ``dt`` (default: the simulation's) at the given times in one compiled run under ``forces`` (see
+        :meth:`advance_to`); returns how many were done."""
         start = time.perf_counter()
-        result = self.integrator.step_sequence(self.state, self.dt, motions, rotations, forces, self.data.integrator)
+        result = self.integrator.step_sequence(self.state, self.dt if dt is None else dt, motions, rotations, forces,
+                                               self.data.integrator)
         self._record_run(result, start, times, motions, rotations, records)
         return result.done
 

@@ -69,6 +69,28 @@ def test_compiled_sequence_agrees_with_one_step_at_a_time():
         np.testing.assert_allclose(result.states[i, 1], state.qd, atol=1e-5)
 
 
+def test_a_shifted_step_runs_compiled_and_agrees_with_the_general_path(monkeypatch):
+    """After a grid shift (lock_phase) the next step lasts (1 + shift) dt: it runs on the compiled sequence like the
+    others (before: the general path, ~3x the time) and ends where the general path does."""
+    sims = [simulation_from_parameters({**PARAMETERS, "integrator.newton_tolerance": 1e-9}) for _ in range(2)]
+    sims[1].compiled_sequence = False  # the reference: every step on the general path
+    for sim in sims:
+        for k in range(60):
+            sim.offer_pose(k * 1e-3, *pitching(k * 1e-3))
+        sim.advance(0.010, deterministic=True)
+        sim.data.grid_origin += 0.4e-3  # what lock_phase does: the next step lasts 1.4 dt
+    general = []
+    monkeypatch.setattr(sims[0], "step", lambda *args, **kwargs: general.append(args))
+    compiled, reference = (sim.advance(0.030, deterministic=True) for sim in sims)
+    assert not general
+    assert [r.t for r in compiled] == [r.t for r in reference] and compiled[0].t == pytest.approx(0.0114)
+    length = sims[0].model.props.length
+    np.testing.assert_allclose(sims[0].state.q, sims[1].state.q, atol=1e-9 * length)
+    for ours, theirs in zip(compiled, reference):
+        np.testing.assert_allclose(ours.wrench.force_base, theirs.wrench.force_base,
+                                   atol=1e-6 * np.abs(theirs.wrench.force_base).max())
+
+
 def test_base_motions_of_a_sequence_equal_the_single_evaluations():
     sim = simulation_from_parameters({**PARAMETERS, "flange_offset.position": [0.01, 0.0, 0.02],
                                       "flange_offset.orientation": [0.0, 0.0, 0.38268343, 0.92387953]})
