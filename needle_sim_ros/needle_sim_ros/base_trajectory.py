@@ -225,7 +225,7 @@ class BaseTrajectory:
 
 
 _NO_FIT = np.zeros((0, 6))
-CORRECTION_CAPACITY = 128  # corrections kept at once (~40 with 1 kHz samples); beyond, the oldest is dropped
+CORRECTION_CAPACITY = 128  # corrections kept at once (up to ~window / sample interval); beyond, the oldest is dropped
 
 
 @njit(cache=True)
@@ -249,7 +249,7 @@ def _refit_window(times: np.ndarray, positions: np.ndarray, orientations: np.nda
 
     Fit: quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest, (0, 6)
     with fewer than 3 samples in the window. If ``continued``, the corrections (``deltas``, ``starts``, ``blends``,
-    changed in place) lose those that ended a window before ``served`` and gain the difference at ``served``
+    changed in place) lose those that have ended by ``served`` and gain the difference at ``served``
     between the previous served motion (previous newest sample and fit, with the corrections) and the new one (the
     new fit, with the same corrections); otherwise there are none."""
     first = np.searchsorted(times[:count], t_newest - window)
@@ -267,8 +267,8 @@ def _refit_window(times: np.ndarray, positions: np.ndarray, orientations: np.nda
     _evaluate_motions(fit, t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends, corrections,
                       at, current)
     kept = 0
-    for k in range(corrections):  # the times still evaluated are after served - window; a full list drops its oldest
-        if starts[k] + blends[k] > served - window and not (k == 0 and corrections == deltas.shape[0]):
+    for k in range(corrections):  # the steps still to come end after served; a full list drops its oldest
+        if starts[k] + blends[k] > served and not (k == 0 and corrections == deltas.shape[0]):
             deltas[kept], starts[kept], blends[kept] = deltas[k], starts[k], blends[k]
             kept += 1
     interval = (t_newest - times[first]) / max(count - 1 - first, 1)
@@ -374,11 +374,11 @@ def _apply_correction(delta: np.ndarray, start: float, blend: float, hold_time: 
     """Add c(tau) = (d0 + d1 tau + d2 tau^2 / 2) g(tau), tau = t - start, to the packed motions ``out`` (position and
     world rotation vector, with their first two derivatives), g = 1 - (10 x^3 - 15 x^4 + 6 x^5), x = tau / blend:
     c, c', c'' equal the differences at tau = 0 and vanish from tau = blend on. Held (at rest) times are left."""
-    c, c1, c2 = np.empty(3), np.empty(3), np.empty(3)
     for i in range(times.size):
         tau = times[i] - start
         if tau < 0.0 or tau >= blend or times[i] > hold_time:
             continue
+        c, c1, c2 = np.empty(3), np.empty(3), np.empty(3)  # only here: most corrections have faded at most times
         x = tau / blend
         g = 1.0 - x * x * x * (10.0 - 15.0 * x + 6.0 * x * x)
         g1 = -30.0 * x * x * (1.0 - x) * (1.0 - x) / blend
