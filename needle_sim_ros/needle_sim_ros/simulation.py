@@ -463,20 +463,18 @@ class NeedleSimulation:
         run = stateful[0] if self.compiled_sequence and len(stateful) == 1 and stateful[0].compiled_run else None
         first_dt = float(times[0]) - data.state.t
         if abs(first_dt - dt) > 0.05 * dt + 4.0 * math.ulp(abs(t_target)):  # after a grid shift (lock_phase)
-            forces = self.forces
-            if not (sequence and data.state.aux is not None and self.integrator.supports_sequence(forces)
+            forces = self._sequence_forces(sequence)
+            if not (forces is not None
                     and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
                 records.append(self._step_or_restart(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
                                                      first_dt))
             data.step_index += 1
             i = 1
         while i < count:
-            if sequence and data.state.aux is not None:
-                forces = self.forces
-                if self.integrator.supports_sequence(forces):
-                    done = self._step_sequence(forces, times[i:], motions[i:], rotations[i:], records)
-                    data.step_index += done
-                    i += done
+            if (forces := self._sequence_forces(sequence)) is not None:
+                done = self._step_sequence(forces, times[i:], motions[i:], rotations[i:], records)
+                data.step_index += done
+                i += done
             elif run is not None and data.state.aux is not None:
                 stop = i + 1 if self.after_step is not None else count
                 done = self._run_steps(run, times[i:stop], motions[i:stop], rotations[i:stop], records)
@@ -500,6 +498,14 @@ class NeedleSimulation:
         """End time of step ``index`` since the (re)start: origin + index dt, rounded once (no accumulation: at
         epoch times a sum of 1 ms steps would drift by 70 ns per step)."""
         return self.data.grid_origin + self.dt * index
+
+    def _sequence_forces(self, sequence: bool) -> list | None:
+        """The contributions of a compiled run from the current state, or None where it does not apply (``sequence``
+        False, no consistent accelerations yet, or a contribution the sequence cannot take)."""
+        if not (sequence and self.data.state.aux is not None):
+            return None
+        forces = self.forces
+        return forces if self.integrator.supports_sequence(forces) else None
 
     def _step_sequence(self, forces: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                        records: list[StepRecord], dt: float | None = None) -> int:
