@@ -165,14 +165,16 @@ class ReplayNode(Node):
             self.published += 1
         return True
 
-    def play(self) -> None:
+    def play(self) -> bool:
+        """Wait as asked, then play (again with --loop); False if interrupted."""
         self.hold_clock(lambda: self.resumed)
         if self.args.wait_for_subscribers:
             self.wait_for_subscribers(self.args.wait_for_subscribers)
         if self.args.delay:  # after discovery, lets reliable connections settle before the first message
             time.sleep(self.args.delay)
-        while self.play_once() and self.args.loop:
+        while (completed := self.play_once()) and self.args.loop:
             pass
+        return completed
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -191,28 +193,37 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     rclpy.init(args=argv)
     node = ReplayNode(reader, args)
-    status = 0
+    status, played, interrupted = 0, False, False
     try:
         if not node.publishers_by_topic:
             node.get_logger().fatal(f"nothing to play from '{args.bag}'")
             status = 2
         else:
-            node.play()
-            # after a SIGINT/SIGTERM the node's /rosout publisher is gone: the console logger then
-            (node.get_logger() if rclpy.ok() else logger).info(f"played {node.published} messages from {args.bag}")
+            played, interrupted = True, not node.play()
     except BagReadError as error:
         node.get_logger().fatal(str(error))
         status = 2
     except (KeyboardInterrupt, ExternalShutdownException):  # SIGINT/SIGTERM while spinning (paused or waiting)
-        pass
+        played, interrupted = True, True
     except RCLError:  # a publish raced the shutdown by SIGINT/SIGTERM
         if rclpy.ok():
             raise
+        played, interrupted = True, True
     finally:
-        if reader.corrupt_chunks:
-            node.get_logger().warning(f"skipped {reader.corrupt_chunks} corrupt chunk(s) of '{args.bag}'")
+        def closing(log) -> None:
+            if played:
+                log.info(f"played {node.published} messages from {args.bag}")
+            if reader.corrupt_chunks:
+                log.warning(f"skipped {reader.corrupt_chunks} corrupt chunk(s) of '{args.bag}'")
+
+        # on /rosout as well, unless a SIGINT/SIGTERM is taking the context and with it the node's /rosout publisher
+        # down (in rclpy's signal thread, at any moment): then on the console, once the node is gone
+        if not interrupted:
+            closing(node.get_logger())
         node.destroy_node()
         rclpy.try_shutdown()
+        if interrupted:
+            closing(logger)
     return status
 
 
