@@ -23,7 +23,7 @@ from launch_ros.events.lifecycle import ChangeState
 from launch_ros.substitutions import FindPackageShare
 from lifecycle_msgs.msg import Transition
 
-from needle_sim_ros.launch_support import MODES, experiment_file, mode_settings, unique_log_path
+from needle_sim_ros.launch_support import MODES, experiment_file, mode_settings, player_arguments, unique_log_path
 
 ARGUMENTS = {
     "mode": ("sim", f"what runs: {' | '.join(MODES)}"),
@@ -67,12 +67,15 @@ def _nodes(context):
             target_lifecycle_node=simulator, start_state="configuring", goal_state="inactive",
             entities=[EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
                                                   transition_id=Transition.TRANSITION_ACTIVATE))])))
+    nodes = ["needle_simulator"]  # the nodes the bag player waits for
     if _flag(arg["stereo"], settings["stereo"]):
+        nodes.append("needle_stereo")
         actions.append(Node(package="needle_vision", executable="needle_stereo", name="needle_stereo",
                             namespace=arg["namespace"], output="screen",
                             parameters=[f"{stereo_config}/needle_stereo.yaml", common,
                                         {"output_frame": "world"}, *extra]))
     if _flag(arg["compare"], settings["compare"]):
+        nodes.append("needle_compare")
         actions.append(Node(
             package="needle_sim_ros", executable="needle_compare", name="needle_compare",
             namespace=arg["namespace"], output="screen",
@@ -80,9 +83,10 @@ def _nodes(context):
                         {"log.path": unique_log_path(arg["log"], arg["log_dir"])}],
             remappings=[("model/shape", "needle/shape"), ("measured/shape", "needle/measured_shape"),
                         ("base_pose", arg["pose_topic"]), ("wrench", arg["wrench_topic"])]))
-    if settings["player"]:  # the bag starts once the simulator is active (the other nodes started before it)
+    if settings["player"]:  # once the simulator is active and every node has matched the bag's topics it reads
         player = Node(package="needle_sim_ros", executable="needle_replay", name="needle_replay",
-                      namespace=arg["namespace"], output="screen", arguments=[arg["bag"], "--clock"])
+                      namespace=arg["namespace"], output="screen",
+                      arguments=player_arguments(arg["bag"], arg["namespace"], nodes))
         actions.append(RegisterEventHandler(OnStateTransition(
             target_lifecycle_node=simulator, start_state="activating", goal_state="active", entities=[player])))
     return actions

@@ -42,3 +42,15 @@ def mode_settings(mode: str, bag: str) -> dict[str, bool]:
         raise ValueError("launch argument 'bag' is empty: mode:=replay needs bag:=/path/to/bag.mcap")
     return {"use_sim_time": mode == "replay", "player": mode == "replay", "stereo": mode == "replay",
             "compare": mode == "replay"}
+
+
+PLAYER_WAIT = 30.0  # [s] the bag player waits at most this long for the nodes to match its topics
+
+
+def player_arguments(bag: str, namespace: str, nodes: list[str]) -> list[str]:
+    """``needle_replay``'s arguments in mode:=replay: the whole bag in simulated time (/clock), played once each
+    of ``nodes`` (names in ``namespace``) has matched, from its own side, the bag's topics it subscribes to:
+    discovery is two-sided, and what is played before a subscriber has matched is lost."""
+    prefix = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    return [bag, "--clock", "--wait-for-subscribers", f"{PLAYER_WAIT:g}",
+            "--wait-for-nodes", *(f"{prefix}/{node}" for node in nodes)]

@@ -453,7 +453,7 @@ class NeedleSimulation:
         count = math.floor((t_target + slack - data.grid_origin) / dt) - data.step_index
         if count <= 0:
             return records
-        times = self._grid_time(data.step_index + np.arange(1, count + 1))
+        times = np.array([self._grid_time(index) for index in range(data.step_index + 1, data.step_index + count + 1)])
         motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
         i = 0
         # the compiled sequence cannot advance the state of stateful contributions between its steps; one that runs
@@ -536,7 +536,7 @@ class NeedleSimulation:
             stats = self.statistics
             stats.steps += done
             stats.step_wall_times.extend([wall] * done)
-            stats.max_newton_iterations = max(stats.max_newton_iterations, int(result.iterations.max()))
+            stats.max_newton_iterations = max(stats.max_newton_iterations, max(result.iterations.tolist()))
 
     def _run_steps(self, run, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                    records: list[StepRecord]) -> int:

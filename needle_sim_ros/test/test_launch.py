@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
-from needle_sim_ros.launch_support import experiment_file, mode_settings, unique_log_path
+from needle_sim_ros.launch_support import experiment_file, mode_settings, player_arguments, unique_log_path
 
 SHARE = Path(get_package_share_directory("needle_sim_ros"))
 LAUNCH_FILES = {"bringup.launch.py": {"mode", "bag", "experiment", "stereo", "compare", "log", "log_dir",
@@ -108,3 +108,12 @@ def test_modes():
         mode_settings("replay", "")
     with pytest.raises(ValueError, match="must be one of sim, replay, hil"):
         mode_settings("real", "")
+
+
+def test_the_bag_player_waits_for_the_nodes_that_read_the_bag():
+    """mode:=replay plays the whole bag (ground truth for RViz too) once each node has matched its inputs."""
+    assert player_arguments("a.mcap", "", ["needle_simulator", "needle_stereo"]) == [
+        "a.mcap", "--clock", "--wait-for-subscribers", "30", "--wait-for-nodes", "/needle_simulator", "/needle_stereo"]
+    for namespace in ("robot1", "/robot1", "/robot1/"):
+        assert player_arguments("a.mcap", namespace, ["needle_compare"])[-1] == "/robot1/needle_compare"
+    assert player_arguments("a.mcap", "/", ["needle_compare"])[-1] == "/needle_compare"

@@ -237,6 +237,35 @@ def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(no
     assert "rosbag2" in metadata and attachments == ["needle_compare_parameters.yaml"]
 
 
+def test_a_replay_waiting_for_named_nodes_plays_once_they_matched_and_loses_nothing(node, ros_env, tmp_path):
+    """--wait-for-nodes (the launch files): the named node's inputs hold the start, a recorded topic nobody reads
+    (ground truth) does not hold it for the whole timeout; every message of the node's input arrives."""
+    count = 20
+    with McapBagWriter(tmp_path / "two.mcap") as writer:
+        for topic in ("/wrench", "/ground_truth/wrench"):
+            writer.add_topic(topic, "geometry_msgs/msg/WrenchStamped", [OfferedQos(depth=100)])
+        for k in range(count):
+            msg = WrenchStamped()
+            msg.wrench.force.x = float(k)
+            for topic in ("/wrench", "/ground_truth/wrench"):
+                writer.write(topic, serialize_message(msg), BAG_START_NS + k * 10_000_000)
+    arrivals = []
+    InputStatus(node).track(node.create_subscription(WrenchStamped, "/wrench", lambda m: arrivals.append(
+        int(m.wrench.force.x)), QoSProfile(depth=count)))
+    started = time.monotonic()
+    player = start(ros_env, "needle_replay", str(tmp_path / "two.mcap"), "--clock", "100",
+                   "--wait-for-subscribers", "60", "--wait-for-nodes", "replay_test")
+    try:
+        spin_until(node, lambda: player.poll() is not None, 40.0)
+        spin_until(node, lambda: len(arrivals) == count, 2.0)
+        out, _ = player.communicate(timeout=10)
+    finally:
+        player.kill()
+    assert player.returncode == 0 and "playing after" not in out, out
+    assert time.monotonic() - started < 30.0, out
+    assert arrivals == list(range(count)), out
+
+
 @pytest.mark.parametrize("waiting", [["--start-paused"], ["--wait-for-subscribers", "60"], []])
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
 def test_a_stopped_replay_exits_cleanly_however_it_waits(ros_env, tmp_path, waiting, stop):
@@ -255,6 +284,7 @@ def test_a_stopped_replay_exits_cleanly_however_it_waits(ros_env, tmp_path, wait
     ("compare_node", ["--ros-args", "-p", "measured_input:=cloud"], "measured_input"),
     ("replay_node", ["/nonexistent/bag.mcap"], "/nonexistent/bag.mcap"),
     ("replay_node", ["x.mcap", "--rate", "0"], "--rate"),
+    ("replay_node", ["x.mcap", "--wait-for-nodes", "/needle_simulator"], "--wait-for-nodes"),
 ])
 def test_bad_input_exits_non_zero_naming_the_culprit(ros_env, module, args, message):
     result = subprocess.run([sys.executable, "-m", f"needle_sim_ros.nodes.{module}", *args], env=ros_env,

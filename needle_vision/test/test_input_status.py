@@ -62,3 +62,22 @@ def test_a_player_waits_for_each_reporting_subscriber_to_match_and_follow_the_cl
     assert reports.waiting(topics, now=REPORT_GRACE + 0.3) == []
     assert reports.latest(input_status_name("/", "needle_stereo")) == (START_NS, {"/images": "1"})
     assert reports.latest("nobody: inputs") == (0, {})
+
+
+def test_a_player_waiting_for_named_nodes_waits_for_their_inputs_only():
+    """--wait-for-nodes: each named node's report, a match of each played topic it reads, its clock; a topic no named
+    node reads (a bag's ground truth) holds nothing, whoever else subscribes to it (or nobody)."""
+    graph = GraphStandIn({"/base_pose": ["/needle_simulator"], "/ground_truth/shape": ["/rviz"]})
+    reports = InputReports(graph)
+    topics = ["/base_pose", "/ground_truth/shape", "/ground_truth/wrench"]
+    nodes = ["/needle_simulator", "/robot2/needle_compare"]
+    assert reports.waiting_for(nodes, topics, START_NS) == ["no input report from /needle_simulator yet",
+                                                           "no input report from /robot2/needle_compare yet"]
+    graph.deliver(report("/needle_simulator", START_NS, {"/base_pose": 0, "/tip_load": 0}))
+    graph.deliver(report("/robot2/needle_compare", 0, {"/base_pose": 1, "/robot2/needle/shape": 0}))
+    assert reports.waiting_for(nodes, topics, START_NS) == ["/base_pose: /needle_simulator has not matched a publisher",
+                                                           "/robot2/needle_compare has not received /clock"]
+    graph.deliver(report("/needle_simulator", START_NS, {"/base_pose": 1, "/tip_load": 0}))
+    graph.deliver(report("/robot2/needle_compare", START_NS, {"/base_pose": 1, "/robot2/needle/shape": 0}))
+    assert reports.waiting_for(nodes, topics, START_NS) == []  # the unplayed /tip_load and needle/shape hold nothing
+    assert reports.waiting_for(nodes, topics) == []

@@ -1,7 +1,8 @@
 """needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
 
     needle_replay BAG [--rate R] [--start-offset S] [--loop] [--topics T ...] [--clock [HZ]] [--delay S]
-                      [--wait-for-subscribers S] [--start-paused] [--ros-args -r FROM:=TO ...]
+                      [--wait-for-subscribers S [--wait-for-nodes NODE ...]] [--start-paused]
+                      [--ros-args -r FROM:=TO ...]
 
 BAG is a .mcap file or a bag directory. Messages are published as the recorded CDR bytes (no deserialization) with
 the QoS the recorded publishers offered; ``--clock`` publishes the playback time on /clock for use_sim_time.
@@ -11,9 +12,11 @@ recorded (absolute) topic names.
 ``--wait-for-subscribers S`` waits until every played topic has a subscriber and every subscriber that reports its
 inputs on /diagnostics (this suite's nodes: ``needle_vision.ros.input_status``) has matched the topic from its own
 side, following the start time on /clock with ``--clock``: discovery is two-sided, and messages published before
-the subscriber has matched the publisher are lost. ``--start-paused`` waits for a call of the service ``~/resume``
-(std_srvs/Trigger) first, for whoever starts the nodes to say when they are ready. Both hold the start time on
-/clock meanwhile.
+the subscriber has matched the publisher are lost. With ``--wait-for-nodes /needle_simulator ...`` it waits for
+those nodes instead: until each has reported and matched the played topics it subscribes to, while topics none of
+them subscribes to (a bag's ground truth) hold nothing (the launch files play whole bags this way).
+``--start-paused`` waits for a call of the service ``~/resume`` (std_srvs/Trigger) first, for whoever starts the
+nodes to say when they are ready. Both hold the start time on /clock meanwhile.
 """
 from __future__ import annotations
 
@@ -54,6 +57,14 @@ def _non_negative(text: str) -> float:
     return value
 
 
+def _node_name(text: str) -> str:
+    """A node's fully qualified name; a name without the leading slash is in the root namespace."""
+    name = text.strip("/")
+    if not name:
+        raise argparse.ArgumentTypeError(f"not a node name: '{text}'")
+    return f"/{name}"
+
+
 def parse_arguments(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog=NODE_NAME, description=__doc__.split("\n\n")[0],
                                      epilog="Remap topics with ROS arguments: --ros-args -r FROM:=TO")
@@ -69,13 +80,19 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--wait-for-subscribers", type=_non_negative, default=0.0, metavar="S",
                         help="wait up to S seconds until every topic has a subscriber, matched from the "
                         "subscriber's side where it reports its inputs")
+    parser.add_argument("--wait-for-nodes", nargs="+", metavar="NODE", type=_node_name,
+                        help="with --wait-for-subscribers: wait for these nodes (fully qualified names) instead, until "
+                        "each has matched the played topics it subscribes to; other topics hold nothing")
     parser.add_argument("--start-paused", action="store_true",
                         help="wait for a call of the service ~/resume (std_srvs/Trigger) before playing")
     parser.add_argument("--stop-on-corrupt", action="store_true",
                         help="stop at a corrupt chunk (default: skip it, count it and warn)")
     parser.add_argument("--allow-type-mismatch", action="store_true", help="also play topics whose recorded type "
                         "differs from what the suite's nodes expect on that name (default: skip them)")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.wait_for_nodes and not args.wait_for_subscribers:
+        parser.error("--wait-for-nodes needs --wait-for-subscribers S (how long to wait for them)")
+    return args
 
 
 class ReplayNode(Node):
@@ -124,15 +141,22 @@ class ReplayNode(Node):
 
     def wait_for_subscribers(self, timeout: float) -> None:
         """Up to ``timeout`` [s] until every played topic has a subscriber and each subscriber that reports its
-        inputs has matched it from its own side (and, with --clock, follows the start time on /clock)."""
+        inputs has matched it from its own side (and, with --clock, follows the start time on /clock); with
+        --wait-for-nodes, until each of those nodes has matched the played topics it subscribes to."""
         reports = InputReports(self)
         topics = [p.topic_name for p in self.publishers_by_topic.values()]
         clock_ns = self.start_time_ns if self.clock_publisher is not None else None
-        self.hold_clock(lambda: not reports.waiting(topics, time.monotonic(), clock_ns), timeout)
-        waiting = reports.waiting(topics, time.monotonic(), clock_ns)
+        nodes = self.args.wait_for_nodes
+
+        def waiting() -> list[str]:
+            return reports.waiting_for(nodes, topics, clock_ns) if nodes else reports.waiting(
+                topics, time.monotonic(), clock_ns)
+
+        self.hold_clock(lambda: not waiting(), timeout)
+        missing = waiting()
         reports.close()
-        if waiting:
-            self.get_logger().warning(f"playing after {timeout} s without: {'; '.join(waiting)}")
+        if missing:
+            self.get_logger().warning(f"playing after {timeout} s without: {'; '.join(missing)}")
 
     def publish_clock(self, bag_time_ns: int) -> None:
         sec, nanosec = divmod(bag_time_ns, 1_000_000_000)

@@ -6,7 +6,7 @@ knows its side, so each node reports it, twice a second of steady time (also whi
 still): a ``DiagnosticStatus`` named ``/<namespace>/<node>: inputs`` whose values are the resolved input topics
 with their matched publisher counts, WARN while one has none. The header stamp is the node's clock (with
 ``use_sim_time``: zero until its first ``/clock``), so a player can also tell that the node follows its clock.
-:class:`InputReports` reads them (``needle_replay --wait-for-subscribers``).
+:class:`InputReports` reads them (``needle_replay --wait-for-subscribers``, ``--wait-for-nodes``).
 """
 from __future__ import annotations
 
@@ -102,6 +102,24 @@ class InputReports:
                     waiting.append(f"{topic}: {name} has not matched a publisher")
                 elif clock_ns is not None and report[0] < clock_ns:
                     waiting.append(f"{topic}: {name} has not received /clock")
+        return waiting
+
+    def waiting_for(self, nodes: list[str], topics: list[str], clock_ns: int | None = None) -> list[str]:
+        """What a publisher of the (resolved) ``topics`` still waits for from the named nodes (fully qualified names,
+        e.g. ``/needle_simulator``): each one's input report, a match of each of its inputs among ``topics``, and
+        (``clock_ns``: the player's /clock) its clock at ``clock_ns``. A topic none of them subscribes to (a bag's
+        ground truth) holds nothing, whoever else subscribes to it."""
+        waiting = []
+        for name in nodes:
+            report = self._reports.get(f"{name}: inputs")
+            if report is None:
+                waiting.append(f"no input report from {name} yet")
+                continue
+            node_clock_ns, counts = report
+            waiting.extend(f"{topic}: {name} has not matched a publisher"
+                           for topic in topics if counts.get(topic) == "0")
+            if clock_ns is not None and node_clock_ns < clock_ns:
+                waiting.append(f"{name} has not received /clock")
         return waiting
 
     def close(self) -> None:
