@@ -114,6 +114,8 @@ def test_the_bag_player_waits_for_the_nodes_that_read_the_bag():
     """mode:=replay plays the whole bag (ground truth for RViz too) once each node has matched its inputs."""
     assert player_arguments("a.mcap", "", ["needle_simulator", "needle_stereo"]) == [
         "a.mcap", "--clock", "--wait-for-subscribers", "30", "--wait-for-nodes", "/needle_simulator", "/needle_stereo"]
-    for namespace in ("robot1", "/robot1", "/robot1/"):
-        assert player_arguments("a.mcap", namespace, ["needle_compare"])[-1] == "/robot1/needle_compare"
+    for namespace in ("robot1", "/robot1", "/robot1/"):  # the bag's topics go where the namespaced nodes read them
+        assert player_arguments("a.mcap", namespace, ["needle_compare"]) == [
+            "a.mcap", "--clock", "--in-namespace", "--wait-for-subscribers", "30", "--wait-for-nodes",
+            "/robot1/needle_compare"]
     assert player_arguments("a.mcap", "/", ["needle_compare"])[-1] == "/needle_compare"

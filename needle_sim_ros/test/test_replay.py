@@ -237,9 +237,11 @@ def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(no
     assert "rosbag2" in metadata and attachments == ["needle_compare_parameters.yaml"]
 
 
-def test_a_replay_waiting_for_named_nodes_plays_once_they_matched_and_loses_nothing(node, ros_env, tmp_path):
+@pytest.mark.parametrize("namespace", ["", "/robot1"])
+def test_a_replay_waiting_for_named_nodes_plays_once_they_matched_and_loses_nothing(ros_env, tmp_path, namespace):
     """--wait-for-nodes (the launch files): the named node's inputs hold the start, a recorded topic nobody reads
-    (ground truth) does not hold it for the whole timeout; every message of the node's input arrives."""
+    (ground truth) does not hold it for the whole timeout; every message of the node's input arrives. In a
+    namespace (--in-namespace) the recorded /wrench goes to <namespace>/wrench, where the namespaced node reads it."""
     count = 20
     with McapBagWriter(tmp_path / "two.mcap") as writer:
         for topic in ("/wrench", "/ground_truth/wrench"):
@@ -249,18 +251,25 @@ def test_a_replay_waiting_for_named_nodes_plays_once_they_matched_and_loses_noth
             msg.wrench.force.x = float(k)
             for topic in ("/wrench", "/ground_truth/wrench"):
                 writer.write(topic, serialize_message(msg), BAG_START_NS + k * 10_000_000)
+    rclpy.init()
+    node = rclpy.create_node("named_test", namespace=namespace or "/")
     arrivals = []
-    InputStatus(node).track(node.create_subscription(WrenchStamped, "/wrench", lambda m: arrivals.append(
-        int(m.wrench.force.x)), QoSProfile(depth=count)))
-    started = time.monotonic()
-    player = start(ros_env, "needle_replay", str(tmp_path / "two.mcap"), "--clock", "100",
-                   "--wait-for-subscribers", "60", "--wait-for-nodes", "replay_test")
     try:
-        spin_until(node, lambda: player.poll() is not None, 40.0)
-        spin_until(node, lambda: len(arrivals) == count, 2.0)
-        out, _ = player.communicate(timeout=10)
+        InputStatus(node).track(node.create_subscription(WrenchStamped, "wrench", lambda m: arrivals.append(
+            int(m.wrench.force.x)), QoSProfile(depth=count)))
+        started = time.monotonic()
+        placement = ["--in-namespace", "--ros-args", "-r", f"__ns:={namespace}"] if namespace else []
+        player = start(ros_env, "needle_replay", str(tmp_path / "two.mcap"), "--clock", "100",
+                       "--wait-for-subscribers", "60", "--wait-for-nodes", f"{namespace}/named_test", *placement)
+        try:
+            spin_until(node, lambda: player.poll() is not None, 40.0)
+            spin_until(node, lambda: len(arrivals) == count, 2.0)
+            out, _ = player.communicate(timeout=10)
+        finally:
+            player.kill()
     finally:
-        player.kill()
+        node.destroy_node()
+        rclpy.shutdown()
     assert player.returncode == 0 and "playing after" not in out, out
     assert time.monotonic() - started < 30.0, out
     assert arrivals == list(range(count)), out

@@ -1,13 +1,14 @@
 """needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
 
     needle_replay BAG [--rate R] [--start-offset S] [--loop] [--topics T ...] [--clock [HZ]] [--delay S]
-                      [--wait-for-subscribers S [--wait-for-nodes NODE ...]] [--start-paused]
+                      [--in-namespace] [--wait-for-subscribers S [--wait-for-nodes NODE ...]] [--start-paused]
                       [--ros-args -r FROM:=TO ...]
 
 BAG is a .mcap file or a bag directory. Messages are published as the recorded CDR bytes (no deserialization) with
 the QoS the recorded publishers offered; ``--clock`` publishes the playback time on /clock for use_sim_time.
 Topics are renamed with ROS remapping rules (``--ros-args -r /wrench:=/replayed/wrench``), which apply to the
-recorded (absolute) topic names.
+recorded (absolute) topic names; ``--in-namespace`` publishes them in the player's namespace instead (``--ros-args
+-r __ns:=/robot1``: ``/wrench`` as ``/robot1/wrench``), where the nodes of a launch in that namespace read them.
 
 ``--wait-for-subscribers S`` waits until every played topic has a subscriber and every subscriber that reports its
 inputs on /diagnostics (this suite's nodes: ``needle_vision.ros.input_status``) has matched the topic from its own
@@ -77,6 +78,9 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
                         help="publish the playback time on /clock at HZ (default 100 when given)")
     parser.add_argument("--delay", type=_non_negative, default=0.0,
                         help="wait S seconds before playing (after --wait-for-subscribers)")
+    parser.add_argument("--in-namespace", action="store_true",
+                        help="publish the recorded topics in the player's namespace (/base_pose as <ns>/base_pose), "
+                        "where the nodes of a launch in that namespace read them")
     parser.add_argument("--wait-for-subscribers", type=_non_negative, default=0.0, metavar="S",
                         help="wait up to S seconds until every topic has a subscriber, matched from the "
                         "subscriber's side where it reports its inputs")
@@ -114,7 +118,7 @@ class ReplayNode(Node):
                                           f"installed ({error})")
                 continue
             self.publishers_by_topic[topic] = self.create_publisher(
-                message_type, topic, playback_qos(recorded.offered_qos))
+                message_type, topic.lstrip("/") if args.in_namespace else topic, playback_qos(recorded.offered_qos))
         self.clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1)) if args.clock else None
         self.published = 0
         self.resumed = not args.start_paused
