@@ -221,6 +221,21 @@ def test_diagnostics_raise_and_clear(driver, ros_env, tmp_path):
     wait_for_diagnostic(driver, process, lambda lv, m, v: "holding the last pose" not in m, "cleared with poses again")
 
 
+def test_poses_received_before_activation_are_dropped(driver, ros_env, tmp_path):
+    """A driver streaming before the node is active (autostart: its subscription queues poses while the kernels
+    load): the needle starts at a pose that came after activation, not at the oldest queued one (which made the
+    first steps lag by the queue's length: simulated time skipped and a warning at every start)."""
+    process = start(driver, ros_env, tmp_path, **{"rates.diagnostics_hz": 5.0})
+    wait_for(driver, lambda: driver.wrenches, process, what="a wrench")
+    _, _, values = wait_for_diagnostic(driver, process, lambda lv, m, v: "waiting for" not in m,
+                                       "a report after the first pose")
+    assert float(values["skipped_time_s"]) == 0.0, values
+    assert time.time() - float(values["started_at_s"]) < 2.0, values  # not a pose from before the kernels loaded
+    process.terminate()
+    output = process.communicate(timeout=10)[0]
+    assert "lagged" not in output and "dropped" in output, output
+
+
 def test_catching_up_simulated_time_is_not_a_deadline_miss(driver, ros_env, tmp_path):
     """A bag's /clock advancing 20 ms at a time: 20 steps per tick are catch-up, not missed deadlines."""
     clock_pub = driver.node.create_publisher(Clock, "/clock", 10)

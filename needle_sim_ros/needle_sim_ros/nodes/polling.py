@@ -32,9 +32,10 @@ class PolledCallbackGroup(CallbackGroup):
         pass
 
 
-def drain(subscription: Subscription, limit: int = 10_000) -> int:
+def drain(subscription: Subscription, limit: int = 10_000, run_callback: bool = True) -> int:
     """Run the subscription's callback on every message waiting in its queue, oldest first (at most ``limit``),
-    with the message info if the callback takes it, as rclpy's executor calls it; returns how many there were."""
+    with the message info if the callback takes it, as rclpy's executor calls it (``run_callback`` False: drop
+    them); returns how many there were."""
     count = 0
     with_info = subscription._callback_type is Subscription.CallbackType.WithMessageInfo  # as the executor reads it
     with subscription.handle:
@@ -42,7 +43,8 @@ def drain(subscription: Subscription, limit: int = 10_000) -> int:
             taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
             if taken is None:
                 break
-            subscription.callback(*(taken if with_info else taken[:1]))
+            if run_callback:
+                subscription.callback(*(taken if with_info else taken[:1]))
             count += 1
     return count
 

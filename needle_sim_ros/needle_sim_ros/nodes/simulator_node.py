@@ -155,11 +155,15 @@ class NeedleSimulatorNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state) -> TransitionCallbackReturn:
-        """Integrate again, starting straight at the next base pose (poses received while inactive are dropped)."""
+        """Integrate again, starting straight at the next base pose (poses received while inactive are dropped:
+        also those still queued, e.g. while the kernels loaded, whose lag would be skipped at the first steps)."""
         with self._lock:
             self.sim.trajectory.clear()
             self.sim.discard_state()
+            dropped = sum(drain(subscription, run_callback=False) for subscription in self._polled)
             self.active = True
+        if dropped:
+            self.get_logger().info(f"dropped {dropped} base pose/twist message(s) received before activation")
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
