@@ -81,3 +81,17 @@ def test_a_player_waiting_for_named_nodes_waits_for_their_inputs_only():
     graph.deliver(report("/robot2/needle_compare", START_NS, {"/base_pose": 1, "/robot2/needle/shape": 0}))
     assert reports.waiting_for(nodes, topics, START_NS) == []  # the unplayed /tip_load and needle/shape hold nothing
     assert reports.waiting_for(nodes, topics) == []
+
+
+def test_a_node_not_taking_input_holds_the_player():
+    """A report with accepting = false (the simulator before its lifecycle state is active: it drops its input)
+    holds both kinds of wait, however matched its inputs are."""
+    graph = GraphStandIn({"/base_pose": ["/needle_simulator"]})
+    reports = InputReports(graph)
+    graph.deliver(report("/needle_simulator", START_NS, {"/base_pose": 1, "accepting": "false"}))
+    assert reports.waiting(["/base_pose"], 0.0, START_NS) == ["/base_pose: /needle_simulator is not taking input yet"]
+    assert reports.waiting_for(["/needle_simulator"], ["/base_pose"], START_NS) == [
+        "/needle_simulator is not taking input yet"]
+    graph.deliver(report("/needle_simulator", START_NS, {"/base_pose": 1, "accepting": "true"}))
+    assert reports.waiting(["/base_pose"], 0.0, START_NS) == []
+    assert reports.waiting_for(["/needle_simulator"], ["/base_pose"], START_NS) == []

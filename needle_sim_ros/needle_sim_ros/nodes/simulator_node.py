@@ -103,7 +103,7 @@ class NeedleSimulatorNode(LifecycleNode):
             self.create_subscription(TwistStamped, topics["base_twist"], self.on_twist,
                                      qos_profile(self.p["qos.base_pose"], 100), callback_group=polled)]
         self._pose_waiter = MessageWaiter(self._polled, self.context)
-        InputStatus(self).track(*self._polled,
+        InputStatus(self, accepting=lambda: self.active).track(*self._polled,
                                 self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10))
         configured = lambda: self.sim is not None  # noqa: E731
         self.create_service(Trigger, "~/reset", when_configured(configured, self.on_reset))

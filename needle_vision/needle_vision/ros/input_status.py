@@ -4,8 +4,10 @@ DDS discovery is two-sided: a publisher can see a subscription (``get_subscripti
 subscription has matched the publisher, and what it publishes in between never arrives. Only the subscribing node
 knows its side, so each node reports it, twice a second of steady time (also while a simulated clock stands
 still): a ``DiagnosticStatus`` named ``/<namespace>/<node>: inputs`` whose values are the resolved input topics
-with their matched publisher counts, WARN while one has none. The header stamp is the node's clock (with
-``use_sim_time``: zero until its first ``/clock``), so a player can also tell that the node follows its clock.
+with their matched publisher counts, WARN while one has none. A node that drops its input while not ready (the
+simulator, until its lifecycle state is active) adds ``accepting``: ``true`` / ``false``. The header stamp is the
+node's clock (with ``use_sim_time``: zero until its first ``/clock``), so a player can also tell that the node
+follows its clock.
 :class:`InputReports` reads them (``needle_replay --wait-for-subscribers``, ``--wait-for-nodes``).
 """
 from __future__ import annotations
@@ -20,6 +22,7 @@ from std_msgs.msg import Header
 
 INPUT_STATUS_PERIOD = 0.5  # [s] of steady time between reports
 OK, WARN = 0, 1  # diagnostic_msgs/DiagnosticStatus levels
+ACCEPTING = "accepting"  # the report's key saying whether the node takes its input now
 
 
 def input_status_name(namespace: str, node_name: str) -> str:
@@ -29,12 +32,15 @@ def input_status_name(namespace: str, node_name: str) -> str:
 
 
 class InputStatus:
-    """Reports the matched publishers of the subscriptions given to :meth:`track`, and in the same array the
-    node's ``more_statuses()`` (e.g. the stereo node's pair counts)."""
+    """Reports the matched publishers of the subscriptions given to :meth:`track`, whether the node takes its
+    input (``accepting()``, if given), and in the same array the node's ``more_statuses()`` (e.g. the stereo
+    node's pair counts)."""
 
-    def __init__(self, node: Node, more_statuses: Callable[[], list[DiagnosticStatus]] = list) -> None:
+    def __init__(self, node: Node, more_statuses: Callable[[], list[DiagnosticStatus]] = list,
+                 accepting: Callable[[], bool] | None = None) -> None:
         self._node = node
         self._more_statuses = more_statuses
+        self._accepting = accepting
         self._subscriptions: list[Subscription] = []
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         node.create_timer(INPUT_STATUS_PERIOD, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -49,11 +55,15 @@ class InputStatus:
     def publish(self) -> None:
         counts = self.counts()
         unconnected = [topic for topic, count in counts.items() if count == 0]
+        accepting = self._accepting is None or self._accepting()
+        message = f"no publisher on {', '.join(unconnected)}" if unconnected else "every input has a publisher"
+        values = [KeyValue(key=topic, value=str(count)) for topic, count in counts.items()]
+        if self._accepting is not None:
+            values.append(KeyValue(key=ACCEPTING, value=str(accepting).lower()))
         status = DiagnosticStatus(level=bytes([WARN if unconnected else OK]), hardware_id="needle_sim",
                                   name=input_status_name(self._node.get_namespace(), self._node.get_name()),
-                                  message=f"no publisher on {', '.join(unconnected)}" if unconnected else
-                                  "every input has a publisher",
-                                  values=[KeyValue(key=topic, value=str(count)) for topic, count in counts.items()])
+                                  message=message if accepting else f"not taking input yet; {message}",
+                                  values=values)
         self._publisher.publish(DiagnosticArray(header=Header(stamp=self._node.get_clock().now().to_msg()),
                                                 status=[status, *self._more_statuses()]))
 
@@ -84,7 +94,8 @@ class InputReports:
 
     def waiting(self, topics: list[str], now: float, clock_ns: int | None = None) -> list[str]:
         """What a publisher of the (resolved) ``topics`` still waits for at steady time ``now`` [s]: a subscriber at
-        all, a subscriber's report, its match, and (``clock_ns``: the player's /clock) its clock at ``clock_ns``."""
+        all, a subscriber's report, its match, its taking input, and (``clock_ns``: the player's /clock) its clock at
+        ``clock_ns``."""
         waiting = []
         for topic in topics:
             subscribers = self._node.get_subscriptions_info_by_topic(topic)
@@ -100,15 +111,17 @@ class InputReports:
                         waiting.append(f"{topic}: no input report from {name} yet")
                 elif report[1].get(topic) == "0":
                     waiting.append(f"{topic}: {name} has not matched a publisher")
+                elif report[1].get(ACCEPTING) == "false":
+                    waiting.append(f"{topic}: {name} is not taking input yet")
                 elif clock_ns is not None and report[0] < clock_ns:
                     waiting.append(f"{topic}: {name} has not received /clock")
         return waiting
 
     def waiting_for(self, nodes: list[str], topics: list[str], clock_ns: int | None = None) -> list[str]:
         """What a publisher of the (resolved) ``topics`` still waits for from the named nodes (fully qualified names,
-        e.g. ``/needle_simulator``): each one's input report, a match of each of its inputs among ``topics``, and
-        (``clock_ns``: the player's /clock) its clock at ``clock_ns``. A topic none of them subscribes to (a bag's
-        ground truth) holds nothing, whoever else subscribes to it."""
+        e.g. ``/needle_simulator``): each one's input report, a match of each of its inputs among ``topics``, its
+        taking input, and (``clock_ns``: the player's /clock) its clock at ``clock_ns``. A topic none of them
+        subscribes to (a bag's ground truth) holds nothing, whoever else subscribes to it."""
         waiting = []
         for name in nodes:
             report = self._reports.get(f"{name}: inputs")
@@ -118,6 +131,8 @@ class InputReports:
             node_clock_ns, counts = report
             waiting.extend(f"{topic}: {name} has not matched a publisher"
                            for topic in topics if counts.get(topic) == "0")
+            if counts.get(ACCEPTING) == "false":
+                waiting.append(f"{name} is not taking input yet")
             if clock_ns is not None and node_clock_ns < clock_ns:
                 waiting.append(f"{name} has not received /clock")
         return waiting
