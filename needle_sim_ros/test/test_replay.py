@@ -5,6 +5,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -34,13 +35,22 @@ CAMERA_TO_MODEL = RigidTransform(Rotation.from_euler("zyx", [30.0, 10.0, -5.0], 
                                  [0.1, -0.2, 0.3])
 
 
+@contextmanager
+def own_node(name: str, **options):
+    """A node of this process in its own rclpy context (init, node, then destroyed and shut down)."""
+    rclpy.init()
+    node = rclpy.create_node(name, **options)
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+
+
 @pytest.fixture
 def node(ros_env):
-    rclpy.init()
-    node = rclpy.create_node("replay_test")
-    yield node
-    node.destroy_node()
-    rclpy.shutdown()
+    with own_node("replay_test") as node:
+        yield node
 
 
 def start(ros_env, executable: str, *args: str) -> subprocess.Popen:
@@ -74,14 +84,17 @@ def test_playback_schedule_maps_bag_time_to_wall_time():
         PlaybackSchedule(0, 0, rate=0.0)
 
 
-def wrench_bag(path: Path, count: int, period_ns: int) -> list[int]:
+def wrench_bag(path: Path, count: int, period_ns: int, topics: tuple[str, ...] = ("/wrench",)) -> list[int]:
+    """``count`` WrenchStamped (force.x = their index) every ``period_ns`` on each of ``topics``; their stamps."""
     stamps = [BAG_START_NS + k * period_ns for k in range(count)]
     with McapBagWriter(path) as writer:
-        writer.add_topic("/wrench", "geometry_msgs/msg/WrenchStamped", [OfferedQos(depth=100)])
+        for topic in topics:
+            writer.add_topic(topic, "geometry_msgs/msg/WrenchStamped", [OfferedQos(depth=100)])
         for k, stamp in enumerate(stamps):
             msg = WrenchStamped()
             msg.wrench.force.x = float(k)
-            writer.write("/wrench", serialize_message(msg), stamp)
+            for topic in topics:
+                writer.write(topic, serialize_message(msg), stamp)
     return stamps
 
 
@@ -131,10 +144,8 @@ def test_a_paused_replay_holds_the_start_time_until_resumed_and_subscribers_repo
     input report (needle_vision.ros.input_status) turns from no publisher to one matched, stamped with its /clock."""
     count = 20
     wrench_bag(tmp_path / "wrench.mcap", count, 10_000_000)
-    rclpy.init()
-    node = rclpy.create_node("paused_replay_test", parameter_overrides=[Parameter("use_sim_time", value=True)])
     arrivals, clocks, reports = [], [], []
-    try:
+    with own_node("paused_replay_test", parameter_overrides=[Parameter("use_sim_time", value=True)]) as node:
         inputs = InputStatus(node)
         inputs.track(node.create_subscription(WrenchStamped, "/paused/wrench", lambda m: arrivals.append(
             int(m.wrench.force.x)), QoSProfile(depth=count)))
@@ -159,9 +170,6 @@ def test_a_paused_replay_holds_the_start_time_until_resumed_and_subscribers_repo
             out, _ = player.communicate(timeout=10)
         finally:
             player.kill()
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
     assert player.returncode == 0, out
     assert arrivals == list(range(count)), out
     assert max(clocks) > BAG_START_NS
@@ -243,18 +251,9 @@ def test_a_replay_waiting_for_named_nodes_plays_once_they_matched_and_loses_noth
     (ground truth) does not hold it for the whole timeout; every message of the node's input arrives. In a
     namespace (--in-namespace) the recorded /wrench goes to <namespace>/wrench, where the namespaced node reads it."""
     count = 20
-    with McapBagWriter(tmp_path / "two.mcap") as writer:
-        for topic in ("/wrench", "/ground_truth/wrench"):
-            writer.add_topic(topic, "geometry_msgs/msg/WrenchStamped", [OfferedQos(depth=100)])
-        for k in range(count):
-            msg = WrenchStamped()
-            msg.wrench.force.x = float(k)
-            for topic in ("/wrench", "/ground_truth/wrench"):
-                writer.write(topic, serialize_message(msg), BAG_START_NS + k * 10_000_000)
-    rclpy.init()
-    node = rclpy.create_node("named_test", namespace=namespace or "/")
+    wrench_bag(tmp_path / "two.mcap", count, 10_000_000, ("/wrench", "/ground_truth/wrench"))
     arrivals = []
-    try:
+    with own_node("named_test", namespace=namespace or "/") as node:
         InputStatus(node).track(node.create_subscription(WrenchStamped, "wrench", lambda m: arrivals.append(
             int(m.wrench.force.x)), QoSProfile(depth=count)))
         started = time.monotonic()
@@ -267,9 +266,6 @@ def test_a_replay_waiting_for_named_nodes_plays_once_they_matched_and_loses_noth
             out, _ = player.communicate(timeout=10)
         finally:
             player.kill()
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
     assert player.returncode == 0 and "playing after" not in out, out
     assert time.monotonic() - started < 30.0, out
     assert arrivals == list(range(count)), out
