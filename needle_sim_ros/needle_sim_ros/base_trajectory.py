@@ -423,7 +423,10 @@ def _quadratic_fit(times: np.ndarray, values: np.ndarray, scale: float) -> np.nd
                         [c * d - b * e, a * e - c * c, b * c - a * d],
                         [b * d - c * c, b * c - a * d, a * c - b * b]])
     determinant = a * inverse[0, 0] + b * inverse[1, 0] + c * inverse[2, 0]
-    coeffs = (inverse / determinant) @ rhs
-    coeffs[1] /= scale
-    coeffs[2] /= scale * scale
+    coeffs = np.empty((3, values.shape[1]))
+    for row in range(3):  # scalar: a 3 x m product through BLAS costs more than the whole fit
+        unscale = 1.0 / (determinant * scale ** row)
+        for column in range(values.shape[1]):
+            coeffs[row, column] = unscale * (inverse[row, 0] * rhs[0, column] + inverse[row, 1] * rhs[1, column]
+                                             + inverse[row, 2] * rhs[2, column])
     return coeffs

@@ -35,7 +35,7 @@ def tube_triangles(points: np.ndarray, tangents: np.ndarray, radius: float, side
     """
     t = np.ascontiguousarray(tangents / np.linalg.norm(tangents, axis=1, keepdims=True))
     helper = np.array([0.0, 0.0, 1.0]) if abs(t[0, 2]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    first = cross(helper, t[0])
+    first = np.array(cross(helper, t[0]))
     angles = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
     return _tube_vertices(np.ascontiguousarray(points, dtype=float), t,
                           transported_normals(t, first / np.linalg.norm(first)), float(radius), np.cos(angles),

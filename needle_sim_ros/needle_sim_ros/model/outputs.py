@@ -141,7 +141,7 @@ def _tip_rotation(S_x: np.ndarray, slots: np.ndarray, q: np.ndarray, base_rotati
     y_axis = y_axis - (y_axis @ x_axis) * x_axis
     y_axis /= np.sqrt(y_axis @ y_axis)
     rotation = np.empty((3, 3))
-    rotation[:, 0], rotation[:, 1], rotation[:, 2] = x_axis, y_axis, cross(x_axis, y_axis)
+    rotation[:, 0], rotation[:, 1], rotation[:, 2] = x_axis, y_axis, np.array(cross(x_axis, y_axis))
     return rotation
 
 

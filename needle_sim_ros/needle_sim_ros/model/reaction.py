@@ -20,7 +20,7 @@ from numba import njit
 
 from .damping import add_axial_damping
 from .elastic import ElasticTables, add_elastic
-from .kinematics import BaseMotion, cross
+from .kinematics import BaseMotion, cross, rotate_back
 from .model import NeedleModel, State
 
 
@@ -86,10 +86,14 @@ def holder_wrench(r_xA: np.ndarray, constraint: np.ndarray, rotation: np.ndarray
     """[force, torque about A] of the needle on its holder in the world frame, then in the base frame (12,), from
     the constraint force Q_cc (6,) on [r_A, r_xA]: F = -Q_r, M = -r_xA x Q_rx (module docstring)."""
     result = np.empty(12)
-    result[0:3] = -constraint[:3]
-    result[3:6] = -cross(r_xA, constraint[3:6])
-    result[6:9] = rotation.T @ result[0:3]
-    result[9:12] = rotation.T @ result[3:6]
+    moment = cross(r_xA, constraint[3:6])
+    for c in range(3):
+        result[c] = -constraint[c]
+        result[3 + c] = -moment[c]
+    force_base, torque_base = rotate_back(rotation, result[0:3]), rotate_back(rotation, result[3:6])
+    for c in range(3):
+        result[6 + c] = force_base[c]
+        result[9 + c] = torque_base[c]
     return result
 
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from needle_sim_ros.model.kinematics import dot3, offset_dot
+
 from .coupling import lateral_quadrature, shaft_contact_points, slip_anchors, tip_contact
 from .geometry import LATERAL_ROWS, TIP_STIFFNESS_ROW, layer_row, layer_rows
 from .shaft_laws import NO_LAW, law_advance, law_coefficients
@@ -44,20 +46,20 @@ def advance_contact(punctured, time, vertices, arc, direction, previous_tip, end
     tangent, tip_depth, tip_speed = tip_contact(q, qd, entry_point, entry_normal)
     punctured = punctured or tip_depth > puncture_depth
     if punctured and arc.size == 0 and tip_depth > 0.0:
-        along = tangent @ entry_normal
+        along = dot3(tangent, entry_normal)
         if along > 1e-3:
             entry = r_tip - tangent * tip_depth / along
         else:
             entry = r_tip - entry_normal * tip_depth
         vertices, arc = entry.reshape(1, 3).copy(), np.zeros(1)
-        direction = tangent / np.sqrt(tangent @ tangent)
+        direction = tangent / np.sqrt(dot3(tangent, tangent))
         previous_tip, end_tangent = entry, direction
     at_front = False
     if arc.size >= 1:
         vertices, arc, end_tangent = cut_polyline(vertices, arc, end_tangent, previous_tip, r_tip, spacing)
         previous_tip = r_tip
         length = arc[-1]
-        at_front = tip_depth > 0.0 and length + (r_tip - vertices[-1]) @ end_tangent >= length - spacing
+        at_front = tip_depth > 0.0 and length + offset_dot(r_tip, vertices[-1], end_tangent) >= length - spacing
     step_duration = 0.0 if np.isnan(time) else max(t - time, 0.0)
     return (punctured, tip_depth, tip_speed, step_duration, at_front, vertices, arc, direction, previous_tip,
             end_tangent)

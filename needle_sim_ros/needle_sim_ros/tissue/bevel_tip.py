@@ -22,6 +22,8 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
+from needle_sim_ros.model.kinematics import dot3
+
 
 SIDE_ALONG_TANGENT = "bevel side direction is parallel to the needle tip tangent"
 
@@ -94,17 +96,17 @@ def tip_force_kernel(rx, side, p, q):
     iteration in the 1 kHz loop, hence compiled, in scalar loops: no small-matrix products).
     dF/dr_x = (-P I + Q dn/dm dm/dt) dt/dr_x with dt/dr_x = (I - t t^T)/|r_x|, m = side - (side.t) t,
     dm/dt = -(t side^T + (side.t) I), dn/dm = (I - n n^T)/|m|."""
-    rx_norm = np.sqrt(rx @ rx)
+    rx_norm = np.sqrt(dot3(rx, rx))
     t = rx / rx_norm
-    along = side @ t
+    along = dot3(side, t)
     m = side - along * t
-    m_norm = np.sqrt(m @ m)
+    m_norm = np.sqrt(dot3(m, m))
     force = np.zeros(3)
     jacobian = np.zeros((3, 3))
-    if m_norm < 1e-9 * np.sqrt(side @ side) or m_norm == 0.0:
+    if m_norm < 1e-9 * np.sqrt(dot3(side, side)) or m_norm == 0.0:
         return force, jacobian, False
     n = m / m_norm
-    n_t = n @ t
+    n_t = dot3(n, t)
     for i in range(3):
         force[i] = -p * t[i] + q * n[i]
     outer = np.empty((3, 3))  # B = -P I + Q dn/dm dm/dt

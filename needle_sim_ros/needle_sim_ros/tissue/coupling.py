@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros.model.forces import ElementLocalForce, assemble_point_forces
+from needle_sim_ros.model.kinematics import dot3, offset_dot
 from needle_sim_ros.model.mesh import hermite_shapes, interpolate
 
 from .bevel_tip import SIDE_ALONG_TANGENT, BevelTip, tip_force_kernel
@@ -41,9 +42,9 @@ from .track import Track, locate_on_polyline, project_on_blocks, project_on_poly
 def cutting_force(rx, v, cutting_force, speed_scale):
     """-F_c clip(v.t / v_c, 0, 1) t (t = r_x/|r_x|) and its derivatives with respect to r_x and v (compiled, in
     scalar loops): d/dr_x = -F_c (ramp I + slope t v^T)(I - t t^T)/|r_x|, d/dv = -F_c slope t t^T."""
-    rx_norm = np.sqrt(rx @ rx)
+    rx_norm = np.sqrt(dot3(rx, rx))
     t = rx / rx_norm
-    v_t = v @ t
+    v_t = dot3(v, t)
     argument = v_t / speed_scale
     ramp = min(max(argument, 0.0), 1.0)
     slope = 1.0 / speed_scale if 0.0 < argument < 1.0 else 0.0
@@ -97,7 +98,7 @@ def bevel_tip_assembly(q, rotation, side_base, axial_force, transverse_force, sc
 def capsule_force(r, entry_point, entry_normal, a1, a2):
     """Seed 002 eq. 1 before puncture: -(a1 x + a2 x^2) n at the tip depth x = n . (r - p0) > 0 (n the entry
     normal; zero above the surface) and its derivative with respect to r (conservative)."""
-    x = (r - entry_point) @ entry_normal
+    x = offset_dot(r, entry_point, entry_normal)
     if x <= 0.0:
         return np.zeros(3), np.zeros((3, 3))
     return -(a1 * x + a2 * x * x) * entry_normal, -(a1 + 2.0 * a2 * x) * np.outer(entry_normal, entry_normal)
@@ -133,9 +134,9 @@ class ContactState(NamedTuple):
 @njit(cache=True)
 def tip_contact(q, qd, entry_point, entry_normal):
     """Unit tangent, depth below the entry surface [m] and axial speed [m/s] of the tip at (q, qd)."""
-    rx_tip = q[-3:].copy()
-    tangent = rx_tip / np.sqrt(rx_tip @ rx_tip)
-    return tangent, (q[-6:-3] - entry_point) @ entry_normal, qd[-6:-3].copy() @ tangent
+    rx_tip = q[-3:]
+    tangent = rx_tip / np.sqrt(dot3(rx_tip, rx_tip))
+    return tangent, offset_dot(q[-6:-3], entry_point, entry_normal), dot3(qd[-6:-3], tangent)
 
 
 class TissueContact:
@@ -229,13 +230,12 @@ def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_dampi
     d_dv = np.zeros((n, 3, 3))
     for k in range(n):
         tau = tangents[k]
-        offset_k = r[k] - anchors[k]
-        u = offset_k @ tau
-        v_axial = v[k] @ tau
+        u = offset_dot(r[k], anchors[k], tau)
+        v_axial = dot3(v[k], tau)
         t, dt_du, dt_dv = axial_traction(u, v_axial, stick_stiffness, coulomb[k], viscous[k], offset, sign_gain,
                                          velocity_scale)
         for i in range(3):
-            force[k, i] = (-lateral_stiffness[k] * (offset_k[i] - u * tau[i])
+            force[k, i] = (-lateral_stiffness[k] * (r[k, i] - anchors[k, i] - u * tau[i])
                            - lateral_damping[k] * (v[k, i] - v_axial * tau[i]) + t * tau[i])
             for j in range(3):
                 tt = tau[i] * tau[j]

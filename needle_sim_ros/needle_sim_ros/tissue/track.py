@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from needle_sim_ros.model.kinematics import dot3, offset_dot
+
 
 END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at the default 0.1 mm spacing)
 
@@ -93,7 +95,7 @@ def chord_tangent(vertices, direction):
     if count < 2:
         return direction
     d = vertices[count - 1] - vertices[max(count - 1 - END_CHORD_SEGMENTS, 0)]
-    return d / np.sqrt(d @ d)
+    return d / np.sqrt(dot3(d, d))
 
 
 @njit(cache=True)
@@ -105,16 +107,16 @@ def cut_polyline(vertices, arc, end_tangent, previous, tip, spacing):
         count = arc.size
         length = arc[count - 1]
         end = vertices[count - 1]
-        ahead = length + (tip - end) @ end_tangent - length
+        ahead = length + offset_dot(tip, end, end_tangent) - length
         if not ahead >= spacing:
             return vertices, arc, end_tangent
-        behind = length + (previous - end) @ end_tangent - length
+        behind = length + offset_dot(previous, end, end_tangent) - length
         fraction = (spacing - behind) / (ahead - behind) if behind < spacing else 0.0
         previous = previous + fraction * (tip - previous)
         step = previous - end
         grown, grown_arc = np.empty((count + 1, 3)), np.empty(count + 1)
         grown[:count], grown_arc[:count] = vertices, arc
-        grown[count], grown_arc[count] = previous, length + np.sqrt(step @ step)
+        grown[count], grown_arc[count] = previous, length + np.sqrt(dot3(step, step))
         vertices, arc = grown, grown_arc
         end_tangent = chord_tangent(vertices, end_tangent)
 
