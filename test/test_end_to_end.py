@@ -146,7 +146,7 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     node.catch_up_steps = node.deadline_misses = 0
     node.get_logger = lambda: SimpleNamespace(info=print, warning=print)
     node.wrench_pub = SimpleNamespace(publish=published["wrench"].append)
-    node.shape_pub = SimpleNamespace(publish=published["shape"].append)
+    node.shape_pub = SimpleNamespace(publish=published["shape"].append, get_subscription_count=lambda: 1)
     node.state_pub, node.tf = SimpleNamespace(publish=lambda data: None), SimpleNamespace(send=lambda *args: None)
     node.sim.after_step = node.publish_shape_on_grid  # as on_configure in simulated time
     for now, data in [*poses, (end, None)]:  # the clock reaches the message, then its callback runs

@@ -1,8 +1,10 @@
 """needle_simulator as a real node in its own process, driven and read from this process (issue 4)."""
 import math
 import subprocess
+import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,6 +14,8 @@ from ament_index_python.packages import get_package_prefix
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape
 from needle_interfaces.srv import ApplyPointLoad, ClearPointLoads
+from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
+from nav_msgs.msg import Path as PathMsg
 from rclpy.qos import qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
 
@@ -171,6 +175,43 @@ def test_shape_follows_a_base_rotation(simulator):
     # The needle now points along world +y from the base at (0.4, 0, 0.3): tip at (0.4, L, 0.3) within 1 mm
     # (a residual vibration of the heavily damped needle after 2 s is far below that).
     np.testing.assert_allclose(np.mean(tips, axis=0), [0.4, LENGTH, 0.3], atol=1e-3)
+
+
+class StateTaken(Exception):
+    """Raised by a stub node's ``take_state``: an output is being computed."""
+
+
+@pytest.mark.parametrize("subscribed", ["", "shape", "state", "tf", "path", "pose_array", "marker"])
+def test_periodic_outputs_are_computed_only_for_subscribers(subscribed):
+    """With no subscriber on the shape outputs (shape, state, TF) nor on the visualization (path, pose array,
+    marker) the output thread computes nothing; one subscriber on any of them makes it take the state."""
+    node = object.__new__(NeedleSimulatorNode)  # the node's methods on a stub state, without a ROS context
+    node.p = {"rates.shape_hz": 100.0, "rates.visualization_hz": 10.0}
+    node.use_sim_time, node._lock = False, threading.Lock()
+    node._next_output = {"shape": 0.0, "visualization": 0.0}
+    node.sim = SimpleNamespace(started=True)
+    for name in ("shape", "state", "path", "pose_array", "marker"):
+        setattr(node, f"{name}_pub", SimpleNamespace(get_subscription_count=lambda name=name: int(name == subscribed)))
+    node.tf = SimpleNamespace(has_subscribers=lambda: subscribed == "tf")
+
+    def take_state():
+        raise StateTaken
+
+    node.take_state = take_state
+    if subscribed:
+        with pytest.raises(StateTaken):
+            node.publish_periodic_outputs(1.0)
+    else:
+        node.publish_periodic_outputs(1.0)
+
+
+def test_a_late_subscriber_gets_the_visualization(simulator):
+    simulator.start(**{"rates.visualization_hz": 20.0})
+    simulator.hold(0.3)
+    paths = []
+    simulator.node.create_subscription(PathMsg, "needle/path", paths.append, 10)
+    simulator.hold(1.0)
+    assert len(paths) >= 10 and len(paths[-1].poses) > 2
 
 
 def test_bad_inputs_are_survived_and_never_produce_nan(simulator):

@@ -468,7 +468,19 @@ class NeedleSimulatorNode(LifecycleNode):
         if record.t + 1e-9 < self._next_output["shape"] and record.t > self._next_output["shape"] - 2.0 / rate:
             return
         self._next_output["shape"] = (np.floor(record.t * rate + 1e-6) + 1.0) / rate
-        self.publish_shape(self.snapshot(*self.take_state()))
+        if self.shape_subscribed():
+            self.publish_shape(self.snapshot(*self.take_state()))
+
+    def shape_subscribed(self) -> bool:
+        """Whether anything subscribes to the shape outputs (shape, state, TF): outputs nobody takes are not
+        computed (with the shape and visualization outputs on, the latency p99 was 0.1-0.6 ms higher)."""
+        return (self.shape_pub.get_subscription_count() > 0 or self.state_pub.get_subscription_count() > 0
+                or self.tf.has_subscribers())
+
+    def visualization_subscribed(self) -> bool:
+        """Whether anything subscribes to the path, the pose array or the marker tube."""
+        return any(publisher.get_subscription_count() > 0
+                   for publisher in (self.path_pub, self.pose_array_pub, self.marker_pub))
 
     def take_state(self) -> tuple:
         """(model, a copy of the state, tissue readout): all the outputs need, taken with the lock held."""
@@ -494,8 +506,10 @@ class NeedleSimulatorNode(LifecycleNode):
         self.tf.send(stamp, snap["base"], (shape.tip_position, shape.tip_orientation))
 
     def publish_periodic_outputs(self, now: float) -> None:
-        shape_due = not self.use_sim_time and self.due("shape", now, self.p["rates.shape_hz"])
-        visualization_due = self.due("visualization", now, self.p["rates.visualization_hz"])
+        shape_due = (not self.use_sim_time and self.due("shape", now, self.p["rates.shape_hz"])
+                     and self.shape_subscribed())
+        visualization_due = (self.due("visualization", now, self.p["rates.visualization_hz"])
+                             and self.visualization_subscribed())
         if not (shape_due or visualization_due):
             return
         with self._lock:

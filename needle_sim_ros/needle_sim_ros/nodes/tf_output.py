@@ -26,6 +26,9 @@ class SimulatorTf:
         self.output = TfOutput(node)
         self.world, self.base, self.tip = world, base, tip
 
+    def has_subscribers(self) -> bool:
+        return self.output.has_subscribers()
+
     def send(self, stamp, base: BaseMotion | None, tip: tuple) -> None:
         if self.output.backend is None or base is None:
             return

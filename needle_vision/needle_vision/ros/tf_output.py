@@ -56,6 +56,14 @@ class TfOutput:
         self._tf_static_pub = node.create_publisher(TFMessage, TF_STATIC_TOPIC, TF_STATIC_QOS)
         self.backend = "tf2_msgs"
 
+    def has_subscribers(self) -> bool:
+        """Whether anything subscribes to ``/tf`` (tf2_ros's broadcaster: through its publisher ``pub_tf``; true if
+        a version without it cannot tell)."""
+        if self.backend == "tf2_ros":
+            publisher = getattr(self._dynamic, "pub_tf", None)
+            return publisher is None or publisher.get_subscription_count() > 0
+        return self.backend == "tf2_msgs" and self._tf_pub.get_subscription_count() > 0
+
     def send(self, transforms: list[TransformStamped]) -> None:
         if self.backend == "tf2_ros":
             self._dynamic.sendTransform(transforms)
