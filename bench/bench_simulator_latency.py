@@ -17,6 +17,10 @@ already integrated), and measures
 * poses late for their step: the node's ``poses_late_for_their_step`` relative to the accepted poses (a pose whose
   step was integrated before it arrived: its latency is about a step longer).
 
+The simulator computes its shape and visualization outputs only while something subscribes to them; this process
+subscribes to the wrench and the diagnostics only (a controller's view), or also to the shape and the path with
+``--with-outputs`` (RViz running beside it).
+
 With ``--echo`` the simulator is replaced by the transport floor of this machine: a process that answers each pose
 with a wrench stamped with the pose's stamp, taken and published as the simulator's loop does (the same polled
 subscription, wait set, QoS and ready-made CDR bytes), no simulation. The simulator cannot be faster than it.
@@ -43,6 +47,8 @@ import rclpy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from nav_msgs.msg import Path as Path_
+from needle_interfaces.msg import NeedleShape
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import serialize_message
@@ -129,6 +135,8 @@ def main() -> int:
                         help="another needle_simulator parameter (YAML value), e.g. loop.ahead_to_pose=false")
     parser.add_argument("--pose-path", action="store_true",
                         help="only measure the node's per-pose Python in this process (no simulator process)")
+    parser.add_argument("--with-outputs", action="store_true",
+                        help="also subscribe to needle/shape and needle/path (the node then computes its outputs)")
     parser.add_argument("--echo", action="store_true",
                         help="measure the transport floor: an echo process instead of the simulator")
     parser.add_argument("--serve-echo", action="store_true", help=argparse.SUPPRESS)  # the --echo process itself
@@ -168,6 +176,9 @@ def main() -> int:
     wrench_sub = node.create_subscription(WrenchStamped, "wrench", lambda data, info: wrenches.append(
         (stamp_seconds(data), info["received_timestamp"] * 1e-9, time.time())), qos_profile_sensor_data, raw=True,
         callback_group=PolledCallbackGroup())
+    if args.with_outputs:  # raw: their bytes are not decoded
+        for topic, kind in (("needle/shape", NeedleShape), ("needle/path", Path_)):
+            node.create_subscription(kind, topic, lambda data: None, 10, raw=True)
     node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diagnostics.append(
         {kv.key: kv.value for kv in m.status[0].values}) if m.status else None, 10)
     # Wrenches are taken on their own thread, blocked in a wait set between messages (no executor: ~0.1 ms of
@@ -257,7 +268,8 @@ def main() -> int:
 
     subject = "echo (transport floor, no simulation)" if args.echo else "needle_simulator"
     print(f"\n{subject}, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
-          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}; "
+          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}, "
+          f"{'shape and path subscribed' if args.with_outputs else 'no output subscribed'}; "
           f"load average (1 min) {load_before:.2f} before, {os.getloadavg()[0]:.2f} after")
     print("| metric | value | target |")
     print("|---|---|---|")
