@@ -9,7 +9,7 @@ from numba import njit
 
 from .elastic import elastic_energy
 from .forces import Gravity
-from .kinematics import cross, matrix_quaternion, quaternion_matrix, unit_quaternion
+from .kinematics import cross, dot3, matrix_quaternion, quaternion_matrix, unit_quaternion
 from .mesh import Interpolation, interpolate
 from .model import NeedleModel
 
@@ -137,9 +137,9 @@ def _tip_rotation(S_x: np.ndarray, slots: np.ndarray, q: np.ndarray, base_rotati
     else:
         normal = np.array([0.0, 1.0, 0.0])
     x_axis = tangents[-1]
-    y_axis = transported_normals(tangents, normal - (normal @ t0) * t0)[-1]
-    y_axis = y_axis - (y_axis @ x_axis) * x_axis
-    y_axis /= np.sqrt(y_axis @ y_axis)
+    y_axis = transported_normals(tangents, normal - dot3(normal, t0) * t0)[-1]
+    y_axis = y_axis - dot3(y_axis, x_axis) * x_axis
+    y_axis /= np.sqrt(dot3(y_axis, y_axis))
     rotation = np.empty((3, 3))
     rotation[:, 0], rotation[:, 1], rotation[:, 2] = x_axis, y_axis, np.array(cross(x_axis, y_axis))
     return rotation
