@@ -17,14 +17,18 @@ def default_workers() -> int:
 
 @contextmanager
 def open_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
-    """A ``distributed.Client``: connected to ``scheduler`` or to a new LocalCluster of ``workers`` processes."""
+    """A ``distributed.Client``: connected to ``scheduler`` or to a new LocalCluster of ``workers`` processes (whose
+    heartbeat failure at shutdown is not logged: :mod:`needle_sim_ros.batch.worker_logging`)."""
     from distributed import Client, LocalCluster
+
+    from needle_sim_ros.batch.worker_logging import QuietShutdownHeartbeat
     if scheduler:
         with Client(scheduler) as client:
             yield client
         return
     with LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
                       dashboard_address=":0", silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        client.register_plugin(QuietShutdownHeartbeat())
         yield client
 
 
