@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros import quaternion
-from needle_sim_ros.model.kinematics import quaternion_matrix
+from needle_sim_ros.model.kinematics import dot3, quaternion_matrix
 
 
 class PoseVerdict(Enum):
@@ -310,7 +310,8 @@ def _checked_pose(t: float, position: np.ndarray, orientation: np.ndarray, p_lat
 def _pose_deviation(p_ref: np.ndarray, q_ref: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[float, float]:
     """(distance [m], rotation angle [rad]) between two poses."""
     rotation = quaternion.to_rotation_vector(quaternion.multiply(quaternion.conjugate(q_ref), q))
-    return np.sqrt(np.sum((p - p_ref) ** 2)), np.sqrt(np.sum(rotation ** 2))
+    dx, dy, dz = p[0] - p_ref[0], p[1] - p_ref[1], p[2] - p_ref[2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz), np.sqrt(dot3(rotation, rotation))
 
 
 @njit(cache=True)

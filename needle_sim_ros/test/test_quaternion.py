@@ -11,7 +11,7 @@ B = Rotation.random(50, random_state=5)
 
 def test_product_and_conjugate_match_scipy():
     for a, b, ab in zip(A.as_quat(), B.as_quat(), (A * B).as_quat()):
-        assert abs(quaternion.multiply(a, b) @ ab) > 1 - 1e-12  # same rotation, up to sign
+        assert abs(np.array(quaternion.multiply(a, b)) @ ab) > 1 - 1e-12  # same rotation, up to sign
         np.testing.assert_allclose(quaternion.multiply(a, quaternion.conjugate(a)), [0, 0, 0, 1], atol=1e-12)
 
 
@@ -22,4 +22,4 @@ def test_rotation_vectors_match_scipy_including_tiny_and_half_turn_angles():
         np.testing.assert_allclose(quaternion.to_rotation_vector(-q), expected, atol=1e-9)
     vectors = np.vstack([RNG.normal(size=(20, 3)), [[0.0, 0.0, 0.0], [1e-12, 0.0, 0.0]]])
     for vector, expected in zip(vectors, Rotation.from_rotvec(vectors).as_quat()):
-        assert abs(quaternion.from_rotation_vector(vector) @ expected) > 1 - 1e-12
+        assert abs(np.array(quaternion.from_rotation_vector(vector)) @ expected) > 1 - 1e-12
