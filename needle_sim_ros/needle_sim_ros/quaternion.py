@@ -1,7 +1,7 @@
 """Unit-quaternion helpers (x, y, z, w order, as in ROS) for one quaternion at a time, compiled (numba).
 
 They run inside the compiled base-trajectory kernels, per pose sample: they take arrays or tuples and return
-tuples, so a chain of them allocates no temporary arrays (a 4-element array per call made the window fit 2.4x
+tuples, so a chain of them allocates no temporary arrays (a 4-element array per call made the window fit ~1.6x
 slower). Cheap to call from Python too (~1 µs; scipy's Rotation costs ~50 µs per construction, too much for a 1 kHz
 loop). The rotation matrix of a quaternion is :func:`needle_sim_ros.model.kinematics.quaternion_matrix`.
 """
