@@ -10,9 +10,9 @@
    JSON summary), each with its node config file and the bag's experiment file (config/experiments/<bag>.yaml);
    and ``needle_replay`` paused (``--start-paused``, publishing the bag's start time on /clock); waits until every
    node is up and reports on /diagnostics that each of its inputs the bag plays has matched the replay's publisher
-   and that its clock is at the bag's start (discovery is two-sided: what the replay publishes before that is
-   lost); then resumes the replay. When the bag is done and the last comparison is in, the nodes are stopped with
-   SIGINT (the comparison finalizes its log).
+   (and the comparison its inputs from the simulator and the stereo node) and that its clock is at the bag's start
+   (discovery is two-sided: what is published before that is lost); then resumes the replay. When the bag is done
+   and the last comparison is in, the nodes are stopped with SIGINT (the comparison finalizes its log).
 3. Prints the RMSE summary, how many measurements were compared, the simulator's and the stereo's last reports on
    /diagnostics (the simulator's comes once a second of bag time: it counts the steps up to then), the model's and the
    measurement's own error against the ground truth (synthetic bags) and where the MCAP log, summary and plots are
@@ -247,6 +247,7 @@ def run(args: argparse.Namespace) -> int:
     sys.path[:0] = [str(s) for s in SOURCES] if args.from_source else []
     from needle_sim_ros.offline.cli import main as offline_main
     from needle_sim_ros.offline.cli import summary_lines
+    from needle_sim_ros.parameters.compare import LOGGABLE_TOPICS
     from needle_sim_ros.parameters.experiment import experiment_for_bag, load_experiment, node_values
     from needle_sim_ros.offline.plots import write_plots
     from needle_sim_ros.offline.results import read_pipeline_log, versus_ground_truth
@@ -262,6 +263,7 @@ def run(args: argparse.Namespace) -> int:
     shown = experiment.path.relative_to(REPO) if experiment.path.is_relative_to(REPO) else experiment.path
     say(f"experiment parameters {shown}; outputs in {root}")
     stereo_params = node_values(experiment.files["needle_stereo"], "needle_stereo")
+    logged = node_values(experiment.files["needle_compare"], "needle_compare").get("log.topics", LOGGABLE_TOPICS)
     background = int(stereo_params.get("background.frames", 10))
     if args.start_offset or args.duration is not None:
         bag = slice_bag(bag, root / f"{name}_slice.mcap", args.start_offset, args.duration, background)
@@ -308,12 +310,16 @@ def run(args: argparse.Namespace) -> int:
         replay = children.start("needle_replay", [str(bag), "--clock", str(CLOCK_HZ), "--rate", str(args.rate),
                                                    "--start-paused", "--wait-for-subscribers", "10", "--topics",
                                                    *topics], args.from_source)
+        # the comparison's inputs from the other nodes, matched from its side too: what the simulator publishes
+        # before that is missing from the log
+        internal = ["/needle/shape", *(("/needle/measured_shape",) if stereo else ()),
+                    *(("/wrench",) if "wrench" in logged else ())]
         monitor = Monitor()
-        say("waiting for the nodes to come up and match the replay's publishers ...")
+        say("waiting for the nodes to come up and match the replay's and each other's publishers ...")
         deadline = time.monotonic() + START_TIMEOUT
         while True:
             monitor.spin(0.2)
-            missing = monitor.reports.waiting(topics, time.monotonic(), reader.start_time_ns)
+            missing = monitor.reports.waiting([*topics, *internal], time.monotonic(), reader.start_time_ns)
             if not missing and monitor.connected(stereo, fbg=not stereo) and monitor.simulator_active():
                 break
             failed = [c for c in children.started if c.failed()]

@@ -175,6 +175,60 @@ def test_a_paused_replay_holds_the_start_time_until_resumed_and_subscribers_repo
     assert max(clocks) > BAG_START_NS
 
 
+SUBSCRIBER = """
+import sys, rclpy
+from geometry_msgs.msg import WrenchStamped
+from rclpy.qos import QoSProfile
+rclpy.init()
+node = rclpy.create_node("acknowledging_subscriber")
+node.create_subscription(WrenchStamped, sys.argv[1], lambda m: print(int(m.wrench.force.x), flush=True),
+                         QoSProfile(depth=100))
+print("ready", flush=True)
+rclpy.spin(node)
+"""
+
+
+@pytest.mark.parametrize("acknowledging", [True, False])
+def test_the_replay_waits_for_its_reliable_subscribers_to_acknowledge_the_last_message(ros_env, tmp_path,
+                                                                                     acknowledging):
+    """--linger S: after the last message the player waits up to S s until every reliable subscriber acknowledged
+    everything (a lost fragment of the bag's last image is resent only then), /clock holding the last message's
+    time; a subscriber that stops acknowledging (its process stopped) keeps it the whole S s and is warned of."""
+    count, linger = 50, 3.0
+    stamps = wrench_bag(tmp_path / "wrench.mcap", count, 20_000_000)
+    subscriber = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, "/acked/wrench"], env=ros_env,
+                                  stdout=subprocess.PIPE, text=True)
+    clocks = []
+    try:
+        assert subscriber.stdout.readline().strip() == "ready"
+        with own_node("linger_test") as node:
+            node.create_subscription(Clock, "/clock", lambda m: clocks.append(
+                (time.monotonic(), m.clock.sec * 10**9 + m.clock.nanosec)), QoSProfile(depth=1000))
+            player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--clock", "100", "--linger",
+                           str(linger), "--wait-for-subscribers", "20", "--ros-args", "-r", "/wrench:=/acked/wrench")
+            try:
+                if not acknowledging:  # stopped once it has taken the first message: the others stay unacknowledged
+                    assert subscriber.stdout.readline().strip() == "0"
+                    subscriber.send_signal(signal.SIGSTOP)
+                spin_until(node, lambda: player.poll() is not None, 20.0)
+                out, _ = player.communicate(timeout=10)
+            finally:
+                player.kill()
+    finally:
+        subscriber.send_signal(signal.SIGCONT)
+        subscriber.kill()
+        subscriber.communicate()
+    assert player.returncode == 0, out
+    end = clocks[-1][1]  # held from the last message on, never going back
+    assert stamps[-1] <= end < stamps[-1] + 50_000_000 and np.all(np.diff([stamp for _, stamp in clocks]) >= 0)
+    held = [at for at, stamp in clocks if stamp == end]
+    if acknowledging:
+        assert "not acknowledged" not in out and held[-1] - held[0] < 0.5 * linger, out
+    else:
+        assert f"not acknowledged by every subscriber {linger:g} s after the last message: /acked/wrench" in out
+        assert held[-1] - held[0] == pytest.approx(linger, abs=0.5), out
+
+
 def shapes_bag(path: Path, count: int, offset: float) -> None:
     """Model shapes (world frame) at 50 Hz and stereo measurements 1 ms later, in the camera frame, offset from the
     model by ``offset`` normal to the needle's plane."""

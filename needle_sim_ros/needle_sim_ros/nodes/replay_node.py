@@ -1,8 +1,8 @@
 """needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
 
     needle_replay BAG [--rate R] [--start-offset S] [--loop] [--topics T ...] [--clock [HZ]] [--delay S]
-                      [--in-namespace] [--wait-for-subscribers S [--wait-for-nodes NODE ...]] [--start-paused]
-                      [--ros-args -r FROM:=TO ...]
+                      [--linger S] [--in-namespace] [--wait-for-subscribers S [--wait-for-nodes NODE ...]]
+                      [--start-paused] [--ros-args -r FROM:=TO ...]
 
 BAG is a .mcap file or a bag directory. Messages are published as the recorded CDR bytes (no deserialization) with
 the QoS the recorded publishers offered; ``--clock`` publishes the playback time on /clock for use_sim_time.
@@ -17,7 +17,10 @@ the subscriber has matched the publisher are lost. With ``--wait-for-nodes /need
 those nodes instead: until each has reported and matched the played topics it subscribes to, while topics none of
 them subscribes to (a bag's ground truth) hold nothing (the launch files play whole bags this way).
 ``--start-paused`` waits for a call of the service ``~/resume`` (std_srvs/Trigger) first, for whoever starts the
-nodes to say when they are ready. Both hold the start time on /clock meanwhile.
+nodes to say when they are ready. Both hold the start time on /clock meanwhile. After the last message the player
+waits up to ``--linger`` seconds until every reliable subscriber has acknowledged all it played (a large message
+whose fragment was lost is resent only then: on a loaded machine the last image of a bag could otherwise never
+arrive), holding the end time on /clock; it warns of the topics still unacknowledged.
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ from typing import Callable
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
@@ -42,6 +46,7 @@ from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
 from needle_sim_ros.recording import BagReadError, BagReader, PlaybackSchedule
 
 NODE_NAME = "needle_replay"
+LINGER = 10.0  # [s] longest wait for the acknowledgements after the last message (--linger)
 
 
 def _positive(text: str) -> float:
@@ -78,6 +83,9 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
                         help="publish the playback time on /clock at HZ (default 100 when given)")
     parser.add_argument("--delay", type=_non_negative, default=0.0,
                         help="wait S seconds before playing (after --wait-for-subscribers)")
+    parser.add_argument("--linger", type=_non_negative, default=LINGER, metavar="S",
+                        help="after the last message, wait up to S seconds until every reliable subscriber has "
+                        "acknowledged all of it (default %(default)g)")
     parser.add_argument("--in-namespace", action="store_true",
                         help="publish the recorded topics in the player's namespace (/base_pose as <ns>/base_pose), "
                         "where the nodes of a launch in that namespace read them")
@@ -121,6 +129,7 @@ class ReplayNode(Node):
                 message_type, topic.lstrip("/") if args.in_namespace else topic, playback_qos(recorded.offered_qos))
         self.clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1)) if args.clock else None
         self.published = 0
+        self.clock_ns = self.start_time_ns  # bag time [ns]: the last on /clock, at least the last message's
         self.resumed = not args.start_paused
         if args.start_paused:
             self.create_service(Trigger, "~/resume", self.on_resume)
@@ -134,13 +143,14 @@ class ReplayNode(Node):
     def start_time_ns(self) -> int:
         return self.reader.start_time_ns + round(self.args.start_offset * 1e9)
 
-    def hold_clock(self, done: Callable[[], bool], timeout: float = math.inf) -> None:
-        """Spin until ``done()`` or ``timeout`` [s], the start time on /clock meanwhile."""
+    def hold_clock(self, done: Callable[[], bool], timeout: float = math.inf, clock_ns: int | None = None) -> None:
+        """Spin until ``done()`` or ``timeout`` [s], ``clock_ns`` (default: the start time) on /clock meanwhile."""
         deadline = time.monotonic() + timeout
         period = 1.0 / self.args.clock if self.args.clock else 0.01
+        held_ns = self.start_time_ns if clock_ns is None else clock_ns
         while rclpy.ok() and not done() and time.monotonic() < deadline:
             if self.clock_publisher is not None:
-                self.publish_clock(self.start_time_ns)
+                self.publish_clock(held_ns)
             rclpy.spin_once(self, timeout_sec=period)
 
     def wait_for_subscribers(self, timeout: float) -> None:
@@ -166,6 +176,7 @@ class ReplayNode(Node):
         sec, nanosec = divmod(bag_time_ns, 1_000_000_000)
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = int(sec), int(nanosec)
+        self.clock_ns = bag_time_ns
         self.clock_publisher.publish(msg)
 
     def play_once(self) -> bool:
@@ -191,6 +202,7 @@ class ReplayNode(Node):
                 return False
             self.publishers_by_topic[message.topic].publish(message.data)
             self.published += 1
+            self.clock_ns = max(self.clock_ns, message.log_time_ns)
         return True
 
     def play(self) -> bool:
@@ -202,7 +214,18 @@ class ReplayNode(Node):
             time.sleep(self.args.delay)
         while (completed := self.play_once()) and self.args.loop:
             pass
+        if completed:
+            if self.clock_publisher is not None:  # the clocks of the nodes reach the last message's time
+                self.publish_clock(self.clock_ns)
+            self.hold_clock(lambda: not self.unacknowledged(), self.args.linger, self.clock_ns)
+            if unacknowledged := self.unacknowledged():
+                self.get_logger().warning(f"not acknowledged by every subscriber {self.args.linger:g} s after the "
+                                          f"last message: {', '.join(unacknowledged)}")
         return completed
+
+    def unacknowledged(self) -> list[str]:
+        """Played topics with a reliable subscriber that has not acknowledged all their messages yet."""
+        return [p.topic_name for p in self.publishers_by_topic.values() if not p.wait_for_all_acked(Duration())]
 
 
 def main(argv: list[str] | None = None) -> int:
