@@ -13,11 +13,16 @@ START_NS = 1_700_000_000_000_000_000
 
 
 class GraphStandIn:
-    """The two things InputReports asks of its node: the subscribers of a topic, and the /diagnostics callback."""
+    """What InputReports asks of its node: the subscribers and publisher count of a topic, and the /diagnostics
+    callback."""
 
-    def __init__(self, subscribers: dict[str, list[str]]) -> None:
+    def __init__(self, subscribers: dict[str, list[str]], publishers: dict[str, int] | None = None) -> None:
         self.subscribers = subscribers
+        self.publishers = publishers or {}
         self.deliver = None
+
+    def count_publishers(self, topic: str) -> int:
+        return self.publishers.get(topic, 0)
 
     def create_subscription(self, _type, topic, callback, _qos):
         assert topic == "/diagnostics"
@@ -81,6 +86,22 @@ def test_a_player_waiting_for_named_nodes_waits_for_their_inputs_only():
     graph.deliver(report("/robot2/needle_compare", START_NS, {"/base_pose": 1, "/robot2/needle/shape": 0}))
     assert reports.waiting_for(nodes, topics, START_NS) == []  # the unplayed /tip_load and needle/shape hold nothing
     assert reports.waiting_for(nodes, topics) == []
+
+
+def test_a_named_node_is_waited_for_until_it_matched_every_input_someone_publishes():
+    """--wait-for-nodes: an input of a named node that is not played but published by another node (the comparison's
+    /wrench and /needle/shape from the simulator) holds the player until the node has matched it from its side: what
+    the simulator publishes before that is missing from the comparison's log."""
+    graph = GraphStandIn({"/base_pose": ["/needle_compare"]}, publishers={"/wrench": 1, "/needle/shape": 1})
+    reports = InputReports(graph)
+    graph.deliver(report("/needle_compare", START_NS, {"/needle/shape": 0, "/base_pose": 1, "/wrench": 0,
+                                                       "/needle/measured_shape": 0}))
+    assert reports.waiting_for(["/needle_compare"], ["/base_pose"], START_NS) == [
+        "/needle/shape: /needle_compare has not matched a publisher",
+        "/wrench: /needle_compare has not matched a publisher"]  # not /needle/measured_shape: nobody publishes it
+    graph.deliver(report("/needle_compare", START_NS, {"/needle/shape": 1, "/base_pose": 1, "/wrench": 1,
+                                                       "/needle/measured_shape": 0}))
+    assert reports.waiting_for(["/needle_compare"], ["/base_pose"], START_NS) == []
 
 
 def test_a_node_not_taking_input_holds_the_player():

@@ -14,8 +14,9 @@ recorded (absolute) topic names; ``--in-namespace`` publishes them in the player
 inputs on /diagnostics (this suite's nodes: ``needle_vision.ros.input_status``) has matched the topic from its own
 side, following the start time on /clock with ``--clock``: discovery is two-sided, and messages published before
 the subscriber has matched the publisher are lost. With ``--wait-for-nodes /needle_simulator ...`` it waits for
-those nodes instead: until each has reported and matched the played topics it subscribes to, while topics none of
-them subscribes to (a bag's ground truth) hold nothing (the launch files play whole bags this way).
+those nodes instead: until each has reported and matched the played topics it subscribes to and its other inputs
+that someone publishes (the comparison's /wrench from the simulator), while topics none of them subscribes to (a
+bag's ground truth) hold nothing (the launch files play whole bags this way).
 ``--start-paused`` waits for a call of the service ``~/resume`` (std_srvs/Trigger) first, for whoever starts the
 nodes to say when they are ready. Both hold the start time on /clock meanwhile. After the last message the player
 waits up to ``--linger`` seconds until every reliable subscriber has acknowledged all it played (a large message
@@ -94,7 +95,8 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
                         "subscriber's side where it reports its inputs")
     parser.add_argument("--wait-for-nodes", nargs="+", metavar="NODE", type=_node_name,
                         help="with --wait-for-subscribers: wait for these nodes (fully qualified names) instead, until "
-                        "each has matched the played topics it subscribes to; other topics hold nothing")
+                        "each has matched the played topics it subscribes to and its other inputs that someone "
+                        "publishes; other topics hold nothing")
     parser.add_argument("--start-paused", action="store_true",
                         help="wait for a call of the service ~/resume (std_srvs/Trigger) before playing")
     parser.add_argument("--stop-on-corrupt", action="store_true",
@@ -156,7 +158,8 @@ class ReplayNode(Node):
     def wait_for_subscribers(self, timeout: float) -> None:
         """Up to ``timeout`` [s] until every played topic has a subscriber and each subscriber that reports its
         inputs has matched it from its own side (and, with --clock, follows the start time on /clock); with
-        --wait-for-nodes, until each of those nodes has matched the played topics it subscribes to."""
+        --wait-for-nodes, until each of those nodes has matched the played topics it subscribes to and its other
+        inputs that someone publishes."""
         reports = InputReports(self)
         topics = [p.topic_name for p in self.publishers_by_topic.values()]
         clock_ns = self.start_time_ns if self.clock_publisher is not None else None

@@ -119,9 +119,11 @@ class InputReports:
 
     def waiting_for(self, nodes: list[str], topics: list[str], clock_ns: int | None = None) -> list[str]:
         """What a publisher of the (resolved) ``topics`` still waits for from the named nodes (fully qualified names,
-        e.g. ``/needle_simulator``): each one's input report, a match of each of its inputs among ``topics``, its
-        taking input, and (``clock_ns``: the player's /clock) its clock at ``clock_ns``. A topic none of them
-        subscribes to (a bag's ground truth) holds nothing, whoever else subscribes to it."""
+        e.g. ``/needle_simulator``): each one's input report, a match of each of its inputs among ``topics`` and of
+        its other inputs that have a publisher in the graph (the comparison's ``/wrench`` from the simulator: what
+        comes before the match is missing from its log), its taking input, and (``clock_ns``: the player's /clock)
+        its clock at ``clock_ns``. A topic none of them subscribes to (a bag's ground truth) holds nothing, whoever
+        else subscribes to it; nor does an input nobody publishes."""
         waiting = []
         for name in nodes:
             report = self._reports.get(f"{name}: inputs")
@@ -129,8 +131,8 @@ class InputReports:
                 waiting.append(f"no input report from {name} yet")
                 continue
             node_clock_ns, counts = report
-            waiting.extend(f"{topic}: {name} has not matched a publisher"
-                           for topic in topics if counts.get(topic) == "0")
+            waiting.extend(f"{topic}: {name} has not matched a publisher" for topic, count in counts.items()
+                           if count == "0" and (topic in topics or self._node.count_publishers(topic) > 0))
             if counts.get(ACCEPTING) == "false":
                 waiting.append(f"{name} is not taking input yet")
             if clock_ns is not None and node_clock_ns < clock_ns:
