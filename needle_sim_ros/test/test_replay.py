@@ -188,13 +188,15 @@ rclpy.spin(node)
 """
 
 
-@pytest.mark.parametrize("acknowledging", [True, False])
+@pytest.mark.parametrize("subscriber_state", ["acknowledging", "stopped", "stopped, player interrupted"])
 def test_the_replay_waits_for_its_reliable_subscribers_to_acknowledge_the_last_message(ros_env, tmp_path,
-                                                                                     acknowledging):
+                                                                                     subscriber_state):
     """--linger S: after the last message the player waits up to S s until every reliable subscriber acknowledged
     everything (a lost fragment of the bag's last image is resent only then), /clock holding the last message's
-    time; a subscriber that stops acknowledging (its process stopped) keeps it the whole S s and is warned of."""
-    count, linger = 50, 3.0
+    time; a subscriber that stops acknowledging (its process stopped) keeps it the whole S s and is warned of; a
+    SIGINT meanwhile ends the wait (exit 0, no traceback, no warning). An acknowledging subscriber answers the
+    writer's heartbeats (the wait took 0.52-0.57 s in 4 of 5 runs, 2.02 s in one): it ends well before S = 8 s."""
+    count, linger = 50, 8.0
     stamps = wrench_bag(tmp_path / "wrench.mcap", count, 20_000_000)
     subscriber = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, "/acked/wrench"], env=ros_env,
                                   stdout=subprocess.PIPE, text=True)
@@ -207,10 +209,16 @@ def test_the_replay_waits_for_its_reliable_subscribers_to_acknowledge_the_last_m
             player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--clock", "100", "--linger",
                            str(linger), "--wait-for-subscribers", "20", "--ros-args", "-r", "/wrench:=/acked/wrench")
             try:
-                if not acknowledging:  # stopped once it has taken the first message: the others stay unacknowledged
+                if subscriber_state != "acknowledging":  # stopped once it took the first message: the rest unacked
                     assert subscriber.stdout.readline().strip() == "0"
                     subscriber.send_signal(signal.SIGSTOP)
+                if subscriber_state.endswith("interrupted"):
+                    spin_until(node, lambda: clocks and clocks[-1][1] >= stamps[-1], 20.0)
+                    spin_until(node, lambda: False, 1.0)
+                    interrupted = time.monotonic()
+                    player.send_signal(signal.SIGINT)
                 spin_until(node, lambda: player.poll() is not None, 20.0)
+                exited = time.monotonic()
                 out, _ = player.communicate(timeout=10)
             finally:
                 player.kill()
@@ -218,15 +226,18 @@ def test_the_replay_waits_for_its_reliable_subscribers_to_acknowledge_the_last_m
         subscriber.send_signal(signal.SIGCONT)
         subscriber.kill()
         subscriber.communicate()
-    assert player.returncode == 0, out
+    assert player.returncode == 0 and "Traceback" not in out, out
     end = clocks[-1][1]  # held from the last message on, never going back
     assert stamps[-1] <= end < stamps[-1] + 50_000_000 and np.all(np.diff([stamp for _, stamp in clocks]) >= 0)
     held = [at for at, stamp in clocks if stamp == end]
-    if acknowledging:
-        assert "not acknowledged" not in out and held[-1] - held[0] < 0.5 * linger, out
-    else:
+    print(f"{subscriber_state}: /clock held {held[-1] - held[0]:.2f} s after the last message")
+    if subscriber_state == "stopped":
         assert f"not acknowledged by every subscriber {linger:g} s after the last message: /acked/wrench" in out
         assert held[-1] - held[0] == pytest.approx(linger, abs=0.5), out
+    else:
+        assert "not acknowledged" not in out and held[-1] - held[0] < linger - 3.0, out
+    if subscriber_state.endswith("interrupted"):
+        assert exited - interrupted < 2.0, out
 
 
 def shapes_bag(path: Path, count: int, offset: float) -> None:

@@ -221,6 +221,8 @@ class ReplayNode(Node):
             if self.clock_publisher is not None:  # the clocks of the nodes reach the last message's time
                 self.publish_clock(self.clock_ns)
             self.hold_clock(lambda: not self.unacknowledged(), self.args.linger, self.clock_ns)
+            if not rclpy.ok():  # SIGINT/SIGTERM ended the wait
+                return False
             if unacknowledged := self.unacknowledged():
                 self.get_logger().warning(f"not acknowledged by every subscriber {self.args.linger:g} s after the "
                                           f"last message: {', '.join(unacknowledged)}")
