@@ -354,6 +354,7 @@ def test_a_stopped_replay_exits_cleanly_however_it_waits(ros_env, tmp_path, wait
     ("compare_node", ["--ros-args", "-p", "measured_input:=cloud"], "measured_input"),
     ("replay_node", ["/nonexistent/bag.mcap"], "/nonexistent/bag.mcap"),
     ("replay_node", ["x.mcap", "--rate", "0"], "--rate"),
+    ("replay_node", ["x.mcap", "--linger", "abc"], "--linger: not a number: 'abc'"),
     ("replay_node", ["x.mcap", "--wait-for-nodes", "/needle_simulator"], "--wait-for-nodes"),
 ])
 def test_bad_input_exits_non_zero_naming_the_culprit(ros_env, module, args, message):
