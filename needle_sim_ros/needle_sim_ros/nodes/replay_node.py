@@ -138,7 +138,7 @@ class ReplayNode(Node):
                 message_type, topic.lstrip("/") if args.in_namespace else topic, playback_qos(recorded.offered_qos))
         self.clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1)) if args.clock else None
         self.published = 0
-        self.clock_ns = self.start_time_ns  # bag time [ns]: the last on /clock, at least the last message's
+        self.clock_ns = self.start_time_ns  # bag time [ns] /clock holds: the start, then the last sent (>= last msg)
         self.resumed = not args.start_paused
         if args.start_paused:
             self.create_service(Trigger, "~/resume", self.on_resume)
@@ -152,14 +152,13 @@ class ReplayNode(Node):
     def start_time_ns(self) -> int:
         return self.reader.start_time_ns + round(self.args.start_offset * 1e9)
 
-    def hold_clock(self, done: Callable[[], bool], timeout: float = math.inf, clock_ns: int | None = None) -> None:
-        """Spin until ``done()`` or ``timeout`` [s], ``clock_ns`` (default: the start time) on /clock meanwhile."""
+    def hold_clock(self, done: Callable[[], bool], timeout: float = math.inf) -> None:
+        """Spin until ``done()`` or ``timeout`` [s], the last time on /clock meanwhile (before playing: the start)."""
         deadline = time.monotonic() + timeout
         period = 1.0 / self.args.clock if self.args.clock else 0.01
-        held_ns = self.start_time_ns if clock_ns is None else clock_ns
         while rclpy.ok() and not done() and time.monotonic() < deadline:
             if self.clock_publisher is not None:
-                self.publish_clock(held_ns)
+                self.publish_clock(self.clock_ns)
             rclpy.spin_once(self, timeout_sec=period)
 
     def wait_for_subscribers(self, timeout: float) -> None:
@@ -227,7 +226,7 @@ class ReplayNode(Node):
         if completed:
             if self.clock_publisher is not None:  # the clocks of the nodes reach the last message's time
                 self.publish_clock(self.clock_ns)
-            self.hold_clock(lambda: not self.unacknowledged(), self.args.linger, self.clock_ns)
+            self.hold_clock(lambda: not self.unacknowledged(), self.args.linger)
             if not rclpy.ok():  # SIGINT/SIGTERM ended the wait
                 return False
             if unacknowledged := self.unacknowledged():
