@@ -193,39 +193,56 @@ class BaseTrajectory:
         the fit is extrapolated for at most ``max_extrapolation``; after that the pose is held with zero velocity
         and acceleration. With fewer than 3 samples in the window: the newest pose, at rest.
         """
+        times = np.asarray(times, dtype=float)
+        out = np.empty((len(times), 19))
+        self.take_fit(*trajectory_motions(*self.fit_arguments(), times, out), times)
+        return out
+
+    def fit_arguments(self) -> tuple:
+        """The 21 arguments of :func:`trajectory_motions` before the times: the samples, the current fit (or the
+        window ending at the newest sample to fit anew: refit once per new sample, continuing the previously served
+        motion at the last served time) and the corrections. ValueError before the first sample."""
         newest = self._latest
         if newest is None:
             raise ValueError("no base pose sample yet")
-        times = np.asarray(times, dtype=float)
+        refit = self._fit is None
+        continued = refit and self._served is not None and self._previous is not None
+        previous_sample, previous_fit = self._previous if continued else (newest, _NO_FIT)
+        return (self._times, self._positions, self._orientations, self._count, newest.t, newest.position,
+                newest.orientation, self.limits.window, self.limits.max_extrapolation,
+                _NO_FIT if refit else self._fit, refit, continued, self._served if continued else 0.0,
+                previous_sample.t, previous_sample.position, previous_sample.orientation, previous_fit,
+                self._corrections, self._correction_starts, self._correction_blends, self._correction_count)
+
+    def take_fit(self, fit: np.ndarray, corrections: int, times: np.ndarray) -> None:
+        """Keep what :func:`trajectory_motions` returned after serving the motions at ``times``."""
         if self._fit is None:
-            self._refit(newest)
-        out = np.empty((len(times), 19))
-        self._evaluate(times, out)
+            self._previous = (self._latest, fit)
+        self._fit, self._correction_count = fit, corrections
         if times.size:
             self._served = max(float(times.max()), self._served if self._served is not None else -np.inf)
-        return out
-
-    def _evaluate(self, times: np.ndarray, out: np.ndarray) -> None:
-        newest = self._latest
-        _evaluate_motions(self._fit, newest.t, newest.position, newest.orientation, self.limits.max_extrapolation,
-                          self._corrections, self._correction_starts, self._correction_blends,
-                          self._correction_count, times, out)
-
-    def _refit(self, newest: PoseSample) -> None:
-        """Fit the window ending at ``newest``; continue the previous served motion at the last served time."""
-        continued = self._served is not None and self._previous is not None
-        previous_sample, previous_fit = self._previous if continued else (newest, _NO_FIT)
-        self._fit, self._correction_count = _refit_window(
-            self._times, self._positions, self._orientations, self._count, newest.t, newest.position,
-            newest.orientation, self.limits.window, self.limits.max_extrapolation, continued,
-            self._served if continued else 0.0, previous_sample.t, previous_sample.position,
-            previous_sample.orientation, previous_fit, self._corrections, self._correction_starts,
-            self._correction_blends, self._correction_count)
-        self._previous = (newest, self._fit)
 
 
 _NO_FIT = np.zeros((0, 6))
 CORRECTION_CAPACITY = 128  # corrections kept at once (up to ~window / sample interval); beyond, the oldest is dropped
+
+
+@njit(cache=True)
+def trajectory_motions(sample_times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, count: int,
+                        t_newest: float, p_newest: np.ndarray, q_newest: np.ndarray, window: float,
+                        max_extrapolation: float, fit: np.ndarray, refit: bool, continued: bool, served: float,
+                        t_previous: float, p_previous: np.ndarray, q_previous: np.ndarray, previous_fit: np.ndarray,
+                        deltas: np.ndarray, starts: np.ndarray, blends: np.ndarray, corrections: int,
+                        times: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, int]:
+    """Packed motions at ``times`` into ``out`` (:meth:`BaseTrajectory.motions_at`) from the fit, fitted anew first
+    if ``refit`` (:func:`_refit_window`); returns (fit, number of corrections)."""
+    if refit:
+        fit, corrections = _refit_window(sample_times, positions, orientations, count, t_newest, p_newest, q_newest,
+                                         window, max_extrapolation, continued, served, t_previous, p_previous,
+                                         q_previous, previous_fit, deltas, starts, blends, corrections)
+    _evaluate_motions(fit, t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends, corrections,
+                      times, out)
+    return fit, corrections
 
 
 @njit(cache=True)

@@ -35,6 +35,7 @@ import numpy as np
 from needle_vision.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
+from needle_sim_ros.compiled_advance import NO_TWIST, advance_from_trajectory, apply_twist
 from needle_sim_ros.model import (
     BaseMotion,
     BaseWrench,
@@ -64,6 +65,7 @@ from needle_sim_ros.model import (
     step,
 )
 from needle_sim_ros.model.config import element_lengths
+from needle_sim_ros.model.integrators import SequenceResult
 from needle_sim_ros.model.sequence import IntegratorMemory
 from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
 from needle_sim_ros.tissue.factory import build_tissue_model
@@ -202,7 +204,7 @@ class NeedleSimulation:
         self.pose_timeout = pose_timeout
         self.twist_timeout = twist_timeout
         self.input_limits = input_limits
-        self.twist: tuple[float, np.ndarray, np.ndarray] | None = None
+        self.twist: np.ndarray | None = None  # [t, linear velocity, angular velocity] (set_twist)
         self.clamp_interval = clamp_interval
         self.model_builder = model_builder
         self.after_step: Callable[[StepRecord], None] | None = None  # called with the state of each accepted step
@@ -320,7 +322,8 @@ class NeedleSimulation:
         if not (speed <= limits.max_linear_speed and rate <= limits.max_angular_speed):
             raise ValueError(f"twist |v| = {speed:.3g} m/s, |w| = {rate:.3g} rad/s beyond pose_input.max_linear_speed "
                              f"{limits.max_linear_speed:g} m/s / max_angular_speed {limits.max_angular_speed:g} rad/s")
-        self.twist = (t, np.asarray(linear_velocity, dtype=float), np.asarray(angular_velocity, dtype=float))
+        self.twist = np.concatenate(([t], np.asarray(linear_velocity, dtype=float).reshape(3),
+                                     np.asarray(angular_velocity, dtype=float).reshape(3)))
 
     def base_motion_at(self, t: float) -> BaseMotion:
         """Motion of the clamp point A at time t from the flange trajectory, the offset and the optional twist."""
@@ -338,10 +341,7 @@ class NeedleSimulation:
                                                m.linear_acceleration, m.angular_acceleration)) for m in motions])
             return values.reshape(len(times), 19), np.array([m.rotation for m in motions]).reshape(len(times), 3, 3)
         flange = self.trajectory.motions_at(times)
-        if self.twist is not None:
-            fresh = np.abs(times - self.twist[0]) <= self.twist_timeout
-            flange[fresh, 7:10] = self.twist[1]
-            flange[fresh, 10:13] = self.twist[2]
+        apply_twist(flange, times, NO_TWIST if self.twist is None else self.twist, self.twist_timeout)
         values, rotations = np.empty_like(flange), np.empty((len(times), 3, 3))
         compose_offsets(flange, self._offset_position, self._offset_rotation, values, rotations)
         return values, rotations
@@ -454,25 +454,33 @@ class NeedleSimulation:
         if count <= 0:
             return records
         times = np.array([self._grid_time(index) for index in range(data.step_index + 1, data.step_index + count + 1)])
-        motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
-        i = 0
         # the compiled sequence cannot advance the state of stateful contributions between its steps; one that runs
         # compiled itself (the tissue) takes the run, a step at a time if a hook reads each step's state
         stateful = [force for force in self.extra_forces if force.stateful]
         sequence = self.compiled_sequence and not stateful
         run = stateful[0] if self.compiled_sequence and len(stateful) == 1 and stateful[0].compiled_run else None
         first_dt = float(times[0]) - data.state.t
-        if abs(first_dt - dt) > 0.05 * dt + 4.0 * math.ulp(abs(t_target)):  # after a grid shift (lock_phase)
-            forces = self._sequence_forces(sequence)
+        regular = abs(first_dt - dt) <= 0.05 * dt + 4.0 * math.ulp(abs(t_target))  # not after a grid shift
+        # the base from the received poses: a compiled run evaluates its motions and takes its steps in one call
+        from_poses = self.base_at is None and self.motions_at is None
+        run_sequence = self._advance_from_trajectory if from_poses else self._step_sequence
+        forces = self._sequence_forces(sequence)
+        if from_poses and regular and forces is not None:
+            motions, rotations = np.empty((count, 19)), np.empty((count, 3, 3))  # the run fills them
+        else:
+            motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
+        i = 0
+        if not regular:  # after a grid shift (lock_phase)
             if not (forces is not None
                     and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
                 records.append(self._step_or_restart(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
                                                      first_dt))
             data.step_index += 1
             i = 1
+            forces = self._sequence_forces(sequence)
         while i < count:
-            if (forces := self._sequence_forces(sequence)) is not None:
-                done = self._step_sequence(forces, times[i:], motions[i:], rotations[i:], records)
+            if forces is not None:
+                done = run_sequence(forces, times[i:], motions[i:], rotations[i:], records)
                 data.step_index += done
                 i += done
             elif run is not None and data.state.aux is not None:
@@ -480,10 +488,13 @@ class NeedleSimulation:
                 done = self._run_steps(run, times[i:stop], motions[i:stop], rotations[i:stop], records)
                 data.step_index += done
                 i += done
+                if i == stop:  # all it was asked for: the next run (a step that failed takes the general step)
+                    continue
             if i < count:
                 records.append(self._step_or_restart(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
                 data.step_index += 1
                 i += 1
+                forces = self._sequence_forces(sequence)
         if records and not np.isfinite(data.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
             data.state = self.model.straight_state(self.base, data.state.t)
@@ -517,26 +528,47 @@ class NeedleSimulation:
         self._record_run(result, start, times, motions, rotations, records)
         return result.done
 
+    def _advance_from_trajectory(self, forces: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
+                                 records: list[StepRecord]) -> int:
+        """Steps at ``times`` under ``forces`` with the base from the trajectory in one compiled call
+        (:mod:`needle_sim_ros.compiled_advance`), the base motions at all the times written into ``motions`` and
+        ``rotations`` first (a run that stops early leaves them for the general step); returns how many steps were
+        done (as :meth:`_step_sequence`)."""
+        start = time.perf_counter()
+        state = self.state
+        before, after = self.integrator.sequence_arguments(self.dt, forces, float(times[0]), times.size,
+                                                           self.data.integrator)
+        fit, corrections, done = advance_from_trajectory(
+            *self.trajectory.fit_arguments(), times, np.empty((times.size, 19)),
+            NO_TWIST if self.twist is None else self.twist, self.twist_timeout, self._offset_position,
+            self._offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, *after)
+        self.trajectory.take_fit(fit, corrections, times)
+        states, wrenches, iterations = after
+        self._record_run(SequenceResult(done, states[:done], wrenches[:done], iterations[:done]), start, times,
+                         motions, rotations, records)
+        return done
+
     def _record_run(self, result, start: float, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                     records: list[StepRecord]) -> None:
         """Records, hook calls, statistics and the final state of a compiled run started at ``start``."""
         done = result.done
-        wall = (time.perf_counter() - start) / max(done, 1)
+        if not done:
+            return
+        wall = (time.perf_counter() - start) / done
         hook = self.after_step
-        for i in range(done):
-            w = result.wrenches[i]
-            record = StepRecord(float(times[i]), BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]),
-                                int(result.iterations[i]), 1, wall)
+        end_times, iterations = times[:done].tolist(), result.iterations.tolist()
+        for i, (t, w) in enumerate(zip(end_times, result.wrenches)):
+            record = StepRecord(t, BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]), iterations[i], 1, wall)
             records.append(record)
             if hook is not None:  # the hook reads the state of its step
-                self._set_state(result.states[i], times[i], motions[i], rotations[i])
+                self._set_state(result.states[i], t, motions[i], rotations[i])
                 hook(record)
-        if done:
-            self._set_state(result.states[done - 1], times[done - 1], motions[done - 1], rotations[done - 1])
-            stats = self.statistics
-            stats.steps += done
-            stats.step_wall_times.extend([wall] * done)
-            stats.max_newton_iterations = max(stats.max_newton_iterations, max(result.iterations.tolist()))
+        if hook is None:  # otherwise the last step's state is set already
+            self._set_state(result.states[done - 1], end_times[-1], motions[done - 1], rotations[done - 1])
+        stats = self.statistics
+        stats.steps += done
+        stats.step_wall_times.extend([wall] * done)
+        stats.max_newton_iterations = max(stats.max_newton_iterations, *iterations)
 
     def _run_steps(self, run, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                    records: list[StepRecord]) -> int:

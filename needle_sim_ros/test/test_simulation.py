@@ -91,6 +91,40 @@ def test_a_shifted_step_runs_compiled_and_agrees_with_the_general_path(monkeypat
                                    atol=1e-6 * np.abs(theirs.wrench.force_base).max())
 
 
+def test_the_advance_in_one_compiled_call_agrees_with_the_general_path(monkeypatch):
+    """The base from the received poses (flange offset, a fresh twist) and runs of 1-7 steps per advance: one
+    compiled call per advance (compiled_advance) ends where the general path does, step by step, with the base
+    motion the trajectory serves at each step end."""
+    p = {**PARAMETERS, "integrator.newton_tolerance": 1e-9, "flange_offset.position": [0.01, 0.0, 0.02],
+         "flange_offset.orientation": [0.0, 0.0, 0.38268343, 0.92387953]}
+    sims = [simulation_from_parameters(p) for _ in range(2)]
+    sims[1].compiled_sequence = False  # the reference: every step on the general path
+    calls = []
+    lane = sims[0]._advance_from_trajectory
+    monkeypatch.setattr(sims[0], "_advance_from_trajectory", lambda *args: calls.append(len(args[1])) or lane(*args))
+    monkeypatch.setattr(sims[0], "_step_sequence", lambda *args: pytest.fail("the staged sequence ran"))
+    rng = np.random.default_rng(7)
+    length, k = sims[0].model.props.length, 0
+    for sim in sims:
+        sim.set_twist(0.0205, np.array([0.004, 0.0, 0.001]), np.array([0.0, 0.05, 0.0]))
+    while k < 120:
+        run = int(rng.integers(1, 8))
+        for _ in range(run):
+            for sim in sims:
+                sim.offer_pose(k * 1e-3, *pitching(k * 1e-3))
+            k += 1
+        records = [sim.advance((k - 1) * 1e-3, deterministic=True) for sim in sims]
+        assert [r.t for r in records[0]] == [r.t for r in records[1]]
+        for ours, theirs in zip(*records):
+            np.testing.assert_allclose(ours.wrench.force_base, theirs.wrench.force_base,
+                                       atol=1e-6 * max(np.abs(theirs.wrench.force_base).max(), 1e-3))
+        np.testing.assert_allclose(sims[0].state.q, sims[1].state.q, atol=1e-9 * length)
+        served = sims[0].base_motion_at(sims[0].state.t)  # the fit the last advance used, evaluated alone
+        np.testing.assert_array_equal(sims[0].base.rotation, served.rotation)
+        np.testing.assert_array_equal(sims[0].base.angular_velocity, served.angular_velocity)
+    assert len(calls) > 20 and max(calls) > 1 and sims[0].statistics.steps == sims[1].statistics.steps
+
+
 def test_base_motions_of_a_sequence_equal_the_single_evaluations():
     sim = simulation_from_parameters({**PARAMETERS, "flange_offset.position": [0.01, 0.0, 0.02],
                                       "flange_offset.orientation": [0.0, 0.0, 0.38268343, 0.92387953]})

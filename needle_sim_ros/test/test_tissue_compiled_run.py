@@ -78,6 +78,24 @@ def test_the_compiled_run_is_the_general_step(law, monkeypatch):
                                compiled.tissue_readout().tip_force) <= VALUE_TOLERANCE
 
 
+def test_a_hook_on_every_step_keeps_the_tissue_steps_compiled(monkeypatch):
+    """With a hook reading every step's state (the node in simulated time) and poses at 100 Hz (10 steps per
+    advance), the tissue's compiled run takes one step at a time, every step (before: every other step took the
+    general path), and the hook sees each step once, in order."""
+    sim = simulation_from_parameters({**PARAMETERS, "tissue.enable": True, "tissue.entry_point": [0.272, 0.0, 0.0]})
+    calls, seen = [], []
+    advance = TissueModel.advance
+    monkeypatch.setattr(TissueModel, "advance", lambda *args: calls.append(1) or advance(*args))
+    sim.after_step = lambda record: seen.append((record.t, sim.state.t))
+    records = []
+    for k in range(0, 600, 10):
+        sim.offer_pose(k * 1e-3, *pose(k * 1e-3))
+        records += sim.advance(k * 1e-3, deterministic=True)
+    assert len(records) == 590 and sim.data.force_states[0].contact.punctured
+    assert len(calls) <= 2  # the first step (no consistent accelerations yet) and nothing else
+    assert seen == [(record.t, record.t) for record in records]
+
+
 def assert_same(a, b, tolerance: float = 0.0, path: str = "force_states") -> None:
     """Equal values all the way down (tuples, objects' attributes, arrays with their dtypes and shapes, numbers);
     floating-point values within ``tolerance`` relative (:func:`relative_difference`), all others exactly."""

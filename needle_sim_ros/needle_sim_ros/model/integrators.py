@@ -134,6 +134,7 @@ class Integrator:
         self._split_cache: tuple[tuple, list, list, bool] = ((), [], [], True)
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
         self._run_cache: tuple[tuple, tuple] = ((), ())
+        self._sequence_cache: tuple = (None, 0.0, None, ())
         self.memory = IntegratorMemory(model.n_dof)
         self._sequence: SequenceBuffers | None = None
 
@@ -204,23 +205,35 @@ class Integrator:
         (k, 19) with rotations (k, 3, 3) (:meth:`BaseMotion.from_packed`); compiled, see
         :mod:`needle_sim_ros.model.sequence`. Only where :meth:`supports_sequence`. The run ends early at a step
         that does not converge: integrate that one with :meth:`step`."""
-        buffers = self._sequence_buffers()
+        k = motions.shape[0]
+        before, after = self.sequence_arguments(dt, forces, state.t + dt, k, memory)
+        history = before[0]
+        history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
+        states, wrenches, iterations = after
+        done = integrate_sequence(history, motions, rotations, *before[1:], *after)
+        return SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
+
+    def sequence_arguments(self, dt: float, forces, t_next: float, steps: int,
+                           memory: IntegratorMemory | None = None) -> tuple[tuple, tuple]:
+        """The arguments of :func:`integrate_sequence` for ``steps`` steps of ``dt`` under ``forces`` (see
+        :meth:`step_sequence`; ``t_next``: the first step's end time): those around the packed base motions and
+        rotations (the history buffer for the start state's rows first, then the scheme, model and memory
+        arrays; made once per step length and memory), and the outputs (states, wrenches, iterations), new."""
         memory = memory or self.memory
         if memory.h != dt:
             memory.h = dt
             memory.invalidate()
-        k, n = motions.shape[0], self.model.n_dof
-        states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)
-        history = buffers.history
-        history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
-        ext_Q = self._constant_force(self._split(forces)[0], state.t + dt, None)
-        done = integrate_sequence(history, motions, rotations, self._coefficients(dt), ext_Q, self.newton_tol,
-                                  self.max_newton_iterations, buffers.prescribed,
-                                  buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
-                                  buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, memory.band,
-                                  memory.pivots, memory.factorization, ELEMENT_BANDWIDTH, memory.control,
-                                  memory.last_motion, states, wrenches, iterations)
-        return SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
+        ext_Q = self._constant_force(self._split(forces)[0], t_next, None)
+        cached = self._sequence_cache
+        if cached[0] is not memory or cached[1] != dt or cached[2] is not ext_Q:
+            buffers = self._sequence_buffers()
+            self._sequence_cache = cached = (memory, dt, ext_Q, (
+                buffers.history, self._coefficients(dt), ext_Q, self.newton_tol, self.max_newton_iterations,
+                buffers.prescribed, buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
+                buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, memory.band, memory.pivots,
+                memory.factorization, ELEMENT_BANDWIDTH, memory.control, memory.last_motion))
+        n = self.model.n_dof
+        return cached[3], (np.empty((steps, 4, n)), np.empty((steps, 12)), np.zeros(steps, dtype=np.int64))
 
     def run_arguments(self, forces, dt: float, t_next: float,
                       memory: IntegratorMemory | None = None) -> tuple[tuple, np.ndarray]:
