@@ -715,6 +715,9 @@ def compile_kernels(p: dict) -> float:
         scratch.offer_pose(k * dt, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
         if k >= 3:
             scratch.advance((k + 1) * dt, deterministic=False)
+    # a grid shifted to the poses (lock_phase): its first step runs the step sequence alone, not the one-call advance
+    scratch.data.grid_origin += 0.5 * dt
+    scratch.advance(8 * dt, deterministic=False)
     scratch.shape(10)
     scratch.energies()
     if p["tissue.enable"]:
