@@ -543,9 +543,7 @@ class NeedleSimulation:
             NO_TWIST if self.twist is None else self.twist, self.twist_timeout, self._offset_position,
             self._offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, *after)
         self.trajectory.take_fit(fit, corrections, times)
-        states, wrenches, iterations = after
-        self._record_run(SequenceResult(done, states[:done], wrenches[:done], iterations[:done]), start, times,
-                         motions, rotations, records)
+        self._record_run(SequenceResult.of_run(done, after), start, times, motions, rotations, records)
         return done
 
     def _record_run(self, result, start: float, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,

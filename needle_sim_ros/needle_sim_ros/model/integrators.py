@@ -53,6 +53,18 @@ class SequenceResult(NamedTuple):
     wrenches: np.ndarray
     iterations: np.ndarray
 
+    @classmethod
+    def of_run(cls, done: int, outputs: tuple) -> SequenceResult:
+        """The first ``done`` steps of a run's outputs (:func:`run_outputs`)."""
+        states, wrenches, iterations = outputs
+        return cls(done, states[:done], wrenches[:done], iterations[:done])
+
+
+def run_outputs(steps: int, n_dof: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """New output arrays of a compiled run of ``steps`` steps: states (steps, 4, n_dof), wrenches (steps, 12),
+    Newton corrections (steps,)."""
+    return np.empty((steps, 4, n_dof)), np.empty((steps, 12)), np.zeros(steps, dtype=np.int64)
+
 
 class StepResult(NamedTuple):
     """The new state, total Newton corrections, number of sub-steps used (1 = none), convergence flag and the
@@ -209,9 +221,8 @@ class Integrator:
         before, after = self.sequence_arguments(dt, forces, state.t + dt, k, memory)
         history = before[0]
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
-        states, wrenches, iterations = after
         done = integrate_sequence(history, motions, rotations, *before[1:], *after)
-        return SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
+        return SequenceResult.of_run(done, after)
 
     def sequence_arguments(self, dt: float, forces, t_next: float, steps: int,
                            memory: IntegratorMemory | None = None) -> tuple[tuple, tuple]:
@@ -232,8 +243,7 @@ class Integrator:
                 buffers.prescribed, buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
                 buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, memory.band, memory.pivots,
                 memory.factorization, ELEMENT_BANDWIDTH, memory.control, memory.last_motion))
-        n = self.model.n_dof
-        return cached[3], (np.empty((steps, 4, n)), np.empty((steps, 12)), np.zeros(steps, dtype=np.int64))
+        return cached[3], run_outputs(steps, self.model.n_dof)
 
     def run_arguments(self, forces, dt: float, t_next: float,
                       memory: IntegratorMemory | None = None) -> tuple[tuple, np.ndarray]:

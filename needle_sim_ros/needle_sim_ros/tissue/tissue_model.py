@@ -16,7 +16,7 @@ import numpy as np
 
 from needle_sim_ros.model import centerline
 from needle_sim_ros.model.forces import ForceContribution
-from needle_sim_ros.model.integrators import SequenceResult
+from needle_sim_ros.model.integrators import SequenceResult, run_outputs
 
 from .advance import advance_contact, advance_shaft, tip_parameters
 from .bevel_tip import BevelTip
@@ -143,13 +143,13 @@ class TissueModel(ForceContribution):
         needle, constant_Q = integrator.run_arguments(forces, dt, float(times[0]), memory)
         history = np.empty((4, n))
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
-        states, wrenches, iterations = np.empty((k, 4, n)), np.empty((k, 12)), np.zeros(k, dtype=np.int64)
+        outputs = run_outputs(k, n)
         arrays, contact_time, law_state, anchor, active, lateral, axial = tissue.kernel
         done, arrays, contact_time, shaft, lateral, axial = integrate_tissue_sequence(
             history, times, motions, rotations, needle, constant_Q, memory.control, arrays, contact_time,
             (law_state, anchor, active), lateral, axial, self.contact_arguments, self.shaft.kernel_arguments,
-            self.tip_arguments, states, wrenches, iterations)
-        result = SequenceResult(done, states[:done], wrenches[:done], iterations[:done])
+            self.tip_arguments, *outputs)
+        result = SequenceResult.of_run(done, outputs)
         if done == 0:
             return result, tissue
         return result, TissueState(self, (arrays, contact_time, *shaft, lateral, axial))
