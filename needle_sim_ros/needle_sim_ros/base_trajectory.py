@@ -138,24 +138,26 @@ class BaseTrajectory:
         # kernel that takes a sample a second time, at the node's first pose.
         position = np.array(position, dtype=float)
         orientation = np.array(orientation, dtype=float)
-        latest = self.latest
+        t = float(t)
+        latest, limits = self._latest, self.limits
         reference = latest if latest is not None else _ORIGIN
         norm, rescaled, largest, unit, distance, angle = _checked_pose(
-            float(t), position, orientation, reference.position, reference.orientation, latest is not None)
+            t, position, orientation, reference.position, reference.orientation, latest is not None)
         if not norm >= 0.0:
             return PoseVerdict.NOT_FINITE
         if norm < 1e-9:
             return PoseVerdict.ZERO_QUATERNION
-        if largest > self.limits.max_position:  # per axis: no overflow for huge finite values
+        if largest > limits.max_position:  # per axis: no overflow for huge finite values
             return PoseVerdict.OUT_OF_RANGE
-        verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= self.limits.quaternion_tolerance and not rescaled \
+        verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= limits.quaternion_tolerance and not rescaled \
             else PoseVerdict.NORMALIZED
-        sample = PoseSample(float(t), position, unit)
-        if latest is not None and sample.t <= latest.t:
-            return PoseVerdict.OUT_OF_ORDER
-        # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
-        if latest is not None and not self._within_limits((distance, angle)):
-            return self._handle_jump(sample)
+        sample = PoseSample(t, position, unit)
+        if latest is not None:
+            if t <= latest.t:
+                return PoseVerdict.OUT_OF_ORDER
+            # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
+            if not self._within_limits((distance, angle)):
+                return self._handle_jump(sample)
         self._rejected.clear()
         self._append(sample)
         return verdict
@@ -195,7 +197,8 @@ class BaseTrajectory:
         """
         times = np.asarray(times, dtype=float)
         out = np.empty((len(times), 19))
-        self.take_fit(*trajectory_motions(*self.fit_arguments(), times, out), times)
+        fit, corrections = trajectory_motions(*self.fit_arguments(), times, out)
+        self.take_fit(fit, corrections, float(times.max()) if times.size else None)
         return out
 
     def fit_arguments(self) -> tuple:
@@ -214,13 +217,14 @@ class BaseTrajectory:
                 previous_sample.t, previous_sample.position, previous_sample.orientation, previous_fit,
                 self._corrections, self._correction_starts, self._correction_blends, self._correction_count)
 
-    def take_fit(self, fit: np.ndarray, corrections: int, times: np.ndarray) -> None:
-        """Keep what :func:`trajectory_motions` returned after serving the motions at ``times``."""
+    def take_fit(self, fit: np.ndarray, corrections: int, served: float | None) -> None:
+        """Keep what :func:`trajectory_motions` returned after serving the motions at times up to ``served`` (None:
+        at no time)."""
         if self._fit is None:
             self._previous = (self._latest, fit)
         self._fit, self._correction_count = fit, corrections
-        if times.size:
-            self._served = max(float(times.max()), self._served if self._served is not None else -np.inf)
+        if served is not None and (self._served is None or served > self._served):
+            self._served = served
 
 
 _NO_FIT = np.zeros((0, 6))

@@ -65,7 +65,7 @@ from needle_sim_ros.model import (
     step,
 )
 from needle_sim_ros.model.config import element_lengths
-from needle_sim_ros.model.integrators import SequenceResult
+from needle_sim_ros.model.integrators import SequenceResult, same_objects
 from needle_sim_ros.model.sequence import IntegratorMemory
 from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
 from needle_sim_ros.tissue.factory import build_tissue_model
@@ -216,6 +216,7 @@ class NeedleSimulation:
         self.motions_at: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
         self.restart_on_failure = restart_on_failure
         self.compiled_sequence = True
+        self._sequence_plan: tuple = ((), None)  # (key, forces) of _sequence_forces
 
     @classmethod
     def prescribed(cls, model: NeedleModel, integrator: Integrator, dt: float, base_at: Callable[[float], BaseMotion],
@@ -294,24 +295,25 @@ class NeedleSimulation:
     # -- base input -----------------------------------------------------------------------------------------
     def offer_pose(self, t: float, position, orientation) -> PoseVerdict:
         """Offer a flange pose; the first valid pose (and a re-anchoring) starts the needle straight there."""
-        latest = self.trajectory.latest
-        gap = self.started and latest is not None and t - latest.t > self.pose_timeout
-        verdict = self.trajectory.offer(t, position, orientation)
-        if gap and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED) and _magnitude(
-                np.asarray(position, dtype=float) - latest.position) > self.input_limits.resume_tolerance:
-            self.trajectory.clear()
-            self.trajectory.offer(t, position, orientation)
+        trajectory, data = self.trajectory, self.data
+        latest = trajectory.latest
+        verdict = trajectory.offer(t, position, orientation)
+        if verdict is PoseVerdict.ACCEPTED or verdict is PoseVerdict.NORMALIZED:
+            if data.state is None:
+                self.reset(self.base_motion_at(t), t)
+            elif latest is not None and t - latest.t > self.pose_timeout and _magnitude(
+                    np.asarray(position, dtype=float) - latest.position) > self.input_limits.resume_tolerance:
+                trajectory.clear()
+                trajectory.offer(t, position, orientation)
+                self.reset(self.base_motion_at(t), t)
+                return PoseVerdict.RESTARTED
+            else:
+                if t <= data.state.t:
+                    self.statistics.late_poses += 1
+                x = (float(t) - data.grid_origin) / self.dt
+                data.pose_phase += PHASE_SMOOTHING * (cmath.exp(2j * math.pi * (x - math.floor(x))) - data.pose_phase)
+        elif verdict is PoseVerdict.REANCHORED:
             self.reset(self.base_motion_at(t), t)
-            return PoseVerdict.RESTARTED
-        accepted = verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)
-        if verdict is PoseVerdict.REANCHORED or (accepted and not self.started):
-            self.reset(self.base_motion_at(t), t)
-        elif accepted:
-            data = self.data
-            if t <= data.state.t:
-                self.statistics.late_poses += 1
-            x = (float(t) - data.grid_origin) / self.dt
-            data.pose_phase += PHASE_SMOOTHING * (cmath.exp(2j * math.pi * (x - math.floor(x))) - data.pose_phase)
         return verdict
 
     def set_twist(self, t: float, linear_velocity: np.ndarray, angular_velocity: np.ndarray) -> None:
@@ -410,10 +412,11 @@ class NeedleSimulation:
 
     def advance(self, now: float, deterministic: bool, ahead_to_pose: bool = False) -> list[StepRecord]:
         """Integrate up to :meth:`target_time`; a clock that jumped back (looping bag) discards the state."""
-        if self.state is not None and now < self.state.t - self.pose_timeout:
+        state = self.data.state
+        if state is not None and now < state.t - self.pose_timeout:
             self.trajectory.clear()
             self.discard_state()
-        if ahead_to_pose and not deterministic and self.state is not None:
+        elif ahead_to_pose and not deterministic and state is not None:
             self.lock_phase()
         return self.advance_to(self.target_time(now, deterministic, ahead_to_pose))
 
@@ -470,11 +473,13 @@ class NeedleSimulation:
         else:
             motions, rotations = self.base_motions(times)  # once: the general path takes them one at a time
         i = 0
+        general = False  # whether a step left the compiled sequence (whose converged states are finite)
         if not regular:  # after a grid shift (lock_phase)
             if not (forces is not None
                     and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
                 records.append(self._step_or_restart(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
                                                      first_dt))
+                general = True
             data.step_index += 1
             i = 1
             forces = self._sequence_forces(sequence)
@@ -484,6 +489,7 @@ class NeedleSimulation:
                 data.step_index += done
                 i += done
             elif run is not None and data.state.aux is not None:
+                general = True
                 stop = i + 1 if self.after_step is not None else count
                 done = self._run_steps(run, times[i:stop], motions[i:stop], rotations[i:stop], records)
                 data.step_index += done
@@ -492,10 +498,11 @@ class NeedleSimulation:
                     continue
             if i < count:
                 records.append(self._step_or_restart(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
+                general = True
                 data.step_index += 1
                 i += 1
                 forces = self._sequence_forces(sequence)
-        if records and not np.isfinite(data.state.q).all():  # never carry a non-finite state on
+        if general and not np.isfinite(data.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
             data.state = self.model.straight_state(self.base, data.state.t)
         return records
@@ -512,11 +519,19 @@ class NeedleSimulation:
 
     def _sequence_forces(self, sequence: bool) -> list | None:
         """The contributions of a compiled run from the current state, or None where it does not apply (``sequence``
-        False, no consistent accelerations yet, or a contribution the sequence cannot take)."""
-        if not (sequence and self.data.state.aux is not None):
+        False: a stateful contribution; no consistent accelerations yet; or a contribution the sequence cannot take).
+        Without stateful contributions they are the same objects while the integrator, the model's contributions
+        and the point loads are: then the same list as before."""
+        data = self.data
+        if not (sequence and data.state.aux is not None):
             return None
-        forces = self.forces
-        return forces if self.integrator.supports_sequence(forces) else None
+        key = (self.integrator, *self.extra_forces, *data.point_loads.values())
+        cached_key, forces = self._sequence_plan
+        if not same_objects(key, cached_key):
+            forces = self.forces
+            forces = forces if self.integrator.supports_sequence(forces) else None
+            self._sequence_plan = (key, forces)
+        return forces
 
     def _step_sequence(self, forces: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                        records: list[StepRecord], dt: float | None = None) -> int:
@@ -535,14 +550,14 @@ class NeedleSimulation:
         ``rotations`` first (a run that stops early leaves them for the general step); returns how many steps were
         done (as :meth:`_step_sequence`)."""
         start = time.perf_counter()
-        state = self.state
+        state = self.data.state
         before, after = self.integrator.sequence_arguments(self.dt, forces, float(times[0]), times.size,
                                                            self.data.integrator)
         fit, corrections, done = advance_from_trajectory(
             *self.trajectory.fit_arguments(), times, np.empty((times.size, 19)),
             NO_TWIST if self.twist is None else self.twist, self.twist_timeout, self._offset_position,
             self._offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, *after)
-        self.trajectory.take_fit(fit, corrections, times)
+        self.trajectory.take_fit(fit, corrections, float(times[-1]))
         self._record_run(SequenceResult.of_run(done, after), start, times, motions, rotations, records)
         return done
 

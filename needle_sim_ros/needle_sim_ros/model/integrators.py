@@ -96,7 +96,7 @@ def scheme_coefficients(method: str, rho_inf: float) -> tuple[float, ...]:
     return alpha_m, alpha_f, 0.5 - beta, beta, 1.0 - gamma, gamma
 
 
-def _same_objects(forces, cached) -> bool:
+def same_objects(forces, cached) -> bool:
     """Whether ``forces`` are the very objects of ``cached``, in order (the key of the integrator's caches)."""
     return len(forces) == len(cached) and all(map(operator.is_, forces, cached))
 
@@ -146,7 +146,7 @@ class Integrator:
         self._split_cache: tuple[tuple, list, list, bool] = ((), [], [], True)
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
         self._run_cache: tuple[tuple, tuple] = ((), ())
-        self._sequence_cache: tuple = (None, 0.0, None, ())
+        self._sequence_cache: tuple = (None, 0.0, None, ())  # see sequence_arguments
         self.memory = IntegratorMemory(model.n_dof)
         self._sequence: SequenceBuffers | None = None
 
@@ -234,15 +234,18 @@ class Integrator:
         if memory.h != dt:
             memory.h = dt
             memory.invalidate()
-        ext_Q = self._constant_force(self._split(forces)[0], t_next, None)
-        cached = self._sequence_cache
-        if cached[0] is not memory or cached[1] != dt or cached[2] is not ext_Q:
+        cached = self._sequence_cache  # (memory, dt, forces, arguments): the same time-invariant forces
+        if not (cached[0] is memory and cached[1] == dt and cached[2] is not None
+                and same_objects(forces, cached[2])):
+            constant, _, time_invariant = self._split(forces)
+            ext_Q = self._constant_force(constant, t_next, None)
             buffers = self._sequence_buffers()
-            self._sequence_cache = cached = (memory, dt, ext_Q, (
+            cached = (memory, dt, tuple(forces) if time_invariant else None, (
                 buffers.history, self._coefficients(dt), ext_Q, self.newton_tol, self.max_newton_iterations,
                 buffers.prescribed, buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
                 buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, memory.band, memory.pivots,
                 memory.factorization, ELEMENT_BANDWIDTH, memory.control, memory.last_motion))
+            self._sequence_cache = cached
         return cached[3], run_outputs(steps, self.model.n_dof)
 
     def run_arguments(self, forces, dt: float, t_next: float,
@@ -273,7 +276,7 @@ class Integrator:
         the same force objects are passed."""
         forces = tuple(forces)
         cached = self._split_cache
-        if _same_objects(forces, cached[0]):
+        if same_objects(forces, cached[0]):
             return cached[1:]
         constant, varying = split_forces(forces)
         self._split_cache = (forces, constant, varying, all(force.time_invariant for force in forces))
@@ -287,7 +290,7 @@ class Integrator:
     def _constant_force(self, forces: list, t: float, base: BaseMotion) -> np.ndarray:
         """Sum of the state-independent forces; cached while the same time-invariant load objects are passed."""
         cached_forces, cached = self._constant_cache
-        if _same_objects(forces, cached_forces):
+        if same_objects(forces, cached_forces):
             return cached
         total = constant_force(self.model, forces, t, base)
         if all(force.time_invariant for force in forces):
