@@ -208,3 +208,25 @@ def test_every_node_refuses_a_command_line_override_of_an_unknown_name(tmp_path,
     assert "unknown parameter 'needle.lenght'" in output, output
     if node == "needle_simulator":
         assert "did you mean 'needle.length'" in output, output
+
+
+# Command lines rcl cannot parse (before: rclpy.init's traceback, exit 1) and an argument a node does not take (before:
+# ignored, the node ran and waited: `needle_compare run.mcap` never ended)
+BAD_COMMAND_LINES = {"unknown_flag": (["--ros-args", "--bogus"], "unknown ROS argument(s) ['--bogus']"),
+                     "trailing_p": (["--ros-args", "-p"], "trailing -p flag"),
+                     "trailing_params_file": (["--ros-args", "--params-file"], "trailing --params-file flag"),
+                     "stray": (["run.mcap"], "unexpected argument 'run.mcap'")}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("executable", ["needle_simulator", "needle_compare", "needle_stereo", "needle_replay",
+                                        "needle_bringup"])
+def test_every_node_refuses_a_malformed_command_line_with_exit_2(tmp_path, executable, ros_env):
+    for name, (arguments, words) in BAD_COMMAND_LINES.items():
+        if name == "stray" and executable in ("needle_replay", "needle_bringup"):  # they take a bag: see their tests
+            continue
+        result = run([executable, *arguments], tmp_path, ros_env)
+        output = result.stdout + result.stderr
+        assert result.returncode == 2 and "Traceback" not in output, f"{executable} {name}: {output}"
+        lines = output.strip().splitlines()
+        assert len(lines) == 1 and "FATAL" in lines[0] and words in lines[0], f"{executable} {name}: {output}"

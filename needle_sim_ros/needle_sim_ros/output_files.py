@@ -3,6 +3,8 @@ so that a failed or interrupted run leaves no half-written file behind."""
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -24,10 +26,13 @@ def check_output_file(path: Path, what: str) -> Path:
 
 
 def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
-    """``write(temporary)`` next to ``path``, then rename it to ``path`` (the temporary is removed on failure)."""
-    temporary = path.with_name(f".{path.name}.partial{path.suffix}")  # same suffix: writers that infer the format
+    """``write(temporary)`` into a hidden folder next to ``path`` under the same file name (writers that infer the
+    format from the suffix, or record their file's name -- a rosbag2 MCAP's metadata --, see the final one), then
+    rename it to ``path``; the folder is removed in any case."""
+    staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.partial-", dir=path.parent))
     try:
+        temporary = staging / path.name
         write(temporary)
         os.replace(temporary, path)
     finally:
-        temporary.unlink(missing_ok=True)
+        shutil.rmtree(staging, ignore_errors=True)

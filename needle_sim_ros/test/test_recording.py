@@ -344,3 +344,28 @@ def test_recover_cli_reports_bad_input(tmp_path, capsys):
     assert recovery.main([str(empty), str(tmp_path / "out.mcap")]) == 2
     assert "0 bytes long: nothing to recover" in capsys.readouterr().err
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_a_bag_written_atomically_records_its_final_file_name(tmp_path):
+    from needle_sim_ros.output_files import write_atomically
+
+    path = tmp_path / "run.mcap"
+    write_atomically(path, lambda temporary: write_samples(temporary, repeats=1))
+    assert [p.name for p in tmp_path.iterdir()] == ["run.mcap"]  # no staging folder left
+    import yaml
+    with open(path, "rb") as stream:
+        records = {m.name: m.metadata for m in make_reader(stream).iter_metadata()}
+    bag = yaml.safe_load(records["rosbag2"]["serialized_metadata"])
+    assert bag["relative_file_paths"] == ["run.mcap"] and [f["path"] for f in bag["files"]] == ["run.mcap"]
+
+
+def test_make_bags_refuses_an_unusable_output_before_the_ground_truth(tmp_path, capsys):
+    from needle_sim_ros.experiments.make_bags import main
+
+    blocker = tmp_path / "bags"
+    blocker.write_text("a file, not a folder")
+    start = time.perf_counter()
+    assert main(["--output-dir", str(blocker), "--experiments", "static_tip_load"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("needle_make_bags: error: bag ") and "a file is in the way" in err and err.count("\n") == 1
+    assert time.perf_counter() - start < 2.0 and blocker.read_text() == "a file, not a folder"

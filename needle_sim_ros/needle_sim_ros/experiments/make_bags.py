@@ -40,7 +40,8 @@ from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, ru
 from needle_sim_ros.experiments.protocols import EXPERIMENTS, Experiment
 from needle_sim_ros.model import BaseMotion
 from needle_sim_ros.messages.shape import needle_shape_msg
-from needle_sim_ros.recording import McapBagWriter, OfferedQos, WriterOptions
+from needle_sim_ros.output_files import check_output_file, write_atomically
+from needle_sim_ros.recording import McapBagWriter, OfferedQos, RecordingError, WriterOptions
 
 START_NS = 1_700_000_000 * 10**9  # bag start (log time of t = 0)
 WORLD, BASE = "world", "needle_base"
@@ -206,20 +207,25 @@ def write_bag(experiment: Experiment, path: Path, truth_model: TruthModel = Trut
     seed = zlib.crc32(experiment.name.encode())
     content = BagContent(experiment, truth, rendering, seed)
     counts: dict[str, int] = {}
-    with McapBagWriter(path, WriterOptions(compression="zstd", overwrite=True)) as writer:
-        writer.add_metadata("needle_sim/experiment", {
-            "name": experiment.name, "description": experiment.description, "synthetic": "true",
-            "ground_truth": ", ".join(f"{k}={v}" for k, v in asdict(truth_model).items()),
-            "ground_truth_static_check": json.dumps(static_check(truth_model)),
-            "rendering": ", ".join(f"{k}={v}" for k, v in asdict(rendering).items()) if experiment.has_images else "",
-            "generator": "needle_make_bags (needle_sim_ros.experiments)", "seed": str(seed)})
-        for topic, (type_name, qos) in content.topics().items():
-            writer.add_topic(topic, type_name, qos)
-        for t, _, topic, factory in content.events():
-            produced = factory()
-            for name, msg in (produced if topic == "images" else [(topic, produced)]):
-                writer.write(name, serialize_message(msg), log_time(t))
-                counts[name] = counts.get(name, 0) + 1
+
+    def write(target: Path) -> None:
+        with McapBagWriter(target, WriterOptions(compression="zstd", overwrite=True)) as writer:
+            writer.add_metadata("needle_sim/experiment", {
+                "name": experiment.name, "description": experiment.description, "synthetic": "true",
+                "ground_truth": ", ".join(f"{k}={v}" for k, v in asdict(truth_model).items()),
+                "ground_truth_static_check": json.dumps(static_check(truth_model)),
+                "rendering": ", ".join(f"{k}={v}" for k, v in asdict(rendering).items()) if experiment.has_images
+                else "",
+                "generator": "needle_make_bags (needle_sim_ros.experiments)", "seed": str(seed)})
+            for topic, (type_name, qos) in content.topics().items():
+                writer.add_topic(topic, type_name, qos)
+            for t, _, topic, factory in content.events():
+                produced = factory()
+                for name, msg in (produced if topic == "images" else [(topic, produced)]):
+                    writer.write(name, serialize_message(msg), log_time(t))
+                    counts[name] = counts.get(name, 0) + 1
+
+    write_atomically(path, write)  # an interrupted run leaves no half-written bag
     size = path.stat().st_size
     log(f"  wrote {path} ({size / 1e6:.1f} MB): " + ", ".join(f"{t} {n}" for t, n in sorted(counts.items())))
     return {"path": str(path), "size_bytes": size, "counts": counts, "truth_wall_s": truth_wall,
@@ -233,13 +239,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--experiments", nargs="+", choices=sorted(EXPERIMENTS), default=list(EXPERIMENTS),
                         help="which bags to write (default: all)")
     args = parser.parse_args(argv)
+    try:  # every bag's file checked before the first ground truth is integrated
+        paths = {name: check_output_file(args.output_dir / f"{name}.mcap", "bag") for name in args.experiments}
+    except ValueError as error:
+        print(f"needle_make_bags: error: {error}", file=sys.stderr)
+        return 2
     total = 0
-    for name in args.experiments:
+    for name, path in paths.items():
         experiment = EXPERIMENTS[name]()
         print(f"[needle_make_bags] {name}: {experiment.description}", flush=True)
-        written = write_bag(experiment, args.output_dir / f"{name}.mcap", log=lambda m: print(m, flush=True))
+        try:
+            written = write_bag(experiment, path, log=lambda m: print(m, flush=True))
+        except (RecordingError, OSError) as error:
+            print(f"needle_make_bags: error: {error}", file=sys.stderr)
+            return 1
         total += written["size_bytes"]
-    print(f"[needle_make_bags] {len(args.experiments)} bag(s), {total / 1e6:.1f} MB in total")
+    print(f"[needle_make_bags] {len(paths)} bag(s), {total / 1e6:.1f} MB in total")
     return 0
 
 

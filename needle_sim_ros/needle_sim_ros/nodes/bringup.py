@@ -19,12 +19,12 @@ from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
-from rclpy.utilities import remove_ros_args
 
 from needle_vision.parameters import ParameterError
+from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
 
 NAME = "needle_bringup"
-EXIT_BAD_PARAMETER = 2
+EXIT_BAD_PARAMETER = EXIT_BAD_ARGUMENTS
 COMPARE_REMAPS = ("needle_compare:model/shape:=needle/shape", "needle_compare:measured/shape:=needle/measured_shape")
 
 
@@ -69,8 +69,11 @@ def check_node_arguments(rcl_args: list[str], stereo: bool, logger) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv if argv is None else argv)
-    args = parse_arguments(remove_ros_args(argv)[1:])
     logger = rclpy.logging.get_logger(NAME)
+    others = non_ros_arguments(argv, logger, NAME, takes_others=True)
+    if others is None:
+        return EXIT_BAD_PARAMETER
+    args = parse_arguments(others[1:])
     try:
         rcl_args, stereo = rcl_arguments(argv, args)
         check_node_arguments(rcl_args, stereo, logger)

@@ -37,10 +37,10 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
+from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
 from needle_vision.ros.input_status import InputReports
 
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
@@ -241,18 +241,21 @@ class ReplayNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
-    args = parse_arguments(remove_ros_args(argv)[1:])
     logger = rclpy.logging.get_logger(NODE_NAME)
+    others = non_ros_arguments(argv, logger, NODE_NAME, takes_others=True)
+    if others is None:
+        return EXIT_BAD_ARGUMENTS
+    args = parse_arguments(others[1:])
     try:
         reader = BagReader(args.bag, stop_on_corrupt=args.stop_on_corrupt)
     except BagReadError as error:
         logger.fatal(str(error))
-        return 2
+        return EXIT_BAD_ARGUMENTS
     unknown = sorted(set(args.topics or ()) - set(reader.topics))
     if unknown:
         logger.fatal(f"--topics: not in '{args.bag}': {', '.join(unknown)} "
                      f"(recorded: {', '.join(sorted(reader.topics))})")
-        return 2
+        return EXIT_BAD_ARGUMENTS
     rclpy.init(args=argv)
     node = ReplayNode(reader, args)
     status, played, interrupted = 0, False, False

@@ -10,22 +10,26 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from needle_vision.parameters import ParameterError, ParamSpec, check_ros_arguments
+from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
 
 
-EXIT_BAD_PARAMETER = 2
+EXIT_BAD_PARAMETER = EXIT_BAD_ARGUMENTS
 
 
 def run_node(make_node: Callable[[], Node], name: str, args=None,
              specs: Sequence[ParamSpec] | None = None) -> int:
-    """Spin one node until SIGINT/SIGTERM; a bad ``--params-file`` (checked against ``specs`` before rclpy reads
-    it) or a ParameterError at construction exits with code 2.
+    """Spin one node until SIGINT/SIGTERM; a bad command line (malformed ROS arguments, other arguments, a bad
+    ``--params-file`` checked against ``specs`` before rclpy reads it) or a ParameterError at construction exits
+    with code 2.
 
     Optional node hooks: ``start()`` after construction (e.g. a real-time thread), ``finish()`` before destruction
     (e.g. stop that thread, finalize a log file).
     """
+    argv = sys.argv if args is None else args
+    if non_ros_arguments(argv, rclpy.logging.get_logger(name), name, takes_others=False) is None:
+        return EXIT_BAD_PARAMETER
     try:
-        check_ros_arguments(sys.argv if args is None else args, name, specs,
-                            lambda message: rclpy.logging.get_logger(name).warning(message))
+        check_ros_arguments(argv, name, specs, lambda message: rclpy.logging.get_logger(name).warning(message))
     except ParameterError as error:
         rclpy.logging.get_logger(name).fatal(str(error))
         return EXIT_BAD_PARAMETER

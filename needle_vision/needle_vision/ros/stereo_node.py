@@ -38,6 +38,7 @@ from needle_vision.streams.pairing import StampPairer
 from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments, output_from_left,
                                       stereo_config, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline, compile_kernels
+from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
 from needle_vision.ros.input_status import InputStatus
 from needle_vision.ros.measurement_status import MeasurementStatus
 from needle_vision.ros.ros_parameters import declare_all
@@ -243,12 +244,14 @@ class NeedleStereoNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    argv, logger = sys.argv if args is None else args, rclpy.logging.get_logger("needle_stereo")
+    if non_ros_arguments(argv, logger, "needle_stereo", takes_others=False) is None:
+        return EXIT_BAD_ARGUMENTS
     try:  # every --params-file checked before rclpy reads it (rcl's parser would end in a traceback)
-        check_ros_arguments(sys.argv if args is None else args, "needle_stereo", SPECS,
-                            lambda message: rclpy.logging.get_logger("needle_stereo").warning(message))
+        check_ros_arguments(argv, "needle_stereo", SPECS, logger.warning)
     except ParameterError as error:
-        rclpy.logging.get_logger("needle_stereo").fatal(str(error))
-        return 2
+        logger.fatal(str(error))
+        return EXIT_BAD_ARGUMENTS
     rclpy.init(args=args)
     node = None
     try:

@@ -1,0 +1,34 @@
+"""A node's command line before rclpy starts: malformed ROS arguments (rcl rejects them with a traceback) and
+arguments a node does not take become one fatal log line; the caller exits with :data:`EXIT_BAD_ARGUMENTS`."""
+from __future__ import annotations
+
+import re
+from typing import Sequence
+
+from rclpy._rclpy_pybind11 import RCLError, UnknownROSArgsError
+from rclpy.utilities import remove_ros_args
+
+EXIT_BAD_ARGUMENTS = 2
+ROS_ARGUMENTS_USAGE = "--ros-args -p NAME:=VALUE --params-file FILE -r FROM:=TO"
+
+
+def _rcl_message(error: Exception) -> str:
+    """rcl's complaint without its source location (``..., at /path/arguments.c:356``)."""
+    if isinstance(error, UnknownROSArgsError):
+        return f"unknown ROS argument(s) {error}"
+    return re.sub(r",? at \S+:\d+$", "", str(error)).removeprefix("Failed to parse ROS arguments: ")
+
+
+def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool) -> list[str] | None:
+    """``argv`` without its ROS arguments (``argv[0]`` first), or None after logging one fatal line: the ROS
+    arguments do not parse, or there are others and the node takes none (``takes_others`` False)."""
+    try:
+        others = remove_ros_args(list(argv))
+    except (UnknownROSArgsError, RCLError) as error:
+        usage = f"{name} --help" if takes_others else f"{name} {ROS_ARGUMENTS_USAGE}"
+        logger.fatal(f"invalid ROS arguments: {_rcl_message(error)} (usage: {usage})")
+        return None
+    if not takes_others and len(others) > 1:
+        logger.fatal(f"unexpected argument '{others[1]}': {name} takes ROS arguments only ({ROS_ARGUMENTS_USAGE})")
+        return None
+    return others
