@@ -79,3 +79,28 @@ def test_the_installed_example_grid_loads():
     assert len(grid.parameter_sets) == 2 * 2 + 2
     assert grid.parameter_sets[1]["needle_simulator"]["tissue.layers.tip_stiffness"] == [1.2e4]
     assert grid.parameter_sets[-1]["needle_simulator"]["tissue.layers.friction_coulomb"] == [8.0]
+
+
+def test_unusable_inputs_end_the_batch_before_a_cluster_starts(tmp_path, capsys):
+    """A missing single bag, a bag without an experiment file, an output folder that cannot be one: exit 2 and one
+    line, before a cluster starts (before: a cluster, every task a failed row, exit 1; the output folder: after
+    all the tasks ran)."""
+    from needle_sim_ros.batch.cli import main
+    grid = write(tmp_path, "sweep:\n  needle_simulator:\n    ros__parameters:\n      needle.elements: [4, 6]\n")
+    bag = tmp_path / "lab_run.mcap"
+    bag.write_bytes(b"not read before the tasks")
+    experiment = tmp_path / "lab.yaml"
+    experiment.write_text("needle_simulator:\n  ros__parameters: {}\n")
+    blocker = tmp_path / "results"
+    blocker.write_text("a file")
+    cases = [(["--bags", str(tmp_path / "absent.mcap")], "--bags '"),
+             (["--bags", str(bag)], f"bag '{bag}': no experiment file"),
+             (["--bags", str(bag), "--experiment", str(experiment), "--output-dir", str(blocker)],
+              f"--output-dir '{blocker}' is a file"),
+             (["--bags", str(bag), "--experiment", str(experiment), "--output-dir", str(blocker / "sub")],
+              "a file is in the way")]
+    for arguments, words in cases:
+        assert main(["sweep", "--grid", str(grid), "--workers", "1", "--quiet", *arguments]) == 2, arguments
+        err = capsys.readouterr().err
+        assert err.startswith("needle_batch: error: ") and words in err and err.count("\n") == 1, err
+    assert blocker.read_text() == "a file"

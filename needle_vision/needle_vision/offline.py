@@ -44,6 +44,7 @@ from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibrat
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
+from needle_vision.output_files import check_output_file
 from needle_vision.parameters import (ParameterError, base_pose_store, load_params_file, output_from_left,
                                       stereo_config, valid_topic_name, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, PairMeasurement, StereoNeedlePipeline
@@ -430,6 +431,11 @@ def _settings(arguments: argparse.Namespace) -> dict:
 def run(arguments: argparse.Namespace) -> int:
     values = _settings(arguments)
     source_path = Path(arguments.input)
+    output = Path(arguments.output)
+    try:  # before any work: a directory, a file in the way of its folder, an unwritable folder (its folder is made)
+        check_output_file(output, "--output")
+    except ValueError as error:
+        raise InputError(str(error)) from error
     base_topic = arguments.base_pose_topic or ""
     if arguments.base_pose_topic is not None and not valid_topic_name(base_topic):
         raise InputError(f"--base-pose-topic '{base_topic}' is not a valid ROS 2 topic name")
@@ -459,7 +465,6 @@ def run(arguments: argparse.Namespace) -> int:
     background: list[tuple[np.ndarray, np.ndarray]] = []
     total = None if source.count is None else len(range(*slice(max(frames.start or 0, background_pairs),
                                                                frames.stop).indices(source.count))) + background_pairs
-    output = Path(arguments.output)
     partial = output.with_name(output.name + ".part")
     measured = 0
     ordering: Counter = Counter()

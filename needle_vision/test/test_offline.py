@@ -96,7 +96,7 @@ def test_mcap_bag_with_camera_info_and_bad_frames(tmp_path, rig, background_fram
                (1.07, *renders("3d"))]
     bag = tmp_path / "recording.mcap"
     write_bag(bag, rig, frames, encoding_of=lambda k: "yuv422" if k == 4 else "mono8")
-    output = tmp_path / "out.csv"
+    output = tmp_path / "new" / "out.csv"  # its folder is made
     assert main([str(bag), "--params", str(params_file(tmp_path, rig, tracking={"enabled": True})),
                  "--output", str(output), "--quiet"]) == 0
     header, rows = read_rows(output)
@@ -128,6 +128,11 @@ def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"sync_tolerance": -1.0}}}))
     assert "parameter 'sync_tolerance'" in error(str(frames), "--params", str(bad))
+    # an output that cannot be written is refused before any pair is read (before: after all of them)
+    for output, words in ((tmp_path, "is a directory"), (bad / "out.csv", "a file is in the way")):
+        assert main([str(tmp_path / "absent.mcap"), "--quiet", "--output", str(output)]) == 2
+        message = capsys.readouterr().err
+        assert message.startswith("needle_stereo_offline: error: --output ") and words in message, message
     calibration = ["--left-calibration", "package://needle_vision/config/stereo/left.yaml",
                    "--right-calibration", "package://needle_vision/config/stereo/right.yaml"]
     (frames / "left" / "0001.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")

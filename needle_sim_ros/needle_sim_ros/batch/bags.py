@@ -61,7 +61,7 @@ def resolve_bags(spec: str) -> list[BagEntry]:
         if not entries:
             raise BagListError(f"--bags '{spec}': the manifest lists no bag")
         return entries
-    if _is_bag(path):
+    if _is_bag(path) and path.exists():  # a missing bag is a failed row only in a manifest (module docstring)
         return [BagEntry(str(path))]
     raise BagListError(f"--bags '{spec}': no such folder, bag or manifest")
 

@@ -15,7 +15,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from needle_sim_ros.batch.bags import BagListError, resolve_bags
+from needle_vision.output_files import check_output_dir
+
+from needle_sim_ros.batch.bags import BagEntry, BagListError, resolve_bags
 from needle_sim_ros.batch.grid import GridError, load_grid
 
 PIP_LINE = 'pip install "dask[distributed]" pandas pyarrow'
@@ -103,6 +105,32 @@ def run_identify_command(args: argparse.Namespace, client, entries) -> int:
     return 0 if result.success else 1
 
 
+def checked_inputs(args: argparse.Namespace) -> list[BagEntry]:
+    """The bag entries, after everything a run needs was checked before a cluster starts: the bags, the grid or
+    the fitted parameters, every bag's experiment file, the output folder (made if missing). BagListError or
+    GridError otherwise."""
+    entries = resolve_bags(args.bags)
+    if args.command == "sweep":
+        load_grid(args.grid)  # bad grid files and fitted parameters fail before a cluster starts
+    else:
+        from needle_sim_ros.batch.identify import parse_fit
+        args.fits = [parse_fit(text) for text in args.fit]
+    if args.experiment is not None and not args.experiment.is_file():
+        raise BagListError(f"--experiment '{args.experiment}': no such file")
+    from needle_sim_ros.batch.sweep import experiment_path
+    experiments = [(e.path, experiment_path(e, args.experiment, None)) for e in entries if Path(e.path).exists()]
+    missing = [(bag, path) for bag, path in experiments if not Path(path).is_file()]
+    if missing:  # a configuration error, not a bag's (a missing bag is a failed row: batch.bags)
+        (bag, path), others = missing[0], len(missing) - 1
+        raise BagListError(f"bag '{bag}': no experiment file '{path}'" + (f" (and {others} other bag(s))" if others
+                           else "") + "; give one with --experiment FILE or in a manifest's second column")
+    try:  # before a cluster starts and the tasks run (made if missing)
+        check_output_dir(args.output_dir, "--output-dir")
+    except ValueError as error:
+        raise BagListError(str(error)) from error
+    return entries
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     if (args.workers is not None and args.workers < 1) or (args.duration is not None and args.duration <= 0):
@@ -118,14 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from needle_sim_ros.batch.cluster import open_client
     try:
-        entries = resolve_bags(args.bags)
-        if args.command == "sweep":
-            load_grid(args.grid)  # bad grid files and fitted parameters fail before a cluster starts
-        else:
-            from needle_sim_ros.batch.identify import parse_fit
-            args.fits = [parse_fit(text) for text in args.fit]
-        if args.experiment is not None and not args.experiment.is_file():
-            raise BagListError(f"--experiment '{args.experiment}': no such file")
+        entries = checked_inputs(args)
         with open_client(args.workers, args.scheduler) as client:
             command = run_sweep_command if args.command == "sweep" else run_identify_command
             return command(args, client, entries)

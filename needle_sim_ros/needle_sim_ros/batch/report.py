@@ -12,7 +12,7 @@ import yaml
 
 from needle_sim_ros.batch.identify import FitParameter, FitResult
 from needle_sim_ros.batch.task import TaskSpec, resolved_overrides
-from needle_sim_ros.output_files import write_atomically
+from needle_vision.output_files import write_atomically
 from needle_sim_ros.parameters.experiment import load_experiment
 
 

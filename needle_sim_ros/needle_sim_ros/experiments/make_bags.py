@@ -40,7 +40,7 @@ from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, ru
 from needle_sim_ros.experiments.protocols import EXPERIMENTS, Experiment
 from needle_sim_ros.model import BaseMotion
 from needle_sim_ros.messages.shape import needle_shape_msg
-from needle_sim_ros.output_files import check_output_file, write_atomically
+from needle_vision.output_files import check_output_file, write_atomically
 from needle_sim_ros.recording import McapBagWriter, OfferedQos, RecordingError, WriterOptions
 
 START_NS = 1_700_000_000 * 10**9  # bag start (log time of t = 0)

@@ -25,6 +25,21 @@ def check_output_file(path: Path, what: str) -> Path:
     return path
 
 
+def check_output_dir(path: Path, what: str) -> Path:
+    """``path`` as a writable folder (created if missing); ValueError naming ``what`` otherwise."""
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{what} '{path}' is a file, not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError) as error:
+        raise ValueError(f"{what} '{path}': a file is in the way of it") from error
+    except OSError as error:
+        raise ValueError(f"{what} '{path}': cannot create it: {error.strerror or error}") from error
+    if not os.access(path, os.W_OK):
+        raise ValueError(f"{what} '{path}' is not writable")
+    return path
+
+
 def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
     """``write(temporary)`` into a hidden folder next to ``path`` under the same file name (writers that infer the
     format from the suffix, or record their file's name -- a rosbag2 MCAP's metadata --, see the final one), then
