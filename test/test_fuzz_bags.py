@@ -193,3 +193,23 @@ def test_needle_replay_skips_corrupt_chunks_and_mistyped_topics(tmp_path, ros_en
     empty.write_bytes(b"")
     refused = replay(empty)
     assert refused.returncode == 2 and "is empty" in refused.stdout + refused.stderr
+
+
+@pytest.mark.slow
+def test_out_of_range_times_are_refused_before_any_work(tmp_path, ros_env):
+    """NaN, inf, negative, and a start offset past the bag's end (before: NaN and inf ended in a traceback, an offset
+    past the end ran "successfully" over -994 s at -3928x real time, and needle_replay played 0 messages with exit
+    status 0)."""
+    commands = {("needle_offline", "--start-offset", "nan"): "argument --start-offset: must be a finite number, got nan",
+                ("needle_offline", "--duration", "inf"): "argument --duration: must be a finite number, got inf",
+                ("needle_offline", "--duration", "-1"): "argument --duration: must be > 0, got -1",
+                ("needle_offline", "--start-offset", "1000"): f"--start-offset 1000 s: '{BAG}' spans only",
+                ("needle_replay", "--start-offset", "1000"): f"--start-offset 1000 s: '{BAG}' spans only",
+                ("needle_replay", "--rate", "inf"): "argument --rate/-r: must be a finite number, got inf"}
+    for (executable, *option), words in commands.items():
+        quiet = ["--quiet"] if executable == "needle_offline" else []
+        result = subprocess.run([executable, str(BAG), *option, *quiet], cwd=tmp_path, env=ros_env,
+                                capture_output=True, text=True, timeout=300)
+        output = result.stdout + result.stderr
+        assert result.returncode == 2 and "Traceback" not in output and words in output, (executable, option, output)
+    assert not any(tmp_path.iterdir())  # nothing written

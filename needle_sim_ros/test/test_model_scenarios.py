@@ -60,6 +60,10 @@ def test_free_vibration_energy_series(tmp_path):
 def test_bad_arguments_give_an_error_code(capsys):
     assert main(["static", "--tip-mass", "-0.1"]) == 2
     assert "tip-mass" in capsys.readouterr().err
+    # a load far beyond what the model resolves (before: a StaticSolveFailed traceback, exit 1)
+    assert main(["static", "--tip-mass", "1e300"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the model found no solution for these inputs" in err
 
 
 @pytest.mark.parametrize("option", ["--json", "--plot"])

@@ -63,6 +63,10 @@ def test_command_line_writes_json_and_plot_with_the_shipped_tissue_and_a_params_
 def test_bad_motion_is_a_clear_error():
     for bad in ({"waypoints": (0.09,), "speed": 0.0}, {"waypoints": (-0.01,), "speed": 0.006},
                 {"waypoints": (0.09,), "speed": 0.006, "duty_cycle": 0.5},
-                {"waypoints": (0.09,), "speed": 0.006, "duty_cycle": 1.5, "spin_rate": 1.0}):
+                {"waypoints": (0.09,), "speed": 0.006, "duty_cycle": 1.5, "spin_rate": 1.0},
+                # before: a NaN roll ended in a StaticSolveFailed traceback, a NaN spin rate was accepted
+                {"waypoints": (0.09,), "speed": 0.006, "roll": float("nan")},
+                {"waypoints": (0.09,), "speed": 0.006, "spin_rate": float("nan")},
+                {"waypoints": (0.09,), "speed": 0.006, "duty_cycle": float("nan"), "spin_rate": 1.0}):
         with pytest.raises(ValueError):
             InsertionMotion(**bad)

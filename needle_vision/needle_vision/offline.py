@@ -44,6 +44,7 @@ from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibrat
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
+from needle_vision.cli_types import positive, positive_int
 from needle_vision.output_files import check_output_file
 from needle_vision.parameters import (ParameterError, base_pose_store, load_params_file, output_from_left,
                                       stereo_config, valid_topic_name, validate_all)
@@ -571,8 +572,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="measure pairs A (included) to B (excluded) only; either may be empty")
     parser.add_argument("--output-frame", help="'camera': the raw left optical frame (output_transform unused); "
                         "another name (e.g. world): output_frame, with output_transform from the params file")
-    parser.add_argument("--fps", type=float, default=220.0, help="frame rate of an image folder [Hz] (stamps)")
-    parser.add_argument("--workers", type=int, default=min(4, os.cpu_count() or 1),
+    parser.add_argument("--fps", type=positive, default=220.0, help="frame rate of an image folder [Hz] (stamps)")
+    parser.add_argument("--workers", type=positive_int, default=min(4, os.cpu_count() or 1),
                         help="image decoding threads, and threads measuring pairs concurrently (1: one pair after the "
                         "other; the output is the same) (default: %(default)s)")
     parser.add_argument("--left-topic", default="left/image_raw", help="Image or CompressedImage topic")
@@ -584,10 +585,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--right-info-topic", default="right/camera_info")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     arguments = parser.parse_args(argv)
-    if not arguments.fps > 0:
-        parser.error("--fps must be positive")
-    if arguments.workers < 1:
-        parser.error("--workers must be at least 1")
     return command_status("needle_stereo_offline", run, arguments, (ParameterError, CalibrationError, InputError,
                                                                     OSError), NothingMeasured)
 

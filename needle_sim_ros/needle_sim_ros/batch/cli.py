@@ -15,6 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from needle_vision.cli_types import positive, positive_int
 from needle_vision.output_files import check_output_dir
 
 from needle_sim_ros.batch.bags import BagEntry, BagListError, resolve_bags
@@ -28,8 +29,8 @@ def _common(parser: argparse.ArgumentParser, default_output: str) -> None:
     parser.add_argument("--experiment", type=Path, help="experiment params file for every bag (default: "
                         "config/experiments/<bag name>.yaml, or the manifest's second column)")
     parser.add_argument("--output-dir", type=Path, default=Path(default_output), help=f"default: {default_output}")
-    parser.add_argument("--duration", type=float, help="process only the first S seconds of each bag")
-    parser.add_argument("--workers", type=int, help="local worker processes (default: the machine's cores)")
+    parser.add_argument("--duration", type=positive, help="process only the first S seconds of each bag")
+    parser.add_argument("--workers", type=positive_int, help="local worker processes (default: the machine's cores)")
     parser.add_argument("--scheduler", help="address of an existing Dask scheduler (e.g. tcp://host:8786)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -49,11 +50,11 @@ def parser() -> argparse.ArgumentParser:
     _common(fit, "out/identify")
     fit.add_argument("--fit", action="append", required=True, metavar="[NODE:]PARAM=INITIAL",
                      help="a parameter to fit (positive), e.g. tissue.layers.tip_stiffness[0]=9e3 (repeatable)")
-    fit.add_argument("--shape-scale", type=float, default=1e-4, help="shape residual scale [m] (default 1e-4)")
-    fit.add_argument("--force-scale", type=float, default=1e-2, help="force residual scale [N] (default 1e-2)")
-    fit.add_argument("--moment-scale", type=float, default=1e-3, help="moment residual scale [N m] (default 1e-3)")
-    fit.add_argument("--step", type=float, default=0.01, help="relative finite-difference step (default 0.01)")
-    fit.add_argument("--max-evaluations", type=int, default=30, help="optimiser evaluations (default 30)")
+    fit.add_argument("--shape-scale", type=positive, default=1e-4, help="shape residual scale [m] (default 1e-4)")
+    fit.add_argument("--force-scale", type=positive, default=1e-2, help="force residual scale [N] (default 1e-2)")
+    fit.add_argument("--moment-scale", type=positive, default=1e-3, help="moment residual scale [N m] (default 1e-3)")
+    fit.add_argument("--step", type=positive, default=0.01, help="relative finite-difference step (default 0.01)")
+    fit.add_argument("--max-evaluations", type=positive_int, default=30, help="optimiser evaluations (default 30)")
     return main
 
 
@@ -133,9 +134,6 @@ def checked_inputs(args: argparse.Namespace) -> list[BagEntry]:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    if (args.workers is not None and args.workers < 1) or (args.duration is not None and args.duration <= 0):
-        print("needle_batch: error: --workers must be >= 1 and --duration > 0", file=sys.stderr)
-        return 2
     try:
         import dask  # noqa: F401
         import distributed  # noqa: F401

@@ -40,6 +40,7 @@ from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
+from needle_vision.cli_types import non_negative, positive
 from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
 from needle_vision.ros.input_status import InputReports
 
@@ -48,27 +49,6 @@ from needle_sim_ros.recording import BagReadError, BagReader, PlaybackSchedule
 
 NODE_NAME = "needle_replay"
 LINGER = 10.0  # [s] longest wait for the acknowledgements after the last message (--linger)
-
-
-def _number(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: '{text}'") from None
-
-
-def _positive(text: str) -> float:
-    value = _number(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def _non_negative(text: str) -> float:
-    value = _number(text)
-    if not value >= 0.0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
 
 
 def _node_name(text: str) -> str:
@@ -83,21 +63,21 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog=NODE_NAME, description=__doc__.split("\n\n")[0],
                                      epilog="Remap topics with ROS arguments: --ros-args -r FROM:=TO")
     parser.add_argument("bag", help="recording: a .mcap file or a rosbag2 bag directory")
-    parser.add_argument("--rate", "-r", type=_positive, default=1.0, help="playback rate factor (default 1)")
-    parser.add_argument("--start-offset", type=_non_negative, default=0.0, help="skip the first S seconds of the bag")
+    parser.add_argument("--rate", "-r", type=positive, default=1.0, help="playback rate factor (default 1)")
+    parser.add_argument("--start-offset", type=non_negative, default=0.0, help="skip the first S seconds of the bag")
     parser.add_argument("--loop", "-l", action="store_true", help="play again from the start when done")
     parser.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics (default: all)")
-    parser.add_argument("--clock", nargs="?", type=_non_negative, const=100.0, default=0.0, metavar="HZ",
+    parser.add_argument("--clock", nargs="?", type=non_negative, const=100.0, default=0.0, metavar="HZ",
                         help="publish the playback time on /clock at HZ (default 100 when given)")
-    parser.add_argument("--delay", type=_non_negative, default=0.0,
+    parser.add_argument("--delay", type=non_negative, default=0.0,
                         help="wait S seconds before playing (after --wait-for-subscribers)")
-    parser.add_argument("--linger", type=_non_negative, default=LINGER, metavar="S",
+    parser.add_argument("--linger", type=non_negative, default=LINGER, metavar="S",
                         help="after the last message, wait up to S seconds until every reliable subscriber has "
                         "acknowledged all of it (default %(default)g)")
     parser.add_argument("--in-namespace", action="store_true",
                         help="publish the recorded topics in the player's namespace (/base_pose as <ns>/base_pose), "
                         "where the nodes of a launch in that namespace read them")
-    parser.add_argument("--wait-for-subscribers", type=_non_negative, default=0.0, metavar="S",
+    parser.add_argument("--wait-for-subscribers", type=non_negative, default=0.0, metavar="S",
                         help="wait up to S seconds until every topic has a subscriber, matched from the "
                         "subscriber's side where it reports its inputs")
     parser.add_argument("--wait-for-nodes", nargs="+", metavar="NODE", type=_node_name,
@@ -248,7 +228,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_arguments(others[1:])
     try:
         reader = BagReader(args.bag, stop_on_corrupt=args.stop_on_corrupt)
-    except BagReadError as error:
+        reader.check_start_offset(args.start_offset)
+    except (BagReadError, ValueError) as error:
         logger.fatal(str(error))
         return EXIT_BAD_ARGUMENTS
     unknown = sorted(set(args.topics or ()) - set(reader.topics))

@@ -23,6 +23,7 @@ from typing import Any
 import yaml
 from tqdm import tqdm
 
+from needle_vision.cli_types import non_negative, positive
 from needle_vision.parameters import ParameterError
 
 from needle_sim_ros.parameters.experiment import NODES, ExperimentConfigError, experiment_for_bag, load_experiment
@@ -84,8 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--experiment", type=Path, help="experiment params file (default: the installed "
                         "share/needle_sim_ros/config/experiments/<bag name>.yaml)")
     parser.add_argument("--output-dir", type=Path, help="output directory (default: out/<bag name>/offline)")
-    parser.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds of the bag")
-    parser.add_argument("--duration", type=float, help="process only S seconds (default: to the end)")
+    parser.add_argument("--start-offset", type=non_negative, default=0.0, help="skip the first S seconds of the bag")
+    parser.add_argument("--duration", type=positive, help="process only S seconds (default: to the end)")
     parser.add_argument("--set", dest="overrides", action="append", type=parse_override, default=[],
                         metavar="NODE:PARAM=VALUE", help="override a node parameter (repeatable)")
     parser.add_argument("--instants", type=float, nargs="+", help="centerline plot instants [s from the bag start]")
@@ -95,8 +96,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stop-on-corrupt", action="store_true", help="stop at a corrupt chunk or message of the "
                         "bag (default: skip it and count it in the summary)")
     args = parser.parse_args(argv)
-    if args.start_offset < 0 or (args.duration is not None and args.duration <= 0):
-        parser.error("--start-offset must be >= 0 and --duration > 0")
     overrides: dict[str, dict[str, Any]] = {}
     for node, name, value in args.overrides:
         overrides.setdefault(node, {})[name] = value
@@ -104,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     output_dir = args.output_dir or Path("out") / name / "offline"
     try:
         reader = BagReader(args.bag)
+        reader.check_start_offset(args.start_offset)
         experiment = load_experiment(args.experiment) if args.experiment else experiment_for_bag(args.bag)
         pipeline = OfflinePipeline(experiment, overrides, stereo=False if args.no_stereo else None)
         output_dir.mkdir(parents=True, exist_ok=True)

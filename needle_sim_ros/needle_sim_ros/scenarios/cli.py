@@ -13,6 +13,8 @@ import sys
 
 from needle_vision.output_files import check_output_file
 
+from needle_sim_ros.model import StaticSolveFailed, StepFailed
+
 from . import free_vibration, insertion, pitch, static
 
 SCENARIOS = (static, pitch, free_vibration, insertion)
@@ -36,6 +38,10 @@ def main(argv: list[str] | None = None) -> int:
         return args.run(args)
     except (ValueError, OSError) as error:
         print(f"needle_scenario {args.scenario}: error: {error}", file=sys.stderr)
+        return 2
+    except (StaticSolveFailed, StepFailed) as error:  # e.g. --tip-mass 1e300: inputs beyond what the model resolves
+        print(f"needle_scenario {args.scenario}: error: the model found no solution for these inputs: {error}",
+              file=sys.stderr)
         return 2
 
 

@@ -40,9 +40,13 @@ class InsertionMotion:
             raise ValueError(f"insertion depths must be >= 0 [m], got {self.waypoints!r}")
         if not (np.isfinite(self.gap) and self.gap >= 0.0):
             raise ValueError(f"insertion gap must be >= 0 [m], got {self.gap!r}")
+        if not np.isfinite(self.roll):
+            raise ValueError(f"roll must be finite [rad], got {float(self.roll)!r}")
+        if not (np.isfinite(self.spin_rate) and self.spin_rate >= 0.0):
+            raise ValueError(f"spin rate must be >= 0 [rad/s], got {self.spin_rate!r}")
         if not 0.0 <= self.duty_cycle <= 1.0:
             raise ValueError(f"duty cycle must be in [0, 1], got {self.duty_cycle!r}")
-        if self.duty_cycle > 0.0 and not (np.isfinite(self.spin_rate) and self.spin_rate > 0.0):
+        if self.duty_cycle > 0.0 and not self.spin_rate > 0.0:
             raise ValueError(f"a duty cycle > 0 needs a spin rate > 0 [rad/s], got {self.spin_rate!r}")
         for change in self.roll_changes:
             if len(change) != 3 or not np.all(np.isfinite(change)) or change[1] <= 0.0:

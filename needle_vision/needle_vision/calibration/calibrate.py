@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 import yaml
 
+from needle_vision.cli_types import non_negative, positive, positive_int
 from needle_vision.calibration.rig import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
 from needle_vision.offline import InputError, SkippedPair, command_status, decoded, open_source
 from needle_vision.calibration.rectification import Rectification
@@ -183,18 +184,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("input", help="folder with left/ and right/ board images, an .mcap file or a rosbag2 folder")
     parser.add_argument("--board", type=_board, required=True, metavar="COLSxROWS",
                         help="inner corners of the checkerboard, e.g. 9x6 (an odd and an even number is best)")
-    parser.add_argument("--square", type=float, required=True, help="side of a square [m]")
+    parser.add_argument("--square", type=positive, required=True, help="side of a square [m]")
     parser.add_argument("--output-dir", default=".", help="where left.yaml, right.yaml and calibration_report.yaml "
                         "are written (default: the working directory)")
     parser.add_argument("--left-topic", default="left/image_raw", help="Image or CompressedImage topic of a bag")
     parser.add_argument("--right-topic", default="right/image_raw", help="Image or CompressedImage topic of a bag")
-    parser.add_argument("--sync-tolerance", type=float, default=0.002, help="largest stamp difference of a pair [s]")
-    parser.add_argument("--workers", type=int, default=min(4, os.cpu_count() or 1), help="detection threads")
+    parser.add_argument("--sync-tolerance", type=non_negative, default=0.002,
+                        help="largest stamp difference of a pair [s]")
+    parser.add_argument("--workers", type=positive_int, default=min(4, os.cpu_count() or 1), help="detection threads")
     arguments = parser.parse_args(argv)
-    if not arguments.square > 0:
-        parser.error("--square must be positive")
-    if arguments.workers < 1:
-        parser.error("--workers must be at least 1")
     return command_status("needle_stereo_calibrate", run, arguments, (InputError, CalibrationError, OSError),
                           CalibrationFailed)
 
