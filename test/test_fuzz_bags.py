@@ -200,7 +200,8 @@ def test_out_of_range_times_are_refused_before_any_work(tmp_path, ros_env):
     """NaN, inf, negative, and a start offset past the bag's end (before: NaN and inf ended in a traceback, an offset
     past the end ran "successfully" over -994 s at -3928x real time, and needle_replay played 0 messages with exit
     status 0)."""
-    commands = {("needle_offline", "--start-offset", "nan"): "argument --start-offset: must be a finite number, got nan",
+    commands = {("needle_offline", "--start-offset", "nan"): "argument --start-offset: must be a finite number, got "
+                                                             "nan",
                 ("needle_offline", "--duration", "inf"): "argument --duration: must be a finite number, got inf",
                 ("needle_offline", "--duration", "-1"): "argument --duration: must be > 0, got -1",
                 ("needle_offline", "--start-offset", "1000"): f"--start-offset 1000 s: '{BAG}' spans only",

@@ -344,6 +344,19 @@ def test_recover_cli_reports_bad_input(tmp_path, capsys):
     assert recovery.main([str(empty), str(tmp_path / "out.mcap")]) == 2
     assert "0 bytes long: nothing to recover" in capsys.readouterr().err
     assert not (tmp_path / "out.mcap").exists()
+    # outputs that cannot be written: exit 2 before reading (before: exit 1 from the writer)
+    good = tmp_path / "good.mcap"
+    write_samples(good, repeats=1)
+    taken = tmp_path / "taken.mcap"
+    taken.write_bytes(b"someone's file")
+    blocker = tmp_path / "blocker"
+    blocker.write_bytes(b"")
+    for output, words in ((taken, "already exists (--overwrite replaces it)"), (blocker / "x.mcap", "in the way")):
+        assert recovery.main([str(good), str(output)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and words in err, err
+    assert taken.read_bytes() == b"someone's file"
+    assert recovery.main([str(good), str(taken), "--overwrite"]) == 0
 
 
 def test_a_bag_written_atomically_records_its_final_file_name(tmp_path):

@@ -23,6 +23,8 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
+from needle_vision.output_files import check_output_dir, check_output_file
+
 from needle_sim_ros.recording.bag_metadata import METADATA_RECORD_NAME
 from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReadError, mcap_files
 from needle_sim_ros.recording.mcap_writer import PROFILE, McapBagWriter, RecordingError, WriterOptions
@@ -159,6 +161,17 @@ def recover(source: str | Path, destination: str | Path, options: WriterOptions 
     return report
 
 
+def check_output(output: Path, overwrite: bool) -> None:
+    """ValueError before the work if the output cannot be written: it exists (without ``overwrite``), a directory
+    is in the way of an .mcap file, a file in the way of its folder, an unwritable folder."""
+    if (output.is_file() or output.is_dir() and any(output.iterdir())) and not overwrite:
+        raise ValueError(f"output '{output}' already exists (--overwrite replaces it)")
+    if output.suffix == ".mcap":
+        check_output_file(output, "output")
+    else:  # a bag directory: made by the writer in its folder
+        check_output_dir(output.parent, f"output '{output}': its folder")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="needle_mcap_recover",
@@ -172,6 +185,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.input.resolve() == args.output.resolve():
         parser.error("output must differ from input")
+    try:
+        check_output(args.output, args.overwrite)
+    except ValueError as error:
+        print(f"needle_mcap_recover: error: {error}", file=sys.stderr)
+        return 2
     try:
         report = recover(args.input, args.output, WriterOptions(compression=args.compression, overwrite=args.overwrite))
     except (RecoveryError, BagReadError) as error:
