@@ -10,9 +10,10 @@ from pathlib import Path
 
 import yaml
 
+from needle_vision.output_files import write_atomically
+
 from needle_sim_ros.batch.identify import FitParameter, FitResult
 from needle_sim_ros.batch.task import TaskSpec, resolved_overrides
-from needle_vision.output_files import write_atomically
 from needle_sim_ros.parameters.experiment import load_experiment
 
 

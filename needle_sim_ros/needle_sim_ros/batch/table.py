@@ -7,9 +7,10 @@ from typing import Any
 
 import pandas as pd
 
+from needle_vision.output_files import write_atomically
+
 from needle_sim_ros.batch.grid import ParameterSet, column
 from needle_sim_ros.batch.task import METRICS
-from needle_vision.output_files import write_atomically
 
 TAIL = ("wall_s", "status", "error")
 

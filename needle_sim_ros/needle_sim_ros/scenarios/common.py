@@ -10,12 +10,12 @@ from typing import Callable
 
 import numpy as np
 
+from needle_vision.output_files import write_atomically
 from needle_vision.parameters import ParamSpec, load_params_file
 
 from needle_sim_ros.model import (BaseMotion, BaseWrench, NeedleModel, NeedleProperties, centerline,
                                   load_needle_config, needle_parameters)
 from needle_sim_ros.model.config import DEFAULTS, GROUPS
-from needle_vision.output_files import write_atomically
 from needle_sim_ros.simulation import NeedleSimulation
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
