@@ -222,10 +222,15 @@ BAD_COMMAND_LINES = {"unknown_flag": (["--ros-args", "--bogus"], "unknown ROS ar
 @pytest.mark.parametrize("executable", ["needle_simulator", "needle_compare", "needle_stereo", "needle_replay",
                                         "needle_bringup"])
 def test_every_node_refuses_a_malformed_command_line_with_exit_2(tmp_path, executable, ros_env):
-    for name, (arguments, words) in BAD_COMMAND_LINES.items():
+    # a malformed params file: the other nodes in test_every_executable_refuses_bad_params_files_with_exit_2 (before:
+    # needle_replay ended in rclpy.init's traceback)
+    malformed = write_case(tmp_path, "malformed", ADVERSARIAL[0][1])
+    cases = {**BAD_COMMAND_LINES, "params_file": (["--ros-args", "--params-file", str(malformed)], "malformed YAML")}
+    for name, (arguments, words) in cases.items():
         if name == "stray" and executable in ("needle_replay", "needle_bringup"):  # they take a bag: see their tests
             continue
-        result = run([executable, *arguments], tmp_path, ros_env)
+        bag = [str(REPO / "bags" / "insertion.mcap")] if executable == "needle_replay" else []
+        result = run([executable, *bag, *arguments], tmp_path, ros_env)
         output = result.stdout + result.stderr
         assert result.returncode == 2 and "Traceback" not in output, f"{executable} {name}: {output}"
         lines = output.strip().splitlines()

@@ -190,14 +190,15 @@ def test_lifecycle_transitions(driver, ros_env, tmp_path):
     assert output.count("running without TF") == 1, output
 
 
-def diagnostic(drv):
-    status = drv.diagnostics[-1].status[0]
+def diagnostic(drv, index: int = -1):
+    status = drv.diagnostics[index].status[0]
     return status.level[0] if isinstance(status.level, bytes) else status.level, status.message, \
         {kv.key: kv.value for kv in status.values}
 
 
 def wait_for_diagnostic(drv, process, predicate, what, timeout=20.0, send=True):
-    """Spin (sending poses if ``send``) until a new diagnostics report satisfies predicate(level, message, values)."""
+    """Spin (sending poses if ``send``) until a new diagnostics report satisfies predicate(level, message, values).
+    Every new report is looked at, not only the newest: on a loaded machine two can arrive within one spin."""
     seen = len(drv.diagnostics)
     deadline = time.monotonic() + timeout
     while True:
@@ -205,8 +206,11 @@ def wait_for_diagnostic(drv, process, predicate, what, timeout=20.0, send=True):
         last = diagnostic(drv) if drv.diagnostics else None
         assert time.monotonic() < deadline, f"no diagnostics with {what}: last {last}"
         drv.hold(0.05) if send else rclpy.spin_once(drv.node, timeout_sec=0.05)
-        if len(drv.diagnostics) > seen and predicate(*diagnostic(drv)):
-            return diagnostic(drv)
+        while seen < len(drv.diagnostics):
+            report = diagnostic(drv, seen)
+            seen += 1
+            if predicate(*report):
+                return report
 
 
 def test_diagnostics_raise_and_clear(driver, ros_env, tmp_path):

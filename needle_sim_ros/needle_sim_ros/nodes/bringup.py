@@ -21,7 +21,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from needle_vision.parameters import ParameterError
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
+from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 
 NAME = "needle_bringup"
 EXIT_BAD_PARAMETER = EXIT_BAD_ARGUMENTS
@@ -80,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         logger.fatal(str(error))
         return EXIT_BAD_PARAMETER
-    rclpy.init(args=rcl_args)
+    if not init_rclpy(rcl_args, logger, NAME):
+        return EXIT_BAD_PARAMETER
     from needle_vision.parameters import ParameterError as StereoParameterError
     from needle_vision.ros.stereo_node import NeedleStereoNode
 

@@ -41,7 +41,8 @@ from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
 from needle_vision.cli_types import non_negative, positive
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
+from needle_vision.parameters import ParameterError, check_ros_arguments
+from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 from needle_vision.ros.input_status import InputReports
 
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
@@ -226,6 +227,11 @@ def main(argv: list[str] | None = None) -> int:
     if others is None:
         return EXIT_BAD_ARGUMENTS
     args = parse_arguments(others[1:])
+    try:  # its params files (e.g. use_sim_time) read as rcl will, with messages that name the problem
+        check_ros_arguments(argv, NODE_NAME, None, logger.warning)
+    except ParameterError as error:
+        logger.fatal(str(error))
+        return EXIT_BAD_ARGUMENTS
     try:
         reader = BagReader(args.bag, stop_on_corrupt=args.stop_on_corrupt)
         reader.check_start_offset(args.start_offset)
@@ -237,7 +243,8 @@ def main(argv: list[str] | None = None) -> int:
         logger.fatal(f"--topics: not in '{args.bag}': {', '.join(unknown)} "
                      f"(recorded: {', '.join(sorted(reader.topics))})")
         return EXIT_BAD_ARGUMENTS
-    rclpy.init(args=argv)
+    if not init_rclpy(argv, logger, NODE_NAME):
+        return EXIT_BAD_ARGUMENTS
     node = ReplayNode(reader, args)
     status, played, interrupted = 0, False, False
     try:

@@ -10,7 +10,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from needle_vision.parameters import ParameterError, ParamSpec, check_ros_arguments
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
+from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 
 
 EXIT_BAD_PARAMETER = EXIT_BAD_ARGUMENTS
@@ -33,7 +33,8 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
     except ParameterError as error:
         rclpy.logging.get_logger(name).fatal(str(error))
         return EXIT_BAD_PARAMETER
-    rclpy.init(args=args)
+    if not init_rclpy(args, rclpy.logging.get_logger(name), name):
+        return EXIT_BAD_PARAMETER
     try:
         node = make_node()
     except ParameterError as error:

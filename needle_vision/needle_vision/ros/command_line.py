@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from typing import Sequence
 
+import rclpy
 from rclpy._rclpy_pybind11 import RCLError, UnknownROSArgsError
 from rclpy.utilities import remove_ros_args
 
@@ -19,11 +20,29 @@ def _rcl_message(error: Exception) -> str:
     return re.sub(r",? at \S+:\d+$", "", str(error)).removeprefix("Failed to parse ROS arguments: ")
 
 
+def _without_params_files(argv: Sequence[str]) -> list[str]:
+    """argv without the ``--params-file FILE`` pairs of its ``--ros-args`` parts: rcl would parse the files' contents,
+    which :func:`needle_vision.parameters.check_ros_arguments` checks with messages that name the problem."""
+    kept, inside, k = [], False, 0
+    while k < len(argv):
+        if argv[k] == "--ros-args":
+            inside = True
+        elif argv[k] == "--":
+            inside = False
+        elif inside and argv[k] == "--params-file" and k + 1 < len(argv):
+            k += 2
+            continue
+        kept.append(argv[k])
+        k += 1
+    return kept
+
+
 def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool) -> list[str] | None:
     """``argv`` without its ROS arguments (``argv[0]`` first), or None after logging one fatal line: the ROS
-    arguments do not parse, or there are others and the node takes none (``takes_others`` False)."""
+    arguments do not parse (params files aside), or there are others and the node takes none (``takes_others``
+    False)."""
     try:
-        others = remove_ros_args(list(argv))
+        others = remove_ros_args(_without_params_files(argv))
     except (UnknownROSArgsError, RCLError) as error:
         usage = f"{name} --help" if takes_others else f"{name} {ROS_ARGUMENTS_USAGE}"
         logger.fatal(f"invalid ROS arguments: {_rcl_message(error)} (usage: {usage})")
@@ -32,3 +51,15 @@ def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool
         logger.fatal(f"unexpected argument '{others[1]}': {name} takes ROS arguments only ({ROS_ARGUMENTS_USAGE})")
         return None
     return others
+
+
+def init_rclpy(args: Sequence[str] | None, logger, name: str) -> bool:
+    """``rclpy.init(args=args)``; False after one fatal log line if rcl refuses the arguments (e.g. a params file
+    only rcl's parser rejects)."""
+    try:
+        rclpy.init(args=args)
+    except (UnknownROSArgsError, RCLError) as error:
+        message = _rcl_message(error).removeprefix("failed to initialize rcl: ")
+        logger.fatal(f"invalid ROS arguments: {message} (usage: {name} --help)")
+        return False
+    return True

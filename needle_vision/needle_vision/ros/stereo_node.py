@@ -38,7 +38,7 @@ from needle_vision.streams.pairing import StampPairer
 from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments, output_from_left,
                                       stereo_config, validate_all)
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline, compile_kernels
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
+from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 from needle_vision.ros.input_status import InputStatus
 from needle_vision.ros.measurement_status import MeasurementStatus
 from needle_vision.ros.ros_parameters import declare_all
@@ -252,7 +252,8 @@ def main(args: list[str] | None = None) -> int:
     except ParameterError as error:
         logger.fatal(str(error))
         return EXIT_BAD_ARGUMENTS
-    rclpy.init(args=args)
+    if not init_rclpy(args, logger, "needle_stereo"):
+        return EXIT_BAD_ARGUMENTS
     node = None
     try:
         node = NeedleStereoNode()
