@@ -9,19 +9,23 @@ from pathlib import Path
 from typing import Callable
 
 
+def _writable_folder(folder: Path, label: str) -> None:
+    """Create ``folder`` (with its parents) if missing; ValueError starting with ``label`` if it cannot be written."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError) as error:
+        raise ValueError(f"{label}: a file is in the way of folder '{folder}'") from error
+    except OSError as error:
+        raise ValueError(f"{label}: cannot create folder '{folder}': {error.strerror or error}") from error
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"{label}: folder '{folder}' is not writable")
+
+
 def check_output_file(path: Path, what: str) -> Path:
     """``path`` if a file can be written there (its folder is created); ValueError naming ``what`` otherwise."""
     if path.is_dir():
         raise ValueError(f"{what} '{path}' is a directory, not a file")
-    folder = path.parent
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except (FileExistsError, NotADirectoryError) as error:
-        raise ValueError(f"{what} '{path}': a file is in the way of its folder '{folder}'") from error
-    except OSError as error:
-        raise ValueError(f"{what} '{path}': cannot create its folder: {error.strerror or error}") from error
-    if not os.access(folder, os.W_OK):
-        raise ValueError(f"{what} '{path}': folder '{folder}' is not writable")
+    _writable_folder(path.parent, f"{what} '{path}'")
     return path
 
 
@@ -29,14 +33,7 @@ def check_output_dir(path: Path, what: str) -> Path:
     """``path`` as a writable folder (created if missing); ValueError naming ``what`` otherwise."""
     if path.exists() and not path.is_dir():
         raise ValueError(f"{what} '{path}' is a file, not a folder")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except (FileExistsError, NotADirectoryError) as error:
-        raise ValueError(f"{what} '{path}': a file is in the way of it") from error
-    except OSError as error:
-        raise ValueError(f"{what} '{path}': cannot create it: {error.strerror or error}") from error
-    if not os.access(path, os.W_OK):
-        raise ValueError(f"{what} '{path}' is not writable")
+    _writable_folder(path, f"{what} '{path}'")
     return path
 
 

@@ -24,7 +24,6 @@ from needle_vision.parameters import ParameterError
 from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 
 NAME = "needle_bringup"
-EXIT_BAD_PARAMETER = EXIT_BAD_ARGUMENTS
 COMPARE_REMAPS = ("needle_compare:model/shape:=needle/shape", "needle_compare:measured/shape:=needle/measured_shape")
 
 
@@ -72,16 +71,16 @@ def main(argv: list[str] | None = None) -> int:
     logger = rclpy.logging.get_logger(NAME)
     others = non_ros_arguments(argv, logger, NAME, takes_others=True)
     if others is None:
-        return EXIT_BAD_PARAMETER
+        return EXIT_BAD_ARGUMENTS
     args = parse_arguments(others[1:])
     try:
         rcl_args, stereo = rcl_arguments(argv, args)
         check_node_arguments(rcl_args, stereo, logger)
     except ValueError as error:
         logger.fatal(str(error))
-        return EXIT_BAD_PARAMETER
+        return EXIT_BAD_ARGUMENTS
     if not init_rclpy(rcl_args, logger, NAME):
-        return EXIT_BAD_PARAMETER
+        return EXIT_BAD_ARGUMENTS
     from needle_vision.parameters import ParameterError as StereoParameterError
     from needle_vision.ros.stereo_node import NeedleStereoNode
 
@@ -96,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
-        return EXIT_BAD_PARAMETER
+        return EXIT_BAD_ARGUMENTS
     executor = MultiThreadedExecutor(num_threads=len(nodes) + 1)
     for node in nodes:
         executor.add_node(node)

@@ -13,9 +13,6 @@ from needle_vision.parameters import ParameterError, ParamSpec, check_ros_argume
 from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 
 
-EXIT_BAD_PARAMETER = EXIT_BAD_ARGUMENTS
-
-
 def run_node(make_node: Callable[[], Node], name: str, args=None,
              specs: Sequence[ParamSpec] | None = None) -> int:
     """Spin one node until SIGINT/SIGTERM; a bad command line (malformed ROS arguments, other arguments, a bad
@@ -25,22 +22,22 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
     Optional node hooks: ``start()`` after construction (e.g. a real-time thread), ``finish()`` before destruction
     (e.g. stop that thread, finalize a log file).
     """
-    argv = sys.argv if args is None else args
-    if non_ros_arguments(argv, rclpy.logging.get_logger(name), name, takes_others=False) is None:
-        return EXIT_BAD_PARAMETER
+    argv, logger = sys.argv if args is None else args, rclpy.logging.get_logger(name)
+    if non_ros_arguments(argv, logger, name, takes_others=False) is None:
+        return EXIT_BAD_ARGUMENTS
     try:
-        check_ros_arguments(argv, name, specs, lambda message: rclpy.logging.get_logger(name).warning(message))
+        check_ros_arguments(argv, name, specs, logger.warning)
     except ParameterError as error:
-        rclpy.logging.get_logger(name).fatal(str(error))
-        return EXIT_BAD_PARAMETER
-    if not init_rclpy(args, rclpy.logging.get_logger(name), name):
-        return EXIT_BAD_PARAMETER
+        logger.fatal(str(error))
+        return EXIT_BAD_ARGUMENTS
+    if not init_rclpy(args, logger, name):
+        return EXIT_BAD_ARGUMENTS
     try:
         node = make_node()
     except ParameterError as error:
-        rclpy.logging.get_logger(name).fatal(str(error))
+        logger.fatal(str(error))
         rclpy.try_shutdown()
-        return EXIT_BAD_PARAMETER
+        return EXIT_BAD_ARGUMENTS
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     if hasattr(node, "start"):

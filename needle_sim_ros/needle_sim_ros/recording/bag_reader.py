@@ -95,7 +95,7 @@ class BagReader:
     def check_start_offset(self, offset: float) -> None:
         """ValueError if a run that skips the first ``offset`` [s] would find no message (0 s: always fine)."""
         length = (self.end_time_ns - self.start_time_ns) / 1e9
-        if offset > 0.0 and offset > length:
+        if offset > length:
             raise ValueError(f"--start-offset {offset:g} s: '{self.path}' spans only {length:.3f} s")
 
     def _storage_files(self) -> list[Path]:

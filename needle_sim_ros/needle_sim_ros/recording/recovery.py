@@ -169,7 +169,7 @@ def check_output(output: Path, overwrite: bool) -> None:
     if output.suffix == ".mcap":
         check_output_file(output, "output")
     else:  # a bag directory: made by the writer in its folder
-        check_output_dir(output.parent, f"output '{output}': its folder")
+        check_output_dir(output.parent, "output folder")
 
 
 def main(argv: list[str] | None = None) -> int:

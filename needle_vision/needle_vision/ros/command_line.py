@@ -17,7 +17,8 @@ def _rcl_message(error: Exception) -> str:
     """rcl's complaint without its source location (``..., at /path/arguments.c:356``)."""
     if isinstance(error, UnknownROSArgsError):
         return f"unknown ROS argument(s) {error}"
-    return re.sub(r",? at \S+:\d+$", "", str(error)).removeprefix("Failed to parse ROS arguments: ")
+    message = re.sub(r",? at \S+:\d+$", "", str(error))
+    return message.removeprefix("Failed to parse ROS arguments: ").removeprefix("failed to initialize rcl: ")
 
 
 def _without_params_files(argv: Sequence[str]) -> list[str]:
@@ -59,7 +60,6 @@ def init_rclpy(args: Sequence[str] | None, logger, name: str) -> bool:
     try:
         rclpy.init(args=args)
     except (UnknownROSArgsError, RCLError) as error:
-        message = _rcl_message(error).removeprefix("failed to initialize rcl: ")
-        logger.fatal(f"invalid ROS arguments: {message} (usage: {name} --help)")
+        logger.fatal(f"invalid ROS arguments: {_rcl_message(error)} (usage: {name} --help)")
         return False
     return True
