@@ -18,10 +18,12 @@ import sys
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 
 from needle_vision.parameters import ParameterError
 from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
+
+from needle_sim_ros.nodes.runner import spin_until_shutdown
 
 NAME = "needle_bringup"
 COMPARE_REMAPS = ("needle_compare:model/shape:=needle/shape", "needle_compare:measured/shape:=needle/measured_shape")
@@ -102,18 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         if hasattr(node, "start"):  # the hooks of needle_sim_ros.nodes.runner.run_node
             node.start()
     logger.info(f"running {', '.join(node.get_name() for node in nodes)} in one process")
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        for node in nodes:
-            if hasattr(node, "finish"):
-                node.finish()
-        executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_shutdown(executor, nodes)  # a SIGINT racing the executor's wait is a shutdown too
     return 0
 
 

@@ -6,7 +6,7 @@ from typing import Callable, Sequence
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
 from needle_vision.parameters import ParameterError, ParamSpec, check_ros_arguments
@@ -42,6 +42,13 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
     executor.add_node(node)
     if hasattr(node, "start"):
         node.start()
+    spin_until_shutdown(executor, [node])
+    return 0
+
+
+def spin_until_shutdown(executor: Executor, nodes: Sequence[Node]) -> None:
+    """Spin until SIGINT/SIGTERM (a context shut down while the executor waited is such a shutdown too, not an
+    error), then the nodes' ``finish()`` hooks, their destruction and rclpy's shutdown."""
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -50,11 +57,13 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
         if rclpy.ok():
             raise
     finally:
-        if hasattr(node, "finish"):
-            node.finish()
-        try:
-            node.destroy_node()
-        except RCLError:  # entities already invalidated by the shutdown
-            pass
+        for node in nodes:
+            if hasattr(node, "finish"):
+                node.finish()
+        executor.shutdown()
+        for node in nodes:
+            try:
+                node.destroy_node()
+            except RCLError:  # entities already invalidated by the shutdown
+                pass
         rclpy.try_shutdown()
-    return 0
