@@ -5,6 +5,7 @@ import signal
 import subprocess
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
+from needle_sim_ros.nodes.runner import spin_until_shutdown
 from test_simulator_node import WEIGHT, simulator_command, stop, write_params
 
 TIMEOUT = 0.02  # haptics.pose_timeout [s]
@@ -188,8 +190,8 @@ def test_the_watchdog_zeroes_a_silent_arm_ramps_back_and_deactivate_sends_zero(a
 @pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT])
 def test_saturation_holds_and_a_stop_signal_sends_zero_then_exits_cleanly(arm, ros_env, tmp_path, stop_signal):
     # The weight (26.8 mN) and its moment about A (3.6 mN m) both above the limits.
-    process = start(arm, ros_env, tmp_path, **HAPTICS, **{"haptics.max_force": 0.01, "haptics.max_torque": 0.001,
-                                                          "haptics.resume_ramp": 0.0})
+    process = start(arm, ros_env, tmp_path, **(HAPTICS | {"haptics.max_force": 0.01, "haptics.max_torque": 0.001,
+                                                          "haptics.resume_ramp": 0.0}))
     arm.streaming.set()
     wait_until(lambda: len([e for e in arm.haptic if e[1].any()]) > 500, process, what="500 haptic wrenches")
     forces, torques = norms(arm.haptic), norms(arm.haptic, 2)
@@ -267,3 +269,28 @@ def test_an_unknown_name_is_a_warning_and_a_misspelling_is_fatal(arm, ros_env, t
     output = result.stdout + result.stderr
     assert result.returncode == 2 and "Traceback" not in output, output
     assert "did you mean 'haptics.max_force'" in output, output
+
+
+def test_an_exception_escaping_the_executor_still_runs_the_finish_hooks_and_propagates():
+    """The simulator's finish() sends the haptic zero: it must run on a crash too, and the crash must not look like
+    success (the exception goes on: exit status 1)."""
+    class FailingExecutor:
+        def spin_once(self, timeout_sec: float) -> None:
+            raise RuntimeError("a callback failed")
+
+        def shutdown(self) -> None:
+            pass
+
+    class Node:
+        finished = destroyed = False
+
+        def finish(self) -> None:
+            Node.finished = True
+
+        def destroy_node(self) -> None:
+            Node.destroyed = True
+
+    rclpy.init()
+    with pytest.raises(RuntimeError, match="a callback failed"):
+        spin_until_shutdown(FailingExecutor(), [Node()], SimpleNamespace(received=None))
+    assert Node.finished and Node.destroyed and not rclpy.ok()

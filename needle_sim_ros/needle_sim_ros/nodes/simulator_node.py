@@ -379,7 +379,7 @@ class NeedleSimulatorNode(LifecycleNode):
         """Stop the haptic output: the loop publishes no more haptic wrenches until the next activation, and one
         zero wrench goes out now; ``wait`` > 0: wait up to that long [s] until every reliable subscriber
         acknowledged it."""
-        if self.haptic_pub is None:
+        if self.haptic_pub is None or not self.context.ok():  # a context shut down can publish nothing
             return
         with self._haptic_lock:
             self._haptic_live = False
