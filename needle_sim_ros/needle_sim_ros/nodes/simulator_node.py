@@ -233,8 +233,10 @@ class NeedleSimulatorNode(LifecycleNode):
         return self.get_clock().now().nanoseconds * 1e-9
 
     # -- inputs ----------------------------------------------------------------------------------------------
-    def on_pose(self, data: bytes) -> None:
-        """A serialized PoseStamped (the subscription is raw: decoding it is ~10x cheaper than rclpy's objects)."""
+    def on_pose(self, data: bytes, info: dict) -> None:
+        """A serialized PoseStamped (the subscription is raw: decoding it is ~10x cheaper than rclpy's objects) and
+        its message info (the middleware's reception time: when the pose reached this process, for the haptic
+        watchdog, however late the loop takes it)."""
         if not self.active:  # lifecycle: poses count from activation on
             return
         pose = cdr.pose_stamped(data)
@@ -256,7 +258,8 @@ class NeedleSimulatorNode(LifecycleNode):
             verdict = self.sim.offer_pose(stamp, pose.position, pose.orientation)
             self.counters[verdict] += 1
         if self.haptics is not None and verdict in ACCEPTED_POSES:
-            self.haptics.pose_arrived(time.monotonic())
+            age = max(time.time() - info["received_timestamp"] * 1e-9, 0.0)  # system clock, as rmw stamps it
+            self.haptics.pose_arrived(time.monotonic() - age)
         if (self.sim.started and not started) or verdict in (PoseVerdict.RESTARTED, PoseVerdict.REANCHORED):
             self.started_at = stamp
         if self.sim.started and not started:
