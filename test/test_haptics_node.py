@@ -185,6 +185,13 @@ def test_the_watchdog_zeroes_a_silent_arm_ramps_back_and_deactivate_sends_zero(a
     assert arm.transition(Transition.TRANSITION_ACTIVATE)  # and it renders again
     activated = time.monotonic()
     wait_until(lambda: any(entry[1].any() for entry in arm.since(activated)), process, 10.0, "rendering again")
+    # Deactivate, then cleanup: another zero (a driver that joined in between gets one too).
+    assert arm.transition(Transition.TRANSITION_DEACTIVATE)
+    time.sleep(0.2)
+    deactivated = len(arm.haptic)
+    assert arm.transition(Transition.TRANSITION_CLEANUP)
+    wait_until(lambda: len(arm.haptic) > deactivated, process, 5.0, "the zero of cleanup")
+    assert len(arm.haptic) == deactivated + 1 and not arm.haptic[-1][1].any()
 
 
 @pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT])
