@@ -20,6 +20,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from needle_sim_ros.nodes.runner import spin_until_shutdown
+from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
 from test_simulator_node import WEIGHT, simulator_command, stop, write_params
 
 TIMEOUT = 0.02  # haptics.pose_timeout [s]
@@ -301,3 +302,22 @@ def test_an_exception_escaping_the_executor_still_runs_the_finish_hooks_and_prop
     with pytest.raises(RuntimeError, match="a callback failed"):
         spin_until_shutdown(FailingExecutor(), [Node()], SimpleNamespace(received=None))
     assert Node.finished and Node.destroyed and not rclpy.ok()
+
+
+def test_an_integration_loop_that_dies_zeroes_the_haptic_output():
+    node = object.__new__(NeedleSimulatorNode)  # the node's methods on a stub state, without a ROS context
+    node._stop, zeroed, errors = threading.Event(), [], []
+    node.get_logger = lambda: SimpleNamespace(error=errors.append)
+    node.zero_haptics = lambda: zeroed.append(True)
+
+    def run_loop():
+        raise MemoryError("out of memory")
+
+    node.run_loop = run_loop
+    rclpy.init()
+    try:
+        with pytest.raises(MemoryError):
+            node.run_loop_or_zero()
+    finally:
+        rclpy.shutdown()
+    assert zeroed == [True] and "integration loop ended" in errors[0]

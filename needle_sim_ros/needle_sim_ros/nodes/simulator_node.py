@@ -130,7 +130,7 @@ class NeedleSimulatorNode(LifecycleNode):
         guard_dynamic_updates(self, SIMULATOR_PARAMETERS, self.on_parameters_changed,
                               unconfigured=lambda: self.sim is None, fixed=FIXED_AT_CONSTRUCTION)
         self._next_output = {"shape": 0.0, "visualization": 0.0, "diagnostics": 0.0}
-        self._loop = threading.Thread(target=self.run_loop, name="needle_integration", daemon=True)
+        self._loop = threading.Thread(target=self.run_loop_or_zero, name="needle_integration", daemon=True)
         self._outputs = threading.Thread(target=self.run_outputs, name="needle_outputs", daemon=True)
         # The output thread's work comes in pieces of up to ~1 ms; a short GIL switch interval lets the integration
         # thread take over within 0.2 ms instead of Python's default 5 ms.
@@ -366,6 +366,16 @@ class NeedleSimulatorNode(LifecycleNode):
     def start(self) -> None:
         self._loop.start()
         self._outputs.start()
+
+    def run_loop_or_zero(self) -> None:
+        """The integration thread: :meth:`run_loop`; should it ever end other than by shutdown (an error no
+        iteration caught), the haptic output is zeroed: nothing would render otherwise, nor tell the arm."""
+        try:
+            self.run_loop()
+        finally:
+            if not self._stop.is_set() and rclpy.ok():
+                self.get_logger().error("the integration loop ended: haptic output zeroed, no more steps")
+                self.zero_haptics()
 
     def finish(self) -> None:
         """Stop the loop and output threads, then send the haptic zero and wait briefly for its acknowledgement
