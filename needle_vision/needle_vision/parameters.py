@@ -4,7 +4,8 @@
 unit in brackets); :func:`load_params_file` reads a ROS 2 params file (``/**``, node-name and namespaced sections,
 wildcards, several nodes in one file) and checks it as strictly as ``rcl`` does plus the specs' ranges, so a file
 that a node would refuse is refused by the offline tools too, with one message naming the file, the parameter and
-the problem (:class:`ParameterError`; unknown names suggest the nearest known one). :func:`check_ros_arguments`
+the problem (:class:`ParameterError`; unknown names suggest the nearest known one; a name like none of a node's
+in a shared ``/**`` section or a ``-p`` is only warned about). :func:`check_ros_arguments`
 applies it to the ``--params-file`` arguments of a node's command line before ``rclpy.init``. The nodes declare
 each spec with a ``ParameterDescriptor`` built from it (ROS side: ``needle_vision.ros.ros_parameters``, used by every
 node of the suite).
@@ -417,12 +418,13 @@ def _flat_values(tree: dict, path: Path, section: str, prefix: str = "") -> dict
 def load_params_file(path: str | Path, node_name: str = "needle_stereo", specs: Sequence[ParamSpec] | None = None,
                      namespace: str = "/", warn: Callable[[str], None] = _print_warning,
                      known_elsewhere: Iterable[str] = (), require_section: bool = True) -> dict[str, Any]:
-    """The values for node ``node_name`` (in ``namespace``) from a ROS 2 params file, dotted names, sections
-    applied in file order as rcl does. The whole file is checked as rcl checks it; with ``specs`` (default:
-    :data:`NODE_SPECS`) the node's values are validated too: unknown names suggest the nearest known one, except
-    that in a wildcard section (``/**``) names in ``known_elsewhere`` belong to other nodes started with the same
-    file. An empty file, a section for no node of the suite or (``require_section``) a file without a section
-    for this node is warned about. Raises ParameterError naming the file."""
+    """The values for node ``node_name`` (in ``namespace``) from a ROS 2 params file, dotted names, sections applied in
+    file order as rcl does. The whole file is checked as rcl checks it; with ``specs`` (default: :data:`NODE_SPECS`)
+    the node's values are validated too: unknown names suggest the nearest known one, except that in a wildcard
+    section (``/**``) names in ``known_elsewhere`` belong to other nodes started with the same file and names like
+    none of the node's are another package's (warned about and ignored, as rclpy ignores them). An empty file, a
+    section for no node of the suite or (``require_section``) a file without a section for this node is warned
+    about. Raises ParameterError naming the file."""
     path = Path(path)
     specs = NODE_SPECS.get(node_name) if specs is None else specs
     document = _read_document(path)

@@ -57,10 +57,11 @@ def guard_dynamic_updates(node: Node, specs: Sequence[ParamSpec], apply: Callabl
     by_name = {spec.name: spec for spec in specs}
 
     def refusal(name: str) -> str | None:
+        """Why the parameter cannot change now (None: it can)."""
         spec = by_name.get(name)
-        if spec is None or spec.dynamic:
-            return None if spec is not None else f"parameter '{name}' cannot change at run time"
-        if unconfigured is None or name in fixed:
+        if spec is not None and spec.dynamic:
+            return None
+        if spec is None or unconfigured is None or name in fixed:
             return f"parameter '{name}' cannot change at run time"
         if not unconfigured():
             return (f"parameter '{name}' is structural: it can change only while the node is unconfigured "
