@@ -11,7 +11,8 @@ through the stages that would receive it in the live pipeline::
 The output MCAP holds what ``needle_compare`` records in the live pipeline (``/needle/shape``,
 ``/needle/measured_shape``, ``/shape_error``, ``/base_pose``, ``/wrench`` and the compared centerlines'
 ``/compare/{model,measured}/{path,marker}``), with the same topic names, so the plots, reports and the Foxglove
-layout read either (TF is not written: the displayed messages are in the model frame). Nothing here depends on wall time: the same bag and parameters give the same file.
+layout read either (TF is not written: the displayed messages are in the model frame). Nothing here depends on
+wall time: the same bag and parameters give the same file.
 """
 from __future__ import annotations
 
