@@ -25,8 +25,13 @@ With ``--echo`` the simulator is replaced by the transport floor of this machine
 with a wrench stamped with the pose's stamp, taken and published as the simulator's loop does (the same polled
 subscription, wait set, QoS and ready-made CDR bytes), no simulation. The simulator cannot be faster than it.
 
+With ``--haptics`` the simulator runs twice in the same invocation, with the haptic output off and then on
+(``haptics.enable``; this process then also reads ``haptic/wrench`` reliably, as an arm's driver would), and the
+table has a column for each: the haptic output's cost is the difference of the pose->wrench latencies; the
+pose->haptic wrench latency is shown as well.
+
 Usage: python bench/bench_simulator_latency.py [--duration 60] [--elements 10] [--jitter 0.8] [--realtime-priority 0]
-                                             [--param loop.ahead_to_pose=false ...] [--echo]
+                                             [--param loop.ahead_to_pose=false ...] [--echo] [--haptics]
        python bench/bench_simulator_latency.py --pose-path   (the node's per-pose Python only, in-process)
 """
 from __future__ import annotations
@@ -50,7 +55,7 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 from nav_msgs.msg import Path as Path_
 from needle_interfaces.msg import NeedleShape
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import serialize_message
 from std_msgs.msg import Header
 
@@ -139,6 +144,8 @@ def main() -> int:
                         help="also subscribe to needle/shape and needle/path (the node then computes its outputs)")
     parser.add_argument("--echo", action="store_true",
                         help="measure the transport floor: an echo process instead of the simulator")
+    parser.add_argument("--haptics", action="store_true",
+                        help="run with the haptic output off, then on, and show both in one table")
     parser.add_argument("--serve-echo", action="store_true", help=argparse.SUPPRESS)  # the --echo process itself
     args = parser.parse_args()
     if args.pose_path:
@@ -147,10 +154,11 @@ def main() -> int:
     if args.serve_echo:
         serve_echo()
         return 0
+    if args.haptics and args.echo:
+        parser.error("--haptics measures the simulator: not with --echo")
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     os.environ.update(ROS_DOMAIN_ID=env["ROS_DOMAIN_ID"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    params = Path(tempfile.mkdtemp()) / "bench.yaml"
     overrides = {"needle.elements": args.elements, "integrator.dt": 0.001}
     if args.realtime_priority is not None:
         overrides["loop.realtime_priority"] = args.realtime_priority
@@ -159,6 +167,37 @@ def main() -> int:
         if not separator:
             parser.error(f"--param {assignment!r}: expected NAME=VALUE")
         overrides[name] = yaml.safe_load(value)
+    runs = {"haptics off": False, "haptics on": True} if args.haptics else {"": None}
+    rclpy.init()
+    results = {}
+    for label, haptics in runs.items():
+        run_overrides = overrides if haptics is None else overrides | {"haptics.enable": haptics}
+        results[label] = measure(args, env, run_overrides, haptic_topic=bool(haptics))
+        if results[label] is None:
+            rclpy.shutdown()
+            return 2
+    rclpy.shutdown()
+    subject = "echo (transport floor, no simulation)" if args.echo else "needle_simulator"
+    print(f"\n{subject}, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
+          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}, "
+          f"{'shape and path subscribed' if args.with_outputs else 'no output subscribed'}")
+    rows = {key: [result[key] for result in results.values()] for key in next(iter(results.values()))}
+    targets = {"latency p99": "< 1 ms", "deadline misses": "< 0.1 %"}
+    print("| metric | " + " | ".join(label or "value" for label in results) + " | target |")
+    print("|---|" + "---|" * len(results) + "---|")
+    for key, values in rows.items():
+        print(f"| {key} | " + " | ".join(values) + f" | {targets.get(key, '')} |")
+    if args.haptics:
+        off, on = (float(results[label]["latency p50"].split()[0]) for label in runs)
+        print(f"| haptic output's cost at p50 (on - off) | {on - off:+.3f} ms | | <= 0.05 ms |")
+    return 0
+
+
+def measure(args, env: dict, overrides: dict, haptic_topic: bool) -> dict[str, str] | None:
+    """One simulator (or echo) process with these parameters, driven and measured for ``args.duration`` s: the
+    table's rows (None if the process exited before subscribing). ``haptic_topic``: also read haptic/wrench
+    reliably and measure pose->haptic wrench latency."""
+    params = Path(tempfile.mkdtemp()) / "bench.yaml"
     params.write_text(yaml.safe_dump({"/**": {"ros__parameters": overrides}}))
     executable = REPO / "install/needle_sim_ros/lib/needle_sim_ros/needle_simulator"
     load_before = os.getloadavg()[0]  # the machine may be shared: latency depends on it
@@ -166,7 +205,6 @@ def main() -> int:
                                                                               "--params-file", str(params)]
     simulator = subprocess.Popen(command, env=env)
 
-    rclpy.init()
     node = rclpy.create_node("latency_bench")
     pub = node.create_publisher(PoseStamped, "base_pose", 10)
     # (stamp, middleware receive time, callback time) of every wrench
@@ -176,6 +214,14 @@ def main() -> int:
     wrench_sub = node.create_subscription(WrenchStamped, "wrench", lambda data, info: wrenches.append(
         (stamp_seconds(data), info["received_timestamp"] * 1e-9, time.time())), qos_profile_sensor_data, raw=True,
         callback_group=PolledCallbackGroup())
+    haptics: list[tuple[float, float]] = []  # (stamp, middleware receive time) of every haptic wrench
+    subscriptions = [wrench_sub]
+    if haptic_topic:
+        subscriptions.append(node.create_subscription(
+            WrenchStamped, "haptic/wrench", lambda data, info: haptics.append(
+                (stamp_seconds(data), info["received_timestamp"] * 1e-9)),
+            QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE), raw=True,
+            callback_group=PolledCallbackGroup()))
     if args.with_outputs:  # raw: their bytes are not decoded
         for topic, kind in (("needle/shape", NeedleShape), ("needle/path", Path_)):
             node.create_subscription(kind, topic, lambda data: None, 10, raw=True)
@@ -193,10 +239,10 @@ def main() -> int:
     receiving.set()
 
     def receive_wrenches() -> None:
-        waiter = MessageWaiter([wrench_sub], node.context)
+        waiter = MessageWaiter(subscriptions, node.context)
         while receiving.is_set():
-            if waiter.wait(0.05):
-                drain(wrench_sub)
+            for subscription in waiter.wait(0.05):
+                drain(subscription)
         waiter.close()
 
     receiver = threading.Thread(target=receive_wrenches, daemon=True)
@@ -208,7 +254,6 @@ def main() -> int:
         executor.shutdown()
         spinning.join()
         node.destroy_node()
-        rclpy.shutdown()
         simulator.terminate()
         simulator.wait()
     while pub.get_subscription_count() == 0:
@@ -216,7 +261,7 @@ def main() -> int:
             print(f"error: the {'echo' if args.echo else 'simulator'} process exited with status "
                   f"{simulator.returncode} before subscribing", file=sys.stderr)
             stop()
-            return 2
+            return None
         time.sleep(0.1)
 
     template = bytearray(serialize_message(PoseStamped(header=Header(frame_id="world"))))
@@ -251,41 +296,44 @@ def main() -> int:
     received = np.array(wrenches)
     sent = np.array(pose_stamps)  # a pose's stamp is its publication time
 
-    def latency_ms(arrivals: np.ndarray) -> np.ndarray:
+    def latency_ms(arrivals: np.ndarray, stamps: np.ndarray) -> np.ndarray:
         """Per pose: the earliest arrival of a wrench with a step time >= the pose's stamp that arrived after the
         pose was sent (both thresholds are the stamp: key = min(step time, arrival) >= stamp)."""
-        key = np.minimum(received[:, 0], arrivals)
+        key = np.minimum(stamps, arrivals)
         order = np.argsort(key)
         earliest = np.minimum.accumulate(arrivals[order][::-1])[::-1]  # earliest arrival among keys >= key
         index = np.searchsorted(key[order], sent)
         valid = index < len(order)
         return (earliest[index[valid]] - sent[valid]) * 1e3
 
-    latency, latency_callback = latency_ms(received[:, 1]), latency_ms(received[:, 2])
+    latency, latency_callback = latency_ms(received[:, 1], received[:, 0]), latency_ms(received[:, 2], received[:, 0])
     step_mean = [float(d["step_time_mean_ms"]) for d in diagnostics if "step_time_mean_ms" in d]
     miss_rate = counter_rate(diagnostics, "deadline_misses", "steps")
     late_rate = counter_rate(diagnostics, "poses_late_for_their_step", "poses_accepted")
-
-    subject = "echo (transport floor, no simulation)" if args.echo else "needle_simulator"
-    print(f"\n{subject}, {args.elements} elements, dt = 1 ms, poses at {args.rate:g} Hz, {args.duration:g} s, "
-          f"loop.realtime_priority {'default (50)' if args.realtime_priority is None else args.realtime_priority}, "
-          f"{'shape and path subscribed' if args.with_outputs else 'no output subscribed'}; "
-          f"load average (1 min) {load_before:.2f} before, {os.getloadavg()[0]:.2f} after")
-    print("| metric | value | target |")
-    print("|---|---|---|")
-    print(f"| latency p50 | {np.percentile(latency, 50):.3f} ms | |")
-    print(f"| latency p99 | {np.percentile(latency, 99):.3f} ms | < 1 ms |")
-    print(f"| latency p99.9 | {np.percentile(latency, 99.9):.3f} ms | |")
-    print(f"| latency max | {latency.max():.3f} ms | |")
-    print(f"| latency to the bench's Python callback p50 / p99 | {np.percentile(latency_callback, 50):.3f} / "
-          f"{np.percentile(latency_callback, 99):.3f} ms | |")
-    print(f"| wrench messages received | {len(wrenches)} | |")
-    print(f"| pose publication after its jittered time p50 / p99 | {1e3 * np.percentile(publish_delays, 50):.3f} / "
-          f"{1e3 * np.percentile(publish_delays, 99):.3f} ms | |")
-    print(f"| deadline misses | {100 * miss_rate:.3f} % | < 0.1 % |")
-    print(f"| poses late for their step (node diagnostics) | {100 * late_rate:.3f} % | |")
-    print(f"| mean step time (node) | {np.mean(step_mean[1:]) if len(step_mean) > 1 else float('nan'):.3f} ms | |")
-    return 0
+    rows = {
+        "load average (1 min) before / after": f"{load_before:.2f} / {os.getloadavg()[0]:.2f}",
+        "latency p50": f"{np.percentile(latency, 50):.3f} ms",
+        "latency p99": f"{np.percentile(latency, 99):.3f} ms",
+        "latency p99.9": f"{np.percentile(latency, 99.9):.3f} ms",
+        "latency max": f"{latency.max():.3f} ms",
+        "latency to the bench's Python callback p50 / p99": f"{np.percentile(latency_callback, 50):.3f} / "
+                                                             f"{np.percentile(latency_callback, 99):.3f} ms",
+        "wrench messages received": f"{len(wrenches)}",
+        "pose publication after its jittered time p50 / p99": f"{1e3 * np.percentile(publish_delays, 50):.3f} / "
+                                                              f"{1e3 * np.percentile(publish_delays, 99):.3f} ms",
+        "deadline misses": f"{100 * miss_rate:.3f} %",
+        "poses late for their step (node diagnostics)": f"{100 * late_rate:.3f} %",
+        "mean step time (node)": f"{np.mean(step_mean[1:]) if len(step_mean) > 1 else float('nan'):.3f} ms"}
+    if args.haptics:
+        if haptics:
+            haptic = np.array(haptics)
+            haptic_latency = latency_ms(haptic[:, 1], haptic[:, 0])
+            rows["pose -> haptic wrench latency p50 / p99"] = (f"{np.percentile(haptic_latency, 50):.3f} / "
+                                                               f"{np.percentile(haptic_latency, 99):.3f} ms")
+        else:
+            rows["pose -> haptic wrench latency p50 / p99"] = "-"
+        rows["haptic messages received"] = f"{len(haptics)}"
+    return rows
 
 
 if __name__ == "__main__":

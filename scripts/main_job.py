@@ -5,14 +5,14 @@
 1. Offline reference: the batch mode (needle_offline) runs the same pipeline over the bag in this process, with
    the bag time as the clock (out/<bag>/offline). It is the deterministic reference for the live run and fills
    numba's on-disk kernel cache, so the nodes do not stall compiling at the first pose.
-2. Live: starts the installed executables (install/<pkg>/lib/<pkg>/, where ``ros2 run`` looks) with simulated
-   time: ``needle_simulator``, ``needle_stereo`` (bags with images) and ``needle_compare`` (recording MCAP, writing a
-   JSON summary), each with its node config file and the bag's experiment file (config/experiments/<bag>.yaml);
-   and ``needle_replay`` paused (``--start-paused``, publishing the bag's start time on /clock); waits until every
-   node is up and reports on /diagnostics that each of its inputs the bag plays has matched the replay's publisher
-   (and the comparison its inputs from the simulator and the stereo node) and that its clock is at the bag's start
-   (discovery is two-sided: what is published before that is lost); then resumes the replay. When the bag is done
-   and the last comparison is in, the nodes are stopped with SIGINT (the comparison finalizes its log).
+2. Live: starts the installed executables (install/<pkg>/lib/<pkg>/, where ``ros2 run`` looks) with simulated time:
+   ``needle_simulator``, ``needle_stereo`` (bags with images) and ``needle_compare`` (recording MCAP, writing a JSON
+   summary), each with its node config file and the bag's experiment file (config/experiments/<bag>.yaml); and
+   ``needle_replay`` paused (``--start-paused``, publishing the bag's start time on /clock); waits until every node
+   is up and reports on /needle_sim/readiness that each of its inputs the bag plays has matched the replay's
+   publisher (and the comparison its inputs from the simulator and the stereo node) and that its clock is at the
+   bag's start (discovery is two-sided: what is published before that is lost); then resumes the replay. When the
+   bag is done and the last comparison is in, the nodes are stopped with SIGINT (the comparison finalizes its log).
 3. Prints the RMSE summary, how many measurements were compared, the simulator's and the stereo's last reports on
    /diagnostics (the simulator's comes once a second of bag time: it counts the steps up to then), the model's and the
    measurement's own error against the ground truth (synthetic bags) and where the MCAP log, summary and plots are
@@ -177,6 +177,7 @@ class Monitor:
     def __init__(self) -> None:
         import rclpy
         from lifecycle_msgs.srv import GetState
+        from diagnostic_msgs.msg import DiagnosticArray
         from needle_interfaces.msg import ShapeError
         from rclpy.qos import QoSProfile
         from rosgraph_msgs.msg import Clock
@@ -194,7 +195,14 @@ class Monitor:
         self.get_state = self.node.create_client(GetState, "/needle_simulator/get_state")
         self.get_state_request = GetState.Request()
         self.resume = self.node.create_client(Trigger, "/needle_replay/resume")
-        self.reports = InputReports(self.node)  # /diagnostics: the nodes' input reports (needle_replay reads them too)
+        self.reports = InputReports(self.node)  # the nodes' latched input reports (needle_replay reads them too)
+        self.statuses: dict[str, tuple[int, dict[str, str]]] = {}  # /diagnostics: status name -> (clock ns, values)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+
+    def _on_diagnostics(self, msg) -> None:
+        clock_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        for status in msg.status:
+            self.statuses[status.name] = (clock_ns, {kv.key: kv.value for kv in status.values})
 
     def _on_clock(self, msg) -> None:
         self.clock_ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
@@ -354,9 +362,9 @@ def run(args: argparse.Namespace) -> int:
         while len(monitor.errors) < expected and time.monotonic() < drain_end:
             monitor.spin(0.2)
         monitor.spin(0.5)
-        report_clock_ns, diagnostics = monitor.reports.latest("needle_simulator: integration")
+        report_clock_ns, diagnostics = monitor.statuses.get("/needle_simulator: integration", (0, {}))
         diagnostics_bag_time = (report_clock_ns - reader.start_time_ns) / 1e9
-        stereo_pairs = monitor.reports.latest("needle_stereo: measurement")[1]
+        stereo_pairs = monitor.statuses.get("/needle_stereo: measurement", (0, {}))[1]
         cpu = {c.name: c.cpu_seconds() for c in children.started if c.process.poll() is None}
         say(f"bag done: {len(monitor.errors)} comparisons seen; stopping the nodes")
         for child in reversed(children.started):

@@ -159,6 +159,7 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     node._lock, node._polled, node._warned_at, node._next_output = threading.Lock(), [], {}, {"shape": 0.0}
     node.counters, node.counters_other = {verdict: 0 for verdict in PoseVerdict}, {"stamp_replaced": 0}
     node.catch_up_steps = node.deadline_misses = 0
+    node.haptic_pub = node.haptics = None  # haptics.enable false
     node.get_logger = lambda: SimpleNamespace(info=print, warning=print)
     node.wrench_pub = SimpleNamespace(publish=published["wrench"].append)
     node.shape_pub = SimpleNamespace(publish=published["shape"].append, get_subscription_count=lambda: 1)
@@ -168,7 +169,7 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
         node.now_seconds = lambda now=now: now * 1e-9
         node.loop_iteration()
         if data is not None:
-            node.on_pose(data)
+            node.on_pose(data, {"received_timestamp": now})
     assert node.counters[PoseVerdict.ACCEPTED] == len(poses) and stage.rejected == {}
 
     wrenches = [data for kind, data in offline if kind == "wrench"]

@@ -198,16 +198,19 @@ def test_every_shipped_config_file_loads_cleanly(monkeypatch):
             assert not warnings, warnings
 
 
+MISSPELLINGS = {"needle_simulator": ("needle.lenght", "needle.length"), "needle_compare": ("tolerence", "tolerance"),
+                "needle_stereo": ("detection.min_lenght", "detection.min_length")}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("node", ["needle_simulator", "needle_compare", "needle_stereo"])
-def test_every_node_refuses_a_command_line_override_of_an_unknown_name(tmp_path, node, ros_env):
+@pytest.mark.parametrize("node", sorted(MISSPELLINGS))
+def test_every_node_refuses_a_command_line_override_of_a_misspelled_name(tmp_path, node, ros_env):
     """``-p needle.lenght:=0.2``: rclpy would ignore the undeclared name and run with the default length."""
-    result = run([node, "--ros-args", "-p", "needle.lenght:=0.2"], tmp_path, ros_env)
+    typo, name = MISSPELLINGS[node]
+    result = run([node, "--ros-args", "-p", f"{typo}:=0.2"], tmp_path, ros_env)
     output = result.stdout + result.stderr
     assert result.returncode == 2 and "Traceback" not in output, output
-    assert "unknown parameter 'needle.lenght'" in output, output
-    if node == "needle_simulator":
-        assert "did you mean 'needle.length'" in output, output
+    assert f"unknown parameter '{typo}'" in output and f"did you mean '{name}'" in output, output
 
 
 # Command lines rcl cannot parse (before: rclpy.init's traceback, exit 1) and an argument a node does not take (before:

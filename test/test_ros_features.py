@@ -41,7 +41,7 @@ def driver(ros_env):
     drv = Driver()
     drv.diagnostics = []
     drv.node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: drv.diagnostics.append(m) if any(
-        s.name == "needle_simulator: integration" for s in m.status) else None, 10)  # not the input reports
+        s.name == "/needle_simulator: integration" for s in m.status) else None, 10)  # not the input reports
     drv.processes = []
     yield drv
     stop(drv.processes)

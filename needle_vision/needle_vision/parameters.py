@@ -127,11 +127,27 @@ def _set_by_ros(name: str) -> bool:
     return name in ROS_BUILTIN or name.startswith("qos_overrides.")
 
 
+def nearest_name(name: str, known: Iterable[str]) -> str | None:
+    """The known name ``name`` is probably a misspelling of (difflib, ratio >= 0.6), if any."""
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
 def unknown_name_error(name: str, known: Iterable[str], where: str = "") -> ParameterError:
     """'unknown parameter X (did you mean Y?)' with the nearest known name (difflib)."""
-    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
-    hint = f" (did you mean '{close[0]}'?)" if close else ""
+    close = nearest_name(name, known)
+    hint = f" (did you mean '{close}'?)" if close else ""
     return ParameterError(f"{where}unknown parameter '{name}'{hint}")
+
+
+def _foreign(name: str, known: Iterable[str], where: str, warn: Callable[[str], None]) -> bool:
+    """A name given to every node (a ``-p`` or a wildcard section) that resembles none of this node's: another
+    package's (e.g. a parent launch's global ``robot_name``), ignored as rclpy ignores it, with a warning naming it.
+    False for a probable misspelling (the caller refuses it with the suggestion)."""
+    if nearest_name(name, known) is not None:
+        return False
+    _warn_once(warn, f"{where}parameter '{name}' is not one of this node's (nor close to one): ignored")
+    return True
 
 
 def _readable_file_or_empty(path: str) -> bool:
@@ -434,7 +450,7 @@ def load_params_file(path: str | Path, node_name: str = "needle_stereo", specs: 
         for name, value in flat.items():
             where = f"params file '{path}', node '{node_name}': "
             if specs is not None and name not in by_name:
-                if _set_by_ros(name) or "*" in section and name in others:
+                if _set_by_ros(name) or "*" in section and (name in others or _foreign(name, by_name, where, warn)):
                     continue
                 raise unknown_name_error(name, by_name, where)
             try:
@@ -488,7 +504,9 @@ def check_ros_arguments(argv: Sequence[str], node_name: str, specs: Sequence[Par
     """Check every ``--params-file`` of a node's command line with :func:`load_params_file` before rclpy reads
     it (rcl's own parser would fail with a traceback), and the names of its ``-p name:=value`` overrides (rclpy
     would ignore an undeclared one silently); raises ParameterError. A ``-p`` rule without a node prefix reaches
-    every node started with the command line: names in ``known_elsewhere`` belong to the others."""
+    every node started with the command line: names in ``known_elsewhere`` belong to the others. A ``-p`` name
+    (and a wildcard section's) that resembles none of the node's is warned about and ignored; a misspelling of one
+    is refused with the suggestion."""
     parsed = ros_arguments(argv)
     node = parsed.node_name or node_name
     for path in parsed.params_files:
@@ -499,4 +517,6 @@ def check_ros_arguments(argv: Sequence[str], node_name: str, specs: Sequence[Par
         if not names or target not in (None, node) or name in names or _set_by_ros(name) \
                 or target is None and name in others:
             continue
-        raise unknown_name_error(name, names, f"parameter override '-p {name}:=...' for node '{node}': ")
+        where = f"parameter override '-p {name}:=...' for node '{node}': "
+        if not _foreign(name, names, where, warn):
+            raise unknown_name_error(name, names, where)

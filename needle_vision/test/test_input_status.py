@@ -1,5 +1,5 @@
 """InputReports: what a player still waits for, from the subscribers' own input reports (no ROS graph: a stand-in
-node with the graph query and the /diagnostics subscription)."""
+node with the graph query and the readiness subscription)."""
 from types import SimpleNamespace
 
 import pytest
@@ -7,13 +7,13 @@ import pytest
 pytest.importorskip("rclpy", reason="the input reports are ROS messages (diagnostic_msgs)")
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 
-from needle_vision.ros.input_status import REPORT_GRACE, InputReports, input_status_name  # noqa: E402
+from needle_vision.ros.input_status import READINESS_TOPIC, REPORT_GRACE, InputReports, input_status_name  # noqa: E402
 
 START_NS = 1_700_000_000_000_000_000
 
 
 class GraphStandIn:
-    """What InputReports asks of its node: the subscribers and publisher count of a topic, and the /diagnostics
+    """What InputReports asks of its node: the subscribers and publisher count of a topic, and the readiness
     callback."""
 
     def __init__(self, subscribers: dict[str, list[str]], publishers: dict[str, int] | None = None) -> None:
@@ -25,7 +25,7 @@ class GraphStandIn:
         return self.publishers.get(topic, 0)
 
     def create_subscription(self, _type, topic, callback, _qos):
-        assert topic == "/diagnostics"
+        assert topic == READINESS_TOPIC
         self.deliver = callback
         return object()
 

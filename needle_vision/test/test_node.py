@@ -85,7 +85,7 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
         statuses = []  # the node's measurement reports
         node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: statuses.extend(
             {kv.key: kv.value for kv in s.values} | {"level": s.level[0], "message": s.message} for s in m.status
-            if s.name == "needle_stereo: measurement"), 10)
+            if s.name == "/needle_stereo: measurement"), 10)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         images = {side: node.create_publisher(Image, f"{side}/image_raw", reliable) for side in ("left", "right")}
         infos = {side: node.create_publisher(CameraInfo, f"{side}/camera_info", reliable) for side in ("left", "right")}

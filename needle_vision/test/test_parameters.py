@@ -65,8 +65,11 @@ def test_a_command_line_override_of_an_unknown_name_is_refused_naming_the_neares
     """rclpy ignores ``-p name:=value`` for a parameter the node does not declare: a typo would go unnoticed."""
     with pytest.raises(ParameterError, match=r"'-p detection.min_lenght:=\.\.\.'.*did you mean 'detection.min_length'"):
         check_ros_arguments(["needle_stereo", "--ros-args", "-p", "detection.min_lenght:=0.01"], "needle_stereo", SPECS)
-    with pytest.raises(ParameterError, match="unknown parameter 'nosuch'"):
-        check_ros_arguments(["x", "--ros-args", "--param", "needle_stereo:nosuch:=1"], "needle_stereo", SPECS)
+    # A name like none of the node's (a parent launch's global robot_name): a warning naming it, as rclpy ignores it.
+    warnings = []
+    check_ros_arguments(["x", "--ros-args", "--param", "needle_stereo:robot_name:=1"], "needle_stereo", SPECS,
+                        warnings.append)
+    assert len(warnings) == 1 and "'robot_name'" in warnings[0] and "ignored" in warnings[0]
     accepted = [["x", "--ros-args", "-p", "detection.min_length:=0.01", "-p", "use_sim_time:=true",
                  "-p", "qos_overrides./needle/measured_shape.publisher.depth:=5"],
                 ["x", "--ros-args", "-p", "needle_simulator:needle.lenght:=0.2"],   # a rule for another node
@@ -77,3 +80,19 @@ def test_a_command_line_override_of_an_unknown_name_is_refused_naming_the_neares
     # started together (bringup), a rule without a node prefix reaches every node: names of the others are theirs
     check_ros_arguments(["x", "--ros-args", "-p", "needle.length:=0.2"], "needle_stereo", SPECS,
                         known_elsewhere={"needle.length"})
+
+
+def test_a_shared_section_may_hold_other_packages_names_but_not_misspellings_of_ours(tmp_path):
+    """``/**`` (e.g. a parent launch's SetParameter): a name like none of the node's is warned about and ignored; a
+    misspelling of one stays fatal with the suggestion, and a section for this node alone stays strict."""
+    path = tmp_path / "shared.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    robot_name: psm1\n    detection.min_length: 10.0\n")
+    warnings = []
+    assert load_params_file(path, "needle_stereo", SPECS, warn=warnings.append) == {"detection.min_length": 10.0}
+    assert any("'robot_name'" in w for w in warnings), warnings
+    path.write_text("/**:\n  ros__parameters:\n    detection.min_lenght: 10.0\n")
+    with pytest.raises(ParameterError, match="did you mean 'detection.min_length'"):
+        load_params_file(path, "needle_stereo", SPECS, warn=warnings.append)
+    path.write_text("needle_stereo:\n  ros__parameters:\n    robot_name: psm1\n")
+    with pytest.raises(ParameterError, match="unknown parameter 'robot_name'"):
+        load_params_file(path, "needle_stereo", SPECS, warn=warnings.append)

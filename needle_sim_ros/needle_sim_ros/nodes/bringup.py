@@ -23,7 +23,7 @@ from rclpy.executors import MultiThreadedExecutor
 from needle_vision.parameters import ParameterError
 from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 
-from needle_sim_ros.nodes.runner import spin_until_shutdown
+from needle_sim_ros.nodes.runner import StopSignals, spin_until_shutdown
 
 NAME = "needle_bringup"
 COMPARE_REMAPS = ("needle_compare:model/shape:=needle/shape", "needle_compare:measured/shape:=needle/measured_shape")
@@ -81,8 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         logger.fatal(str(error))
         return EXIT_BAD_ARGUMENTS
-    if not init_rclpy(rcl_args, logger, NAME):
+    if not init_rclpy(rcl_args, logger, NAME, own_signals=True):
         return EXIT_BAD_ARGUMENTS
+    signals = StopSignals()  # the simulator's haptic zero goes out before rclpy shuts down
     from needle_vision.parameters import ParameterError as StereoParameterError
     from needle_vision.ros.stereo_node import NeedleStereoNode
 
@@ -104,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         if hasattr(node, "start"):  # the hooks of needle_sim_ros.nodes.runner.run_node
             node.start()
     logger.info(f"running {', '.join(node.get_name() for node in nodes)} in one process")
-    spin_until_shutdown(executor, nodes)  # a SIGINT racing the executor's wait is a shutdown too
+    spin_until_shutdown(executor, nodes, signals)
     return 0
 
 

@@ -11,12 +11,12 @@ recorded (absolute) topic names; ``--in-namespace`` publishes them in the player
 -r __ns:=/robot1``: ``/wrench`` as ``/robot1/wrench``), where the nodes of a launch in that namespace read them.
 
 ``--wait-for-subscribers S`` waits until every played topic has a subscriber and every subscriber that reports its
-inputs on /diagnostics (this suite's nodes: ``needle_vision.ros.input_status``) has matched the topic from its own
-side, following the start time on /clock with ``--clock``: discovery is two-sided, and messages published before
-the subscriber has matched the publisher are lost. With ``--wait-for-nodes /needle_simulator ...`` it waits for
-those nodes instead: until each has reported and matched the played topics it subscribes to and its other inputs
-that someone publishes (the comparison's /wrench from the simulator), while topics none of them subscribes to (a
-bag's ground truth) hold nothing (the launch files play whole bags this way).
+inputs on the latched ``/needle_sim/readiness`` (this suite's nodes: ``needle_vision.ros.input_status``) has matched
+the topic from its own side, following the start time on /clock with ``--clock``: discovery is two-sided, and
+messages published before the subscriber has matched the publisher are lost. With ``--wait-for-nodes
+/needle_simulator ...`` it waits for those nodes instead: until each has reported and matched the played topics it
+subscribes to and its other inputs that someone publishes (the comparison's /wrench from the simulator), while
+topics none of them subscribes to (a bag's ground truth) hold nothing (the launch files play whole bags this way).
 ``--start-paused`` waits for a call of the service ``~/resume`` (std_srvs/Trigger) first, for whoever starts the
 nodes to say when they are ready. Both hold the start time on /clock meanwhile. After the last message the player
 waits up to ``--linger`` seconds until every reliable subscriber has acknowledged all it played (a large message

@@ -1,6 +1,14 @@
-"""The `main` of every needle_sim_ros node: init, construct, spin, and a clean, defined exit."""
+"""The `main` of every needle_sim_ros node: init, construct, spin, and a clean, defined exit.
+
+SIGINT and SIGTERM are handled here, not by rclpy: rclpy's handler shuts the context down at once, after which a
+node can publish nothing more, not even the zero a haptic output owes its arm. Here a signal ends the spinning
+(within :data:`SPIN_SLICE`), the nodes' ``finish()`` hooks run with the context alive, then rclpy shuts down; the
+exit status is 0. An exception escaping the executor runs the same hooks, then propagates (exit status 1 with its
+traceback: a crash does not pretend success). SIGKILL cannot be handled by any process.
+"""
 from __future__ import annotations
 
+import signal
 import sys
 from typing import Callable, Sequence
 
@@ -30,8 +38,9 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
     except ParameterError as error:
         logger.fatal(str(error))
         return EXIT_BAD_ARGUMENTS
-    if not init_rclpy(args, logger, name):
+    if not init_rclpy(args, logger, name, own_signals=True):
         return EXIT_BAD_ARGUMENTS
+    signals = StopSignals()
     try:
         node = make_node()
     except ParameterError as error:
@@ -42,15 +51,37 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
     executor.add_node(node)
     if hasattr(node, "start"):
         node.start()
-    spin_until_shutdown(executor, [node])
+    spin_until_shutdown(executor, [node], signals)
     return 0
 
 
-def spin_until_shutdown(executor: Executor, nodes: Sequence[Node]) -> None:
-    """Spin until SIGINT/SIGTERM (a context shut down while the executor waited is such a shutdown too, not an
-    error), then the nodes' ``finish()`` hooks, their destruction and rclpy's shutdown."""
+SPIN_SLICE = 0.05  # [s] longest executor wait between checks for a stop signal
+
+
+class StopSignals:
+    """SIGINT/SIGTERM recorded as a request to stop (rclpy initialised with ``own_signals``); a second signal while
+    stopping interrupts the stop (KeyboardInterrupt)."""
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+        for number in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(number, self._on_signal)
+
+    def _on_signal(self, number: int, frame) -> None:
+        if self.received is not None:
+            raise KeyboardInterrupt
+        self.received = number
+
+
+def spin_until_shutdown(executor: Executor, nodes: Sequence[Node], signals: StopSignals | None = None) -> None:
+    """Spin until SIGINT/SIGTERM (``signals``: ours, checked every :data:`SPIN_SLICE`; without: rclpy's, and a
+    context shut down while the executor waited is such a shutdown too, not an error), then the nodes' ``finish()``
+    hooks, their destruction and rclpy's shutdown (also when an exception escapes the executor)."""
     try:
-        executor.spin()
+        if signals is None:
+            executor.spin()
+        while signals is not None and signals.received is None and rclpy.ok():
+            executor.spin_once(timeout_sec=SPIN_SLICE)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RCLError:  # the context was shut down (SIGINT) while the executor waited: a shutdown like the others

@@ -6,6 +6,10 @@ takes the poses that arrived (polled subscriptions, :mod:`needle_sim_ros.nodes.p
 elapsed clock time (not by counting wake-ups, which a loaded machine skips); the executor thread serves the tip
 load topic, services and parameters; an output thread publishes shapes, visualization and diagnostics.
 
+With ``haptics.enable`` each step also yields the force the operator should feel on ``topics.haptic``
+(:mod:`needle_sim_ros.haptics`: frame, limits, a wall-clock pose watchdog with a resume ramp), and every stop
+(deactivate, cleanup, shutdown, SIGINT/SIGTERM, an exception on the way out) publishes a zero wrench there first.
+
 Time: with ``use_sim_time`` the node follows ``/clock`` and integrates deterministically up to
 min(clock, newest pose stamp) — poses are interpolated, never extrapolated — unless the pose input timed out.
 In wall-clock mode it integrates up to now, extrapolating the newest pose for at most
@@ -27,6 +31,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped, TwistStamped, WrenchStampe
 from nav_msgs.msg import Path
 from needle_interfaces.msg import NeedleShape, NeedleState
 from needle_interfaces.srv import ApplyPointLoad, ClearPointLoads
+from rclpy.duration import Duration
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
@@ -37,23 +42,26 @@ from visualization_msgs.msg import Marker
 from needle_vision.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import PoseVerdict
+from needle_sim_ros.haptics import ZERO, HapticShaper
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.geometry import compile_geometry_kernels, quaternions_from_tangents, tube_triangles
 from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
 from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_shape
-from needle_sim_ros.nodes.diagnostics import HealthMonitor
+from needle_sim_ros.nodes.diagnostics import ERROR, OK, WARN, HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
 from needle_vision.ros.input_status import InputStatus
 from needle_vision.ros.ros_parameters import declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
 from needle_sim_ros.nodes.runner import run_node
 from needle_sim_ros.nodes.tf_output import SimulatorTf
-from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+from needle_sim_ros.parameters.simulator import FIXED_AT_CONSTRUCTION, SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
     LATE_POSE_WAIT, TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters,
     simulation_from_parameters, step_wrenches)
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
+ZERO_ACK_WAIT = 0.5  # [s] longest wait for the haptic subscribers to acknowledge the zero sent at exit
+ACCEPTED_POSES = (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED, PoseVerdict.REANCHORED, PoseVerdict.RESTARTED)
 TUBE_COLOR = (0.75, 0.75, 0.8, 1.0)  # RGBA of the needle's Marker tube
 
 
@@ -71,7 +79,7 @@ class NeedleSimulatorNode(LifecycleNode):
 
     def __init__(self) -> None:
         super().__init__("needle_simulator")
-        self.p = declare_all(self, SIMULATOR_PARAMETERS)
+        self.p = declare_all(self, SIMULATOR_PARAMETERS, lifecycle_fixed=FIXED_AT_CONSTRUCTION)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.sim = None
@@ -94,6 +102,13 @@ class NeedleSimulatorNode(LifecycleNode):
         self.pose_array_pub = self.create_publisher(PoseArray, topics["pose_array"], 10)
         self.state_pub = self.create_publisher(NeedleState, topics["state"], 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.haptic_pub = (self.create_publisher(WrenchStamped, topics["haptic"],
+                                                 qos_profile(self.p["qos.haptic"], 100))
+                           if self.p["haptics.enable"] else None)
+        self.haptics: HapticShaper | None = None
+        self._haptic_lock = threading.Lock()  # the loop's haptic wrenches vs. the zero of a stop
+        self._haptic_live = False  # the loop may publish haptic wrenches (active, not stopping)
+        self._clipped_reported = 0  # clipped components at the previous diagnostics report
         self.tf = SimulatorTf(self, self.p["frames.world"], self.p["frames.base"], self.p["frames.tip"])
         # Poses and twists are taken by the integration loop itself at each tick (see nodes.polling).
         polled = PolledCallbackGroup()
@@ -103,16 +118,19 @@ class NeedleSimulatorNode(LifecycleNode):
             self.create_subscription(TwistStamped, topics["base_twist"], self.on_twist,
                                      qos_profile(self.p["qos.base_pose"], 100), callback_group=polled)]
         self._pose_waiter = MessageWaiter(self._polled, self.context)
-        InputStatus(self, accepting=lambda: self.active).track(*self._polled,
-                                self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10))
+        inputs = InputStatus(self, accepting=lambda: self.active)
+        inputs.track(self._polled[0])
+        inputs.track(self._polled[1], self.create_subscription(WrenchStamped, topics["tip_load"], self.on_tip_load, 10),
+                     optional=True)  # twist and tip load: OK without a publisher
         configured = lambda: self.sim is not None  # noqa: E731
         self.create_service(Trigger, "~/reset", when_configured(configured, self.on_reset))
         self.create_service(ApplyPointLoad, "~/apply_point_load", when_configured(configured, self.on_apply_point_load))
         self.create_service(ClearPointLoads, "~/clear_point_loads",
                             when_configured(configured, self.on_clear_point_loads))
-        guard_dynamic_updates(self, SIMULATOR_PARAMETERS, self.on_parameters_changed)
+        guard_dynamic_updates(self, SIMULATOR_PARAMETERS, self.on_parameters_changed,
+                              unconfigured=lambda: self.sim is None, fixed=FIXED_AT_CONSTRUCTION)
         self._next_output = {"shape": 0.0, "visualization": 0.0, "diagnostics": 0.0}
-        self._loop = threading.Thread(target=self.run_loop, name="needle_integration", daemon=True)
+        self._loop = threading.Thread(target=self.run_loop_or_zero, name="needle_integration", daemon=True)
         self._outputs = threading.Thread(target=self.run_outputs, name="needle_outputs", daemon=True)
         # The output thread's work comes in pieces of up to ~1 ms; a short GIL switch interval lets the integration
         # thread take over within 0.2 ms instead of Python's default 5 ms.
@@ -124,7 +142,9 @@ class NeedleSimulatorNode(LifecycleNode):
             f"{'active' if self.active else 'unconfigured: waiting for lifecycle transitions'}): "
             f"{self.p['needle.elements']} elements, dt = {self.p['integrator.dt'] * 1e3:g} ms, "
             f"{'simulated' if self.use_sim_time else 'wall-clock'} time; base poses on "
-            f"'{self.resolve_topic_name(topics['base_pose'])}'")
+            f"'{self.resolve_topic_name(topics['base_pose'])}'"
+            + (f"; haptic output on '{self.haptic_pub.topic_name}' ({self.p['haptics.frame']} frame)"
+               if self.haptic_pub is not None else ""))
 
     # -- lifecycle -------------------------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -162,19 +182,28 @@ class NeedleSimulatorNode(LifecycleNode):
             self.sim.discard_state()
             dropped = sum(drain(subscription, run_callback=False) for subscription in self._polled)
             self.active = True
+        if self.haptic_pub is not None:
+            with self._haptic_lock:
+                self.haptics = HapticShaper(self.p["haptics.max_force"], self.p["haptics.max_torque"],
+                                            self.p["haptics.pose_timeout"], self.p["haptics.resume_ramp"],
+                                            world_frame=self.p["haptics.frame"] == "base")
+                self._haptic_live, self._clipped_reported = True, 0
         if dropped:
             self.get_logger().info(f"dropped {dropped} base pose/twist message(s) received before activation")
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
-        """Hold: no more steps, wrenches or shapes; the last state stays (``~/reset`` and loads still work)."""
+        """Hold: no more steps, wrenches or shapes; the last state stays (``~/reset`` and loads still work); the
+        haptic output sends zero."""
         with self._lock:
             self.active = False
+        self.zero_haptics()
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         with self._lock:
             self.active, self.sim = False, None
+        self.zero_haptics()
         gc.unfreeze()
         gc.collect()
         return TransitionCallbackReturn.SUCCESS
@@ -182,6 +211,7 @@ class NeedleSimulatorNode(LifecycleNode):
     def on_shutdown(self, state) -> TransitionCallbackReturn:
         with self._lock:
             self.active = False
+        self.zero_haptics()
         return TransitionCallbackReturn.SUCCESS
 
     # -- construction helpers --------------------------------------------------------------------------------
@@ -203,8 +233,10 @@ class NeedleSimulatorNode(LifecycleNode):
         return self.get_clock().now().nanoseconds * 1e-9
 
     # -- inputs ----------------------------------------------------------------------------------------------
-    def on_pose(self, data: bytes) -> None:
-        """A serialized PoseStamped (the subscription is raw: decoding it is ~10x cheaper than rclpy's objects)."""
+    def on_pose(self, data: bytes, info: dict) -> None:
+        """A serialized PoseStamped (the subscription is raw: decoding it is ~10x cheaper than rclpy's objects) and
+        its message info (the middleware's reception time: when the pose reached this process, for the haptic
+        watchdog, however late the loop takes it)."""
         if not self.active:  # lifecycle: poses count from activation on
             return
         pose = cdr.pose_stamped(data)
@@ -225,6 +257,9 @@ class NeedleSimulatorNode(LifecycleNode):
             started = self.sim.started
             verdict = self.sim.offer_pose(stamp, pose.position, pose.orientation)
             self.counters[verdict] += 1
+        if self.haptics is not None and verdict in ACCEPTED_POSES:
+            age = max(time.time() - info["received_timestamp"] * 1e-9, 0.0)  # system clock, as rmw stamps it
+            self.haptics.pose_arrived(time.monotonic() - age)
         if (self.sim.started and not started) or verdict in (PoseVerdict.RESTARTED, PoseVerdict.REANCHORED):
             self.started_at = stamp
         if self.sim.started and not started:
@@ -319,6 +354,9 @@ class NeedleSimulatorNode(LifecycleNode):
             if "loads.tip_force" in changed and self.sim is not None:
                 self._apply_tip_force(changed["loads.tip_force"])  # first: a load the model cannot carry refuses all
             self.p.update(changed)
+            if self.haptics is not None:
+                self.haptics.max_force = self.p["haptics.max_force"]
+                self.haptics.max_torque = self.p["haptics.max_torque"]
             if self.sim is None:  # unconfigured: configure builds with the new values
                 return
             if {"damping.rayleigh_alpha", "damping.rayleigh_beta"} & changed.keys():
@@ -329,12 +367,42 @@ class NeedleSimulatorNode(LifecycleNode):
         self._loop.start()
         self._outputs.start()
 
+    def run_loop_or_zero(self) -> None:
+        """The integration thread: :meth:`run_loop`; should it ever end other than by shutdown (an error no
+        iteration caught), the haptic output is zeroed: nothing would render otherwise, nor tell the arm."""
+        try:
+            self.run_loop()
+        finally:
+            if not self._stop.is_set() and rclpy.ok():
+                self.get_logger().error("the integration loop ended: haptic output zeroed, no more steps")
+                self.zero_haptics()
+
     def finish(self) -> None:
+        """Stop the loop and output threads, then send the haptic zero and wait briefly for its acknowledgement
+        (also when the process ends by SIGINT/SIGTERM or an exception: :func:`needle_sim_ros.nodes.runner.run_node`
+        keeps the context alive until this ran)."""
         self._stop.set()
         for thread in (self._loop, self._outputs):
             if thread.is_alive():
                 thread.join(timeout=2.0)
         self._pose_waiter.close()
+        self.zero_haptics(wait=ZERO_ACK_WAIT)
+
+    def zero_haptics(self, wait: float = 0.0) -> None:
+        """Stop the haptic output: the loop publishes no more haptic wrenches until the next activation, and one
+        zero wrench goes out now; ``wait`` > 0: wait up to that long [s] until every reliable subscriber
+        acknowledged it."""
+        if self.haptic_pub is None or not self.context.ok():  # a context shut down can publish nothing
+            return
+        with self._haptic_lock:
+            self._haptic_live = False
+            self.haptic_pub.publish(cdr.wrench_stamped_many(self.haptic_frame, [(self.now_seconds(), ZERO, ZERO)])[0])
+        if wait > 0.0 and not self.haptic_pub.wait_for_all_acked(Duration(nanoseconds=int(wait * 1e9))):
+            self.get_logger().warning(f"the haptic zero was not acknowledged by every subscriber within {wait:g} s")
+
+    @property
+    def haptic_frame(self) -> str:
+        return self.p["frames.world"] if self.p["haptics.frame"] == "base" else self.p["frames.base"]
 
     def run_outputs(self) -> None:
         """Shapes, visualization and diagnostics at their rates, off the integration thread. Between outputs the
@@ -447,12 +515,37 @@ class NeedleSimulatorNode(LifecycleNode):
             self.deadline_misses += sum(1 for record in records if record.t < now - self.sim.dt)
         if records:
             self.publish_wrenches(records)
+        if self.haptic_pub is not None:
+            self.publish_haptics(records, now)
 
     # -- outputs ---------------------------------------------------------------------------------------------
     def publish_wrenches(self, records) -> None:
         """The wrench of each step on the holder, base frame, stamped with the step's end time (as CDR bytes)."""
         for data in cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records)):
             self.wrench_pub.publish(data)
+
+    def publish_haptics(self, records, now: float) -> None:
+        """The haptic wrench of each step (frame, watchdog gain, limits); none stepped while the watchdog holds the
+        output (e.g. a paused /clock, no first pose yet): one zero, so that zero keeps coming at the step rate."""
+        with self._haptic_lock:
+            shaper = self.haptics
+            if not self._haptic_live or shaper is None:
+                return
+            clipped = shaper.clipped_forces + shaper.clipped_torques
+            wall = time.monotonic()
+            if records:
+                wrenches = list(shaper.shape(shaper.frame_wrenches(records), wall))
+            elif shaper.silent(wall):
+                wrenches = [(now, ZERO, ZERO)]
+            else:
+                return
+            for data in cdr.wrench_stamped_many(self.haptic_frame, wrenches):
+                self.haptic_pub.publish(data)
+        if shaper.clipped_forces + shaper.clipped_torques > clipped:
+            self.warn_throttled("saturated", f"haptic wrench saturated at haptics.max_force "
+                                             f"{self.p['haptics.max_force']:g} N / max_torque "
+                                             f"{self.p['haptics.max_torque']:g} N m (clipped so far: "
+                                             f"{shaper.clipped_forces} forces, {shaper.clipped_torques} torques)")
 
     def due(self, key: str, now: float, rate: float) -> bool:
         """True once per 1/rate of clock time (also after the clock jumped backwards, e.g. a looping bag)."""
@@ -563,12 +656,42 @@ class NeedleSimulatorNode(LifecycleNode):
                     "rejected_tip_loads": self.counters_other["tip_load_rejected"]}
         health = self.health.assess({**values, **rejected}, started, values.get("pose_age_s", float("inf")),
                                     self.p["pose_input.timeout"], active=self.active)
-        status = DiagnosticStatus(level=bytes([health.level]), name=f"{self.get_name()}: integration",
-                                  message=health.message, hardware_id="needle_sim",
-                                  values=[KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v))
-                                          for k, v in values.items()])
+        status = DiagnosticStatus(level=bytes([health.level]),
+                                  name=f"{self.get_fully_qualified_name()}: integration",
+                                  message=health.message, hardware_id="needle_sim", values=key_values(values))
+        statuses = [status] if self.haptic_pub is None else [status, self.haptic_status()]
         self.diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()),
-                                                     status=[status]))
+                                                     status=statuses))
+
+    def haptic_status(self) -> DiagnosticStatus:
+        """``<node>: haptics``: ERROR while the watchdog holds the output at zero after poses came, WARN before the
+        first pose and when wrenches were clipped since the previous report, OK otherwise."""
+        shaper, values = self.haptics, {"frame": self.haptic_frame, "max_force_n": self.p["haptics.max_force"],
+                                        "max_torque_nm": self.p["haptics.max_torque"]}
+        if not self.active or shaper is None:
+            level, message = OK, "inactive (lifecycle): output zero"
+        else:
+            wall = time.monotonic()
+            silence = wall - shaper.last_pose
+            clipped = shaper.clipped_forces + shaper.clipped_torques
+            newly_clipped, self._clipped_reported = clipped - self._clipped_reported, clipped
+            values.update(clipped_forces=shaper.clipped_forces, clipped_torques=shaper.clipped_torques,
+                          watchdog_trips=shaper.watchdog_trips,
+                          pose_silence_s=silence if shaper.poses_seen else float("inf"))
+            if not shaper.poses_seen:
+                level, message = WARN, "waiting for the first base pose: output zero"
+            elif silence > shaper.pose_timeout:
+                level, message = ERROR, f"watchdog: no base pose for {silence:.3f} s: output zero"
+            elif newly_clipped > 0:
+                level, message = WARN, f"saturated: {newly_clipped} wrench component(s) clipped since the last report"
+            else:
+                level, message = OK, "rendering"
+        return DiagnosticStatus(level=bytes([level]), name=f"{self.get_fully_qualified_name()}: haptics",
+                                message=message, hardware_id="needle_sim", values=key_values(values))
+
+
+def key_values(values: dict) -> list[KeyValue]:
+    return [KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v)) for k, v in values.items()]
 
 
 def main(args=None) -> int:

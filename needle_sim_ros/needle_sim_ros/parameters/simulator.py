@@ -92,6 +92,9 @@ SIMULATOR_PARAMETERS = [
               "recorded tip mass.", check=TOPIC_CHECK),
     ParamSpec("topics.wrench", "wrench",
               "Output geometry_msgs/WrenchStamped: wrench of the needle on its holder, base frame.", check=TOPIC_CHECK),
+    ParamSpec("topics.haptic", "haptic/wrench",
+              "Output geometry_msgs/WrenchStamped with haptics.enable: the force the operator should feel (the "
+              "needle's wrench on its holder, limited), frame haptics.frame.", check=TOPIC_CHECK),
     ParamSpec("topics.shape", "needle/shape", "Output needle_interfaces/NeedleShape (world frame).", check=TOPIC_CHECK),
     ParamSpec("topics.path", "needle/path", "Output nav_msgs/Path of the centerline.", check=TOPIC_CHECK),
     ParamSpec("topics.marker", "needle/marker", "Output visualization_msgs/Marker tube.", check=TOPIC_CHECK),
@@ -100,6 +103,9 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("topics.state", "needle/state", "Output needle_interfaces/NeedleState (depth, tip force, energies).",
               check=TOPIC_CHECK),
     ParamSpec("qos.wrench", "sensor_data", "QoS of the wrench output.", choices=QOS_CHOICES),
+    ParamSpec("qos.haptic", "reliable",
+              "QoS of the haptic output (reliable: what a CRTK driver's servo_cf subscription asks for; the zero "
+              "sent on stop is then acknowledged).", choices=QOS_CHOICES),
     ParamSpec("qos.base_pose", "sensor_data", "QoS of the pose input (sensor_data also matches reliable publishers).",
               choices=QOS_CHOICES),
     ParamSpec("rates.shape_hz", 100.0, "Rate of the NeedleShape and NeedleState outputs [Hz].", 0.1, 1000.0,
@@ -139,6 +145,22 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("loads.tip_force", [0.0, 0.0, 0.0], "Constant force on the tip, world frame [N] (tip mass m: "
               "[0, 0, -9.81 m]); all point loads together at most 20 E I / L^2 (6.8 N for the default needle).",
               -100.0, 100.0, length=3, dynamic=True),
+    # Haptic output for hardware in the loop (needle_sim_ros.nodes.haptics; README "Haptics / HIL").
+    ParamSpec("haptics.enable", False,
+              "Publish the force the operator should feel on topics.haptic, one per step, limited, with a pose "
+              "watchdog and a zero on every stop."),
+    ParamSpec("haptics.frame", "base",
+              "Frame of the haptic wrench (about the clamp point A): 'base' = the arm's base frame, the frame the "
+              "poses come in (frames.world), as a CRTK servo_cf takes it; 'tool' = the needle holder frame "
+              "(frames.base), for a body-frame servo_cf.", choices=("base", "tool")),
+    ParamSpec("haptics.max_force", 3.0, "Largest haptic force [N]; a larger force is scaled down to it (direction "
+              "kept) and counted.", 0.0, 100.0, dynamic=True),
+    ParamSpec("haptics.max_torque", 0.3, "Largest haptic torque [N m]; a larger torque is scaled down to it "
+              "(direction kept) and counted.", 0.0, 10.0, dynamic=True),
+    ParamSpec("haptics.pose_timeout", 0.02, "Watchdog: no base pose for this long (wall-clock arrival time) -> the "
+              "haptic output is zero and diagnostics ERROR [s].", 1e-3, 1.0),
+    ParamSpec("haptics.resume_ramp", 0.5, "When poses return after the watchdog tripped, the haptic output ramps "
+              "linearly from zero to the full wrench over this time [s] (0: at once).", 0.0, 10.0),
     # Lifecycle (needle_sim_ros.nodes.lifecycle).
     ParamSpec("autostart", True,
               "Configure and activate at start (a plain node); false: wait for lifecycle transitions (managed, e.g. "
@@ -163,3 +185,9 @@ SIMULATOR_PARAMETERS = [
     *(ParamSpec(name, default, meaning[:1].upper() + meaning[1:] + ".", allow_infinite=True)
       for name, (default, meaning) in TISSUE_PARAMETERS.items()),
 ]
+
+# Structural parameters that the node's construction already used (its topics, QoS, frames, whether it has a haptic
+# output): fixed for the node's life. The other structural (not dynamic) ones can be set while the node is
+# unconfigured and take effect at configure (needle_vision.ros.ros_parameters).
+FIXED_AT_CONSTRUCTION = frozenset(spec.name for spec in SIMULATOR_PARAMETERS if spec.name.split(".")[0] in
+                                  ("topics", "qos", "frames")) | {"haptics.enable", "autostart"}

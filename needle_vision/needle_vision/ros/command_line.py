@@ -7,6 +7,7 @@ from typing import Sequence
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError, UnknownROSArgsError
+from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 EXIT_BAD_ARGUMENTS = 2
@@ -54,11 +55,12 @@ def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool
     return others
 
 
-def init_rclpy(args: Sequence[str] | None, logger, name: str) -> bool:
+def init_rclpy(args: Sequence[str] | None, logger, name: str, own_signals: bool = False) -> bool:
     """``rclpy.init(args=args)``; False after one fatal log line if rcl refuses the arguments (e.g. a params file
-    only rcl's parser rejects)."""
+    only rcl's parser rejects). ``own_signals``: rclpy installs no SIGINT/SIGTERM handler (its handler shuts the
+    context down at once, before the node could publish anything more); the caller handles them."""
     try:
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals else None)
     except (UnknownROSArgsError, RCLError) as error:
         logger.fatal(f"invalid ROS arguments: {_rcl_message(error)} (usage: {name} --help)")
         return False

@@ -1,14 +1,20 @@
-"""A node's input connections on ``/diagnostics``: how many publishers each input subscription has matched.
+"""A node's input connections: how many publishers each input subscription has matched, on ``/diagnostics`` and on
+the readiness topic.
 
 DDS discovery is two-sided: a publisher can see a subscription (``get_subscription_count``) before the
 subscription has matched the publisher, and what it publishes in between never arrives. Only the subscribing node
 knows its side, so each node reports it, twice a second of steady time (also while a simulated clock stands
 still): a ``DiagnosticStatus`` named ``/<namespace>/<node>: inputs`` whose values are the resolved input topics
-with their matched publisher counts, WARN while one has none. A node that drops its input while not ready (the
-simulator, until its lifecycle state is active) adds ``accepting``: ``true`` / ``false``. The header stamp is the
-node's clock (with ``use_sim_time``: zero until its first ``/clock``), so a player can also tell that the node
-follows its clock.
-:class:`InputReports` reads them (``needle_replay --wait-for-subscribers``, ``--wait-for-nodes``).
+with their matched publisher counts, WARN while a required one has none (an optional input without a publisher,
+e.g. the simulator's ``base_twist`` in a setup that publishes only poses, is OK). A node that drops its input while
+not ready (the simulator, until its lifecycle state is active) adds ``accepting``: ``true`` / ``false``. The header
+stamp is the node's clock (with ``use_sim_time``: zero until its first ``/clock``), so a player can also tell that
+the node follows its clock.
+
+The same report (a ``DiagnosticArray`` of that one status) goes to :data:`READINESS_TOPIC`, reliable and
+transient-local (latched: a reader that comes later gets each node's last report at once), which is the start
+handshake: :class:`InputReports` reads it (``needle_replay --wait-for-subscribers``, ``--wait-for-nodes``, the main
+job); ``/diagnostics`` is for people and aggregators only.
 """
 from __future__ import annotations
 
@@ -17,12 +23,18 @@ from typing import Callable
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 from std_msgs.msg import Header
 
 INPUT_STATUS_PERIOD = 0.5  # [s] of steady time between reports
 OK, WARN = 0, 1  # diagnostic_msgs/DiagnosticStatus levels
 ACCEPTING = "accepting"  # the report's key saying whether the node takes its input now
+READINESS_TOPIC = "/needle_sim/readiness"  # diagnostic_msgs/DiagnosticArray, latched: the nodes' input reports
+# Latched: each publisher keeps its last report for late readers; a reader keeps the reports of up to 100 nodes.
+READINESS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+READINESS_READER_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def input_status_name(namespace: str, node_name: str) -> str:
@@ -42,11 +54,16 @@ class InputStatus:
         self._more_statuses = more_statuses
         self._accepting = accepting
         self._subscriptions: list[Subscription] = []
+        self._optional: set[str] = set()  # topics of the optional inputs
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._readiness = node.create_publisher(DiagnosticArray, READINESS_TOPIC, READINESS_QOS)
         node.create_timer(INPUT_STATUS_PERIOD, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
-    def track(self, *subscriptions: Subscription) -> None:
+    def track(self, *subscriptions: Subscription, optional: bool = False) -> None:
+        """Report these subscriptions; ``optional``: one without a publisher is fine (OK, not WARN)."""
         self._subscriptions.extend(subscriptions)
+        if optional:
+            self._optional.update(s.topic_name for s in subscriptions)
 
     def counts(self) -> dict[str, int]:
         """Matched publishers per input topic (resolved name)."""
@@ -54,7 +71,7 @@ class InputStatus:
 
     def publish(self) -> None:
         counts = self.counts()
-        unconnected = [topic for topic, count in counts.items() if count == 0]
+        unconnected = [topic for topic, count in counts.items() if count == 0 and topic not in self._optional]
         accepting = self._accepting is None or self._accepting()
         message = f"no publisher on {', '.join(unconnected)}" if unconnected else "every input has a publisher"
         values = [KeyValue(key=topic, value=str(count)) for topic, count in counts.items()]
@@ -64,8 +81,9 @@ class InputStatus:
                                   name=input_status_name(self._node.get_namespace(), self._node.get_name()),
                                   message=message if accepting else f"not taking input yet; {message}",
                                   values=values)
-        self._publisher.publish(DiagnosticArray(header=Header(stamp=self._node.get_clock().now().to_msg()),
-                                                status=[status, *self._more_statuses()]))
+        header = Header(stamp=self._node.get_clock().now().to_msg())
+        self._readiness.publish(DiagnosticArray(header=header, status=[status]))
+        self._publisher.publish(DiagnosticArray(header=header, status=[status, *self._more_statuses()]))
 
 
 REPORT_GRACE = 1.5  # [s] a subscriber without an input report this long after it appeared is taken to send none
@@ -73,15 +91,16 @@ REPORT_GRACE = 1.5  # [s] a subscriber without an input report this long after i
 
 class InputReports:
     """The reading side, for a player (``needle_replay --wait-for-subscribers``): which subscribers of the topics it
-    is about to publish have not matched them yet by their own reports (and the last status of every name on
-    /diagnostics). A subscriber that sends no report (not one
+    is about to publish have not matched them yet by their own reports (on :data:`READINESS_TOPIC`). A subscriber
+    that sends no report (not one
     of these nodes) counts as matched once the publisher sees it and :data:`REPORT_GRACE` has passed."""
 
     def __init__(self, node: Node) -> None:
         self._node = node
         self._reports: dict[str, tuple[int, dict[str, str]]] = {}  # status name -> (node's clock [ns], values)
         self._first_seen: dict[str, float] = {}  # subscriber node -> steady time [s] it was first seen
-        self._subscription = node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+        self._subscription = node.create_subscription(DiagnosticArray, READINESS_TOPIC, self._on_diagnostics,
+                                                      READINESS_READER_QOS)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         clock_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -89,7 +108,7 @@ class InputReports:
             self._reports[status.name] = (clock_ns, {kv.key: kv.value for kv in status.values})
 
     def latest(self, status_name: str) -> tuple[int, dict[str, str]]:
-        """The last status of that name on /diagnostics: its node's clock [ns] and values ((0, {}) if none came)."""
+        """The last input report of that name: its node's clock [ns] and values ((0, {}) if none came)."""
         return self._reports.get(status_name, (0, {}))
 
     def waiting(self, topics: list[str], now: float, clock_ns: int | None = None) -> list[str]:

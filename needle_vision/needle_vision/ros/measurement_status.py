@@ -1,9 +1,9 @@
 """What became of the stereo node's image pairs, on ``/diagnostics`` beside its input report.
 
-A status ``needle_stereo: measurement`` with cumulative counts (``pairs_<outcome>``, ``frames_unpaired``: frames
-dropped without a partner within ``sync_tolerance``, ``rejected_<kind>``: the measurement's rejections by kind since
-the calibration) and a level from what happened since the previous report: WARN while pairs are rejected or skipped
-or frames go unpaired, OK otherwise.
+A status ``<fully qualified node name>: measurement`` (e.g. ``/needle_stereo: measurement``) with cumulative counts
+(``pairs_<outcome>``, ``frames_unpaired``: frames dropped without a partner within ``sync_tolerance``,
+``rejected_<kind>``: the measurement's rejections by kind since the calibration) and a level from what happened
+since the previous report: WARN while pairs are rejected or skipped or frames go unpaired, OK otherwise.
 """
 from __future__ import annotations
 

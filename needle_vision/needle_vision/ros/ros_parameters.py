@@ -8,7 +8,7 @@ fatal log line and exit status 2.
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Collection, Sequence
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
@@ -17,10 +17,12 @@ from rclpy.node import Node
 from needle_vision.parameters import ParameterError, ParamSpec
 
 
-def descriptor(spec: ParamSpec) -> ParameterDescriptor:
-    """The ROS descriptor of a spec: description (with choices), read-only unless dynamic, scalar range."""
+def descriptor(spec: ParamSpec, read_only: bool | None = None) -> ParameterDescriptor:
+    """The ROS descriptor of a spec: description (with choices), read-only (default: unless dynamic), scalar
+    range."""
     text = spec.description + (f" Choices: {', '.join(map(str, spec.choices))}." if spec.choices else "")
-    result = ParameterDescriptor(name=spec.name, description=text, read_only=not spec.dynamic)
+    result = ParameterDescriptor(name=spec.name, description=text,
+                                 read_only=not spec.dynamic if read_only is None else read_only)
     if spec.low is not None and spec.high is not None and not spec.is_list:
         if spec.value_type is int:
             result.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=0)]
@@ -30,29 +32,47 @@ def descriptor(spec: ParamSpec) -> ParameterDescriptor:
     return result
 
 
-def declare_all(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
-    """Declare and validate every parameter; returns {name: value}. Raises ParameterError on a bad value."""
+def declare_all(node: Node, specs: Sequence[ParamSpec], lifecycle_fixed: Collection[str] | None = None
+                ) -> dict[str, Any]:
+    """Declare and validate every parameter; returns {name: value}. Raises ParameterError on a bad value.
+
+    ``lifecycle_fixed`` (a managed node): the structural parameters its construction used; the others are not
+    read-only, :func:`guard_dynamic_updates` takes them while the node is unconfigured (configure reads them)."""
     values = {}
     for spec in specs:
+        read_only = None if lifecycle_fixed is None else not spec.dynamic and spec.name in lifecycle_fixed
         try:
-            parameter = node.declare_parameter(spec.name, spec.default, descriptor(spec))
+            parameter = node.declare_parameter(spec.name, spec.default, descriptor(spec, read_only))
         except (InvalidParameterValueException, ParameterException, TypeError) as error:
             raise ParameterError(f"parameter '{spec.name}': {error} ({spec.description})") from error
         values[spec.name] = spec.validate(parameter.value)
     return values
 
 
-def guard_dynamic_updates(node: Node, specs: Sequence[ParamSpec], apply: Callable[[dict[str, Any]], None]) -> None:
-    """Accept run-time changes of ``dynamic`` parameters only, validated like at start, then call ``apply``."""
+def guard_dynamic_updates(node: Node, specs: Sequence[ParamSpec], apply: Callable[[dict[str, Any]], None],
+                          unconfigured: Callable[[], bool] | None = None, fixed: Collection[str] = ()) -> None:
+    """Accept run-time changes of ``dynamic`` parameters, validated like at start, then call ``apply``. A managed
+    node (``unconfigured`` given) also takes its structural parameters not in ``fixed`` while ``unconfigured()``:
+    they take effect at configure."""
     by_name = {spec.name: spec for spec in specs}
+
+    def refusal(name: str) -> str | None:
+        spec = by_name.get(name)
+        if spec is None or spec.dynamic:
+            return None if spec is not None else f"parameter '{name}' cannot change at run time"
+        if unconfigured is None or name in fixed:
+            return f"parameter '{name}' cannot change at run time"
+        if not unconfigured():
+            return (f"parameter '{name}' is structural: it can change only while the node is unconfigured "
+                    "(lifecycle: deactivate, cleanup, set it, configure)")
+        return None
 
     def on_set(parameters) -> SetParametersResult:
         changed = {}
         for parameter in parameters:
             spec = by_name.get(parameter.name)
-            if spec is None or not spec.dynamic:
-                return SetParametersResult(successful=False,
-                                           reason=f"parameter '{parameter.name}' cannot change at run time")
+            if (reason := refusal(parameter.name)) is not None:
+                return SetParametersResult(successful=False, reason=reason)
             try:
                 changed[parameter.name] = spec.validate(parameter.value)
             except ParameterError as error:

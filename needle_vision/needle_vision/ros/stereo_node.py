@@ -65,7 +65,7 @@ class NeedleStereoNode(Node):
         self._reported_drops = 0
         self._image_frame = ""  # frame_id of the left images (the raw left optical frame)
         self.tf = TfOutput(self)
-        self.measurement_status = MeasurementStatus(self.get_name())
+        self.measurement_status = MeasurementStatus(self.get_fully_qualified_name())
         self.inputs = InputStatus(self, lambda: [self.measurement_status.status(
             self.pairer.dropped, self.pipeline.rejections if self.pipeline else Counter())])
         qos = qos_profile_sensor_data if self.values["image_qos"] == "sensor_data" else \

@@ -1,0 +1,323 @@
+"""needle_simulator's haptic output, parameters, lifecycle and readiness in a real process, against a stand-in arm
+(issue 37): poses at 1 kHz from a thread of this process, ``haptic/wrench`` read with a reliable subscription as a
+CRTK driver's ``servo_cf`` reads it."""
+import signal
+import subprocess
+import threading
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+from needle_sim_ros.nodes.runner import spin_until_shutdown
+from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
+from test_simulator_node import WEIGHT, simulator_command, stop, write_params
+
+TIMEOUT = 0.02  # haptics.pose_timeout [s]
+RAMP = 0.2      # haptics.resume_ramp [s]
+HAPTICS = {"haptics.enable": True, "haptics.pose_timeout": TIMEOUT, "haptics.resume_ramp": RAMP,
+           "rates.diagnostics_hz": 10.0}
+
+
+class Arm:
+    """Stand-in arm: base poses at 1 kHz from its own thread while ``streaming`` is set; records every haptic wrench
+    (monotonic receive time, force, torque), the simulator's wrench and the diagnostics."""
+
+    def __init__(self) -> None:
+        self.node = rclpy.create_node("stand_in_arm")
+        self.pose_pub = self.node.create_publisher(PoseStamped, "base_pose", 10)
+        self.haptic: list[tuple[float, np.ndarray, np.ndarray, str]] = []
+        self.wrenches: list[np.ndarray] = []
+        self.statuses: list = []
+        self.node.create_subscription(WrenchStamped, "haptic/wrench", self.on_haptic,
+                                      QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+        self.node.create_subscription(WrenchStamped, "wrench", lambda m: self.wrenches.append(
+            np.array([m.wrench.force.x, m.wrench.force.y, m.wrench.force.z])), qos_profile_sensor_data)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: self.statuses.extend(m.status), 10)
+        self.streaming = threading.Event()
+        self.last_sent = 0.0  # monotonic time of the newest pose
+        self._closed = threading.Event()
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self._threads = [threading.Thread(target=self.executor.spin, daemon=True),
+                         threading.Thread(target=self._stream, daemon=True)]
+        for thread in self._threads:
+            thread.start()
+
+    def on_haptic(self, msg: WrenchStamped) -> None:
+        f, m = msg.wrench.force, msg.wrench.torque
+        self.haptic.append((time.monotonic(), np.array([f.x, f.y, f.z]), np.array([m.x, m.y, m.z]),
+                            msg.header.frame_id))
+
+    def _stream(self) -> None:
+        msg = PoseStamped()
+        msg.header.frame_id = "world"
+        msg.pose.position.x, msg.pose.position.z, msg.pose.orientation.w = 0.4, 0.3, 1.0
+        next_time = time.monotonic()
+        while not self._closed.is_set():
+            next_time += 1e-3
+            time.sleep(max(next_time - time.monotonic(), 0.0))
+            if self.streaming.is_set():
+                now = time.time()
+                msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1.0) * 1e9)
+                self.pose_pub.publish(msg)
+                self.last_sent = time.monotonic()
+            else:
+                next_time = time.monotonic()
+
+    def close(self) -> None:
+        self._closed.set()
+        self.executor.shutdown()
+        for thread in self._threads:
+            thread.join(timeout=5.0)
+        self.node.destroy_node()
+
+    def since(self, t: float) -> list:
+        return [h for h in list(self.haptic) if h[0] > t]
+
+    def status(self, suffix: str) -> list:
+        return [s for s in list(self.statuses) if s.name == f"/needle_simulator: {suffix}"]
+
+    def call(self, service_type, name: str, request, timeout: float = 30.0):
+        client = self.node.create_client(service_type, name)
+        assert client.wait_for_service(timeout_sec=timeout), name
+        future = client.call_async(request)
+        deadline = time.monotonic() + timeout
+        while not future.done():
+            assert time.monotonic() < deadline, f"{name}: no answer"
+            time.sleep(0.01)
+        return future.result()
+
+    def transition(self, transition_id: int) -> bool:
+        return self.call(ChangeState, "needle_simulator/change_state",
+                         ChangeState.Request(transition=Transition(id=transition_id))).success
+
+
+@pytest.fixture
+def arm(ros_env):
+    rclpy.init()
+    stand_in = Arm()
+    stand_in.processes = []
+    yield stand_in
+    stop(stand_in.processes)
+    stand_in.close()
+    rclpy.shutdown()
+
+
+def start(arm: Arm, env, tmp_path, arguments=(), **overrides) -> subprocess.Popen:
+    process = subprocess.Popen(simulator_command() + ["--ros-args", "--params-file",
+                                                      str(write_params(tmp_path, **overrides)), *arguments],
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    arm.processes.append(process)
+    return process
+
+
+def wait_until(condition, process, timeout: float = 180.0, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert process.poll() is None, process.stdout.read()
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def norms(entries, index: int = 1) -> np.ndarray:
+    return np.array([np.linalg.norm(entry[index]) for entry in entries])
+
+
+def rendering(arm: Arm, process, fraction: float = 0.95) -> None:
+    """Wait until the haptic force is the needle's weight (settled and ramped up)."""
+    wait_until(lambda: arm.haptic and abs(np.linalg.norm(arm.haptic[-1][1]) - WEIGHT) < (1 - fraction) * WEIGHT,
+               process, what="the haptic force to reach the needle's weight")
+
+
+def test_the_watchdog_zeroes_a_silent_arm_ramps_back_and_deactivate_sends_zero(arm, ros_env, tmp_path):
+    process = start(arm, ros_env, tmp_path, **HAPTICS)
+    arm.streaming.set()
+    rendering(arm, process)
+    time.sleep(0.5)
+    # At rest under gravity, base frame = world frame (the poses' frame): the weight, downwards (what a hand
+    # holding the needle feels), with the sign of the wrench output.
+    recent = arm.haptic[-100:]
+    assert {entry[3] for entry in recent} == {"world"}
+    force = np.mean([entry[1] for entry in recent], axis=0)
+    np.testing.assert_allclose(force, [0.0, 0.0, -WEIGHT], atol=0.03 * WEIGHT)
+    np.testing.assert_allclose(np.mean(arm.wrenches[-100:], axis=0), force, atol=0.03 * WEIGHT)
+
+    # The arm goes silent: zero within the watchdog time, and zero keeps coming at the step rate.
+    arm.streaming.clear()
+    time.sleep(0.005)
+    silent_from = arm.last_sent
+    time.sleep(0.5)
+    after = arm.since(silent_from)
+    first_zero = next(entry[0] for entry in after if not entry[1].any())
+    assert first_zero - silent_from < TIMEOUT + 0.03, first_zero - silent_from
+    late = [entry for entry in after if entry[0] > silent_from + TIMEOUT + 0.03]
+    assert not norms(late).any() and not norms(late, 2).any()
+    assert len([e for e in late if e[0] > silent_from + 0.1]) > 0.6 * 0.4 * 1000  # ~1 kHz of zeros
+    assert any(s.level == b"\x02" and "watchdog" in s.message for s in arm.status("haptics"))
+
+    # Back: a ramp over haptics.resume_ramp, no step.
+    arm.streaming.set()
+    resumed = time.monotonic()
+    time.sleep(0.6)
+    back = [entry for entry in arm.since(resumed) if entry[1].any()]
+    magnitude, at = norms(back), np.array([entry[0] - back[0][0] for entry in back])
+    assert magnitude[0] < 0.15 * WEIGHT, magnitude[0]
+    middle = magnitude[(at > 0.4 * RAMP) & (at < 0.6 * RAMP)]
+    assert middle.size and np.all((middle > 0.3 * WEIGHT) & (middle < 0.7 * WEIGHT)), middle
+    assert np.all(np.abs(magnitude[at > RAMP + 0.02] - WEIGHT) < 0.05 * WEIGHT)
+
+    # Deactivate: a zero, then nothing else (reliable, in order: anything published before it came before it).
+    assert arm.transition(Transition.TRANSITION_DEACTIVATE)
+    answered = time.monotonic()
+    time.sleep(0.3)
+    assert not arm.haptic[-1][1].any() and not arm.haptic[-1][2].any()
+    assert not norms(arm.since(answered)).any()
+    assert arm.transition(Transition.TRANSITION_ACTIVATE)  # and it renders again
+    activated = time.monotonic()
+    wait_until(lambda: any(entry[1].any() for entry in arm.since(activated)), process, 10.0, "rendering again")
+    # Deactivate, then cleanup: another zero (a driver that joined in between gets one too).
+    assert arm.transition(Transition.TRANSITION_DEACTIVATE)
+    time.sleep(0.2)
+    deactivated = len(arm.haptic)
+    assert arm.transition(Transition.TRANSITION_CLEANUP)
+    wait_until(lambda: len(arm.haptic) > deactivated, process, 5.0, "the zero of cleanup")
+    assert len(arm.haptic) == deactivated + 1 and not arm.haptic[-1][1].any()
+
+
+@pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT])
+def test_saturation_holds_and_a_stop_signal_sends_zero_then_exits_cleanly(arm, ros_env, tmp_path, stop_signal):
+    # The weight (26.8 mN) and its moment about A (3.6 mN m) both above the limits.
+    process = start(arm, ros_env, tmp_path, **(HAPTICS | {"haptics.max_force": 0.01, "haptics.max_torque": 0.001,
+                                                          "haptics.resume_ramp": 0.0}))
+    arm.streaming.set()
+    wait_until(lambda: len([e for e in arm.haptic if e[1].any()]) > 500, process, what="500 haptic wrenches")
+    forces, torques = norms(arm.haptic), norms(arm.haptic, 2)
+    assert forces.max() <= 0.01 + 1e-12 and torques.max() <= 0.001 + 1e-12
+    np.testing.assert_allclose(arm.haptic[-1][1], [0.0, 0.0, -0.01], atol=1e-4)  # direction kept: down
+    assert np.linalg.norm(arm.wrenches[-1]) > 2 * 0.01  # the unlimited output is not clipped
+    wait_until(lambda: any(s.level == b"\x01" and "saturated" in s.message for s in arm.status("haptics")), process,
+               10.0, "a diagnostics WARN for the saturation")
+    clipped = [dict((kv.key, kv.value) for kv in s.values) for s in arm.status("haptics")]
+    assert int(clipped[-1]["clipped_forces"]) > 0 and int(clipped[-1]["clipped_torques"]) > 0
+
+    process.send_signal(stop_signal)  # the arm still streaming
+    output, _ = process.communicate(timeout=20)
+    time.sleep(0.2)
+    assert process.returncode == 0, output
+    assert "Traceback" not in output, output
+    assert not arm.haptic[-1][1].any() and not arm.haptic[-1][2].any(), arm.haptic[-1]
+
+
+def set_parameter(arm: Arm, name: str, value: float):
+    request = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
+        type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
+    return arm.call(SetParameters, "needle_simulator/set_parameters", request).results[0]
+
+
+def test_structural_parameters_set_while_unconfigured_take_effect_at_configure(arm, ros_env, tmp_path):
+    process = start(arm, ros_env, tmp_path, autostart=False)
+    result = set_parameter(arm, "needle.length", 0.135)
+    assert result.successful, result.reason
+    enable = arm.call(SetParameters, "needle_simulator/set_parameters", SetParameters.Request(parameters=[Parameter(
+        name="haptics.enable", value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True))])).results[0]
+    assert not enable.successful  # fixed at construction (its publisher exists or not)
+    assert arm.transition(Transition.TRANSITION_CONFIGURE) and arm.transition(Transition.TRANSITION_ACTIVATE)
+    arm.streaming.set()
+    wait_until(lambda: len(arm.wrenches) > 1500, process, what="1.5 s of wrenches")
+    # half the needle, half the weight
+    np.testing.assert_allclose(np.mean(arm.wrenches[-100:], axis=0), [0.0, 0.0, -WEIGHT / 2], atol=0.03 * WEIGHT)
+    refused = set_parameter(arm, "needle.length", 0.27)
+    assert not refused.successful and "unconfigured" in refused.reason, refused.reason
+
+    # Only poses come: the optional inputs (twist, tip load) without a publisher are fine.
+    def accepting_report():
+        reports = [s for s in arm.status("inputs") if {kv.key: kv.value for kv in s.values}.get("accepting") == "true"]
+        return reports[-1] if reports else None
+
+    wait_until(accepting_report, process, 10.0, "an input report while active")
+    inputs = accepting_report()
+    assert inputs.level == b"\x00", inputs.message
+    assert {kv.key: kv.value for kv in inputs.values}["/base_twist"] == "0"
+    # Readiness: the same report, latched: a reader that comes later gets the last one, published before it came.
+    latched = []
+    subscribed_at = time.time()
+    arm.node.create_subscription(DiagnosticArray, "/needle_sim/readiness", latched.append,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    wait_until(lambda: latched, process, 10.0, "the latched readiness report")
+    first = latched[0]
+    assert first.header.stamp.sec + 1e-9 * first.header.stamp.nanosec < subscribed_at
+    assert first.status[0].name == "/needle_simulator: inputs"
+    assert {kv.key: kv.value for kv in first.status[0].values}["accepting"] == "true"
+
+
+def test_an_unknown_name_is_a_warning_and_a_misspelling_is_fatal(arm, ros_env, tmp_path):
+    """A parent launch's global parameter (``-p`` or a ``/**`` section) that resembles none of the node's is ignored
+    with a warning; a misspelling of one of its names stays fatal with the suggestion."""
+    process = start(arm, ros_env, tmp_path, ["-p", "robot_name:=psm1"], lab_station="b12")
+    wait_until(lambda: arm.pose_pub.get_subscription_count() > 0, process, what="the simulator to subscribe")
+    time.sleep(0.5)
+    assert process.poll() is None
+    process.send_signal(signal.SIGINT)
+    output, _ = process.communicate(timeout=20)
+    assert "'robot_name'" in output and "'lab_station'" in output, output
+    result = subprocess.run(simulator_command() + ["--ros-args", "-p", "haptics.max_forse:=1.0"], env=ros_env,
+                            capture_output=True, text=True, timeout=120)
+    output = result.stdout + result.stderr
+    assert result.returncode == 2 and "Traceback" not in output, output
+    assert "did you mean 'haptics.max_force'" in output, output
+
+
+def test_an_exception_escaping_the_executor_still_runs_the_finish_hooks_and_propagates():
+    """The simulator's finish() sends the haptic zero: it must run on a crash too, and the crash must not look like
+    success (the exception goes on: exit status 1)."""
+    class FailingExecutor:
+        def spin_once(self, timeout_sec: float) -> None:
+            raise RuntimeError("a callback failed")
+
+        def shutdown(self) -> None:
+            pass
+
+    class Node:
+        finished = destroyed = False
+
+        def finish(self) -> None:
+            Node.finished = True
+
+        def destroy_node(self) -> None:
+            Node.destroyed = True
+
+    rclpy.init()
+    with pytest.raises(RuntimeError, match="a callback failed"):
+        spin_until_shutdown(FailingExecutor(), [Node()], SimpleNamespace(received=None))
+    assert Node.finished and Node.destroyed and not rclpy.ok()
+
+
+def test_an_integration_loop_that_dies_zeroes_the_haptic_output():
+    node = object.__new__(NeedleSimulatorNode)  # the node's methods on a stub state, without a ROS context
+    node._stop, zeroed, errors = threading.Event(), [], []
+    node.get_logger = lambda: SimpleNamespace(error=errors.append)
+    node.zero_haptics = lambda: zeroed.append(True)
+
+    def run_loop():
+        raise MemoryError("out of memory")
+
+    node.run_loop = run_loop
+    rclpy.init()
+    try:
+        with pytest.raises(MemoryError):
+            node.run_loop_or_zero()
+    finally:
+        rclpy.shutdown()
+    assert zeroed == [True] and "integration loop ended" in errors[0]
