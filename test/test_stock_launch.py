@@ -77,9 +77,10 @@ def launches():
         launch.stop()
 
 
-def ros2(env: dict, *arguments: str, timeout: float = 30.0, retry_until: float = 0.0) -> str:
-    """``ros2 ARGUMENTS`` (without the daemon: nothing outlives the test); repeated, while it fails, for up to
-    ``retry_until`` seconds (a new participant discovers the nodes in its first second or so)."""
+def ros2(env: dict, *arguments: str, timeout: float = 30.0, retry_until: float = 20.0) -> str:
+    """``ros2 ARGUMENTS`` (without the daemon: nothing outlives the test); repeated while it fails, for up to
+    ``retry_until`` seconds: each call is a new participant, which may miss a node it has not yet discovered
+    ('Node not found')."""
     deadline = time.monotonic() + retry_until
     while True:
         result = subprocess.run(["ros2", *arguments], env=env, capture_output=True, text=True, timeout=timeout)
@@ -182,9 +183,10 @@ from launch_ros.substitutions import FindPackageShare
 
 def generate_launch_description():
     bringup = PythonLaunchDescriptionSource([FindPackageShare("needle_sim_ros"), "/launch/bringup.launch.py"])
-    return LaunchDescription([GroupAction([PushRosNamespace("lab"), IncludeLaunchDescription(bringup, launch_arguments={{
-        "mode": "replay", "bag": "{DYNAMIC}", "experiment": "dynamic_pitch", "stereo": "false",
-        "compare": "false"}}.items())])])
+    arguments = {{"mode": "replay", "bag": "{DYNAMIC}", "experiment": "dynamic_pitch", "stereo": "false",
+                 "compare": "false"}}
+    return LaunchDescription([GroupAction([PushRosNamespace("lab"),
+                                           IncludeLaunchDescription(bringup, launch_arguments=arguments.items())])])
 """)
     launch = Launch(stock_env, tmp_path / "launch.log", launch_file=str(parent))
     launches.append(launch)
@@ -196,7 +198,7 @@ def generate_launch_description():
 def test_a_failing_simulator_ends_the_launch(stock_env, launches, tmp_path, where):
     """A bad parameter (the node exits 2) or one the model rejects at configure (the transition fails, the node
     stays up): the launch ends non-zero within seconds (before: it waited forever)."""
-    bad = {"at start": "needle.elements: -3", "at configure": "fixtures.clamp_interval: [0.1, 0.5]"}[where]
+    bad = {"at start": "needle.elements: -3", "at configure": "needle.element_lengths: [0.1, 0.1]"}[where]
     experiment = tmp_path / "bad.yaml"
     experiment.write_text(f"needle_simulator:\n  ros__parameters:\n    {bad}\n")
     launch = Launch(stock_env, tmp_path / "launch.log", "mode:=sim", f"experiment:={experiment}")
@@ -205,7 +207,7 @@ def test_a_failing_simulator_ends_the_launch(stock_env, launches, tmp_path, wher
     code = launch.wait(START_TIMEOUT)
     assert code != 0, launch.output()
     assert time.monotonic() - start < START_TIMEOUT
-    expected = "exited with status 2" if where == "at start" else "failed to configure"
+    expected = "exited with status 2" if where == "at start" else "failed a lifecycle transition"
     assert expected in launch.output(), launch.output()
 
 
@@ -215,7 +217,7 @@ def test_no_transitions_leaves_the_simulator_unconfigured(stock_env, launches, t
     launches.append(launch)
     launch.wait_for("needle_simulator ready", START_TIMEOUT)
     time.sleep(2.0)
-    state = ros2(stock_env, "lifecycle", "get", "/needle_simulator", "--no-daemon", retry_until=20.0)
+    state = ros2(stock_env, "lifecycle", "get", "/needle_simulator", "--no-daemon")
     assert state.startswith("unconfigured"), state
     assert launch.stop() == 0, launch.output()[-5000:]
 

@@ -16,7 +16,8 @@ the operator should feel out on ``haptic_topic`` (CRTK ``servo_cf``).
 
 The simulator is sequenced through its lifecycle: configure at start, then activate (``activate:=false``: configure
 only; ``configure:=false``: no transition at all, a lifecycle manager drives it). The simulator exiting with an error,
-or failing its configure transition, ends the launch with a non-zero status; so does the bag player failing.
+or failing a transition (its configure rejected, an error in a callback), ends the launch with a non-zero status; so
+does the bag player failing.
 Experiment sections keyed by a bare node name apply in any namespace, the namespace of a parent launch's
 PushRosNamespace included.
 """
@@ -28,12 +29,13 @@ from launch.event_handlers import OnProcessExit
 from launch.events import matches_action
 from launch_ros.actions import LifecycleNode, Node
 from launch_ros.event_handlers import OnStateTransition
-from launch_ros.events.lifecycle import ChangeState
+from launch_ros.events.lifecycle import ChangeState, StateTransition
 from launch_ros.substitutions import FindPackageShare
 from lifecycle_msgs.msg import Transition
 
-from needle_sim_ros.launch_support import (MODES, exit_error, experiment_file, flag, full_namespace, mode_settings,
-                                           namespaced_params_file, player_arguments, unique_log_path)
+from needle_sim_ros.launch_support import (MODES, exit_error, experiment_file, failed_transition, flag,
+                                           full_namespace, mode_settings, namespaced_params_file, player_arguments,
+                                           unique_log_path)
 
 ARGUMENTS = {
     "mode": ("sim", f"what runs: {' | '.join(MODES)}"),
@@ -70,8 +72,8 @@ def _ends_launch(name: str, shutdown_when_done: bool):
     return on_exit
 
 
-def _configure_failed(event, context):
-    raise RuntimeError("needle_simulator failed to configure (its log says why): the launch stops")
+def _transition_failed(context):
+    raise RuntimeError("needle_simulator failed a lifecycle transition (its log says why): the launch stops")
 
 
 def _nodes(context):
@@ -94,9 +96,10 @@ def _nodes(context):
     actions = [simulator,
                RegisterEventHandler(OnProcessExit(target_action=simulator,
                                                   on_exit=_ends_launch("needle_simulator", True))),
-               RegisterEventHandler(OnStateTransition(target_lifecycle_node=simulator, start_state="configuring",
-                                                      goal_state="unconfigured",
-                                                      entities=[OpaqueFunction(function=_configure_failed)]))]
+               RegisterEventHandler(OnStateTransition(
+                   matcher=lambda event: isinstance(event, StateTransition) and event.action is simulator
+                   and failed_transition(event.start_state, event.goal_state),
+                   entities=[OpaqueFunction(function=_transition_failed)]))]
     if flag("configure", arg["configure"]):
         actions.append(EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
                                                    transition_id=Transition.TRANSITION_CONFIGURE)))

@@ -84,6 +84,12 @@ def namespaced_params_file(path: str) -> str:
     return stream.name
 
 
+def failed_transition(start_state: str, goal_state: str) -> bool:
+    """A lifecycle transition event (state labels) that means a transition failed: configure refused
+    (configuring -> unconfigured) or any callback's error (errorprocessing -> ...)."""
+    return (start_state, goal_state) == ("configuring", "unconfigured") or start_state == "errorprocessing"
+
+
 def exit_error(name: str, returncode: int, shutting_down: bool) -> str:
     """Why a node's exit fails the launch ('' if it does not): a non-zero status outside the launch's shutdown."""
     if returncode == 0 or shutting_down:

@@ -12,8 +12,8 @@ import pytest
 import yaml
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
-from needle_sim_ros.launch_support import (exit_error, experiment_file, flag, full_namespace, mode_settings,
-                                           namespaced_params_file, player_arguments, unique_log_path)
+from needle_sim_ros.launch_support import (exit_error, experiment_file, failed_transition, flag, full_namespace,
+                                           mode_settings, namespaced_params_file, player_arguments, unique_log_path)
 
 SHARE = Path(get_package_share_directory("needle_sim_ros"))
 LAUNCH_FILES = {"bringup.launch.py": {"mode", "bag", "keep_alive", "experiment", "stereo", "compare", "log",
@@ -170,3 +170,12 @@ def test_the_bag_player_waits_for_the_nodes_that_read_the_bag():
             "a.mcap", "--clock", "--in-namespace", "--wait-for-subscribers", "30", "--wait-for-nodes",
             "/robot1/needle_compare"]
     assert player_arguments("a.mcap", "/", ["needle_compare"])[-1] == "/needle_compare"
+
+
+def test_a_failed_transition_is_told_from_the_normal_ones():
+    """rcl_lifecycle's states: configure refused goes configuring -> unconfigured, a callback's error through
+    errorprocessing; a cleanup also ends in unconfigured (from cleaningup) and is normal."""
+    assert failed_transition("configuring", "unconfigured")
+    assert failed_transition("errorprocessing", "unconfigured") and failed_transition("errorprocessing", "finalized")
+    assert not failed_transition("cleaningup", "unconfigured")
+    assert not failed_transition("configuring", "inactive") and not failed_transition("activating", "active")
