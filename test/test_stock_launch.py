@@ -129,6 +129,8 @@ def test_replay_compares_every_measurement_and_ends_by_itself(replay):
     expected = main_job.expected_measurements(DYNAMIC, stereo=True, background_frames=1)
     assert expected == 10
     assert shape_errors(replay["log"]) == expected, replay["output"][-5000:]
+    summary = json.loads(re.search(r"\[needle_compare\] summary: (\{.*\})", replay["output"]).group(1))
+    assert summary["compared"] == expected and summary["rmse_mean_m"] < 1e-4, summary
     assert re.search(PLAYER_DONE, replay["output"])
 
 
