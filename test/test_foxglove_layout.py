@@ -18,7 +18,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from visualization_msgs.msg import Marker
 
-from test_end_to_end import DYNAMIC, DYNAMIC_SLICE, REPO, main_job
+from test_end_to_end import DYNAMIC, DYNAMIC_SLICE, REPO, decode_with_mcap_ros2, main_job
+from needle_sim_ros.offline.pipeline import OfflinePipeline
+from needle_sim_ros.parameters.experiment import experiment_for_bag
 from workspaces import build_tf2_msgs, environment_with
 
 LAYOUT = Path(get_package_share_directory("needle_sim_ros")) / "config" / "foxglove" / "needle_compare.json"
@@ -153,3 +155,17 @@ def test_every_topic_and_frame_of_the_rviz_config_is_in_the_pipeline(pipeline_lo
     tf_frames = {name for topic in ("/tf", "/tf_static") for msg in messages.get(topic, [])
                  for t in msg.transforms for name in (t.header.frame_id, t.child_frame_id)}
     assert {"world", "needle_base"} <= frames <= tf_frames, (frames, tf_frames)
+
+
+def test_every_topic_of_the_layout_is_in_an_offline_log(tmp_path):
+    """needle_offline and needle_batch write most logs: they hold the layout's topics too (the compared centerlines
+    at display.rate, as needle_compare records them), in the frame the layout follows (no TF in an offline log)."""
+    log = tmp_path / "offline.mcap"
+    OfflinePipeline(experiment_for_bag(DYNAMIC)).run(DYNAMIC, log, duration=DYNAMIC_SLICE)
+    messages = decode_with_mcap_ros2(log)
+    topics, frames = layout_references(json.loads(LAYOUT.read_text()))
+    missing = {t for t in topics if not messages.get(t)}
+    assert not missing, f"layout topics without messages in the offline log: {missing} (log has {sorted(messages)})"
+    shown = [t for t in topics if t.startswith("/compare/")]
+    assert {msg.header.frame_id for topic in shown for msg in messages[topic]} == {"world"} and "world" in frames
+    assert len(messages["/compare/measured/marker"]) == len(messages["/shape_error"]) == 3
