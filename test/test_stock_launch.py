@@ -26,6 +26,9 @@ HERE = Path(__file__).parent
 START_TIMEOUT = 120.0  # [s] for the nodes to come up (the first start of a fresh install loads the numba kernels)
 REPLAY_TIMEOUT = 240.0  # [s] for a replay launch of the 6 s dynamic bag to end by itself
 CAMERA_FRAMES = ("stereo_left_optical_frame", "stereo_right_optical_frame")
+# The command line without its daemon (nothing outlives the test), discovering for 3 s (the default 0.5 s missed the
+# node now and then on this loaded 2-core machine: 'Node not found')
+NO_DAEMON = ("--no-daemon", "--spin-time", "3")
 PLAYER_DONE = r"\[needle_replay-\d+\]: process has finished cleanly"
 
 
@@ -78,9 +81,8 @@ def launches():
 
 
 def ros2(env: dict, *arguments: str, timeout: float = 30.0, retry_until: float = 20.0) -> str:
-    """``ros2 ARGUMENTS`` (without the daemon: nothing outlives the test); repeated while it fails, for up to
-    ``retry_until`` seconds: each call is a new participant, which may miss a node it has not yet discovered
-    ('Node not found')."""
+    """``ros2 ARGUMENTS``, repeated while it fails for up to ``retry_until`` seconds: each call is a new participant,
+    which may miss a node it has not yet discovered ('Node not found')."""
     deadline = time.monotonic() + retry_until
     while True:
         result = subprocess.run(["ros2", *arguments], env=env, capture_output=True, text=True, timeout=timeout)
@@ -95,7 +97,7 @@ def active(env: dict, node: str) -> None:
     """Wait (bounded) until ``node`` reports the lifecycle state active."""
     deadline = time.monotonic() + START_TIMEOUT
     while "active [3]" not in (state := subprocess.run(
-            ["ros2", "lifecycle", "get", node, "--no-daemon"], env=env, capture_output=True, text=True,
+            ["ros2", "lifecycle", "get", node, *NO_DAEMON], env=env, capture_output=True, text=True,
             timeout=30).stdout):
         assert time.monotonic() < deadline, f"{node} not active after {START_TIMEOUT:g} s: {state!r}"
         time.sleep(1.0)
@@ -155,15 +157,15 @@ def test_namespace_applies_the_experiment_and_the_cli_sees_the_nodes(stock_env, 
     launches.append(launch)
     node = "/psm1/needle_simulator"
     active(stock_env, node)
-    assert "[0.162, 0.27]" in ros2(stock_env, "param", "get", node, "fixtures.clamp_interval", "--no-daemon")
-    assert "reliable" in ros2(stock_env, "param", "get", node, "qos.wrench", "--no-daemon")
-    described = ros2(stock_env, "param", "describe", node, "rates.shape_hz", "--no-daemon")
+    assert "[0.162, 0.27]" in ros2(stock_env, "param", "get", node, "fixtures.clamp_interval", *NO_DAEMON)
+    assert "reliable" in ros2(stock_env, "param", "get", node, "qos.wrench", *NO_DAEMON)
+    described = ros2(stock_env, "param", "describe", node, "rates.shape_hz", *NO_DAEMON)
     assert "Type: double" in described and "Min value: 0.1" in described, described
-    assert "successful" in ros2(stock_env, "param", "set", node, "rates.shape_hz", "25.0", "--no-daemon")
-    assert "25.0" in ros2(stock_env, "param", "get", node, "rates.shape_hz", "--no-daemon")
+    assert "successful" in ros2(stock_env, "param", "set", node, "rates.shape_hz", "25.0", *NO_DAEMON)
+    assert "25.0" in ros2(stock_env, "param", "get", node, "rates.shape_hz", *NO_DAEMON)
     launch.wait_for(PLAYER_DONE, REPLAY_TIMEOUT)
     for transition in ("deactivate", "activate"):
-        assert "Transitioning successful" in ros2(stock_env, "lifecycle", "set", node, transition, "--no-daemon")
+        assert "Transitioning successful" in ros2(stock_env, "lifecycle", "set", node, transition, *NO_DAEMON)
     time.sleep(3.0)
     assert launch.process.poll() is None, launch.output()[-5000:]
     assert "executed more than once" not in launch.output()
@@ -219,7 +221,7 @@ def test_no_transitions_leaves_the_simulator_unconfigured(stock_env, launches, t
     launches.append(launch)
     launch.wait_for("needle_simulator ready", START_TIMEOUT)
     time.sleep(2.0)
-    state = ros2(stock_env, "lifecycle", "get", "/needle_simulator", "--no-daemon")
+    state = ros2(stock_env, "lifecycle", "get", "/needle_simulator", *NO_DAEMON)
     assert state.startswith("unconfigured"), state
     assert launch.stop() == 0, launch.output()[-5000:]
 
@@ -246,18 +248,18 @@ def test_hil_with_a_standin_arm(stock_env, launches, tmp_path):
     try:
         node = "/PSM1/needle_simulator"
         active(stock_env, node)
-        assert "[0.01, 0.0, 0.0]" in ros2(stock_env, "param", "get", node, "flange_offset.position", "--no-daemon")
-        assert "True" in ros2(stock_env, "param", "get", node, "haptics.enable", "--no-daemon")
+        assert "[0.01, 0.0, 0.0]" in ros2(stock_env, "param", "get", node, "flange_offset.position", *NO_DAEMON)
+        assert "True" in ros2(stock_env, "param", "get", node, "haptics.enable", *NO_DAEMON)
         time.sleep(3.0)  # rendering
         for _ in range(2):  # silent for 1 s, then streaming again
             arm.send_signal(signal.SIGUSR1)
             time.sleep(1.0)
         time.sleep(2.0)
-        ros2(stock_env, "lifecycle", "set", node, "deactivate", "--no-daemon")
+        ros2(stock_env, "lifecycle", "set", node, "deactivate", *NO_DAEMON)
         deactivated = time.monotonic()
         time.sleep(1.0)
         reactivating = time.monotonic()
-        ros2(stock_env, "lifecycle", "set", node, "activate", "--no-daemon")
+        ros2(stock_env, "lifecycle", "set", node, "activate", *NO_DAEMON)
         time.sleep(2.0)
         assert launch.process.poll() is None, launch.output()[-5000:]
         interrupted = time.monotonic()
