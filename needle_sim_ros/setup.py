@@ -63,6 +63,7 @@ setup(
         ("share/" + package_name + "/config/foxglove", glob("config/foxglove/*.json")),
         ("share/" + package_name + "/config/batch", glob("config/batch/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
+        ("share/" + package_name + "/rviz", glob("rviz/*.rviz")),
     ],
     install_requires=["setuptools"],
     extras_require={"test": ["pytest"]},

@@ -58,6 +58,21 @@ def test_offline_batch_mode_is_deterministic(offline_dynamic, tmp_path):
     assert run.summary["comparison"] == first
 
 
+def test_offline_stereo_orders_base_and_tip_by_the_base_pose_as_the_node_does(tmp_path):
+    """The stereo node tells base from tip by the bag's base poses (base_pose.topic); the offline stage must too.
+    With base_point at the needle's tip (x = L; independent truth: the bag's needle is clamped at the origin along
+    +x), only the base poses put the logged shapes' first sample at the base. (The comparison's distance does not
+    depend on the order, so its RMSE cannot tell.)"""
+    log = tmp_path / "log.mcap"
+    OfflinePipeline(experiment_for_bag(DYNAMIC), {"needle_stereo": {"base_point": [0.27, 0.0, 0.0]}}).run(
+        DYNAMIC, log, duration=DYNAMIC_SLICE)
+    shapes = decode_with_mcap_ros2(log)["/needle/measured_shape"]
+    assert len(shapes) == 3
+    for shape in shapes:
+        first, last = (np.array([p.x, p.y, p.z]) for p in (shape.points[0], shape.points[-1]))
+        assert np.linalg.norm(first) < 1e-3 and last[0] > 0.25
+
+
 def test_a_wrong_youngs_modulus_gives_a_clearly_larger_error():
     # Static bag, 3.1 s: the settled needle under gravity (1.5 s) and with 20 g on the tip (3.0 s).
     # Beam theory (independent of the model): the tip deflects by P L^3 / (3 E I) = 52 mm under 20 g; a model

@@ -1,7 +1,7 @@
 """TF, lifecycle and diagnostics of the nodes in real processes (issue 14).
 
 The /tf path needs tf2_msgs, which has no wheel here: a test-only tf2_msgs with the official TFMessage definition
-is built into build/test_ws (tf2_msgs_workspace) and given to the node and to a listener process only.
+is built into build/test_ws (workspaces.py) and given to the node and to a listener process only.
 """
 import json
 import math
@@ -21,7 +21,7 @@ from rosgraph_msgs.msg import Clock
 from scipy.spatial.transform import Rotation
 
 from test_simulator_node import LENGTH, REPO, Driver, installed, simulator_command, stop, write_params
-from tf2_msgs_workspace import build_tf2_msgs, environment_with
+from workspaces import build_tf2_msgs, environment_with
 
 E, RADIUS, DENSITY, G = 193e9, 0.635e-3, 8000.0, 9.81
 # Cantilever under its own weight w: tip deflection w L^4 / (8 E I) (Euler-Bernoulli, small deflection).

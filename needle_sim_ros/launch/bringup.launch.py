@@ -2,47 +2,78 @@
 
     ros2 launch needle_sim_ros bringup.launch.py mode:=sim                 # wall clock, poses from pose_topic
     ros2 launch needle_sim_ros bringup.launch.py mode:=replay bag:=bags/dynamic_pitch.mcap experiment:=dynamic_pitch
-    ros2 launch needle_sim_ros bringup.launch.py mode:=hil pose_topic:=/PSM1/measured_cp pose_frame:=PSM1_base \
-        wrench_topic:=/PSM1/needle/wrench                                 # a CRTK (dVRK-style) robot driver
+    ros2 launch needle_sim_ros bringup.launch.py mode:=external experiment:=dynamic_pitch   # then, elsewhere:
+        ros2 bag play bags/dynamic_pitch.mcap --clock 200
+    ros2 launch needle_sim_ros bringup.launch.py mode:=hil namespace:=/PSM1 pose_topic:=measured_cp \
+        pose_frame:=PSM1_base haptic_topic:=servo_cf experiment:=my_tool.yaml      # a CRTK (dVRK-style) arm
 
-Modes (in the spirit of SmartNeedle's sim_level): ``sim`` runs the simulator in wall-clock time on poses from
-``pose_topic``; ``replay`` adds stereo reconstruction, comparison and the bag player in simulated time (the bag
-starts only once the simulator is active); ``hil`` drives the simulator from a robot driver's measured pose
-(CRTK ``measured_cp``, geometry_msgs/PoseStamped) and sends the needle's wrench on the holder to
-``wrench_topic`` (geometry_msgs/WrenchStamped in ``needle_base``). The simulator is sequenced through its
-lifecycle: configure at start, then activate (unless ``activate:=false``: a robot bringup activates it).
+Modes: ``sim`` runs the simulator in wall-clock time on poses from ``pose_topic``; ``replay`` adds stereo
+reconstruction, comparison and the bag player in simulated time (the bag starts once the simulator is active, and
+the launch ends when the bag has played unless ``keep_alive:=true``); ``external`` is replay without the player
+(simulated time from another /clock source, e.g. ``ros2 bag play --clock``); ``hil`` is the wall-clock simulator
+with its haptic output on (``haptics.enable``): a robot driver's measured pose in (CRTK ``measured_cp``), the force
+the operator should feel out on ``haptic_topic`` (CRTK ``servo_cf``).
+
+The simulator is sequenced through its lifecycle: configure at start, then activate (``activate:=false``: configure
+only; ``configure:=false``: no transition at all, a lifecycle manager drives it). The simulator exiting with an error,
+or failing a transition (its configure rejected, an error in a callback), ends the launch with a non-zero status; so
+does the bag player failing.
+Experiment sections keyed by a bare node name apply in any namespace, the namespace of a parent launch's
+PushRosNamespace included.
 """
 from pathlib import Path
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler, Shutdown
+from launch.event_handlers import OnProcessExit
 from launch.events import matches_action
 from launch_ros.actions import LifecycleNode, Node
 from launch_ros.event_handlers import OnStateTransition
-from launch_ros.events.lifecycle import ChangeState
+from launch_ros.events.lifecycle import ChangeState, StateTransition
 from launch_ros.substitutions import FindPackageShare
 from lifecycle_msgs.msg import Transition
 
-from needle_sim_ros.launch_support import MODES, experiment_file, mode_settings, player_arguments, unique_log_path
+from needle_sim_ros.launch_support import (MODES, exit_error, experiment_file, failed_transition, flag,
+                                           full_namespace, mode_settings, namespaced_params_file, player_arguments,
+                                           unique_log_path)
 
 ARGUMENTS = {
     "mode": ("sim", f"what runs: {' | '.join(MODES)}"),
     "bag": ("", "rosbag2 MCAP to replay (mode:=replay)"),
+    "keep_alive": ("false", "mode:=replay: keep the nodes up when the bag has played (false: the launch ends)"),
     "experiment": ("", "experiment parameter file: a name in config/experiments (e.g. dynamic_pitch) or a path"),
-    "stereo": ("auto", "run needle_stereo: true | false | auto (replay only)"),
-    "compare": ("auto", "run needle_compare: true | false | auto (replay only)"),
+    "stereo": ("auto", "run needle_stereo: true | false | auto (replay and external)"),
+    "compare": ("auto", "run needle_compare: true | false | auto (replay and external)"),
     "log": ("", "MCAP log of the comparison; empty: a new needle_compare_<time>_<pid>.mcap in log_dir"),
     "log_dir": (".", "directory of the generated log names"),
     "pose_topic": ("base_pose", "geometry_msgs/PoseStamped of the needle holder (CRTK: <arm>/measured_cp)"),
     "pose_frame": ("world", "frame_id of those poses: the simulator's world frame (frames.world)"),
     "wrench_topic": ("wrench", "geometry_msgs/WrenchStamped out: the needle's wrench on the holder"),
-    "namespace": ("", "namespace of all nodes"),
+    "haptic_topic": ("haptic/wrench", "geometry_msgs/WrenchStamped out (mode:=hil): the force to render "
+                     "(CRTK: <arm>/servo_cf)"),
+    "namespace": ("", "namespace of all nodes (relative: under a parent launch's PushRosNamespace)"),
+    "configure": ("true", "configure the simulator at start (false: no lifecycle transition at all)"),
     "activate": ("true", "activate the simulator after configuring it (false: leave it to a lifecycle manager)"),
 }
 
 
-def _flag(value: str, automatic: bool) -> bool:
-    return automatic if value == "auto" else value.lower() in ("true", "1", "yes")
+def _choice(name: str, value: str, automatic: bool) -> bool:
+    return automatic if value == "auto" else flag(name, value)
+
+
+def _ends_launch(name: str, shutdown_when_done: bool):
+    """OnProcessExit's action: a non-zero exit fails the launch (an exception: launch exits 1), a clean one ends it
+    if ``shutdown_when_done``."""
+    def on_exit(event, context):
+        error = exit_error(name, event.returncode, context.is_shutdown)
+        if error:
+            raise RuntimeError(error)
+        return [Shutdown(reason=f"{name} is done")] if shutdown_when_done and not context.is_shutdown else []
+    return on_exit
+
+
+def _transition_failed(context):
+    raise RuntimeError("needle_simulator failed a lifecycle transition (its log says why): the launch stops")
 
 
 def _nodes(context):
@@ -50,31 +81,41 @@ def _nodes(context):
     config = FindPackageShare("needle_sim_ros").perform(context) + "/config"
     stereo_config = FindPackageShare("needle_vision").perform(context) + "/config"
     settings = mode_settings(arg["mode"], arg["bag"])
-    experiment = experiment_file(arg["experiment"], Path(config))
+    experiment = namespaced_params_file(experiment_file(arg["experiment"], Path(config)))
+    namespace = full_namespace(context.launch_configurations.get("ros_namespace"), arg["namespace"])
     extra = [experiment] if experiment else []
     common = {"use_sim_time": settings["use_sim_time"]}
+    haptics = {"haptics.enable": True} if settings["haptics"] else {}
     simulator = LifecycleNode(
         package="needle_sim_ros", executable="needle_simulator", name="needle_simulator",
         namespace=arg["namespace"], output="screen",
-        parameters=[f"{config}/needle_simulator.yaml", *extra, common,
+        parameters=[f"{config}/needle_simulator.yaml", *extra, common, haptics,
                     {"autostart": False, "frames.world": arg["pose_frame"]}],
-        remappings=[("base_pose", arg["pose_topic"]), ("wrench", arg["wrench_topic"])])
+        remappings=[("base_pose", arg["pose_topic"]), ("wrench", arg["wrench_topic"]),
+                    ("haptic/wrench", arg["haptic_topic"])])
     actions = [simulator,
-               EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
-                                           transition_id=Transition.TRANSITION_CONFIGURE))]
-    if _flag(arg["activate"], True):
-        actions.append(RegisterEventHandler(OnStateTransition(
-            target_lifecycle_node=simulator, start_state="configuring", goal_state="inactive",
-            entities=[EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
-                                                  transition_id=Transition.TRANSITION_ACTIVATE))])))
+               RegisterEventHandler(OnProcessExit(target_action=simulator,
+                                                  on_exit=_ends_launch("needle_simulator", True))),
+               RegisterEventHandler(OnStateTransition(
+                   matcher=lambda event: isinstance(event, StateTransition) and event.action is simulator
+                   and failed_transition(event.start_state, event.goal_state),
+                   entities=[OpaqueFunction(function=_transition_failed)]))]
+    if flag("configure", arg["configure"]):
+        actions.append(EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
+                                                   transition_id=Transition.TRANSITION_CONFIGURE)))
+        if flag("activate", arg["activate"]):
+            actions.append(RegisterEventHandler(OnStateTransition(
+                target_lifecycle_node=simulator, start_state="configuring", goal_state="inactive", handle_once=True,
+                entities=[EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
+                                                      transition_id=Transition.TRANSITION_ACTIVATE))])))
     nodes = ["needle_simulator"]  # the nodes the bag player waits for
-    if _flag(arg["stereo"], settings["stereo"]):
+    if _choice("stereo", arg["stereo"], settings["stereo"]):
         nodes.append("needle_stereo")
         actions.append(Node(package="needle_vision", executable="needle_stereo", name="needle_stereo",
                             namespace=arg["namespace"], output="screen",
                             parameters=[f"{stereo_config}/needle_stereo.yaml", common,
                                         {"output_frame": "world"}, *extra]))
-    if _flag(arg["compare"], settings["compare"]):
+    if _choice("compare", arg["compare"], settings["compare"]):
         nodes.append("needle_compare")
         actions.append(Node(
             package="needle_sim_ros", executable="needle_compare", name="needle_compare",
@@ -83,12 +124,15 @@ def _nodes(context):
                         {"log.path": unique_log_path(arg["log"], arg["log_dir"])}],
             remappings=[("model/shape", "needle/shape"), ("measured/shape", "needle/measured_shape"),
                         ("base_pose", arg["pose_topic"]), ("wrench", arg["wrench_topic"])]))
-    if settings["player"]:  # once the simulator is active and every node has matched the bag's topics it reads
+    if settings["player"]:  # once the simulator is first active and every node has matched the bag's topics
         player = Node(package="needle_sim_ros", executable="needle_replay", name="needle_replay",
                       namespace=arg["namespace"], output="screen",
-                      arguments=player_arguments(arg["bag"], arg["namespace"], nodes))
-        actions.append(RegisterEventHandler(OnStateTransition(
-            target_lifecycle_node=simulator, start_state="activating", goal_state="active", entities=[player])))
+                      arguments=player_arguments(arg["bag"], namespace, nodes))
+        actions += [
+            RegisterEventHandler(OnStateTransition(target_lifecycle_node=simulator, start_state="activating",
+                                                   goal_state="active", handle_once=True, entities=[player])),
+            RegisterEventHandler(OnProcessExit(target_action=player, on_exit=_ends_launch(
+                "needle_replay", not flag("keep_alive", arg["keep_alive"]))))]
     return actions
 
 

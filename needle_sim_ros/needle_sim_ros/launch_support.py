@@ -5,10 +5,13 @@ The launch files (``share/needle_sim_ros/launch``) call these from an ``OpaqueFu
 from __future__ import annotations
 
 import os
+import tempfile
 import time
 from pathlib import Path
 
-MODES = ("sim", "replay", "hil")
+import yaml
+
+MODES = ("sim", "replay", "external", "hil")
 
 
 def experiment_file(value: str, config_dir: Path) -> str:
@@ -35,13 +38,63 @@ def unique_log_path(value: str, directory: str, stamp: float | None = None, pid:
 
 
 def mode_settings(mode: str, bag: str) -> dict[str, bool]:
-    """What a bringup mode runs: simulated time and the bag player (replay), the measurement side by default."""
+    """What a bringup mode runs: simulated time with the built-in bag player (replay) or another /clock source
+    (external: ``ros2 bag play --clock``), the measurement side by default in both; the haptic output (hil)."""
     if mode not in MODES:
         raise ValueError(f"launch argument 'mode' = '{mode}': must be one of {', '.join(MODES)}")
     if mode == "replay" and not bag:
         raise ValueError("launch argument 'bag' is empty: mode:=replay needs bag:=/path/to/bag.mcap")
-    return {"use_sim_time": mode == "replay", "player": mode == "replay", "stereo": mode == "replay",
-            "compare": mode == "replay"}
+    if mode != "replay" and bag:
+        raise ValueError(f"launch argument 'bag' = '{bag}': only mode:=replay plays a bag (mode:=external: "
+                         "play it with 'ros2 bag play --clock')")
+    recorded = mode in ("replay", "external")
+    return {"use_sim_time": recorded, "player": mode == "replay", "stereo": recorded, "compare": recorded,
+            "haptics": mode == "hil"}
+
+
+def flag(name: str, value: str) -> bool:
+    """A true/false launch argument; anything else is an error naming it."""
+    if value.lower() not in ("true", "false"):
+        raise ValueError(f"launch argument '{name}' = '{value}': must be true or false")
+    return value.lower() == "true"
+
+
+def full_namespace(pushed: str | None, namespace: str) -> str:
+    """The nodes' namespace as launch_ros forms it: an absolute ``namespace`` as is, a relative one under the
+    namespace a parent launch pushed (PushRosNamespace, launch configuration ``ros_namespace``); '/' for none."""
+    tokens = [t for t in namespace.split("/") if t]
+    if not namespace.startswith("/"):
+        tokens = [t for t in (pushed or "").split("/") if t] + tokens
+    return "/" + "/".join(tokens)
+
+
+def namespaced_params_file(path: str) -> str:
+    """A params file whose sections keyed by a bare node name (``needle_simulator:``) apply under any namespace:
+    ``path`` itself if it has none, else a copy (in the temporary directory) with those keys as
+    ``/**/needle_simulator``; rcl matches a bare name only in the root namespace."""
+    if not path:
+        return path
+    document = yaml.safe_load(Path(path).read_text())
+    if not isinstance(document, dict) or all(str(key).startswith("/") for key in document):
+        return path  # nothing to rewrite; the nodes report a malformed file themselves
+    rewritten = {key if str(key).startswith("/") else f"/**/{key}": value for key, value in document.items()}
+    with tempfile.NamedTemporaryFile("w", prefix=f"{Path(path).stem}_", suffix=".yaml", delete=False) as stream:
+        stream.write(f"# {path}, its node sections matched in any namespace (needle_sim bringup.launch.py)\n")
+        yaml.safe_dump(rewritten, stream, sort_keys=False)
+    return stream.name
+
+
+def failed_transition(start_state: str, goal_state: str) -> bool:
+    """A lifecycle transition event (state labels) that means a transition failed: configure refused
+    (configuring -> unconfigured) or any callback's error (errorprocessing -> ...)."""
+    return (start_state, goal_state) == ("configuring", "unconfigured") or start_state == "errorprocessing"
+
+
+def exit_error(name: str, returncode: int, shutting_down: bool) -> str:
+    """Why a node's exit fails the launch ('' if it does not): a non-zero status outside the launch's shutdown."""
+    if returncode == 0 or shutting_down:
+        return ""
+    return f"{name} exited with status {returncode}: the launch stops"
 
 
 PLAYER_WAIT = 30.0  # [s] the bag player waits at most this long for the nodes to match its topics

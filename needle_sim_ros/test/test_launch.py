@@ -9,13 +9,16 @@ import re
 from pathlib import Path
 
 import pytest
+import yaml
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
-from needle_sim_ros.launch_support import experiment_file, mode_settings, player_arguments, unique_log_path
+from needle_sim_ros.launch_support import (exit_error, experiment_file, failed_transition, flag, full_namespace,
+                                           mode_settings, namespaced_params_file, player_arguments, unique_log_path)
 
 SHARE = Path(get_package_share_directory("needle_sim_ros"))
-LAUNCH_FILES = {"bringup.launch.py": {"mode", "bag", "experiment", "stereo", "compare", "log", "log_dir",
-                                      "pose_topic", "pose_frame", "wrench_topic", "namespace", "activate"},
+LAUNCH_FILES = {"bringup.launch.py": {"mode", "bag", "keep_alive", "experiment", "stereo", "compare", "log",
+                                      "log_dir", "pose_topic", "pose_frame", "wrench_topic", "haptic_topic",
+                                      "namespace", "configure", "activate"},
                 "needle_pipeline.launch.py": {"bag", "experiment", "stereo", "log", "log_dir"}}
 SOURCE_CONFIG = Path(__file__).resolve().parents[2] / "config"
 
@@ -102,12 +105,60 @@ def test_every_launch_gets_a_new_log_name():
 
 def test_modes():
     assert mode_settings("replay", "a.mcap") == {"use_sim_time": True, "player": True, "stereo": True,
-                                                 "compare": True}
-    assert not any(mode_settings("hil", "").values())
+                                                 "compare": True, "haptics": False}
+    # external: the same nodes in simulated time, the clock and the bag from another player (ros2 bag play --clock)
+    assert mode_settings("external", "") == {**mode_settings("replay", "a.mcap"), "player": False}
+    # hil: wall clock, the haptic output on, nothing else
+    assert mode_settings("hil", "") == {"use_sim_time": False, "player": False, "stereo": False, "compare": False,
+                                        "haptics": True}
+    assert not any(mode_settings("sim", "").values())
     with pytest.raises(ValueError, match="mode:=replay needs bag"):
         mode_settings("replay", "")
-    with pytest.raises(ValueError, match="must be one of sim, replay, hil"):
+    with pytest.raises(ValueError, match="only mode:=replay plays a bag .*ros2 bag play --clock"):
+        mode_settings("external", "a.mcap")
+    with pytest.raises(ValueError, match="must be one of sim, replay, external, hil"):
         mode_settings("real", "")
+
+
+def test_flags_are_true_or_false():
+    assert flag("keep_alive", "True") and not flag("keep_alive", "false")
+    with pytest.raises(ValueError, match="launch argument 'keep_alive' = 'yes': must be true or false"):
+        flag("keep_alive", "yes")
+
+
+def test_the_namespace_comes_from_the_launch_context_as_launch_ros_forms_it():
+    assert full_namespace(None, "") == "/"
+    assert full_namespace(None, "psm1") == full_namespace("", "/psm1/") == "/psm1"
+    assert full_namespace("/lab", "psm1") == "/lab/psm1"  # PushRosNamespace('lab') around namespace:=psm1
+    assert full_namespace("/lab", "") == "/lab"
+    assert full_namespace("/lab", "/psm1") == "/psm1"  # an absolute namespace is not prefixed
+
+
+def test_experiment_sections_apply_in_any_namespace(tmp_path):
+    """Bare node-name sections become /**/<node> (rcl applies a bare name in the root namespace only); our own
+    loader still finds them for the node in the root namespace and in /psm1."""
+    from needle_vision.parameters import load_params_file
+    from needle_sim_ros.parameters.experiment import node_specs
+    source = SOURCE_CONFIG / "experiments" / "dynamic_pitch.yaml"
+    rewritten = Path(namespaced_params_file(str(source)))
+    assert rewritten != source and rewritten.parent != source.parent
+    document = yaml.safe_load(rewritten.read_text())
+    assert list(document) == [f"/**/{key}" for key in yaml.safe_load(source.read_text())]
+    for namespace in ("/", "/psm1", "/lab/psm1"):
+        values = load_params_file(rewritten, "needle_simulator", node_specs("needle_simulator"), namespace=namespace)
+        assert values["fixtures.clamp_interval"] == [0.162, 0.27] and values["qos.wrench"] == "reliable"
+    rewritten.unlink()
+    already = tmp_path / "any.yaml"
+    already.write_text("/**/needle_simulator:\n  ros__parameters:\n    qos.wrench: reliable\n")
+    assert namespaced_params_file(str(already)) == str(already)  # nothing to rewrite: the user's file itself
+    assert namespaced_params_file("") == ""
+
+
+def test_only_an_unexpected_failure_fails_the_launch():
+    assert exit_error("needle_replay", 0, shutting_down=False) == ""
+    assert exit_error("needle_simulator", -2, shutting_down=True) == ""  # Ctrl+C on the launch
+    assert exit_error("needle_simulator", 2, shutting_down=False) == \
+        "needle_simulator exited with status 2: the launch stops"
 
 
 def test_the_bag_player_waits_for_the_nodes_that_read_the_bag():
@@ -119,3 +170,12 @@ def test_the_bag_player_waits_for_the_nodes_that_read_the_bag():
             "a.mcap", "--clock", "--in-namespace", "--wait-for-subscribers", "30", "--wait-for-nodes",
             "/robot1/needle_compare"]
     assert player_arguments("a.mcap", "/", ["needle_compare"])[-1] == "/needle_compare"
+
+
+def test_a_failed_transition_is_told_from_the_normal_ones():
+    """rcl_lifecycle's states: configure refused goes configuring -> unconfigured, a callback's error through
+    errorprocessing; a cleanup also ends in unconfigured (from cleaningup) and is normal."""
+    assert failed_transition("configuring", "unconfigured")
+    assert failed_transition("errorprocessing", "unconfigured") and failed_transition("errorprocessing", "finalized")
+    assert not failed_transition("cleaningup", "unconfigured")
+    assert not failed_transition("configuring", "inactive") and not failed_transition("activating", "active")

@@ -39,7 +39,7 @@ from tqdm import tqdm
 
 from needle_vision.detection.background import BackgroundModel
 from needle_vision.streams.bag_reader import BagMessage, read_messages
-from needle_vision.streams.base_pose import StampedPose, deserialize_pose_stamped, output_from_pose_frame
+from needle_vision.streams.base_pose import StampedPose, deserialize_pose_stamped, store_base_pose
 from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
@@ -399,12 +399,9 @@ def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[StampedPose], val
                    source: PairSource) -> None:
     """Store the base poses read with a pair (in the output frame); unusable ones are counted in the source."""
     for pose in poses:
-        to_output = output_from_pose_frame(pose.frame_id, values["output_frame"],
-                                           (values["left_optical_frame"], source.frame_id), pipeline.output_from_left)
         try:
-            if to_output is None:
-                raise ValueError(f"frame '{pose.frame_id}' is neither the output frame nor the left optical frame")
-            pipeline.base_poses.add(pose.stamp, pose.position, pose.orientation, to_output)
+            store_base_pose(pipeline.base_poses, pose, values["output_frame"],
+                            (values["left_optical_frame"], source.frame_id), pipeline.output_from_left)
         except ValueError as error:
             source.poses_skipped[f"base pose ignored: {error}"] += 1
 

@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from needle_sim_ros.comparison import ComparedPair
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.geometry import polyline_tangents, quaternions_from_tangents, tube_triangles
 
+DISPLAY_TYPES = {"path": "nav_msgs/msg/Path", "marker": "visualization_msgs/msg/Marker"}
 COLORS = {"model": (0.75, 0.75, 0.8, 1.0), "measured": (1.0, 0.55, 0.1, 0.8)}  # RGBA
 
 
@@ -21,3 +23,31 @@ def centerline_display(sec: int, nanosec: int, frame_id: str, kind: str, points:
             f"compare/{kind}/marker": cdr.triangle_list_marker(sec, nanosec, frame_id, kind, 0,
                                                                tube_triangles(points, tangents, radius),
                                                                COLORS[kind])}
+
+
+class ComparisonDisplay:
+    """The compared centerlines of ``needle_compare`` as :func:`centerline_display` outputs, at most ``rate``
+    per second of measurement time (a tube costs a few milliseconds): the node publishes and records them, the
+    offline pipeline writes them to its log, so the Foxglove layout shows both alike."""
+
+    def __init__(self, rate: float, radius: float, model_from_camera) -> None:
+        self.rate, self.radius, self.model_from_camera = rate, radius, model_from_camera
+        self._next_ns = 0
+
+    def outputs(self, pair: ComparedPair) -> dict[str, bytes]:
+        """{topic: serialized Path or Marker} for one comparison (``pair.model_tag``: its std_msgs/Header), or {}
+        when the rate leaves it out. The measurement is mapped into the model frame; a point cloud is ordered by
+        the arc length of the closest model point."""
+        stamp = pair.model_tag.stamp
+        now_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+        if self.rate <= 0.0 or self._next_ns - 2e9 / self.rate <= now_ns < self._next_ns:
+            return {}
+        self._next_ns = now_ns + int(1e9 / self.rate)
+        points = self.model_from_camera.apply(pair.measured.points)[pair.result.matched]
+        if not pair.measured.ordered:
+            points = points[np.argsort(pair.result.arc_length)]
+        frame = pair.model_tag.frame_id
+        outputs = centerline_display(stamp.sec, stamp.nanosec, frame, "model", pair.model.points, self.radius)
+        if len(points) >= 2:
+            outputs.update(centerline_display(stamp.sec, stamp.nanosec, frame, "measured", points, self.radius))
+        return outputs

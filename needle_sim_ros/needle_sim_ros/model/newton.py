@@ -25,9 +25,48 @@ CHORD_RANGE = 1e-4  # scaled correction (27 um on the seed's needle) below which
 CHORD_CONTRACTION = 0.1  # ... as long as each correction is at most this fraction of the previous one
 
 
-def model_tables(model) -> tuple:
-    """The model's constant arrays the kernels read: elastic quadrature tables, mass and damping slot matrices."""
-    return (*model.elastic, model.mass_slots, *model.damping)
+TABLES_HEADER = 4  # n_elements, axial points, bending points, slots
+
+
+def model_tables(model) -> np.ndarray:
+    """The model's constant arrays the kernels read (elastic quadrature tables, mass and damping slot matrices) in
+    one float64 array: a header of their sizes, then each array's values (:func:`unpack_tables` gives them back).
+
+    One array, not a tuple of nine: numba 0.59 (Ubuntu 24.04's) types a tuple argument in Python on every call from
+    Python, ~10-60 us per call of a kernel (newer numba in C); an array is typed in C by both."""
+    elastic, damping = model.elastic, model.damping
+    n_elements, axial, _ = elastic.axial_S_x.shape
+    sizes = [n_elements, axial, elastic.bending_S_x.shape[1], model.mass_slots.shape[0]]
+    arrays = (*elastic, model.mass_slots, *damping)
+    return np.concatenate([np.array(sizes, dtype=float), *(np.ascontiguousarray(a, dtype=float).ravel()
+                                                           for a in arrays)])
+
+
+@njit(cache=True)
+def unpack_tables(tables):
+    """(axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
+    damping_transverse, strain_rate_weights): views into ``model_tables``' array."""
+    n_elements, axial, bending, slots = int(tables[0]), int(tables[1]), int(tables[2]), int(tables[3])
+    start = TABLES_HEADER
+    axial_S_x = tables[start:start + n_elements * axial * 4].reshape((n_elements, axial, 4))
+    start += n_elements * axial * 4
+    axial_weights = tables[start:start + n_elements * axial].reshape((n_elements, axial))
+    start += n_elements * axial
+    bending_S_x = tables[start:start + n_elements * bending * 4].reshape((n_elements, bending, 4))
+    start += n_elements * bending * 4
+    bending_S_xx = tables[start:start + n_elements * bending * 4].reshape((n_elements, bending, 4))
+    start += n_elements * bending * 4
+    bending_weights = tables[start:start + n_elements * bending].reshape((n_elements, bending))
+    start += n_elements * bending
+    mass_slots = tables[start:start + slots * slots].reshape((slots, slots))
+    start += slots * slots
+    damping_isotropic = tables[start:start + slots * slots].reshape((slots, slots))
+    start += slots * slots
+    damping_transverse = tables[start:start + slots * slots].reshape((slots, slots))
+    start += slots * slots
+    strain_rate_weights = tables[start:start + n_elements * axial].reshape((n_elements, axial))
+    return (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
+            damping_transverse, strain_rate_weights)
 
 
 @njit(cache=True, fastmath=FAST)
@@ -37,7 +76,7 @@ def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, ac
     tables: ``model_tables``; ext_band: the external forces' part of J, -(c_K dQ_ext/dq + c_C dQ_ext/dq'), in the
     layout of ``band`` (same kl), or a (0, 0) array for zero."""
     (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
-     damping_transverse, strain_rate_weights) = tables
+     damping_transverse, strain_rate_weights) = unpack_tables(tables)
     n = q.size
     residual[:] = 0.0
     if with_matrix:

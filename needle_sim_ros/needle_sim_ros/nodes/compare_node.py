@@ -26,8 +26,8 @@ from visualization_msgs.msg import Marker
 
 from needle_vision.parameters import ParameterError
 
-from needle_sim_ros.comparison import CenterlineSamples, ComparedPair, ComparisonSession
-from needle_sim_ros.messages.centerline_display import centerline_display
+from needle_sim_ros.comparison import ComparedPair, ComparisonSession
+from needle_sim_ros.messages.centerline_display import ComparisonDisplay
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
 from needle_vision.ros.input_status import InputStatus
 from needle_vision.ros.ros_parameters import declare_all
@@ -90,7 +90,7 @@ class CompareNode(Node):
         self.logged = {self.resolve_topic_name(t): t for t in v["log.topics"]} if self.recorder else {}
 
         self.display_publishers = {topic: self.create_publisher(LOGGABLE[topic], topic, 10) for topic in DISPLAY_TOPICS}
-        self._next_display_ns = 0
+        self.displayer = ComparisonDisplay(v["display.rate"], v["display.tube_radius"], self.session.model_from_camera)
         if self.recorder is not None and v["log.tf"]:
             self._record_tf()
         inputs = InputStatus(self)
@@ -173,24 +173,11 @@ class CompareNode(Node):
             msg = shape_error_msg(pair.result, pair.model_tag, pair.measured_tag)
             self.error_publisher.publish(msg)
             self.log("shape_error", msg, ShapeError, self.error_qos)
-            self.display(pair.model_tag, pair.model, pair.measured, pair.result)
+            self.display(pair)
 
-    def display(self, model_header, model: CenterlineSamples, measured: CenterlineSamples, result) -> None:
-        """The compared centerlines as Path and Marker tube (model frame), at most ``display.rate`` per second of
-        measurement time (a tube costs a few milliseconds)."""
-        rate = self.values["display.rate"]
-        now_ns = stamp_ns(model_header.stamp)
-        if rate <= 0.0 or self._next_display_ns - 2e9 / rate <= now_ns < self._next_display_ns:
-            return
-        self._next_display_ns = now_ns + int(1e9 / rate)
-        points = self.session.model_from_camera.apply(measured.points)[result.matched]
-        if not measured.ordered:  # a point cloud: order by the arc length of the closest model point
-            points = points[np.argsort(result.arc_length)]
-        stamp, frame, radius = model_header.stamp, model_header.frame_id, self.values["display.tube_radius"]
-        outputs = centerline_display(stamp.sec, stamp.nanosec, frame, "model", model.points, radius)
-        if len(points) >= 2:
-            outputs.update(centerline_display(stamp.sec, stamp.nanosec, frame, "measured", points, radius))
-        for topic, data in outputs.items():
+    def display(self, pair: ComparedPair) -> None:
+        """The compared centerlines as Path and Marker tube (model frame), published and recorded."""
+        for topic, data in self.displayer.outputs(pair).items():
             self.display_publishers[topic].publish(data)
             self.log(topic, data, LOGGABLE[topic])
 

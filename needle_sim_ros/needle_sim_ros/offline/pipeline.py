@@ -9,8 +9,10 @@ through the stages that would receive it in the live pipeline::
     (or a recorded /needle/measured_shape, e.g. a shape-sensing needle) ───────────┘
 
 The output MCAP holds what ``needle_compare`` records in the live pipeline (``/needle/shape``,
-``/needle/measured_shape``, ``/shape_error``, ``/base_pose``, ``/wrench``), with the same topic names, so the
-plots and reports read either. Nothing here depends on wall time: the same bag and parameters give the same file.
+``/needle/measured_shape``, ``/shape_error``, ``/base_pose``, ``/wrench`` and the compared centerlines'
+``/compare/{model,measured}/{path,marker}``), with the same topic names, so the plots, reports and the Foxglove
+layout read either (TF is not written: the displayed messages are in the model frame). Nothing here depends on
+wall time: the same bag and parameters give the same file.
 """
 from __future__ import annotations
 
@@ -26,8 +28,12 @@ from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo
 
+from needle_vision.streams.base_pose import StampedPose
+
 from needle_sim_ros.messages import cdr
+from needle_sim_ros.messages.centerline_display import DISPLAY_TYPES
 from needle_sim_ros.messages.shape import model_shape_cdr
+from needle_sim_ros.parameters.compare import DISPLAY_TOPICS
 from needle_sim_ros.parameters.experiment import ExperimentConfig
 from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
                                            simulator_values, stereo_values)
@@ -43,6 +49,7 @@ OUTPUT_TOPICS = {
     "/shape_error": ("needle_interfaces/msg/ShapeError", OfferedQos(depth=10)),
     "/base_pose": ("geometry_msgs/msg/PoseStamped", OfferedQos(depth=10)),
     "/wrench": ("geometry_msgs/msg/WrenchStamped", OfferedQos(depth=100)),  # QoS: as the simulator's qos.wrench
+    **{f"/{topic}": (DISPLAY_TYPES[topic.rsplit("/", 1)[1]], OfferedQos(depth=10)) for topic in DISPLAY_TOPICS},
 }
 INPUT_TYPES = {"/tip_load": WrenchStamped, "/left/camera_info": CameraInfo, "/right/camera_info": CameraInfo,
                "/needle/measured_shape": NeedleShape}  # besides images and poses (see decode)
@@ -52,14 +59,19 @@ INPUT_TYPES = {"/tip_load": WrenchStamped, "/left/camera_info": CameraInfo, "/ri
 DECODE_ERRORS = (ValueError, RuntimeError, IndexError, struct.error, UnicodeDecodeError, TypeError, OverflowError)
 
 
-def decode(topic: str, data: bytes) -> Any:
-    """An input message from its serialized bytes (images and poses decoded directly:
+def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose",)) -> Any:
+    """An input message from its serialized bytes (images and the ``pose_topics``' poses decoded directly:
     :mod:`needle_sim_ros.messages.cdr`)."""
     if topic.endswith("image_raw"):
         return cdr.image(data)
-    if topic == "/base_pose":
+    if topic in pose_topics:
         return cdr.pose_stamped(data)
     return deserialize_message(data, INPUT_TYPES[topic])
+
+
+def stamped_pose(pose: cdr.DecodedPose) -> StampedPose:
+    """The stereo core's form of a decoded pose."""
+    return StampedPose(pose.stamp_ns / NS, pose.frame_id, tuple(pose.position), tuple(pose.orientation))
 
 
 @dataclass
@@ -95,9 +107,8 @@ class OfflinePipeline:
         """The recorded input topics; ValueError naming the topic if one has another type than the nodes expect."""
         topics = ["/base_pose", "/tip_load"]
         images = ["/left/image_raw", "/right/image_raw", "/left/camera_info", "/right/camera_info"]
-        topics += images if self.use_stereo \
-            else ["/needle/measured_shape"]
-        topics = [t for t in topics if t in reader.topics]
+        topics += [*images, self.stereo.base_pose_topic] if self.use_stereo else ["/needle/measured_shape"]
+        topics = list(dict.fromkeys(t for t in topics if t in reader.topics))
         for topic, (recorded, expected) in reader.type_mismatches().items():
             if topic in topics:
                 raise ValueError(f"bag '{reader.path}': topic '{topic}' has type '{recorded}', expected '{expected}'")
@@ -132,6 +143,8 @@ class OfflinePipeline:
         if self.stereo is not None and begin > reader.start_time_ns:
             self._prime_stereo(reader, begin)
         last_progress = begin
+        stereo_poses = self.stereo.base_pose_topic if self.stereo is not None else ""
+        pose_topics = ("/base_pose", stereo_poses)
         try:
             for message in read_ahead(reader.messages(topics, start_time_ns=begin)):
                 now = message.log_time_ns
@@ -139,13 +152,15 @@ class OfflinePipeline:
                     break
                 self._advance(now)
                 try:
-                    msg = decode(message.topic, message.data)
+                    msg = decode(message.topic, message.data, pose_topics)
                 except DECODE_ERRORS as error:
                     undecodable += 1
                     if stop_on_corrupt:
                         raise BagReadError(f"bag '{bag}': undecodable {message.topic} message at "
                                            f"{now / NS:.9f} s ({error})") from error
                     continue
+                if message.topic == stereo_poses:  # the stereo node's base_pose.topic (may be the simulator's)
+                    self.stereo.on_base_pose(stamped_pose(msg))
                 if message.topic in ("/base_pose", "/tip_load"):
                     with self._timed("simulator"):
                         if message.topic == "/base_pose":
@@ -158,7 +173,7 @@ class OfflinePipeline:
                     self._measured(msg, now)
                 elif message.topic.endswith("camera_info"):
                     self.stereo.on_camera_info(message.topic.split("/")[1], msg)
-                else:
+                elif message.topic.endswith("image_raw"):
                     with self._timed("stereo"):
                         shapes = self.stereo.on_image(message.topic.split("/")[1], msg)
                     for shape in shapes:
@@ -200,16 +215,18 @@ class OfflinePipeline:
         if self.writer is not None:
             self.writer.write(topic, data if isinstance(data, bytes) else serialize_message(data), now_ns)
 
-    def _compared(self, errors: list[ShapeError], now_ns: int) -> None:
-        for error in errors:
-            self.errors.append(error)
-            self._write("/shape_error", error, now_ns)
+    def _compared(self, outputs: list[tuple[str, Any]], now_ns: int) -> None:
+        """The comparison stage's outputs: shape errors (kept) and the compared centerlines' display messages."""
+        for topic, msg in outputs:
+            if topic == "shape_error":
+                self.errors.append(msg)
+            self._write(f"/{topic}", msg, now_ns)
 
     def _measured(self, msg: NeedleShape, now_ns: int) -> None:
         self._write("/needle/measured_shape", msg, now_ns)
         with self._timed("comparison"):
-            errors = self.comparison.on_measured(msg)
-        self._compared(errors, now_ns)
+            outputs = self.comparison.on_measured(msg)
+        self._compared(outputs, now_ns)
 
     def _advance(self, now: int) -> None:
         """The simulator integrates up to the clock ``now``; its shapes go to the comparison."""
@@ -222,8 +239,8 @@ class OfflinePipeline:
             frame = self.simulator.p["frames.world"]
             self._write("/needle/shape", model_shape_cdr(msg, frame), now)
             with self._timed("comparison"):
-                errors = self.comparison.on_model(msg, frame)
-            self._compared(errors, now)
+                compared = self.comparison.on_model(msg, frame)
+            self._compared(compared, now)
 
     def _prime_stereo(self, reader: BagReader, begin: int) -> None:
         """A slice that starts late still needs the needle-free background pairs from the bag's start."""

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import WrenchStamped
-from needle_interfaces.msg import NeedleShape, ShapeError
+from needle_interfaces.msg import NeedleShape
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
@@ -30,13 +30,15 @@ from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibrat
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.streams.pairing import StampPairer as FramePairer
-from needle_vision.parameters import (ROS_BUILTIN, ParameterError, ParamSpec, output_from_left, stereo_config,
-                                      unknown_name_error, validate_all)
+from needle_vision.parameters import (ROS_BUILTIN, ParameterError, ParamSpec, base_pose_store, output_from_left,
+                                      stereo_config, unknown_name_error, validate_all)
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
+from needle_vision.streams.base_pose import StampedPose, store_base_pose
 from needle_vision.transform import quaternion_from_x_axis
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages import cdr
+from needle_sim_ros.messages.centerline_display import ComparisonDisplay
 from needle_sim_ros.messages.shape import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
 from needle_sim_ros.model import ModelShape
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
@@ -146,16 +148,32 @@ class StereoStage:
         self.config = stereo_config(values)
         self.output_from_left = output_from_left(values)
         self.pairer = FramePairer(values["sync_tolerance"])
+        self.base_poses = base_pose_store(values)
+        self.image_frame = ""  # frame_id of the left images (the raw left optical frame), as the node keeps it
         self.camera_infos: dict[str, CameraInfo] = {}
+        self.outcomes: dict[str, int] = {}
         self.pipeline = None
         if values["left_calibration_file"]:
             rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
                                                      load_camera_calibration(values["right_calibration_file"]))
             self.pipeline = self._pipeline(rig)
-        self.outcomes: dict[str, int] = {}
 
     def _pipeline(self, rig):
-        return StereoNeedlePipeline(rig, self.config, self.output_from_left)
+        return StereoNeedlePipeline(rig, self.config, self.output_from_left, self.base_poses)
+
+    @property
+    def base_pose_topic(self) -> str:
+        """The absolute topic of the node's ``base_pose.topic`` subscription (a bag's root namespace), or ''."""
+        topic = self.values["base_pose.topic"]
+        return "/" + topic.lstrip("/") if topic else ""
+
+    def on_base_pose(self, pose: StampedPose) -> None:
+        """As the node: the base pose stored in the output frame; an unusable one is counted."""
+        try:
+            store_base_pose(self.base_poses, pose, self.values["output_frame"],
+                            (self.values["left_optical_frame"], self.image_frame), self.output_from_left)
+        except ValueError as error:
+            self._count(f"base pose ignored: {error}")
 
     @property
     def has_background(self) -> bool:
@@ -189,6 +207,7 @@ class StereoStage:
         if self.pipeline is None:
             self._count("skipped: no calibration yet")
             return []
+        self.image_frame = pair.left.header.frame_id
         try:
             images = [image_message_to_gray(pair.left), image_message_to_gray(pair.right)]
         except ImageFormatError:
@@ -217,20 +236,26 @@ class ComparisonStage:
                                  "(parameter 'measured_input' must be 'shape')")
         self.values = v
         self.session = ComparisonSession(v)
+        self.display = ComparisonDisplay(v["display.rate"], v["display.tube_radius"], self.session.model_from_camera)
 
-    def on_model(self, shape: ModelShape, frame_id: str) -> list[ShapeError]:
+    def on_model(self, shape: ModelShape, frame_id: str) -> list[tuple[str, Any]]:
         header = Header(stamp=time_msg(shape.t), frame_id=frame_id)
-        return self.errors(self.session.add_model(stamp_ns(header), frame_id, header, shape.line.points,
-                                                  shape.line.arc_length))
+        return self.outputs(self.session.add_model(stamp_ns(header), frame_id, header, shape.line.points,
+                                                   shape.line.arc_length))
 
-    def on_measured(self, msg: NeedleShape) -> list[ShapeError]:
+    def on_measured(self, msg: NeedleShape) -> list[tuple[str, Any]]:
         points, arc_length, _ = shape_arrays(msg)
-        return self.errors(self.session.add_measurement(stamp_ns(msg.header), msg.header.frame_id, msg.header,
-                                                        points, arc_length))
+        return self.outputs(self.session.add_measurement(stamp_ns(msg.header), msg.header.frame_id, msg.header,
+                                                         points, arc_length))
 
-    @staticmethod
-    def errors(compared: list[ComparedPair]) -> list[ShapeError]:
-        return [shape_error_msg(pair.result, pair.model_tag, pair.measured_tag) for pair in compared]
+    def outputs(self, compared: list[ComparedPair]) -> list[tuple[str, Any]]:
+        """As the node publishes them: ('shape_error', ShapeError) per comparison, then its display topics'
+        serialized Path and Marker messages (:class:`ComparisonDisplay`)."""
+        result: list[tuple[str, Any]] = []
+        for pair in compared:
+            result.append(("shape_error", shape_error_msg(pair.result, pair.model_tag, pair.measured_tag)))
+            result.extend(self.display.outputs(pair).items())
+        return result
 
     def finish(self) -> dict[str, Any]:
         return self.session.finish()

@@ -29,7 +29,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from needle_vision.streams.base_pose import deserialize_pose_stamped, output_from_pose_frame
+from needle_vision.streams.base_pose import deserialize_pose_stamped, store_base_pose
 from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, image_fields, image_message_to_gray
@@ -116,14 +116,8 @@ class NeedleStereoNode(Node):
     def on_base_pose(self, data: bytes) -> None:
         """A serialized base pose, stored in the output frame; unusable ones are warned about (throttled)."""
         try:
-            pose = deserialize_pose_stamped(data)
-            to_output = output_from_pose_frame(pose.frame_id, self.frame_id,
-                                               (self.values["left_optical_frame"], self._image_frame),
-                                               self.output_from_left)
-            if to_output is None:
-                raise ValueError(f"frame '{pose.frame_id}' is neither the output frame "
-                                 f"'{self.frame_id or self._image_frame}' nor the left optical frame")
-            self.base_poses.add(pose.stamp, pose.position, pose.orientation, to_output)
+            store_base_pose(self.base_poses, deserialize_pose_stamped(data), self.frame_id,
+                            (self.values["left_optical_frame"], self._image_frame), self.output_from_left)
         except ValueError as error:
             self.warn("base_pose", f"base pose on '{self.values['base_pose.topic']}' ignored: {error}")
 

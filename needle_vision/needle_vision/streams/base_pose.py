@@ -115,3 +115,15 @@ def output_from_pose_frame(frame_id: str, output_frame: str, left_frames: Sequen
     if frame_id in left_frames:
         return output_from_left
     return None
+
+
+def store_base_pose(store: BasePoseStore, pose: StampedPose, output_frame: str, left_frames: Sequence[str],
+                    output_from_left: RigidTransform) -> None:
+    """Add ``pose`` to ``store`` in the output frame (:func:`output_from_pose_frame`); ValueError saying why a pose
+    cannot be used (another frame, non-finite values, a zero quaternion). The stereo node, ``needle_stereo_offline``
+    and the offline pipeline's stereo stage all store their base poses through this."""
+    to_output = output_from_pose_frame(pose.frame_id, output_frame, left_frames, output_from_left)
+    if to_output is None:
+        raise ValueError(f"frame '{pose.frame_id}' is neither the output frame "
+                         f"'{output_frame or left_frames[-1]}' nor the left optical frame")
+    store.add(pose.stamp, pose.position, pose.orientation, to_output)
