@@ -693,6 +693,9 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
         model, integrator = model_builder(())
     except ValueError as error:  # the mesh rejects element lengths that do not sum to the needle length
         raise ParameterError(f"parameter 'needle.element_lengths': {error}") from error
+    if len(clamp) == 2 and not 0.0 <= clamp[0] <= clamp[1] <= model.props.length:
+        raise ParameterError(f"parameter 'fixtures.clamp_interval' = {list(clamp)}: must satisfy 0 <= s_start <= "
+                             f"s_end <= needle.length = {model.props.length:g} m")
     if p["tissue.enable"]:
         tissue_builder(model)  # reject bad tissue parameters now, not at the first pose
     sim = NeedleSimulation(

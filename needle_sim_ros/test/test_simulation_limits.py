@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.base_trajectory import PoseVerdict
+from needle_vision.parameters import ParameterError
+
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import POINT_LOAD_LIMIT, max_point_load, simulation_from_parameters, step_wrenches
 
@@ -76,3 +78,12 @@ def test_a_pose_after_a_gap_away_from_the_held_pose_restarts_the_needle():
     assert np.abs(force).max() < 0.1  # the weight (0.027 N) and no spike
     # Within the tolerance after a gap: the trajectory goes on (no restart).
     assert sim.offer_pose(4.0, np.array([0.0155, 0.0, 0.0]), IDENTITY) is PoseVerdict.ACCEPTED
+
+
+@pytest.mark.parametrize("interval", [[0.1, 0.5], [-0.01, 0.1]])
+def test_a_clamp_interval_off_the_needle_is_a_parameter_error(interval):
+    """Before, it passed the parameter check and failed at the node's configure with an unnamed exception."""
+    p = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
+    p["fixtures.clamp_interval"] = interval
+    with pytest.raises(ParameterError, match=r"'fixtures.clamp_interval' = .* <= needle.length = 0.27 m"):
+        simulation_from_parameters(p)
