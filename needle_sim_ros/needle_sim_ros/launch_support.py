@@ -44,6 +44,8 @@ def mode_settings(mode: str, bag: str) -> dict[str, bool]:
         raise ValueError(f"launch argument 'mode' = '{mode}': must be one of {', '.join(MODES)}")
     if mode == "replay" and not bag:
         raise ValueError("launch argument 'bag' is empty: mode:=replay needs bag:=/path/to/bag.mcap")
+    if mode == "replay" and not Path(bag).expanduser().exists():  # before any node starts (and a log is opened)
+        raise ValueError(f"launch argument 'bag' = '{bag}': no such MCAP file or bag directory")
     if mode != "replay" and bag:
         raise ValueError(f"launch argument 'bag' = '{bag}': only mode:=replay plays a bag (mode:=external: "
                          "play it with 'ros2 bag play --clock')")

@@ -103,17 +103,21 @@ def test_every_launch_gets_a_new_log_name():
     assert unique_log_path("mine.mcap", "/tmp/logs") == "mine.mcap"
 
 
-def test_modes():
-    assert mode_settings("replay", "a.mcap") == {"use_sim_time": True, "player": True, "stereo": True,
+def test_modes(tmp_path):
+    bag = tmp_path / "a.mcap"
+    bag.touch()
+    assert mode_settings("replay", str(bag)) == {"use_sim_time": True, "player": True, "stereo": True,
                                                  "compare": True, "haptics": False}
     # external: the same nodes in simulated time, the clock and the bag from another player (ros2 bag play --clock)
-    assert mode_settings("external", "") == {**mode_settings("replay", "a.mcap"), "player": False}
+    assert mode_settings("external", "") == {**mode_settings("replay", str(bag)), "player": False}
     # hil: wall clock, the haptic output on, nothing else
     assert mode_settings("hil", "") == {"use_sim_time": False, "player": False, "stereo": False, "compare": False,
                                         "haptics": True}
     assert not any(mode_settings("sim", "").values())
     with pytest.raises(ValueError, match="mode:=replay needs bag"):
         mode_settings("replay", "")
+    with pytest.raises(ValueError, match="'bag' = '/absent.mcap': no such MCAP file or bag directory"):
+        mode_settings("replay", "/absent.mcap")  # before: the nodes started, a comparison log was opened
     with pytest.raises(ValueError, match="only mode:=replay plays a bag .*ros2 bag play --clock"):
         mode_settings("external", "a.mcap")
     with pytest.raises(ValueError, match="must be one of sim, replay, external, hil"):
