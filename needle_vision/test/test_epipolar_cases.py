@@ -54,10 +54,10 @@ def _calibrated(measurement: NeedleMeasurement, truth: np.ndarray) -> np.ndarray
 @pytest.mark.parametrize("name", list(EPIPOLAR_SHAPES))
 def test_fitted_curve_uncertainty_is_calibrated(rig, polarities, name, polarity):
     """The fit's sigma (image noise through its covariance, with a correlated part of the image error) holds the
-    truth: measured (seed 7) 100 % within 3 sigma, worst 1.1-2.7 sigma; RMS over the measured samples 0.04-0.12 mm
-    (coverage 0.61-0.86 at max_uncertainty 0.3 mm: the stretches along the epipolar lines are flagged). Today's
-    per-point triangulation on the same renders: 65-100 % within 3 sigma, worst 3.4-9.3 sigma (only the dark curl
-    passes), RMS 0.10-1.10 mm."""
+    truth: measured (seed 7) 100 % within 3 sigma, worst 1.0-2.6 sigma; RMS over the measured samples 0.03-0.12 mm
+    (coverage 0.61-0.85 at max_uncertainty 0.3 mm: the stretches along the epipolar lines are flagged). Today's
+    per-point triangulation on the same renders: 65-100 % within 3 sigma, worst 2.2-9.3 sigma (the dark curl and
+    the dark S pass), RMS 0.10-1.10 mm."""
     measurement = _measure(rig, polarities, name, polarity, FIT)
     distance = _calibrated(measurement, EPIPOLAR_SHAPES[name])
     assert np.sqrt(np.mean(distance[measurement.measured] ** 2)) <= 0.15e-3
@@ -66,9 +66,9 @@ def test_fitted_curve_uncertainty_is_calibrated(rig, polarities, name, polarity)
 
 @pytest.mark.parametrize("name", list(SHAPES))
 def test_fitted_curve_on_the_earlier_cases(rig, polarities, name):
-    """The earlier shapes (dark, seed 7) with the fit: RMS <= 0.1 mm (measured 0.018-0.029 mm; the per-point path
-    0.029-0.042), tip within 0.2 mm (0.01-0.09 mm), calibrated (worst 0.99-1.65 sigma; per-point path: up to
-    ~3.7 sigma). The hook's tail along the epipolar lines is flagged (coverage 0.76)."""
+    """The earlier shapes (dark, seed 7) with the fit: RMS <= 0.1 mm (measured 0.020-0.028 mm; the per-point path
+    0.027-0.044), tip within 0.2 mm (0.01-0.11 mm), calibrated (worst 0.98-1.58 sigma; per-point path 1.45-2.91).
+    The hook's tail along the epipolar lines is flagged (coverage 0.74)."""
     measurement = _measure(rig, polarities, name, "dark", FIT, SHAPES)
     distance = _calibrated(measurement, SHAPES[name])
     assert np.sqrt(np.mean(distance[measurement.measured] ** 2)) <= 0.1e-3
@@ -78,7 +78,7 @@ def test_fitted_curve_on_the_earlier_cases(rig, polarities, name):
 def test_fitted_sigma_grows_along_the_epipolar_lines(rig, polarities):
     """Where the true tangent runs within 10 deg of the baseline (world z) the depth is only carried by the curve's
     continuity: the fit's sigma there is > 3x its median where the needle crosses the lines by > 45 deg (measured
-    ~8x on the dark curl)."""
+    19x on the dark curl: 0.95 against 0.05 mm)."""
     truth = EPIPOLAR_SHAPES["curl_down"]
     measurement = _measure(rig, polarities, "curl_down", "dark", replace(FIT, max_uncertainty=1.0))
     _, arc = distance_to_curve(measurement.points, truth)
