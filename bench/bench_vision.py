@@ -1,8 +1,11 @@
-"""Benchmark of needle_vision (issues #6, #16): end-to-end throughput of needle_stereo_offline on image folders and
-MCAP bags next to its stages (decoding, measurement), time per 1440x1080 stereo pair on one core, accuracy on
-clean renders, and sensitivity to calibration error. Prints Markdown tables.
+"""Benchmark of needle_vision (issues #6, #16, #39): end-to-end throughput of needle_stereo_offline on image folders
+and MCAP bags next to its stages (decoding, measurement, the optional curve fit), time per 1440x1080 stereo pair on
+one core, accuracy on clean renders and on needles along the epipolar lines (per-point triangulation against the
+curve fitted to both views, with the calibration of their uncertainty), and sensitivity to calibration error.
+Prints Markdown tables.
 
     source .venv/needle_env.sh && PYTHONPATH=needle_vision python bench/bench_vision.py [--quick] [--only-throughput]
+    ... bench/bench_vision.py --only-epipolar [--seeds 7,1007,2007]
 
 Times are the minimum and the median over repetitions (the minimum is the machine's speed without
 interference from other processes; the median includes it). Targets: >= 220 pairs/s per pair on one core (the
@@ -12,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+from dataclasses import replace
 import io
 import os
 import sys
@@ -23,17 +27,20 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "needle_vision" / "test"))
-from vision_shapes import SHAPES, distance_to_curve  # noqa: E402  (the tests' known needle shapes)
+from vision_shapes import EPIPOLAR_SHAPES, SHAPES, distance_to_curve  # noqa: E402  (the tests' known needle shapes)
 
+from needle_vision.calibration.rectification import Rectification  # noqa: E402
 from needle_vision.calibration.rig import camera_calibration_yaml  # noqa: E402
+from needle_vision.detection.background import BackgroundModel, ContrastThreshold  # noqa: E402
 from needle_vision.detection.centerline import extract_centerline  # noqa: E402
 from needle_vision.offline import decoded, open_source  # noqa: E402
 from needle_vision.offline import main as offline_main  # noqa: E402
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline  # noqa: E402
-from needle_vision.matching.reconstruction import (order_and_resample, reconstruct_centerline,  # noqa: E402
-                                                   triangulate_centerline)
-from needle_vision.render import (NEEDLE_RADIUS, Imaging, default_rig, make_scene, render_background_pair,  # noqa: E402
-                                  render_stereo_pair)
+from needle_vision.matching.correspondence import MatchingConfig  # noqa: E402
+from needle_vision.matching.reconstruction import (ReconstructionConfig, order_and_resample,  # noqa: E402
+                                                   reconstruct_centerline, triangulate_centerline)
+from needle_vision.render import (NEEDLE_RADIUS, Imaging, Scene, default_rig, make_scene,  # noqa: E402
+                                  render_background_pair, render_stereo_pair)
 from needle_vision.calibration.sensitivity import simulate_checkerboard_calibration  # noqa: E402
 
 
@@ -75,6 +82,10 @@ def stage_cpu(pipeline: StereoNeedlePipeline, pairs: list[tuple[np.ndarray, np.n
         "ordering + resampling": lambda: [order_and_resample(triangulation, pipeline.rectification,
                                                              config.reconstruction, pipeline.output_from_left)
                                           for triangulation in triangulations],
+        "matching + triangulation + curve fit (reconstruction.curve_fit)": lambda: [
+            triangulate_centerline(*both, pipeline.rectification, config.matching,
+                                   replace(config.reconstruction, curve_fit=True), pipeline.output_from_left)
+            for both in centerlines],
         "whole pair (process)": lambda: [pipeline.process(1.0, *pair) for pair in pairs]}
     return ", ".join(f"{name} {cpu_timed(stage, repetitions) / len(pairs):.2f}" for name, stage in stages.items())
 
@@ -199,6 +210,48 @@ def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: 
         print(f"\nLoad average after: {' / '.join(f'{v:.1f}' for v in os.getloadavg())}.")
 
 
+def epipolar_cases(rig, scene, seeds: tuple[int, ...]) -> None:
+    """Needles along the epipolar lines (issue 39) and the earlier shapes, dark and bright, per noise seed: the
+    per-point triangulation (default) against the curve fitted to both views (max_uncertainty 0.3 mm)."""
+    rectification = Rectification.from_rig(rig)
+    bright = Scene(scene.illumination, tuple(0.3 * albedo for albedo in scene.background_albedo), 0.9)
+    polarities = {}
+    for name, polarity_scene, polarity in (("dark", scene, 1), ("bright", bright, -1)):
+        frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=polarity_scene) for k in range(8)]
+        polarities[name] = (polarity_scene, tuple(BackgroundModel.from_frames(
+            [pair[k] for pair in frames], ContrastThreshold(polarity=polarity)) for k in range(2)))
+    methods = {"per-point": ReconstructionConfig(),
+               "curve fit": ReconstructionConfig(curve_fit=True, max_uncertainty=0.3e-3)}
+    print("## Needles along the epipolar lines (issue 39)\n")
+    print("Per case: RMS and max distance of the measured samples to the true curve, tip error, coverage (measured "
+          "samples over the true length), measured samples within 3 sigma, worst distance over sigma; "
+          "per-point -> curve fit.\n")
+    print("| case | polarity | seed | RMS [mm] | max [mm] | tip [mm] | coverage | within 3σ | worst d/σ |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, truth in {**EPIPOLAR_SHAPES, **SHAPES}.items():
+        length = np.linalg.norm(np.diff(truth, axis=0), axis=1).sum()
+        for polarity, (polarity_scene, backgrounds) in polarities.items():
+            for seed in seeds:
+                images = render_stereo_pair(rig, truth, NEEDLE_RADIUS, np.random.default_rng(seed),
+                                            scene=polarity_scene)
+                centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
+                cells = []
+                for config in methods.values():
+                    measurement = reconstruct_centerline(*centerlines, rectification, MatchingConfig(), config,
+                                                         rig.world_from_left)
+                    distance = distance_to_curve(measurement.points, truth)[0]
+                    measured = measurement.measured
+                    ratio = distance[measured] / measurement.uncertainty[measured]
+                    cells.append((1e3 * np.sqrt(np.mean(distance[measured] ** 2)), 1e3 * distance[measured].max(),
+                                  1e3 * np.linalg.norm(measurement.points[-1] - truth[-1]),
+                                  np.count_nonzero(measured) * config.sample_spacing / length,
+                                  100 * np.mean(ratio <= 3), ratio.max()))
+                formats = ("{:.3f}", "{:.3f}", "{:.3f}", "{:.2f}", "{:.1f} %", "{:.1f}")
+                print(f"| {name} | {polarity} | {seed} | " + " | ".join(
+                    f"{form.format(before)} → {form.format(after)}" for form, before, after
+                    in zip(formats, *cells)) + " |", flush=True)
+
+
 def timed_decoding(path: str, workers: int) -> float:
     """Wall time [s] of reading and decoding every pair of an input as needle_stereo_offline does."""
     source = open_source(Path(path), 220.0, "left/image_raw", "right/image_raw", 0.002)
@@ -215,16 +268,22 @@ def main() -> None:
     parser.add_argument("--only-throughput", action="store_true", help="only the end-to-end table")
     parser.add_argument("--inputs", default="", help="end to end: only the inputs whose name contains this")
     parser.add_argument("--workers", default="1,2,4", help="end to end: comma-separated --workers values")
+    parser.add_argument("--only-epipolar", action="store_true", help="only the table of needles along the epipolar "
+                        "lines (issue 39)")
+    parser.add_argument("--seeds", default="7", help="that table: comma-separated sensor-noise seeds")
     arguments = parser.parse_args()
     try:
         worker_counts = tuple(int(value) for value in arguments.workers.split(","))
+        noise_seeds = tuple(int(value) for value in arguments.seeds.split(","))
     except ValueError:
-        parser.exit(2, f"bench_vision.py: error: --workers must be integers separated by commas, got "
-                       f"{arguments.workers!r}\n")
+        parser.exit(2, "bench_vision.py: error: --workers and --seeds must be integers separated by commas\n")
     repetitions, seeds = (50, 2) if arguments.quick else (300, 6)
     rig = default_rig()
     scene = make_scene(rig, np.random.default_rng(0))
     imaging = Imaging()
+    if arguments.only_epipolar:
+        epipolar_cases(rig, scene, noise_seeds)
+        return
     throughput(rig, scene, imaging, arguments.quick, arguments.inputs, worker_counts)
     if arguments.only_throughput:
         return

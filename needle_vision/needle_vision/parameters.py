@@ -232,6 +232,11 @@ SPECS: tuple[ParamSpec, ...] = (
               "implausible (set it to the needle's free length plus a margin) [m]", 1e-3, 10.0),
     ParamSpec("reconstruction.max_image_scatter", 0.5, "image centerlines scattering more than this across the "
               "curve are rejected as low-confidence detections (a needle scatters ~0.05 px) [px]", 0.01, 100.0),
+    ParamSpec("reconstruction.max_uncertainty", 0.001, "samples whose 1-sigma uncertainty exceeds this are flagged "
+              "unmeasured (uncertainty -1) [m]", 1e-6, 1.0),
+    ParamSpec("reconstruction.curve_fit", False, "fit one smooth 3D curve to both views at once (B-spline with a "
+              "prior on the change of bending; experimental, issue 39) instead of smoothing the per-point "
+              "triangulation, which stays its initial guess and fallback"),
     ParamSpec("background.frames", 10, "first synchronised pairs, needle-free, averaged into the background; "
               "0: bootstrap from the first pair by erasing the needle [-]", 0, 100000),
     ParamSpec("background.learning_rate", 0.0, "running update of the background away from the needle per "
@@ -283,6 +288,8 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
                                             sample_spacing=values["reconstruction.sample_spacing"],
                                             max_length=values["reconstruction.max_length"],
                                             max_image_scatter=values["reconstruction.max_image_scatter"],
+                                            max_uncertainty=values["reconstruction.max_uncertainty"],
+                                            curve_fit=values["reconstruction.curve_fit"],
                                             base_point=np.array(values["base_point"])),
         background_frames=values["background.frames"],
         background_learning_rate=values["background.learning_rate"],

@@ -239,7 +239,7 @@ class StereoNeedlePipeline:
 def compile_kernels() -> float:
     """Compile, or load from numba's cache, the measurement's kernels by measuring one rendered pair of a bent
     needle with the synthetic rig (:mod:`needle_vision.render`), uint8 and uint16, writable and read-only, ordered
-    either way; returns the seconds it took.
+    either way, and once with the curve fit; returns the seconds it took.
     The stereo node runs it before it subscribes, and the package's install step runs it once, so that the first
     real pairs do not wait for compilation (which drops them)."""
     import time
@@ -262,4 +262,8 @@ def compile_kernels() -> float:
             image.setflags(write=False)
         pipeline.last_base = measured.points[-1]  # and ordered the other way round (reversed arrays)
         pipeline.process(2.0, *images)
+    fitted = StereoNeedlePipeline(rig, StereoConfig(background_frames=1,
+                                                    reconstruction=ReconstructionConfig(curve_fit=True)))
+    fitted.process(0.0, *background)  # the curve fit's kernels (reconstruction.curve_fit)
+    fitted.process(1.0, *needle)
     return time.perf_counter() - start

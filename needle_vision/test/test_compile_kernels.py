@@ -15,11 +15,11 @@ import numba, numpy as np
 from needle_vision import pipeline
 from needle_vision.render import NEEDLE_RADIUS, default_rig, make_scene, render_background_pair, render_stereo_pair
 from needle_vision.detection import centerline, curves
-from needle_vision.matching import correspondence, reconstruction
+from needle_vision.matching import correspondence, curve_fit, reconstruction
 
 def signatures():
     return {(module.__name__, name): len(kernel.signatures)
-            for module in (centerline, curves, correspondence, reconstruction)
+            for module in (centerline, curves, correspondence, reconstruction, curve_fit)
             for name, kernel in vars(module).items() if isinstance(kernel, numba.core.registry.CPUDispatcher)}
 
 pipeline.compile_kernels()

@@ -97,3 +97,64 @@ def check_not_invented(measurement: NeedleMeasurement, truth: np.ndarray) -> tup
     assert np.all(measurement.uncertainty[measured] > 0)
     assert np.all(distance[measured] <= np.maximum(3 * measurement.uncertainty[measured], 1e-4))
     return distance, arc
+
+
+def centerline_from_curvature(curvature, torsion, length: float = NEEDLE_LENGTH) -> np.ndarray:
+    """An inextensible centerline from the base (origin) along +x with curvature ``curvature(s)`` [1/m] and torsion
+    ``torsion(s)`` [1/m] (functions of the arc length s [m]; the Frenet frame integrated with the trapezoid rule,
+    first bent towards -z)."""
+    s = np.linspace(0.0, length, SAMPLES)
+    step = length / (SAMPLES - 1)
+    frame = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # tangent, normal, binormal rows
+    tangents = [frame[0]]
+    for k in range(SAMPLES - 1):
+        kappa, tau = 0.5 * (curvature(s[k]) + curvature(s[k + 1])), 0.5 * (torsion(s[k]) + torsion(s[k + 1]))
+        generator = np.array([[0.0, kappa, 0.0], [-kappa, 0.0, tau], [0.0, -tau, 0.0]]) * step
+        frame = _expm3(generator) @ frame
+        tangents.append(frame[0])
+    tangents = np.array(tangents)
+    return np.vstack([np.zeros(3), np.cumsum(0.5 * (tangents[1:] + tangents[:-1]) * step, axis=0)])
+
+
+def _expm3(generator: np.ndarray) -> np.ndarray:
+    """exp of a 3x3 skew matrix (Rodrigues)."""
+    omega = np.array([generator[1, 2], -generator[0, 2], generator[0, 1]])
+    angle = np.linalg.norm(omega)
+    if angle < 1e-15:
+        return np.eye(3) + generator
+    unit = generator / angle
+    return np.eye(3) + np.sin(angle) * unit + (1 - np.cos(angle)) * unit @ unit
+
+
+def _turning_plane(turn_deg: float = 100.0, bent: float = 0.2) -> np.ndarray:
+    """Bent over its first ``bent`` m (curvature fading out over the last 20 mm of it) with the bending plane
+    turning ``turn_deg`` (constant torsion), then straight; the curvature is chosen so that the straight tail is
+    square to the base direction, and the curve is rotated about x until the tail points along -z: parallel to
+    the rig's baseline, along the epipolar lines in both images."""
+    tau = np.radians(turn_deg) / bent
+    fade = lambda s: np.clip((bent - s) / 0.02, 0.0, 1.0)  # noqa: E731
+    shape = lambda kappa: centerline_from_curvature(lambda s: kappa * fade(s), lambda s: tau * (s < bent))  # noqa
+    tail = lambda curve: (curve[-1] - curve[-41]) / np.linalg.norm(curve[-1] - curve[-41])  # noqa: E731
+    kappa = brentq(lambda k: tail(shape(k))[0], 2.0, 20.0)
+    curve = shape(kappa)
+    _, b, c = tail(curve)
+    angle = np.arctan2(b, c) - np.pi  # rotation about x taking (b, c) to (0, -1)
+    rotation = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(angle), -np.sin(angle)], [0.0, np.sin(angle), np.cos(angle)]])
+    return curve @ rotation.T
+
+
+#: Shapes along the epipolar lines of the rig (its baseline runs along world z: a stretch along z projects onto the
+#: epipolar lines in both images, its depth seen only through the curve's continuity and the ends).
+EPIPOLAR_SHAPES = {
+    # Curls down until the last 54 mm hang along -z (the tangent within 10 deg of the baseline over ~70 mm).
+    "curl_down": centerline_from_angles(lambda xi: -np.pi / 2 * _smoothstep(xi / 0.8),
+                                        lambda xi: 0.25 * np.sin(np.pi * xi)),
+    # Curls up and towards the cameras until the tip points along +z.
+    "curl_up": centerline_from_angles(lambda xi: np.pi / 2 * _smoothstep((xi - 0.1) / 0.75) ** 0.7,
+                                      lambda xi: 0.4 * np.sin(np.pi * xi)),
+    # An S whose middle (~60 mm) runs along -z, out of the image plane (depth +-30 mm).
+    "s_epipolar": centerline_from_angles(lambda xi: -np.pi / 2 * np.sin(np.pi * xi) ** 2,
+                                         lambda xi: 0.3 * np.sin(2 * np.pi * xi)),
+    # A 3D curve whose bending plane turns 100 deg over its first 200 mm; its last 70 mm run along -z.
+    "turning_plane": _turning_plane(),
+}

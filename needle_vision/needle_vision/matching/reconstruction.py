@@ -17,6 +17,7 @@ import numpy as np
 
 from needle_vision.detection.centerline import ImageCenterline
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
+from needle_vision.matching.curve_fit import fit_curve
 from needle_vision.detection.curves import arc_length, local_polynomial_smooth, median, step_lengths
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.transform import RigidTransform
@@ -25,6 +26,11 @@ from needle_vision.transform import RigidTransform
 MIN_IMAGE_NOISE_PX = 0.02
 #: 1-sigma error [px] of the needle's end positions along the needle (sub-pixel edge; flat or bevelled end).
 END_LOCALIZATION_PX = 0.3
+#: Correlated part of the image centerlines' lateral error [px] and the points it spans: the fitted curve averages
+#: white noise over hundreds of points but not this (straight needle, 41-point means of its error against the
+#: projected truth: 0.008-0.015 px on a dark needle, 0.020-0.035 px on a bright one, where white noise leaves 0.01).
+CORRELATED_NOISE_PX = 0.025
+CORRELATED_NOISE_POINTS = 20
 #: ``uncertainty`` of a sample in a gap (no triangulated point within ``max_gap``): interpolated, not measured.
 UNMEASURED = -1.0
 
@@ -47,6 +53,11 @@ class ReconstructionConfig:
     max_length: float = 0.3           # [m] a longer centerline is implausible for a needle: rejected
     max_image_scatter: float = 0.5    # [px] image centerlines scattering more across the curve are not a needle
     max_gap: float = 1e-3             # [m] longer stretches without a triangulated point are unmeasured
+    max_uncertainty: float = 1e-3     # [m] samples with a larger 1-sigma uncertainty are flagged unmeasured
+    curve_fit: bool = False           # fit one 3D curve to both views (else: the smoothed triangulated points)
+    knot_spacing: float = 5e-3        # [m] control point spacing of the fitted curve
+    bending_weight: float = 10.0      # [m] weight of the bending-energy prior (integral of |C''|^2) of the fit
+    end_noise_px: float = 0.1         # [px] 1-sigma error of the image ends in the fit
     base_point: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [m] near the base, output frame
 
 
@@ -250,6 +261,7 @@ class Triangulation:
     spacing: float
     left_centerline: ImageCenterline
     right_centerline: ImageCenterline
+    fit: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # the fitted curve: points, sigma, supported
 
 
 def reconstruct_centerline(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
@@ -316,15 +328,47 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     lateral_noise = np.linalg.norm(points, axis=1) / rectification.focal_length * noise_px
     point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2)
 
-    return Triangulation(output_from_left.apply(points), point_sigma, anchored, spacing, left, right)
+    fit = _fitted_curve(points, point_sigma, spacing, (left, right), (left_rect, right_rect), rectification, config)
+    return Triangulation(output_from_left.apply(points), point_sigma, anchored, spacing, left, right,
+                         None if fit is None else (output_from_left.apply(fit[0]), fit[1], fit[2]))
+
+
+def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, spacing: float,
+                  centerlines: tuple[ImageCenterline, ImageCenterline], rectified: tuple[np.ndarray, np.ndarray],
+                  rectification: Rectification, config: ReconstructionConfig
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The curve fitted to both views (:mod:`needle_vision.matching.curve_fit`) from the triangulated ``points``
+    (raw left frame, smoothed first), sampled every half ``sample_spacing``: points (raw left frame), sigma,
+    supported; None when disabled or the fit fails (then the triangulated points are used)."""
+    if not config.curve_fit:
+        return None
+    split = 0.5 * config.smoothing_length
+    smooth, gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
+    rotation = rectification.rotation_left
+    noise = tuple(np.maximum(np.maximum(c.local_noise_px, c.noise_px), MIN_IMAGE_NOISE_PX) for c in centerlines)
+    # Each run of CORRELATED_NOISE_POINTS points carries the correlated error once: its variance over the white
+    # noise's variance of their mean scales the covariance.
+    white = float(np.median(np.concatenate(noise)))
+    inflation = 1.0 + CORRELATED_NOISE_POINTS * (CORRELATED_NOISE_PX / white) ** 2
+    # The ends as the correspondence placed them (moved onto a common epipolar line, bevels shared): their
+    # triangulated points seen by each view.
+    ends = np.stack([rectification.project_rectified(points[[0, -1]], side) for side in ("left", "right")])
+    fit = fit_curve(smooth @ rotation.T, 1.0 / np.maximum(point_sigma * gain, 1e-9) ** 2, ends, rectified, noise,
+                    (rectification.projection_left, rectification.projection_right),
+                    knot_spacing=config.knot_spacing, bending_weight=config.bending_weight,
+                    end_noise_px=config.end_noise_px, max_gap=config.max_gap,
+                    sample_spacing=0.5 * config.sample_spacing, noise_inflation=inflation)
+    return None if fit is None else (fit.points @ rotation, fit.sigma, fit.supported)
 
 
 @numba.njit(cache=True, nogil=True)
-def _resampled(smooth, point_sigma, sample_spacing, max_gap, camera, focal_length):  # pragma: no cover - compiled
+def _resampled(smooth, point_sigma, supported, sample_spacing, max_gap, max_uncertainty, end_localization, camera,
+               focal_length):  # pragma: no cover - compiled
     """The smoothed centerline ``smooth (n, 3)`` resampled every ``sample_spacing`` of arc length (no sliver at the
     tip): arc lengths, points, unit tangents, 1-sigma uncertainty (interpolated from ``point_sigma``, the end samples'
-    with the localization of the needle's ends, ~END_LOCALIZATION_PX at the distance from the ``camera`` centre;
-    UNMEASURED in gaps) and whether each was measured (no step longer than ``max_gap`` around it)."""
+    with the localization of the needle's ends, ~END_LOCALIZATION_PX at the distance from the ``camera`` centre, when
+    ``end_localization``; UNMEASURED in gaps) and whether each was measured (no step longer than ``max_gap`` around it,
+    both points around it ``supported``, the uncertainty at most ``max_uncertainty``)."""
     arc = arc_length(smooth)
     length = arc[-1]
     steps = np.arange(0.0, length, sample_spacing)
@@ -347,15 +391,17 @@ def _resampled(smooth, point_sigma, sample_spacing, max_gap, camera, focal_lengt
         for j in range(3):
             tangents[k, j] /= norm
     uncertainty = np.interp(samples, arc, point_sigma)
-    for k in (0, count - 1):
-        offset = resampled[k] - camera
-        distance = np.sqrt(offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2])
-        uncertainty[k] = np.hypot(uncertainty[k], END_LOCALIZATION_PX * (distance / focal_length))
+    if end_localization:
+        for k in (0, count - 1):
+            offset = resampled[k] - camera
+            distance = np.sqrt(offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2])
+            uncertainty[k] = np.hypot(uncertainty[k], END_LOCALIZATION_PX * (distance / focal_length))
     measured = np.empty(count, np.bool_)
     last = arc.shape[0] - 1
     for k in range(count):
         after = min(max(np.searchsorted(arc, samples[k], side="right"), 1), last)
-        measured[k] = arc[after] - arc[after - 1] <= max_gap
+        measured[k] = (arc[after] - arc[after - 1] <= max_gap and supported[after] and supported[after - 1]
+                       and uncertainty[k] <= max_uncertainty)
         if not measured[k]:
             uncertainty[k] = UNMEASURED
     return samples, resampled, tangents, uncertainty, measured
@@ -368,13 +414,18 @@ def order_and_resample(triangulation: Triangulation, rectification: Rectificatio
     points, point_sigma, anchored = triangulation.points, triangulation.sigma, triangulation.anchored
     split, spacing = 0.5 * config.smoothing_length, triangulation.spacing
     base = config.base_point if base_hint is None else base_hint
-    if np.linalg.norm(points[-1] - base) < np.linalg.norm(points[0] - base):
+    reverse = np.linalg.norm(points[-1] - base) < np.linalg.norm(points[0] - base)
+    if reverse:
         points, point_sigma, anchored = points[::-1], point_sigma[::-1], anchored[::-1]
-    smooth, smoothing_gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
-    point_sigma = point_sigma * smoothing_gain  # noise kept by the cubic fit
+    if triangulation.fit is not None:
+        smooth, point_sigma, supported = (np.ascontiguousarray(a[::-1] if reverse else a) for a in triangulation.fit)
+    else:
+        smooth, smoothing_gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
+        point_sigma = point_sigma * smoothing_gain  # noise kept by the cubic fit
+        supported = np.ones(len(smooth), np.bool_)
     samples, resampled, tangents, uncertainty, measured = _resampled(
-        smooth, point_sigma, config.sample_spacing, config.max_gap, output_from_left.translation,
-        rectification.focal_length)
+        smooth, point_sigma, supported, config.sample_spacing, config.max_gap, config.max_uncertainty,
+        triangulation.fit is None, output_from_left.translation, rectification.focal_length)
     length = float(samples[-1])
     if length > config.max_length:
         raise ImplausibleError(f"implausible: measured needle is {length * 1e3:.0f} mm long "
