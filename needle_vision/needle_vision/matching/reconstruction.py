@@ -252,11 +252,13 @@ def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: in
 @dataclass(frozen=True)
 class Triangulation:
     """The inlier triangulated points of a pair in the output frame, in left-curve order (base and tip not told
-    yet), their 1-sigma uncertainty [m] and whether each was anchored; their mean spacing [m]; the image
-    centerlines. What :func:`order_and_resample` needs: independent of the previous frames."""
+    yet), their 1-sigma uncertainty [m] (white: the smoothing averages it) and whether each was anchored;
+    their mean spacing [m]; the image centerlines. What :func:`order_and_resample` needs: independent of the
+    previous frames."""
 
     points: np.ndarray
     sigma: np.ndarray
+    slide_sigma: np.ndarray  # [m] 1-sigma error that the smoothing does not average (see _slide)
     anchored: np.ndarray
     spacing: float
     left_centerline: ImageCenterline
@@ -324,13 +326,27 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     noise_px = noise_px[inliers]
     min_sin = np.sin(np.radians(matching.min_epipolar_angle_deg))
     slope = np.where(anchored, np.maximum(sin_angle, min_sin), 0.5 * min_sin)
-    depth_noise = rectification.depth_per_disparity(points) * noise_px * np.sqrt(2 + 1 / slope ** 2)
+    per_disparity = rectification.depth_per_disparity(points)
+    depth_noise = per_disparity * noise_px * np.sqrt(2 + 1 / slope ** 2)
     lateral_noise = np.linalg.norm(points, axis=1) / rectification.focal_length * noise_px
     point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2)
 
     fit = _fitted_curve(points, point_sigma, spacing, (left, right), (left_rect, right_rect), rectification, config)
-    return Triangulation(output_from_left.apply(points), point_sigma, anchored, spacing, left, right,
+    return Triangulation(output_from_left.apply(points), point_sigma, per_disparity * _slide(slope),
+                         anchored, spacing, left, right,
                          None if fit is None else (output_from_left.apply(fit[0]), fit[1], fit[2]))
+
+
+def _slide(sin_angle: np.ndarray) -> np.ndarray:
+    """Disparity error [px] of a match that the smoothing along the curve does not average, where the image
+    tangent makes an angle theta (``sin_angle``, floored like the anchors) with the epipolar lines.
+
+    A lateral image error e moves the curve's crossing of its epipolar line, hence the match, by e / sin(theta)
+    along the line. The white part of e is in ``point_sigma`` (averaged by the local cubic); the correlated part
+    c = CORRELATED_NOISE_PX spans ~20 points, shifts all their matches alike and is not averaged. Both views
+    independent: sqrt(2) c / sin(theta); the floor of sin(theta) (min_epipolar_angle, half of it where the match is
+    interpolated) caps it at ~6 (~12) times sqrt(2) c."""
+    return np.sqrt(2.0) * CORRELATED_NOISE_PX / sin_angle
 
 
 def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, spacing: float,
@@ -421,7 +437,9 @@ def order_and_resample(triangulation: Triangulation, rectification: Rectificatio
         smooth, point_sigma, supported = (np.ascontiguousarray(a[::-1] if reverse else a) for a in triangulation.fit)
     else:
         smooth, smoothing_gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
-        point_sigma = point_sigma * smoothing_gain  # noise kept by the cubic fit
+        # white noise kept by the cubic fit, and the slide along the epipolar lines that it does not average
+        slide = triangulation.slide_sigma[::-1] if reverse else triangulation.slide_sigma
+        point_sigma = np.hypot(point_sigma * smoothing_gain, slide)
         supported = np.ones(len(smooth), np.bool_)
     samples, resampled, tangents, uncertainty, measured = _resampled(
         smooth, point_sigma, supported, config.sample_spacing, config.max_gap, config.max_uncertainty,
