@@ -79,6 +79,19 @@ def _project(projection, point, derivative, pixel, jacobian, tangent):  # pragma
 
 
 @numba.njit(cache=True, nogil=True)
+def _accumulate(normal, rhs, s, b, row, weight, residual):  # pragma: no cover - compiled
+    """One weighted scalar residual of segment ``s`` into the normal equations: its row ``row`` (d residual / d point,
+    (3,)) spread over the segment's four control points by the basis ``b`` (lower triangle of ``normal``)."""
+    for a in range(4):
+        for c in range(a, 4):
+            for k in range(3):
+                for j in range(3):
+                    normal[3 * (s + c) + j, 3 * (s + a) + k] += weight * b[a] * b[c] * row[k] * row[j]
+        for k in range(3):
+            rhs[3 * (s + a) + k] += weight * b[a] * row[k] * residual
+
+
+@numba.njit(cache=True, nogil=True)
 def _cholesky(matrix):  # pragma: no cover - compiled
     """Lower Cholesky factor of a symmetric positive definite band matrix (half-bandwidth _BAND), in place."""
     n = matrix.shape[0]
@@ -280,13 +293,7 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
                 weight = multiplicity * min(1.0, huber / max(scaled, 1e-12)) / (noise[i] * noise[i])
                 for k in range(3):
                     row[k] = nx * jacobian[0, k] + ny * jacobian[1, k]
-                for a in range(4):
-                    for c in range(a, 4):
-                        for k in range(3):
-                            for j in range(3):
-                                normal[3 * (s + c) + j, 3 * (s + a) + k] += weight * b[a] * b[c] * row[k] * row[j]
-                    for k in range(3):
-                        rhs[3 * (s + a) + k] += weight * b[a] * row[k] * residual
+                _accumulate(normal, rhs, s, b, row, weight, residual)
         rms = np.sqrt(total / max(used, 1))
         for v in range(2):
             for e in range(2):  # along the projected curve only: across it, the image points say it
@@ -300,13 +307,7 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
                 for k in range(3):
                     row[k] = tx * jacobian[0, k] + ty * jacobian[1, k]
                 weight = 1.0 / (end_noise * end_noise)
-                for a in range(4):
-                    for c in range(a, 4):
-                        for k in range(3):
-                            for j in range(3):
-                                normal[3 * (s + c) + j, 3 * (s + a) + k] += weight * b[a] * b[c] * row[k] * row[j]
-                    for k in range(3):
-                        rhs[3 * (s + a) + k] += weight * b[a] * row[k] * residual
+                _accumulate(normal, rhs, s, b, row, weight, residual)
         for a in range(count):  # the prior: its curvature term and its gradient at the current control points
             for c in range(max(0, a - 3), min(count, a + 4)):
                 for k in range(3):
