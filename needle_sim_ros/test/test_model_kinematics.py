@@ -67,18 +67,38 @@ def test_base_motion_rejects_bad_input():
 
 
 def test_fixtures_partition_and_validation():
-    model = build_model(NEEDLE, 10, fixtures=[Fixture(interval=(0.162, 0.27)), Fixture(nodes=(2,), frame="base")])
+    equal = [0.027] * 10
+    model = build_model(NEEDLE, 10, element_lengths=equal,
+                        fixtures=[Fixture(interval=(0.162, 0.27)), Fixture(nodes=(2,), frame="base")])
     clamped_nodes = sorted(set(model.constrained_dofs // 6))
     assert clamped_nodes == [0, 2, 6, 7, 8, 9, 10]
     assert model.active_dofs.size == model.n_dof - 6 * 7
     with pytest.raises(ValueError, match="not a mesh node"):
-        build_model(NEEDLE, 10, fixtures=[Fixture(interval=(0.15, 0.27))])
+        build_model(NEEDLE, 10, element_lengths=equal, fixtures=[Fixture(interval=(0.15, 0.27))])
     with pytest.raises(ValueError, match="clamped twice"):
         build_model(NEEDLE, 4, fixtures=[Fixture(nodes=(0,))])
     with pytest.raises(ValueError, match="node index"):
         build_model(NEEDLE, 4, fixtures=[Fixture(nodes=(5,))])
     with pytest.raises(ValueError, match="frame"):
         Fixture(nodes=(1,), frame="tool")
+
+
+def test_the_default_mesh_of_a_clamped_needle_has_nodes_at_the_clamps_and_clusters_them_at_the_holds():
+    """Without element lengths, a clamp interval gets one element and the free spans the others: Chebyshev-Lobatto
+    nodes between two holds, equal elements towards the free tip; any interval works, not only uniform nodes."""
+    length = NEEDLE.length
+    model = build_model(NEEDLE, 10, fixtures=[Fixture(interval=(0.162, length))])
+    nodes = model.mesh.node_arc_length
+    assert nodes.size == 11 and nodes[9] == pytest.approx(0.162) and nodes[10] == length
+    assert np.allclose(nodes[:10], 0.081 * (1 - np.cos(np.pi * np.arange(10) / 9)))
+    middle = build_model(NEEDLE, 10, fixtures=[Fixture(interval=(0.1, 0.2))]).mesh.node_arc_length
+    assert np.allclose(middle, [0, 0.1 * 0.0955, 0.1 * 0.3455, 0.1 * 0.6545, 0.1 * 0.9045, 0.1, 0.2, 0.2175,
+                                0.235, 0.2525, 0.27], atol=1e-5)
+    assert np.allclose(build_model(NEEDLE, 10, fixtures=[Fixture(nodes=(-1,))]).mesh.element_lengths, 0.027)
+    with pytest.raises(ValueError, match="at least 3"):
+        build_model(NEEDLE, 2, fixtures=[Fixture(interval=(0.1, 0.2))])
+    with pytest.raises(ValueError, match="0 <= s_start <= s_end"):
+        build_model(NEEDLE, 10, fixtures=[Fixture(interval=(0.1, math.nan))])
 
 
 def test_fixture_on_a_moving_frame_carries_its_nodes():

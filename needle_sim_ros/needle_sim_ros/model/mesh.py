@@ -104,6 +104,49 @@ def interpolate(slots: np.ndarray, S: np.ndarray, x: np.ndarray) -> np.ndarray:
     return values
 
 
+def clamped_element_lengths(length: float, n_elements: int, intervals) -> np.ndarray:
+    """Element lengths [m] of an n_elements mesh whose nodes include every clamp interval's ends: one element per
+    clamped interval (held straight, it needs no more), the others over the free spans in proportion to their
+    lengths. A span held at both ends (by the base at s = 0 or a clamp) gets Chebyshev-Lobatto nodes
+    s = a + (b - a)(1 - cos(pi i / k)) / 2, clustered towards its ends: a needle stretched between two holds bends
+    in boundary layers of width sqrt(EI / T) there, which equal elements resolve poorly (README, "Wrench accuracy").
+    A span ending at the free tip keeps equal elements."""
+    pairs = sorted((float(a), float(b)) for a, b in intervals)
+    if not all(0.0 <= a <= b <= length for a, b in pairs):  # NaN fails too
+        raise ValueError(f"clamp intervals {pairs} must satisfy 0 <= s_start <= s_end <= L = {length:g} m")
+    spans: list[tuple[float, float, bool]] = []  # (start, end, clamped), covering [0, length]
+    covered = 0.0
+    for start, end in pairs:
+        start, end = max(start, covered), min(end, length)
+        if start > covered:
+            spans.append((covered, start, False))
+        if end > start:
+            spans.append((start, end, True))
+        covered = max(covered, end)
+    if covered < length:
+        spans.append((covered, length, False))
+    free = [(a, b) for a, b, clamped in spans if not clamped]
+    n_clamped = len(spans) - len(free)
+    if n_elements < len(spans):
+        raise ValueError(f"{n_elements} elements cannot mesh {n_clamped} clamp interval(s) and {len(free)} free "
+                         f"span(s): at least {len(spans)} are needed")
+    extra = n_elements - n_clamped - len(free)  # elements beyond one per free span, shared by length
+    share = np.array([b - a for a, b in free]) / sum(b - a for a, b in free) * extra
+    counts = 1 + np.floor(share).astype(int)
+    for index in np.argsort(np.floor(share) - share)[:extra - int(np.floor(share).sum())]:  # largest remainders
+        counts[index] += 1
+    lengths: list[float] = []
+    for start, end, clamped in spans:
+        if clamped:
+            lengths.append(end - start)
+            continue
+        k = int(counts[free.index((start, end))])
+        unit = np.arange(k + 1) / k
+        nodes = (1.0 - np.cos(np.pi * unit)) / 2.0 if end < length else unit
+        lengths.extend(np.diff(start + (end - start) * nodes))
+    return np.array(lengths)
+
+
 @dataclass(frozen=True)
 class Mesh:
     """Element lengths l_j (n_elements,) and reference arc length of each node (n_elements + 1,)."""

@@ -10,7 +10,7 @@ from .elastic import ElasticTables, elastic_tables
 from .fixtures import Fixture
 from .kinematics import BaseMotion
 from .mass import mass_slot_matrix
-from .mesh import Interpolation, Mesh
+from .mesh import Interpolation, Mesh, clamped_element_lengths
 from .partition import Partition
 from .properties import NeedleProperties
 
@@ -103,13 +103,17 @@ class NeedleModel:
 def build_model(props: NeedleProperties, n_elements: int = 10, element_lengths=None, axial_gauss: int = 2,
                 bending_gauss: int = 3, rayleigh_alpha: float = 0.0, rayleigh_beta: float = 0.0,
                 fixtures=()) -> NeedleModel:
-    """Discretize the needle into cable elements (uniform, or with the given element lengths [m])."""
+    """Discretize the needle into cable elements: the given element lengths [m]; without them n_elements equal
+    ones, or where fixtures clamp intervals, :func:`clamped_element_lengths` (nodes at the clamps' ends)."""
     if not isinstance(props, NeedleProperties):
         raise TypeError(f"props must be NeedleProperties, got {type(props).__name__}")
+    fixtures = tuple(fixtures)
+    intervals = [fixture.interval for fixture in fixtures if fixture.interval is not None]
+    if element_lengths is None and intervals and isinstance(n_elements, (int, np.integer)):
+        element_lengths = clamped_element_lengths(props.length, int(n_elements), intervals)
     mesh = Mesh.build(props.length, n_elements, element_lengths)
     elastic = elastic_tables(mesh, props, axial_gauss, bending_gauss)
     mass_slots = mass_slot_matrix(mesh, props.mass_per_length)
-    fixtures = tuple(fixtures)
     partition = Partition.build(mesh, fixtures)
     n_dof = 6 * (mesh.n_elements + 1)
     scale = np.tile(np.r_[np.full(3, props.length), np.ones(3)], n_dof // 6)

@@ -32,7 +32,7 @@ SIMULATOR_PARAMETERS = [
     ParamSpec("needle.element_lengths", MODEL_DEFAULTS["needle.element_lengths"],
               "Element lengths [m] from the clamp point A to the tip, for a non-uniform mesh (e.g. finer where the "
               "tissue acts); they must sum to needle.length and then set the number of elements. [0.0]: "
-              "needle.elements elements of equal length.", 0.0, 10.0,
+              "needle.elements elements of equal length (with fixtures.clamp_interval: nodes at the clamp).", 0.0, 10.0,
               check=(lambda v: list(v) in ([], [0.0]) or all(length > 0 for length in v),
                      "must be [0.0] (uniform) or lengths > 0 [m] summing to needle.length")),
     ParamSpec("needle.gravity", MODEL_DEFAULTS["needle.gravity"],
@@ -65,7 +65,9 @@ SIMULATOR_PARAMETERS = [
               "Newton iterations per step before sub-stepping.", 1, 100),
     ParamSpec("fixtures.clamp_interval", MODEL_DEFAULTS["fixtures.clamp_interval"],
               "Arc-length interval [s_start, s_end] [m] clamped to the world where it lies when the needle starts "
-              "(seed 000 Fig. 8: [0.6 L, L]); both ends must be mesh nodes. [] or [0.0]: none.",
+              "(seed 000 Fig. 8: [0.6 L, L]). With needle.element_lengths the ends must be mesh nodes; without, the "
+              "mesh puts nodes there (one element clamped, the free span's nodes clustered at the holds). "
+              "[] or [0.0]: none.",
               0.0, 10.0,
               check=(lambda v: len(v) in (0, 1, 2) and (len(v) < 2 or v[0] < v[1]) and (len(v) != 1 or v[0] == 0.0),
                                 "must be [] / [0.0] (none) or [s_start, s_end] with s_start < s_end")),

@@ -37,18 +37,12 @@ def pitch_motion(amplitude: float, frequency: float):
     return motion
 
 
-def clamped_mesh(length: float, n_elements: int, clamp_fraction: float) -> dict:
-    """build_model kwargs: element lengths with a node where the clamp starts, and the world fixture of the distal
-    part (the straight needle along world x from the origin)."""
+def clamp_fixture(length: float, clamp_fraction: float) -> Fixture:
+    """The world fixture of the distal ``clamp_fraction`` (the straight needle along world x from the origin); the
+    default mesh puts its nodes there (:func:`~needle_sim_ros.model.mesh.clamped_element_lengths`)."""
     if not 0.0 < clamp_fraction < 1.0:
         raise ValueError(f"clamp_fraction must lie in (0, 1), got {clamp_fraction!r}")
-    if n_elements < 2:
-        raise ValueError("the pitch experiment needs at least 2 elements (free and clamped part)")
-    free = min(max(1, round(n_elements * (1.0 - clamp_fraction))), n_elements - 1)
-    start = (1.0 - clamp_fraction) * length
-    lengths = [start / free] * free + [(length - start) / (n_elements - free)] * (n_elements - free)
-    return {"n_elements": n_elements, "element_lengths": lengths,
-            "fixtures": (Fixture(interval=(start, length), frame="world"),)}
+    return Fixture(interval=((1.0 - clamp_fraction) * length, length), frame="world")
 
 
 def simulate_pitch(props, build: dict, integrator_kwargs: dict, dt: float, amplitude: float, frequency: float,
@@ -59,7 +53,7 @@ def simulate_pitch(props, build: dict, integrator_kwargs: dict, dt: float, ampli
         if not (np.isfinite(value) and value > 0.0):
             raise ValueError(f"pitch scenario: {name} must be > 0, got {value!r}")
     start = time.perf_counter()
-    build = {**build, **clamped_mesh(props.length, build.get("n_elements", 10), clamp_fraction)}
+    build = {**build, "fixtures": (clamp_fixture(props.length, clamp_fraction),)}
     model = build_model(props, **build)
     integrator = Integrator(model, **integrator_kwargs)
     motion = pitch_motion(amplitude, frequency)
