@@ -165,6 +165,7 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     node = object.__new__(NeedleSimulatorNode)  # the node's methods on its state, without a ROS context
     published: dict[str, list[bytes]] = {"wrench": [], "shape": []}
     node.p, node.sim, node.active, node.use_sim_time = p, simulation_from_parameters(p), True, True
+    node.inputs = node.simulator_inputs()
     node._lock, node._polled, node._warned_at, node._next_output = threading.Lock(), [], {}, {"shape": 0.0}
     node.counters, node.counters_other = {verdict: 0 for verdict in PoseVerdict}, {"stamp_replaced": 0}
     node.catch_up_steps = node.deadline_misses = 0

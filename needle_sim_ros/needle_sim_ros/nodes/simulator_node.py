@@ -34,7 +34,6 @@ from needle_interfaces.srv import ApplyPointLoad, ClearPointLoads
 from rclpy.duration import Duration
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from scipy.spatial.transform import Rotation
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
@@ -43,6 +42,7 @@ from needle_vision.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.haptics import ZERO, HapticShaper
+from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.geometry import compile_geometry_kernels, quaternions_from_tangents, tube_triangles
 from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
@@ -61,7 +61,6 @@ from needle_sim_ros.simulation import (
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
 ZERO_ACK_WAIT = 0.5  # [s] longest wait for the haptic subscribers to acknowledge the zero sent at exit
-ACCEPTED_POSES = (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED, PoseVerdict.REANCHORED, PoseVerdict.RESTARTED)
 TUBE_COLOR = (0.75, 0.75, 0.8, 1.0)  # RGBA of the needle's Marker tube
 
 
@@ -83,6 +82,7 @@ class NeedleSimulatorNode(LifecycleNode):
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.sim = None
+        self.inputs: SimulatorInputs | None = None  # the input rules around self.sim
         self.active = False
         self.configure_error = ""
         self.use_sim_time = self.get_parameter("use_sim_time").value
@@ -164,6 +164,7 @@ class NeedleSimulatorNode(LifecycleNode):
         self.get_logger().info(f"compiled/loaded the numerical kernels in {time.perf_counter() - start:.1f} s")
         with self._lock:
             self.sim, self.props = sim, sim.model.props
+            self.inputs = self.simulator_inputs()
             if self.use_sim_time:
                 # Simulated time: one shape per step that crosses the 1/shape_hz grid, stamped with that step's
                 # time, so a replay yields every shape whatever the machine load (the output thread only visualizes).
@@ -202,7 +203,7 @@ class NeedleSimulatorNode(LifecycleNode):
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         with self._lock:
-            self.active, self.sim = False, None
+            self.active, self.sim, self.inputs = False, None, None
         self.zero_haptics()
         gc.unfreeze()
         gc.collect()
@@ -227,6 +228,11 @@ class NeedleSimulatorNode(LifecycleNode):
             self._warned_at[key] = now
             self.get_logger().warning(message)
 
+    def simulator_inputs(self) -> SimulatorInputs:
+        """The input rules around the configured simulation, with the parameters in force."""
+        return SimulatorInputs(self.sim, self.p["frames.world"], self.p["frames.base"],
+                               math.inf if self.use_sim_time else self.p["pose_input.max_stamp_offset"])
+
     def now_seconds(self) -> float:
         if not self.use_sim_time:
             return time.time()  # the ROS clock without simulated time is the system clock; 10x cheaper
@@ -240,24 +246,22 @@ class NeedleSimulatorNode(LifecycleNode):
         if not self.active:  # lifecycle: poses count from activation on
             return
         pose = cdr.pose_stamped(data)
-        world = self.p["frames.world"]
-        if pose.frame_id not in ("", world):
-            self.counters_other["wrong_frame"] += 1
-            self.warn_throttled("frame", f"ignoring base pose in frame '{pose.frame_id}': expected '{world}'")
+        received, own_stamp = self.now_seconds(), pose.stamp_ns * 1e-9
+        try:
+            with self._lock:
+                started = self.sim.started
+                verdict, stamp, replaced = self.inputs.offer_pose(pose.frame_id, own_stamp, pose.position,
+                                                                  pose.orientation, received)
+                self.counters[verdict] += 1
+        except InputRejected as error:
+            self.counters_other[error.kind] += 1
+            self.warn_throttled(error.kind, f"ignoring {error}")
             return
-        received = self.now_seconds()
-        stamp = pose.stamp_ns * 1e-9
-        if stamp == 0.0 or (not self.use_sim_time and abs(stamp - received) > self.p["pose_input.max_stamp_offset"]):
+        if replaced:
             self.counters_other["stamp_replaced"] += 1
-            self.warn_throttled("stamp", f"base pose stamp {stamp:.3f} s is unset or {stamp - received:+.3f} s from "
-                                         "now: "
-                                         "using the receive time instead")
-            stamp = received
-        with self._lock:
-            started = self.sim.started
-            verdict = self.sim.offer_pose(stamp, pose.position, pose.orientation)
-            self.counters[verdict] += 1
-        if self.haptics is not None and verdict in ACCEPTED_POSES:
+            self.warn_throttled("stamp", f"base pose stamp {own_stamp:.3f} s is unset or {own_stamp - received:+.3f} s "
+                                         "from now: using the receive time instead")
+        if self.haptics is not None and verdict in USED_POSES:
             age = max(time.time() - info["received_timestamp"] * 1e-9, 0.0)  # system clock, as rmw stamps it
             self.haptics.pose_arrived(time.monotonic() - age)
         if (self.sim.started and not started) or verdict in (PoseVerdict.RESTARTED, PoseVerdict.REANCHORED):
@@ -279,36 +283,25 @@ class NeedleSimulatorNode(LifecycleNode):
         if not self.active:
             return
         v, w = msg.twist.linear, msg.twist.angular
-        linear, angular = np.array([v.x, v.y, v.z]), np.array([w.x, w.y, w.z])
-        finite = np.all(np.isfinite(linear)) and np.all(np.isfinite(angular))
-        if msg.header.frame_id not in ("", self.p["frames.world"]) or not finite:
-            self.counters_other["twist_rejected"] += 1
-            self.warn_throttled("twist", "ignoring base twist: not finite or not in the world frame")
-            return
         try:
             with self._lock:
-                self.sim.set_twist(self.now_seconds(), linear, angular)
-        except ValueError as error:
-            self.warn_throttled("twist", f"ignoring base twist: {error}")
+                self.inputs.set_twist(msg.header.frame_id, (v.x, v.y, v.z), (w.x, w.y, w.z), self.now_seconds())
+        except InputRejected as error:
+            self.counters_other[error.kind] += 1
+            self.warn_throttled(error.kind, f"ignoring {error}")
 
     def on_tip_load(self, msg: WrenchStamped) -> None:
         """A force on the tip from a topic (a recorded experiment's tip mass); replaces the previous one."""
         f = msg.wrench.force
-        force = np.array([f.x, f.y, f.z])
-        frame = msg.header.frame_id or self.p["frames.world"]
-        if not np.all(np.isfinite(force)) or frame not in (self.p["frames.world"], self.p["frames.base"]):
-            self.counters_other["tip_load_rejected"] += 1
-            self.warn_throttled("tip_load", f"ignoring tip load: not finite or frame '{frame}' unknown")
-            return
         try:
             with self._lock:
                 if self.sim is None:
                     return
-                if frame == self.p["frames.base"] and self.sim.base is not None:
-                    force = Rotation.from_quat(self.sim.base.orientation).apply(force)
-                self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
-        except ValueError as error:
-            self.warn_throttled("tip_load", f"ignoring tip load: {error}")
+                self.inputs.set_point_load(TIP_LOAD_TOPIC, self.props.length, msg.header.frame_id, (f.x, f.y, f.z),
+                                           "tip_load_rejected")
+        except InputRejected as error:
+            self.counters_other[error.kind] += 1
+            self.warn_throttled(error.kind, f"ignoring tip load: {error}")
 
     # -- services and parameters -----------------------------------------------------------------------------
     def on_reset(self, request, response):
@@ -323,20 +316,11 @@ class NeedleSimulatorNode(LifecycleNode):
         return response
 
     def on_apply_point_load(self, request, response):
-        force = np.array([request.force.x, request.force.y, request.force.z])
-        frame = request.frame_id or self.p["frames.world"]
-        if frame not in (self.p["frames.world"], self.p["frames.base"]):
-            response.success = False
-            response.message = f"frame_id '{frame}' is neither '{self.p['frames.world']}' nor '{self.p['frames.base']}'"
-            return response
+        force = (request.force.x, request.force.y, request.force.z)
         try:
             with self._lock:
-                if frame == self.p["frames.base"]:
-                    if self.sim.base is None:
-                        raise ValueError("no base pose yet to express a base-frame force in the world frame")
-                    force = Rotation.from_quat(self.sim.base.orientation).apply(force)
-                self.sim.set_point_load(request.name or "default", request.arc_length, force)
-        except ValueError as error:
+                self.inputs.set_point_load(request.name or "default", request.arc_length, request.frame_id, force)
+        except InputRejected as error:
             response.success, response.message = False, str(error)
             return response
         response.success = True
@@ -354,6 +338,8 @@ class NeedleSimulatorNode(LifecycleNode):
             if "loads.tip_force" in changed and self.sim is not None:
                 self._apply_tip_force(changed["loads.tip_force"])  # first: a load the model cannot carry refuses all
             self.p.update(changed)
+            if self.sim is not None:
+                self.inputs = self.simulator_inputs()
             if self.haptics is not None:
                 self.haptics.max_force = self.p["haptics.max_force"]
                 self.haptics.max_torque = self.p["haptics.max_torque"]

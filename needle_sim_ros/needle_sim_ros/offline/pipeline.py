@@ -4,9 +4,9 @@ The bag's messages are taken in log-time order; the log time is the clock. Befor
 simulator integrates up to it (deterministically: never past the newest pose), and every produced message goes
 through the stages that would receive it in the live pipeline::
 
-    /base_pose, /tip_load ──> SimulatorStage ──> /wrench, /needle/shape ──────────┐
+    /base_pose, /base_twist, /tip_load ──> SimulatorStage ──> /wrench, /needle/shape ───────┐
     /left|right/image_raw ──> StereoStage ──> /needle/measured_shape ──> ComparisonStage ──> /shape_error
-    (or a recorded /needle/measured_shape, e.g. a shape-sensing needle) ───────────┘
+    (or a recorded /needle/measured_shape, e.g. a shape-sensing needle) ────────────────┘
 
 The output MCAP holds what ``needle_compare`` records in the live pipeline (``/needle/shape``,
 ``/needle/measured_shape``, ``/shape_error``, ``/base_pose``, ``/wrench`` and the compared centerlines'
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import TwistStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo
@@ -51,7 +51,8 @@ OUTPUT_TOPICS = {
     "/wrench": ("geometry_msgs/msg/WrenchStamped", OfferedQos(depth=100)),  # QoS: as the simulator's qos.wrench
     **{f"/{topic}": (DISPLAY_TYPES[topic.rsplit("/", 1)[1]], OfferedQos(depth=10)) for topic in DISPLAY_TOPICS},
 }
-INPUT_TYPES = {"/tip_load": WrenchStamped, "/left/camera_info": CameraInfo, "/right/camera_info": CameraInfo,
+INPUT_TYPES = {"/tip_load": WrenchStamped, "/base_twist": TwistStamped, "/left/camera_info": CameraInfo,
+               "/right/camera_info": CameraInfo,
                "/needle/measured_shape": NeedleShape}  # besides images and poses (see decode)
 
 
@@ -105,7 +106,7 @@ class OfflinePipeline:
 
     def input_topics(self, reader: BagReader) -> list[str]:
         """The recorded input topics; ValueError naming the topic if one has another type than the nodes expect."""
-        topics = ["/base_pose", "/tip_load"]
+        topics = ["/base_pose", "/base_twist", "/tip_load"]
         images = ["/left/image_raw", "/right/image_raw", "/left/camera_info", "/right/camera_info"]
         topics += [*images, self.stereo.base_pose_topic] if self.use_stereo else ["/needle/measured_shape"]
         topics = list(dict.fromkeys(t for t in topics if t in reader.topics))
@@ -161,10 +162,12 @@ class OfflinePipeline:
                     continue
                 if message.topic == stereo_poses:  # the stereo node's base_pose.topic (may be the simulator's)
                     self.stereo.on_base_pose(stamped_pose(msg))
-                if message.topic in ("/base_pose", "/tip_load"):
+                if message.topic in ("/base_pose", "/base_twist", "/tip_load"):
                     with self._timed("simulator"):
                         if message.topic == "/base_pose":
                             self.simulator.on_pose(msg, now)
+                        elif message.topic == "/base_twist":
+                            self.simulator.on_twist(msg, now)
                         else:
                             self.simulator.on_tip_load(msg)
                     if message.topic == "/base_pose":

@@ -20,9 +20,8 @@ import time
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import WrenchStamped
+from geometry_msgs.msg import TwistStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
@@ -37,6 +36,7 @@ from needle_vision.streams.base_pose import StampedPose, store_base_pose
 from needle_vision.transform import quaternion_from_x_axis
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
+from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
 from needle_sim_ros.messages.shape import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
@@ -76,6 +76,7 @@ class SimulatorStage:
         self.p = p
         self.sim = simulation_from_parameters(p)
         self.sim.max_catch_up = math.inf
+        self.inputs = SimulatorInputs(self.sim, p["frames.world"], p["frames.base"])  # simulated time: stamps kept
         self.props = self.sim.model.props
         self.shape_every = max(1, int(round(1.0 / (p["rates.shape_hz"] * p["integrator.dt"]))))
         self.rejected: dict[str, int] = {}
@@ -87,29 +88,32 @@ class SimulatorStage:
 
     # --- inputs (as NeedleSimulatorNode.on_pose / on_tip_load in simulated time) ------------------------------
     def on_pose(self, pose: cdr.DecodedPose, now_ns: int) -> None:
-        if pose.frame_id not in ("", self.p["frames.world"]):
-            self._reject("base pose in another frame")
-            return
         started = self.sim.started
-        verdict = self.sim.offer_pose((pose.stamp_ns or now_ns) * 1e-9, pose.position, pose.orientation)
+        try:
+            verdict = self.inputs.offer_pose(pose.frame_id, pose.stamp_ns * 1e-9, pose.position, pose.orientation,
+                                             now_ns * 1e-9).verdict
+        except InputRejected as error:
+            self._reject(error.kind)
+            return
         if not started and self.sim.started:
             self._steps_since_start = 0
-        if verdict.name not in ("ACCEPTED", "NORMALIZED", "REANCHORED", "RESTARTED"):
+        if verdict not in USED_POSES:
             self._reject(f"base pose {verdict.value}")
+
+    def on_twist(self, msg: TwistStamped, now_ns: int) -> None:
+        v, w = msg.twist.linear, msg.twist.angular
+        try:
+            self.inputs.set_twist(msg.header.frame_id, (v.x, v.y, v.z), (w.x, w.y, w.z), now_ns * 1e-9)
+        except InputRejected as error:
+            self._reject(error.kind)
 
     def on_tip_load(self, msg: WrenchStamped) -> None:
         f = msg.wrench.force
-        force = np.array([f.x, f.y, f.z])
-        frame = msg.header.frame_id or self.p["frames.world"]
-        if not np.all(np.isfinite(force)) or frame not in (self.p["frames.world"], self.p["frames.base"]):
-            self._reject("tip load not finite or in an unknown frame")
-            return
-        if frame == self.p["frames.base"] and self.sim.base is not None:
-            force = Rotation.from_quat(self.sim.base.orientation).apply(force)
         try:
-            self.sim.set_point_load(TIP_LOAD_TOPIC, self.props.length, force)
-        except ValueError:
-            self._reject("tip load beyond what the needle model integrates")
+            self.inputs.set_point_load(TIP_LOAD_TOPIC, self.props.length, msg.header.frame_id, (f.x, f.y, f.z),
+                                       "tip_load_rejected")
+        except InputRejected as error:
+            self._reject(error.kind)
 
     # --- outputs ---------------------------------------------------------------------------------------------
     def advance(self, now_ns: int) -> list[tuple[str, Any]]:
