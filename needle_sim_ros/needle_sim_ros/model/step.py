@@ -125,3 +125,21 @@ def keep(state, q, qd, t):
 def off_base(state):
     """The touches_base kernel of a contribution that never acts on the base element."""
     return False
+
+
+def compiled_run(assemble, advance=keep, touches_base=off_base):
+    """The compiled run of steps (:func:`run_steps`, a fresh matrix every step) with one contribution given by its
+    kernels, whose state is one float64 array (its parameters and state in a named layout): a numba function of
+    (history, times, motions, rotations, scheme coefficients, constant force, ``Integrator.run_arguments`` after
+    the coefficients, control flags, state, states, wrenches, iterations) returning (steps done, state after)."""
+
+    @njit(cache=True)
+    def run(history, times, motions, rotations, coef, constant_Q, tol, max_iterations, prescribed, base_nodes,
+            base_local_r, base_local_rx, active, scale, tables, residual, band, ext_band, pivots, factorization, kl,
+            control, state, states, wrenches, iterations):
+        return run_steps(history, times, motions, rotations, constant_Q,
+                         (coef, tol, max_iterations, active, scale, tables, kl),
+                         (prescribed, base_nodes, base_local_r, base_local_rx),
+                         (residual, band, ext_band, pivots, factorization), control, np.empty(19), False, state,
+                         assemble, advance, touches_base, (states, wrenches, iterations))
+    return run
