@@ -254,8 +254,8 @@ class Integrator:
                       memory: IntegratorMemory | None = None) -> tuple[tuple, np.ndarray]:
         """The needle's part of a compiled run with state-dependent contributions besides ``forces`` (which must be
         time-invariant, :meth:`supports_sequence`), e.g. ``tissue.sequence``: (coefficients, tolerance, iteration
-        limit, base node buffers, active mask, scales, model tables, base rows and work arrays, bandwidth) and
-        the constant external force. A fresh matrix every step, as :meth:`step`: the memory's kept
+        limit, base node buffers, active mask, scales, model tables, work arrays, bandwidth) and the constant
+        external force. A fresh matrix every step, as :meth:`step`: the memory's kept
         factorization is invalidated."""
         (memory or self.memory).invalidate()
         key = (dt, self.newton_tol, self.max_newton_iterations)
