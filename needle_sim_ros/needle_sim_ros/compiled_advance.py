@@ -42,5 +42,5 @@ def advance_from_trajectory(*arguments):
     compose_offsets(flange, offset, offset_rotation, motions, rotations)
     history = arguments[33]
     history[0], history[1], history[2], history[3] = arguments[29:33]
-    done = integrate_sequence(history, motions, rotations, *arguments[34:])
+    done = integrate_sequence(history, times, motions, rotations, *arguments[34:])
     return fit, corrections, done

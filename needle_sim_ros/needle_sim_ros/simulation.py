@@ -457,11 +457,12 @@ class NeedleSimulation:
         if count <= 0:
             return records
         times = np.array([self._grid_time(index) for index in range(data.step_index + 1, data.step_index + count + 1)])
-        # the compiled sequence cannot advance the state of stateful contributions between its steps; one that runs
-        # compiled itself (the tissue) takes the run, a step at a time if a hook reads each step's state
+        # the compiled sequence takes time-invariant forces only; a contribution that runs compiled itself (the
+        # tissue, a CompiledContribution) takes the run, a step at a time if a hook reads each step's state
         stateful = [force for force in self.extra_forces if force.stateful]
-        sequence = self.compiled_sequence and not stateful
-        run = stateful[0] if self.compiled_sequence and len(stateful) == 1 and stateful[0].compiled_run else None
+        runs = [force for force in self.extra_forces if force.compiled_run]
+        sequence = self.compiled_sequence and not stateful and not runs
+        run = runs[0] if self.compiled_sequence and len(runs) == 1 and all(f is runs[0] for f in stateful) else None
         first_dt = float(times[0]) - data.state.t
         regular = abs(first_dt - dt) <= 0.05 * dt + 4.0 * math.ulp(abs(t_target))  # not after a grid shift
         # the base from the received poses: a compiled run evaluates its motions and takes its steps in one call
@@ -585,17 +586,20 @@ class NeedleSimulation:
 
     def _run_steps(self, run, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                    records: list[StepRecord]) -> int:
-        """Steps at the given times in one compiled run of the stateful contribution ``run`` (the tissue) where the
-        other contributions are time-invariant (see :meth:`advance_to`); returns how many were done."""
+        """Steps at the given times in one compiled run of the contribution ``run`` (the tissue, a
+        CompiledContribution) where the other contributions are time-invariant (see :meth:`advance_to`); returns
+        how many were done."""
         data = self.data
-        others = [*(force for force in self.model_forces if not force.stateful), *data.point_loads.values()]
+        others = [*(force for force in self.model_forces if force is not run and not force.stateful),
+                  *data.point_loads.values()]
         if not self.integrator.supports_sequence(others):
             return 0
         start = time.perf_counter()
-        (own,) = data.force_states
+        own = data.force_states[0] if run.stateful else None
         result, own = run.run_steps(self.model, self.integrator, self.state, own, self.dt, times, motions, rotations,
                                     others, data.integrator)
-        data.force_states = (own,)
+        if run.stateful:
+            data.force_states = (own,)
         self._record_run(result, start, times, motions, rotations, records)
         return result.done
 

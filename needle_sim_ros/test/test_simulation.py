@@ -392,9 +392,9 @@ def test_a_step_failing_after_converged_sub_steps_restores_the_integrators_memor
 
 
 def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
-    """The stateful forces advance once the integrator has accepted the step; if one fails (here the tissue, after
-    its contact and track have advanced, while it advances the shaft's anchors and LuGre z), its error is raised
-    with the whole simulation as before the step."""
+    """The stateful forces advance once the integrator has accepted the step; if one fails (here the tissue's
+    compiled advance of its contact, track, shaft anchors and LuGre z), its error is raised with the whole
+    simulation as before the step."""
     sim = _inserted(SHAFT_LAWS[1])
     t = sim.state.t + sim.dt
     base = sim.base_motion_at(t)
@@ -402,7 +402,7 @@ def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
 
     def broken(*args):
         raise FloatingPointError("broken tissue law")
-    monkeypatch.setattr(tissue_model, "advance_shaft", broken)
+    monkeypatch.setattr(tissue_model, "advance_packed", broken)
     with pytest.raises(FloatingPointError):
         sim.step(base, t)
     monkeypatch.undo()

@@ -8,7 +8,8 @@ import pytest
 
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
-from needle_sim_ros.tissue.tissue_model import TissueModel
+from needle_sim_ros.tissue.sequence import unpack_record
+from needle_sim_ros.tissue.tissue_model import TissueModel, TissueState
 from needle_sim_ros.tissue.track import project_on_polyline
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
@@ -119,7 +120,9 @@ def assert_same(a, b, tolerance: float = 0.0, path: str = "force_states") -> Non
         assert a.keys() == b.keys(), path
         for key in a:
             assert_same(a[key], b[key], tolerance, f"{path}.{key}")
-    elif hasattr(a, "__slots__"):  # the track, the tissue state
+    elif isinstance(a, TissueState):  # field by field
+        assert_same(unpack_record(a.record), unpack_record(b.record), tolerance, path)
+    elif hasattr(a, "__slots__"):  # the track
         assert_same(a.__reduce__()[1], b.__reduce__()[1], tolerance, path)
     elif hasattr(a, "__dict__"):
         assert_same(vars(a), vars(b), tolerance, path)

@@ -35,7 +35,8 @@ from .newton import (CONVERGED, NewtonSolver, assemble_system, keeps_extrapolati
 from .banded import ELEMENT_BANDWIDTH, band_cholesky, cholesky_solve
 from .forces import check_forces
 from .partition import hermite_quintic
-from .sequence import EXTRAPOLATE, IntegratorMemory, SequenceBuffers, integrate_sequence
+from .sequence import IntegratorMemory, SequenceBuffers, integrate_sequence
+from .step import EXTRAPOLATE
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
 
@@ -221,7 +222,8 @@ class Integrator:
         before, after = self.sequence_arguments(dt, forces, state.t + dt, k, memory)
         history = before[0]
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
-        done = integrate_sequence(history, motions, rotations, *before[1:], *after)
+        times = state.t + dt * np.arange(1, k + 1)
+        done = integrate_sequence(history, times, motions, rotations, *before[1:], *after)
         return SequenceResult.of_run(done, after)
 
     def sequence_arguments(self, dt: float, forces, t_next: float, steps: int,
@@ -243,7 +245,7 @@ class Integrator:
             cached = (memory, dt, tuple(forces) if time_invariant else None, (
                 buffers.history, self._coefficients(dt), ext_Q, self.newton_tol, self.max_newton_iterations,
                 buffers.prescribed, buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
-                buffers.scale, buffers.tables, buffers.base_rows, buffers.residual, memory.band, memory.pivots,
+                buffers.scale, buffers.tables, buffers.residual, memory.band, memory.pivots,
                 memory.factorization, ELEMENT_BANDWIDTH, memory.control, memory.last_motion))
             self._sequence_cache = cached
         return cached[3], run_outputs(steps, self.model.n_dof)
@@ -252,8 +254,8 @@ class Integrator:
                       memory: IntegratorMemory | None = None) -> tuple[tuple, np.ndarray]:
         """The needle's part of a compiled run with state-dependent contributions besides ``forces`` (which must be
         time-invariant, :meth:`supports_sequence`), e.g. ``tissue.sequence``: (coefficients, tolerance, iteration
-        limit, base node buffers, active mask, scales, model tables, base rows and work arrays, bandwidth) and
-        the constant external force. A fresh matrix every step, as :meth:`step`: the memory's kept
+        limit, base node buffers, active mask, scales, model tables, work arrays, bandwidth) and the constant
+        external force. A fresh matrix every step, as :meth:`step`: the memory's kept
         factorization is invalidated."""
         (memory or self.memory).invalidate()
         key = (dt, self.newton_tol, self.max_newton_iterations)
@@ -262,7 +264,7 @@ class Integrator:
             self._run_cache = (key, (
                 self._coefficients(dt), self.newton_tol, self.max_newton_iterations, buffers.prescribed,
                 buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active, buffers.scale,
-                buffers.tables, buffers.base_rows, buffers.residual, solver.band(ELEMENT_BANDWIDTH),
+                buffers.tables, buffers.residual, solver.band(ELEMENT_BANDWIDTH),
                 solver.band(ELEMENT_BANDWIDTH, "external"), solver.pivots, solver.factorization, ELEMENT_BANDWIDTH))
         return self._run_cache[1], self._constant_force(self._split(forces)[0], t_next, None)
 

@@ -261,28 +261,56 @@ def newton_control(norm, previous, tol, always_refactor):
     return CHORD
 
 
-@njit(cache=True)
-def newton_solve(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q, residual,
-                 band, pivots, factorization, kl, tol, max_iterations, always_refactor, fresh_matrix=True):
-    """Newton loop with a constant external force (fast path). Dynamics starts from the predictor, statics from
-    the given values. ``fresh_matrix=False`` starts with chord steps on the factorization already in ``band``
-    (modified Newton across time steps; ``newton_control`` refactors as soon as they contract too slowly).
+@njit(inline="always")
+def newton(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, constant_Q, ext_Q,
+           residual, band, ext_band, pivots, factorization, kl, tol, max_iterations, always_refactor, fresh_matrix,
+           assemble, forces, rotation):
+    """The Newton loop of every compiled path (:mod:`needle_sim_ros.model.step`'s contributions' forces assembled
+    before every correction): dynamics starts from the predictor, statics from the given values. ext_Q <- the
+    constant external force plus ``assemble(forces, q, q', rotation, ext_Q, ext_band, kl, c_q, c_q')`` (the
+    contributions' Q, and whenever the matrix is refactored their part of it, -(dQ/dq + c_C dQ/dq'), into
+    ``ext_band``; a (0, 0) ``ext_band`` for none). ``fresh_matrix=False`` starts with chord steps on the
+    factorization already in ``band`` (modified Newton across steps; ``newton_control`` refactors as soon as they
+    contract too slowly). Inlined into its callers, so ``assemble`` is a compile-time constant there.
     Returns (status CONVERGED / FAILED / 1 = not converged, iterations, last scaled correction)."""
-    empty = np.zeros((0, 0))
     if dynamic:
         predict(values, history, prescribed, coef, active, predictor)
-    refactor = fresh_matrix
-    previous = np.inf
-    norm = np.inf
+    c_qd = rate_coefficients(coef, dynamic)[1]
+    no_band = np.zeros((0, 0))
+    refactor, previous, norm, symmetric = fresh_matrix, np.inf, np.inf, True
     for iteration in range(max_iterations):
-        norm = iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, empty, residual, band,
-                       pivots, factorization, kl, refactor, True)
+        q, qd = values[0], values[1]
+        ext_Q[:] = constant_Q
+        if refactor:
+            ext_band[:, :] = 0.0
+            ok = assemble(forces, q, qd, rotation, ext_Q, ext_band, kl, -1.0, -c_qd)
+            symmetric = band_symmetric(ext_band, kl)
+        else:  # a chord step reuses the factorization: Q alone
+            ok = assemble(forces, q, qd, rotation, ext_Q, no_band, 0, 0.0, 0.0)
+        if not ok:
+            return FAILED, iteration + 1, norm
+        norm = iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, ext_band, residual, band,
+                       pivots, factorization, kl, refactor, symmetric)
         action = newton_control(norm, previous, tol, always_refactor)
         if action == CONVERGED or action == FAILED:
             return action, iteration + 1, norm
-        refactor = action == REFACTOR
-        previous = norm
+        refactor, previous = action == REFACTOR, norm
     return 1, max_iterations, norm
+
+
+@njit(cache=True)
+def no_forces(forces, q, qd, rotation, Q, band, kl, c_q, c_qd):
+    """The assemble kernel of no contribution (a constant external force only)."""
+    return True
+
+
+@njit(cache=True)
+def newton_solve(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q, residual,
+                 band, pivots, factorization, kl, tol, max_iterations, always_refactor, fresh_matrix=True):
+    """:func:`newton` with a constant external force ext_Q only (the general path's and statics' entry)."""
+    return newton(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q,
+                  np.empty(ext_Q.size), residual, band, np.zeros((0, 0)), pivots, factorization, kl, tol,
+                  max_iterations, always_refactor, fresh_matrix, no_forces, 0.0, np.eye(3))
 
 
 _NO_MATRIX = np.zeros((0, 0))

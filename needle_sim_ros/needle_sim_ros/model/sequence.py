@@ -1,16 +1,6 @@
-"""A run of time steps in one compiled call: the fast path of the simulator's fixed-rate loop.
-
-For the common case -- the constrained coordinates driven by the base frame (eqs. 18-19) or fixed in the world,
-and only state-independent, time-invariant external forces (gravity, world-frame point loads) -- a sequence of k
-steps needs no Python between the steps: per step the base node kinematics are imposed from the packed base
-motion, Newton runs as in :meth:`needle_sim_ros.model.integrators.Integrator.step` (predictor choice and budgets
-alike), and the base reaction wrench (eq. 20) is evaluated. The iteration matrix is kept across steps (modified
-Newton) only while the base holds still and the steps converge in a single correction: then no matrix is
-assembled or factored at all (a needle held still under a load: 22 instead of 40 us per step). Otherwise a step
-starts with a fresh matrix, as the general path does every step: chord corrections on an older matrix converge
-slowly (released from a 10 g tip load: 4.2 corrections per step instead of 2.1; pitching base: 3.0 instead of 1.1).
-A step that does not converge ends the run; the caller integrates it with the general path (sub-stepping) and
-continues.
+"""A run of time steps in one compiled call without state-dependent contributions (gravity, world-frame point
+loads): the fast path of the simulator's fixed-rate loop, :func:`~needle_sim_ros.model.step.run_steps` with no
+contribution, and the buffers the compiled runs use.
 """
 from __future__ import annotations
 
@@ -18,13 +8,8 @@ import numpy as np
 from numba import njit
 
 from .banded import ELEMENT_BANDWIDTH, band_width_columns
-from .kinematics import rigid_node_kinematics
-from .newton import (CONVERGED, keeps_extrapolating, model_tables, newton_solve, predictor_budget,
-                     predictor_for_attempt)
-from .reaction import base_constraint_kernel, base_rows, holder_wrench
-
-EXTRAPOLATE, FACTORED = 0, 1  # entries of the control flags
-
+from .newton import model_tables, no_forces
+from .step import EXTRAPOLATE, FACTORED, keep, off_base, run_steps
 
 class SequenceBuffers:
     """Work arrays of the compiled step sequence of one model (the factorization kept across steps is in the
@@ -33,7 +18,6 @@ class SequenceBuffers:
     def __init__(self, model) -> None:
         n = model.n_dof
         self.tables = model_tables(model)
-        self.base_rows = base_rows(model)
         self.active = model.partition.active
         self.scale = model.increment_scale
         self.history = np.empty((4, n))  # rows q, q', q'', a of the start state
@@ -80,57 +64,14 @@ class IntegratorMemory:
 
 
 @njit(cache=True)
-def impose_base(motion, rotation, base_local_r, base_local_rx, base_nodes, prescribed):
-    """The base nodes' prescribed rows (q, q', q'') from a packed base motion (19,) and its rotation (eqs. 18-19);
-    returns the base axis (the rotation's first column)."""
-    rigid_node_kinematics(motion[0:3], rotation, motion[7:10], motion[10:13], motion[13:16], motion[16:19],
-                          base_local_r, base_local_rx, base_nodes, prescribed)
-    return rotation[:, 0].copy()
-
-
-@njit(cache=True)
-def integrate_sequence(history, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed, base_nodes,
-                       base_local_r, base_local_rx, active, scale, tables, rows, residual, band, pivots,
-                       factorization, kl, control, last_motion, states, wrenches, iterations):
-    """Integrate from history (rows q, q', q'', a at t_n) one step per packed base motion (k, 19) with rotations
-    (k, 3, 3). Writes each step's rows into states (k, 4, n), its wrench on the holder [force, torque in the world
-    frame, force, torque in the base frame] into wrenches (k, 12) and its Newton corrections into iterations (k,).
-    Returns the number of steps done: k, or the index of the first step that did not converge."""
-    values = np.empty_like(history)
-    current = history.copy()
-    (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, strain_rate_weights, mass_rows,
-     isotropic_rows, transverse_rows) = rows
-    external = ext_Q[:6].copy()
-    for i in range(motions.shape[0]):
-        m = motions[i]
-        rotation = rotations[i]
-        axis = impose_base(m, rotation, base_local_r, base_local_rx, base_nodes, prescribed)
-        moved = np.any(m != last_motion)
-        last_motion[:] = m
-        total = 0
-        status = -1
-        for attempt in range(2):
-            predictor = predictor_for_attempt(attempt, control[EXTRAPOLATE] == 1)
-            budget = predictor_budget(predictor, max_iterations)
-            status, used, norm = newton_solve(values, current, prescribed, coef, True, predictor, active, scale,
-                                              tables, axis, ext_Q, residual, band, pivots, factorization, kl, tol,
-                                              budget, False, control[FACTORED] == 0 or moved)
-            total += used
-            control[FACTORED] = 1 if status != -1 else 0
-            if status == CONVERGED:
-                control[EXTRAPOLATE] = 1 if keeps_extrapolating(predictor, used) else 0
-                break
-        if status != CONVERGED:
-            control[FACTORED] = 0
-            return i
-        if total > 1:  # the matrix is kept for the next step only while a single correction sufficed
-            control[FACTORED] = 0
-        current[:, :] = values
-        states[i] = values
-        iterations[i] = total
-        constraint = base_constraint_kernel(values[0, :12].copy(), values[1, :12].copy(), values[2, :12].copy(),
-                                            axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
-                                            strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, axis,
-                                            external)
-        wrenches[i] = holder_wrench(values[0, 3:6].copy(), constraint, rotation)
-    return motions.shape[0]
+def integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed, base_nodes,
+                       base_local_r, base_local_rx, active, scale, tables, residual, band, pivots, factorization, kl,
+                       control, last_motion, states, wrenches, iterations):
+    """:func:`~needle_sim_ros.model.step.run_steps` without state-dependent contributions (the matrix kept across
+    steps where it may be); returns the number of steps done."""
+    done, _ = run_steps(history, times, motions, rotations, ext_Q,
+                        (coef, tol, max_iterations, active, scale, tables, kl),
+                        (prescribed, base_nodes, base_local_r, base_local_rx),
+                        (residual, band, np.zeros((0, 0)), pivots, factorization), control, last_motion, True, 0.0,
+                        no_forces, keep, off_base, (states, wrenches, iterations))
+    return done

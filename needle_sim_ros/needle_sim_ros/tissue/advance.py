@@ -1,6 +1,5 @@
 """The tissue's state advanced after an accepted step, in compiled calls on arrays: one implementation for the
-general step (``TissueModel.advance`` wraps the results into the state's values) and for the compiled run of
-steps (``tissue.sequence``).
+general step and the compiled run of steps (both through ``sequence.advance_tissue``).
 
 * ``advance_contact``: tip depth and axial speed, puncture, the track started and cut, whether the tip is at the
   cut front (``coupling.ContactState``, ``track.Track``).

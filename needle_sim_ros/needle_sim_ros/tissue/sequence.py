@@ -1,147 +1,251 @@
-"""A run of time steps through the tissue in one compiled call: the simulator's fast path with the tissue on.
+"""The tissue as a contribution of the compiled step loop (:mod:`needle_sim_ros.model.step`): its typed state
+record, its assemble / advance / touches_base kernels, and the compiled run of steps through the tissue.
 
-Per step, as the general path does it (``model.data.step`` with ``Integrator.step`` and ``TissueModel.advance``):
-the base node kinematics imposed from the packed base motion; Newton (predictor choice and budgets alike, a fresh
-matrix every step) with the tissue's contributions of the step -- the shaft's lateral and axial point forces, the
-bevel tip and the seed 002 tip -- assembled before every correction in the order of ``TissueModel.at`` and their
-Jacobians whenever the matrix is refactored; then the tissue advanced (``advance``) and the base wrench (eq. 20)
-under the next step's contributions (evaluated only if one acts on the base element, as ``reaction_wrench``).
-The tissue state travels through the run as arrays: the contact and the track, the shaft anchors, active points
-and law state, and the next step's frozen shaft data.
-A step that does not converge ends the run (as a bevel side along the tip tangent does); the caller integrates it
-with the general path (sub-stepping, errors) and continues.
+* ``TissueRecord``: the contact (``Contact``: puncture, tip depth and speed, step duration, at the cut front, the
+  track's arrays), its state time (NaN: never updated), the axial law's state, the shaft points' anchors and
+  active flags, and the frozen lateral and axial parts of the next step (``advance.FROZEN_FIELDS`` tuples);
+  ``TissueParameters``: the tissue's constants. Both cross the Python boundary packed into one float64 array
+  (:mod:`needle_sim_ros.model.records`): ``pack_record`` / ``unpack_record``, ``pack_parameters``.
+* ``tissue_assemble``: the shaft's lateral and axial point forces, the bevel tip and the seed 002 tip, each on
+  its own Q then added (the general path's order, ``TissueModel.at``); ``advance_tissue``: the contact and the
+  shaft advanced after an accepted step (the general path's ``TissueModel.advance`` calls it too).
 """
 from __future__ import annotations
 
-import numpy as np
-from numba import njit
+from typing import NamedTuple
 
-from needle_sim_ros.model.banded import band_symmetric
-from needle_sim_ros.model.newton import (CONVERGED, FAILED, REFACTOR, iterate, keeps_extrapolating, newton_control,
-                                         predict, predictor_budget, predictor_for_attempt, rate_coefficients)
-from needle_sim_ros.model.reaction import base_wrench_kernel
-from needle_sim_ros.model.sequence import EXTRAPOLATE, impose_base
+import numpy as np
+from numba import literal_unroll, njit
+
+from needle_sim_ros.model.records import (put, take_flag, take_flags, take_float, take_index_matrix, take_indices,
+                                          take_int, take_matrix, take_vector)
+from needle_sim_ros.model.step import run_steps
 
 from .advance import advance_contact, advance_shaft, tip_parameters
 from .coupling import (bevel_tip_assembly, first_slot_in, shaft_arguments, shaft_forces_assembly,
                        tip_resistance_assembly)
 
 
+class Contact(NamedTuple):
+    """The tissue contact after a step (``advance.advance_contact``)."""
+
+    punctured: bool
+    tip_depth: float      # [m] below the entry surface
+    tip_speed: float      # [m/s] along the entry normal
+    step_duration: float  # [s] since the previous update
+    at_front: bool        # the tip at the cut front
+    vertices: np.ndarray  # the track (``track.Track``)
+    arc: np.ndarray
+    direction: np.ndarray
+    previous_tip: np.ndarray
+    end_tangent: np.ndarray
+
+
+class TissueRecord(NamedTuple):
+    """The tissue's state (module docstring)."""
+
+    contact: Contact
+    time: float           # of the contact's last update (NaN: never)
+    law_state: float
+    anchor: np.ndarray    # shaft points' anchors (track coordinates)
+    active: np.ndarray    # shaft points inside the tissue
+    lateral: tuple        # frozen lateral part of the next step (``advance.FROZEN_FIELDS``)
+    axial: tuple          # frozen axial part
+
+
+class TissueParameters(NamedTuple):
+    """The tissue's constants: block entry, capsule puncture depth, track spacing, ``ShaftSupport.kernel_arguments``
+    (``shaft``) and the tip forces' constants (``TissueModel.tip_arguments``)."""
+
+    entry_point: np.ndarray
+    entry_normal: np.ndarray
+    puncture_depth: float
+    spacing: float
+    shaft: tuple
+    bevel_on: bool
+    bevel_axial: float
+    bevel_transverse: float
+    bevel_side: np.ndarray
+    bevel_edge: float
+    resistance_on: bool
+    a1: float
+    a2: float
+    cutting_force: float
+    speed_scale: float
+
+
+class TissueStep(NamedTuple):
+    """The state the step loop carries: the record, the constants and the tip forces' step values."""
+
+    record: TissueRecord
+    parameters: TissueParameters
+    bevel_scale: float
+    cutting: bool
+
+
 @njit(cache=True)
-def tissue_forces(q, qd, constant_Q, lateral, axial, rotation, tip, scale, punctured, cutting, ext_Q, band, kl, c_q,
-                  c_qd):
-    """ext_Q <- constant_Q + the tissue's generalized forces at (q, qd), each contribution on its own Q then added
-    (shaft, bevel, tip resistance: the general path's order); c_q dQ/dq + c_qd dQ/dq' added to band unless it is
-    (0, 0). ``tip``: ``TissueModel.tip_arguments``. False if the bevel side lies along the tip tangent."""
-    (bevel_on, axial_force, transverse_force, side_base, _, resistance_on, entry_point, entry_normal, a1, a2,
-     cutting_force, speed_scale) = tip
-    ext_Q[:] = constant_Q
-    Q = np.zeros(q.size)
-    shaft_forces_assembly(q, qd, shaft_arguments(lateral), shaft_arguments(axial), Q, band, kl, c_q, c_qd)
-    ext_Q += Q
-    if bevel_on:
-        Q[:] = 0.0
-        if scale != 0.0 and not bevel_tip_assembly(q, rotation, side_base, axial_force, transverse_force, scale, Q,
-                                                   band, kl, c_q, c_qd):
+def _write_fields(buffer, cursor, fields):
+    for field in literal_unroll(fields):
+        put(buffer, cursor, field)
+
+
+@njit(cache=True)
+def _write_record(buffer, record):
+    cursor = np.zeros(1, dtype=np.int64)
+    _write_fields(buffer, cursor, record.contact)
+    _write_fields(buffer, cursor, (record.time, record.law_state, record.anchor, record.active))
+    _write_fields(buffer, cursor, record.lateral)
+    _write_fields(buffer, cursor, record.axial)
+    return cursor[0]
+
+
+@njit(cache=True)
+def pack_record(record):
+    """A ``TissueRecord`` as one float64 array."""
+    buffer = np.empty(_write_record(np.empty(0), record))
+    _write_record(buffer, record)
+    return buffer
+
+
+@njit(cache=True)
+def _take_part(buffer, cursor):
+    return (take_indices(buffer, cursor), take_vector(buffer, cursor), take_index_matrix(buffer, cursor),
+            take_matrix(buffer, cursor), take_matrix(buffer, cursor), take_matrix(buffer, cursor),
+            take_matrix(buffer, cursor), take_vector(buffer, cursor), take_vector(buffer, cursor),
+            take_vector(buffer, cursor), take_vector(buffer, cursor), take_vector(buffer, cursor),
+            take_float(buffer, cursor), take_float(buffer, cursor), take_float(buffer, cursor),
+            take_float(buffer, cursor))
+
+
+@njit(cache=True)
+def unpack_record(buffer):
+    """The ``TissueRecord`` of ``pack_record``'s array."""
+    cursor = np.zeros(1, dtype=np.int64)
+    contact = Contact(take_flag(buffer, cursor), take_float(buffer, cursor), take_float(buffer, cursor),
+                      take_float(buffer, cursor), take_flag(buffer, cursor), take_matrix(buffer, cursor),
+                      take_vector(buffer, cursor), take_vector(buffer, cursor), take_vector(buffer, cursor),
+                      take_vector(buffer, cursor))
+    return TissueRecord(contact, take_float(buffer, cursor), take_float(buffer, cursor), take_vector(buffer, cursor),
+                        take_flags(buffer, cursor), _take_part(buffer, cursor), _take_part(buffer, cursor))
+
+
+@njit(cache=True)
+def _write_parameters(buffer, contact, shaft, tip):
+    cursor = np.zeros(1, dtype=np.int64)
+    _write_fields(buffer, cursor, contact)
+    _write_fields(buffer, cursor, shaft)
+    _write_fields(buffer, cursor, tip)
+    return cursor[0]
+
+
+@njit(cache=True)
+def pack_parameters(contact, shaft, tip):
+    """``TissueParameters`` as one float64 array from (entry point, entry normal, puncture depth, track spacing),
+    ``ShaftSupport.kernel_arguments`` and ``TissueModel.tip_arguments``."""
+    buffer = np.empty(_write_parameters(np.empty(0), contact, shaft, tip))
+    _write_parameters(buffer, contact, shaft, tip)
+    return buffer
+
+
+@njit(cache=True)
+def unpack_parameters(buffer):
+    """The ``TissueParameters`` of ``pack_parameters``' array."""
+    c = np.zeros(1, dtype=np.int64)
+    entry_point, entry_normal, puncture_depth, spacing = (take_vector(buffer, c), take_vector(buffer, c),
+                                                          take_float(buffer, c), take_float(buffer, c))
+    shaft = (take_vector(buffer, c), take_vector(buffer, c), take_float(buffer, c), take_matrix(buffer, c),
+             take_matrix(buffer, c), take_index_matrix(buffer, c), take_flag(buffer, c), take_int(buffer, c),
+             take_vector(buffer, c), take_float(buffer, c), take_vector(buffer, c), take_vector(buffer, c),
+             take_vector(buffer, c), take_matrix(buffer, c), take_vector(buffer, c), take_vector(buffer, c),
+             take_vector(buffer, c), take_vector(buffer, c))
+    bevel_on, bevel_axial, bevel_transverse, side, edge = (take_flag(buffer, c), take_float(buffer, c),
+                                                           take_float(buffer, c), take_vector(buffer, c),
+                                                           take_float(buffer, c))
+    resistance_on = take_flag(buffer, c)
+    take_vector(buffer, c)  # the tip's copy of the entry point and normal
+    take_vector(buffer, c)
+    return TissueParameters(entry_point, entry_normal, puncture_depth, spacing, shaft, bevel_on, bevel_axial,
+                            bevel_transverse, side, edge, resistance_on, take_float(buffer, c), take_float(buffer, c),
+                            take_float(buffer, c), take_float(buffer, c))
+
+
+@njit(cache=True)
+def advance_tissue(record, parameters, q, qd, t):
+    """The ``TissueRecord`` after a step accepted at (q, q', t)."""
+    c = record.contact
+    contact = Contact(*advance_contact(c.punctured, record.time, c.vertices, c.arc, c.direction, c.previous_tip,
+                                       c.end_tangent, q, qd, t, parameters.entry_point, parameters.entry_normal,
+                                       parameters.puncture_depth, parameters.spacing))
+    law_state, anchor, active, lateral, axial = advance_shaft(
+        q, contact.vertices, contact.arc, contact.end_tangent, contact.tip_depth, contact.tip_speed,
+        contact.step_duration, record.anchor, record.active, record.law_state, *parameters.shaft)
+    return TissueRecord(contact, t, law_state, anchor, active, lateral, axial)
+
+
+@njit(cache=True)
+def advance_packed(record, parameters, q, qd, t):
+    """``advance_tissue`` on packed arrays (the general path's ``TissueModel.advance``)."""
+    return pack_record(advance_tissue(unpack_record(record), unpack_parameters(parameters), q, qd, t))
+
+
+@njit(cache=True)
+def tissue_step(record, parameters):
+    """The step loop's state of the tissue in ``record``: the bevel force's scale and whether the tip cuts."""
+    c = record.contact
+    shaft = parameters.shaft
+    scale, cutting = tip_parameters(c.punctured, c.at_front, c.tip_depth, parameters.bevel_edge, shaft[12],
+                                    shaft[13])
+    return TissueStep(record, parameters, scale, cutting)
+
+
+@njit(cache=True)
+def tissue_assemble(step, q, qd, rotation, Q, band, kl, c_q, c_qd):
+    """Q += the tissue's generalized forces at (q, q'), each contribution on its own Q then added (shaft, bevel,
+    tip resistance: the general path's order); c_q dQ/dq + c_qd dQ/dq' added to band unless it is (0, 0).
+    False if the bevel side lies along the tip tangent."""
+    record, p = step.record, step.parameters
+    own = np.zeros(q.size)
+    shaft_forces_assembly(q, qd, shaft_arguments(record.lateral), shaft_arguments(record.axial), own, band, kl, c_q,
+                          c_qd)
+    Q += own
+    if p.bevel_on:
+        own[:] = 0.0
+        if step.bevel_scale != 0.0 and not bevel_tip_assembly(q, rotation, p.bevel_side, p.bevel_axial,
+                                                               p.bevel_transverse, step.bevel_scale, own, band, kl,
+                                                               c_q, c_qd):
             return False
-        ext_Q += Q
-    if resistance_on:
-        Q[:] = 0.0
-        tip_resistance_assembly(q, qd, punctured, cutting, entry_point, entry_normal, a1, a2, cutting_force,
-                                speed_scale, Q, band, kl, c_q, c_qd)
-        ext_Q += Q
+        Q += own
+    if p.resistance_on:
+        own[:] = 0.0
+        tip_resistance_assembly(q, qd, record.contact.punctured, step.cutting, p.entry_point, p.entry_normal, p.a1,
+                                p.a2, p.cutting_force, p.speed_scale, own, band, kl, c_q, c_qd)
+        Q += own
     return True
 
 
 @njit(cache=True)
-def tissue_newton(values, history, prescribed, coef, predictor, active, scale, tables, axis, constant_Q, residual,
-                  band, ext_band, pivots, factorization, kl, tol, max_iterations, lateral, axial, rotation, tip,
-                  bevel_scale, punctured, cutting):
-    """Newton with the tissue's contributions (``NewtonSolver.solve`` with state-dependent forces): the forces
-    before every correction, their Jacobians into ``ext_band`` whenever the matrix is refactored. Returns (status
-    CONVERGED / FAILED / 1 = not converged, iterations, last scaled correction)."""
-    predict(values, history, prescribed, coef, active, predictor)
-    c_qd = rate_coefficients(coef, True)[1]
-    ext_Q = np.empty(constant_Q.size)
-    no_band = np.zeros((0, 0))
-    refactor, previous, norm, symmetric = True, np.inf, np.inf, True
-    for iteration in range(max_iterations):
-        q, qd = values[0], values[1]
-        if refactor:
-            ext_band[:, :] = 0.0
-            ok = tissue_forces(q, qd, constant_Q, lateral, axial, rotation, tip, bevel_scale, punctured, cutting,
-                               ext_Q, ext_band, kl, -1.0, -c_qd)
-            symmetric = band_symmetric(ext_band, kl)
-        else:  # a chord step reuses the factorization: Q alone
-            ok = tissue_forces(q, qd, constant_Q, lateral, axial, rotation, tip, bevel_scale, punctured, cutting,
-                               ext_Q, no_band, 0, 0.0, 0.0)
-        if not ok:
-            return FAILED, iteration + 1, norm
-        norm = iterate(values, history, coef, True, active, scale, tables, axis, ext_Q, ext_band, residual, band,
-                       pivots, factorization, kl, refactor, symmetric)
-        action = newton_control(norm, previous, tol, False)
-        if action == CONVERGED or action == FAILED:
-            return action, iteration + 1, norm
-        refactor, previous = action == REFACTOR, norm
-    return 1, max_iterations, norm
+def tissue_advance(step, q, qd, t):
+    """The step loop's advance kernel: the tissue after the accepted step."""
+    return tissue_step(advance_tissue(step.record, step.parameters, q, qd, t), step.parameters)
 
 
 @njit(cache=True)
-def integrate_tissue_sequence(history, times, motions, rotations, needle, constant_Q, control, contact, contact_time,
-                              shaft, lateral, axial, contact_arguments, shaft_constants, tip, states, wrenches,
+def tissue_touches_base(step):
+    """Whether a shaft point of the next step lies on the base element."""
+    return first_slot_in(step.record.lateral[2], 0) or first_slot_in(step.record.axial[2], 0)
+
+
+@njit(cache=True)
+def integrate_tissue_sequence(history, times, motions, rotations, coef, constant_Q, tol, max_iterations, prescribed,
+                              base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band,
+                              ext_band, pivots, factorization, kl, control, record, parameters, states, wrenches,
                               iterations):
-    """Integrate from history (rows q, q', q'', a) one step per end time (k,) and packed base motion (k, 19) with
-    rotations (k, 3, 3), the tissue advanced after each. ``needle``: ``Integrator.run_arguments``; ``contact``:
-    ``advance_contact``'s tuple, ``contact_time`` its time (NaN: never); ``shaft``: (law state, anchors, active);
-    ``lateral``, ``axial``: the frozen parts of the first step; ``contact_arguments``: (entry point, entry normal,
-    puncture depth, track spacing); ``shaft_constants``: ``ShaftSupport.kernel_arguments``. Writes each step's
-    rows, wrench (``holder_wrench``) and Newton corrections into states, wrenches, iterations. Returns (steps done:
-    k, or the index of the first step that did not converge; the tissue state after them as passed in)."""
-    (coef, tol, max_iterations, prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables, rows,
-     residual, band, ext_band, pivots, factorization, kl) = needle
-    entry_point, entry_normal, puncture_depth, spacing = contact_arguments
-    edge_a, bottoms, table = tip[4], shaft_constants[12], shaft_constants[13]
-    law_state, anchor, was_active = shaft
-    values = np.empty_like(history)
-    current = history.copy()
-    single_element = history.shape[1] == 12  # the tip forces act on the base element's rows too
-    external = np.empty(6)
-    Q = np.zeros(constant_Q.size)
-    no_band = np.zeros((0, 0))
-    bevel_scale, cutting = tip_parameters(contact[0], contact[4], contact[1], edge_a, bottoms, table)
-    for i in range(times.size):
-        rotation = rotations[i]
-        axis = impose_base(motions[i], rotation, base_local_r, base_local_rx, base_nodes, prescribed)
-        total = 0
-        status = -1
-        for attempt in range(2):
-            predictor = predictor_for_attempt(attempt, control[EXTRAPOLATE] == 1)
-            budget = predictor_budget(predictor, max_iterations)
-            status, used, norm = tissue_newton(values, current, prescribed, coef, predictor, active, scale, tables,
-                                               axis, constant_Q, residual, band, ext_band, pivots, factorization, kl,
-                                               tol, budget, lateral, axial, rotation, tip, bevel_scale, contact[0],
-                                               cutting)
-            total += used
-            if status == CONVERGED:
-                control[EXTRAPOLATE] = 1 if keeps_extrapolating(predictor, used) else 0
-                break
-        if status != CONVERGED:
-            return i, contact, contact_time, (law_state, anchor, was_active), lateral, axial
-        current[:, :] = values
-        states[i] = values
-        iterations[i] = total
-        q, qd = values[0], values[1]
-        contact = advance_contact(contact[0], contact_time, contact[5], contact[6], contact[7], contact[8],
-                                  contact[9], q, qd, times[i], entry_point, entry_normal, puncture_depth, spacing)
-        contact_time = times[i]
-        law_state, anchor, was_active, lateral, axial = advance_shaft(
-            q, contact[5], contact[6], contact[9], contact[1], contact[2], contact[3], anchor, was_active, law_state,
-            *shaft_constants)
-        bevel_scale, cutting = tip_parameters(contact[0], contact[4], contact[1], edge_a, bottoms, table)
-        external[:] = constant_Q[:6]
-        if single_element or first_slot_in(lateral[2], 0) or first_slot_in(axial[2], 0):  # touches the base's rows
-            tissue_forces(q, qd, constant_Q, lateral, axial, rotation, tip, bevel_scale, contact[0], cutting, Q,
-                          no_band, 0, 0.0, 0.0)
-            external[:] = Q[:6]
-        wrenches[i] = base_wrench_kernel(q, qd, values[2], *rows, rotation, external)
-    return times.size, contact, contact_time, (law_state, anchor, was_active), lateral, axial
+    """:func:`~needle_sim_ros.model.step.run_steps` with the tissue (a fresh matrix every step) from the packed
+    record and parameters; returns (steps done, the packed record after them)."""
+    step = tissue_step(unpack_record(record), unpack_parameters(parameters))
+    done, step = run_steps(history, times, motions, rotations, constant_Q,
+                           (coef, tol, max_iterations, active, scale, tables, kl),
+                           (prescribed, base_nodes, base_local_r, base_local_rx),
+                           (residual, band, ext_band, pivots, factorization), control, np.empty(19), False, step,
+                           tissue_assemble, tissue_advance, tissue_touches_base, (states, wrenches, iterations))
+    return done, pack_record(step.record)

@@ -18,35 +18,33 @@ from needle_sim_ros.model import centerline
 from needle_sim_ros.model.forces import ForceContribution
 from needle_sim_ros.model.integrators import SequenceResult, run_outputs
 
-from .advance import advance_contact, advance_shaft, tip_parameters
+from .advance import tip_parameters
 from .bevel_tip import BevelTip
 from .coupling import (NO_SHAFT_FORCES, BevelTipForce, ContactState, ShaftForces, ShaftState, ShaftSupport,
                        TipResistance, TissueContact, _Frozen, tip_coordinates)
 from .track import Track
 from .geometry import inserted_interval
 from .insertion_profile import InsertionForceProfile
-from .sequence import integrate_tissue_sequence
+from .sequence import (Contact, TissueRecord, advance_packed, integrate_tissue_sequence, pack_parameters, pack_record,
+                       unpack_record)
 
 
 class TissueState:
-    """The tissue's state after a step, as the compiled advance returns it (``kernel``): the contact arrays
-    (``advance_contact``'s tuple: puncture, tip depth and speed, step duration, at the cut front, the track's
-    arrays), the state time of that contact (NaN: never updated), the axial law's state, the shaft points' anchors
-    and active flags, and the frozen lateral and axial parts of the next step (``advance.FROZEN_FIELDS``).
+    """The tissue's state after a step: its ``sequence.TissueRecord`` packed into one array (``record``), as the
+    compiled advance returns it and the next compiled run takes it.
 
-    The next compiled step takes these arrays as they are; the objects the general path and the readout use --
-    ``contact``, ``shaft`` and ``forces`` (the contributions acting over the next step) -- are built from them on
-    first use. A value: never changed in place (what is built is a view of the same arrays)."""
+    The objects the general path and the readout use -- ``contact``, ``shaft`` and ``forces`` (the contributions
+    acting over the next step) -- are built from it on first use. A value: never changed in place."""
 
-    __slots__ = ("tissue", "kernel", "_views")
+    __slots__ = ("tissue", "record", "_views")
 
-    def __init__(self, tissue: TissueModel, kernel: tuple) -> None:
+    def __init__(self, tissue: TissueModel, record: np.ndarray) -> None:
         self.tissue = tissue
-        self.kernel = kernel
+        self.record = record
         self._views: tuple | None = None
 
     def __reduce__(self):
-        return TissueState, (self.tissue, self.kernel)
+        return TissueState, (self.tissue, self.record)
 
     @property
     def contact(self) -> ContactState:
@@ -62,7 +60,7 @@ class TissueState:
 
     def _built(self) -> tuple:
         if self._views is None:
-            self._views = self.tissue.views(self.kernel)
+            self._views = self.tissue.views(self.record)
         return self._views
 
 
@@ -104,34 +102,30 @@ class TissueModel(ForceContribution):
         self.bevel = bevel
         self.tip_resistance = tip_resistance
         block = contact.block
-        self.contact_arguments = (block.entry_point, block.entry_normal, contact.puncture_depth or 0.0,
-                                  contact.initial.track.spacing)
+        contact_arguments = (block.entry_point, block.entry_normal, float(contact.puncture_depth or 0.0),
+                             float(contact.initial.track.spacing))
         unit, side = bevel if bevel is not None else (None, np.zeros(3))
         profile, speed_scale = tip_resistance if tip_resistance is not None else (None, 1.0)
         self.bevel_edge = unit.edge_a if unit else 1.0  # a [m]: the bevel's embedded fraction is depth / a
-        self.tip_arguments = (unit is not None, unit.axial_force if unit else 0.0,
-                              unit.transverse_force if unit else 0.0, side, self.bevel_edge,
-                              profile is not None, block.entry_point, block.entry_normal,
-                              *((profile.a1, profile.a2, profile.cutting_force) if profile else (0.0, 0.0, 0.0)),
-                              float(speed_scale))
+        tip_arguments = (unit is not None, float(unit.axial_force) if unit else 0.0,
+                         float(unit.transverse_force) if unit else 0.0, np.asarray(side, dtype=float),
+                         float(self.bevel_edge), profile is not None, block.entry_point, block.entry_normal,
+                         *((float(profile.a1), float(profile.a2), float(profile.cutting_force)) if profile
+                           else (0.0, 0.0, 0.0)), float(speed_scale))
+        self.parameters = pack_parameters(contact_arguments, shaft.kernel_arguments, tip_arguments)
 
     def initial_state(self, model) -> TissueState:
         """Fresh tissue: not punctured, no track, no shaft point inside."""
         contact, shaft = self.contact.initial, self.shaft.initial
         lateral, axial = (part.fields for part in NO_SHAFT_FORCES.parts)
-        arrays = (contact.punctured, contact.tip_depth, contact.tip_axial_speed, contact.step_duration,
-                  contact.at_front, *contact.track.kernel_arrays)
-        return TissueState(self, (arrays, np.nan, float(shaft.law), shaft.anchor, shaft.active, lateral, axial))
+        fresh = Contact(bool(contact.punctured), float(contact.tip_depth), float(contact.tip_axial_speed),
+                        float(contact.step_duration), bool(contact.at_front), *contact.track.kernel_arrays)
+        return TissueState(self, pack_record(TissueRecord(fresh, np.nan, float(shaft.law), shaft.anchor,
+                                                          shaft.active, lateral, axial)))
 
     def advance(self, model, state, base, tissue: TissueState) -> TissueState:
         """The tissue after the accepted step to ``state`` (see the module docstring; ``advance``)."""
-        arrays, contact_time, law_state, anchor, active, _, _ = tissue.kernel
-        advanced = advance_contact(arrays[0], contact_time, *arrays[5:], state.q, state.qd, float(state.t),
-                                   *self.contact_arguments)
-        law_state, anchor, active, lateral, axial = advance_shaft(
-            state.q, advanced[5], advanced[6], advanced[9], *advanced[1:4], anchor, active, law_state,
-            *self.shaft.kernel_arguments)
-        return TissueState(self, (advanced, float(state.t), law_state, anchor, active, lateral, axial))
+        return TissueState(self, advance_packed(tissue.record, self.parameters, state.q, state.qd, float(state.t)))
 
     def run_steps(self, model, integrator, state, tissue: TissueState, dt: float, times: np.ndarray,
                   motions: np.ndarray, rotations: np.ndarray, forces, memory) -> tuple[SequenceResult, TissueState]:
@@ -144,25 +138,24 @@ class TissueModel(ForceContribution):
         history = np.empty((4, n))
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
         outputs = run_outputs(k, n)
-        arrays, contact_time, law_state, anchor, active, lateral, axial = tissue.kernel
-        done, arrays, contact_time, shaft, lateral, axial = integrate_tissue_sequence(
-            history, times, motions, rotations, needle, constant_Q, memory.control, arrays, contact_time,
-            (law_state, anchor, active), lateral, axial, self.contact_arguments, self.shaft.kernel_arguments,
-            self.tip_arguments, *outputs)
+        done, record = integrate_tissue_sequence(history, times, motions, rotations, needle[0], constant_Q,
+                                                 *needle[1:], memory.control, tissue.record, self.parameters,
+                                                 *outputs)
         result = SequenceResult.of_run(done, outputs)
         if done == 0:
             return result, tissue
-        return result, TissueState(self, (arrays, contact_time, *shaft, lateral, axial))
+        return result, TissueState(self, record)
 
-    def views(self, kernel: tuple) -> tuple[ContactState, ShaftState, tuple]:
-        """The contact, the shaft state and the next step's contributions of a :class:`TissueState`'s arrays."""
-        arrays, contact_time, law_state, anchor, active, lateral, axial = kernel
-        punctured, tip_depth, tip_speed, duration, at_front = arrays[:5]
-        track = Track(self.contact.initial.track.spacing, *arrays[5:])
-        contact = ContactState(bool(punctured), float(tip_depth), float(tip_speed), float(duration), bool(at_front),
-                               None if math.isnan(contact_time) else float(contact_time), track)
-        shaft_forces = ShaftForces(_Frozen.from_fields(lateral), _Frozen.from_fields(axial))
-        return contact, ShaftState(anchor, active, law_state), self._forces(contact, shaft_forces)
+    def views(self, packed: np.ndarray) -> tuple[ContactState, ShaftState, tuple]:
+        """The contact, the shaft state and the next step's contributions of a :class:`TissueState`'s record."""
+        record = unpack_record(packed)
+        c = record.contact
+        track = Track(self.contact.initial.track.spacing, c.vertices, c.arc, c.direction, c.previous_tip,
+                      c.end_tangent)
+        contact = ContactState(bool(c.punctured), float(c.tip_depth), float(c.tip_speed), float(c.step_duration),
+                               bool(c.at_front), None if math.isnan(record.time) else float(record.time), track)
+        shaft_forces = ShaftForces(_Frozen.from_fields(record.lateral), _Frozen.from_fields(record.axial))
+        return contact, ShaftState(record.anchor, record.active, record.law_state), self._forces(contact, shaft_forces)
 
     def _forces(self, contact: ContactState, shaft_forces: ShaftForces) -> tuple:
         """The contributions of the next step: the shaft's, the bevel tip's and the seed 002 tip's
