@@ -1,6 +1,7 @@
 """Main job: the whole needle_sim pipeline on a bundled bag, as real ROS 2 nodes in separate processes.
 
     python scripts/main_job.py [--bag bags/dynamic_pitch.mcap] [--rate 1] [--duration S] [--output-dir DIR]
+                               [--image-transport raw|compressed [--image-codec png|jpeg]]
 
 1. Offline reference: the batch mode (needle_offline) runs the same pipeline over the bag in this process, with
    the bag time as the clock (out/<bag>/offline). It is the deterministic reference for the live run and fills
@@ -13,6 +14,9 @@
    publisher (and the comparison its inputs from the simulator and the stereo node) and that its clock is at the
    bag's start (discovery is two-sided: what is published before that is lost); then resumes the replay. When the
    bag is done and the last comparison is in, the nodes are stopped with SIGINT (the comparison finalizes its log).
+   With ``--image-transport compressed`` the replay plays the bag's images as a camera publishing through
+   image_transport's compressed plugin would (CompressedImage on ``<topic>/compressed``, PNG or JPEG) and the
+   stereo node takes those (its parameter ``image_transport: compressed``).
 3. Prints the RMSE summary, how many measurements were compared, the simulator's and the stereo's last reports on
    /diagnostics (the simulator's comes once a second of bag time: it counts the steps up to then), the model's and the
    measurement's own error against the ground truth (synthetic bags) and where the MCAP log, summary and plots are
@@ -212,14 +216,14 @@ class Monitor:
         while time.monotonic() < end:
             self.rclpy.spin_once(self.node, timeout_sec=max(0.0, min(0.05, end - time.monotonic())))
 
-    def connected(self, stereo: bool, fbg: bool) -> bool:
+    def connected(self, stereo: bool, fbg: bool, image_topic: str = "/left/image_raw") -> bool:
         """Every node is up and the comparison's inputs are connected."""
         n = self.node
         ready = (n.count_subscribers("/base_pose") >= 1 and n.count_publishers("/needle/shape") >= 1
                  and n.count_subscribers("/needle/shape") >= 1 and n.count_publishers("/shape_error") >= 1)
         if stereo:
             ready = ready and n.count_publishers("/needle/measured_shape") >= 1 \
-                and n.count_subscribers("/left/image_raw") >= 1
+                and n.count_subscribers(image_topic) >= 1
         if stereo or fbg:
             ready = ready and n.count_subscribers("/needle/measured_shape") >= 1
         return ready
@@ -302,8 +306,10 @@ def run(args: argparse.Namespace) -> int:
             return ["--ros-args", *files, "-p", "use_sim_time:=true"]
 
         children.start("needle_simulator", params("needle_simulator"), args.from_source)
+        compressed = args.image_transport == "compressed"
         if stereo:
-            children.start("needle_stereo", params("needle_stereo"), args.from_source)
+            children.start("needle_stereo", [*params("needle_stereo"), "-p",
+                                             f"image_transport:={args.image_transport}"], args.from_source)
         compare = children.start("needle_compare", [*params("needle_compare"), "-p", f"log.path:={log_path}",
                                           "-p", "log.overwrite:=true", "-p", f"summary_path:={summary_path}",
                                           "-r", "model/shape:=needle/shape",
@@ -317,7 +323,10 @@ def run(args: argparse.Namespace) -> int:
             topics += [t for t in ("/left/camera_info", "/right/camera_info") if t in reader.topics]
         replay = children.start("needle_replay", [str(bag), "--clock", str(CLOCK_HZ), "--rate", str(args.rate),
                                                    "--start-paused", "--wait-for-subscribers", "10", "--topics",
-                                                   *topics], args.from_source)
+                                                   *topics, *(("--compress-images", args.image_codec) if compressed
+                                                              else ())], args.from_source)
+        # the names the replay publishes on (image_transport's <image>/compressed for compressed images)
+        played = [f"{t}/compressed" if compressed and t.endswith("/image_raw") else t for t in topics]
         # the comparison's inputs from the other nodes, matched from its side too: what the simulator publishes
         # before that is missing from the log
         internal = ["/needle/shape", *(("/needle/measured_shape",) if stereo else ()),
@@ -327,8 +336,9 @@ def run(args: argparse.Namespace) -> int:
         deadline = time.monotonic() + START_TIMEOUT
         while True:
             monitor.spin(0.2)
-            missing = monitor.reports.waiting([*topics, *internal], time.monotonic(), reader.start_time_ns)
-            if not missing and monitor.connected(stereo, fbg=not stereo) and monitor.simulator_active():
+            missing = monitor.reports.waiting([*played, *internal], time.monotonic(), reader.start_time_ns)
+            if not missing and monitor.connected(stereo, not stereo, "/left/image_raw/compressed" if compressed
+                                                 else "/left/image_raw") and monitor.simulator_active():
                 break
             failed = [c for c in children.started if c.failed()]
             if failed or time.monotonic() > deadline:
@@ -340,7 +350,8 @@ def run(args: argparse.Namespace) -> int:
         if not monitor.call_resume():
             say(f"needle_replay did not resume:\n{replay.tail()}")
             return 1
-        say(f"nodes connected; playing {duration:.2f} s of bag at {args.rate:g}x with /clock "
+        images = f", images as CompressedImage ({args.image_codec})" if compressed and stereo else ""
+        say(f"nodes connected; playing {duration:.2f} s of bag at {args.rate:g}x with /clock{images} "
             f"({expected} measurements expected)")
         next_report = time.monotonic() + 1.0
         while replay.process.poll() is None:
@@ -375,6 +386,7 @@ def run(args: argparse.Namespace) -> int:
             say(f"needle_compare wrote no summary ({summary_path}):\n{compare.tail()}")
             return 1
         summary = {"bag": str(bag), "experiment": str(experiment.path), "rate": args.rate,
+                   "image_transport": args.image_transport + (f" ({args.image_codec})" if compressed else ""),
                    "comparison": json.loads(summary_path.read_text())}
         log = read_pipeline_log(log_path, bag)
         summary["versus_ground_truth"] = versus_ground_truth(log)
@@ -430,6 +442,11 @@ def main() -> int:
     parser.add_argument("--output-dir", type=Path, help="outputs: <dir>/live (nodes) and <dir>/offline "
                         "(default: out/<bag name>)")
     parser.add_argument("--skip-offline", action="store_true", help="no offline reference run first")
+    parser.add_argument("--image-transport", choices=("raw", "compressed"), default="raw", help="how the replay "
+                        "publishes the bag's images and the stereo node takes them: raw (sensor_msgs/Image) or "
+                        "compressed (sensor_msgs/CompressedImage on <topic>/compressed) (default: %(default)s)")
+    parser.add_argument("--image-codec", choices=("png", "jpeg"), default="png", help="with --image-transport "
+                        "compressed: PNG (lossless) or JPEG at quality 95 (default: %(default)s)")
     parser.add_argument("--from-source", action="store_true", help="run the nodes from the source tree "
                         "(python -m) instead of the installed executables")
     args = parser.parse_args()

@@ -229,6 +229,40 @@ def test_offline_log_decodes_message_by_message_with_two_independent_readers(off
     assert len(decoded["/shape_error"]) == 3 and len(decoded["/wrench"]) == 2600  # one wrench per 1 ms step
 
 
+def test_offline_pipeline_reads_compressed_image_topics_as_it_reads_raw_ones(offline_dynamic, tmp_path):
+    """The dynamic slice as a camera behind image_transport's compressed plugin records it (PNG CompressedImage on
+    /left|right/image_raw/compressed, no raw images): needle_offline with the stereo node's image_transport:
+    compressed measures and compares exactly as on the raw images (PNG is lossless)."""
+    from needle_sim_ros.recording import BagReader, McapBagWriter, WriterOptions
+    from needle_vision.streams.image_codec import (compress_image, deserialize_image, image_to_array,
+                                                   serialize_compressed_image)
+    reader, bag = BagReader(DYNAMIC), tmp_path / "compressed.mcap"
+    end = reader.start_time_ns + round(DYNAMIC_SLICE * 1e9)
+    with McapBagWriter(bag, WriterOptions(overwrite=True)) as writer:
+        for topic in reader.topics.values():
+            raw = topic.type_name == "sensor_msgs/msg/Image"
+            writer.add_topic(topic.name + "/compressed" if raw else topic.name,
+                             "sensor_msgs/msg/CompressedImage" if raw else topic.type_name, topic.offered_qos)
+        for message in reader.messages():
+            if message.log_time_ns > end:
+                break
+            if message.topic.endswith("/image_raw"):
+                image = deserialize_image(message.data, compressed=False)
+                image_format, data = compress_image(image_to_array(**image.fields), image.fields["encoding"], "png")
+                writer.write(message.topic + "/compressed", serialize_compressed_image(
+                    image.sec, image.nanosec, image.frame_id, image_format, data), message.log_time_ns)
+            else:
+                writer.write(message.topic, message.data, message.log_time_ns)
+    out = tmp_path / "offline"
+    assert offline_main([str(bag), "--experiment", str(REPO / "config" / "experiments" / "dynamic_pitch.yaml"),
+                         "--set", "needle_stereo:image_transport=compressed", "--duration", str(DYNAMIC_SLICE),
+                         "--output-dir", str(out), "--quiet", "--no-plots"]) == 0
+    comparison = json.loads((out / "summary.json").read_text())["comparison"]
+    raw = offline_dynamic["summary"]["comparison"]
+    assert comparison["compared"] == raw["compared"] == 3
+    assert comparison["rmse_mean_m"] == raw["rmse_mean_m"]
+
+
 def test_live_pipeline_of_node_processes_driven_by_replay(ros_env, tmp_path):
     """The main job: simulator, stereo and comparison in separate processes with use_sim_time, needle_replay
     playing a 2.6 s slice. Played at half speed so that a loaded test machine keeps up; bench/bench_pipeline.py
@@ -246,6 +280,28 @@ def test_live_pipeline_of_node_processes_driven_by_replay(ros_env, tmp_path):
     assert abs(summary["needle_started_at_s"]) < 2.5e-3, result.stdout[-2000:]  # half the bag's pose period
     assert int(summary["stereo_diagnostics"]["pairs_measured"]) >= summary["comparison"]["compared"]
     assert_log_decodes_identically(out / "needle_compare.mcap")
+
+
+def test_live_pipeline_with_compressed_image_topics_compares_every_measurement_as_the_raw_reference(ros_env,
+                                                                                                     tmp_path):
+    """The main job on the whole dynamic bag with its images played as image_transport's compressed topics
+    (CompressedImage, PNG, on /left|right/image_raw/compressed) and the stereo node taking those
+    (image_transport: compressed): every one of the 10 measurements compared, at the RMSE of the offline reference
+    that measured the bag's raw images in-process (PNG is lossless: the same pixels, the same measurements)."""
+    result = subprocess.run([sys.executable, str(REPO / "scripts" / "main_job.py"), "--bag", str(DYNAMIC),
+                             "--image-transport", "compressed", "--rate", "0.5", "--output-dir", str(tmp_path)],
+                            env=ros_env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    summary = json.loads((tmp_path / "live" / "summary.json").read_text())
+    offline = json.loads((tmp_path / "offline" / "summary.json").read_text())
+    assert summary["image_transport"] == "compressed (png)"
+    assert summary["expected_measurements"] == 10
+    assert summary["comparison"]["compared"] == offline["comparison"]["compared"] == 10, result.stdout[-2000:]
+    pairs = summary["stereo_diagnostics"]
+    assert (pairs["pairs_measured"], pairs["pairs_skipped_decode_error"], pairs["frames_unpaired"]) == ("10", "0", "0")
+    assert summary["comparison"]["rmse_mean_m"] == pytest.approx(offline["comparison"]["rmse_mean_m"], abs=1e-6)
+    assert summary["comparison"]["rmse_max_m"] < PAPER_RMSE
+    assert "images as CompressedImage (png)" in result.stdout
 
 
 def test_bringup_composes_the_three_nodes_in_one_process(ros_env, tmp_path):

@@ -2,6 +2,8 @@
 
     ros2 launch needle_sim_ros bringup.launch.py mode:=sim                 # wall clock, poses from pose_topic
     ros2 launch needle_sim_ros bringup.launch.py mode:=replay bag:=bags/dynamic_pitch.mcap experiment:=dynamic_pitch
+    ros2 launch needle_sim_ros bringup.launch.py mode:=replay bag:=bags/dynamic_pitch.mcap experiment:=dynamic_pitch \
+        image_transport:=compressed          # the bag's images played and taken as CompressedImage (PNG)
     ros2 launch needle_sim_ros bringup.launch.py mode:=external experiment:=dynamic_pitch   # then, elsewhere:
         ros2 bag play bags/dynamic_pitch.mcap --clock 200
     ros2 launch needle_sim_ros bringup.launch.py mode:=hil namespace:=/PSM1 pose_topic:=measured_cp \
@@ -34,8 +36,8 @@ from launch_ros.substitutions import FindPackageShare
 from lifecycle_msgs.msg import Transition
 
 from needle_sim_ros.launch_support import (MODES, exit_error, experiment_file, failed_transition, flag,
-                                           full_namespace, mode_settings, namespaced_params_file, player_arguments,
-                                           unique_log_path)
+                                           full_namespace, image_codec, image_transport, mode_settings,
+                                           namespaced_params_file, player_arguments, unique_log_path)
 
 ARGUMENTS = {
     "mode": ("sim", f"what runs: {' | '.join(MODES)}"),
@@ -44,6 +46,10 @@ ARGUMENTS = {
     "experiment": ("", "experiment parameter file: a name in config/experiments (e.g. dynamic_pitch) or a path"),
     "stereo": ("auto", "run needle_stereo: true | false | auto (replay and external)"),
     "compare": ("auto", "run needle_compare: true | false | auto (replay and external)"),
+    "image_transport": ("raw", "images of needle_stereo: raw (sensor_msgs/Image on left|right/image_raw) | "
+                        "compressed (sensor_msgs/CompressedImage on left|right/image_raw/compressed; mode:=replay "
+                        "plays the bag's raw images so, encoded with image_codec)"),
+    "image_codec": ("png", "mode:=replay with image_transport:=compressed: png (lossless) | jpeg (quality 95)"),
     "log": ("", "MCAP log of the comparison; empty: a new needle_compare_<time>_<pid>.mcap in log_dir"),
     "log_dir": (".", "directory of the generated log names"),
     "pose_topic": ("base_pose", "geometry_msgs/PoseStamped of the needle holder (CRTK: <arm>/measured_cp)"),
@@ -109,12 +115,14 @@ def _nodes(context):
                 entities=[EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
                                                       transition_id=Transition.TRANSITION_ACTIVATE))])))
     nodes = ["needle_simulator"]  # the nodes the bag player waits for
+    compressed = image_transport(arg["image_transport"]) == "compressed"
     if _choice("stereo", arg["stereo"], settings["stereo"]):
         nodes.append("needle_stereo")
         actions.append(Node(package="needle_vision", executable="needle_stereo", name="needle_stereo",
                             namespace=arg["namespace"], output="screen",
                             parameters=[f"{stereo_config}/needle_stereo.yaml", common,
-                                        {"output_frame": "world"}, *extra]))
+                                        {"output_frame": "world"}, *extra,
+                                        {"image_transport": image_transport(arg["image_transport"])}]))
     if _choice("compare", arg["compare"], settings["compare"]):
         nodes.append("needle_compare")
         actions.append(Node(
@@ -127,7 +135,8 @@ def _nodes(context):
     if settings["player"]:  # once the simulator is first active and every node has matched the bag's topics
         player = Node(package="needle_sim_ros", executable="needle_replay", name="needle_replay",
                       namespace=arg["namespace"], output="screen",
-                      arguments=player_arguments(arg["bag"], namespace, nodes))
+                      arguments=player_arguments(arg["bag"], namespace, nodes,
+                                                 image_codec(arg["image_codec"]) if compressed else ""))
         actions += [
             RegisterEventHandler(OnStateTransition(target_lifecycle_node=simulator, start_state="activating",
                                                    goal_state="active", handle_once=True, entities=[player])),

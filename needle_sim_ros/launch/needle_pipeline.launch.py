@@ -18,6 +18,8 @@ FORWARDED = {
     "bag": ("", "rosbag2 MCAP to replay (empty: live, wall-clock time)"),
     "experiment": ("", "experiment parameter file: a name in config/experiments or a path"),
     "stereo": ("true", "run the stereo reconstruction"),
+    "image_transport": ("raw", "images of the stereo reconstruction: raw | compressed (with a bag: its images played "
+                        "as PNG CompressedImage)"),
     "log": ("", "MCAP log of the comparison; empty: a new needle_compare_<time>_<pid>.mcap in log_dir"),
     "log_dir": (".", "directory of the generated log names"),
 }

@@ -102,11 +102,26 @@ def exit_error(name: str, returncode: int, shutting_down: bool) -> str:
 PLAYER_WAIT = 30.0  # [s] the bag player waits at most this long for the nodes to match its topics
 
 
-def player_arguments(bag: str, namespace: str, nodes: list[str]) -> list[str]:
+def player_arguments(bag: str, namespace: str, nodes: list[str], compress_images: str = "") -> list[str]:
     """``needle_replay``'s arguments in mode:=replay: the whole bag in simulated time (/clock), in ``namespace``
     where the nodes read it, played once each of ``nodes`` (names in ``namespace``) has matched, from its own side,
     the bag's topics it subscribes to: discovery is two-sided, and what is played before a subscriber has matched
-    is lost."""
+    is lost. ``compress_images`` ('png', 'jpeg'): its raw images played as CompressedImage on <topic>/compressed."""
     prefix = "/" + namespace.strip("/") if namespace.strip("/") else ""
     return [bag, "--clock", *(["--in-namespace"] if prefix else []), "--wait-for-subscribers", f"{PLAYER_WAIT:g}",
-            "--wait-for-nodes", *(f"{prefix}/{node}" for node in nodes)]
+            "--wait-for-nodes", *(f"{prefix}/{node}" for node in nodes),
+            *(["--compress-images", compress_images] if compress_images else [])]
+
+
+def image_transport(value: str) -> str:
+    """The launch argument ``image_transport``: 'raw' or 'compressed'."""
+    if value not in ("raw", "compressed"):
+        raise ValueError(f"launch argument 'image_transport' = '{value}': must be raw or compressed")
+    return value
+
+
+def image_codec(value: str) -> str:
+    """The launch argument ``image_codec``: 'png' or 'jpeg'."""
+    if value not in ("png", "jpeg"):
+        raise ValueError(f"launch argument 'image_codec' = '{value}': must be png or jpeg")
+    return value

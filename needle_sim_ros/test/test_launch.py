@@ -13,13 +13,14 @@ import yaml
 from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
 from needle_sim_ros.launch_support import (exit_error, experiment_file, failed_transition, flag, full_namespace,
-                                           mode_settings, namespaced_params_file, player_arguments, unique_log_path)
+                                           image_codec, image_transport, mode_settings, namespaced_params_file,
+                                           player_arguments, unique_log_path)
 
 SHARE = Path(get_package_share_directory("needle_sim_ros"))
 LAUNCH_FILES = {"bringup.launch.py": {"mode", "bag", "keep_alive", "experiment", "stereo", "compare", "log",
                                       "log_dir", "pose_topic", "pose_frame", "wrench_topic", "haptic_topic",
-                                      "namespace", "configure", "activate"},
-                "needle_pipeline.launch.py": {"bag", "experiment", "stereo", "log", "log_dir"}}
+                                      "namespace", "configure", "activate", "image_transport", "image_codec"},
+                "needle_pipeline.launch.py": {"bag", "experiment", "stereo", "image_transport", "log", "log_dir"}}
 SOURCE_CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 
@@ -174,6 +175,16 @@ def test_the_bag_player_waits_for_the_nodes_that_read_the_bag():
             "a.mcap", "--clock", "--in-namespace", "--wait-for-subscribers", "30", "--wait-for-nodes",
             "/robot1/needle_compare"]
     assert player_arguments("a.mcap", "/", ["needle_compare"])[-1] == "/needle_compare"
+    assert player_arguments("a.mcap", "", ["needle_stereo"], "png")[-3:] == ["/needle_stereo", "--compress-images",
+                                                                              "png"]
+
+
+def test_image_transport_arguments_are_checked():
+    assert (image_transport("compressed"), image_codec("jpeg")) == ("compressed", "jpeg")
+    with pytest.raises(ValueError, match="launch argument 'image_transport' = 'theora': must be raw or compressed"):
+        image_transport("theora")
+    with pytest.raises(ValueError, match="launch argument 'image_codec' = 'webp': must be png or jpeg"):
+        image_codec("webp")
 
 
 def test_a_failed_transition_is_told_from_the_normal_ones():

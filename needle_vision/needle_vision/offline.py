@@ -40,8 +40,7 @@ from tqdm import tqdm
 from needle_vision.detection.background import BackgroundModel
 from needle_vision.streams.bag_reader import BagMessage, read_messages
 from needle_vision.streams.base_pose import StampedPose, deserialize_pose_stamped, store_base_pose
-from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
-                                           load_camera_calibration)
+from needle_vision.calibration.rig import CalibrationError, StereoRig, load_camera_calibration, rig_from_camera_infos
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
 from needle_vision.cli_types import positive, positive_int
@@ -186,8 +185,7 @@ def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRi
             break
     if len(infos) < 2:
         raise InputError(f"the bag has no {' / '.join(topics)} messages; give calibration files instead")
-    return StereoRig.from_camera_calibrations(calibration_from_camera_info(infos["left"], "left"),
-                                              calibration_from_camera_info(infos["right"], "right"))
+    return rig_from_camera_infos(infos["left"], infos["right"])
 
 
 def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, base_topic: str = "") -> PairSource:
@@ -428,6 +426,9 @@ def _settings(arguments: argparse.Namespace) -> dict:
 
 def run(arguments: argparse.Namespace) -> int:
     values = _settings(arguments)
+    suffix = "/compressed" if values["image_transport"] == "compressed" else ""  # image_transport's topic names
+    arguments.left_topic = arguments.left_topic or f"left/image_raw{suffix}"
+    arguments.right_topic = arguments.right_topic or f"right/image_raw{suffix}"
     source_path = Path(arguments.input)
     output = Path(arguments.output)
     try:  # before any work: a directory, a file in the way of its folder, an unwritable folder (its folder is made)
@@ -573,8 +574,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=positive_int, default=min(4, os.cpu_count() or 1),
                         help="image decoding threads, and threads measuring pairs concurrently (1: one pair after the "
                         "other; the output is the same) (default: %(default)s)")
-    parser.add_argument("--left-topic", default="left/image_raw", help="Image or CompressedImage topic")
-    parser.add_argument("--right-topic", default="right/image_raw", help="Image or CompressedImage topic")
+    parser.add_argument("--left-topic", help="Image or CompressedImage topic (default: left/image_raw, with "
+                        "image_transport 'compressed' in the params file left/image_raw/compressed)")
+    parser.add_argument("--right-topic", help="Image or CompressedImage topic (default: right/image_raw or "
+                        "right/image_raw/compressed)")
     parser.add_argument("--base-pose-topic", metavar="TOPIC", help="geometry_msgs/PoseStamped of the needle base "
                         "in the bag (e.g. base_pose): base and tip are told by it (base_pose.max_age, "
                         "base_pose.offset of the params file)")

@@ -196,7 +196,14 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("image_qos", "sensor_data", "QoS of the image and camera_info subscriptions: sensor_data (best "
               "effort, also matches reliable publishers) or reliable (large images arrive whole or not at all)",
               choices=("sensor_data", "reliable")),
-    ParamSpec("sync_tolerance", 0.002, "largest stamp difference of a left/right pair [s]", 0.0, 1.0),
+    ParamSpec("image_transport", "raw", "how the cameras publish their images, as image_transport names it: raw "
+              "(sensor_msgs/Image on left|right/image_raw) or compressed (sensor_msgs/CompressedImage, JPEG or PNG "
+              "as compressed_image_transport writes them, on left|right/image_raw/compressed)",
+              choices=("raw", "compressed")),
+    ParamSpec("sync_tolerance", 0.002, "largest stamp difference of a left/right pair (approximate time: "
+              "message_filters' slop) [s]", 0.0, 1.0),
+    ParamSpec("sync_queue_size", 8, "frames per camera waiting for their partner; the oldest beyond it is dropped "
+              "without a partner [-]", 1, 1000),
     ParamSpec("needle_polarity", "auto", "whether the needle looks darker or brighter than the background; auto: "
               "decided from the first frame that shows it", choices=("auto", "dark", "bright")),
     ParamSpec("detection.downsample", 4, "factor of the coarse detection image (1, 2, 4 or 8) [-]",

@@ -5,8 +5,11 @@ import numpy as np
 import pytest
 import yaml
 
-from needle_vision.calibration.rig import (CalibrationError, CameraCalibration, StereoRig, calibration_from_camera_info,
-                                           camera_calibration_yaml, camera_info_fields, load_camera_calibration)
+import cv2
+
+from needle_vision.calibration.rig import (CalibrationError, CameraCalibration, CameraInfoRig, StereoRig,
+                                           calibration_from_camera_info, camera_calibration_yaml, camera_info_fields,
+                                           load_camera_calibration, rig_from_camera_infos)
 from needle_vision.streams.package_files import share_file
 
 CONFIG = share_file("needle_vision", "config/stereo")  # as installed
@@ -117,3 +120,54 @@ def test_camera_info_object_with_attributes_is_accepted(rig):
     for key, value in camera_info_fields(rig.left).items():
         setattr(info, key, value)
     assert isinstance(calibration_from_camera_info(info), CameraCalibration)
+
+
+def _camera_info_from_yaml(path) -> dict:
+    """CameraInfo fields as a camera driver fills them from its camera_calibration file (read here with plain
+    YAML, not with the package's loader)."""
+    data = yaml.safe_load(path.read_text())
+    return {"width": data["image_width"], "height": data["image_height"], "distortion_model": data["distortion_model"],
+            "d": data["distortion_coefficients"]["data"], "k": data["camera_matrix"]["data"],
+            "r": data["rectification_matrix"]["data"], "p": data["projection_matrix"]["data"]}
+
+
+def _pixels(camera, rotation, translation, points) -> np.ndarray:
+    """OpenCV's projection of world points (in the left optical frame) into a raw camera image."""
+    return cv2.projectPoints(points, cv2.Rodrigues(rotation)[0], translation.astype(float), camera.camera_matrix,
+                             camera.distortion)[0].reshape(-1, 2)
+
+
+def test_the_rig_from_camera_info_projects_as_the_rig_from_the_calibration_files(rig):
+    """The shipped calibration files, published as camera_info, give the rig the files give, and both project
+    points into the raw images where the renderer's true rig does."""
+    from_files = StereoRig.from_camera_calibrations(load_camera_calibration(CONFIG / "left.yaml"),
+                                                    load_camera_calibration(CONFIG / "right.yaml"))
+    from_infos = rig_from_camera_infos(_camera_info_from_yaml(CONFIG / "left.yaml"),
+                                       _camera_info_from_yaml(CONFIG / "right.yaml"))
+    points = np.random.default_rng(0).uniform([-0.1, -0.08, 0.4], [0.1, 0.08, 0.6], (200, 3))  # the needle's volume
+    identity, zero = np.eye(3), np.zeros(3)
+    for measured in (from_files, from_infos):
+        for camera, true_camera, rotation, translation in ((measured.left, rig.left, identity, zero),
+                                                           (measured.right, rig.right, measured.rotation,
+                                                            measured.translation)):
+            truth = _pixels(true_camera, *((identity, zero) if true_camera is rig.left else
+                                           (rig.rotation, rig.translation)), points)
+            np.testing.assert_allclose(_pixels(camera, rotation, translation, points), truth, atol=1e-3)
+    np.testing.assert_array_equal(from_infos.rotation, from_files.rotation)
+    np.testing.assert_array_equal(from_infos.translation, from_files.translation)
+
+
+def test_camera_info_rig_is_remade_only_when_a_camera_info_changes(rig):
+    ros = rig.with_ros_rectification()
+    infos = CameraInfoRig()
+    left, right = camera_info_fields(ros.left), camera_info_fields(ros.right)
+    assert infos.offer("left", left) is None  # the right camera not known yet
+    first = infos.offer("right", right)
+    np.testing.assert_allclose(first.translation, rig.translation, atol=1e-12)
+    assert infos.offer("left", dict(left)) is None and infos.offer("right", dict(right)) is None  # the same again
+    moved = dict(right, p=(np.array(right["p"]) * [1, 1, 1, 1.1, 1, 1, 1, 1, 1, 1, 1, 1]).tolist())
+    np.testing.assert_allclose(infos.offer("right", moved).baseline, 1.1 * rig.baseline, rtol=1e-6)
+    with pytest.raises(CalibrationError, match="projection_matrix is singular"):
+        infos.offer("right", dict(right, p=[*right["p"][:8], 0.0, 0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="side"):
+        infos.offer("centre", left)

@@ -1,10 +1,14 @@
-"""sensor_msgs/Image fields <-> numpy (no cv_bridge)."""
+"""sensor_msgs/Image fields <-> numpy (no cv_bridge); sensor_msgs/CompressedImage decoded and encoded."""
+import array
+
 import cv2
 import numpy as np
 import pytest
 
-from needle_vision.streams.image_codec import (ImageFormatError, gray_to_encoding, image_fields, image_message_to_gray,
-                                               image_to_array, image_to_gray, read_gray_bmp)
+from needle_vision.streams.image_codec import (ImageFormatError, compress_image, compressed_message_to_gray,
+                                               compressed_to_gray, deserialize_image, gray_to_encoding, image_fields,
+                                               image_message_to_gray, image_to_array, image_to_gray, read_gray_bmp,
+                                               serialize_compressed_image)
 
 
 @pytest.mark.parametrize("encoding", ["mono8", "mono16", "bgr8", "rgb8"])
@@ -69,3 +73,105 @@ def test_other_bmps_are_left_to_opencv():
     for other in (cv2.imencode(".bmp", np.dstack([pixels] * 3))[1].tobytes(), bytes(tinted), bytes(data[:-3]),
                   cv2.imencode(".png", pixels)[1].tobytes()):
         assert read_gray_bmp(other) is None
+
+
+# --- CompressedImage ----------------------------------------------------------------------------------------
+
+def _scene(encoding: str) -> np.ndarray:
+    """A smooth grey scene with a dark line (JPEG-friendly) in ``encoding``'s layout."""
+    y, x = np.mgrid[0:60, 0:80]
+    gray = 120 + 60 * np.sin(x / 9.0) * np.cos(y / 13.0)
+    gray[28:32, 10:70] = 30.0
+    return gray_to_encoding(gray, encoding)
+
+
+@pytest.mark.parametrize("encoding, codec", [("mono8", "png"), ("mono16", "png"), ("bgr8", "png"), ("rgb8", "png"),
+                                             ("mono8", "jpeg"), ("bgr8", "jpeg"), ("rgb8", "jpeg")])
+def test_compressed_image_decodes_to_the_grey_of_the_raw_image(encoding, codec):
+    pixels = _scene(encoding)
+    raw = image_message_to_gray(image_fields(pixels, encoding))  # the raw transport's grey: the reference
+    image_format, data = compress_image(pixels, encoding, codec)
+    target = "bgr8" if pixels.ndim == 3 else encoding
+    assert image_format == f"{encoding}; {codec} compressed {target}"  # compressed_image_transport's format
+    gray = compressed_to_gray(data, image_format)
+    assert gray.dtype == raw.dtype and gray.shape == raw.shape
+    if codec == "png":  # lossless
+        np.testing.assert_array_equal(gray, raw)
+    else:
+        assert np.abs(gray.astype(float) - raw).mean() < 1.5
+
+
+@pytest.mark.parametrize("image_format", ["bgr8; jpeg compressed bgr8", "rgb8; jpeg compressed bgr8", "jpeg", "JPEG",
+                                          "8UC3; jpeg compressed bgr8", "", "unknown"])
+def test_jpeg_formats_as_publishers_write_them(image_format):
+    colour = np.dstack([np.full((40, 50), v, np.uint8) for v in (20, 120, 220)])  # BGR, as compressed stores colour
+    data = cv2.imencode(".jpg", colour, [cv2.IMWRITE_JPEG_QUALITY, 100])[1].tobytes()
+    expected = 0.114 * 20 + 0.587 * 120 + 0.299 * 220  # BT.601 grey of the BGR pixel
+    assert compressed_to_gray(data, image_format) == pytest.approx(np.full((40, 50), expected), abs=2)
+
+
+@pytest.mark.parametrize("image_format", ["mono8; png compressed", "mono8; png compressed mono8", "png", " png ",
+                                          "mono8"])
+def test_png_formats_as_publishers_write_them(image_format):
+    pixels = np.random.default_rng(1).integers(0, 256, (30, 40), dtype=np.uint8)
+    data = cv2.imencode(".png", pixels)[1].tobytes()
+    np.testing.assert_array_equal(compressed_to_gray(data, image_format), pixels)
+
+
+def test_message_objects_and_rclpy_style_arrays_are_read():
+    pixels = np.random.default_rng(2).integers(0, 256, (10, 12), dtype=np.uint8)
+    image_format, data = compress_image(pixels, "mono8", "png")
+
+    class Message:  # rclpy holds uint8[] as array.array('B')
+        format = image_format
+
+    Message.data = array.array("B", data)
+    np.testing.assert_array_equal(compressed_message_to_gray(Message()), pixels)
+    np.testing.assert_array_equal(compressed_message_to_gray({"format": image_format, "data": data}), pixels)
+
+
+@pytest.mark.parametrize("data", [b"", b"not an image at all", bytes(range(256)) * 40, "truncated png",
+                                  "jpeg header only"])
+def test_corrupt_compressed_data_is_a_format_error(data):
+    pixels = np.random.default_rng(3).integers(0, 256, (60, 80), dtype=np.uint8)
+    if data == "truncated png":
+        data = cv2.imencode(".png", pixels)[1].tobytes()[:200]
+    elif data == "jpeg header only":
+        data = cv2.imencode(".jpg", pixels)[1].tobytes()[:100]
+    with pytest.raises(ImageFormatError, match="cannot decode the compressed image"):
+        compressed_to_gray(data, "mono8; png compressed mono8")
+
+
+@pytest.mark.parametrize("image_format, message", [("16UC1; compressedDepth png", "compressedDepth"),
+                                                   ("h264", "unsupported compression"),
+                                                   ("bgr8; theora compressed bgr8", "unsupported compression"),
+                                                   ("what is this", "unsupported compression")])
+def test_formats_opencv_cannot_read_are_refused(image_format, message):
+    data = cv2.imencode(".png", np.zeros((4, 4), np.uint8))[1].tobytes()
+    with pytest.raises(ImageFormatError, match=message):
+        compressed_to_gray(data, image_format)
+
+
+def test_compress_image_refuses_what_compressed_image_transport_refuses():
+    with pytest.raises(ImageFormatError, match="8-bit"):
+        compress_image(np.zeros((4, 4), np.uint16), "mono16", "jpeg")
+    with pytest.raises(ImageFormatError, match="does not match"):
+        compress_image(np.zeros((4, 4), np.uint16), "mono8", "png")
+
+
+def test_serialized_compressed_image_reads_back_with_rclpy_and_the_bag_reader():
+    pixels = np.random.default_rng(4).integers(0, 256, (6, 7), dtype=np.uint8)
+    image_format, data = compress_image(pixels, "mono8", "png")
+    serialized = serialize_compressed_image(12, 345, "left_optical", image_format, data)
+    image = deserialize_image(serialized, compressed=True)
+    assert (image.sec, image.nanosec, image.frame_id, image.compressed_format) == (12, 345, "left_optical",
+                                                                                  image_format)
+    np.testing.assert_array_equal(image.gray(), pixels)
+    rclpy_serialization = pytest.importorskip("rclpy.serialization", reason="rclpy reads it independently")
+    from sensor_msgs.msg import CompressedImage
+    message = rclpy_serialization.deserialize_message(serialized, CompressedImage)
+    assert (message.header.stamp.sec, message.header.stamp.nanosec, message.header.frame_id, message.format) == \
+        (12, 345, "left_optical", image_format)
+    assert bytes(message.data) == data
+    assert len(rclpy_serialization.serialize_message(message)) == len(serialized)  # rclpy's layout (its padding
+    # bytes are not zeroed: not compared)

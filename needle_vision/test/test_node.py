@@ -14,12 +14,12 @@ from ament_index_python.packages import get_package_prefix  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2  # noqa: E402
 
 from vision_shapes import SHAPES, distance_to_curve  # noqa: E402
 from needle_interfaces.msg import NeedleShape  # noqa: E402
 from needle_vision.calibration.rig import camera_info_fields  # noqa: E402
-from needle_vision.streams.image_codec import image_fields  # noqa: E402
+from needle_vision.streams.image_codec import compress_image, image_fields  # noqa: E402
 
 PACKAGE = Path(__file__).resolve().parents[1]
 REPO = PACKAGE.parent
@@ -127,22 +127,22 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
                 image.width == 1440 for image in received["debug"])):  # the half-size pair's may come first
             rclpy.spin_once(node, timeout_sec=0.1)
         end = time.monotonic() + 30
-        while time.monotonic() < end and not (statuses and statuses[-1]["pairs_skipped_bad_encoding"] == "1"):
+        while time.monotonic() < end and not (statuses and statuses[-1]["pairs_skipped_decode_error"] == "1"):
             rclpy.spin_once(node, timeout_sec=0.1)
     finally:
         output = _stop(node, process)
 
     # What became of the pairs, on /diagnostics: WARN in the report after the skip, naming what happened since the
     # previous report.
-    assert statuses and statuses[-1]["pairs_skipped_bad_encoding"] == "1", (statuses[-1:], output)
+    assert statuses and statuses[-1]["pairs_skipped_decode_error"] == "1", (statuses[-1:], output)
     last = statuses[-1]
-    counted = ("pairs_measured", "pairs_background", "pairs_rejected", "pairs_skipped_bad_encoding", "frames_unpaired",
+    counted = ("pairs_measured", "pairs_background", "pairs_rejected", "pairs_skipped_decode_error", "frames_unpaired",
                "rejected_bad input")
     assert {k: last.get(k) for k in counted} == {
-        "pairs_measured": "3", "pairs_background": "2", "pairs_rejected": "1", "pairs_skipped_bad_encoding": "1",
+        "pairs_measured": "3", "pairs_background": "2", "pairs_rejected": "1", "pairs_skipped_decode_error": "1",
         "frames_unpaired": "1", "rejected_bad input": "1"}, statuses
     warned = [status for status in statuses if status["level"] == 1]
-    assert any("1 pairs skipped bad encoding" in status["message"] for status in warned), statuses
+    assert any("1 pairs skipped decode error" in status["message"] for status in warned), statuses
     stamps = [shape.header.stamp.sec + shape.header.stamp.nanosec * 1e-9 for shape in received["shape"]]
     assert len(stamps) == 3, output  # the three good needle pairs (reliable transport)
     assert all(abs(stamp - 1.03) > 1e-3 for stamp in stamps)  # nothing for the wrong-size pair
@@ -192,6 +192,79 @@ def test_singular_right_projection_is_refused_without_a_crash(ros_env, rig):
         output = _stop(node, process)
     assert "Traceback" not in output
     assert "camera 'right' (right): projection_matrix is singular" in output, output
+
+
+def _compressed_msg(image: np.ndarray, stamp: float, frame_id: str, codec: str = "png",
+                    corrupt: bool = False) -> CompressedImage:
+    image_format, data = compress_image(image, "mono8", codec)
+    msg = CompressedImage(format=image_format, data=data[:len(data) // 50] if corrupt else data)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = int(stamp), int(round(stamp % 1 * 1e9))
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def test_node_measures_compressed_images_and_counts_every_skipped_pair(ros_env, tmp_path, rig, background_frames,
+                                                                        renders):
+    """image_transport: compressed: PNG and JPEG (quality 95) CompressedImage pairs on image_transport's
+    <image>/compressed topics are measured as the raw ones are; a pair with a corrupt image is counted as a decode
+    error, a frame without its partner as unpaired, and the node lives on."""
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
+        "background": {"frames": 2}, "output_frame": "world", "warning_period": 0.01, "image_qos": "reliable",
+        "image_transport": "compressed",
+        "left_calibration_file": "package://needle_vision/config/stereo/left.yaml",
+        "right_calibration_file": "package://needle_vision/config/stereo/right.yaml",
+        "output_transform": rig.world_from_left.as_xyz_quaternion()}}}))
+    process = start_node(ros_env, "--params-file", str(params))
+    rclpy.init()
+    node = rclpy.create_node("needle_stereo_compressed_test")
+    try:
+        shapes, statuses = [], []
+        node.create_subscription(NeedleShape, "needle/measured_shape", shapes.append, 10)
+        node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: statuses.extend(
+            {kv.key: kv.value for kv in s.values} for s in m.status if s.name == "/needle_stereo: measurement"), 10)
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        images = {side: node.create_publisher(CompressedImage, f"{side}/image_raw/compressed", reliable)
+                  for side in ("left", "right")}
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and (min(p.get_subscription_count() for p in images.values()) < 1
+                                               or node.count_publishers("needle/measured_shape") < 1):
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert process.poll() is None, process.stdout.read()
+        warm_up = time.monotonic() + 1.0
+        while time.monotonic() < warm_up:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        needle = renders("planar")
+        frames = [(1.00, background_frames[0], "png", ()), (1.01, background_frames[1], "png", ()),
+                  (1.02, needle, "png", ()), (1.03, needle, "jpeg", ()), (1.04, needle, "png", ("left",)),
+                  (1.05, (needle[0], None), "png", ()), (1.06, needle, "png", ())]
+        for stamp, pair, codec, corrupt in frames:
+            for side, image in zip(("left", "right"), pair):
+                if image is not None:
+                    images[side].publish(_compressed_msg(image, stamp, f"{side}_optical", codec, side in corrupt))
+            end = time.monotonic() + 0.5
+            while time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.05)
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not (len(shapes) >= 3 and statuses
+                                              and statuses[-1]["pairs_measured"] == "3"):
+            rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        output = _stop(node, process)
+    assert "Traceback" not in output
+    assert statuses, output
+    counted = ("pairs_measured", "pairs_background", "pairs_rejected", "pairs_skipped_decode_error",
+               "pairs_skipped_no_calibration", "frames_unpaired")
+    assert {k: statuses[-1][k] for k in counted} == {
+        "pairs_measured": "3", "pairs_background": "2", "pairs_rejected": "0", "pairs_skipped_decode_error": "1",
+        "pairs_skipped_no_calibration": "0", "frames_unpaired": "1"}, (statuses[-1], output)
+    assert "pair at 1.040000 s skipped: cannot decode the compressed image" in output
+    stamps = [round(shape.header.stamp.sec + shape.header.stamp.nanosec * 1e-9, 3) for shape in shapes]
+    assert stamps == [1.02, 1.03, 1.06], output
+    for shape in shapes:  # PNG and JPEG alike
+        points = np.array([[p.x, p.y, p.z] for p in shape.points])
+        distance, _ = distance_to_curve(points, SHAPES["planar"])
+        assert np.sqrt(np.mean(distance ** 2)) < 1e-4
 
 
 def _pose_msg(stamp: float, frame_id: str, position) -> PoseStamped:

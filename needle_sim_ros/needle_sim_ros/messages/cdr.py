@@ -222,6 +222,22 @@ def image(data: bytes) -> DecodedImage:
                         fields["step"], fields["data"])
 
 
+class DecodedCompressedImage(NamedTuple):
+    """The fields of a ``sensor_msgs/msg/CompressedImage``; ``data`` is a read-only view into the serialized bytes."""
+
+    header: Header
+    format: str
+    data: np.ndarray
+
+
+def compressed_image(data: bytes) -> DecodedCompressedImage:
+    """Decode a serialized ``sensor_msgs/msg/CompressedImage`` (not its pixels: those are decoded when the pair is
+    measured, :func:`needle_vision.streams.image_codec.compressed_message_to_gray`)."""
+    decoded = deserialize_image(data, compressed=True)
+    return DecodedCompressedImage(Header(stamp=Time(sec=decoded.sec, nanosec=decoded.nanosec),
+                                         frame_id=decoded.frame_id), decoded.compressed_format, decoded.fields["data"])
+
+
 class DecodedPose(NamedTuple):
     """The fields of a ``geometry_msgs/msg/PoseStamped``: stamp [ns], frame, position (3,), quaternion (x, y, z, w)."""
 

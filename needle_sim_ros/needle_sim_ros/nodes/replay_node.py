@@ -2,7 +2,7 @@
 
     needle_replay BAG [--rate R] [--start-offset S] [--loop] [--topics T ...] [--clock [HZ]] [--delay S]
                       [--linger S] [--in-namespace] [--wait-for-subscribers S [--wait-for-nodes NODE ...]]
-                      [--start-paused] [--ros-args -r FROM:=TO ...]
+                      [--start-paused] [--compress-images png|jpeg [--jpeg-quality Q]] [--ros-args -r FROM:=TO ...]
 
 BAG is a .mcap file or a bag directory. Messages are published as the recorded CDR bytes (no deserialization) with
 the QoS the recorded publishers offered; ``--clock`` publishes the playback time on /clock for use_sim_time.
@@ -22,6 +22,11 @@ nodes to say when they are ready. Both hold the start time on /clock meanwhile. 
 waits up to ``--linger`` seconds until every reliable subscriber has acknowledged all it played (a large message
 whose fragment was lost is resent only then: on a loaded machine the last image of a bag could otherwise never
 arrive), holding the end time on /clock; it warns of the topics still unacknowledged.
+
+``--compress-images png|jpeg`` plays the recorded ``sensor_msgs/Image`` topics as a camera publishing through
+image_transport's compressed plugin does: ``sensor_msgs/CompressedImage`` on ``<topic>/compressed`` (format
+``"mono8; png compressed mono8"``, ...), encoded as each message is due (PNG is lossless; JPEG at
+``--jpeg-quality``, default 95).
 """
 from __future__ import annotations
 
@@ -41,6 +46,8 @@ from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
 from needle_vision.cli_types import non_negative, positive
+from needle_vision.streams.image_codec import (ImageFormatError, compress_image, deserialize_image, image_to_array,
+                                               serialize_compressed_image)
 from needle_vision.parameters import ParameterError, check_ros_arguments
 from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 from needle_vision.ros.input_status import InputReports
@@ -89,6 +96,10 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
                         help="wait for a call of the service ~/resume (std_srvs/Trigger) before playing")
     parser.add_argument("--stop-on-corrupt", action="store_true",
                         help="stop at a corrupt chunk (default: skip it, count it and warn)")
+    parser.add_argument("--compress-images", choices=("png", "jpeg"), help="play sensor_msgs/Image topics as "
+                        "sensor_msgs/CompressedImage on <topic>/compressed (image_transport's compressed transport)")
+    parser.add_argument("--jpeg-quality", type=int, choices=range(1, 101), default=95, metavar="Q",
+                        help="with --compress-images jpeg: quality 1-100 (default %(default)s)")
     parser.add_argument("--allow-type-mismatch", action="store_true", help="also play topics whose recorded type "
                         "differs from what the suite's nodes expect on that name (default: skip them)")
     args = parser.parse_args(argv)
@@ -102,6 +113,7 @@ class ReplayNode(Node):
         super().__init__(NODE_NAME)
         self.reader, self.args = reader, args
         self.publishers_by_topic = {}
+        self.compressing: set[str] = set()  # recorded Image topics played as CompressedImage on <topic>/compressed
         mismatches = {} if args.allow_type_mismatch else reader.type_mismatches()
         for topic in args.topics or sorted(reader.topics):
             recorded = reader.topics[topic]
@@ -115,8 +127,12 @@ class ReplayNode(Node):
                 self.get_logger().warning(f"skipping topic '{topic}': type '{recorded.type_name}' is not "
                                           f"installed ({error})")
                 continue
-            self.publishers_by_topic[topic] = self.create_publisher(
-                message_type, topic.lstrip("/") if args.in_namespace else topic, playback_qos(recorded.offered_qos))
+            name = topic.lstrip("/") if args.in_namespace else topic
+            if args.compress_images and recorded.type_name == "sensor_msgs/msg/Image":
+                message_type, name = message_class("sensor_msgs/msg/CompressedImage"), f"{name}/compressed"
+                self.compressing.add(topic)
+            self.publishers_by_topic[topic] = self.create_publisher(message_type, name,
+                                                                    playback_qos(recorded.offered_qos))
         self.clock_publisher = self.create_publisher(Clock, "/clock", QoSProfile(depth=1)) if args.clock else None
         self.published = 0
         self.clock_ns = self.start_time_ns  # bag time [ns] /clock holds: the start, then the last sent (>= last msg)
@@ -176,6 +192,7 @@ class ReplayNode(Node):
         clock_period = round(1e9 / self.args.clock) if self.args.clock else 0
         next_clock = schedule.wall_start_ns
         for message in self.reader.messages(self.publishers_by_topic, start_time_ns=start):
+            data = self.compressed(message.data) if message.topic in self.compressing else message.data
             due = schedule.wall_time_ns(message.log_time_ns)
             while True:
                 now = time.monotonic_ns()
@@ -190,10 +207,25 @@ class ReplayNode(Node):
                 time.sleep((wake - now) / 1e9)
             if not rclpy.ok():
                 return False
-            self.publishers_by_topic[message.topic].publish(message.data)
+            self.publishers_by_topic[message.topic].publish(data)
             self.published += 1
             self.clock_ns = max(self.clock_ns, message.log_time_ns)
         return True
+
+    def compressed(self, data: bytes) -> bytes:
+        """A serialized Image as a serialized CompressedImage (--compress-images); one that cannot be read or encoded
+        becomes an empty CompressedImage of format 'unreadable' (its receiver counts a decode error), with a
+        warning."""
+        stamp, frame_id = (0, 0), ""
+        try:
+            image = deserialize_image(data, compressed=False)
+            stamp, frame_id = (image.sec, image.nanosec), image.frame_id
+            image_format, payload = compress_image(image_to_array(**image.fields), image.fields["encoding"],
+                                                   self.args.compress_images, self.args.jpeg_quality)
+        except ImageFormatError as error:
+            self.get_logger().warning(f"image not compressed: {error}", throttle_duration_sec=2.0)
+            image_format, payload = "unreadable", b""
+        return serialize_compressed_image(*stamp, frame_id, image_format, payload)
 
     def play(self) -> bool:
         """Wait as asked, then play (again with --loop); False if interrupted."""

@@ -65,6 +65,8 @@ def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose"
     :mod:`needle_sim_ros.messages.cdr`)."""
     if topic.endswith("image_raw"):
         return cdr.image(data)
+    if topic.endswith("image_raw/compressed"):
+        return cdr.compressed_image(data)
     if topic in pose_topics:
         return cdr.pose_stamped(data)
     return deserialize_message(data, INPUT_TYPES[topic])
@@ -107,8 +109,8 @@ class OfflinePipeline:
     def input_topics(self, reader: BagReader) -> list[str]:
         """The recorded input topics; ValueError naming the topic if one has another type than the nodes expect."""
         topics = ["/base_pose", "/base_twist", "/tip_load"]
-        images = ["/left/image_raw", "/right/image_raw", "/left/camera_info", "/right/camera_info"]
-        topics += [*images, self.stereo.base_pose_topic] if self.use_stereo else ["/needle/measured_shape"]
+        topics += [*self.stereo.image_topics, "/left/camera_info", "/right/camera_info", self.stereo.base_pose_topic] \
+            if self.use_stereo else ["/needle/measured_shape"]
         topics = list(dict.fromkeys(t for t in topics if t in reader.topics))
         for topic, (recorded, expected) in reader.type_mismatches().items():
             if topic in topics:
@@ -176,7 +178,7 @@ class OfflinePipeline:
                     self._measured(msg, now)
                 elif message.topic.endswith("camera_info"):
                     self.stereo.on_camera_info(message.topic.split("/")[1], msg)
-                elif message.topic.endswith("image_raw"):
+                elif message.topic in self.stereo.image_topics:
                     with self._timed("stereo"):
                         shapes = self.stereo.on_image(message.topic.split("/")[1], msg)
                     for shape in shapes:
@@ -247,7 +249,7 @@ class OfflinePipeline:
 
     def _prime_stereo(self, reader: BagReader, begin: int) -> None:
         """A slice that starts late still needs the needle-free background pairs from the bag's start."""
-        topics = [t for t in ("/left/camera_info", "/right/camera_info", "/left/image_raw", "/right/image_raw")
+        topics = [t for t in ("/left/camera_info", "/right/camera_info", *self.stereo.image_topics)
                   if t in reader.topics]
         for message in reader.messages(topics):
             if message.log_time_ns >= begin or self.stereo.has_background:

@@ -8,7 +8,8 @@ Each stage holds the same ROS-free core as its node and translates messages exac
   rate counted in integration steps from the first pose, so that a measurement stamped on that grid meets a model
   shape of the very same instant. The two high-rate outputs are serialized straight from arrays
   (:mod:`needle_sim_ros.messages.cdr`).
-* :class:`StereoStage` — ``needle_stereo``: left/right pairing by stamp and
+* :class:`StereoStage` — ``needle_stereo``: its images (raw, or image_transport's compressed topics), left/right
+  pairing by approximate time and
   :class:`needle_vision.pipeline.StereoNeedlePipeline`, publishing ``needle/measured_shape``.
 * :class:`ComparisonStage` — ``needle_compare``: stamp pairing, extrinsic and centerline distances
   (:mod:`needle_sim_ros.comparison`), publishing ``shape_error``.
@@ -19,15 +20,13 @@ import math
 import time
 from typing import Any
 
-import numpy as np
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
-                                           load_camera_calibration)
-from needle_vision.streams.image_codec import ImageFormatError, image_message_to_gray
+from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, load_camera_calibration
+from needle_vision.streams.image_codec import ImageFormatError, compressed_message_to_gray, image_message_to_gray
 from needle_vision.streams.pairing import StampPairer as FramePairer
 from needle_vision.parameters import (ROS_BUILTIN, ParameterError, ParamSpec, base_pose_store, output_from_left,
                                       stereo_config, unknown_name_error, validate_all)
@@ -151,12 +150,17 @@ class StereoStage:
         self.values = values
         self.config = stereo_config(values)
         self.output_from_left = output_from_left(values)
-        self.pairer = FramePairer(values["sync_tolerance"])
+        self.pairer = FramePairer(values["sync_tolerance"], values["sync_queue_size"])
         self.base_poses = base_pose_store(values)
         self.image_frame = ""  # frame_id of the left images (the raw left optical frame), as the node keeps it
-        self.camera_infos: dict[str, CameraInfo] = {}
+        self.camera_infos = CameraInfoRig()
         self.outcomes: dict[str, int] = {}
         self.pipeline = None
+        compressed = values["image_transport"] == "compressed"
+        #: the bag's image topics the node subscribes to (image_transport's names)
+        suffix = "/compressed" if compressed else ""
+        self.image_topics = (f"/left/image_raw{suffix}", f"/right/image_raw{suffix}")
+        self._to_gray = compressed_message_to_gray if compressed else image_message_to_gray
         if values["left_calibration_file"]:
             rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
                                                      load_camera_calibration(values["right_calibration_file"]))
@@ -190,21 +194,16 @@ class StereoStage:
         """As the node: (re)build the pipeline when both cameras' calibrations are known and one changed."""
         if self.values["left_calibration_file"]:
             return  # the node does not subscribe camera_info when calibration files are given
-        previous = self.camera_infos.get(side)
-        if previous is not None and all(np.array_equal(getattr(previous, k), getattr(msg, k))
-                                        for k in ("width", "height", "k", "d", "r", "p")):
+        try:
+            rig = self.camera_infos.offer(side, msg)
+        except CalibrationError:
+            self.pipeline = None
+            self._count("camera_info unusable")
             return
-        self.camera_infos[side] = msg
-        if len(self.camera_infos) == 2:
-            try:
-                self.pipeline = self._pipeline(StereoRig.from_camera_calibrations(
-                    calibration_from_camera_info(self.camera_infos["left"], "left"),
-                    calibration_from_camera_info(self.camera_infos["right"], "right")))
-            except CalibrationError:
-                self.pipeline = None
-                self._count("camera_info unusable")
+        if rig is not None:
+            self.pipeline = self._pipeline(rig)
 
-    def on_image(self, side: str, msg: Image) -> list[NeedleShape]:
+    def on_image(self, side: str, msg: Image | cdr.DecodedImage | cdr.DecodedCompressedImage) -> list[NeedleShape]:
         pair = self.pairer.push(side, msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, msg)
         if pair is None:
             return []
@@ -213,9 +212,9 @@ class StereoStage:
             return []
         self.image_frame = pair.left.header.frame_id
         try:
-            images = [image_message_to_gray(pair.left), image_message_to_gray(pair.right)]
+            images = [self._to_gray(pair.left), self._to_gray(pair.right)]
         except ImageFormatError:
-            self._count("skipped: image format")
+            self._count("skipped: decode error")
             return []
         result = self.pipeline.process(pair.stamp, *images)
         self._count(result.status.value if result.status is not FrameStatus.REJECTED else f"rejected: {result.reason}")

@@ -37,6 +37,8 @@ EXPECTED_TYPES = {
     "/base_pose": "geometry_msgs/msg/PoseStamped", "/base_twist": "geometry_msgs/msg/TwistStamped",
     "/tip_load": "geometry_msgs/msg/WrenchStamped", "/wrench": "geometry_msgs/msg/WrenchStamped",
     "/left/image_raw": "sensor_msgs/msg/Image", "/right/image_raw": "sensor_msgs/msg/Image",
+    "/left/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+    "/right/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
     "/left/camera_info": "sensor_msgs/msg/CameraInfo", "/right/camera_info": "sensor_msgs/msg/CameraInfo",
     "/needle/shape": "needle_interfaces/msg/NeedleShape", "/needle/measured_shape": "needle_interfaces/msg/NeedleShape",
     "/shape_error": "needle_interfaces/msg/ShapeError", "/clock": "rosgraph_msgs/msg/Clock",

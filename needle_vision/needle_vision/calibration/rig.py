@@ -225,3 +225,42 @@ class StereoRig:
             flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
         return replace(self, left=replace(self.left, rectification=r1, projection=p1),
                        right=replace(self.right, rectification=r2, projection=p2))
+
+
+# --- the rig from camera_info topics ------------------------------------------------------------------------
+
+def rig_from_camera_infos(left: Mapping[str, Any] | Any, right: Mapping[str, Any] | Any) -> StereoRig:
+    """The rig of the two cameras' ``sensor_msgs/CameraInfo`` (message objects or mappings of their fields): the
+    calibration of the node, the offline command and the offline pipeline when no calibration files are given.
+    CalibrationError names the camera and field when they do not make a stereo pair."""
+    try:
+        return StereoRig.from_camera_calibrations(calibration_from_camera_info(left, "left"),
+                                                  calibration_from_camera_info(right, "right"))
+    except (cv2.error, np.linalg.LinAlgError) as error:
+        raise CalibrationError(f"camera_info: {error}") from error
+
+
+class CameraInfoRig:
+    """The rig of the latest ``camera_info`` of each camera, remade only when one of them changes (cameras publish
+    the same calibration with every frame)."""
+
+    FIELDS = ("width", "height", "distortion_model", "d", "k", "r", "p")
+
+    def __init__(self) -> None:
+        self._infos: dict[str, Any] = {}
+        self._keys: dict[str, tuple] = {}
+
+    def offer(self, side: str, info: Mapping[str, Any] | Any) -> StereoRig | None:
+        """Take ``side``'s camera_info; the new rig when both cameras are known and this one changed, else None.
+        CalibrationError when the two do not make a stereo rig (once per change)."""
+        if side not in ("left", "right"):
+            raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+        get = info.get if isinstance(info, Mapping) else (lambda name: getattr(info, name))
+        key = tuple(str(get(name)) if name == "distortion_model" else tuple(np.asarray(get(name), float).ravel())
+                    for name in self.FIELDS)
+        if self._keys.get(side) == key:
+            return None
+        self._infos[side], self._keys[side] = info, key
+        if len(self._infos) < 2:
+            return None
+        return rig_from_camera_infos(self._infos["left"], self._infos["right"])

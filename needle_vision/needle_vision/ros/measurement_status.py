@@ -1,7 +1,9 @@
 """What became of the stereo node's image pairs, on ``/diagnostics`` beside its input report.
 
 A status ``<fully qualified node name>: measurement`` (e.g. ``/needle_stereo: measurement``) with cumulative counts
-(``pairs_<outcome>``, ``frames_unpaired``: frames dropped without a partner within ``sync_tolerance``,
+(``pairs_<outcome>``: measured, background, rejected, skipped_no_calibration, skipped_decode_error (an image
+of an encoding it cannot read or a compressed image that does not decode); ``frames_unpaired``: frames dropped
+without a partner within ``sync_tolerance``,
 ``rejected_<kind>``: the measurement's rejections by kind since the calibration) and a level from what happened
 since the previous report: WARN while pairs are rejected or skipped or frames go unpaired, OK otherwise.
 """
@@ -13,7 +15,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from needle_vision.ros.input_status import OK, WARN
 
-OUTCOMES = ("measured", "background", "rejected", "skipped_no_calibration", "skipped_bad_encoding")
+OUTCOMES = ("measured", "background", "rejected", "skipped_no_calibration", "skipped_decode_error")
 
 
 class MeasurementStatus:

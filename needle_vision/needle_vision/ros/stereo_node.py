@@ -1,7 +1,10 @@
 """``needle_stereo``: stereo measurement of the needle centerline (seed 000, Sec. III-A) as a ROS 2 node.
 
-Subscribes ``left/image_raw``, ``right/image_raw``, ``left/camera_info``, ``right/camera_info`` (stereo_image_proc
-naming; remap as needed); pairs frames by stamp; publishes ``needle/measured_points`` (sensor_msgs/PointCloud2:
+Subscribes ``left/image_raw``, ``right/image_raw`` (``sensor_msgs/Image``; with ``image_transport: compressed``
+``sensor_msgs/CompressedImage`` on image_transport's ``left/image_raw/compressed``, ``right/image_raw/compressed``,
+decoded with OpenCV), and ``left/camera_info``, ``right/camera_info`` when no calibration files are given
+(stereo_image_proc naming; remap as needed); pairs frames by approximate time (``sync_tolerance``, a bounded queue
+of ``sync_queue_size`` frames per camera); publishes ``needle/measured_points`` (sensor_msgs/PointCloud2:
 the centerline samples, x y z float32, plus vx..vz, ax..az when tracking), ``needle/measured_shape``
 (needle_interfaces/NeedleShape with per-sample uncertainty), ``needle/debug_image`` (bgr8, centerlines
 drawn) and, twice a second, its input report and what became of the pairs on ``/diagnostics``
@@ -15,6 +18,7 @@ from __future__ import annotations
 import sys
 import time
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import cv2
@@ -26,13 +30,13 @@ from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3
 from needle_interfaces.msg import NeedleShape
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from needle_vision.streams.base_pose import deserialize_pose_stamped, store_base_pose
-from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
-                                           load_camera_calibration)
-from needle_vision.streams.image_codec import ImageFormatError, image_fields, image_message_to_gray
+from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, load_camera_calibration
+from needle_vision.streams.image_codec import (ImageFormatError, compressed_message_to_gray, image_fields,
+                                               image_message_to_gray)
 from needle_vision.streams.outputs import debug_image, pointcloud2_fields
 from needle_vision.streams.pairing import StampPairer
 from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments, output_from_left,
@@ -57,9 +61,12 @@ class NeedleStereoNode(Node):
         self.config = stereo_config(self.values)
         self.output_from_left = output_from_left(self.values)
         self.base_poses = base_pose_store(self.values)
-        self.pairer = StampPairer(self.values["sync_tolerance"])
+        self.pairer = StampPairer(self.values["sync_tolerance"], self.values["sync_queue_size"])
         self.pipeline: StereoNeedlePipeline | None = None
-        self.camera_infos: dict[str, CameraInfo] = {}
+        self.camera_infos = CameraInfoRig()
+        compressed = self.values["image_transport"] == "compressed"
+        # the two images of a pair decoded at once (OpenCV releases the GIL while decoding)
+        self._decoder = ThreadPoolExecutor(2, thread_name_prefix="decode") if compressed else None
         self.frame_id = self.values["output_frame"]
         self._last_warning: dict[str, float] = {}
         self._reported_drops = 0
@@ -85,8 +92,9 @@ class NeedleStereoNode(Node):
         # after the parameters are checked and the static frames sent, before subscribing: a pair arriving while the
         # kernels compile would wait, and the ones after it be dropped
         self.get_logger().info(f"measurement kernels ready in {compile_kernels():.1f} s")
+        image_type, suffix = (CompressedImage, "/compressed") if compressed else (Image, "")
         for side in ("left", "right"):
-            self.inputs.track(self.create_subscription(Image, f"{side}/image_raw",
+            self.inputs.track(self.create_subscription(image_type, f"{side}/image_raw{suffix}",
                                                        lambda msg, side=side: self.on_image(side, msg), qos))
         if self.values["base_pose.topic"]:
             self.inputs.track(self.create_subscription(PoseStamped, self.values["base_pose.topic"], self.on_base_pose,
@@ -96,8 +104,8 @@ class NeedleStereoNode(Node):
         self.shape_pub = self.create_publisher(NeedleShape, "needle/measured_shape", 10)
         self.debug_pub = self.create_publisher(Image, "needle/debug_image", 1)
         source = "calibration files" if self.pipeline else "left/camera_info and right/camera_info"
-        self.get_logger().info(f"needle_stereo ready: calibration from {source}, "
-                               f"background from {self.config.background_frames} pairs")
+        self.get_logger().info(f"needle_stereo ready: {self.values['image_transport']} images, calibration from "
+                               f"{source}, background from {self.config.background_frames} pairs")
 
     def base_tf_buffer(self) -> Any:
         """A tf2_ros buffer listening to /tf for the base frame, or None (no frame set, or tf2_ros missing)."""
@@ -156,16 +164,10 @@ class NeedleStereoNode(Node):
             self.get_logger().warning(text)
 
     def on_camera_info(self, side: str, msg: CameraInfo) -> None:
-        previous = self.camera_infos.get(side)
-        if previous is not None and all(np.array_equal(getattr(previous, key), getattr(msg, key))
-                                        for key in ("width", "height", "k", "d", "r", "p")):
-            return
-        self.camera_infos[side] = msg
-        if len(self.camera_infos) < 2:
-            return
         try:
-            rig = StereoRig.from_camera_calibrations(calibration_from_camera_info(self.camera_infos["left"], "left"),
-                                                     calibration_from_camera_info(self.camera_infos["right"], "right"))
+            rig = self.camera_infos.offer(side, msg)
+            if rig is None:
+                return
             self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left, self.base_poses)
         except (CalibrationError, cv2.error, np.linalg.LinAlgError) as error:
             self.pipeline = None
@@ -174,7 +176,7 @@ class NeedleStereoNode(Node):
         self.send_camera_frames(rig)
         self.get_logger().info("stereo calibration received from camera_info; background model restarts")
 
-    def on_image(self, side: str, msg: Image) -> None:
+    def on_image(self, side: str, msg: Image | CompressedImage) -> None:
         pair = self.pairer.push(side, _stamp_seconds(msg.header), msg)
         if self.pairer.dropped > self._reported_drops:
             self.warn("sync", f"{self.pairer.dropped - self._reported_drops} frame(s) without a partner within "
@@ -188,10 +190,11 @@ class NeedleStereoNode(Node):
                                      "right/camera_info): frame skipped")
             return
         try:
-            images = [image_message_to_gray(pair.left), image_message_to_gray(pair.right)]
+            images = list(self._decoder.map(compressed_message_to_gray, (pair.left, pair.right))) if self._decoder \
+                else [image_message_to_gray(pair.left), image_message_to_gray(pair.right)]
         except ImageFormatError as error:
-            self.measurement_status.count("skipped_bad_encoding")
-            self.warn("encoding", f"image skipped: {error}")
+            self.measurement_status.count("skipped_decode_error")
+            self.warn("decode", f"pair at {pair.stamp:.6f} s skipped: {error}")
             return
         self._image_frame = pair.left.header.frame_id
         if self.tf_buffer is not None:
@@ -235,6 +238,11 @@ class NeedleStereoNode(Node):
                               measurement.right_centerline.points if measurement else None,
                               self.values["debug_image.downsample"])
         self.debug_pub.publish(Image(header=image_header, **image_fields(picture, "bgr8")))
+
+    def destroy_node(self) -> None:
+        if self._decoder is not None:
+            self._decoder.shutdown(cancel_futures=True)
+        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -4,9 +4,16 @@ Works on plain field values, so the node (rclpy messages) and the offline comman
 bag) share it. The pipeline works on one grey channel: colour images are converted to grey. Serialized
 ``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage`` (CDR, as a rosbag2 MCAP stores them) are read here
 too, without building message objects: the pixels stay a view into the serialized bytes.
+
+``sensor_msgs/CompressedImage`` (image_transport's ``<image>/compressed`` topics) is decoded by
+:func:`compressed_to_gray` with OpenCV, for the node and the offline command alike. Its ``format`` follows
+compressed_image_transport: ``"<encoding>; <jpeg|png> compressed <encoding of the compressed pixels>"`` (e.g.
+``"bgr8; jpeg compressed bgr8"``, ``"mono16; png compressed mono16"``), or just ``"jpeg"``/``"png"`` as older
+drivers write it; colour is stored as BGR in either. :func:`compress_image` writes the same formats.
 """
 from __future__ import annotations
 
+import re
 import struct
 import sys
 from typing import Any, Mapping, NamedTuple
@@ -102,10 +109,7 @@ class SerializedImage(NamedTuple):
         (OpenCV releases the GIL while decoding, so this runs well on worker threads)."""
         if not self.compressed_format:
             return image_to_gray(**self.fields)
-        image = cv2.imdecode(self.fields["data"], cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise ImageFormatError(f"cannot decode compressed image (format '{self.compressed_format}')")
-        return decoded_to_gray(image)
+        return compressed_to_gray(self.fields["data"], self.compressed_format)
 
 
 _BMP_HEADER = struct.Struct("<2sI4xI")  # "BM", file size, pixel data offset
@@ -137,6 +141,89 @@ def decoded_to_gray(image: np.ndarray) -> np.ndarray:
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
     return image
+
+
+#: codecs OpenCV decodes, as named in a ``CompressedImage`` format -> file suffix for ``cv2.imencode``
+CODECS = {"jpeg": ".jpg", "jpg": ".jpg", "png": ".png", "tiff": ".tif", "tif": ".tif", "bmp": ".bmp"}
+#: "<encoding>; <codec> compressed <target>", "<codec>"
+_FORMAT = re.compile(r"^(?:\w+\s*;\s*)?(?P<codec>\w+)(?:\s+compressed(?:\s+(?P<target>\w+))?)?$")
+
+
+def compressed_codec(image_format: str) -> str | None:
+    """The codec a ``CompressedImage`` format names (``"jpeg"``, ``"png"``, ...; None when it names none, e.g.
+    empty: OpenCV then tells it from the data); ImageFormatError for a codec or transport OpenCV cannot read
+    (compressedDepth, video codecs)."""
+    text = image_format.strip()
+    if "compresseddepth" in text.lower():
+        raise ImageFormatError(f"compressed format '{image_format}': compressedDepth (depth images) is not supported")
+    match = _FORMAT.match(text)
+    if not text or text == "unknown" or (match and match["codec"].lower() in ENCODINGS and not match["target"]):
+        return None  # no codec named (or only a pixel encoding): OpenCV recognises the data
+    codec = match["codec"].lower() if match else ""
+    if codec not in CODECS:
+        raise ImageFormatError(f"compressed format '{image_format}': unsupported compression (supported: jpeg, png, "
+                               "tiff, bmp)")
+    return codec
+
+
+def compressed_to_gray(data: Any, image_format: str) -> np.ndarray:
+    """One grey channel (uint8, or uint16 for 16-bit PNG/TIFF) of a ``CompressedImage``'s data (any buffer: bytes,
+    array.array, numpy); ImageFormatError when the format names something else than an image OpenCV reads, or the
+    data do not decode."""
+    compressed_codec(image_format)
+    buffer = data.view(np.uint8) if isinstance(data, np.ndarray) else np.frombuffer(data, dtype=np.uint8)
+    image = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED) if buffer.size else None
+    if image is None or image.size == 0:
+        raise ImageFormatError(f"cannot decode the compressed image ({buffer.size} bytes, format '{image_format}'): "
+                               "corrupt or not an image")
+    return decoded_to_gray(image)
+
+
+def compressed_message_to_gray(message: Mapping[str, Any] | Any) -> np.ndarray:
+    """:func:`compressed_to_gray` of a ``CompressedImage`` message object or a mapping of its fields."""
+    get = message.get if isinstance(message, Mapping) else (lambda key: getattr(message, key))
+    return compressed_to_gray(get("data"), str(get("format")))
+
+
+def compress_image(array: np.ndarray, encoding: str, codec: str = "png", quality: int = 95) -> tuple[str, bytes]:
+    """``(format, data)`` of a ``CompressedImage`` holding ``array`` (in ``encoding``'s layout) as
+    compressed_image_transport writes it: colour as BGR, JPEG only for 8-bit images (``quality`` 1-100), PNG at
+    compression level 1."""
+    if encoding not in ENCODINGS or array.dtype != ENCODINGS[encoding][0]:
+        raise ImageFormatError(f"array {array.shape} {array.dtype} does not match encoding '{encoding}'")
+    if codec not in ("jpeg", "png"):
+        raise ImageFormatError(f"codec '{codec}': jpeg or png")
+    if codec == "jpeg" and array.dtype != np.uint8:
+        raise ImageFormatError(f"JPEG holds 8-bit images only, not {encoding}")
+    if encoding == "rgb8":
+        array = cv2.cvtColor(array, cv2.COLOR_RGB2BGR)
+    target = "bgr8" if array.ndim == 3 else encoding
+    options = [cv2.IMWRITE_JPEG_QUALITY, int(quality)] if codec == "jpeg" else [cv2.IMWRITE_PNG_COMPRESSION, 1]
+    ok, data = cv2.imencode(CODECS[codec], array, options)
+    if not ok:
+        raise ImageFormatError(f"OpenCV could not encode a {encoding} image as {codec}")
+    return f"{encoding}; {codec} compressed {target}", data.tobytes()
+
+
+def serialize_compressed_image(sec: int, nanosec: int, frame_id: str, image_format: str, data: bytes) -> bytes:
+    """A ``sensor_msgs/CompressedImage`` as CDR bytes (little-endian XCDR1, as rclpy serializes it)."""
+    out = bytearray(b"\x00\x01\x00\x00")
+
+    def pad() -> None:
+        out.extend(bytes(-(len(out) - 4) % 4))
+
+    def string(text: str) -> None:
+        raw = text.encode()
+        pad()
+        out.extend(struct.pack("<I", len(raw) + 1) + raw + b"\x00")
+
+    out.extend(struct.pack("<iI", sec, nanosec))
+    string(frame_id)
+    string(image_format)
+    pad()
+    out.extend(struct.pack("<I", len(data)))
+    out.extend(data)
+    return bytes(out)
 
 
 def deserialize_image(data: bytes, compressed: bool) -> SerializedImage:
