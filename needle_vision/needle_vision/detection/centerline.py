@@ -575,31 +575,38 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     direction, centre = _principal_direction(points[n - 30:n - 8])
     normal = np.array([-direction[1], direction[0]])
     along = (points[:, 0] - centre[0]) * direction[0] + (points[:, 1] - centre[1]) * direction[1]
-    s = np.arange(along[n - 30], along[n - 1] + 2 * half_width, step)
-    u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
-    height, width = image.shape
-    for corner_s in (s[0], s[-1]):  # an affine grid: its extremes are at the corners
-        for corner_u in (u[0], u[-1]):
-            x = centre[0] + corner_s * direction[0] + corner_u * normal[0]
-            y = centre[1] + corner_s * direction[1] + corner_u * normal[1]
-            if x < 0 or y < 0 or x > width - 1 or y > height - 1:
-                return none
-    grid = _contrast_grid(image, background, polarity, centre, direction, s, u, 0.0)
-    inside = s <= along[n - 9]
-    cross = _column_medians(grid[inside])
-    # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
-    # margins add noise, not contrast (about a third less noise in the end's position).
-    side_sigma, band_centre, band_half_width, band_contrast = _side_blur(u, cross)
-    band = np.abs(u - band_centre) <= band_half_width + 2 * side_sigma
-    if np.count_nonzero(band) < 3:
-        band[:] = True
-    profile = moving_average(grid[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
-    level = np.median(profile[inside])
-    first = _crossing(s, profile, 0.75 * level, along[n - 9])
-    end = _crossing(s, profile, 0.5 * level, along[n - 9])
-    last = _crossing(s, profile, 0.25 * level, along[n - 9])
-    if level <= 0 or np.isnan(first) or np.isnan(end) or np.isnan(last):
-        return none
+    # The profile runs 2 half widths beyond the last slice; 6 when it does not fall within that, if its end then lies
+    # beyond the last slice (the last slices dropped short of the end: a bright needle's tip 7.8 px beyond its last
+    # slice, 2.4 mm off in 3D; a fall before the last slice is a faint stretch, not the end).
+    for reach in (2.0 * half_width, 6.0 * half_width):
+        s = np.arange(along[n - 30], along[n - 1] + reach, step)
+        u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
+        height, width = image.shape
+        for corner_s in (s[0], s[-1]):  # an affine grid: its extremes are at the corners
+            for corner_u in (u[0], u[-1]):
+                x = centre[0] + corner_s * direction[0] + corner_u * normal[0]
+                y = centre[1] + corner_s * direction[1] + corner_u * normal[1]
+                if x < 0 or y < 0 or x > width - 1 or y > height - 1:
+                    return none
+        grid = _contrast_grid(image, background, polarity, centre, direction, s, u, 0.0)
+        inside = s <= along[n - 9]
+        cross = _column_medians(grid[inside])
+        # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
+        # margins add noise, not contrast (about a third less noise in the end's position).
+        side_sigma, band_centre, band_half_width, band_contrast = _side_blur(u, cross)
+        band = np.abs(u - band_centre) <= band_half_width + 2 * side_sigma
+        if np.count_nonzero(band) < 3:
+            band[:] = True
+        profile = moving_average(grid[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
+        level = np.median(profile[inside])
+        first = _crossing(s, profile, 0.75 * level, along[n - 9])
+        end = _crossing(s, profile, 0.5 * level, along[n - 9])
+        last = _crossing(s, profile, 0.25 * level, along[n - 9])
+        found = level > 0 and not (np.isnan(first) or np.isnan(end) or np.isnan(last))
+        if found and (reach == 2.0 * half_width or end > along[n - 1]):
+            break
+        if reach > 2.0 * half_width:
+            return none
     blur = _edge_spread(cross, u)
     spread = last - first
     scatter = 1.4826 * np.median(np.abs(profile[inside] - level)) / level
