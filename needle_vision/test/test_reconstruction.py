@@ -5,7 +5,8 @@ import pytest
 from vision_shapes import SHAPES, distance_to_curve
 from needle_vision.detection.centerline import extract_centerline
 from needle_vision.matching.correspondence import MatchingConfig
-from needle_vision.matching.reconstruction import ReconstructionConfig, _smooth_along, reconstruct_centerline
+from needle_vision.matching.reconstruction import UNMEASURED, ReconstructionConfig, _continuity_sigma, _smooth_along, \
+    reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import world_from_camera
 from needle_vision.transform import RigidTransform
@@ -92,9 +93,11 @@ def test_stretch_parallel_to_epipolar_lines_comes_from_continuity(measure):
     assert np.sqrt(np.mean(distance ** 2)) < 2e-4
     assert distance.max() < 0.6e-3
     assert (arc[-1] - arc[0]) / _length(SHAPES["hook"]) >= 0.95
-    # The uncertainty says so: larger on the tail than on the triangulated stretch.
-    tail = arc > 0.23
-    assert np.median(measurement.uncertainty[tail]) > 3 * np.median(measurement.uncertainty[arc < 0.12])
+    # The uncertainty says so: larger on the tail than on the triangulated stretch, or flagged unmeasured (above
+    # max_uncertainty: its bending in depth is not seen, reconstruction._continuity_sigma); the stretch is measured.
+    tail = measurement.uncertainty[arc > 0.23]
+    body = measurement.uncertainty[arc < 0.12]
+    assert np.all((tail == UNMEASURED) | (tail > 3 * np.median(body))) and np.all(body > 0)
 
 
 @pytest.mark.parametrize("name", ["straight", "planar", "3d", "hook"])
@@ -122,3 +125,32 @@ def test_local_cubic_along_an_uneven_abscissa():
         first = min(max(k - window // 2, 0), len(points) - window)
         vandermonde = np.vander(abscissa[first:first + window] - abscissa[k], 4, increasing=True)
         assert gain[k] == pytest.approx(np.linalg.norm(np.linalg.pinv(vandermonde)[0]), rel=1e-9)
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 60.0])
+def test_continuity_sigma_is_the_sagitta_of_the_unseen_bend(tilt_deg):
+    """A stretch placed by continuity follows the chord between the anchors around it in depth; a circular arc of
+    radius R bent in a plane through the depth axis z leaves its chord by the sagitta, R - sqrt(R^2 - (h/2)^2) at
+    the middle of a gap of arc length h, and the sigma is that to the curvature's order (the curvature taken on the
+    anchored side); tilted by an angle about the arc's chord, the depth part of it (times the cosine). Beyond the
+    last anchor (extrapolated from the end tangent) it grows like the arc's offset from its tangent,
+    R (1 - cos(a / R)). A bend across the depth axis is seen in the images: no sigma."""
+    radius, spacing, tilt = 1.0, 0.25e-3, np.radians(tilt_deg)
+    angle = np.arange(0.0, 0.12, spacing) / radius
+    bend = radius * (1 - np.cos(angle))
+    arc = np.column_stack([radius * np.sin(angle), bend * np.sin(tilt), bend * np.cos(tilt)])
+    depth = np.array([0.0, 0.0, 1.0])
+    anchored = np.ones(len(arc), bool)
+    gap = slice(200, 360)  # 40 mm placed by continuity between 50 mm and 70 mm of anchors
+    anchored[gap] = False
+    sigma = _continuity_sigma(arc, anchored, 20e-3, depth)
+    half = 0.5 * (gap.stop - gap.start + 1) * spacing
+    middle = (gap.start + gap.stop - 1) // 2
+    assert sigma[middle] == pytest.approx(np.cos(tilt) * (radius - np.sqrt(radius ** 2 - half ** 2)), rel=0.03)
+    assert np.all(sigma[anchored] == 0) and np.all(sigma[gap] > 0)
+    assert np.all(_continuity_sigma(arc[:, [0, 2, 1]] * [1, 1, 0], anchored, 20e-3, depth) < 1e-12)
+    anchored[gap] = True
+    anchored[400:] = False  # the last 20 mm extrapolated
+    sigma = _continuity_sigma(arc, anchored, 20e-3, depth)
+    beyond = (len(arc) - 400) * spacing
+    assert sigma[-1] == pytest.approx(np.cos(tilt) * radius * (1 - np.cos(beyond / radius)), rel=0.03)

@@ -21,6 +21,11 @@ def _measure(rig, backgrounds, images) -> NeedleMeasurement:
                                   ReconstructionConfig(), rig.world_from_left)
 
 
+#: The hook's 54 mm tail runs along the epipolar lines: where its depth bending (not seen) may move it by more than
+#: max_uncertainty it is flagged (measured coverage 0.74-1.00 over the seeds).
+HOOK_COVERAGE = 0.7
+
+
 def _length(curve: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(curve, axis=0), axis=1).sum())
 
@@ -65,12 +70,17 @@ def edge_scene(rig):
                         for k in range(2))
 
 
-def test_needle_in_front_of_a_brightness_ramp(rig, edge_scene):
+@pytest.mark.parametrize("name", ["3d", "planar"])
+def test_needle_in_front_of_a_brightness_ramp(rig, edge_scene, name):
     """Half the needle in front of a background at half the brightness, the ramp crossing it (measured:
-    0.056 mm RMS, tip 0.05 mm, coverage 100 %; the darker half is noisier and says so in its uncertainty)."""
+    0.053-0.060 mm RMS, tip 0.02-0.04 mm, coverage 100 %; the darker half is noisier and says so in its uncertainty).
+    The base lies on the darker side: within 0.15 mm (issue 16 left it at 0.22-0.26 mm; measured 0.08-0.09 mm, over
+    seeds 7, 1007-5007 0.01-0.10 mm)."""
     scene, backgrounds = edge_scene
-    images = render_stereo_pair(rig, SHAPES["3d"], NEEDLE_RADIUS, np.random.default_rng(7), scene=scene)
-    _check(_measure(rig, backgrounds, images), "3d", 0.99)
+    images = render_stereo_pair(rig, SHAPES[name], NEEDLE_RADIUS, np.random.default_rng(7), scene=scene)
+    measurement = _measure(rig, backgrounds, images)
+    _check(measurement, name, 0.99)
+    assert np.linalg.norm(measurement.points[0] - SHAPES[name][0]) <= 0.15e-3
 
 
 @pytest.mark.parametrize("name, start, stop", [("3d", 0.3, 0.4), ("planar", 0.6, 0.7)])
@@ -102,10 +112,12 @@ def test_bevelled_tip(rig, backgrounds, scene, name, bevel, seed):
     3007 failed the no-invented-points check (a 2 mm straight sample 2-3 mm before the tip 0.16 mm off against
     3 sigma = 0.15 mm: its end extrapolated from slices within the bevel's taper, see
     test_bevelled_end_lies_on_the_needle_axis). 1007 failed the straight needle's tip: see
-    test_tip_at_noise_seeds_that_failed."""
+    test_tip_at_noise_seeds_that_failed. The hook's tail, placed by continuity, is flagged unmeasured where its
+    unseen bending in depth may exceed 1 mm (reconstruction._continuity_sigma): coverage >= 0.7."""
     images = render_stereo_pair(rig, SHAPES[name], NEEDLE_RADIUS, np.random.default_rng(seed), scene=scene,
                                 bevel_length=bevel)
-    _check(_measure(rig, backgrounds, images), name, 0.99, 0.2e-3, max_rms=2e-4 if name == "hook" else 1e-4)
+    _check(_measure(rig, backgrounds, images), name, HOOK_COVERAGE if name == "hook" else 0.99, 0.2e-3,
+           max_rms=2e-4 if name == "hook" else 1e-4)
 
 
 @pytest.mark.parametrize("name, bevel, seed", [
@@ -131,7 +143,7 @@ def test_tip_at_noise_seeds_that_failed(rig, backgrounds, scene, name, bevel, se
     centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
     measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
                                          ReconstructionConfig(), rig.world_from_left)
-    _check(measurement, name, 0.85 if name == "end_on" else 0.99, 0.2e-3)
+    _check(measurement, name, 0.85 if name == "end_on" else HOOK_COVERAGE if name == "hook" else 0.99, 0.2e-3)
     tip_pixels = [project_points(rig, SHAPES[name][-1:], side)[0] for side in ("left", "right")]
     for centerline, tip in zip(centerlines, tip_pixels):
         at_tip = int(np.argmin(np.linalg.norm(centerline.points[[0, -1]] - tip, axis=1)))

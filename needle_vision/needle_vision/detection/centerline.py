@@ -346,6 +346,11 @@ TAPER_FACTOR = 1.15
 #: profile does not tell a taper: a flat end's spread ratio scatters ~3x the profile's scatter about 1). Was a
 #: fixed 5 % scatter limit, which also dropped 2 mm bevels (ratio 3, scatter 5-6 % with the taper's top in it).
 TAPER_SIGNIFICANCE = 5.0
+#: The end's lateral extrapolation takes a cubic term (the curvature changing along the 80 slices before the end)
+#: when its coefficient exceeds this many white-noise standard errors. The centroids' errors are correlated over ~20
+#: slices, so noise alone reaches ~5 (seeds 7 and 1007, both polarities, straight/planar/3D/S/curl: up to 5.2 over
+#: 48 ends); the S whose tip straightens out of its bend (s_epipolar) reads 16-33.
+CURVATURE_RAMP_SIGNIFICANCE = 10.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -552,7 +557,8 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     the direction of the profile of the covered fraction (B - I) / (B - N) integrated across the needle's band (its
     blurred edges included; N the needle's own intensity); the end is where that profile falls to half its level (a
     flat end is a step blurred symmetrically). The points within ``half_width + 1`` px of the end (centroids biased
-    by the oblique cut) are replaced by a quadratic (the needle's curvature) fitted to the 80 before them, evenly
+    by the oblique cut) are replaced by a quadratic (the needle's curvature; a cubic where its change along them is
+    significant) fitted to the 80 before them, evenly
     spaced at the centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls
     (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its
     noise), a blurred linear taper is fitted to the profile and the end put half its length beyond its middle (least
@@ -569,31 +575,38 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     direction, centre = _principal_direction(points[n - 30:n - 8])
     normal = np.array([-direction[1], direction[0]])
     along = (points[:, 0] - centre[0]) * direction[0] + (points[:, 1] - centre[1]) * direction[1]
-    s = np.arange(along[n - 30], along[n - 1] + 2 * half_width, step)
-    u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
-    height, width = image.shape
-    for corner_s in (s[0], s[-1]):  # an affine grid: its extremes are at the corners
-        for corner_u in (u[0], u[-1]):
-            x = centre[0] + corner_s * direction[0] + corner_u * normal[0]
-            y = centre[1] + corner_s * direction[1] + corner_u * normal[1]
-            if x < 0 or y < 0 or x > width - 1 or y > height - 1:
-                return none
-    grid = _contrast_grid(image, background, polarity, centre, direction, s, u, 0.0)
-    inside = s <= along[n - 9]
-    cross = _column_medians(grid[inside])
-    # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
-    # margins add noise, not contrast (about a third less noise in the end's position).
-    side_sigma, band_centre, band_half_width, band_contrast = _side_blur(u, cross)
-    band = np.abs(u - band_centre) <= band_half_width + 2 * side_sigma
-    if np.count_nonzero(band) < 3:
-        band[:] = True
-    profile = moving_average(grid[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
-    level = np.median(profile[inside])
-    first = _crossing(s, profile, 0.75 * level, along[n - 9])
-    end = _crossing(s, profile, 0.5 * level, along[n - 9])
-    last = _crossing(s, profile, 0.25 * level, along[n - 9])
-    if level <= 0 or np.isnan(first) or np.isnan(end) or np.isnan(last):
-        return none
+    # The profile runs 2 half widths beyond the last slice; 6 when it does not fall within that, if its end then lies
+    # beyond the last slice (the last slices dropped short of the end: a bright needle's tip 7.8 px beyond its last
+    # slice, 2.4 mm off in 3D; a fall before the last slice is a faint stretch, not the end).
+    for reach in (2.0 * half_width, 6.0 * half_width):
+        s = np.arange(along[n - 30], along[n - 1] + reach, step)
+        u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
+        height, width = image.shape
+        for corner_s in (s[0], s[-1]):  # an affine grid: its extremes are at the corners
+            for corner_u in (u[0], u[-1]):
+                x = centre[0] + corner_s * direction[0] + corner_u * normal[0]
+                y = centre[1] + corner_s * direction[1] + corner_u * normal[1]
+                if x < 0 or y < 0 or x > width - 1 or y > height - 1:
+                    return none
+        grid = _contrast_grid(image, background, polarity, centre, direction, s, u, 0.0)
+        inside = s <= along[n - 9]
+        cross = _column_medians(grid[inside])
+        # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
+        # margins add noise, not contrast (about a third less noise in the end's position).
+        side_sigma, band_centre, band_half_width, band_contrast = _side_blur(u, cross)
+        band = np.abs(u - band_centre) <= band_half_width + 2 * side_sigma
+        if np.count_nonzero(band) < 3:
+            band[:] = True
+        profile = moving_average(grid[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
+        level = np.median(profile[inside])
+        first = _crossing(s, profile, 0.75 * level, along[n - 9])
+        end = _crossing(s, profile, 0.5 * level, along[n - 9])
+        last = _crossing(s, profile, 0.25 * level, along[n - 9])
+        found = level > 0 and not (np.isnan(first) or np.isnan(end) or np.isnan(last))
+        if found and (reach == 2.0 * half_width or end > along[n - 1]):
+            break
+        if reach > 2.0 * half_width:
+            return none
     blur = _edge_spread(cross, u)
     spread = last - first
     scatter = 1.4826 * np.median(np.abs(profile[inside] - level)) / level
@@ -646,11 +659,19 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     abscissa = (fit[:, 0] - centre[0]) * direction[0] + (fit[:, 1] - centre[1]) * direction[1]
     offset = abscissa.mean()
     lateral = (fit[:, 0] - centre[0]) * normal[0] + (fit[:, 1] - centre[1]) * normal[1]
-    design = np.empty((80, 3))
+    # A cubic term where it stands out of the fit's noise (CURVATURE_RAMP_SIGNIFICANCE standard errors): the needle's
+    # curvature changing along the 80 slices (an S straightening out near its tip), which the quadratic extrapolates
+    # 0.3-0.5 px aside.
+    design = np.empty((80, 4))
     for k in range(80):
         t = abscissa[k] - offset
-        design[k, 0], design[k, 1], design[k, 2] = t * t, t, 1.0
+        design[k, 0], design[k, 1], design[k, 2], design[k, 3] = t * t * t, t * t, t, 1.0
     coefficients = np.linalg.lstsq(design, lateral)[0]
+    residual = lateral - design @ coefficients
+    variance = (residual @ residual) / 76.0 * np.linalg.inv(design.T @ design)[0, 0]
+    if coefficients[0] * coefficients[0] <= CURVATURE_RAMP_SIGNIFICANCE ** 2 * variance:
+        coefficients[0] = 0.0
+        coefficients[1:] = np.linalg.lstsq(np.ascontiguousarray(design[:, 1:]), lateral)[0]
     # As many points as the centerline's own spacing (the slices' step along the needle) puts up to the end, evenly
     # spaced: the 3D smoothing's first pass fits by point index, so a short last step pushed the end outward.
     spacing = (along[kept - 1] - along[kept - 21]) / 20
@@ -659,7 +680,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     out = np.empty((steps.shape[0], 2))
     for k in range(steps.shape[0]):
         t = steps[k] - offset
-        shift = (coefficients[0] * t + coefficients[1]) * t + coefficients[2]
+        shift = ((coefficients[0] * t + coefficients[1]) * t + coefficients[2]) * t + coefficients[3]
         out[k, 0] = centre[0] + steps[k] * direction[0] + shift * normal[0]
         out[k, 1] = centre[1] + steps[k] * direction[1] + shift * normal[1]
     return kept, out, half_taper

@@ -82,13 +82,24 @@ def _project(projection, point, derivative, pixel, jacobian, tangent):  # pragma
 def _accumulate(normal, rhs, s, b, row, weight, residual):  # pragma: no cover - compiled
     """One weighted scalar residual of segment ``s`` into the normal equations: its row ``row`` (d residual / d point,
     (3,)) spread over the segment's four control points by the basis ``b`` (lower triangle of ``normal``)."""
+    r0, r1, r2 = row[0], row[1], row[2]
     for a in range(4):
+        wa = weight * b[a]
         for c in range(a, 4):
-            for k in range(3):
-                for j in range(3):
-                    normal[3 * (s + c) + j, 3 * (s + a) + k] += weight * b[a] * b[c] * row[k] * row[j]
+            w = wa * b[c]
+            first, second = 3 * (s + c), 3 * (s + a)
+            w0, w1, w2 = w * r0, w * r1, w * r2
+            normal[first, second] += w0 * r0
+            normal[first, second + 1] += w1 * r0
+            normal[first, second + 2] += w2 * r0
+            normal[first + 1, second] += w0 * r1
+            normal[first + 1, second + 1] += w1 * r1
+            normal[first + 1, second + 2] += w2 * r1
+            normal[first + 2, second] += w0 * r2
+            normal[first + 2, second + 1] += w1 * r2
+            normal[first + 2, second + 2] += w2 * r2
         for k in range(3):
-            rhs[3 * (s + a) + k] += weight * b[a] * row[k] * residual
+            rhs[3 * (s + a) + k] += wa * row[k] * residual
 
 
 @numba.njit(cache=True, nogil=True)
@@ -345,28 +356,39 @@ def _sample(control, h, length, factor, spacing, inflation):  # pragma: no cover
     sigma = np.empty(n)
     parameters = np.empty(n)
     b, d1, t = np.empty(4), np.empty(4), np.empty(3)
-    block, helper = np.empty((3, 3)), np.empty(3)
+    block, e1, e2 = np.empty((3, 3)), np.empty(3), np.empty(3)
     for p in range(n):
         u = length * p / (n - 1)
         parameters[p] = u
         s = _basis(u, h, segments, b, d1)
         _evaluate(control, s, b, d1, points[p], t)
-        t /= max(np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]), 1e-300)
-        tangents[p] = t
+        norm = max(np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]), 1e-300)
+        for k in range(3):
+            t[k] /= norm
+            tangents[p, k] = t[k]
         block[:] = 0.0
         for a in range(4):
             for c in range(4):
+                weight = b[a] * b[c]
                 for k in range(3):
                     for j in range(3):
                         row, col = 3 * (s + a) + k, 3 * (s + c) + j
-                        block[k, j] += b[a] * b[c] * (covariance[row, col] if row >= col else covariance[col, row])
-        # Two unit vectors across the tangent; the largest eigenvalue of the 2x2 covariance across the needle.
-        helper[:] = 0.0
-        helper[0 if abs(t[0]) < 0.9 else 1] = 1.0
-        e1 = helper - (helper @ t) * t
-        e1 /= np.sqrt(e1 @ e1)
-        e2 = np.cross(t, e1)
-        a11, a22, a12 = e1 @ block @ e1, e2 @ block @ e2, e1 @ block @ e2
+                        block[k, j] += weight * (covariance[row, col] if row >= col else covariance[col, row])
+        # Two unit vectors across the tangent (e1: the axis least along it, less its tangential part; e2 = t x e1);
+        # the largest eigenvalue of the 2x2 covariance across the needle.
+        axis = 0 if abs(t[0]) < 0.9 else 1
+        for k in range(3):
+            e1[k] = (1.0 if k == axis else 0.0) - t[axis] * t[k]
+        norm = np.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+        for k in range(3):
+            e1[k] /= norm
+        e2[0], e2[1], e2[2] = t[1] * e1[2] - t[2] * e1[1], t[2] * e1[0] - t[0] * e1[2], t[0] * e1[1] - t[1] * e1[0]
+        a11 = a22 = a12 = 0.0
+        for k in range(3):
+            for j in range(3):
+                a11 += e1[k] * block[k, j] * e1[j]
+                a22 += e2[k] * block[k, j] * e2[j]
+                a12 += e1[k] * block[k, j] * e2[j]
         largest = 0.5 * (a11 + a22) + np.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
         sigma[p] = np.sqrt(max(largest, 0.0) * inflation)
     return points, tangents, sigma, parameters

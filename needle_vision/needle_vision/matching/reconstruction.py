@@ -29,8 +29,13 @@ END_LOCALIZATION_PX = 0.3
 #: Correlated part of the image centerlines' lateral error [px] and the points it spans: the fitted curve averages
 #: white noise over hundreds of points but not this (straight needle, 41-point means of its error against the
 #: projected truth: 0.008-0.015 px on a dark needle, 0.020-0.035 px on a bright one, where white noise leaves 0.01).
-CORRELATED_NOISE_PX = 0.025
+#: The largest of those: the pipeline does not know a needle's share, and sigma must hold for either polarity (with
+#: 0.025 a bright turning plane's correlated bump stood 3.8 sigma off).
+CORRELATED_NOISE_PX = 0.035
 CORRELATED_NOISE_POINTS = 20
+#: Arc length [m] of the anchored stretch beside a stretch placed by continuity over which the needle's bending in
+#: depth, the scale of that stretch's unseen bending, is fitted (a quadratic; 0.1 mm of depth noise: ~1/m).
+CURVATURE_SPAN = 20e-3
 #: ``uncertainty`` of a sample in a gap (no triangulated point within ``max_gap``): interpolated, not measured.
 UNMEASURED = -1.0
 
@@ -349,6 +354,55 @@ def _slide(sin_angle: np.ndarray) -> np.ndarray:
     return np.sqrt(2.0) * CORRELATED_NOISE_PX / sin_angle
 
 
+def _depth_curvature(curve: np.ndarray, arc: np.ndarray, anchored: np.ndarray, start: float, stop: float,
+                     depth_axis: np.ndarray) -> float:
+    """|d^2 depth / du^2| [1/m] of the ``anchored`` points of ``curve`` (arc lengths ``arc``) between ``start`` and
+    ``stop``: the depth component of the curvature vector of a quadratic fitted to them in arc length (least squares;
+    0 with fewer than 10 points)."""
+    inside = anchored & (arc >= start) & (arc <= stop)
+    if np.count_nonzero(inside) < 10:
+        return 0.0
+    u = arc[inside] - 0.5 * (start + stop)
+    depth = curve[inside] @ depth_axis
+    return float(abs(2 * np.polyfit(u, depth, 2)[0]))
+
+
+def _continuity_sigma(smooth: np.ndarray, anchored: np.ndarray, span: float, depth_axis: np.ndarray) -> np.ndarray:
+    """1-sigma error [m] of the points placed by continuity (not ``anchored``: the correspondence interpolates their
+    match linearly between the anchors around them, or extrapolates it with the local ratio beyond the last ones).
+
+    The images hold such a stretch across, along the epipolar lines, but not its depth (along the unit
+    ``depth_axis``, the rectified optical axis, in the frame of ``smooth``): the match follows the chord between the
+    bordering anchors in disparity, so the depth follows the chord between theirs. A depth profile Z(u) of second
+    derivative Z'' (the depth component of the curvature vector) leaves the chord between fixed points a before and
+    b after it (arc lengths) by Z'' a b / 2, and the end tangent by Z'' a^2 / 2 when extrapolated. Z'' in the
+    stretch is not seen; an elastic rod's curvature is continuous, so it is taken as large as the anchored
+    needle's beside it (fitted over ``span`` on the far side of each bordering anchor, the larger of the two)."""
+    n = len(smooth)
+    sigma = np.zeros(n)
+    gap = ~anchored
+    if not gap.any():
+        return sigma
+    if not anchored.any():
+        return np.full(n, np.inf)
+    arc = arc_length(smooth)
+    index = np.arange(n)
+    before = np.maximum.accumulate(np.where(anchored, index, -1))
+    after = np.minimum.accumulate(np.where(anchored, index, n)[::-1])[::-1]
+    curvature = np.zeros(n)
+    for k in np.unique(before[gap & (before >= 0)]):  # anchors that a stretch follows: the curve behind them
+        curvature[k] = _depth_curvature(smooth, arc, anchored, arc[k] - span, arc[k], depth_axis)
+    for k in np.unique(after[gap & (after < n)]):  # anchors that a stretch precedes: the curve ahead of them
+        curvature[k] = max(curvature[k], _depth_curvature(smooth, arc, anchored, arc[k], arc[k] + span, depth_axis))
+    k_before, k_after = np.clip(before, 0, n - 1), np.clip(after, 0, n - 1)
+    kappa = np.maximum(np.where(before >= 0, curvature[k_before], 0.0), np.where(after < n, curvature[k_after], 0.0))
+    a = np.where(before >= 0, arc - arc[k_before], np.inf)
+    b = np.where(after < n, arc[k_after] - arc, np.inf)
+    sigma[gap] = 0.5 * kappa[gap] * np.where(np.isfinite(a[gap]) & np.isfinite(b[gap]), a[gap] * b[gap],
+                                             np.minimum(a[gap], b[gap]) ** 2)
+    return sigma
+
+
 def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, spacing: float,
                   centerlines: tuple[ImageCenterline, ImageCenterline], rectified: tuple[np.ndarray, np.ndarray],
                   rectification: Rectification, config: ReconstructionConfig
@@ -439,7 +493,9 @@ def order_and_resample(triangulation: Triangulation, rectification: Rectificatio
         smooth, smoothing_gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
         # white noise kept by the cubic fit, and the slide along the epipolar lines that it does not average
         slide = triangulation.slide_sigma[::-1] if reverse else triangulation.slide_sigma
-        point_sigma = np.hypot(point_sigma * smoothing_gain, slide)
+        depth_axis = output_from_left.rotation @ rectification.rotation_left[2]
+        point_sigma = np.sqrt((point_sigma * smoothing_gain) ** 2 + slide ** 2
+                              + _continuity_sigma(smooth, anchored, CURVATURE_SPAN, depth_axis) ** 2)
         supported = np.ones(len(smooth), np.bool_)
     samples, resampled, tangents, uncertainty, measured = _resampled(
         smooth, point_sigma, supported, config.sample_spacing, config.max_gap, config.max_uncertainty,
