@@ -4,6 +4,7 @@ The launch files (``share/needle_sim_ros/launch``) call these from an ``OpaqueFu
 """
 from __future__ import annotations
 
+import atexit
 import os
 import tempfile
 import time
@@ -72,8 +73,8 @@ def full_namespace(pushed: str | None, namespace: str) -> str:
 
 def namespaced_params_file(path: str) -> str:
     """A params file whose sections keyed by a bare node name (``needle_simulator:``) apply under any namespace:
-    ``path`` itself if it has none, else a copy (in the temporary directory) with those keys as
-    ``/**/needle_simulator``; rcl matches a bare name only in the root namespace."""
+    ``path`` itself if it has none, else a copy (in the temporary directory, removed when the launch process
+    exits) with those keys as ``/**/needle_simulator``; rcl matches a bare name only in the root namespace."""
     if not path:
         return path
     document = yaml.safe_load(Path(path).read_text())
@@ -83,6 +84,7 @@ def namespaced_params_file(path: str) -> str:
     with tempfile.NamedTemporaryFile("w", prefix=f"{Path(path).stem}_", suffix=".yaml", delete=False) as stream:
         stream.write(f"# {path}, its node sections matched in any namespace (needle_sim bringup.launch.py)\n")
         yaml.safe_dump(rewritten, stream, sort_keys=False)
+    atexit.register(Path(stream.name).unlink, missing_ok=True)
     return stream.name
 
 

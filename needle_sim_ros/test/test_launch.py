@@ -6,6 +6,8 @@ stock ROS 2 install); everywhere, the files are checked at the syntax-tree level
 """
 import ast
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -157,6 +159,15 @@ def test_experiment_sections_apply_in_any_namespace(tmp_path):
     already.write_text("/**/needle_simulator:\n  ros__parameters:\n    qos.wrench: reliable\n")
     assert namespaced_params_file(str(already)) == str(already)  # nothing to rewrite: the user's file itself
     assert namespaced_params_file("") == ""
+
+
+def test_the_rewritten_experiment_file_is_removed_when_the_launch_process_exits():
+    source = SOURCE_CONFIG / "experiments" / "dynamic_pitch.yaml"
+    script = ("import sys; from needle_sim_ros.launch_support import namespaced_params_file; "
+              "path = namespaced_params_file(sys.argv[1]); print(path); assert open(path).read()")
+    result = subprocess.run([sys.executable, "-c", script, str(source)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() and not Path(result.stdout.strip()).exists()
 
 
 def test_only_an_unexpected_failure_fails_the_launch():
