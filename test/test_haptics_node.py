@@ -42,9 +42,11 @@ class Arm:
         self.node.create_subscription(WrenchStamped, "haptic/wrench", self.on_haptic,
                                       QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
         self.node.create_subscription(WrenchStamped, "wrench", lambda m: self.wrenches.append(
-            np.array([m.wrench.force.x, m.wrench.force.y, m.wrench.force.z])), qos_profile_sensor_data)
+            np.array([m.wrench.force.x, m.wrench.force.y, m.wrench.force.z, m.wrench.torque.x, m.wrench.torque.y,
+                      m.wrench.torque.z])), qos_profile_sensor_data)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: self.statuses.extend(m.status), 10)
         self.streaming = threading.Event()
+        self.orientation = (0.0, 0.0, 0.0, 1.0)  # of the base poses (x, y, z, w)
         self.last_sent = 0.0  # monotonic time of the newest pose
         self._closed = threading.Event()
         self.executor = SingleThreadedExecutor()
@@ -62,7 +64,8 @@ class Arm:
     def _stream(self) -> None:
         msg = PoseStamped()
         msg.header.frame_id = "world"
-        msg.pose.position.x, msg.pose.position.z, msg.pose.orientation.w = 0.4, 0.3, 1.0
+        msg.pose.position.x, msg.pose.position.z = 0.4, 0.3
+        q = msg.pose.orientation
         next_time = time.monotonic()
         while not self._closed.is_set():
             next_time += 1e-3
@@ -70,6 +73,7 @@ class Arm:
             if self.streaming.is_set():
                 now = time.time()
                 msg.header.stamp.sec, msg.header.stamp.nanosec = int(now), int((now % 1.0) * 1e9)
+                q.x, q.y, q.z, q.w = self.orientation
                 self.pose_pub.publish(msg)
                 self.last_sent = time.monotonic()
             else:
@@ -151,7 +155,7 @@ def test_the_watchdog_zeroes_a_silent_arm_ramps_back_and_deactivate_sends_zero(a
     assert {entry[3] for entry in recent} == {"world"}
     force = np.mean([entry[1] for entry in recent], axis=0)
     np.testing.assert_allclose(force, [0.0, 0.0, -WEIGHT], atol=0.03 * WEIGHT)
-    np.testing.assert_allclose(np.mean(arm.wrenches[-100:], axis=0), force, atol=0.03 * WEIGHT)
+    np.testing.assert_allclose(np.mean(arm.wrenches[-100:], axis=0)[:3], force, atol=0.03 * WEIGHT)
 
     # The arm goes silent: zero within the watchdog time, and zero keeps coming at the step rate.
     arm.streaming.clear()
@@ -205,7 +209,7 @@ def test_saturation_holds_and_a_stop_signal_sends_zero_then_exits_cleanly(arm, r
     forces, torques = norms(arm.haptic), norms(arm.haptic, 2)
     assert forces.max() <= 0.01 + 1e-12 and torques.max() <= 0.001 + 1e-12
     np.testing.assert_allclose(arm.haptic[-1][1], [0.0, 0.0, -0.01], atol=1e-4)  # direction kept: down
-    assert np.linalg.norm(arm.wrenches[-1]) > 2 * 0.01  # the unlimited output is not clipped
+    assert np.linalg.norm(arm.wrenches[-1][:3]) > 2 * 0.01  # the unlimited output is not clipped
     wait_until(lambda: any(s.level == b"\x01" and "saturated" in s.message for s in arm.status("haptics")), process,
                10.0, "a diagnostics WARN for the saturation")
     clipped = [dict((kv.key, kv.value) for kv in s.values) for s in arm.status("haptics")]
@@ -217,6 +221,24 @@ def test_saturation_holds_and_a_stop_signal_sends_zero_then_exits_cleanly(arm, r
     assert process.returncode == 0, output
     assert "Traceback" not in output, output
     assert not arm.haptic[-1][1].any() and not arm.haptic[-1][2].any(), arm.haptic[-1]
+
+
+def test_the_tool_frame_output_is_the_holder_wrench_in_the_needle_base_frame(arm, ros_env, tmp_path):
+    """haptics.frame: tool (a body-frame servo_cf): the base rolled by 90 deg about the needle axis, the weight
+    (world -z) is felt along the needle base frame's -y (R^T g, independent of the model), in frames.base, and equals
+    the unlimited ``wrench`` output (the same frame) while nothing saturates."""
+    arm.orientation = (np.sin(np.pi / 4), 0.0, 0.0, np.cos(np.pi / 4))  # roll +90 deg: base z along world -y
+    process = start(arm, ros_env, tmp_path, **(HAPTICS | {"haptics.frame": "tool"}))
+    arm.streaming.set()
+    rendering(arm, process)
+    time.sleep(0.5)
+    recent = arm.haptic[-100:]
+    assert {entry[3] for entry in recent} == {"needle_base"}
+    force, torque = (np.mean([entry[k] for entry in recent], axis=0) for k in (1, 2))
+    np.testing.assert_allclose(force, [0.0, -WEIGHT, 0.0], atol=0.03 * WEIGHT)
+    wrench = np.mean(arm.wrenches[-100:], axis=0)
+    np.testing.assert_allclose(wrench[:3], force, atol=0.01 * WEIGHT)
+    np.testing.assert_allclose(wrench[3:], torque, atol=0.01 * WEIGHT * 0.135)
 
 
 def set_parameter(arm: Arm, name: str, value: float):
