@@ -61,8 +61,10 @@ def test_focal_lengths_and_baseline_within_half_a_percent(rig, estimated):
     assert report["rectified_epipolar_error_px"]["rms"] < 0.15
 
 
-@pytest.mark.parametrize("shape", ["planar", "3d"])
+@pytest.mark.parametrize("shape", sorted(SHAPES))
 def test_needle_measured_with_the_estimated_calibration(rig, estimated, background_frames, renders, shape):
+    """Issue 39: <= 0.15 mm RMS with the calibration needle_stereo_calibrate estimates (measured 2026-11-29:
+    0.054-0.109 mm over the six shapes, against 0.027-0.044 mm with the exact calibration)."""
     estimated_rig = StereoRig.from_camera_calibrations(*(load_camera_calibration(estimated / f"{side}.yaml")
                                                          for side in ("left", "right")))
     pipeline = StereoNeedlePipeline(estimated_rig, StereoConfig(background_frames=len(background_frames)))
@@ -72,7 +74,7 @@ def test_needle_measured_with_the_estimated_calibration(rig, estimated, backgrou
     assert result.status is FrameStatus.MEASURED, result.reason
     truth_left = rig.world_from_left.inverse().apply(SHAPES[shape])  # the raw left optical frame
     distance, _ = distance_to_curve(result.measurement.points, truth_left)
-    assert np.sqrt(np.mean(distance ** 2)) <= 2e-4
+    assert np.sqrt(np.mean(distance ** 2)) <= 1.5e-4
 
 
 def test_errors(tmp_path, board_folder, capsys):
