@@ -21,6 +21,7 @@ import os
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -34,6 +35,7 @@ from needle_vision.calibration.rig import camera_calibration_yaml  # noqa: E402
 from needle_vision.detection.background import BackgroundModel, ContrastThreshold  # noqa: E402
 from needle_vision.detection.centerline import extract_centerline  # noqa: E402
 from needle_vision.offline import decoded, open_source  # noqa: E402
+from needle_vision.streams.image_codec import compress_image, compressed_to_gray  # noqa: E402
 from needle_vision.offline import main as offline_main  # noqa: E402
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline  # noqa: E402
 from needle_vision.matching.correspondence import MatchingConfig  # noqa: E402
@@ -114,7 +116,8 @@ def rigid_residual(measured: np.ndarray, truth: np.ndarray) -> float:
 
 def write_inputs(root: Path, rig, pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, list[str]]:
     """The same pairs as image folders (PNG as cv2.imwrite writes it, PNG without compression, BMP) and as MCAP
-    bags (raw Image messages, zstd chunks or uncompressed; PNG CompressedImage); -> offline arguments."""
+    bags (raw Image messages, zstd chunks or uncompressed; PNG and JPEG CompressedImage as image_transport's
+    compressed plugin writes them, the stereo node's image_transport: compressed); -> offline arguments."""
     from mcap.writer import CompressionType
     from mcap_ros2.writer import Writer
     from rosbags.typesys import Stores, get_typestore
@@ -134,9 +137,10 @@ def write_inputs(root: Path, rig, pairs: list[tuple[np.ndarray, np.ndarray]]) ->
                 cv2.imwrite(str(folder / side / f"{k:05d}{suffix}"), pair[index], options)
         inputs[name] = [str(folder), *calibration]
     store = get_typestore(Stores.ROS2_JAZZY)
-    for name, compression, compressed in (("MCAP raw Image, zstd chunks", CompressionType.ZSTD, False),
-                                          ("MCAP raw Image, uncompressed", CompressionType.NONE, False),
-                                          ("MCAP CompressedImage PNG", CompressionType.NONE, True)):
+    for name, compression, compressed in (("MCAP raw Image, zstd chunks", CompressionType.ZSTD, ""),
+                                          ("MCAP raw Image, uncompressed", CompressionType.NONE, ""),
+                                          ("MCAP CompressedImage PNG", CompressionType.NONE, "png"),
+                                          ("MCAP CompressedImage JPEG q95", CompressionType.NONE, "jpeg")):
         path = root / f"bag{len(inputs)}.mcap"
         type_name = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
         with open(path, "wb") as stream:
@@ -146,7 +150,7 @@ def write_inputs(root: Path, rig, pairs: list[tuple[np.ndarray, np.ndarray]]) ->
                 stamp = 1.0 + k / 220.0
                 header = {"stamp": {"sec": int(stamp), "nanosec": int(round(stamp % 1 * 1e9))}, "frame_id": "left"}
                 for side, image in zip(("left", "right"), pair):
-                    message = ({"format": "mono8; png compressed", "data": cv2.imencode(".png", image)[1].tobytes()}
+                    message = (dict(zip(("format", "data"), compress_image(image, "mono8", compressed)))
                                if compressed else {"height": image.shape[0], "width": image.shape[1],
                                                    "encoding": "mono8", "is_bigendian": 0, "step": image.shape[1],
                                                    "data": image.tobytes()})
@@ -178,10 +182,19 @@ def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: 
                 stage_decode[name] = timed(lambda: [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in files], 3)
         pipeline = ready_pipeline(rig, scene, imaging)
         measure = timed(lambda: [pipeline.process(1.0, *pair) for pair in needles], 5)
+        node_decode = {}  # needle_stereo with image_transport: compressed decodes a pair's two images at once
+        with ThreadPoolExecutor(2) as pool:
+            for codec in ("png", "jpeg"):
+                messages = [compress_image(image, "mono8", codec) for image in needles[1]]
+                node_decode[codec] = (
+                    timed(lambda: [compressed_to_gray(data, form) for form, data in messages], 10)[1],
+                    timed(lambda: list(pool.map(lambda m: compressed_to_gray(m[1], m[0]), messages)), 10)[1])
         print(f"## End to end: needle_stereo_offline, {count} pairs of 1440x1080 mono8 ({os.cpu_count()} cores)\n")
         print(f"Measurement alone: {measure[1] / 4:.2f} ms per pair (median; OpenCV threads as installed). Decoding "
               "one image on one thread, median: " + ", ".join(f"{n.split(' (')[0]} {t[1] / 10:.1f} ms"
-                                                             for n, t in stage_decode.items()) + ".\n")
+                                                             for n, t in stage_decode.items()) + ". The node's "
+              "decoding of a CompressedImage pair, median, one thread / its two threads: " + ", ".join(
+                  f"{codec.upper()} {one:.1f} / {two:.1f} ms" for codec, (one, two) in node_decode.items()) + ".\n")
         print("CPU time per pair on one thread (median; load-independent) [ms]: "
               + stage_cpu(pipeline, needles, 5 if quick else 20) + ".\n")
         print(f"Load average before: {' / '.join(f'{v:.1f}' for v in os.getloadavg())} (1 / 5 / 15 min). "

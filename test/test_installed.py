@@ -149,4 +149,4 @@ def test_needle_stereo_node_loads_the_installed_calibration(install_env, elsewhe
         process.send_signal(signal.SIGINT)
         rest, _ = process.communicate(timeout=30)
     text = "".join(output) + rest
-    assert "needle_stereo ready: calibration from calibration files" in text, text
+    assert "needle_stereo ready: raw images, calibration from calibration files" in text, text

@@ -136,6 +136,20 @@ def test_replay_compares_every_measurement_and_ends_by_itself(replay):
     assert re.search(PLAYER_DONE, replay["output"])
 
 
+def test_replay_with_compressed_image_topics_compares_every_measurement(stock_env, launches, tmp_path):
+    """``image_transport:=compressed``: the player plays the bag's images as PNG CompressedImage on
+    image_transport's <image>/compressed topics, the stereo node takes those, and every measurement is compared."""
+    launch = Launch(stock_env, tmp_path / "launch.log", "mode:=replay", f"bag:={DYNAMIC}", "experiment:=dynamic_pitch",
+                    "image_transport:=compressed", f"log:={tmp_path / 'compare.mcap'}")
+    launches.append(launch)
+    assert launch.wait(REPLAY_TIMEOUT) == 0, launch.output()[-5000:]
+    output = launch.output()
+    assert shape_errors(tmp_path / "compare.mcap") == 10, output[-5000:]
+    summary = json.loads(re.search(r"\[needle_compare\] summary: (\{.*\})", output).group(1))
+    assert summary["compared"] == 10 and summary["rmse_mean_m"] < 1e-4, summary
+    assert "needle_stereo ready: compressed images" in output
+
+
 def test_tf2_ros_listener_finds_the_needle_tip_and_the_cameras(replay):
     lookup = replay["lookup"]
     assert lookup.returncode == 0, lookup.stdout + lookup.stderr

@@ -188,9 +188,11 @@ def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRi
     return rig_from_camera_infos(infos["left"], infos["right"])
 
 
-def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, base_topic: str = "") -> PairSource:
+def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, base_topic: str = "",
+               queue_size: int = 8) -> PairSource:
     """Synchronised pairs of the bag's image topics (raw or compressed) with the ``base_topic`` poses read
-    before each; images of an unusable encoding and frames without a partner are counted in ``skipped``."""
+    before each (paired as the node pairs them: ``tolerance``, ``queue_size`` frames per camera waiting); images of
+    an unusable encoding and frames without a partner are counted in ``skipped``."""
     left = "/" + left_topic.lstrip("/")
     base = "/" + base_topic.lstrip("/") if base_topic else ""
     source = PairSource(_bag_count(path, left_topic), lambda: iter(()), False)
@@ -204,7 +206,7 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, 
     def jobs() -> Iterator[PairJob]:
         source.skipped.clear()  # counted again on each pass (the background may take a pass of its own)
         source.poses_skipped.clear()
-        pairer = StampPairer(tolerance)
+        pairer = StampPairer(tolerance, queue_size)
         index, poses = 0, []
         for topic, schema, _, data in _bag_records(path, [left_topic, right_topic] + ([base] if base else [])):
             if topic == base:
@@ -238,7 +240,7 @@ class SkippedPair(Exception):
 
 
 def open_source(path: Path, fps: float, left_topic: str, right_topic: str, tolerance: float,
-                base_topic: str = "") -> PairSource:
+                base_topic: str = "", queue_size: int = 8) -> PairSource:
     """The pairs of an image folder (stamps from ``fps``) or of a bag's image topics (with the poses of
     ``base_topic``; an image folder has none: InputError)."""
     if not path.exists():
@@ -253,7 +255,7 @@ def open_source(path: Path, fps: float, left_topic: str, right_topic: str, toler
     if types and types != {POSE_TYPE}:
         raise InputError(f"base pose topic '{base_topic}' of '{path}' has type '{', '.join(sorted(types))}', "
                          f"not {POSE_TYPE}")
-    return bag_source(path, left_topic, right_topic, tolerance, base_topic)
+    return bag_source(path, left_topic, right_topic, tolerance, base_topic, queue_size)
 
 
 def decoded(jobs: Iterator[PairJob], workers: int, depth: int
@@ -442,7 +444,7 @@ def run(arguments: argparse.Namespace) -> int:
                                                                                       arguments.right_topic)}:
         raise InputError(f"--base-pose-topic '{base_topic}' is also an image topic")
     source = open_source(source_path, arguments.fps, arguments.left_topic, arguments.right_topic,
-                         values["sync_tolerance"], base_topic)
+                         values["sync_tolerance"], base_topic, values["sync_queue_size"])
     if values["left_calibration_file"]:
         rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
                                                  load_camera_calibration(values["right_calibration_file"]))

@@ -100,13 +100,19 @@ def test_needle_free_frames_measure_nothing(tmp_path, rig, background_frames):
     assert code == 1 and not output.exists()
 
 
-def test_compressed_bag_images(tmp_path, rig, background_frames, renders):
+@pytest.mark.parametrize("topics_from", ["arguments", "image_transport"])
+def test_compressed_bag_images(tmp_path, rig, background_frames, renders, topics_from):
+    """A bag of image_transport's compressed topics, named on the command line or found by the node's parameter
+    image_transport: compressed."""
     frames = [(1.0 + 0.01 * k, *pair) for k, pair in enumerate(background_frames[:3] + [renders("planar")])]
     bag = tmp_path / "compressed.mcap"
     write_bag(bag, rig, frames, compressed=True)
     output = tmp_path / "out.csv"
-    assert main([str(bag), "--params", str(params_file(tmp_path, rig)), "--output", str(output), "--quiet",
-                 "--left-topic", "left/image_raw/compressed", "--right-topic", "right/image_raw/compressed"]) == 0
+    arguments = ["--left-topic", "left/image_raw/compressed", "--right-topic", "right/image_raw/compressed"] \
+        if topics_from == "arguments" else []
+    params = params_file(tmp_path, rig, **({"image_transport": "compressed"} if topics_from == "image_transport"
+                                            else {}))
+    assert main([str(bag), "--params", str(params), "--output", str(output), "--quiet", *arguments]) == 0
     _, rows = read_rows(output)
     assert set(rows[:, 0]) == {3}
     assert np.sqrt(np.mean(distance_to_curve(rows[:, 4:7], SHAPES["planar"])[0] ** 2)) < 1e-4  # PNG: lossless

@@ -22,6 +22,11 @@ class StampPairer:
     Frames wait in a short queue per side (``max_pending``) for their partner; a frame whose partner never
     comes (dropped frame) is discarded once a newer pair forms or the queue overflows, and counted in
     ``dropped``. Frames not newer than the last pair are discarded too.
+
+    A frame pairs at once with the nearest waiting frame of the other side within ``tolerance`` (message_filters'
+    slop): no frame waits for a possibly better partner, so a pair costs no latency and the last frames of a
+    recording pair too (message_filters' ApproximateTime holds a set until a later message shows it is the best).
+    That is unambiguous while ``tolerance`` is below half the frame period.
     """
 
     SIDES = ("left", "right")
