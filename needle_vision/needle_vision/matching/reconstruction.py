@@ -390,9 +390,9 @@ def _continuity_sigma(smooth: np.ndarray, anchored: np.ndarray, span: float, dep
     before = np.maximum.accumulate(np.where(anchored, index, -1))
     after = np.minimum.accumulate(np.where(anchored, index, n)[::-1])[::-1]
     curvature = np.zeros(n)
-    for k in np.unique(before[gap & (before >= 0)]):  # anchors that a stretch follows: the curve behind them
+    for k in np.flatnonzero(anchored[:-1] & gap[1:]):  # anchors that a stretch follows: the curve behind them
         curvature[k] = _depth_curvature(smooth, arc, anchored, arc[k] - span, arc[k], depth_axis)
-    for k in np.unique(after[gap & (after < n)]):  # anchors that a stretch precedes: the curve ahead of them
+    for k in np.flatnonzero(gap[:-1] & anchored[1:]) + 1:  # anchors that a stretch precedes: the curve ahead of them
         curvature[k] = max(curvature[k], _depth_curvature(smooth, arc, anchored, arc[k], arc[k] + span, depth_axis))
     k_before, k_after = np.clip(before, 0, n - 1), np.clip(after, 0, n - 1)
     kappa = np.maximum(np.where(before >= 0, curvature[k_before], 0.0), np.where(after < n, curvature[k_after], 0.0))
