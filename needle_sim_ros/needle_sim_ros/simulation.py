@@ -32,7 +32,7 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from needle_vision.parameters import ParameterError
+from needle_common.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
 from needle_sim_ros.compiled_advance import NO_TWIST, advance_from_trajectory, apply_twist

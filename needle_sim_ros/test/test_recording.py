@@ -360,7 +360,7 @@ def test_recover_cli_reports_bad_input(tmp_path, capsys):
 
 
 def test_a_bag_written_atomically_records_its_final_file_name(tmp_path):
-    from needle_vision.output_files import write_atomically
+    from needle_common.output_files import write_atomically
 
     path = tmp_path / "run.mcap"
     write_atomically(path, lambda temporary: write_samples(temporary, repeats=1))

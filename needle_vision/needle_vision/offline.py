@@ -44,10 +44,10 @@ from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibrat
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
-from needle_vision.cli_types import positive, positive_int
-from needle_vision.output_files import check_output_file
-from needle_vision.parameters import (ParameterError, base_pose_store, load_params_file, output_from_left,
-                                      stereo_config, valid_topic_name, validate_all)
+from needle_common.cli_types import positive, positive_int
+from needle_common.output_files import check_output_file
+from needle_common.parameters import ParameterError, load_params_file, valid_topic_name
+from needle_vision.parameters import SPECS, base_pose_store, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, PairMeasurement, StereoNeedlePipeline
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
@@ -415,7 +415,7 @@ def _measured(pipeline: StereoNeedlePipeline, images: Future) -> PairMeasurement
 
 
 def _settings(arguments: argparse.Namespace) -> dict:
-    values = load_params_file(arguments.params) if arguments.params else {}
+    values = load_params_file(arguments.params, "needle_stereo", SPECS) if arguments.params else {}
     for name, value in (("left_calibration_file", arguments.left_calibration),
                         ("right_calibration_file", arguments.right_calibration),
                         ("needle_polarity", arguments.polarity)):

@@ -7,7 +7,7 @@ import yaml
 
 from needle_vision.calibration.rig import (CalibrationError, CameraCalibration, StereoRig, calibration_from_camera_info,
                                            camera_calibration_yaml, camera_info_fields, load_camera_calibration)
-from needle_vision.streams.package_files import share_file
+from needle_common.package_files import share_file
 
 CONFIG = share_file("needle_vision", "config/stereo")  # as installed
 

@@ -40,9 +40,9 @@ from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
-from needle_vision.cli_types import non_negative, positive
-from needle_vision.parameters import ParameterError, check_ros_arguments
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
+from needle_common.cli_types import non_negative, positive
+from needle_common.parameters import ParameterError, check_ros_arguments
+from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 from needle_vision.ros.input_status import InputReports
 
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos

@@ -39,7 +39,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from needle_vision.parameters import ParameterError
+from needle_common.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.haptics import ZERO, HapticShaper
@@ -50,9 +50,9 @@ from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_sh
 from needle_sim_ros.nodes.diagnostics import ERROR, OK, WARN, HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
 from needle_vision.ros.input_status import InputStatus
-from needle_vision.ros.ros_parameters import declare_all, guard_dynamic_updates
+from needle_common.ros.ros_parameters import declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
-from needle_sim_ros.nodes.runner import run_node
+from needle_common.ros.runner import run_node
 from needle_sim_ros.nodes.tf_output import SimulatorTf
 from needle_sim_ros.parameters.simulator import FIXED_AT_CONSTRUCTION, SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
@@ -379,7 +379,7 @@ class NeedleSimulatorNode(LifecycleNode):
 
     def finish(self) -> None:
         """Stop the loop and output threads, then send the haptic zero and wait briefly for its acknowledgement
-        (also when the process ends by SIGINT/SIGTERM or an exception: :func:`needle_sim_ros.nodes.runner.run_node`
+        (also when the process ends by SIGINT/SIGTERM or an exception: :func:`needle_common.ros.runner.run_node`
         keeps the context alive until this ran)."""
         self._stop.set()
         for thread in (self._loop, self._outputs):

@@ -23,8 +23,8 @@ from typing import Any
 import yaml
 from tqdm import tqdm
 
-from needle_vision.cli_types import non_negative, positive
-from needle_vision.parameters import ParameterError
+from needle_common.cli_types import non_negative, positive
+from needle_common.parameters import ParameterError
 
 from needle_sim_ros.parameters.experiment import NODES, ExperimentConfigError, experiment_for_bag, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline

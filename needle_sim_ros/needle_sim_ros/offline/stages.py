@@ -30,8 +30,8 @@ from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibrat
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.streams.pairing import StampPairer as FramePairer
-from needle_vision.parameters import (ROS_BUILTIN, ParameterError, ParamSpec, base_pose_store, output_from_left,
-                                      stereo_config, unknown_name_error, validate_all)
+from needle_common.parameters import ROS_BUILTIN, ParameterError, ParamSpec, unknown_name_error
+from needle_vision.parameters import base_pose_store, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
 from needle_vision.streams.base_pose import StampedPose, store_base_pose
 from needle_vision.transform import quaternion_from_x_axis

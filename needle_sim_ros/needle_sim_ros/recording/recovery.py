@@ -23,7 +23,7 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
-from needle_vision.output_files import check_output_dir, check_output_file
+from needle_common.output_files import check_output_dir, check_output_file
 
 from needle_sim_ros.recording.bag_metadata import METADATA_RECORD_NAME
 from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReadError, mcap_files
