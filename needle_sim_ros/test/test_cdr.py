@@ -249,17 +249,3 @@ def test_image_decoder_reads_rclpys_image(encoding, shape, step):
         assert (decoded.height, decoded.width, decoded.encoding, decoded.is_bigendian, decoded.step) == (
             height, width, encoding, 0, step)
         assert decoded.data.tobytes() == data and not decoded.data.flags.owndata
-
-
-def test_pose_stamped_decoder_reads_rclpys_pose_stamped():
-    position, quaternion = [0.1, -0.2, 0.3], [0.5, 0.5, -0.5, 0.5]
-    for frame in FRAMES:
-        data = serialize_message(PoseStamped(header=header(frame), pose=pose(position, quaternion)))
-        decoded = cdr.pose_stamped(data)
-        assert decoded.stamp_ns == SEC * 1_000_000_000 + NANOSEC and decoded.frame_id == frame
-        assert decoded.position.tolist() == position and decoded.orientation.tolist() == quaternion
-
-
-def test_pose_stamped_decoder_rejects_what_is_not_little_endian_cdr():
-    with pytest.raises(ValueError, match="little-endian CDR"):
-        cdr.pose_stamped(b"\x00\x00\x00\x00" + bytes(60))

@@ -39,11 +39,12 @@ from tqdm import tqdm
 
 from needle_vision.detection.background import BackgroundModel
 from needle_vision.streams.bag_reader import BagMessage, read_messages
-from needle_vision.streams.base_pose import StampedPose, deserialize_pose_stamped, store_base_pose
+from needle_vision.streams.base_pose import store_base_pose
 from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
+from needle_common.cdr import PoseStamped, pose_stamped
 from needle_common.cli_types import positive, positive_int
 from needle_common.output_files import check_output_file
 from needle_common.parameters import ParameterError, load_params_file, valid_topic_name
@@ -62,7 +63,7 @@ class InputError(ValueError):
 
 #: (pair index, stamp [s], loader of the (left, right) grey images run on a worker thread, base poses read since
 #: the previous pair)
-PairJob = tuple[int, float, Callable[[], tuple[np.ndarray, np.ndarray]], list[StampedPose]]
+PairJob = tuple[int, float, Callable[[], tuple[np.ndarray, np.ndarray]], list[PoseStamped]]
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 
 
@@ -213,7 +214,7 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, 
                 if schema != POSE_TYPE:
                     raise InputError(f"base pose topic {topic} of '{path}' has type '{schema}', not {POSE_TYPE}")
                 try:
-                    poses.append(deserialize_pose_stamped(data))
+                    poses.append(pose_stamped(data))
                 except ValueError as error:
                     source.poses_skipped[f"base pose ignored: {error}"] += 1
                 continue
@@ -259,7 +260,7 @@ def open_source(path: Path, fps: float, left_topic: str, right_topic: str, toler
 
 
 def decoded(jobs: Iterator[PairJob], workers: int, depth: int
-            ) -> Iterator[tuple[int, float, Future, list[StampedPose]]]:
+            ) -> Iterator[tuple[int, float, Future, list[PoseStamped]]]:
     """The jobs with their loaders running on ``workers`` threads up to ``depth`` pairs ahead; the jobs
     themselves (reading a bag: parsing, with chunks decompressed on threads of the reader) are iterated on one
     more thread."""
@@ -395,7 +396,7 @@ def write_rows(stream: TextIO, frame: int, stamp: float, result: FrameResult, tr
     stream.write((row * len(m.points)) % tuple(np.column_stack(columns).ravel().tolist()))
 
 
-def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[StampedPose], values: dict,
+def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[PoseStamped], values: dict,
                    source: PairSource) -> None:
     """Store the base poses read with a pair (in the output frame); unusable ones are counted in the source."""
     for pose in poses:
@@ -476,10 +477,10 @@ def run(arguments: argparse.Namespace) -> int:
             written: deque[Future] = deque()  # CSV rows formatted and written on a thread of their own
             # Pairs measured ahead on the measuring threads once the pipeline is settled (their order-dependent
             # part, base/tip ordering, state and tracking, is completed here in input order).
-            ahead: deque[tuple[int, float, Future, Future, list[StampedPose]]] = deque()
+            ahead: deque[tuple[int, float, Future, Future, list[PoseStamped]]] = deque()
 
             def complete(frame: int, stamp: float, images: Future, measurement: Future | None,
-                         poses: list[StampedPose]) -> None:
+                         poses: list[PoseStamped]) -> None:
                 nonlocal measured
                 add_base_poses(pipeline, poses, values, source)
                 try:

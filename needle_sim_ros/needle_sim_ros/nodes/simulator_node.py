@@ -39,6 +39,7 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
+from needle_common.cdr import pose_stamped
 from needle_common.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import PoseVerdict
@@ -239,7 +240,7 @@ class NeedleSimulatorNode(LifecycleNode):
         watchdog, however late the loop takes it)."""
         if not self.active:  # lifecycle: poses count from activation on
             return
-        pose = cdr.pose_stamped(data)
+        pose = pose_stamped(data)
         world = self.p["frames.world"]
         if pose.frame_id not in ("", world):
             self.counters_other["wrong_frame"] += 1

@@ -28,7 +28,7 @@ from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo
 
-from needle_vision.streams.base_pose import StampedPose
+from needle_common.cdr import pose_stamped
 
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import DISPLAY_TYPES
@@ -61,17 +61,12 @@ DECODE_ERRORS = (ValueError, RuntimeError, IndexError, struct.error, UnicodeDeco
 
 def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose",)) -> Any:
     """An input message from its serialized bytes (images and the ``pose_topics``' poses decoded directly:
-    :mod:`needle_sim_ros.messages.cdr`)."""
+    :mod:`needle_sim_ros.messages.cdr`, :mod:`needle_common.cdr`)."""
     if topic.endswith("image_raw"):
         return cdr.image(data)
     if topic in pose_topics:
-        return cdr.pose_stamped(data)
+        return pose_stamped(data)
     return deserialize_message(data, INPUT_TYPES[topic])
-
-
-def stamped_pose(pose: cdr.DecodedPose) -> StampedPose:
-    """The stereo core's form of a decoded pose."""
-    return StampedPose(pose.stamp_ns / NS, pose.frame_id, tuple(pose.position), tuple(pose.orientation))
 
 
 @dataclass
@@ -160,7 +155,7 @@ class OfflinePipeline:
                                            f"{now / NS:.9f} s ({error})") from error
                     continue
                 if message.topic == stereo_poses:  # the stereo node's base_pose.topic (may be the simulator's)
-                    self.stereo.on_base_pose(stamped_pose(msg))
+                    self.stereo.on_base_pose(msg)
                 if message.topic in ("/base_pose", "/tip_load"):
                     with self._timed("simulator"):
                         if message.topic == "/base_pose":

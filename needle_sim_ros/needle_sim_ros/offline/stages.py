@@ -30,10 +30,11 @@ from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibrat
                                            load_camera_calibration)
 from needle_vision.streams.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.streams.pairing import StampPairer as FramePairer
+from needle_common.cdr import PoseStamped
 from needle_common.parameters import ROS_BUILTIN, ParameterError, ParamSpec, unknown_name_error
 from needle_vision.parameters import base_pose_store, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
-from needle_vision.streams.base_pose import StampedPose, store_base_pose
+from needle_vision.streams.base_pose import store_base_pose
 from needle_vision.transform import quaternion_from_x_axis
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
@@ -86,7 +87,7 @@ class SimulatorStage:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
     # --- inputs (as NeedleSimulatorNode.on_pose / on_tip_load in simulated time) ------------------------------
-    def on_pose(self, pose: cdr.DecodedPose, now_ns: int) -> None:
+    def on_pose(self, pose: PoseStamped, now_ns: int) -> None:
         if pose.frame_id not in ("", self.p["frames.world"]):
             self._reject("base pose in another frame")
             return
@@ -167,7 +168,7 @@ class StereoStage:
         topic = self.values["base_pose.topic"]
         return "/" + topic.lstrip("/") if topic else ""
 
-    def on_base_pose(self, pose: StampedPose) -> None:
+    def on_base_pose(self, pose: PoseStamped) -> None:
         """As the node: the base pose stored in the output frame; an unusable one is counted."""
         try:
             store_base_pose(self.base_poses, pose, self.values["output_frame"],
