@@ -29,7 +29,8 @@ from visualization_msgs.msg import Marker, MeshFile
 
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import COLORS, centerline_display
-from needle_sim_ros.messages.geometry import polyline_tangents, quaternions_from_tangents, tube_triangles
+from needle_common.transforms import quaternions_from_x_axes
+from needle_sim_ros.messages.geometry import polyline_tangents, tube_triangles
 from needle_sim_ros.messages.shape import needle_shape_msg, time_msg
 
 FRAMES = ("", "w", "ab", "abc", "world", "abcdefg", "needle_base")  # with the NUL: 1, 2, 3, 4, 6, 8, 12 bytes
@@ -222,7 +223,7 @@ def test_centerline_display_is_rclpys_path_and_marker(serializers):
     points = np.column_stack([s, 0.01 * np.sin(10 * s), -0.2 * s**2])
     radius = 0.000635
     tangents = polyline_tangents(points)
-    poses = [pose(p, q) for p, q in zip(points, quaternions_from_tangents(tangents))]
+    poses = [pose(p, q) for p, q in zip(points, quaternions_from_x_axes(tangents))]
     encoded, messages = [], []
     for frame in FRAMES:
         for kind in ("model", "measured"):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 from needle_sim_ros.comparison import (CenterlineSamples, ComparisonError, ErrorSummary, ShapePairer,
                                        calibrate_extrinsic, closest_points_on_polyline, compare_centerlines, kabsch)

@@ -26,7 +26,7 @@ from scipy.stats import theilslopes
 from scipy.spatial.transform import Rotation
 
 from needle_vision.ros.input_status import InputStatus, input_status_name
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 from needle_sim_ros.recording import McapBagWriter, OfferedQos, PlaybackSchedule
 

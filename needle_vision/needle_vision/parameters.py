@@ -18,7 +18,7 @@ from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.pipeline import StereoConfig
 from needle_vision.matching.reconstruction import ReconstructionConfig
 from needle_vision.matching.tracking import TrackingConfig
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 
 def _readable_file_or_empty(path: str) -> bool:

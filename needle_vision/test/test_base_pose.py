@@ -11,7 +11,7 @@ from needle_vision.streams.base_pose import BasePoseStore, output_from_pose_fram
 from needle_vision.offline import main
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline
 from needle_vision.matching.reconstruction import ReconstructionConfig
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 MOVING = ("straight", "planar", "3d", "hook")
 BASE = np.zeros(3)  # the shapes' base (clamp point A) in the world frame

@@ -8,7 +8,7 @@ from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.matching.reconstruction import ReconstructionConfig, _smooth_along, reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import world_from_camera
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 
 @pytest.fixture(scope="module")

@@ -45,7 +45,8 @@ from needle_common.parameters import ParameterError
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.haptics import ZERO, HapticShaper
 from needle_sim_ros.messages import cdr
-from needle_sim_ros.messages.geometry import compile_geometry_kernels, quaternions_from_tangents, tube_triangles
+from needle_common.transforms import quaternions_from_x_axes
+from needle_sim_ros.messages.geometry import compile_geometry_kernels, tube_triangles
 from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
 from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_shape
 from needle_sim_ros.nodes.diagnostics import ERROR, OK, WARN, HealthMonitor
@@ -615,7 +616,7 @@ class NeedleSimulatorNode(LifecycleNode):
             self.publish_shape(snap)
         if visualization_due:
             stamp, frame, line = time_msg(snap["shape"].t), self.p["frames.world"], snap["shape"].line
-            orientations = quaternions_from_tangents(line.tangents)
+            orientations = quaternions_from_x_axes(line.tangents)
             self.path_pub.publish(cdr.path(stamp.sec, stamp.nanosec, frame, line.points, orientations))
             self.pose_array_pub.publish(cdr.pose_array(stamp.sec, stamp.nanosec, frame, line.points, orientations))
             self.marker_pub.publish(cdr.triangle_list_marker(

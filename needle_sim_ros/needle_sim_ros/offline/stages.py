@@ -31,11 +31,11 @@ from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibrat
 from needle_vision.streams.image_codec import ImageFormatError, image_message_to_gray
 from needle_vision.streams.pairing import StampPairer as FramePairer
 from needle_common.cdr import PoseStamped
+from needle_common.transforms import quaternions_from_x_axes
 from needle_common.parameters import ROS_BUILTIN, ParameterError, ParamSpec, unknown_name_error
 from needle_vision.parameters import base_pose_store, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
 from needle_vision.streams.base_pose import store_base_pose
-from needle_vision.transform import quaternion_from_x_axis
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages import cdr
@@ -221,7 +221,7 @@ class StereoStage:
         m = result.measurement
         header = Header(stamp=pair.left.header.stamp, frame_id=self.values["output_frame"] or pair.left.header.frame_id)
         return [needle_shape_msg(header, NeedleShape.SOURCE_STEREO, m.points, m.tangents, m.arc_length, m.points[-1],
-                                 quaternion_from_x_axis(m.tangents[-1]), m.uncertainty)]
+                                 quaternions_from_x_axes(m.tangents[-1]), m.uncertainty)]
 
     def statistics(self) -> dict[str, Any]:
         return {"pairs": dict(self.outcomes), "unpaired_frames": self.pairer.dropped}

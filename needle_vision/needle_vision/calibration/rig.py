@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 
 from needle_common.package_files import resolve_path
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 #: Distortion models of ``sensor_msgs/CameraInfo`` handled by OpenCV's standard camera model -> allowed lengths.
 DISTORTION_MODELS = {"plumb_bob": (5,), "rational_polynomial": (8, 12, 14)}

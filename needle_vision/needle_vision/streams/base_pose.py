@@ -15,16 +15,7 @@ import numpy as np
 
 from needle_common.cdr import PoseStamped
 from needle_common.cdr import pose_stamped as deserialize_pose_stamped  # noqa: F401 - the stereo node's name
-from needle_vision.transform import RigidTransform
-
-
-def _rotate(quaternion: Sequence[float], vector: Sequence[float]) -> tuple[float, float, float]:
-    """``vector`` rotated by the unit quaternion (x, y, z, w): v + 2w (q x v) + 2 q x (q x v)."""
-    x, y, z, w = quaternion
-    vx, vy, vz = vector
-    cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
-    return (vx + 2 * (w * cx + y * cz - z * cy), vy + 2 * (w * cy + z * cx - x * cz),
-            vz + 2 * (w * cz + x * cy - y * cx))
+from needle_common.transforms import RigidTransform, rotate
 
 
 class BasePoseStore:
@@ -59,7 +50,7 @@ class BasePoseStore:
         norm = math.hypot(*orientation)
         if norm < 1e-9:
             raise ValueError("zero quaternion")
-        shift = _rotate([q / norm for q in orientation], self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
+        shift = rotate([q / norm for q in orientation], self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
         point = np.array([p + s for p, s in zip(position, shift)])
         if output_from_pose is not None:
             point = output_from_pose.apply(point)
