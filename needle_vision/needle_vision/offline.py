@@ -38,7 +38,7 @@ import numpy as np
 from tqdm import tqdm
 
 from needle_vision.detection.background import BackgroundModel
-from needle_vision.streams.bag_reader import BagMessage, read_messages
+from needle_common.bag_reader import BagMessage, BagReader, BagReadError
 from needle_vision.streams.base_pose import store_base_pose
 from needle_vision.calibration.rig import (CalibrationError, StereoRig, calibration_from_camera_info,
                                            load_camera_calibration)
@@ -109,60 +109,40 @@ def folder_source(folder: Path, fps: float) -> PairSource:
     return PairSource(len(common), jobs, True, "left_optical")
 
 
-def _bag_files(path: Path) -> list[Path]:
-    files = [path] if path.is_file() else sorted(path.glob("*.mcap")) if path.is_dir() else []
-    if not files:
+def _bag_reader(path: Path) -> BagReader:
+    """The bag at ``path`` (files without a summary are read too: their counts stay unknown); InputError naming the
+    problem."""
+    if path.is_dir() and not any(path.glob("*.mcap")) and not (path / "metadata.yaml").is_file():
         raise InputError(f"'{path}' is neither an .mcap file, a rosbag2 folder nor a folder with left/ and right/")
-    for file in files:
-        if file.stat().st_size == 0:
-            raise InputError(f"cannot read '{file}': the file is empty (0 bytes)")
-    return files
+    try:
+        return BagReader(path, require_summary=False)
+    except BagReadError as error:
+        raise InputError(str(error)) from error
+
+
+def _bag_files(path: Path) -> list[Path]:
+    return _bag_reader(path).files
 
 
 def _bag_records(path: Path, topics: list[str]) -> Iterator[BagMessage]:
     """The messages of ``topics`` in log-time order (payloads are views); unreadable files -> InputError."""
-    for file in _bag_files(path):
-        try:
-            yield from read_messages(file, topics)
-        except InputError:
-            raise
-        except Exception as error:  # noqa: BLE001 - the mcap reader raises many kinds on corrupt files
-            raise InputError(f"cannot read '{file}': {str(error) or type(error).__name__}") from error
+    try:
+        yield from _bag_reader(path).messages(topics)
+    except BagReadError as error:
+        raise InputError(str(error)) from error
 
 
 def _bag_count(path: Path, topic: str) -> int | None:
-    from mcap.reader import make_reader
-
-    total = 0
-    for file in _bag_files(path):
-        try:
-            with open(file, "rb") as stream:
-                summary = make_reader(stream).get_summary()
-        except Exception:  # noqa: BLE001 - no summary: the count stays unknown, reading reports the problem
-            return None
-        if summary is None or summary.statistics is None:
-            return None
-        total += sum(summary.statistics.channel_message_counts.get(cid, 0)
-                     for cid, channel in summary.channels.items() if channel.topic.lstrip("/") == topic.lstrip("/"))
-    return total
+    reader = _bag_reader(path)
+    recorded = reader.topics.get("/" + topic.lstrip("/"))
+    return None if not reader.summarized else recorded.message_count if recorded else 0
 
 
 def _bag_types(path: Path, topic: str) -> set[str] | None:
     """Schema names of ``topic``'s messages in the bag's summaries (None: a file has no summary)."""
-    from mcap.reader import make_reader
-
-    types = set()
-    for file in _bag_files(path):
-        try:
-            with open(file, "rb") as stream:
-                summary = make_reader(stream).get_summary()
-        except Exception:  # noqa: BLE001 - no summary: unknown, reading reports the problem
-            return None
-        if summary is None or summary.statistics is None:
-            return None
-        types |= {summary.schemas[c.schema_id].name if c.schema_id else "" for cid, c in summary.channels.items()
-                  if c.topic.lstrip("/") == topic.lstrip("/") and summary.statistics.channel_message_counts.get(cid)}
-    return types
+    reader = _bag_reader(path)
+    recorded = reader.topics.get("/" + topic.lstrip("/"))
+    return None if not reader.summarized else {recorded.type_name} if recorded and recorded.message_count else set()
 
 
 def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRig:

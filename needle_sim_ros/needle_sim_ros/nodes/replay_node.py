@@ -46,7 +46,8 @@ from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_r
 from needle_vision.ros.input_status import InputReports
 
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
-from needle_sim_ros.recording import BagReadError, BagReader, PlaybackSchedule
+from needle_common.bag_reader import BagReadError, BagReader
+from needle_sim_ros.recording import PlaybackSchedule
 
 NODE_NAME = "needle_replay"
 LINGER = 10.0  # [s] longest wait for the acknowledgements after the last message (--linger)
@@ -190,7 +191,7 @@ class ReplayNode(Node):
                 time.sleep((wake - now) / 1e9)
             if not rclpy.ok():
                 return False
-            self.publishers_by_topic[message.topic].publish(message.data)
+            self.publishers_by_topic[message.topic].publish(bytes(message.data))
             self.published += 1
             self.clock_ns = max(self.clock_ns, message.log_time_ns)
         return True

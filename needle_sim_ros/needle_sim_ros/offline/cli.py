@@ -30,7 +30,8 @@ from needle_sim_ros.parameters.experiment import NODES, ExperimentConfigError, e
 from needle_sim_ros.offline.pipeline import OfflinePipeline
 from needle_sim_ros.offline.plots import write_plots
 from needle_sim_ros.offline.results import read_pipeline_log, versus_ground_truth
-from needle_sim_ros.recording import BagReader, BagReadError, RecordingError
+from needle_common.bag_reader import BagReader, BagReadError
+from needle_sim_ros.recording import RecordingError
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:

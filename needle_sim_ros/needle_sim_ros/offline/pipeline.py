@@ -37,8 +37,9 @@ from needle_sim_ros.parameters.compare import DISPLAY_TOPICS
 from needle_sim_ros.parameters.experiment import ExperimentConfig
 from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
                                            simulator_values, stereo_values)
-from needle_sim_ros.recording import BagReader, BagReadError, OfferedQos, WriterOptions
-from needle_sim_ros.recording.bag_reader import read_ahead
+from needle_common.bag_reader import BagReader, BagReadError
+from needle_common.qos import OfferedQos
+from needle_sim_ros.recording import WriterOptions
 from needle_sim_ros.recording.background_writer import BackgroundBagWriter
 
 NS = 1_000_000_000
@@ -66,7 +67,7 @@ def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose"
         return cdr.image(data)
     if topic in pose_topics:
         return pose_stamped(data)
-    return deserialize_message(data, INPUT_TYPES[topic])
+    return deserialize_message(bytes(data), INPUT_TYPES[topic])
 
 
 @dataclass
@@ -141,7 +142,7 @@ class OfflinePipeline:
         stereo_poses = self.stereo.base_pose_topic if self.stereo is not None else ""
         pose_topics = ("/base_pose", stereo_poses)
         try:
-            for message in read_ahead(reader.messages(topics, start_time_ns=begin)):
+            for message in reader.messages(topics, start_time_ns=begin):
                 now = message.log_time_ns
                 if now > end:
                     break
@@ -163,7 +164,7 @@ class OfflinePipeline:
                         else:
                             self.simulator.on_tip_load(msg)
                     if message.topic == "/base_pose":
-                        self._write("/base_pose", message.data, now)
+                        self._write("/base_pose", bytes(message.data), now)
                 elif message.topic == "/needle/measured_shape":
                     self._measured(msg, now)
                 elif message.topic.endswith("camera_info"):
