@@ -183,7 +183,7 @@ class Monitor:
         from rclpy.qos import QoSProfile
         from rosgraph_msgs.msg import Clock
         from std_srvs.srv import Trigger
-        from needle_vision.ros.input_status import InputReports
+        from needle_common.ros.input_status import InputReports
         from rclpy.signals import SignalHandlerOptions
         self.rclpy = rclpy
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl+C stays a KeyboardInterrupt here

@@ -9,8 +9,7 @@ parsed there; message payloads are views into the map or the decompressed chunk,
 uncompressed chunks are mapped on those threads too), and chunks that overlap in time are merged. A chunk that
 cannot be read (bit flip: CRC or decompression error) is skipped and counted in ``corrupt_chunks``, or stops the
 reading with :class:`BagReadError` if asked. Files without a chunk index, or without a summary (``require_summary``
-False), are read by the mcap library's own readers. :data:`EXPECTED_TYPES` are the types the suite's nodes
-subscribe to on the recorded topic names (:meth:`BagReader.type_mismatches`).
+False), are read by the mcap library's own readers.
 """
 from __future__ import annotations
 
@@ -40,15 +39,6 @@ class BagReadError(RuntimeError):
     """The recording cannot be read; the message names the file."""
 
 
-# Types the nodes of the suite expect on the topics of a recording (absolute names as recorded).
-EXPECTED_TYPES = {
-    "/base_pose": "geometry_msgs/msg/PoseStamped", "/base_twist": "geometry_msgs/msg/TwistStamped",
-    "/tip_load": "geometry_msgs/msg/WrenchStamped", "/wrench": "geometry_msgs/msg/WrenchStamped",
-    "/left/image_raw": "sensor_msgs/msg/Image", "/right/image_raw": "sensor_msgs/msg/Image",
-    "/left/camera_info": "sensor_msgs/msg/CameraInfo", "/right/camera_info": "sensor_msgs/msg/CameraInfo",
-    "/needle/shape": "needle_interfaces/msg/NeedleShape", "/needle/measured_shape": "needle_interfaces/msg/NeedleShape",
-    "/shape_error": "needle_interfaces/msg/ShapeError", "/clock": "rosgraph_msgs/msg/Clock",
-}
 # What a cut or damaged record raises while being parsed or decompressed (CRC mismatch is a ValueError; the lz4
 # and zstd decoders raise RuntimeError / ZstdError).
 CHUNK_ERRORS = (McapError, ValueError, struct.error, RuntimeError, ZstdError, UnicodeDecodeError, EOFError, KeyError)
@@ -132,7 +122,7 @@ class BagReader:
         if offset > length:
             raise ValueError(f"--start-offset {offset:g} s: '{self.path}' spans only {length:.3f} s")
 
-    def type_mismatches(self, expected: dict[str, str] = EXPECTED_TYPES) -> dict[str, tuple[str, str]]:
+    def type_mismatches(self, expected: dict[str, str]) -> dict[str, tuple[str, str]]:
         """{topic: (recorded type, expected type)} of the recorded topics whose type is not the expected one."""
         return {topic: (recorded.type_name, expected[topic]) for topic, recorded in self.topics.items()
                 if topic in expected and recorded.type_name != expected[topic]}

@@ -25,7 +25,7 @@ from std_srvs.srv import Trigger
 from scipy.stats import theilslopes
 from scipy.spatial.transform import Rotation
 
-from needle_vision.ros.input_status import InputStatus, input_status_name
+from needle_common.ros.input_status import InputStatus, input_status_name
 from needle_common.transforms import RigidTransform
 
 from needle_common.qos import OfferedQos

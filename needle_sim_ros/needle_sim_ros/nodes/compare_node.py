@@ -29,7 +29,7 @@ from needle_common.parameters import ParameterError
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
-from needle_vision.ros.input_status import InputStatus
+from needle_common.ros.input_status import InputStatus
 from needle_common.ros.ros_parameters import declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
 from needle_common.ros.runner import run_node

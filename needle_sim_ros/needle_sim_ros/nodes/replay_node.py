@@ -43,11 +43,11 @@ from std_srvs.srv import Trigger
 from needle_common.cli_types import non_negative, positive
 from needle_common.parameters import ParameterError, check_ros_arguments
 from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
-from needle_vision.ros.input_status import InputReports
+from needle_common.ros.input_status import InputReports
 
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
 from needle_common.bag_reader import BagReadError, BagReader
-from needle_sim_ros.recording import PlaybackSchedule
+from needle_sim_ros.recording.playback import EXPECTED_TYPES, PlaybackSchedule
 
 NODE_NAME = "needle_replay"
 LINGER = 10.0  # [s] longest wait for the acknowledgements after the last message (--linger)
@@ -103,7 +103,7 @@ class ReplayNode(Node):
         super().__init__(NODE_NAME)
         self.reader, self.args = reader, args
         self.publishers_by_topic = {}
-        mismatches = {} if args.allow_type_mismatch else reader.type_mismatches()
+        mismatches = {} if args.allow_type_mismatch else reader.type_mismatches(EXPECTED_TYPES)
         for topic in args.topics or sorted(reader.topics):
             recorded = reader.topics[topic]
             if topic in mismatches:

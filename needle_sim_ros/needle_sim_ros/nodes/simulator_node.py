@@ -51,7 +51,7 @@ from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
 from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_shape
 from needle_sim_ros.nodes.diagnostics import ERROR, OK, WARN, HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
-from needle_vision.ros.input_status import InputStatus
+from needle_common.ros.input_status import InputStatus
 from needle_common.ros.ros_parameters import declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
 from needle_common.ros.runner import run_node

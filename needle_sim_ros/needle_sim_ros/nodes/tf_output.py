@@ -4,7 +4,7 @@ the ``frames.*`` parameters)."""
 from __future__ import annotations
 
 import numpy as np
-from needle_vision.ros.tf_output import TfOutput, transform_stamped
+from needle_common.ros.tf_output import TfOutput, transform_stamped
 from rclpy.node import Node
 
 from needle_common.transforms import conjugate, multiply, quaternion_matrix

@@ -40,6 +40,7 @@ from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, Ster
 from needle_common.bag_reader import BagReader, BagReadError
 from needle_common.qos import OfferedQos
 from needle_sim_ros.recording import WriterOptions
+from needle_sim_ros.recording.playback import EXPECTED_TYPES
 from needle_sim_ros.recording.background_writer import BackgroundBagWriter
 
 NS = 1_000_000_000
@@ -105,7 +106,7 @@ class OfflinePipeline:
         images = ["/left/image_raw", "/right/image_raw", "/left/camera_info", "/right/camera_info"]
         topics += [*images, self.stereo.base_pose_topic] if self.use_stereo else ["/needle/measured_shape"]
         topics = list(dict.fromkeys(t for t in topics if t in reader.topics))
-        for topic, (recorded, expected) in reader.type_mismatches().items():
+        for topic, (recorded, expected) in reader.type_mismatches(EXPECTED_TYPES).items():
             if topic in topics:
                 raise ValueError(f"bag '{reader.path}': topic '{topic}' has type '{recorded}', expected '{expected}'")
         return topics
