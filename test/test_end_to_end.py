@@ -135,7 +135,7 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     from scipy.spatial.transform import Rotation
 
     from needle_sim_ros.base_trajectory import PoseVerdict
-    from needle_sim_ros.messages import cdr
+    from needle_common.cdr import pose_stamped
     from needle_sim_ros.messages.shape import model_shape_cdr
     from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
     from needle_sim_ros.offline.stages import SimulatorStage, simulator_values
@@ -159,7 +159,7 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     offline = []
     for now, data in poses:  # as OfflinePipeline.run: advance to the message's time, then take the message
         offline += stage.advance(now)
-        stage.on_pose(cdr.pose_stamped(data), now)
+        stage.on_pose(pose_stamped(data), now)
     offline += stage.advance(end)
 
     node = object.__new__(NeedleSimulatorNode)  # the node's methods on its state, without a ROS context

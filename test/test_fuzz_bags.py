@@ -11,7 +11,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from needle_sim_ros.recording import BagReader, BagReadError
+from needle_common.bag_reader import BagReader, BagReadError
 
 REPO = Path(__file__).resolve().parents[1]
 BAG = REPO / "bags" / "insertion.mcap"  # small, no images: the shape sensor's /needle/measured_shape

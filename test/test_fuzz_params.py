@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from needle_vision.parameters import SPECS as STEREO_PARAMETERS, ParameterError, load_params_file
+from needle_common.parameters import ParameterError, load_params_file
+from needle_vision.parameters import SPECS as STEREO_PARAMETERS
 
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS

@@ -19,7 +19,7 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-from needle_sim_ros.nodes.runner import spin_until_shutdown
+from needle_common.ros.runner import spin_until_shutdown
 from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
 from test_simulator_node import WEIGHT, simulator_command, stop, write_params
 

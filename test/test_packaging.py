@@ -1,4 +1,4 @@
-"""The three ROS packages as a stock ROS 2 Jazzy user gets them: every package.xml key resolves with rosdep for
+"""The four ROS packages as a stock ROS 2 Jazzy user gets them: every package.xml key resolves with rosdep for
 Ubuntu 24.04, and every third-party module and ROS package the code uses is declared in its package.xml."""
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("needle_interfaces", "needle_sim_ros", "needle_vision")
-PYTHON_PACKAGES = ("needle_sim_ros", "needle_vision")
+PACKAGES = ("needle_interfaces", "needle_common", "needle_sim_ros", "needle_vision")
+PYTHON_PACKAGES = ("needle_common", "needle_sim_ros", "needle_vision")
 ROSDEP_CHECK = Path("/work/shared/tools/rosdep-check")
 ROSDEP_SNAPSHOT = Path("/work/shared/rosdep/rosdep/base.yaml")
 

@@ -30,8 +30,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from needle_sim_ros import quaternion
-from needle_sim_ros.model.kinematics import dot3, quaternion_matrix
+from needle_common.transforms import conjugate, from_rotation_vector, multiply, quaternion_matrix, to_rotation_vector
+from needle_sim_ros.model.kinematics import dot3
 
 
 class PoseVerdict(Enum):
@@ -330,7 +330,7 @@ def _checked_pose(t: float, position: np.ndarray, orientation: np.ndarray, p_lat
 @njit(cache=True)
 def _pose_deviation(p_ref: np.ndarray, q_ref: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[float, float]:
     """(distance [m], rotation angle [rad]) between two poses."""
-    rotation = quaternion.to_rotation_vector(quaternion.multiply(quaternion.conjugate(q_ref), q))
+    rotation = to_rotation_vector(multiply(conjugate(q_ref), q))
     dx, dy, dz = p[0] - p_ref[0], p[1] - p_ref[1], p[2] - p_ref[2]
     return np.sqrt(dx * dx + dy * dy + dz * dz), np.sqrt(dot3(rotation, rotation))
 
@@ -340,10 +340,10 @@ def _fit_samples(tau: np.ndarray, positions: np.ndarray, orientations: np.ndarra
                  scale: float) -> np.ndarray:
     """Fit of [position, rotation vector relative to ``reference``] at times tau (see :func:`_quadratic_fit`)."""
     values = np.empty((tau.size, 6))
-    inverse = quaternion.conjugate(reference)
+    inverse = conjugate(reference)
     for k in range(tau.size):
         values[k, :3] = positions[k]
-        values[k, 3:] = quaternion.to_rotation_vector(quaternion.multiply(inverse, orientations[k]))
+        values[k, 3:] = to_rotation_vector(multiply(inverse, orientations[k]))
     return _quadratic_fit(tau, values, scale)
 
 
@@ -363,7 +363,7 @@ def _evaluate_fit(coeffs: np.ndarray, t_newest: float, p_newest: np.ndarray, q_n
         for j in range(6):
             value[j] = coeffs[0, j] + coeffs[1, j] * tau + coeffs[2, j] * tau * tau
         out[i, 0:3] = value[:3]
-        out[i, 3:7] = quaternion.multiply(q_newest, quaternion.from_rotation_vector(value[3:]))
+        out[i, 3:7] = multiply(q_newest, from_rotation_vector(value[3:]))
         if times[i] > t_newest + max_extrapolation:
             continue  # held: at rest
         # Within a 20 ms window the relative rotation is small, so the world angular velocity is R_ref d(phi)/dt up
@@ -384,7 +384,7 @@ def _motion_difference(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
     delta[0] = previous[0:3] - current[0:3]
     delta[1] = previous[7:10] - current[7:10]
     delta[2] = previous[13:16] - current[13:16]
-    delta[3] = quaternion.to_rotation_vector(quaternion.multiply(previous[3:7], quaternion.conjugate(current[3:7])))
+    delta[3] = to_rotation_vector(multiply(previous[3:7], conjugate(current[3:7])))
     delta[4] = previous[10:13] - current[10:13]
     delta[5] = previous[16:19] - current[16:19]
     return delta
@@ -416,7 +416,7 @@ def _apply_correction(delta: np.ndarray, start: float, blend: float, hold_time: 
                 out[i, 7:10] += c1
                 out[i, 13:16] += c2
             else:
-                out[i, 3:7] = quaternion.multiply(quaternion.from_rotation_vector(c), out[i, 3:7])
+                out[i, 3:7] = multiply(from_rotation_vector(c), out[i, 3:7])
                 out[i, 10:13] += c1
                 out[i, 16:19] += c2
 

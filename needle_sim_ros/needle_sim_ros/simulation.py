@@ -32,7 +32,8 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from needle_vision.parameters import ParameterError
+from needle_common.parameters import ParameterError
+from needle_common.transforms import quaternion_matrix, unit_quaternion
 
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
 from needle_sim_ros.compiled_advance import NO_TWIST, advance_from_trajectory, apply_twist
@@ -67,7 +68,7 @@ from needle_sim_ros.model import (
 from needle_sim_ros.model.config import element_lengths
 from needle_sim_ros.model.integrators import SequenceResult, same_objects
 from needle_sim_ros.model.sequence import IntegratorMemory
-from needle_sim_ros.model.kinematics import compose_offsets, quaternion_matrix, unit_quaternion
+from needle_sim_ros.model.kinematics import compose_offsets
 from needle_sim_ros.tissue.factory import build_tissue_model
 from needle_sim_ros.tissue.tissue_model import TissueModel, TissueReadout
 

@@ -29,7 +29,8 @@ from visualization_msgs.msg import Marker, MeshFile
 
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import COLORS, centerline_display
-from needle_sim_ros.messages.geometry import polyline_tangents, quaternions_from_tangents, tube_triangles
+from needle_common.transforms import quaternions_from_x_axes
+from needle_sim_ros.messages.geometry import polyline_tangents, tube_triangles
 from needle_sim_ros.messages.shape import needle_shape_msg, time_msg
 
 FRAMES = ("", "w", "ab", "abc", "world", "abcdefg", "needle_base")  # with the NUL: 1, 2, 3, 4, 6, 8, 12 bytes
@@ -222,7 +223,7 @@ def test_centerline_display_is_rclpys_path_and_marker(serializers):
     points = np.column_stack([s, 0.01 * np.sin(10 * s), -0.2 * s**2])
     radius = 0.000635
     tangents = polyline_tangents(points)
-    poses = [pose(p, q) for p, q in zip(points, quaternions_from_tangents(tangents))]
+    poses = [pose(p, q) for p, q in zip(points, quaternions_from_x_axes(tangents))]
     encoded, messages = [], []
     for frame in FRAMES:
         for kind in ("model", "measured"):
@@ -249,17 +250,3 @@ def test_image_decoder_reads_rclpys_image(encoding, shape, step):
         assert (decoded.height, decoded.width, decoded.encoding, decoded.is_bigendian, decoded.step) == (
             height, width, encoding, 0, step)
         assert decoded.data.tobytes() == data and not decoded.data.flags.owndata
-
-
-def test_pose_stamped_decoder_reads_rclpys_pose_stamped():
-    position, quaternion = [0.1, -0.2, 0.3], [0.5, 0.5, -0.5, 0.5]
-    for frame in FRAMES:
-        data = serialize_message(PoseStamped(header=header(frame), pose=pose(position, quaternion)))
-        decoded = cdr.pose_stamped(data)
-        assert decoded.stamp_ns == SEC * 1_000_000_000 + NANOSEC and decoded.frame_id == frame
-        assert decoded.position.tolist() == position and decoded.orientation.tolist() == quaternion
-
-
-def test_pose_stamped_decoder_rejects_what_is_not_little_endian_cdr():
-    with pytest.raises(ValueError, match="little-endian CDR"):
-        cdr.pose_stamped(b"\x00\x00\x00\x00" + bytes(60))

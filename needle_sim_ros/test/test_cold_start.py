@@ -6,7 +6,7 @@ from geometry_msgs.msg import PoseStamped
 from numba.core.dispatcher import Dispatcher
 from rclpy.serialization import serialize_message
 
-from needle_sim_ros.messages import cdr
+from needle_common.cdr import pose_stamped
 from needle_sim_ros.messages.geometry import compile_geometry_kernels, tube_triangles
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import compile_kernels, simulation_from_parameters, step_wrenches
@@ -32,7 +32,7 @@ def test_poses_decoded_like_the_node_does_need_no_kernel_beyond_compile_kernels(
         t = 1.0 + 1e-3 * k
         message.header.stamp.sec, message.header.stamp.nanosec = 1, k * 1_000_000
         message.pose.position.x, message.pose.position.z, message.pose.orientation.w = 0.4 + 1e-5 * k, 0.3, 1.0
-        pose = cdr.pose_stamped(serialize_message(message))  # the node's decoding: read-only views of the buffer
+        pose = pose_stamped(serialize_message(message))  # the node's decoding: read-only views of the buffer
         sim.offer_pose(pose.stamp_ns * 1e-9, pose.position, pose.orientation)
         wrenches += step_wrenches(sim.advance(t + 1e-3, deterministic=False))
     sim.data.grid_origin += 0.4e-3  # as lock_phase shifts the grid to the poses: a step of 1.4 dt on its own

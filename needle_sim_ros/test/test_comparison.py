@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 from needle_sim_ros.comparison import (CenterlineSamples, ComparisonError, ErrorSummary, ShapePairer,
                                        calibrate_extrinsic, closest_points_on_polyline, compare_centerlines, kabsch)
@@ -219,7 +219,7 @@ def test_calibration_rejects_a_straight_needle_in_one_pose():
 
 def test_parameter_file_lists_every_compare_node_parameter_with_a_valid_default():
     import yaml
-    from needle_vision.streams.package_files import share_file
+    from needle_common.package_files import share_file
     from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS as PARAMETERS
     config = share_file("needle_sim_ros", "config/needle_compare.yaml")  # as installed
     values = yaml.safe_load(config.read_text())["/**"]["ros__parameters"]

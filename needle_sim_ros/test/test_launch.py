@@ -144,7 +144,7 @@ def test_the_namespace_comes_from_the_launch_context_as_launch_ros_forms_it():
 def test_experiment_sections_apply_in_any_namespace(tmp_path):
     """Bare node-name sections become /**/<node> (rcl applies a bare name in the root namespace only); our own
     loader still finds them for the node in the root namespace and in /psm1."""
-    from needle_vision.parameters import load_params_file
+    from needle_common.parameters import load_params_file
     from needle_sim_ros.parameters.experiment import node_specs
     source = SOURCE_CONFIG / "experiments" / "dynamic_pitch.yaml"
     rewritten = Path(namespaced_params_file(str(source)))

@@ -16,7 +16,7 @@ import needle_sim_ros
 
 PACKAGE = Path(needle_sim_ros.__file__).parent  # the installed package: what the executables run
 #: The ROS-free cores (packages and single modules of needle_sim_ros), as the README lists them.
-ROS_FREE = ("model", "tissue", "identification", "simulation", "base_trajectory", "quaternion", "comparison",
+ROS_FREE = ("model", "tissue", "identification", "simulation", "base_trajectory", "comparison",
             "parameters", "recording", "scenarios", "launch_support", "messages.geometry")
 #: Distributions of ROS 2 itself (the message packages are recognised by their suffixes).
 ROS_PACKAGES = ("rclpy", "rcl_interfaces", "builtin_interfaces", "rosidl_runtime_py", "rpyutils")

@@ -3,7 +3,7 @@
 import pytest
 import yaml
 
-from needle_vision.streams.package_files import share_file
+from needle_common.package_files import share_file
 
 from needle_sim_ros.model import Fixture, Integrator, build_model, load_needle_config, needle_parameters
 

@@ -76,7 +76,7 @@ def test_unwritable_outputs_are_refused_before_the_run(tmp_path, capsys, option)
 
 
 def test_a_failed_write_leaves_no_file(tmp_path):
-    from needle_vision.output_files import write_atomically
+    from needle_common.output_files import write_atomically
 
     target = tmp_path / "result.json"
     target.write_text("old")

@@ -21,12 +21,13 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from std_msgs.msg import String
 
-from needle_sim_ros.recording import (BagReader, McapBagWriter, OfferedQos, RecordingError, WriterOptions,
-                                      message_definition, parse_offered_qos_profiles, recover,
+from needle_common.bag_reader import BagReader
+from needle_common.qos import OfferedQos, parse_offered_qos_profiles
+from needle_sim_ros.recording import (McapBagWriter, RecordingError, WriterOptions, message_definition, recover,
                                       type_description_hash)
 from needle_sim_ros.recording import mcap_writer, recovery
 from needle_sim_ros.recording.background_writer import BackgroundBagWriter
-from needle_sim_ros.recording.qos import DURATION_INFINITE_NS
+from needle_common.qos import DURATION_INFINITE_NS
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 BEST_EFFORT = OfferedQos(depth=5, reliability="best_effort", durability="transient_local",
@@ -278,7 +279,7 @@ def test_background_writer_writes_what_the_writer_in_process_writes(tmp_path):
     for topic, message in sample_messages().items():
         background.add_topic(topic, type_name(message), [BEST_EFFORT] if topic == "/wrench" else (OfferedQos(),))
     for message in BagReader(direct).messages():  # the same bytes (rclpy leaves CDR padding uninitialised)
-        background.write(message.topic, message.data, message.log_time_ns)
+        background.write(message.topic, bytes(message.data), message.log_time_ns)
     assert background.close() == [tmp_path / "background.mcap"]
     read = [[(m.topic, m.log_time_ns, m.data) for m in BagReader(path).messages()]
             for path in (direct, tmp_path / "background.mcap")]
@@ -360,7 +361,7 @@ def test_recover_cli_reports_bad_input(tmp_path, capsys):
 
 
 def test_a_bag_written_atomically_records_its_final_file_name(tmp_path):
-    from needle_vision.output_files import write_atomically
+    from needle_common.output_files import write_atomically
 
     path = tmp_path / "run.mcap"
     write_atomically(path, lambda temporary: write_samples(temporary, repeats=1))

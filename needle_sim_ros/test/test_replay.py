@@ -25,10 +25,11 @@ from std_srvs.srv import Trigger
 from scipy.stats import theilslopes
 from scipy.spatial.transform import Rotation
 
-from needle_vision.ros.input_status import InputStatus, input_status_name
-from needle_vision.transform import RigidTransform
+from needle_common.ros.input_status import InputStatus, input_status_name
+from needle_common.transforms import RigidTransform
 
-from needle_sim_ros.recording import McapBagWriter, OfferedQos, PlaybackSchedule
+from needle_common.qos import OfferedQos
+from needle_sim_ros.recording import McapBagWriter, PlaybackSchedule
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 BAG_START_NS = 1_700_000_000_000_000_000

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from failing_forces import PoisonedAfter
 from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrator, PointLoad, StepFailed
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
-from needle_vision.parameters import ParameterError
+from needle_common.parameters import ParameterError
 from needle_sim_ros import simulation
 from needle_sim_ros.simulation import simulation_from_parameters
 from needle_sim_ros.tissue import tissue_model

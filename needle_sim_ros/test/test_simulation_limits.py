@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.base_trajectory import PoseVerdict
-from needle_vision.parameters import ParameterError
+from needle_common.parameters import ParameterError
 
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import POINT_LOAD_LIMIT, max_point_load, simulation_from_parameters, step_wrenches

@@ -183,7 +183,7 @@ def test_configuration_errors_name_the_parameter(model):
 
 
 def test_params_file_builds_and_its_keys_are_all_known(model):
-    from needle_vision.streams.package_files import share_file
+    from needle_common.package_files import share_file
     path = share_file("needle_sim_ros", "config/tissue.yaml")  # as installed
     tissue = build_tissue_model(path, model)
     assert tissue.shaft.lateral and tissue.bevel is not None

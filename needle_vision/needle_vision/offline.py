@@ -38,15 +38,16 @@ import numpy as np
 from tqdm import tqdm
 
 from needle_vision.detection.background import BackgroundModel
-from needle_vision.streams.bag_reader import BagMessage, read_messages
-from needle_vision.streams.base_pose import StampedPose, deserialize_pose_stamped, store_base_pose
+from needle_common.bag_reader import BagMessage, BagReader, BagReadError
+from needle_vision.streams.base_pose import store_base_pose
 from needle_vision.calibration.rig import CalibrationError, StereoRig, load_camera_calibration, rig_from_camera_infos
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
-from needle_vision.cli_types import positive, positive_int
-from needle_vision.output_files import check_output_file
-from needle_vision.parameters import (ParameterError, base_pose_store, load_params_file, output_from_left,
-                                      stereo_config, valid_topic_name, validate_all)
+from needle_common.cdr import PoseStamped, pose_stamped
+from needle_common.cli_types import positive, positive_int
+from needle_common.output_files import check_output_file
+from needle_common.parameters import ParameterError, load_params_file, valid_topic_name
+from needle_vision.parameters import SPECS, base_pose_store, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, PairMeasurement, StereoNeedlePipeline
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
@@ -61,7 +62,7 @@ class InputError(ValueError):
 
 #: (pair index, stamp [s], loader of the (left, right) grey images run on a worker thread, base poses read since
 #: the previous pair)
-PairJob = tuple[int, float, Callable[[], tuple[np.ndarray, np.ndarray]], list[StampedPose]]
+PairJob = tuple[int, float, Callable[[], tuple[np.ndarray, np.ndarray]], list[PoseStamped]]
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 
 
@@ -107,60 +108,40 @@ def folder_source(folder: Path, fps: float) -> PairSource:
     return PairSource(len(common), jobs, True, "left_optical")
 
 
-def _bag_files(path: Path) -> list[Path]:
-    files = [path] if path.is_file() else sorted(path.glob("*.mcap")) if path.is_dir() else []
-    if not files:
+def _bag_reader(path: Path) -> BagReader:
+    """The bag at ``path`` (files without a summary are read too: their counts stay unknown); InputError naming the
+    problem."""
+    if path.is_dir() and not any(path.glob("*.mcap")) and not (path / "metadata.yaml").is_file():
         raise InputError(f"'{path}' is neither an .mcap file, a rosbag2 folder nor a folder with left/ and right/")
-    for file in files:
-        if file.stat().st_size == 0:
-            raise InputError(f"cannot read '{file}': the file is empty (0 bytes)")
-    return files
+    try:
+        return BagReader(path, require_summary=False)
+    except BagReadError as error:
+        raise InputError(str(error)) from error
+
+
+def _bag_files(path: Path) -> list[Path]:
+    return _bag_reader(path).files
 
 
 def _bag_records(path: Path, topics: list[str]) -> Iterator[BagMessage]:
     """The messages of ``topics`` in log-time order (payloads are views); unreadable files -> InputError."""
-    for file in _bag_files(path):
-        try:
-            yield from read_messages(file, topics)
-        except InputError:
-            raise
-        except Exception as error:  # noqa: BLE001 - the mcap reader raises many kinds on corrupt files
-            raise InputError(f"cannot read '{file}': {str(error) or type(error).__name__}") from error
+    try:
+        yield from _bag_reader(path).messages(topics)
+    except BagReadError as error:
+        raise InputError(str(error)) from error
 
 
 def _bag_count(path: Path, topic: str) -> int | None:
-    from mcap.reader import make_reader
-
-    total = 0
-    for file in _bag_files(path):
-        try:
-            with open(file, "rb") as stream:
-                summary = make_reader(stream).get_summary()
-        except Exception:  # noqa: BLE001 - no summary: the count stays unknown, reading reports the problem
-            return None
-        if summary is None or summary.statistics is None:
-            return None
-        total += sum(summary.statistics.channel_message_counts.get(cid, 0)
-                     for cid, channel in summary.channels.items() if channel.topic.lstrip("/") == topic.lstrip("/"))
-    return total
+    reader = _bag_reader(path)
+    recorded = reader.topics.get("/" + topic.lstrip("/"))
+    return None if not reader.summarized else recorded.message_count if recorded else 0
 
 
 def _bag_types(path: Path, topic: str) -> set[str] | None:
     """Schema names of ``topic``'s messages in the bag's summaries (None: a file has no summary)."""
-    from mcap.reader import make_reader
-
-    types = set()
-    for file in _bag_files(path):
-        try:
-            with open(file, "rb") as stream:
-                summary = make_reader(stream).get_summary()
-        except Exception:  # noqa: BLE001 - no summary: unknown, reading reports the problem
-            return None
-        if summary is None or summary.statistics is None:
-            return None
-        types |= {summary.schemas[c.schema_id].name if c.schema_id else "" for cid, c in summary.channels.items()
-                  if c.topic.lstrip("/") == topic.lstrip("/") and summary.statistics.channel_message_counts.get(cid)}
-    return types
+    reader = _bag_reader(path)
+    recorded = reader.topics.get("/" + topic.lstrip("/"))
+    return None if not reader.summarized else {recorded.type_name} if recorded and recorded.message_count else set()
 
 
 def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRig:
@@ -213,7 +194,7 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, 
                 if schema != POSE_TYPE:
                     raise InputError(f"base pose topic {topic} of '{path}' has type '{schema}', not {POSE_TYPE}")
                 try:
-                    poses.append(deserialize_pose_stamped(data))
+                    poses.append(pose_stamped(data))
                 except ValueError as error:
                     source.poses_skipped[f"base pose ignored: {error}"] += 1
                 continue
@@ -259,7 +240,7 @@ def open_source(path: Path, fps: float, left_topic: str, right_topic: str, toler
 
 
 def decoded(jobs: Iterator[PairJob], workers: int, depth: int
-            ) -> Iterator[tuple[int, float, Future, list[StampedPose]]]:
+            ) -> Iterator[tuple[int, float, Future, list[PoseStamped]]]:
     """The jobs with their loaders running on ``workers`` threads up to ``depth`` pairs ahead; the jobs
     themselves (reading a bag: parsing, with chunks decompressed on threads of the reader) are iterated on one
     more thread."""
@@ -395,7 +376,7 @@ def write_rows(stream: TextIO, frame: int, stamp: float, result: FrameResult, tr
     stream.write((row * len(m.points)) % tuple(np.column_stack(columns).ravel().tolist()))
 
 
-def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[StampedPose], values: dict,
+def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[PoseStamped], values: dict,
                    source: PairSource) -> None:
     """Store the base poses read with a pair (in the output frame); unusable ones are counted in the source."""
     for pose in poses:
@@ -415,7 +396,7 @@ def _measured(pipeline: StereoNeedlePipeline, images: Future) -> PairMeasurement
 
 
 def _settings(arguments: argparse.Namespace) -> dict:
-    values = load_params_file(arguments.params) if arguments.params else {}
+    values = load_params_file(arguments.params, "needle_stereo", SPECS) if arguments.params else {}
     for name, value in (("left_calibration_file", arguments.left_calibration),
                         ("right_calibration_file", arguments.right_calibration),
                         ("needle_polarity", arguments.polarity)):
@@ -479,10 +460,10 @@ def run(arguments: argparse.Namespace) -> int:
             written: deque[Future] = deque()  # CSV rows formatted and written on a thread of their own
             # Pairs measured ahead on the measuring threads once the pipeline is settled (their order-dependent
             # part, base/tip ordering, state and tracking, is completed here in input order).
-            ahead: deque[tuple[int, float, Future, Future, list[StampedPose]]] = deque()
+            ahead: deque[tuple[int, float, Future, Future, list[PoseStamped]]] = deque()
 
             def complete(frame: int, stamp: float, images: Future, measurement: Future | None,
-                         poses: list[StampedPose]) -> None:
+                         poses: list[PoseStamped]) -> None:
                 nonlocal measured
                 add_base_poses(pipeline, poses, values, source)
                 try:

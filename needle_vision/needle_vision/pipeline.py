@@ -19,7 +19,7 @@ from needle_vision.matching.reconstruction import (ImplausibleError, NeedleMeasu
                                                    Triangulation, order_and_resample, triangulate_centerline)
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.matching.tracking import CenterlineMotion, CenterlineTracker, TrackingConfig
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 from needle_vision.calibration.rig import CameraCalibration, StereoRig
 from needle_vision.detection.curves import resample
 from needle_vision.streams.image_codec import gray_to_encoding
-from needle_vision.transform import RigidTransform, look_at_rotation
+from needle_common.transforms import RigidTransform, look_at_rotation
 
 #: The paper's needle: radius [m] and length [m] (seed 000, Sec. III-A).
 NEEDLE_RADIUS = 0.635e-3

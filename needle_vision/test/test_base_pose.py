@@ -7,11 +7,11 @@ import pytest
 
 from test_offline import params_file, read_rows, write_bag
 from vision_shapes import SHAPES
-from needle_vision.streams.base_pose import BasePoseStore, deserialize_pose_stamped, output_from_pose_frame
+from needle_vision.streams.base_pose import BasePoseStore, output_from_pose_frame
 from needle_vision.offline import main
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline
 from needle_vision.matching.reconstruction import ReconstructionConfig
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 MOVING = ("straight", "planar", "3d", "hook")
 BASE = np.zeros(3)  # the shapes' base (clamp point A) in the world frame
@@ -55,31 +55,6 @@ def test_pose_frames_usable_for_the_output_frame():
     assert output_from_pose_frame("cam", "world", ("cam",), camera) is camera
     assert np.allclose(output_from_pose_frame("", "world", ("cam",), camera).translation, 0)
     assert output_from_pose_frame("map", "world", ("cam",), camera) is None
-
-
-def test_serialized_pose_stamped_is_read_as_the_mcap_ros2_writer_wrote_it(tmp_path):
-    from mcap.reader import make_reader
-    from mcap_ros2.writer import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    type_name = "geometry_msgs/msg/PoseStamped"
-    path = tmp_path / "poses.mcap"
-    with open(path, "wb") as stream:
-        writer = Writer(stream)
-        schema = writer.register_msgdef(type_name, get_typestore(Stores.ROS2_JAZZY).generate_msgdef(
-            type_name, ros_version=2)[0])
-        for frame_id in ("", "w", "world_frame"):  # every alignment of the pose after the frame_id
-            writer.write_message("/base_pose", schema, pose_fields(12.25, (0.1, -0.2, 0.3), (0.5, 0.5, 0.5, 0.5),
-                                                                   frame_id))
-        writer.finish()
-    with open(path, "rb") as stream:
-        poses = [deserialize_pose_stamped(message.data) for _, _, message in make_reader(stream).iter_messages()]
-    assert [pose.frame_id for pose in poses] == ["", "w", "world_frame"]
-    for pose in poses:
-        assert pose.stamp == pytest.approx(12.25) and pose.position == (0.1, -0.2, 0.3)
-        assert pose.orientation == (0.5, 0.5, 0.5, 0.5)
-    with pytest.raises(ValueError, match="truncated"):
-        deserialize_pose_stamped(b"\x00\x01\x00\x00" + bytes(20))
 
 
 def measure_sequence(rig, background_frames, renders, poses=None, max_age=0.1):

@@ -92,3 +92,14 @@ def test_installed_command(tmp_path):
     result = subprocess.run([command, "absent/", "--board", "9x6", "--square", "0.02"], cwd=tmp_path,
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and result.stderr.count("\n") == 1 and "does not exist" in result.stderr
+
+
+@pytest.mark.parametrize("option", [["--square", "inf"], ["--square", "0"], ["--sync-tolerance", "nan"],
+                                    ["--workers", "0"]])
+def test_a_calibration_command_line_out_of_range_is_refused(tmp_path, capsys, option):
+    """Before: --square inf was accepted (a board of infinite squares), NaN tolerances too."""
+    arguments = ["--board", "9x6", "--square", "0.01", *option, "--output-dir", str(tmp_path), str(tmp_path)]
+    with pytest.raises(SystemExit) as exit_status:
+        main(arguments)
+    assert exit_status.value.code == 2 and f"argument {option[0]}" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())

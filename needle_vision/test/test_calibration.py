@@ -10,7 +10,7 @@ import cv2
 from needle_vision.calibration.rig import (CalibrationError, CameraCalibration, CameraInfoRig, StereoRig,
                                            calibration_from_camera_info, camera_calibration_yaml, camera_info_fields,
                                            load_camera_calibration, rig_from_camera_infos)
-from needle_vision.streams.package_files import share_file
+from needle_common.package_files import share_file
 
 CONFIG = share_file("needle_vision", "config/stereo")  # as installed
 

@@ -304,7 +304,7 @@ def test_node_tells_base_from_tip_by_the_base_pose(ros_env, tmp_path, rig, backg
         poses = node.create_publisher(PoseStamped, "base_pose", reliable)
         if source == "tf":
             from tf2_ros import StaticTransformBroadcaster
-            from needle_vision.ros.tf_output import transform_stamped
+            from needle_common.ros.tf_output import transform_stamped
             StaticTransformBroadcaster(node).sendTransform(transform_stamped(
                 node.get_clock().now().to_msg(), "world", "needle_base", [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]))
         deadline = time.monotonic() + 60

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from needle_vision.streams.package_files import share_file
-from needle_vision.parameters import (SPECS, ParameterError, check_ros_arguments, load_params_file, stereo_config,
-                                      validate_all)
+from needle_common.package_files import share_file
+from needle_common.parameters import ParameterError, check_ros_arguments, load_params_file
+from needle_vision.parameters import SPECS, stereo_config, validate_all
 
 CONFIG = share_file("needle_vision", "config/needle_stereo.yaml")  # as installed
 
@@ -17,7 +17,7 @@ def test_every_parameter_has_a_description_with_meaning():
 
 def test_sample_params_file_is_complete_and_valid(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)  # the calibration files are found through the package, from any directory
-    values = load_params_file(CONFIG)
+    values = load_params_file(CONFIG, "needle_stereo", SPECS)
     assert set(values) == {spec.name for spec in SPECS}  # every parameter is documented in the sample
     validated = validate_all(values)
     config = stereo_config(validated)

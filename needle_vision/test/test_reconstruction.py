@@ -9,7 +9,7 @@ from needle_vision.matching.reconstruction import UNMEASURED, ReconstructionConf
     reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import world_from_camera
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 
 @pytest.fixture(scope="module")

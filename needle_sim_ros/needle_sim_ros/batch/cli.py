@@ -15,8 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from needle_vision.cli_types import positive, positive_int
-from needle_vision.output_files import check_output_dir
+from needle_common.cli_types import positive, positive_int
+from needle_common.output_files import check_output_dir
 
 from needle_sim_ros.batch.bags import BagEntry, BagListError, resolve_bags
 from needle_sim_ros.batch.grid import GridError, load_grid

@@ -22,11 +22,11 @@ from typing import Any
 
 import yaml
 
-from needle_sim_ros.model.config import flatten_tree as flatten
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
 from needle_sim_ros.parameters.experiment import NODES
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
-from needle_vision.parameters import SPECS as STEREO_PARAMETERS, ParameterError, ParamSpec
+from needle_common.parameters import ParameterError, ParamSpec, flatten_tree
+from needle_vision.parameters import SPECS as STEREO_PARAMETERS
 
 ParameterSet = dict[str, dict[str, Any]]  # node -> parameter name -> value
 SPECS: dict[str, dict[str, ParamSpec]] = {
@@ -81,7 +81,7 @@ def node_sections(document: Any, where: str) -> dict[str, dict[str, Any]]:
         node = str(node).lstrip("/")
         if not isinstance(section, dict) or not isinstance(section.get("ros__parameters"), dict):
             raise GridError(f"{where}.{node}: expected a 'ros__parameters' mapping")
-        sections[node] = flatten(section["ros__parameters"])
+        sections[node] = flatten_tree(section["ros__parameters"])
     return sections
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import yaml
 
-from needle_vision.output_files import write_atomically
+from needle_common.output_files import write_atomically
 
 from needle_sim_ros.batch.identify import FitParameter, FitResult
 from needle_sim_ros.batch.task import TaskSpec, resolved_overrides

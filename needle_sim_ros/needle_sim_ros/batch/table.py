@@ -7,7 +7,7 @@ from typing import Any
 
 import pandas as pd
 
-from needle_vision.output_files import write_atomically
+from needle_common.output_files import write_atomically
 
 from needle_sim_ros.batch.grid import ParameterSet, column
 from needle_sim_ros.batch.task import METRICS

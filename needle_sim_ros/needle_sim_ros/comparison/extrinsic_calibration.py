@@ -17,7 +17,7 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 from needle_sim_ros.comparison.centerline_distance import chord_arc_length, closest_points_on_polyline
 from needle_sim_ros.comparison.shape_error import CenterlineSamples, ComparisonError

@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 from needle_sim_ros.comparison.pairing import ShapePairer
 from needle_sim_ros.comparison.shape_error import CenterlineSamples, ComparisonError, ErrorSummary, ShapeComparison, \

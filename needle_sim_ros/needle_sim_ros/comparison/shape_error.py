@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
 

@@ -36,13 +36,14 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from needle_vision.output_files import check_output_file, write_atomically
+from needle_common.output_files import check_output_file, write_atomically
 
 from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, run_ground_truth, static_check
 from needle_sim_ros.experiments.protocols import EXPERIMENTS, Experiment
 from needle_sim_ros.model import BaseMotion
 from needle_sim_ros.messages.shape import needle_shape_msg
-from needle_sim_ros.recording import McapBagWriter, OfferedQos, RecordingError, WriterOptions
+from needle_common.qos import OfferedQos
+from needle_sim_ros.recording import McapBagWriter, RecordingError, WriterOptions
 
 START_NS = 1_700_000_000 * 10**9  # bag start (log time of t = 0)
 WORLD, BASE = "world", "needle_base"

@@ -1,5 +1,5 @@
 """CDR encoding of the simulator's outputs straight from numpy arrays, and decoding of the offline pipeline's
-inputs (poses, camera images) without building rclpy message objects.
+camera images without building rclpy message objects (poses: :mod:`needle_common.cdr`).
 
 The simulator publishes a WrenchStamped per 1 ms step, shapes at 100 Hz and a Marker tube of thousands of
 vertices. Building rclpy messages (a Python object per point) and serializing them costs ~1 ms per shape, ~50 us
@@ -23,9 +23,9 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from std_msgs.msg import Header
 
+from needle_common.cdr import ENCAPSULATION
 from needle_vision.streams.image_codec import deserialize_image
 
-ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
 
 
 class _Buffer:
@@ -237,23 +237,3 @@ def compressed_image(data: bytes) -> DecodedCompressedImage:
     return DecodedCompressedImage(Header(stamp=Time(sec=decoded.sec, nanosec=decoded.nanosec),
                                          frame_id=decoded.frame_id), decoded.compressed_format, decoded.fields["data"])
 
-
-class DecodedPose(NamedTuple):
-    """The fields of a ``geometry_msgs/msg/PoseStamped``: stamp [ns], frame, position (3,), quaternion (x, y, z, w)."""
-
-    stamp_ns: int
-    frame_id: str
-    position: np.ndarray
-    orientation: np.ndarray
-
-
-def pose_stamped(data: bytes) -> DecodedPose:
-    """Decode a serialized ``geometry_msgs/msg/PoseStamped`` (rclpy builds six Python message objects per pose)."""
-    if len(data) < 16 or data[:2] != ENCAPSULATION[:2]:
-        raise ValueError("not a little-endian CDR payload")
-    sec, nanosec, length = struct.unpack_from("<iII", data, 4)
-    frame_id = data[16:16 + length - 1].decode()
-    offset = 16 + length
-    offset += -(offset - 4) % 8
-    values = np.frombuffer(data, dtype="<f8", count=7, offset=offset)
-    return DecodedPose(sec * 1_000_000_000 + nanosec, frame_id, values[:3], values[3:])

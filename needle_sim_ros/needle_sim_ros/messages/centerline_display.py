@@ -9,7 +9,8 @@ import numpy as np
 
 from needle_sim_ros.comparison import ComparedPair
 from needle_sim_ros.messages import cdr
-from needle_sim_ros.messages.geometry import polyline_tangents, quaternions_from_tangents, tube_triangles
+from needle_common.transforms import quaternions_from_x_axes
+from needle_sim_ros.messages.geometry import polyline_tangents, tube_triangles
 
 DISPLAY_TYPES = {"path": "nav_msgs/msg/Path", "marker": "visualization_msgs/msg/Marker"}
 COLORS = {"model": (0.75, 0.75, 0.8, 1.0), "measured": (1.0, 0.55, 0.1, 0.8)}  # RGBA
@@ -19,7 +20,7 @@ def centerline_display(sec: int, nanosec: int, frame_id: str, kind: str, points:
                        radius: float) -> dict[str, bytes]:
     """{'compare/<kind>/path': Path, 'compare/<kind>/marker': Marker} of a centerline (n >= 2, base to tip)."""
     tangents = polyline_tangents(points)
-    return {f"compare/{kind}/path": cdr.path(sec, nanosec, frame_id, points, quaternions_from_tangents(tangents)),
+    return {f"compare/{kind}/path": cdr.path(sec, nanosec, frame_id, points, quaternions_from_x_axes(tangents)),
             f"compare/{kind}/marker": cdr.triangle_list_marker(sec, nanosec, frame_id, kind, 0,
                                                                tube_triangles(points, tangents, radius),
                                                                COLORS[kind])}

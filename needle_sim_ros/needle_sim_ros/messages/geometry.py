@@ -1,5 +1,6 @@
-"""Geometry of the shape outputs, ROS-free: pose orientations along a centerline, tangents of a sampled curve and
-the triangles of a tube around it (for nav_msgs/Path, PoseArray and the Marker tube)."""
+"""Geometry of the shape outputs, ROS-free: tangents of a sampled curve and the triangles of a tube around it (for
+nav_msgs/Path, PoseArray and the Marker tube; the poses' orientations come from
+:func:`needle_common.transforms.quaternions_from_x_axes`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,16 +8,6 @@ from numba import njit
 
 from needle_sim_ros.model.kinematics import cross
 from needle_sim_ros.model.outputs import transported_normals
-
-
-def quaternions_from_tangents(tangents: np.ndarray) -> np.ndarray:
-    """Unit quaternions (x, y, z, w) of frames whose x axis is each tangent, with the least rotation from world x."""
-    t = tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
-    w = 1.0 + t[:, 0]
-    q = np.column_stack([np.zeros(len(t)), -t[:, 2], t[:, 1], w])  # axis e_x x t
-    opposite = w < 1e-9  # tangent along -x: rotate by pi about z
-    q[opposite] = [0.0, 0.0, 1.0, 0.0]
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def polyline_tangents(points: np.ndarray) -> np.ndarray:

@@ -5,11 +5,11 @@ topics, are ignored); an unknown key inside them is an error, so a typo cannot s
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
+
+from needle_common.parameters import flatten_tree, parameter_tree
 
 from .fixtures import Fixture
 from .integrators import METHODS
@@ -47,36 +47,6 @@ DEFAULTS: dict[str, Any] = {
     # needle_simulator only: (re)start at rest in static equilibrium (the scenarios set their own initial states)
     "needle.start_in_equilibrium": True,
 }
-
-
-def flatten_tree(tree: Mapping, prefix: str = "") -> dict[str, Any]:
-    """Nested mapping -> dotted names (``{"a": {"b": 1}}`` -> ``{"a.b": 1}``); values as they are."""
-    flat: dict[str, Any] = {}
-    for key, value in tree.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            flat.update(flatten_tree(value, name + "."))
-        else:
-            flat[name] = value
-    return flat
-
-
-def parameter_tree(source) -> Mapping:
-    """The (merged) ros__parameters of a params file / dict, or the dict itself if it has none."""
-    if isinstance(source, (str, Path)):
-        path = Path(source)
-        if not path.is_file():
-            raise FileNotFoundError(f"needle config file not found: {path}")
-        source = yaml.safe_load(path.read_text()) or {}
-    if not isinstance(source, Mapping):
-        raise ValueError(f"needle config must be a mapping, got {type(source).__name__}")
-    sections = [v["ros__parameters"] for v in source.values() if isinstance(v, Mapping) and "ros__parameters" in v]
-    if not sections:
-        return source
-    merged: dict[str, Any] = {}
-    for section in sections:
-        merged.update(flatten_tree(section))
-    return merged
 
 
 def needle_parameters(source) -> dict[str, Any]:

@@ -10,7 +10,9 @@ from typing import Callable, Union
 
 import numpy as np
 
-from .kinematics import BaseMotion, quaternion_matrix, unit_quaternion
+from needle_common.transforms import quaternion_matrix, unit_quaternion
+
+from .kinematics import BaseMotion
 from .mesh import Mesh
 
 FixtureFrame = Union[str, Callable[[float], BaseMotion]]

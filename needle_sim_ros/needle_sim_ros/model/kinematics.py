@@ -6,7 +6,7 @@ frame, v and a of the frame origin -- carries a node with frame coordinates (rho
     r'  = v + w x d,            r_x'  = w x R tau                           (d = R rho)
     r'' = a + alpha x d + w x (w x d),   r_x'' = alpha x R tau + w x (w x R tau).
 The base node A is such a node with rho = 0, tau = e_x: it prescribes q_c = [r_A, r_xA] (eqs. 18-19).
-Quaternions are in ROS order (x, y, z, w).
+Quaternions are in ROS order (x, y, z, w) (:mod:`needle_common.transforms`).
 """
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+
+from needle_common.transforms import matrix_quaternion, normalized_unit_quaternion, quaternion_matrix, unit_quaternion
 
 _ZERO3 = (0.0, 0.0, 0.0)
 
@@ -26,58 +28,6 @@ def _vector(value, name: str, size: int = 3) -> np.ndarray:
     if array.shape != (size,) or not np.all(np.isfinite(array)):
         raise ValueError(f"{name} must be {size} finite numbers, got {value!r}")
     return array
-
-
-def unit_quaternion(value, name: str = "orientation") -> np.ndarray:
-    """A finite quaternion (x, y, z, w) of norm 1 (within 1e-6), renormalized; ValueError otherwise."""
-    quaternion = _vector(value, name, 4)
-    return _normalized(quaternion, name)
-
-
-def _normalized(quaternion: np.ndarray, name: str) -> np.ndarray:
-    norm = math.sqrt(float(quaternion @ quaternion))
-    if abs(norm - 1.0) > 1e-6:
-        raise ValueError(f"{name} must be a unit quaternion (x, y, z, w), got norm {norm:.9g}")
-    return quaternion / norm
-
-
-@njit(cache=True)
-def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = quaternion[0], quaternion[1], quaternion[2], quaternion[3]
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-@njit(cache=True)
-def matrix_quaternion(rotation: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) with w >= 0 of a rotation matrix (Shepperd's method)."""
-    m = rotation
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    k = 0
-    best = trace
-    for i in range(3):
-        if m[i, i] > best:
-            best = m[i, i]
-            k = i + 1
-    if k == 0:
-        w = 0.5 * np.sqrt(1.0 + trace)
-        x, y, z = (m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w), (m[1, 0] - m[0, 1]) / (4 * w)
-    elif k == 1:
-        x = 0.5 * np.sqrt(1.0 + 2 * m[0, 0] - trace)
-        w, y, z = (m[2, 1] - m[1, 2]) / (4 * x), (m[0, 1] + m[1, 0]) / (4 * x), (m[0, 2] + m[2, 0]) / (4 * x)
-    elif k == 2:
-        y = 0.5 * np.sqrt(1.0 + 2 * m[1, 1] - trace)
-        w, x, z = (m[0, 2] - m[2, 0]) / (4 * y), (m[0, 1] + m[1, 0]) / (4 * y), (m[1, 2] + m[2, 1]) / (4 * y)
-    else:
-        z = 0.5 * np.sqrt(1.0 + 2 * m[2, 2] - trace)
-        w, x, y = (m[1, 0] - m[0, 1]) / (4 * z), (m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z)
-    quaternion = np.array([x, y, z, w])
-    quaternion /= np.sqrt(x * x + y * y + z * z + w * w)
-    if w < 0.0:
-        quaternion = -quaternion
-    return quaternion
 
 
 _FIELDS = (("position", slice(0, 3)), ("orientation", slice(3, 7)), ("linear_velocity", slice(7, 10)),
@@ -111,7 +61,7 @@ class BaseMotion:
         if not math.isfinite(values.sum()):
             bad = [name for name, part in _FIELDS if not np.all(np.isfinite(values[part]))]
             raise ValueError(f"BaseMotion.{bad[0]} must be finite, got {getattr(self, bad[0])!r}")
-        values[3:7] = _normalized(values[3:7], "BaseMotion.orientation")
+        values[3:7] = normalized_unit_quaternion(values[3:7], "BaseMotion.orientation")
         for name, part in _FIELDS:
             object.__setattr__(self, name, values[part])
         object.__setattr__(self, "rotation", quaternion_matrix(values[3:7]))

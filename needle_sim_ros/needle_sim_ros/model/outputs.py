@@ -7,9 +7,11 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from needle_common.transforms import matrix_quaternion, quaternion_matrix, unit_quaternion
+
 from .elastic import elastic_energy
 from .forces import Gravity
-from .kinematics import cross, dot3, matrix_quaternion, quaternion_matrix, unit_quaternion
+from .kinematics import cross, dot3
 from .mesh import Interpolation, interpolate
 from .model import NeedleModel
 

@@ -20,10 +20,9 @@ from pathlib import Path
 import rclpy
 from rclpy.executors import MultiThreadedExecutor
 
-from needle_vision.parameters import ParameterError
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
-
-from needle_sim_ros.nodes.runner import StopSignals, spin_until_shutdown
+from needle_common.parameters import ParameterError
+from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
+from needle_common.ros.runner import StopSignals, spin_until_shutdown
 
 NAME = "needle_bringup"
 COMPARE_REMAPS = ("needle_compare:model/shape:=needle/shape", "needle_compare:measured/shape:=needle/measured_shape")
@@ -57,7 +56,8 @@ def rcl_arguments(argv: list[str], args: argparse.Namespace) -> tuple[list[str],
 
 def check_node_arguments(rcl_args: list[str], stereo: bool, logger) -> None:
     """Every --params-file checked for each node before rclpy reads them (ParameterError, a ValueError)."""
-    from needle_vision.parameters import SPECS as STEREO_PARAMETERS, check_ros_arguments
+    from needle_common.parameters import check_ros_arguments
+    from needle_vision.parameters import SPECS as STEREO_PARAMETERS
 
     from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
     from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
@@ -84,7 +84,6 @@ def main(argv: list[str] | None = None) -> int:
     if not init_rclpy(rcl_args, logger, NAME, own_signals=True):
         return EXIT_BAD_ARGUMENTS
     signals = StopSignals()  # the simulator's haptic zero goes out before rclpy shuts down
-    from needle_vision.parameters import ParameterError as StereoParameterError
     from needle_vision.ros.stereo_node import NeedleStereoNode
 
     from needle_sim_ros.nodes.compare_node import CompareNode
@@ -93,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for make in (NeedleSimulatorNode, *((NeedleStereoNode,) if stereo else ()), CompareNode):
             nodes.append(make())
-    except (ParameterError, StereoParameterError) as error:
+    except ParameterError as error:
         logger.fatal(str(error))
         for node in nodes:
             node.destroy_node()
@@ -102,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     executor = MultiThreadedExecutor(num_threads=len(nodes) + 1)
     for node in nodes:
         executor.add_node(node)
-        if hasattr(node, "start"):  # the hooks of needle_sim_ros.nodes.runner.run_node
+        if hasattr(node, "start"):  # the hooks of needle_common.ros.runner.run_node
             node.start()
     logger.info(f"running {', '.join(node.get_name() for node in nodes)} in one process")
     spin_until_shutdown(executor, nodes, signals)

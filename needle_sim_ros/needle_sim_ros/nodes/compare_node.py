@@ -24,15 +24,15 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
 
-from needle_vision.parameters import ParameterError
+from needle_common.parameters import ParameterError
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
-from needle_vision.ros.input_status import InputStatus
-from needle_vision.ros.ros_parameters import declare_all
+from needle_common.ros.input_status import InputStatus
+from needle_common.ros.ros_parameters import declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
-from needle_sim_ros.nodes.runner import run_node
+from needle_common.ros.runner import run_node
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS, DISPLAY_TOPICS
 from needle_sim_ros.recording import RecordingError, WriterOptions
 

@@ -11,7 +11,7 @@ from typing import Callable
 from lifecycle_msgs.msg import State as StateMsg
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
-from needle_vision.parameters import ParameterError
+from needle_common.parameters import ParameterError
 
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 PRIMARY_STATES = {StateMsg.PRIMARY_STATE_UNCONFIGURED: "unconfigured", StateMsg.PRIMARY_STATE_INACTIVE: "inactive",

@@ -13,7 +13,8 @@ from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy)
 from rclpy.serialization import serialize_message
 
-from needle_sim_ros.recording import McapBagWriter, OfferedQos, RecordingError, WriterOptions
+from needle_common.qos import OfferedQos
+from needle_sim_ros.recording import McapBagWriter, RecordingError, WriterOptions
 
 _DEFAULT_DEPTH = 10
 

@@ -45,15 +45,16 @@ from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
-from needle_vision.cli_types import non_negative, positive
+from needle_common.cli_types import non_negative, positive
+from needle_common.parameters import ParameterError, check_ros_arguments
+from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
+from needle_common.ros.input_status import InputReports
 from needle_vision.streams.image_codec import (ImageFormatError, compress_image, deserialize_image, image_to_array,
                                                serialize_compressed_image)
-from needle_vision.parameters import ParameterError, check_ros_arguments
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
-from needle_vision.ros.input_status import InputReports
 
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
-from needle_sim_ros.recording import BagReadError, BagReader, PlaybackSchedule
+from needle_common.bag_reader import BagReadError, BagReader
+from needle_sim_ros.recording.playback import EXPECTED_TYPES, PlaybackSchedule
 
 NODE_NAME = "needle_replay"
 LINGER = 10.0  # [s] longest wait for the acknowledgements after the last message (--linger)
@@ -114,7 +115,7 @@ class ReplayNode(Node):
         self.reader, self.args = reader, args
         self.publishers_by_topic = {}
         self.compressing: set[str] = set()  # recorded Image topics played as CompressedImage on <topic>/compressed
-        mismatches = {} if args.allow_type_mismatch else reader.type_mismatches()
+        mismatches = {} if args.allow_type_mismatch else reader.type_mismatches(EXPECTED_TYPES)
         for topic in args.topics or sorted(reader.topics):
             recorded = reader.topics[topic]
             if topic in mismatches:
@@ -192,7 +193,7 @@ class ReplayNode(Node):
         clock_period = round(1e9 / self.args.clock) if self.args.clock else 0
         next_clock = schedule.wall_start_ns
         for message in self.reader.messages(self.publishers_by_topic, start_time_ns=start):
-            data = self.compressed(message.data) if message.topic in self.compressing else message.data
+            data = self.compressed(bytes(message.data)) if message.topic in self.compressing else bytes(message.data)
             due = schedule.wall_time_ns(message.log_time_ns)
             while True:
                 now = time.monotonic_ns()

@@ -38,21 +38,23 @@ from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
 
-from needle_vision.parameters import ParameterError
+from needle_common.cdr import pose_stamped
+from needle_common.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.haptics import ZERO, HapticShaper
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
-from needle_sim_ros.messages.geometry import compile_geometry_kernels, quaternions_from_tangents, tube_triangles
+from needle_common.transforms import quaternions_from_x_axes
+from needle_sim_ros.messages.geometry import compile_geometry_kernels, tube_triangles
 from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
 from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_shape
 from needle_sim_ros.nodes.diagnostics import ERROR, OK, WARN, HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
-from needle_vision.ros.input_status import InputStatus
-from needle_vision.ros.ros_parameters import declare_all, guard_dynamic_updates
+from needle_common.ros.input_status import InputStatus
+from needle_common.ros.ros_parameters import declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
-from needle_sim_ros.nodes.runner import run_node
+from needle_common.ros.runner import run_node
 from needle_sim_ros.nodes.tf_output import SimulatorTf
 from needle_sim_ros.parameters.simulator import FIXED_AT_CONSTRUCTION, SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
@@ -245,7 +247,7 @@ class NeedleSimulatorNode(LifecycleNode):
         watchdog, however late the loop takes it)."""
         if not self.active:  # lifecycle: poses count from activation on
             return
-        pose = cdr.pose_stamped(data)
+        pose = pose_stamped(data)
         received, own_stamp = self.now_seconds(), pose.stamp_ns * 1e-9
         try:
             with self._lock:
@@ -365,7 +367,7 @@ class NeedleSimulatorNode(LifecycleNode):
 
     def finish(self) -> None:
         """Stop the loop and output threads, then send the haptic zero and wait briefly for its acknowledgement
-        (also when the process ends by SIGINT/SIGTERM or an exception: :func:`needle_sim_ros.nodes.runner.run_node`
+        (also when the process ends by SIGINT/SIGTERM or an exception: :func:`needle_common.ros.runner.run_node`
         keeps the context alive until this ran)."""
         self._stop.set()
         for thread in (self._loop, self._outputs):
@@ -600,7 +602,7 @@ class NeedleSimulatorNode(LifecycleNode):
             self.publish_shape(snap)
         if visualization_due:
             stamp, frame, line = time_msg(snap["shape"].t), self.p["frames.world"], snap["shape"].line
-            orientations = quaternions_from_tangents(line.tangents)
+            orientations = quaternions_from_x_axes(line.tangents)
             self.path_pub.publish(cdr.path(stamp.sec, stamp.nanosec, frame, line.points, orientations))
             self.pose_array_pub.publish(cdr.pose_array(stamp.sec, stamp.nanosec, frame, line.points, orientations))
             self.marker_pub.publish(cdr.triangle_list_marker(

@@ -4,11 +4,11 @@ the ``frames.*`` parameters)."""
 from __future__ import annotations
 
 import numpy as np
-from needle_vision.ros.tf_output import TfOutput, transform_stamped
+from needle_common.ros.tf_output import TfOutput, transform_stamped
 from rclpy.node import Node
 
-from needle_sim_ros.model.kinematics import BaseMotion, quaternion_matrix
-from needle_sim_ros.quaternion import conjugate, multiply
+from needle_common.transforms import conjugate, multiply, quaternion_matrix
+from needle_sim_ros.model.kinematics import BaseMotion
 
 
 def tip_in_base(base: BaseMotion, tip_position: np.ndarray, tip_orientation: np.ndarray) -> tuple:

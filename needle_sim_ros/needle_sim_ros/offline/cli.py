@@ -23,14 +23,15 @@ from typing import Any
 import yaml
 from tqdm import tqdm
 
-from needle_vision.cli_types import non_negative, positive
-from needle_vision.parameters import ParameterError
+from needle_common.cli_types import non_negative, positive
+from needle_common.parameters import ParameterError
 
 from needle_sim_ros.parameters.experiment import NODES, ExperimentConfigError, experiment_for_bag, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
 from needle_sim_ros.offline.plots import write_plots
 from needle_sim_ros.offline.results import read_pipeline_log, versus_ground_truth
-from needle_sim_ros.recording import BagReader, BagReadError, RecordingError
+from needle_common.bag_reader import BagReader, BagReadError
+from needle_sim_ros.recording import RecordingError
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:

@@ -28,7 +28,7 @@ from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo
 
-from needle_vision.streams.base_pose import StampedPose
+from needle_common.cdr import pose_stamped
 
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import DISPLAY_TYPES
@@ -37,8 +37,10 @@ from needle_sim_ros.parameters.compare import DISPLAY_TOPICS
 from needle_sim_ros.parameters.experiment import ExperimentConfig
 from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
                                            simulator_values, stereo_values)
-from needle_sim_ros.recording import BagReader, BagReadError, OfferedQos, WriterOptions
-from needle_sim_ros.recording.bag_reader import read_ahead
+from needle_common.bag_reader import BagReader, BagReadError
+from needle_common.qos import OfferedQos
+from needle_sim_ros.recording import WriterOptions
+from needle_sim_ros.recording.playback import EXPECTED_TYPES
 from needle_sim_ros.recording.background_writer import BackgroundBagWriter
 
 NS = 1_000_000_000
@@ -62,19 +64,14 @@ DECODE_ERRORS = (ValueError, RuntimeError, IndexError, struct.error, UnicodeDeco
 
 def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose",)) -> Any:
     """An input message from its serialized bytes (images and the ``pose_topics``' poses decoded directly:
-    :mod:`needle_sim_ros.messages.cdr`)."""
+    :mod:`needle_sim_ros.messages.cdr`, :mod:`needle_common.cdr`)."""
     if topic.endswith("image_raw"):
         return cdr.image(data)
     if topic.endswith("image_raw/compressed"):
         return cdr.compressed_image(data)
     if topic in pose_topics:
-        return cdr.pose_stamped(data)
-    return deserialize_message(data, INPUT_TYPES[topic])
-
-
-def stamped_pose(pose: cdr.DecodedPose) -> StampedPose:
-    """The stereo core's form of a decoded pose."""
-    return StampedPose(pose.stamp_ns / NS, pose.frame_id, tuple(pose.position), tuple(pose.orientation))
+        return pose_stamped(data)
+    return deserialize_message(bytes(data), INPUT_TYPES[topic])
 
 
 @dataclass
@@ -112,7 +109,7 @@ class OfflinePipeline:
         topics += [*self.stereo.image_topics, "/left/camera_info", "/right/camera_info", self.stereo.base_pose_topic] \
             if self.use_stereo else ["/needle/measured_shape"]
         topics = list(dict.fromkeys(t for t in topics if t in reader.topics))
-        for topic, (recorded, expected) in reader.type_mismatches().items():
+        for topic, (recorded, expected) in reader.type_mismatches(EXPECTED_TYPES).items():
             if topic in topics:
                 raise ValueError(f"bag '{reader.path}': topic '{topic}' has type '{recorded}', expected '{expected}'")
         return topics
@@ -149,7 +146,7 @@ class OfflinePipeline:
         stereo_poses = self.stereo.base_pose_topic if self.stereo is not None else ""
         pose_topics = ("/base_pose", stereo_poses)
         try:
-            for message in read_ahead(reader.messages(topics, start_time_ns=begin)):
+            for message in reader.messages(topics, start_time_ns=begin):
                 now = message.log_time_ns
                 if now > end:
                     break
@@ -163,7 +160,7 @@ class OfflinePipeline:
                                            f"{now / NS:.9f} s ({error})") from error
                     continue
                 if message.topic == stereo_poses:  # the stereo node's base_pose.topic (may be the simulator's)
-                    self.stereo.on_base_pose(stamped_pose(msg))
+                    self.stereo.on_base_pose(msg)
                 if message.topic in ("/base_pose", "/base_twist", "/tip_load"):
                     with self._timed("simulator"):
                         if message.topic == "/base_pose":
@@ -173,7 +170,7 @@ class OfflinePipeline:
                         else:
                             self.simulator.on_tip_load(msg)
                     if message.topic == "/base_pose":
-                        self._write("/base_pose", message.data, now)
+                        self._write("/base_pose", bytes(message.data), now)
                 elif message.topic == "/needle/measured_shape":
                     self._measured(msg, now)
                 elif message.topic.endswith("camera_info"):

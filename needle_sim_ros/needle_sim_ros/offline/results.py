@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from needle_sim_ros.comparison import CenterlineSamples, compare_centerlines
-from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReader
+from needle_common.bag_reader import CHUNK_ERRORS, BagReader
 
 NS = 1_000_000_000
 MODEL_TOPIC, MEASURED_TOPIC = "/needle/shape", "/needle/measured_shape"

@@ -28,11 +28,12 @@ from std_msgs.msg import Header
 from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, load_camera_calibration
 from needle_vision.streams.image_codec import ImageFormatError, compressed_message_to_gray, image_message_to_gray
 from needle_vision.streams.pairing import StampPairer as FramePairer
-from needle_vision.parameters import (ROS_BUILTIN, ParameterError, ParamSpec, base_pose_store, output_from_left,
-                                      stereo_config, unknown_name_error, validate_all)
+from needle_common.cdr import PoseStamped
+from needle_common.transforms import quaternions_from_x_axes
+from needle_common.parameters import ROS_BUILTIN, ParameterError, ParamSpec, unknown_name_error
+from needle_vision.parameters import base_pose_store, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
-from needle_vision.streams.base_pose import StampedPose, store_base_pose
-from needle_vision.transform import quaternion_from_x_axis
+from needle_vision.streams.base_pose import store_base_pose
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
@@ -86,7 +87,7 @@ class SimulatorStage:
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
     # --- inputs (as NeedleSimulatorNode.on_pose / on_tip_load in simulated time) ------------------------------
-    def on_pose(self, pose: cdr.DecodedPose, now_ns: int) -> None:
+    def on_pose(self, pose: PoseStamped, now_ns: int) -> None:
         started = self.sim.started
         try:
             verdict = self.inputs.offer_pose(pose.frame_id, pose.stamp_ns * 1e-9, pose.position, pose.orientation,
@@ -175,7 +176,7 @@ class StereoStage:
         topic = self.values["base_pose.topic"]
         return "/" + topic.lstrip("/") if topic else ""
 
-    def on_base_pose(self, pose: StampedPose) -> None:
+    def on_base_pose(self, pose: PoseStamped) -> None:
         """As the node: the base pose stored in the output frame; an unusable one is counted."""
         try:
             store_base_pose(self.base_poses, pose, self.values["output_frame"],
@@ -223,7 +224,7 @@ class StereoStage:
         m = result.measurement
         header = Header(stamp=pair.left.header.stamp, frame_id=self.values["output_frame"] or pair.left.header.frame_id)
         return [needle_shape_msg(header, NeedleShape.SOURCE_STEREO, m.points, m.tangents, m.arc_length, m.points[-1],
-                                 quaternion_from_x_axis(m.tangents[-1]), m.uncertainty)]
+                                 quaternions_from_x_axes(m.tangents[-1]), m.uncertainty)]
 
     def statistics(self) -> dict[str, Any]:
         return {"pairs": dict(self.outcomes), "unpaired_frames": self.pairer.dropped}

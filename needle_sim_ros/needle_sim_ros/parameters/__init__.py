@@ -1,3 +1,3 @@
-"""ROS-free parameter declarations (:class:`needle_vision.parameters.ParamSpec`) of the simulator and comparison
+"""ROS-free parameter declarations (:class:`needle_common.parameters.ParamSpec`) of the simulator and comparison
 cores, and experiment files read without ROS. The nodes declare them with descriptors
-(``needle_vision.ros.ros_parameters``); the offline pipeline validates the same values against them."""
+(``needle_common.ros.ros_parameters``); the offline pipeline validates the same values against them."""

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from needle_vision.parameters import ParamSpec
+from needle_common.parameters import ParamSpec
 
 #: The compared centerlines as nav_msgs/Path and visualization_msgs/Marker (model frame).
 DISPLAY_TOPICS = ("compare/model/path", "compare/model/marker", "compare/measured/path", "compare/measured/marker")

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from needle_vision.streams.package_files import share_file
-from needle_vision.parameters import ParamSpec, load_params_file
+from needle_common.package_files import share_file
+from needle_common.parameters import ParamSpec, load_params_file
 
 #: The pipeline's nodes and the package whose share directory holds each node's config file.
 NODE_PACKAGES = {"needle_simulator": "needle_sim_ros", "needle_stereo": "needle_vision",

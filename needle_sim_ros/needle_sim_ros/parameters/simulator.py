@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from needle_sim_ros.model.config import DEFAULTS as MODEL_DEFAULTS
-from needle_vision.parameters import TOPIC_CHECK, ParamSpec
+from needle_common.parameters import TOPIC_CHECK, ParamSpec
 from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
 
@@ -190,6 +190,6 @@ SIMULATOR_PARAMETERS = [
 
 # Structural parameters that the node's construction already used (its topics, QoS, frames, whether it has a haptic
 # output): fixed for the node's life. The other structural (not dynamic) ones can be set while the node is
-# unconfigured and take effect at configure (needle_vision.ros.ros_parameters).
+# unconfigured and take effect at configure (needle_common.ros.ros_parameters).
 FIXED_AT_CONSTRUCTION = frozenset(spec.name for spec in SIMULATOR_PARAMETERS if spec.name.split(".")[0] in
                                   ("topics", "qos", "frames")) | {"haptics.enable", "autostart"}

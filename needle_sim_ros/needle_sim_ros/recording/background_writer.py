@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, BinaryIO, Sequence
 
 from needle_sim_ros.recording.mcap_writer import McapBagWriter, RecordingError, WriterOptions
-from needle_sim_ros.recording.qos import OfferedQos
+from needle_common.qos import OfferedQos
 
 BATCH = 256  # messages per hand-over (the last one is written while the producer waits in close)
 

@@ -24,7 +24,7 @@ from needle_sim_ros.recording.bag_metadata import (METADATA_RECORD_KEY, METADATA
                                                    TopicSummary, bag_metadata, metadata_record_text,
                                                    metadata_yaml_text)
 from needle_sim_ros.recording.message_definitions import SCHEMA_ENCODING, message_definition, type_description_hash
-from needle_sim_ros.recording.qos import OfferedQos, offered_qos_profiles_yaml
+from needle_common.qos import OfferedQos, offered_qos_profiles_yaml
 
 PROFILE = "ros2"
 LIBRARY = f"needle_sim_ros recorder; {LIBRARY_IDENTIFIER}"

@@ -1,7 +1,20 @@
-"""Playback timing: bag (log) time <-> wall time at a rate factor, as ``ros2 bag play --rate`` does."""
+"""Playback timing: bag (log) time <-> wall time at a rate factor, as ``ros2 bag play --rate`` does; the types the
+suite's nodes expect on the topics of a recording (``BagReader.type_mismatches(EXPECTED_TYPES)``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+# Types the nodes of the suite expect on the topics of a recording (absolute names as recorded).
+EXPECTED_TYPES = {
+    "/base_pose": "geometry_msgs/msg/PoseStamped", "/base_twist": "geometry_msgs/msg/TwistStamped",
+    "/tip_load": "geometry_msgs/msg/WrenchStamped", "/wrench": "geometry_msgs/msg/WrenchStamped",
+    "/left/image_raw": "sensor_msgs/msg/Image", "/right/image_raw": "sensor_msgs/msg/Image",
+    "/left/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+    "/right/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+    "/left/camera_info": "sensor_msgs/msg/CameraInfo", "/right/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/needle/shape": "needle_interfaces/msg/NeedleShape", "/needle/measured_shape": "needle_interfaces/msg/NeedleShape",
+    "/shape_error": "needle_interfaces/msg/ShapeError", "/clock": "rosgraph_msgs/msg/Clock",
+}
 
 
 @dataclass(frozen=True)

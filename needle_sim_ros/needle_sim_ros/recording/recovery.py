@@ -23,10 +23,10 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
-from needle_vision.output_files import check_output_dir, check_output_file
+from needle_common.output_files import check_output_dir, check_output_file
 
 from needle_sim_ros.recording.bag_metadata import METADATA_RECORD_NAME
-from needle_sim_ros.recording.bag_reader import CHUNK_ERRORS, BagReadError, mcap_files
+from needle_common.bag_reader import CHUNK_ERRORS, BagReadError, bag_files
 from needle_sim_ros.recording.mcap_writer import PROFILE, McapBagWriter, RecordingError, WriterOptions
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -123,7 +123,7 @@ class _DataSection:
 def recover(source: str | Path, destination: str | Path, options: WriterOptions = WriterOptions()) -> RecoveryReport:
     """Rewrite every complete message of ``source`` (file or bag directory) into a valid MCAP ``destination``."""
     report = RecoveryReport()
-    sources = mcap_files(Path(source))
+    sources = bag_files(Path(source))
     for path in sources:
         if path.stat().st_size < len(MAGIC):
             raise RecoveryError(f"'{path}' is {path.stat().st_size} bytes long: nothing to recover")

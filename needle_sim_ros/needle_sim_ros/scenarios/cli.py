@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from needle_vision.output_files import check_output_file
+from needle_common.output_files import check_output_file
 
 from needle_sim_ros.model import StaticSolveFailed, StepFailed
 

@@ -10,8 +10,8 @@ from typing import Callable
 
 import numpy as np
 
-from needle_vision.output_files import write_atomically
-from needle_vision.parameters import ParamSpec, load_params_file
+from needle_common.output_files import write_atomically
+from needle_common.parameters import ParamSpec, load_params_file
 
 from needle_sim_ros.model import (BaseMotion, BaseWrench, NeedleModel, NeedleProperties, centerline,
                                   load_needle_config, needle_parameters)

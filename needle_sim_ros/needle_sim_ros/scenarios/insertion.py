@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from needle_vision.streams.package_files import share_file
+from needle_common.package_files import share_file
 
 from needle_sim_ros.model import (Gravity, Integrator, NeedleProperties, State, build_model, load_needle_config,
                                   reaction_wrench, solve_static)

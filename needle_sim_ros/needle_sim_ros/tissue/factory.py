@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from needle_sim_ros.model.config import parameter_tree
+from needle_common.parameters import flatten_tree, parameter_tree
 
 from .bevel_tip import BevelTip
 from .coupling import ShaftSupport, TissueContact
@@ -62,17 +62,7 @@ TISSUE_PARAMETERS: dict[str, tuple[object, str]] = {
 
 def flatten_tissue_config(config) -> dict:
     """Dotted ``tissue.*`` keys from a flat dict, a nested dict, a ROS 2 params-file dict or a YAML path."""
-    config = parameter_tree(config)         # params file: the merged ros__parameters of its sections
-    flat: dict = {}
-
-    def walk(prefix: str, value) -> None:
-        if isinstance(value, dict):
-            for key, item in value.items():
-                walk(f"{prefix}.{key}" if prefix else str(key), item)
-        else:
-            flat[prefix] = value
-
-    walk("", config)
+    flat = flatten_tree(parameter_tree(config))  # params file: the merged ros__parameters of its sections
     unknown = [k for k in flat if k.startswith("tissue.") and k not in TISSUE_PARAMETERS]
     if unknown:
         raise ValueError(f"unknown tissue parameters: {sorted(unknown)}")

@@ -15,7 +15,7 @@ import numpy as np
 from needle_vision.calibration.rig import CameraCalibration, StereoRig
 from needle_vision.render import Imaging, project_points, world_from_camera
 from needle_vision.render import _expose as expose  # the renderer's sensor model (noise, quantisation)
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 BLACK, WHITE, BACKGROUND = 25.0, 215.0, 110.0  # grey levels [DN, 8-bit scale]
 

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 import yaml
 
-from needle_vision.cli_types import non_negative, positive, positive_int
+from needle_common.cli_types import non_negative, positive, positive_int
 from needle_vision.calibration.rig import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
 from needle_vision.offline import InputError, SkippedPair, command_status, decoded, open_source
 from needle_vision.calibration.rectification import Rectification

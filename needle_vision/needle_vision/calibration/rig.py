@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 import yaml
 
-from needle_vision.streams.package_files import resolve_path
-from needle_vision.transform import RigidTransform
+from needle_common.package_files import resolve_path
+from needle_common.transforms import RigidTransform
 
 #: Distortion models of ``sensor_msgs/CameraInfo`` handled by OpenCV's standard camera model -> allowed lengths.
 DISTORTION_MODELS = {"plumb_bob": (5,), "rational_polynomial": (8, 12, 14)}
@@ -90,7 +90,7 @@ class CameraCalibration:
 
 def load_camera_calibration(path: str | Path) -> CameraCalibration:
     """Read a ``camera_calibration`` YAML file (``image_width``, ``camera_matrix: {rows, cols, data}``, ...); the path
-    may be a ``package://<package>/<path>`` name (:mod:`.package_files`)."""
+    may be a ``package://<package>/<path>`` name (:mod:`needle_common.package_files`)."""
     try:
         path = resolve_path(path)
         data = yaml.safe_load(path.read_text())

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from needle_vision.calibration.rig import CameraCalibration, StereoRig
 from needle_vision.render import project_points, world_from_camera
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 
 @dataclass(frozen=True)

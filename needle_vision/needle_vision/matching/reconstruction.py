@@ -20,7 +20,7 @@ from needle_vision.matching.correspondence import MatchError, MatchingConfig, ma
 from needle_vision.matching.curve_fit import fit_curve
 from needle_vision.detection.curves import arc_length, local_polynomial_smooth, median, step_lengths
 from needle_vision.calibration.rectification import Rectification
-from needle_vision.transform import RigidTransform
+from needle_common.transforms import RigidTransform
 
 #: Floor of the per-point image noise [px] used for the uncertainty (the centroid's aliasing error).
 MIN_IMAGE_NOISE_PX = 0.02

@@ -1,1 +1,1 @@
-"""The ROS 2 side: the needle_stereo node, parameter declaration from the specs, TF output."""
+"""The ROS 2 side: the needle_stereo node and its measurement status (the pieces every node uses: needle_common.ros)."""

@@ -13,7 +13,7 @@ from collections import Counter
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
-from needle_vision.ros.input_status import OK, WARN
+from needle_common.ros.input_status import OK, WARN
 
 OUTCOMES = ("measured", "background", "rejected", "skipped_no_calibration", "skipped_decode_error")
 

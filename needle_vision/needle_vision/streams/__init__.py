@@ -1,2 +1,1 @@
-"""Inputs and outputs: MCAP bag reading, image decoding, stereo frame pairing, base poses, output fields, installed
-package files."""
+"""Inputs and outputs: image decoding, stereo frame pairing, base poses, output fields."""

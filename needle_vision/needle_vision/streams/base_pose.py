@@ -3,53 +3,19 @@
 The simulator's ``base_pose`` input (``geometry_msgs/PoseStamped`` of the needle holder) or the TF frame of the
 needle base give, at each pair's stamp, where the base is; this ordering does not depend on the previous frame
 (temporal continuity) nor on a fixed ``base_point``, which flip when the needle moves or starts near them.
-:class:`BasePoseStore` keeps the recent poses, :func:`deserialize_pose_stamped` reads a serialized
-``PoseStamped`` (CDR, as a bag or a raw subscription gives it) without building message objects. No ROS here.
+:class:`BasePoseStore` keeps the recent poses (decoded by :func:`needle_common.cdr.pose_stamped`). No ROS here.
 """
 from __future__ import annotations
 
 import bisect
 import math
-import struct
-from typing import NamedTuple, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from needle_vision.transform import RigidTransform
-
-
-class StampedPose(NamedTuple):
-    """A pose: stamp [s], frame_id, position (x, y, z) [m] and orientation (qx, qy, qz, qw)."""
-
-    stamp: float
-    frame_id: str
-    position: tuple[float, float, float]
-    orientation: tuple[float, float, float, float]
-
-
-def deserialize_pose_stamped(data: bytes | memoryview) -> StampedPose:
-    """A CDR-serialized (little-endian XCDR1) ``geometry_msgs/PoseStamped``; ValueError when it is not one."""
-    view = memoryview(data)
-    if len(view) < 12 or bytes(view[:2]) != b"\x00\x01":
-        raise ValueError("not a little-endian CDR PoseStamped message")
-    try:
-        sec, nanosec, length = struct.unpack_from("<iII", view, 4)
-        offset = 16 + length
-        frame_id = bytes(view[16:16 + max(length - 1, 0)]).decode("utf-8", "replace")
-        offset += -(offset - 4) % 8
-        values = struct.unpack_from("<7d", view, offset)
-    except struct.error as error:
-        raise ValueError(f"truncated PoseStamped message ({error})") from error
-    return StampedPose(sec + 1e-9 * nanosec, frame_id, values[:3], values[3:])
-
-
-def _rotate(quaternion: Sequence[float], vector: Sequence[float]) -> tuple[float, float, float]:
-    """``vector`` rotated by the unit quaternion (x, y, z, w): v + 2w (q x v) + 2 q x (q x v)."""
-    x, y, z, w = quaternion
-    vx, vy, vz = vector
-    cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
-    return (vx + 2 * (w * cx + y * cz - z * cy), vy + 2 * (w * cy + z * cx - x * cz),
-            vz + 2 * (w * cz + x * cy - y * cx))
+from needle_common.cdr import PoseStamped
+from needle_common.cdr import pose_stamped as deserialize_pose_stamped  # noqa: F401 - the stereo node's name
+from needle_common.transforms import RigidTransform, rotate
 
 
 class BasePoseStore:
@@ -84,7 +50,7 @@ class BasePoseStore:
         norm = math.hypot(*orientation)
         if norm < 1e-9:
             raise ValueError("zero quaternion")
-        shift = _rotate([q / norm for q in orientation], self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
+        shift = rotate([q / norm for q in orientation], self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
         point = np.array([p + s for p, s in zip(position, shift)])
         if output_from_pose is not None:
             point = output_from_pose.apply(point)
@@ -120,7 +86,7 @@ def output_from_pose_frame(frame_id: str, output_frame: str, left_frames: Sequen
     return None
 
 
-def store_base_pose(store: BasePoseStore, pose: StampedPose, output_frame: str, left_frames: Sequence[str],
+def store_base_pose(store: BasePoseStore, pose: PoseStamped, output_frame: str, left_frames: Sequence[str],
                     output_from_left: RigidTransform) -> None:
     """Add ``pose`` to ``store`` in the output frame (:func:`output_from_pose_frame`); ValueError saying why a pose
     cannot be used (another frame, non-finite values, a zero quaternion). The stereo node, ``needle_stereo_offline``

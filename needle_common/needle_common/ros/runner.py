@@ -1,4 +1,4 @@
-"""The `main` of every needle_sim_ros node: init, construct, spin, and a clean, defined exit.
+"""The `main` of every node of the suite: init, construct, spin, and a clean, defined exit.
 
 SIGINT and SIGTERM are handled here, not by rclpy: rclpy's handler shuts the context down at once, after which a
 node can publish nothing more, not even the zero a haptic output owes its arm. Here a signal ends the spinning
@@ -17,8 +17,8 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
-from needle_vision.parameters import ParameterError, ParamSpec, check_ros_arguments
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
+from needle_common.parameters import ParameterError, ParamSpec, check_ros_arguments
+from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 
 
 def run_node(make_node: Callable[[], Node], name: str, args=None,

@@ -1,7 +1,7 @@
 """Files a ROS package ships in its share directory, found through the ament index (never the source tree).
 
 ``package://<package>/<path>`` names such a file in a parameter (as camera_info_manager's URLs do), so a params
-file works from any working directory: ``package://needle_vision/config/stereo/left.yaml``.
+file works from any working directory (e.g. ``package://<package>/config/left.yaml``).
 """
 from __future__ import annotations
 

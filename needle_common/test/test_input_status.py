@@ -7,7 +7,7 @@ import pytest
 pytest.importorskip("rclpy", reason="the input reports are ROS messages (diagnostic_msgs)")
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 
-from needle_vision.ros.input_status import READINESS_TOPIC, REPORT_GRACE, InputReports, input_status_name  # noqa: E402
+from needle_common.ros.input_status import READINESS_TOPIC, REPORT_GRACE, InputReports, input_status_name  # noqa: E402
 
 START_NS = 1_700_000_000_000_000_000
 

@@ -1,0 +1,41 @@
+"""Decoding of serialized input messages (CDR: XCDR1 little endian, as a bag or a raw subscription gives them)
+without building rclpy message objects (rclpy builds six Python objects per pose). No ROS here."""
+from __future__ import annotations
+
+import struct
+from typing import NamedTuple
+
+import numpy as np
+
+ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
+
+
+class PoseStamped(NamedTuple):
+    """A ``geometry_msgs/msg/PoseStamped``: stamp [ns], frame_id, position (3,) [m] and orientation (x, y, z, w),
+    the arrays read-only views of the serialized bytes."""
+
+    stamp_ns: int
+    frame_id: str
+    position: np.ndarray
+    orientation: np.ndarray
+
+    @property
+    def stamp(self) -> float:
+        """The stamp [s]."""
+        return self.stamp_ns / 1e9
+
+
+def pose_stamped(data: bytes | memoryview) -> PoseStamped:
+    """Decode a serialized ``geometry_msgs/msg/PoseStamped``; ValueError when it is not one (another encoding, cut
+    short). Bytes of the frame_id that are not UTF-8 are replaced (such a frame matches no frame of the suite)."""
+    if len(data) < 16 or bytes(data[:2]) != ENCAPSULATION[:2]:
+        raise ValueError("not a little-endian CDR PoseStamped message")
+    try:
+        sec, nanosec, length = struct.unpack_from("<iII", data, 4)
+        offset = 16 + length
+        frame_id = bytes(data[16:16 + max(length - 1, 0)]).decode("utf-8", "replace")
+        offset += -(offset - 4) % 8
+        values = np.frombuffer(data, dtype="<f8", count=7, offset=offset)
+    except (struct.error, ValueError) as error:
+        raise ValueError(f"truncated PoseStamped message ({error})") from error
+    return PoseStamped(sec * 1_000_000_000 + nanosec, frame_id, values[:3], values[3:])

@@ -1,0 +1,67 @@
+"""A node's command line before rclpy starts: malformed ROS arguments (rcl rejects them with a traceback) and
+arguments a node does not take become one fatal log line; the caller exits with :data:`EXIT_BAD_ARGUMENTS`."""
+from __future__ import annotations
+
+import re
+from typing import Sequence
+
+import rclpy
+from rclpy._rclpy_pybind11 import RCLError, UnknownROSArgsError
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+EXIT_BAD_ARGUMENTS = 2
+ROS_ARGUMENTS_USAGE = "--ros-args -p NAME:=VALUE --params-file FILE -r FROM:=TO"
+
+
+def _rcl_message(error: Exception) -> str:
+    """rcl's complaint without its source location (``..., at /path/arguments.c:356``)."""
+    if isinstance(error, UnknownROSArgsError):
+        return f"unknown ROS argument(s) {error}"
+    message = re.sub(r",? at \S+:\d+$", "", str(error))
+    return message.removeprefix("Failed to parse ROS arguments: ").removeprefix("failed to initialize rcl: ")
+
+
+def _without_params_files(argv: Sequence[str]) -> list[str]:
+    """argv without the ``--params-file FILE`` pairs of its ``--ros-args`` parts: rcl would parse the files' contents,
+    which :func:`needle_common.parameters.check_ros_arguments` checks with messages that name the problem."""
+    kept, inside, k = [], False, 0
+    while k < len(argv):
+        if argv[k] == "--ros-args":
+            inside = True
+        elif argv[k] == "--":
+            inside = False
+        elif inside and argv[k] == "--params-file" and k + 1 < len(argv):
+            k += 2
+            continue
+        kept.append(argv[k])
+        k += 1
+    return kept
+
+
+def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool) -> list[str] | None:
+    """``argv`` without its ROS arguments (``argv[0]`` first), or None after logging one fatal line: the ROS
+    arguments do not parse (params files aside), or there are others and the node takes none (``takes_others``
+    False)."""
+    try:
+        others = remove_ros_args(_without_params_files(argv))
+    except (UnknownROSArgsError, RCLError) as error:
+        usage = f"{name} --help" if takes_others else f"{name} {ROS_ARGUMENTS_USAGE}"
+        logger.fatal(f"invalid ROS arguments: {_rcl_message(error)} (usage: {usage})")
+        return None
+    if not takes_others and len(others) > 1:
+        logger.fatal(f"unexpected argument '{others[1]}': {name} takes ROS arguments only ({ROS_ARGUMENTS_USAGE})")
+        return None
+    return others
+
+
+def init_rclpy(args: Sequence[str] | None, logger, name: str, own_signals: bool = False) -> bool:
+    """``rclpy.init(args=args)``; False after one fatal log line if rcl refuses the arguments (e.g. a params file
+    only rcl's parser rejects). ``own_signals``: rclpy installs no SIGINT/SIGTERM handler (its handler shuts the
+    context down at once, before the node could publish anything more); the caller handles them."""
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals else None)
+    except (UnknownROSArgsError, RCLError) as error:
+        logger.fatal(f"invalid ROS arguments: {_rcl_message(error)} (usage: {name} --help)")
+        return False
+    return True
