@@ -233,7 +233,8 @@ def test_offline_pipeline_reads_compressed_image_topics_as_it_reads_raw_ones(off
     """The dynamic slice as a camera behind image_transport's compressed plugin records it (PNG CompressedImage on
     /left|right/image_raw/compressed, no raw images): needle_offline with the stereo node's image_transport:
     compressed measures and compares exactly as on the raw images (PNG is lossless)."""
-    from needle_sim_ros.recording import BagReader, McapBagWriter, WriterOptions
+    from needle_common.bag_reader import BagReader
+    from needle_sim_ros.recording import McapBagWriter, WriterOptions
     from needle_vision.streams.image_codec import (compress_image, deserialize_image, image_to_array,
                                                    serialize_compressed_image)
     reader, bag = BagReader(DYNAMIC), tmp_path / "compressed.mcap"
