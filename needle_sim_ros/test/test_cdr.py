@@ -31,7 +31,8 @@ from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import COLORS, centerline_display
 from needle_common.transforms import quaternions_from_x_axes
 from needle_sim_ros.messages.geometry import polyline_tangents, tube_triangles
-from needle_sim_ros.messages.shape import needle_shape_msg, time_msg
+from needle_common.ros.needle_shape import needle_shape_msg
+from needle_sim_ros.messages.shape import time_msg
 
 FRAMES = ("", "w", "ab", "abc", "world", "abcdefg", "needle_base")  # with the NUL: 1, 2, 3, 4, 6, 8, 12 bytes
 COUNTS = (0, 1, 3, 50)

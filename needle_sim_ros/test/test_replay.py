@@ -143,7 +143,7 @@ def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(nod
 
 def test_a_paused_replay_holds_the_start_time_until_resumed_and_subscribers_report_their_own_match(ros_env, tmp_path):
     """--start-paused: nothing is played and /clock holds the bag's start until ~/resume; the subscribing node's
-    input report (needle_vision.ros.input_status) turns from no publisher to one matched, stamped with its /clock."""
+    input report (needle_common.ros.input_status) turns from no publisher to one matched, stamped with its /clock."""
     count = 20
     wrench_bag(tmp_path / "wrench.mcap", count, 10_000_000)
     arrivals, clocks, reports = [], [], []

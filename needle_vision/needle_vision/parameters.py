@@ -10,7 +10,6 @@ import numpy as np
 
 from needle_common.package_files import resolve_path
 from needle_common.parameters import TOPIC_CHECK, ParameterError, ParamSpec, unknown_name_error, valid_topic_name
-from needle_common.parameters import check_ros_arguments  # noqa: F401 - the stereo node takes it from here
 from needle_vision.detection.background import ContrastThreshold
 from needle_vision.streams.base_pose import BasePoseStore
 from needle_vision.detection.centerline import CenterlineConfig

@@ -41,7 +41,7 @@ from needle_common.output_files import check_output_file, write_atomically
 from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, run_ground_truth, static_check
 from needle_sim_ros.experiments.protocols import EXPERIMENTS, Experiment
 from needle_sim_ros.model import BaseMotion
-from needle_sim_ros.messages.shape import needle_shape_msg
+from needle_common.ros.needle_shape import needle_shape_msg
 from needle_common.qos import OfferedQos
 from needle_sim_ros.recording import McapBagWriter, RecordingError, WriterOptions
 

@@ -4,33 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from needle_interfaces.msg import NeedleShape, ShapeError
 from std_msgs.msg import Header
 
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.model import ModelShape
-
-
-def _pose(position, quaternion) -> Pose:
-    return Pose(position=Point(x=float(position[0]), y=float(position[1]), z=float(position[2])),
-                orientation=Quaternion(x=float(quaternion[0]), y=float(quaternion[1]), z=float(quaternion[2]),
-                                       w=float(quaternion[3])))
-
-
-def needle_shape_msg(header: Header, source: str, points: np.ndarray, tangents: np.ndarray, arc_length: np.ndarray,
-                     tip_position: np.ndarray, tip_orientation: np.ndarray,
-                     uncertainty: np.ndarray | None = None) -> NeedleShape:
-    return NeedleShape(
-        header=header,
-        source=source,
-        points=[Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in points],
-        tangents=[Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in tangents],
-        arc_length=[float(s) for s in arc_length],
-        uncertainty=[] if uncertainty is None else [float(u) for u in uncertainty],
-        tip_pose=_pose(tip_position, tip_orientation),
-        length=float(arc_length[-1]) if len(arc_length) else 0.0,
-    )
 
 
 def model_shape_cdr(shape: ModelShape, frame_id: str) -> bytes:

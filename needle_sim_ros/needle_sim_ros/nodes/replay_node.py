@@ -11,7 +11,7 @@ recorded (absolute) topic names; ``--in-namespace`` publishes them in the player
 -r __ns:=/robot1``: ``/wrench`` as ``/robot1/wrench``), where the nodes of a launch in that namespace read them.
 
 ``--wait-for-subscribers S`` waits until every played topic has a subscriber and every subscriber that reports its
-inputs on the latched ``/needle_sim/readiness`` (this suite's nodes: ``needle_vision.ros.input_status``) has matched
+inputs on the latched ``/needle_sim/readiness`` (this suite's nodes: ``needle_common.ros.input_status``) has matched
 the topic from its own side, following the start time on /clock with ``--clock``: discovery is two-sided, and
 messages published before the subscriber has matched the publisher are lost. With ``--wait-for-nodes
 /needle_simulator ...`` it waits for those nodes instead: until each has reported and matched the played topics it

@@ -39,7 +39,8 @@ from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
-from needle_sim_ros.messages.shape import needle_shape_msg, shape_arrays, shape_error_msg, time_msg
+from needle_common.ros.needle_shape import needle_shape_msg
+from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg, time_msg
 from needle_sim_ros.model import ModelShape
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS

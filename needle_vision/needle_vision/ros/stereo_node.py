@@ -8,7 +8,7 @@ of ``sync_queue_size`` frames per camera); publishes ``needle/measured_points`` 
 the centerline samples, x y z float32, plus vx..vz, ax..az when tracking), ``needle/measured_shape``
 (needle_interfaces/NeedleShape with per-sample uncertainty), ``needle/debug_image`` (bgr8, centerlines
 drawn) and, twice a second, its input report and what became of the pairs on ``/diagnostics``
-(:mod:`needle_vision.ros.input_status`, :mod:`needle_vision.ros.measurement_status`). Base and tip are told apart
+(:mod:`needle_common.ros.input_status`, :mod:`needle_vision.ros.measurement_status`). Base and tip are told apart
 by the needle's base pose: ``base_pose`` (geometry_msgs/PoseStamped, read raw) and, where tf2_ros is installed,
 the TF frame ``base_pose.frame``. Everything else happens in the ROS-free
 :class:`needle_vision.pipeline.StereoNeedlePipeline`.
@@ -26,28 +26,30 @@ import numpy as np
 import rclpy
 import rclpy.executors
 import rclpy.time
-from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion, Vector3
+from geometry_msgs.msg import PoseStamped
 from needle_interfaces.msg import NeedleShape
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from needle_vision.streams.base_pose import deserialize_pose_stamped, store_base_pose
+from needle_common.cdr import pose_stamped
+from needle_common.parameters import ParameterError
+from needle_common.ros.input_status import InputStatus
+from needle_common.ros.needle_shape import needle_shape_msg
+from needle_common.ros.ros_parameters import declare_all
+from needle_common.ros.runner import run_node
+from needle_common.ros.tf_output import TfOutput, transform_stamped
+from needle_common.transforms import quaternions_from_x_axes
+from needle_vision.streams.base_pose import store_base_pose
 from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, load_camera_calibration
 from needle_vision.streams.image_codec import (ImageFormatError, compressed_message_to_gray, image_fields,
                                                image_message_to_gray)
 from needle_vision.streams.outputs import debug_image, pointcloud2_fields
 from needle_vision.streams.pairing import StampPairer
-from needle_vision.parameters import (SPECS, ParameterError, base_pose_store, check_ros_arguments, output_from_left,
-                                      stereo_config, validate_all)
+from needle_vision.parameters import SPECS, base_pose_store, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline, compile_kernels
-from needle_vision.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
-from needle_vision.ros.input_status import InputStatus
 from needle_vision.ros.measurement_status import MeasurementStatus
-from needle_vision.ros.ros_parameters import declare_all
-from needle_vision.ros.tf_output import TfOutput, transform_stamped
-from needle_vision.transform import quaternion_from_x_axis
 
 
 def _stamp_seconds(header: Header) -> float:
@@ -124,7 +126,7 @@ class NeedleStereoNode(Node):
     def on_base_pose(self, data: bytes) -> None:
         """A serialized base pose, stored in the output frame; unusable ones are warned about (throttled)."""
         try:
-            store_base_pose(self.base_poses, deserialize_pose_stamped(data), self.frame_id,
+            store_base_pose(self.base_poses, pose_stamped(data), self.frame_id,
                             (self.values["left_optical_frame"], self._image_frame), self.output_from_left)
         except ValueError as error:
             self.warn("base_pose", f"base pose on '{self.values['base_pose.topic']}' ignored: {error}")
@@ -217,17 +219,9 @@ class NeedleStereoNode(Node):
         fields = pointcloud2_fields(measurement.points, extra)
         fields["fields"] = [PointField(**field) for field in fields["fields"]]
         self.cloud_pub.publish(PointCloud2(header=header, **fields))
-        tip, tip_tangent = measurement.points[-1], measurement.tangents[-1]
-        quaternion = quaternion_from_x_axis(tip_tangent)
-        self.shape_pub.publish(NeedleShape(
-            header=header, source=NeedleShape.SOURCE_STEREO,
-            points=[Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in measurement.points],
-            tangents=[Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2])) for t in measurement.tangents],
-            arc_length=measurement.arc_length.tolist(), uncertainty=measurement.uncertainty.tolist(),
-            tip_pose=Pose(position=Point(x=float(tip[0]), y=float(tip[1]), z=float(tip[2])),
-                          orientation=Quaternion(x=float(quaternion[0]), y=float(quaternion[1]),
-                                                 z=float(quaternion[2]), w=float(quaternion[3]))),
-            length=measurement.length))
+        self.shape_pub.publish(needle_shape_msg(
+            header, NeedleShape.SOURCE_STEREO, measurement.points, measurement.tangents, measurement.arc_length,
+            measurement.points[-1], quaternions_from_x_axes(measurement.tangents[-1]), measurement.uncertainty))
 
     def publish_debug(self, image_header: Header, images: list[np.ndarray], result: FrameResult) -> None:
         if not self.values["debug_image.enabled"] or self.debug_pub.get_subscription_count() == 0:
@@ -246,33 +240,7 @@ class NeedleStereoNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    argv, logger = sys.argv if args is None else args, rclpy.logging.get_logger("needle_stereo")
-    if non_ros_arguments(argv, logger, "needle_stereo", takes_others=False) is None:
-        return EXIT_BAD_ARGUMENTS
-    try:  # every --params-file checked before rclpy reads it (rcl's parser would end in a traceback)
-        check_ros_arguments(argv, "needle_stereo", SPECS, logger.warning)
-    except ParameterError as error:
-        logger.fatal(str(error))
-        return EXIT_BAD_ARGUMENTS
-    if not init_rclpy(args, logger, "needle_stereo"):
-        return EXIT_BAD_ARGUMENTS
-    node = None
-    try:
-        node = NeedleStereoNode()
-        rclpy.spin(node)
-    except ParameterError as error:
-        rclpy.logging.get_logger("needle_stereo").fatal(str(error))
-        return 2
-    except KeyboardInterrupt:
-        pass
-    except rclpy.executors.ExternalShutdownException:
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    return run_node(NeedleStereoNode, "needle_stereo", args, SPECS)
 
 
 if __name__ == "__main__":

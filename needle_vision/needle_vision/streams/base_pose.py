@@ -14,7 +14,6 @@ from typing import Sequence
 import numpy as np
 
 from needle_common.cdr import PoseStamped
-from needle_common.cdr import pose_stamped as deserialize_pose_stamped  # noqa: F401 - the stereo node's name
 from needle_common.transforms import RigidTransform, rotate
 
 
