@@ -33,7 +33,8 @@ def test_params_file_format_and_overrides(tmp_path):
     assert integrator["method"] == "hht" and integrator["rho_inf"] == 0.9
     (fixture,) = build["fixtures"]
     assert isinstance(fixture, Fixture) and fixture.interval == (0.18, 0.27) and fixture.frame == "base"
-    assert build_model(props, **build).constrained_dofs.size == 6 * 4  # base node + nodes at 0.18, 0.225, 0.27 m
+    # the default mesh for a clamp: one element over it, so the base node and the nodes at 0.18 and 0.27 m
+    assert build_model(props, **build).constrained_dofs.size == 6 * 3
     # a plain nested or flat dict works as well
     assert load_needle_config({"needle": {"elements": 3}})[1]["n_elements"] == 3
     assert load_needle_config({"needle.elements": 4})[1]["n_elements"] == 4
