@@ -55,7 +55,7 @@ class TissueRecord(NamedTuple):
 
 class TissueParameters(NamedTuple):
     """The tissue's constants: block entry, capsule puncture depth, track spacing, ``ShaftSupport.kernel_arguments``
-    (``shaft``) and the tip forces' constants (``TissueModel.tip_arguments``)."""
+    (``shaft``) and the tip forces' constants."""
 
     entry_point: np.ndarray
     entry_normal: np.ndarray
@@ -141,7 +141,8 @@ def _write_parameters(buffer, contact, shaft, tip):
 @njit(cache=True)
 def pack_parameters(contact, shaft, tip):
     """``TissueParameters`` as one float64 array from (entry point, entry normal, puncture depth, track spacing),
-    ``ShaftSupport.kernel_arguments`` and ``TissueModel.tip_arguments``."""
+    ``ShaftSupport.kernel_arguments`` and the tip's (bevel on, its axial and transverse force per unit K_T, side,
+    edge a, tip resistance on, a1, a2, cutting force, speed scale)."""
     buffer = np.empty(_write_parameters(np.empty(0), contact, shaft, tip))
     _write_parameters(buffer, contact, shaft, tip)
     return buffer
@@ -161,12 +162,9 @@ def unpack_parameters(buffer):
     bevel_on, bevel_axial, bevel_transverse, side, edge = (take_flag(buffer, c), take_float(buffer, c),
                                                            take_float(buffer, c), take_vector(buffer, c),
                                                            take_float(buffer, c))
-    resistance_on = take_flag(buffer, c)
-    take_vector(buffer, c)  # the tip's copy of the entry point and normal
-    take_vector(buffer, c)
     return TissueParameters(entry_point, entry_normal, puncture_depth, spacing, shaft, bevel_on, bevel_axial,
-                            bevel_transverse, side, edge, resistance_on, take_float(buffer, c), take_float(buffer, c),
-                            take_float(buffer, c), take_float(buffer, c))
+                            bevel_transverse, side, edge, take_flag(buffer, c), take_float(buffer, c),
+                            take_float(buffer, c), take_float(buffer, c), take_float(buffer, c))
 
 
 @njit(cache=True)
