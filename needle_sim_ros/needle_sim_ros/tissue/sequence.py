@@ -18,7 +18,7 @@ import numpy as np
 from numba import literal_unroll, njit
 
 from needle_sim_ros.model.records import (put, take_flag, take_flags, take_float, take_index_matrix, take_indices,
-                                          take_int, take_matrix, take_vector)
+                                          take_int, take_matrix, take_vector, view_matrix, view_vector)
 from needle_sim_ros.model.step import run_steps
 
 from .advance import advance_contact, advance_shaft, tip_parameters
@@ -151,16 +151,16 @@ def pack_parameters(contact, shaft, tip):
 @njit(cache=True)
 def unpack_parameters(buffer):
     """The ``TissueParameters`` of ``pack_parameters``' array."""
-    c = np.zeros(1, dtype=np.int64)
-    entry_point, entry_normal, puncture_depth, spacing = (take_vector(buffer, c), take_vector(buffer, c),
+    c = np.zeros(1, dtype=np.int64)  # constants: views into the buffer
+    entry_point, entry_normal, puncture_depth, spacing = (view_vector(buffer, c), view_vector(buffer, c),
                                                           take_float(buffer, c), take_float(buffer, c))
-    shaft = (take_vector(buffer, c), take_vector(buffer, c), take_float(buffer, c), take_matrix(buffer, c),
-             take_matrix(buffer, c), take_index_matrix(buffer, c), take_flag(buffer, c), take_int(buffer, c),
-             take_vector(buffer, c), take_float(buffer, c), take_vector(buffer, c), take_vector(buffer, c),
-             take_vector(buffer, c), take_matrix(buffer, c), take_vector(buffer, c), take_vector(buffer, c),
-             take_vector(buffer, c), take_vector(buffer, c))
+    shaft = (view_vector(buffer, c), view_vector(buffer, c), take_float(buffer, c), view_matrix(buffer, c),
+             view_matrix(buffer, c), take_index_matrix(buffer, c), take_flag(buffer, c), take_int(buffer, c),
+             view_vector(buffer, c), take_float(buffer, c), view_vector(buffer, c), view_vector(buffer, c),
+             view_vector(buffer, c), view_matrix(buffer, c), view_vector(buffer, c), view_vector(buffer, c),
+             view_vector(buffer, c), view_vector(buffer, c))
     bevel_on, bevel_axial, bevel_transverse, side, edge = (take_flag(buffer, c), take_float(buffer, c),
-                                                           take_float(buffer, c), take_vector(buffer, c),
+                                                           take_float(buffer, c), view_vector(buffer, c),
                                                            take_float(buffer, c))
     return TissueParameters(entry_point, entry_normal, puncture_depth, spacing, shaft, bevel_on, bevel_axial,
                             bevel_transverse, side, edge, take_flag(buffer, c), take_float(buffer, c),
