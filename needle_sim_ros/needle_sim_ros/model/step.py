@@ -48,13 +48,12 @@ def impose_base(motion, rotation, base_local_r, base_local_rx, base_nodes, presc
 
 
 @njit(cache=True)
-def base_wrench(q, qd, qdd, tables, rotation, external):
-    """The holder wrench (``reaction.holder_wrench``, 12,) from the model tables' element 0 and base-slot rows."""
+def base_tables(tables):
+    """``reaction.base_rows`` from the model tables: element 0's quadrature tables and the base slots' rows."""
     (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
      damping_transverse, strain_rate_weights) = unpack_tables(tables)
-    return base_wrench_kernel(q, qd, qdd, axial_S_x[:1], axial_weights[:1], bending_S_x[:1], bending_S_xx[:1],
-                              bending_weights[:1], strain_rate_weights[:1], mass_slots[:2, :4],
-                              damping_isotropic[:2, :4], damping_transverse[:2, :4], rotation, external)
+    return (axial_S_x[:1], axial_weights[:1], bending_S_x[:1], bending_S_xx[:1], bending_weights[:1],
+            strain_rate_weights[:1], mass_slots[:2, :4], damping_isotropic[:2, :4], damping_transverse[:2, :4])
 
 
 @njit(inline="always")
@@ -78,6 +77,7 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
     n = history.shape[1]
     ext_Q = np.empty(n)
     no_band = np.zeros((0, 0))
+    rows = base_tables(tables)
     forces = acting(state)
     for i in range(times.size):
         motion, rotation = motions[i], rotations[i]
@@ -115,7 +115,7 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
         ext_Q[:] = constant_Q  # 5. reaction
         if n == 12 or touches_base(forces):
             assemble(forces, q, qd, rotation, ext_Q, no_band, 0, 0.0, 0.0)
-        wrenches[i] = base_wrench(q, qd, values[2], tables, rotation, ext_Q[:6].copy())
+        wrenches[i] = base_wrench_kernel(q, qd, values[2], *rows, rotation, ext_Q[:6].copy())
     return times.size, state
 
 
