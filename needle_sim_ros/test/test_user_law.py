@@ -5,6 +5,7 @@ uniform load q = c v^2 per length, the holder carries F = -q L (along the motion
 M = -q L^2 / 2 about A (about the axis normal to the needle and the motion), and the tip trails the base by
 q L^4 / (8 E I) (Euler-Bernoulli cantilever under a uniform load)."""
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -19,10 +20,13 @@ SPEED, COEFFICIENT, SECONDS = 0.1, 3.0, 1.0  # [m/s], [N s^2/m^3]: q = 0.03 N/m,
 
 
 def example():
-    spec = importlib.util.spec_from_file_location("shaft_drag", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """The example module, imported from its file (registered as a module: numba's cache refers to it by name)."""
+    if "shaft_drag" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("shaft_drag", EXAMPLE)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+    return sys.modules["shaft_drag"]
 
 
 def moving(t: float) -> BaseMotion:

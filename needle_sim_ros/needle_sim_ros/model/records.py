@@ -67,19 +67,31 @@ def take_flag(buffer, cursor):
 
 
 @njit(cache=True)
-def take_vector(buffer, cursor):
+def view_vector(buffer, cursor):
+    """A 1-d field as a view into ``buffer`` (constants: never written)."""
     size = int(buffer[cursor[0]])
     start = cursor[0] + 1
     cursor[0] = start + size
-    return buffer[start:start + size].copy()
+    return buffer[start:start + size]
+
+
+@njit(cache=True)
+def view_matrix(buffer, cursor):
+    """A 2-d field as a view into ``buffer`` (constants: never written)."""
+    rows, columns = int(buffer[cursor[0]]), int(buffer[cursor[0] + 1])
+    start = cursor[0] + 2
+    cursor[0] = start + rows * columns
+    return buffer[start:start + rows * columns].reshape((rows, columns))
+
+
+@njit(cache=True)
+def take_vector(buffer, cursor):
+    return view_vector(buffer, cursor).copy()
 
 
 @njit(cache=True)
 def take_matrix(buffer, cursor):
-    rows, columns = int(buffer[cursor[0]]), int(buffer[cursor[0] + 1])
-    start = cursor[0] + 2
-    cursor[0] = start + rows * columns
-    return buffer[start:start + rows * columns].copy().reshape((rows, columns))
+    return view_matrix(buffer, cursor).copy()
 
 
 @njit(cache=True)

@@ -9,7 +9,7 @@ from numba import njit
 
 from .banded import ELEMENT_BANDWIDTH, band_width_columns
 from .newton import model_tables, no_forces
-from .step import EXTRAPOLATE, FACTORED, keep, off_base, run_steps
+from .step import EXTRAPOLATE, FACTORED, itself, keep, off_base, run_steps
 
 class SequenceBuffers:
     """Work arrays of the compiled step sequence of one model (the factorization kept across steps is in the
@@ -73,5 +73,5 @@ def integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max
                         (coef, tol, max_iterations, active, scale, tables, kl),
                         (prescribed, base_nodes, base_local_r, base_local_rx),
                         (residual, band, np.zeros((0, 0)), pivots, factorization), control, last_motion, True, 0.0,
-                        no_forces, keep, off_base, (states, wrenches, iterations))
+                        itself, no_forces, keep, off_base, (states, wrenches, iterations))
     return done

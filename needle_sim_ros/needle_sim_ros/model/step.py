@@ -11,13 +11,15 @@ Per step, with fixed stages:
 5. reaction -- the base wrench (eq. 20) under the contribution's forces of the next step (evaluated only where
    they act on the base element's rows).
 
-A contribution is its state (any numba value: a named tuple of arrays, or 0.0 for none) and three compiled
+A contribution is its state (any numba value: a named tuple of arrays, or 0.0 for none) and four compiled
 kernels, passed to :func:`run_steps` by the module-level entry that composes them (``run_steps`` is inlined
 there, so the kernels are compile-time constants and the entry is cached like any other):
-* ``assemble(state, q, qd, rotation, Q, band, kl, c_q, c_qd) -> bool``: adds its generalized force to Q and, if
-  ``band`` is not (0, 0), c_q dQ/dq + c_qd dQ/dq' to the band matrix; False if the state cannot be assembled;
+* ``acting(state) -> forces``: what acts over the step starting from the state (only what ``assemble`` reads:
+  it is passed to every correction);
+* ``assemble(forces, q, qd, rotation, Q, band, kl, c_q, c_qd) -> bool``: adds its generalized force to Q and, if
+  ``band`` is not (0, 0), c_q dQ/dq + c_qd dQ/dq' to the band matrix; False if it cannot be assembled;
 * ``advance(state, q, qd, t) -> state``: the state after a step accepted at (q, q', t);
-* ``touches_base(state) -> bool``: whether its forces act on the base element's rows (the reaction needs them).
+* ``touches_base(forces) -> bool``: whether the forces act on the base element's rows (the reaction needs them).
 With no state-dependent contribution (``keep_matrix``) the iteration matrix is kept across steps while the base
 holds still and the steps converge in a single correction: then no matrix is assembled or factored at all (a
 needle held still under a load: 22 instead of 40 us per step). Otherwise a step starts with a fresh matrix: chord
@@ -46,18 +48,17 @@ def impose_base(motion, rotation, base_local_r, base_local_rx, base_nodes, presc
 
 
 @njit(cache=True)
-def base_wrench(q, qd, qdd, tables, rotation, external):
-    """The holder wrench (``reaction.holder_wrench``, 12,) from the model tables' element 0 and base-slot rows."""
+def base_tables(tables):
+    """``reaction.base_rows`` from the model tables: element 0's quadrature tables and the base slots' rows."""
     (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
      damping_transverse, strain_rate_weights) = unpack_tables(tables)
-    return base_wrench_kernel(q, qd, qdd, axial_S_x[:1], axial_weights[:1], bending_S_x[:1], bending_S_xx[:1],
-                              bending_weights[:1], strain_rate_weights[:1], mass_slots[:2, :4],
-                              damping_isotropic[:2, :4], damping_transverse[:2, :4], rotation, external)
+    return (axial_S_x[:1], axial_weights[:1], bending_S_x[:1], bending_S_xx[:1], bending_weights[:1],
+            strain_rate_weights[:1], mass_slots[:2, :4], damping_isotropic[:2, :4], damping_transverse[:2, :4])
 
 
 @njit(inline="always")
 def run_steps(history, times, motions, rotations, constant_Q, solver, base, work, control, last_motion, keep_matrix,
-              state, assemble, advance, touches_base, outputs):
+              state, acting, assemble, advance, touches_base, outputs):
     """Integrate from history (rows q, q', q'', a at t_n) one step per end time (k,) and packed base motion
     (k, 19) with rotations (k, 3, 3) (module docstring). ``solver``: (scheme coefficients, tolerance, iteration
     limit, active mask, scales, model tables, bandwidth); ``base``: (prescribed rows, base nodes, their local
@@ -76,6 +77,8 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
     n = history.shape[1]
     ext_Q = np.empty(n)
     no_band = np.zeros((0, 0))
+    rows = base_tables(tables)
+    forces = acting(state)
     for i in range(times.size):
         motion, rotation = motions[i], rotations[i]
         axis = impose_base(motion, rotation, base_local_r, base_local_rx, base_nodes, prescribed)  # 1. predict
@@ -91,7 +94,7 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
             fresh = not keep_matrix or control[FACTORED] == 0 or moved
             status, used, norm = newton(values, current, prescribed, coef, True, predictor, active, scale, tables,
                                         axis, constant_Q, ext_Q, residual, band, ext_band, pivots, factorization, kl,
-                                        tol, budget, False, fresh, assemble, state, rotation)
+                                        tol, budget, False, fresh, assemble, forces, rotation)
             total += used
             if keep_matrix:
                 control[FACTORED] = 1 if status != -1 else 0
@@ -108,16 +111,23 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
         iterations[i] = total
         q, qd = values[0], values[1]
         state = advance(state, q, qd, times[i])
+        forces = acting(state)
         ext_Q[:] = constant_Q  # 5. reaction
-        if n == 12 or touches_base(state):
-            assemble(state, q, qd, rotation, ext_Q, no_band, 0, 0.0, 0.0)
-        wrenches[i] = base_wrench(q, qd, values[2], tables, rotation, ext_Q[:6].copy())
+        if n == 12 or touches_base(forces):
+            assemble(forces, q, qd, rotation, ext_Q, no_band, 0, 0.0, 0.0)
+        wrenches[i] = base_wrench_kernel(q, qd, values[2], *rows, rotation, ext_Q[:6].copy())
     return times.size, state
 
 
 @njit(cache=True)
 def keep(state, q, qd, t):
     """The advance kernel of a contribution without state."""
+    return state
+
+
+@njit(cache=True)
+def itself(state):
+    """The acting kernel of a contribution whose state is what its assemble kernel reads."""
     return state
 
 
@@ -141,5 +151,5 @@ def compiled_run(assemble, advance=keep, touches_base=off_base):
                          (coef, tol, max_iterations, active, scale, tables, kl),
                          (prescribed, base_nodes, base_local_r, base_local_rx),
                          (residual, band, ext_band, pivots, factorization), control, np.empty(19), False, state,
-                         assemble, advance, touches_base, (states, wrenches, iterations))
+                         itself, assemble, advance, touches_base, (states, wrenches, iterations))
     return run

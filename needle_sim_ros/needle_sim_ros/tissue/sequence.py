@@ -6,8 +6,9 @@ record, its assemble / advance / touches_base kernels, and the compiled run of s
   active flags, and the frozen lateral and axial parts of the next step (``advance.FROZEN_FIELDS`` tuples);
   ``TissueParameters``: the tissue's constants. Both cross the Python boundary packed into one float64 array
   (:mod:`needle_sim_ros.model.records`): ``pack_record`` / ``unpack_record``, ``pack_parameters``.
-* ``tissue_assemble``: the shaft's lateral and axial point forces, the bevel tip and the seed 002 tip, each on
-  its own Q then added (the general path's order, ``TissueModel.at``); ``advance_tissue``: the contact and the
+* ``tissue_acting``: the forces of a step from the record; ``tissue_assemble``: the shaft's lateral and axial
+  point forces, the bevel tip and the seed 002 tip, each on its own Q then added (the general path's order,
+  ``TissueModel.at``); ``advance_tissue``: the contact and the
   shaft advanced after an accepted step (the general path's ``TissueModel.advance`` calls it too).
 """
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 from numba import literal_unroll, njit
 
 from needle_sim_ros.model.records import (put, take_flag, take_flags, take_float, take_index_matrix, take_indices,
-                                          take_int, take_matrix, take_vector)
+                                          take_int, take_matrix, take_vector, view_matrix, view_vector)
 from needle_sim_ros.model.step import run_steps
 
 from .advance import advance_contact, advance_shaft, tip_parameters
@@ -55,7 +56,7 @@ class TissueRecord(NamedTuple):
 
 class TissueParameters(NamedTuple):
     """The tissue's constants: block entry, capsule puncture depth, track spacing, ``ShaftSupport.kernel_arguments``
-    (``shaft``) and the tip forces' constants (``TissueModel.tip_arguments``)."""
+    (``shaft``) and the tip forces' constants."""
 
     entry_point: np.ndarray
     entry_normal: np.ndarray
@@ -75,12 +76,33 @@ class TissueParameters(NamedTuple):
 
 
 class TissueStep(NamedTuple):
-    """The state the step loop carries: the record, the constants and the tip forces' step values."""
+    """The state the step loop carries: the record and the constants."""
 
     record: TissueRecord
     parameters: TissueParameters
+
+
+class TissueForces(NamedTuple):
+    """What acts over a step (``tissue_acting``): the shaft parts' point-force arguments, the bevel's and the seed
+    002 tip's constants and step values, and whether a shaft point lies on the base element."""
+
+    lateral: tuple
+    axial: tuple
+    bevel_on: bool
+    bevel_axial: float
+    bevel_transverse: float
+    bevel_side: np.ndarray
     bevel_scale: float
+    resistance_on: bool
+    punctured: bool
     cutting: bool
+    entry_point: np.ndarray
+    entry_normal: np.ndarray
+    a1: float
+    a2: float
+    cutting_force: float
+    speed_scale: float
+    on_base: bool
 
 
 @njit(cache=True)
@@ -141,7 +163,8 @@ def _write_parameters(buffer, contact, shaft, tip):
 @njit(cache=True)
 def pack_parameters(contact, shaft, tip):
     """``TissueParameters`` as one float64 array from (entry point, entry normal, puncture depth, track spacing),
-    ``ShaftSupport.kernel_arguments`` and ``TissueModel.tip_arguments``."""
+    ``ShaftSupport.kernel_arguments`` and the tip's (bevel on, its axial and transverse force per unit K_T, side,
+    edge a, tip resistance on, a1, a2, cutting force, speed scale)."""
     buffer = np.empty(_write_parameters(np.empty(0), contact, shaft, tip))
     _write_parameters(buffer, contact, shaft, tip)
     return buffer
@@ -150,23 +173,20 @@ def pack_parameters(contact, shaft, tip):
 @njit(cache=True)
 def unpack_parameters(buffer):
     """The ``TissueParameters`` of ``pack_parameters``' array."""
-    c = np.zeros(1, dtype=np.int64)
-    entry_point, entry_normal, puncture_depth, spacing = (take_vector(buffer, c), take_vector(buffer, c),
+    c = np.zeros(1, dtype=np.int64)  # constants: views into the buffer
+    entry_point, entry_normal, puncture_depth, spacing = (view_vector(buffer, c), view_vector(buffer, c),
                                                           take_float(buffer, c), take_float(buffer, c))
-    shaft = (take_vector(buffer, c), take_vector(buffer, c), take_float(buffer, c), take_matrix(buffer, c),
-             take_matrix(buffer, c), take_index_matrix(buffer, c), take_flag(buffer, c), take_int(buffer, c),
-             take_vector(buffer, c), take_float(buffer, c), take_vector(buffer, c), take_vector(buffer, c),
-             take_vector(buffer, c), take_matrix(buffer, c), take_vector(buffer, c), take_vector(buffer, c),
-             take_vector(buffer, c), take_vector(buffer, c))
+    shaft = (view_vector(buffer, c), view_vector(buffer, c), take_float(buffer, c), view_matrix(buffer, c),
+             view_matrix(buffer, c), take_index_matrix(buffer, c), take_flag(buffer, c), take_int(buffer, c),
+             view_vector(buffer, c), take_float(buffer, c), view_vector(buffer, c), view_vector(buffer, c),
+             view_vector(buffer, c), view_matrix(buffer, c), view_vector(buffer, c), view_vector(buffer, c),
+             view_vector(buffer, c), view_vector(buffer, c))
     bevel_on, bevel_axial, bevel_transverse, side, edge = (take_flag(buffer, c), take_float(buffer, c),
-                                                           take_float(buffer, c), take_vector(buffer, c),
+                                                           take_float(buffer, c), view_vector(buffer, c),
                                                            take_float(buffer, c))
-    resistance_on = take_flag(buffer, c)
-    take_vector(buffer, c)  # the tip's copy of the entry point and normal
-    take_vector(buffer, c)
     return TissueParameters(entry_point, entry_normal, puncture_depth, spacing, shaft, bevel_on, bevel_axial,
-                            bevel_transverse, side, edge, resistance_on, take_float(buffer, c), take_float(buffer, c),
-                            take_float(buffer, c), take_float(buffer, c))
+                            bevel_transverse, side, edge, take_flag(buffer, c), take_float(buffer, c),
+                            take_float(buffer, c), take_float(buffer, c), take_float(buffer, c))
 
 
 @njit(cache=True)
@@ -189,36 +209,37 @@ def advance_packed(record, parameters, q, qd, t):
 
 
 @njit(cache=True)
-def tissue_step(record, parameters):
-    """The step loop's state of the tissue in ``record``: the bevel force's scale and whether the tip cuts."""
+def tissue_acting(step):
+    """The step loop's acting kernel: the tissue's forces over the step from ``step`` (the bevel force's scale and
+    whether the tip cuts from the contact, ``advance.tip_parameters``)."""
+    record, p = step.record, step.parameters
     c = record.contact
-    shaft = parameters.shaft
-    scale, cutting = tip_parameters(c.punctured, c.at_front, c.tip_depth, parameters.bevel_edge, shaft[12],
-                                    shaft[13])
-    return TissueStep(record, parameters, scale, cutting)
+    scale, cutting = tip_parameters(c.punctured, c.at_front, c.tip_depth, p.bevel_edge, p.shaft[12], p.shaft[13])
+    on_base = first_slot_in(record.lateral[2], 0) or first_slot_in(record.axial[2], 0)
+    return TissueForces(shaft_arguments(record.lateral), shaft_arguments(record.axial), p.bevel_on, p.bevel_axial,
+                        p.bevel_transverse, p.bevel_side, scale, p.resistance_on, c.punctured, cutting, p.entry_point,
+                        p.entry_normal, p.a1, p.a2, p.cutting_force, p.speed_scale, on_base)
 
 
 @njit(cache=True)
-def tissue_assemble(step, q, qd, rotation, Q, band, kl, c_q, c_qd):
-    """Q += the tissue's generalized forces at (q, q'), each contribution on its own Q then added (shaft, bevel,
-    tip resistance: the general path's order); c_q dQ/dq + c_qd dQ/dq' added to band unless it is (0, 0).
+def tissue_assemble(f, q, qd, rotation, Q, band, kl, c_q, c_qd):
+    """Q += the tissue's generalized forces ``f`` at (q, q'), each contribution on its own Q then added (shaft,
+    bevel, tip resistance: the general path's order); c_q dQ/dq + c_qd dQ/dq' added to band unless it is (0, 0).
     False if the bevel side lies along the tip tangent."""
-    record, p = step.record, step.parameters
     own = np.zeros(q.size)
-    shaft_forces_assembly(q, qd, shaft_arguments(record.lateral), shaft_arguments(record.axial), own, band, kl, c_q,
-                          c_qd)
+    shaft_forces_assembly(q, qd, f.lateral, f.axial, own, band, kl, c_q, c_qd)
     Q += own
-    if p.bevel_on:
+    if f.bevel_on:
         own[:] = 0.0
-        if step.bevel_scale != 0.0 and not bevel_tip_assembly(q, rotation, p.bevel_side, p.bevel_axial,
-                                                               p.bevel_transverse, step.bevel_scale, own, band, kl,
-                                                               c_q, c_qd):
+        if f.bevel_scale != 0.0 and not bevel_tip_assembly(q, rotation, f.bevel_side, f.bevel_axial,
+                                                            f.bevel_transverse, f.bevel_scale, own, band, kl, c_q,
+                                                            c_qd):
             return False
         Q += own
-    if p.resistance_on:
+    if f.resistance_on:
         own[:] = 0.0
-        tip_resistance_assembly(q, qd, record.contact.punctured, step.cutting, p.entry_point, p.entry_normal, p.a1,
-                                p.a2, p.cutting_force, p.speed_scale, own, band, kl, c_q, c_qd)
+        tip_resistance_assembly(q, qd, f.punctured, f.cutting, f.entry_point, f.entry_normal, f.a1, f.a2,
+                                f.cutting_force, f.speed_scale, own, band, kl, c_q, c_qd)
         Q += own
     return True
 
@@ -226,13 +247,13 @@ def tissue_assemble(step, q, qd, rotation, Q, band, kl, c_q, c_qd):
 @njit(cache=True)
 def tissue_advance(step, q, qd, t):
     """The step loop's advance kernel: the tissue after the accepted step."""
-    return tissue_step(advance_tissue(step.record, step.parameters, q, qd, t), step.parameters)
+    return TissueStep(advance_tissue(step.record, step.parameters, q, qd, t), step.parameters)
 
 
 @njit(cache=True)
-def tissue_touches_base(step):
-    """Whether a shaft point of the next step lies on the base element."""
-    return first_slot_in(step.record.lateral[2], 0) or first_slot_in(step.record.axial[2], 0)
+def tissue_touches_base(f):
+    """Whether a shaft point of the step lies on the base element."""
+    return f.on_base
 
 
 @njit(cache=True)
@@ -242,10 +263,11 @@ def integrate_tissue_sequence(history, times, motions, rotations, coef, constant
                               iterations):
     """:func:`~needle_sim_ros.model.step.run_steps` with the tissue (a fresh matrix every step) from the packed
     record and parameters; returns (steps done, the packed record after them)."""
-    step = tissue_step(unpack_record(record), unpack_parameters(parameters))
+    step = TissueStep(unpack_record(record), unpack_parameters(parameters))
     done, step = run_steps(history, times, motions, rotations, constant_Q,
                            (coef, tol, max_iterations, active, scale, tables, kl),
                            (prescribed, base_nodes, base_local_r, base_local_rx),
                            (residual, band, ext_band, pivots, factorization), control, np.empty(19), False, step,
-                           tissue_assemble, tissue_advance, tissue_touches_base, (states, wrenches, iterations))
+                           tissue_acting, tissue_assemble, tissue_advance, tissue_touches_base,
+                           (states, wrenches, iterations))
     return done, pack_record(step.record)

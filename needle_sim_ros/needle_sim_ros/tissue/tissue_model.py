@@ -109,7 +109,7 @@ class TissueModel(ForceContribution):
         self.bevel_edge = unit.edge_a if unit else 1.0  # a [m]: the bevel's embedded fraction is depth / a
         tip_arguments = (unit is not None, float(unit.axial_force) if unit else 0.0,
                          float(unit.transverse_force) if unit else 0.0, np.asarray(side, dtype=float),
-                         float(self.bevel_edge), profile is not None, block.entry_point, block.entry_normal,
+                         float(self.bevel_edge), profile is not None,
                          *((float(profile.a1), float(profile.a2), float(profile.cutting_force)) if profile
                            else (0.0, 0.0, 0.0)), float(speed_scale))
         self.parameters = pack_parameters(contact_arguments, shaft.kernel_arguments, tip_arguments)
