@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros.model.contribution import CompiledContribution
-from needle_vision.parameters import ParamSpec
+from needle_common.parameters import ParamSpec
 
 PARAMETERS = (
     ParamSpec("shaft_drag.coefficient", 0.0, "Quadratic drag coefficient c of the shaft [N s^2/m^3]: force per "
