@@ -136,11 +136,12 @@ def clamped_element_lengths(length: float, n_elements: int, intervals) -> np.nda
     for index in np.argsort(np.floor(share) - share)[:extra - int(np.floor(share).sum())]:  # largest remainders
         counts[index] += 1
     lengths: list[float] = []
+    free_counts = iter(counts.tolist())  # the free spans' element counts, in span order
     for start, end, clamped in spans:
         if clamped:
             lengths.append(end - start)
             continue
-        k = int(counts[free.index((start, end))])
+        k = next(free_counts)
         unit = np.arange(k + 1) / k
         nodes = (1.0 - np.cos(np.pi * unit)) / 2.0 if end < length else unit
         lengths.extend(np.diff(start + (end - start) * nodes))
