@@ -18,6 +18,7 @@ from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock
 
 from needle_common.ros.runner import spin_until_shutdown
 from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
@@ -197,6 +198,87 @@ def test_the_watchdog_zeroes_a_silent_arm_ramps_back_and_deactivate_sends_zero(a
     assert arm.transition(Transition.TRANSITION_CLEANUP)
     wait_until(lambda: len(arm.haptic) > deactivated, process, 5.0, "the zero of cleanup")
     assert len(arm.haptic) == deactivated + 1 and not arm.haptic[-1][1].any()
+
+
+class SimulatedClockArm(Arm):
+    """A stand-in arm replayed with simulated time, as from a bag: ``/clock`` at 1 kHz while ``clock_running`` is set
+    (from 1000 s on, at the wall rate) and the base poses stamped with it while ``streaming`` is set."""
+
+    def __init__(self) -> None:
+        self.clock_running = threading.Event()
+        self.sim_time = 1000.0
+        super().__init__()
+        self.clock_pub = self.node.create_publisher(Clock, "/clock", 10)
+
+    def _stream(self) -> None:
+        msg, clock = PoseStamped(), Clock()
+        msg.header.frame_id = "world"
+        msg.pose.position.x, msg.pose.position.z = 0.4, 0.3
+        msg.pose.orientation.w = 1.0
+        next_time = time.monotonic()
+        while not self._closed.is_set():
+            next_time += 1e-3
+            time.sleep(max(next_time - time.monotonic(), 0.0))
+            if not self.clock_running.is_set():
+                next_time = time.monotonic()
+                continue
+            self.sim_time += 1e-3
+            clock.clock.sec, clock.clock.nanosec = int(self.sim_time), int(round((self.sim_time % 1.0) * 1e9)) % 10**9
+            self.clock_pub.publish(clock)
+            if self.streaming.is_set():
+                msg.header.stamp = clock.clock
+                self.pose_pub.publish(msg)
+                self.last_sent = time.monotonic()
+
+
+@pytest.fixture
+def sim_arm(ros_env):
+    rclpy.init()
+    stand_in = SimulatedClockArm()
+    stand_in.processes = []
+    yield stand_in
+    stop(stand_in.processes)
+    stand_in.close()
+    rclpy.shutdown()
+
+
+def zero_within_the_watchdog_time(arm: Arm) -> None:
+    """After the poses stop: a zero within the (wall-clock) watchdog time, and nothing but zeros after it."""
+    time.sleep(0.005)
+    silent_from = arm.last_sent
+    time.sleep(0.5)
+    after = arm.since(silent_from)
+    first_zero = next(entry[0] for entry in after if not entry[1].any())
+    assert first_zero - silent_from < TIMEOUT + 0.03, first_zero - silent_from
+    late = [entry for entry in after if entry[0] > silent_from + TIMEOUT + 0.03]
+    assert late and not norms(late).any() and not norms(late, 2).any()
+
+
+def test_under_simulated_time_the_wall_clock_watchdog_zeroes_silent_poses_and_a_paused_clock(sim_arm, ros_env,
+                                                                                             tmp_path):
+    """use_sim_time (a replayed bag driving a real arm): the watchdog still runs on the wall clock. Poses that
+    stop while /clock runs, and a paused bag (/clock and poses both stop, so no step is taken), both take the haptic
+    output to zero within haptics.pose_timeout; it ramps back when the bag resumes."""
+    process = start(sim_arm, ros_env, tmp_path, **(HAPTICS | {"use_sim_time": True}))
+    sim_arm.clock_running.set()
+    sim_arm.streaming.set()
+    rendering(sim_arm, process)
+    assert sim_arm.haptic[-1][0] > 0 and sim_arm.sim_time > 1000.0
+
+    sim_arm.streaming.clear()  # the arm's poses stop, the clock runs on
+    zero_within_the_watchdog_time(sim_arm)
+    assert any(s.level == b"\x02" and "watchdog" in s.message for s in sim_arm.status("haptics"))
+
+    sim_arm.streaming.set()
+    rendering(sim_arm, process)
+    sim_arm.clock_running.clear()  # the bag paused: neither clock nor poses
+    zero_within_the_watchdog_time(sim_arm)
+
+    sim_arm.clock_running.set()
+    resumed = time.monotonic()
+    rendering(sim_arm, process)
+    back = [entry for entry in sim_arm.since(resumed) if entry[1].any()]
+    assert norms(back)[0] < 0.15 * WEIGHT, norms(back)[0]  # a ramp, not a step back to the weight
 
 
 @pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT])
