@@ -18,12 +18,13 @@ from typing import Callable
 
 import numpy as np
 
-from needle_sim_ros.base_trajectory import BaseTrajectory
+from needle_sim_ros.base_input import BaseInput
 from needle_sim_ros.experiments.protocols import Experiment
 from needle_sim_ros.experiments.elastica import elastica_tip
 from needle_sim_ros.model import (BaseMotion, Centerline, Gravity, Integrator, ModelShape, NeedleProperties,
                                   PointLoad, StepFailed, build_model, solve_static)
 from needle_sim_ros.simulation import NeedleSimulation
+from needle_sim_ros.stepper import Stepper
 
 TIP_WEIGHT = "tip_weight"
 
@@ -83,10 +84,9 @@ def truth_simulation(experiment: Experiment, truth: TruthModel) -> NeedleSimulat
         return [build_tissue_model({"tissue.enable": True, **dict(truth.tissue)}, model)]
 
     model, integrator = model_builder(())
-    simulation = NeedleSimulation(model, integrator, truth.dt, BaseTrajectory(),
-                                  extra_forces_builder=tissue_builder if experiment.tissue else None,
-                                  max_catch_up=math.inf, clamp_interval=experiment.clamp_interval,
-                                  model_builder=model_builder, base_at=experiment.base, restart_on_failure=False)
+    stepper = Stepper(model, integrator, truth.dt, tissue_builder if experiment.tissue else None,
+                      experiment.clamp_interval, model_builder, restart_on_failure=False)
+    simulation = NeedleSimulation(stepper, BaseInput(base_at=experiment.base), max_catch_up=math.inf)
     simulation.compiled_sequence = False  # full Newton every step: the bags' truth is reproduced bit for bit
     base = experiment.base(0.0)
     simulation.reset(base, 0.0)
