@@ -20,7 +20,7 @@ from needle_common.parameters import ParameterError
 from needle_sim_ros.base_input import BaseInput, InputLimits, MotionsAt
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
 from needle_sim_ros.clock_loop import LATE_POSE_WAIT, ClockLoop
-from needle_sim_ros.model import (BaseMotion, Integrator, NeedleModel, State, build_model, check_forces,
+from needle_sim_ros.model import (BaseMotion, Fixture, Integrator, NeedleModel, State, build_model, check_forces,
                                   needle_properties)
 from needle_sim_ros.model.config import element_lengths
 from needle_sim_ros.stepper import (POINT_LOAD_LIMIT, LoopStatistics, ModelBuilder, Stepper, StepRecord,
@@ -164,8 +164,10 @@ def model_builder_from_parameters(p: dict) -> ModelBuilder:
 def simulation_from_parameters(p: dict) -> NeedleSimulation:
     """The simulator described by the `needle_simulator` parameters (flat dotted names, validated values).
 
-    One construction for the node and the offline pipeline, so both run the same simulator. Raises ParameterError
-    for element lengths the mesh rejects, ValueError for tissue parameters that the tissue models reject.
+    One construction for the node and the offline pipeline, so both run the same simulator. ``fixtures.clamp_interval``
+    clamps that part of the needle where it lies at each (re)start (a :class:`Fixture` of the frame "start"). Raises
+    ParameterError for element lengths or a clamp the mesh rejects, ValueError for tissue parameters that the tissue
+    models reject.
     """
     model_builder = model_builder_from_parameters(p)
     tissue_config = {name: value for name, value in p.items() if name.startswith("tissue.")}
@@ -182,13 +184,19 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
         model, integrator = model_builder(())
     except ValueError as error:  # the mesh rejects element lengths that do not sum to the needle length
         raise ParameterError(f"parameter 'needle.element_lengths': {error}") from error
-    if len(clamp) == 2 and not 0.0 <= clamp[0] <= clamp[1] <= model.props.length:
-        raise ParameterError(f"parameter 'fixtures.clamp_interval' = {list(clamp)}: must satisfy 0 <= s_start <= "
-                             f"s_end <= needle.length = {model.props.length:g} m")
+    if len(clamp) == 2:
+        message = f"parameter 'fixtures.clamp_interval' = {list(clamp)}: "
+        if not 0.0 <= clamp[0] <= clamp[1] <= model.props.length:
+            raise ParameterError(f"{message}must satisfy 0 <= s_start <= s_end <= needle.length = "
+                                 f"{model.props.length:g} m")
+        try:
+            model, integrator = model_builder((Fixture(interval=tuple(clamp), frame="start"),))
+        except ValueError as error:  # given element lengths without a node at an end of the clamp
+            raise ParameterError(f"{message}{error}") from error
     if p["tissue.enable"]:
         tissue_builder(model)  # reject bad tissue parameters now, not at the first pose
     stepper = Stepper(model, integrator, p["integrator.dt"], tissue_builder if p["tissue.enable"] else None,
-                      tuple(clamp) if len(clamp) == 2 else None, model_builder, p["needle.start_in_equilibrium"])
+                      p["needle.start_in_equilibrium"])
     source = BaseInput(trajectory, (p["flange_offset.position"], p["flange_offset.orientation"]),
                        p["pose_input.twist_timeout"], InputLimits(p["pose_input.max_linear_speed"],
                                                                   p["pose_input.max_angular_speed"],

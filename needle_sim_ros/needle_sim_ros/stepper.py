@@ -21,7 +21,6 @@ from needle_sim_ros.compiled_advance import NO_TWIST, advance_from_trajectory
 from needle_sim_ros.model import (
     BaseMotion,
     BaseWrench,
-    Fixture,
     Gravity,
     Integrator,
     ModelShape,
@@ -45,6 +44,7 @@ from needle_sim_ros.model import (
     step,
 )
 from needle_sim_ros.model.integrators import SequenceResult, same_objects
+from needle_sim_ros.model.partition import held_at
 from needle_sim_ros.model.sequence import IntegratorMemory
 
 # Largest sum of point-load magnitudes, as a multiple of the needle's bending load scale E I / L^2. Found by
@@ -102,9 +102,9 @@ class LoopStatistics:
 class Stepper:
     """The model, its data and the integrator; steps at given end times.
 
-    ``clamp_interval`` (s_start, s_end) [m] clamps that part of the needle to the world where it lies when the
-    needle is (re)started — the distal 40 % in the dynamic experiment of seed 000, Fig. 8. Since the clamp pose is
-    known only then, the model is rebuilt with that :class:`Fixture` by ``model_builder(fixtures)`` at each reset.
+    The model never changes while the needle is simulated: a clamp (a :class:`Fixture` of the frame "start", e.g.
+    the distal 40 % in the dynamic experiment of seed 000, Fig. 8) holds its nodes where they lay when the needle was
+    (re)started, a pose kept in the data (``data.integrator.clamp``).
 
     ``extra_forces_builder(model)`` makes the extra force contributions (e.g. the tissue model, whose state --
     track, stick anchors -- is kept in the data) acting every step in addition to gravity and the named point
@@ -122,18 +122,13 @@ class Stepper:
     """
 
     def __init__(self, model: NeedleModel, integrator: Integrator, dt: float,
-                 extra_forces_builder: Callable[[NeedleModel], list] | None = None,
-                 clamp_interval: tuple[float, float] | None = None, model_builder: ModelBuilder | None = None,
-                 start_in_equilibrium: bool = False, restart_on_failure: bool = True) -> None:
-        if clamp_interval is not None and model_builder is None:
-            raise ValueError("a clamp interval needs a model_builder to rebuild the model with the fixture")
+                 extra_forces_builder: Callable[[NeedleModel], list] | None = None, start_in_equilibrium: bool = False,
+                 restart_on_failure: bool = True) -> None:
         self.model = model
         self.integrator = integrator
         self.dt = dt
         self.extra_forces_builder = extra_forces_builder
         self.extra_forces: list = []  # the model's contributions besides gravity (the tissue)
-        self.clamp_interval = clamp_interval
-        self.model_builder = model_builder
         self.after_step: Callable[[StepRecord], None] | None = None  # called with the state of each accepted step
         self.data = NeedleData(integrator=IntegratorMemory(model.n_dof))  # everything a step changes
         self.statistics = LoopStatistics()
@@ -144,10 +139,12 @@ class Stepper:
         self._sequence_plan: tuple = ((), None)  # (key, forces) of _sequence_forces
 
     def rebuild_model(self, model_builder: ModelBuilder) -> None:
-        """Swap in a model built with other run-time parameters, keeping the fixtures in force."""
-        self.model_builder = model_builder
+        """Swap in a model built with other damping (the one run-time model parameter), keeping the fixtures and the
+        pose of the clamp."""
         self.model, self.integrator = model_builder(self.model.fixtures)
+        clamp = self.data.integrator.clamp
         self.data.integrator = IntegratorMemory(self.model.n_dof)  # a new integrator starts afresh
+        self.data.integrator.clamp = clamp
 
     @property
     def state(self) -> State | None:
@@ -204,11 +201,8 @@ class Stepper:
 
     # -- (re)start --------------------------------------------------------------------------------------------
     def reset(self, base: BaseMotion, t: float) -> None:
-        """Straight, unloaded needle at rest relative to the base at time t (clamped there, if configured)."""
-        if self.clamp_interval is not None:
-            fixture = Fixture(interval=self.clamp_interval, frame="world",
-                              needle_pose=(base.position, base.orientation))
-            self.model, self.integrator = self.model_builder((fixture,))
+        """Straight, unloaded needle at rest relative to the base at time t (clamped there, if the model clamps)."""
+        if self.model.partition.held:  # the integrator starts afresh with the new clamp pose
             self.data.integrator = IntegratorMemory(self.model.n_dof)
         if self.extra_forces_builder is not None:
             self.extra_forces = list(check_forces(self.extra_forces_builder(self.model)))
@@ -216,10 +210,11 @@ class Stepper:
         self.start(self._equilibrium(state) if self.start_in_equilibrium else state, base)
 
     def start(self, state: State, base: BaseMotion) -> None:
-        """The data of a (re)started needle: its state and base, fresh force states (the integrator's memory is
-        kept, as a restart keeps the integrator; the step grid is the clock loop's)."""
+        """The data of a (re)started needle: its state and base, the clamp held there, fresh force states (the
+        integrator's memory is kept, as a restart keeps the integrator; the step grid is the clock loop's)."""
         data = self.data
         data.state = state if state.base is base else replace(state, base=base)
+        data.integrator.clamp = held_at(base)
         data.force_states = initial_force_states(self.model, self.model_forces)
 
     def _equilibrium(self, straight: State) -> State:
@@ -291,7 +286,7 @@ class Stepper:
                 forces = self._sequence_forces(sequence)
         if general and not np.isfinite(data.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
-            data.state = self.model.straight_state(self.base, data.state.t)
+            data.state = self.model.straight_state(self.base, data.state.t, data.integrator.clamp)
         return records
 
     def _sequence_forces(self, sequence: bool) -> list | None:
@@ -405,7 +400,7 @@ class Stepper:
         except StepFailed:
             if not self.restart_on_failure:
                 raise
-            self.data.state = self.model.straight_state(base_next, float(t_next))
+            self.data.state = self.model.straight_state(base_next, float(t_next), self.data.integrator.clamp)
             return self._finish_step(start, reaction_wrench(self.model, self.state, base_next, self.forces), 0, 0)
 
     def _finish_step(self, start: float, wrench: BaseWrench, iterations: int, substeps: int) -> StepRecord:
