@@ -48,29 +48,30 @@ class ClockLoop:
 
     def __init__(self, stepper: Stepper, max_catch_up: float = 0.05, pose_timeout: float = 0.1) -> None:
         self.stepper = stepper
+        self.data, self.dt = stepper.data, stepper.dt  # the stepper's (never replaced)
         self.max_catch_up = max_catch_up
         self.pose_timeout = pose_timeout
 
     def restart(self, t: float) -> None:
         """A new step grid from t (the needle (re)started then)."""
-        data = self.stepper.data
+        data = self.data
         data.grid_origin, data.step_index, data.pose_phase = float(t), 0, 0j
 
     def pose_arrived(self, t: float) -> None:
         """Count a pose stamped ``t`` that its step was integrated before, and add it to the poses' phase."""
-        data = self.stepper.data
+        data = self.data
         if t <= data.state.t:
             self.stepper.statistics.late_poses += 1
-        x = (float(t) - data.grid_origin) / self.stepper.dt
+        x = (float(t) - data.grid_origin) / self.dt
         data.pose_phase += PHASE_SMOOTHING * (cmath.exp(2j * math.pi * (x - math.floor(x))) - data.pose_phase)
 
     def target_time(self, now: float, deterministic: bool, ahead_to_pose: bool, latest: PoseSample | None) -> float:
         """Time the model should reach at clock time ``now`` with the newest pose ``latest`` (module docstring)."""
         if deterministic and latest is not None and now - latest.t <= self.pose_timeout:
             return min(now, latest.t)
-        if ahead_to_pose and latest is not None and latest.t > now - self.stepper.dt:
+        if ahead_to_pose and latest is not None and latest.t > now - self.dt:
             # grid indices (a pose within 1 us after a step's end time counts as at it: epoch-time resolution)
-            data, dt = self.stepper.data, self.stepper.dt
+            data, dt = self.data, self.dt
             to_pose = math.ceil((latest.t - data.grid_origin) / dt - 1e-3)
             after_now = math.floor((now - data.grid_origin) / dt + 1e-3) + 1
             return max(now, self.grid_time(min(to_pose, after_now)))
@@ -80,13 +81,13 @@ class ClockLoop:
         """Shift the step grid so that its steps end half a step after the poses' mean phase (``pose_phase``), if
         the poses come at a consistent phase (:data:`PHASE_COHERENCE`) more than :data:`PHASE_TOLERANCE` steps from
         mid-step. The next step then lasts (1 + shift) dt, shift in [-0.5, 0.5); the later ones dt."""
-        data = self.stepper.data
+        data = self.data
         if abs(data.pose_phase) < PHASE_COHERENCE:
             return
         mean = cmath.phase(data.pose_phase) / (2.0 * math.pi)  # the poses' mean phase after the step ends
         shift = (mean - 0.5) - math.floor(mean)  # mean - 0.5 wrapped to [-0.5, 0.5)
         if abs(shift) > PHASE_TOLERANCE:
-            data.grid_origin += shift * self.stepper.dt
+            data.grid_origin += shift * self.dt
             data.pose_phase *= cmath.exp(-2j * math.pi * shift)
 
     def advance_to(self, t_target: float, source) -> list[StepRecord]:
@@ -95,7 +96,7 @@ class ClockLoop:
         If the simulation lags more than ``max_catch_up`` behind, the skipped interval is not integrated: the
         state jumps forward in time (shape and velocities kept) and the skipped time is counted.
         """
-        data, dt = self.stepper.data, self.stepper.dt
+        data, dt = self.data, self.dt
         if data.state is None:
             return []
         lag = t_target - data.state.t
@@ -110,14 +111,14 @@ class ClockLoop:
         if count <= 0:
             return []
         times = np.array([self.grid_time(index) for index in range(data.step_index + 1, data.step_index + count + 1)])
-        return self.stepper.run(times, source)
+        return self.stepper.run(times, source, t_target)
 
     @property
     def next_step_end(self) -> float:
         """End time [s] of the next step on the grid (a shifted grid's next step is shorter or longer than dt)."""
-        return self.grid_time(self.stepper.data.step_index + 1)
+        return self.grid_time(self.data.step_index + 1)
 
     def grid_time(self, index):
         """End time of step ``index`` since the (re)start: origin + index dt, rounded once (no accumulation: at
         epoch times a sum of 1 ms steps would drift by 70 ns per step)."""
-        return self.stepper.data.grid_origin + self.stepper.dt * index
+        return self.data.grid_origin + self.dt * index

@@ -22,10 +22,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from needle_sim_ros.base_trajectory import PoseVerdict
-from needle_sim_ros.simulation import NeedleSimulation
+from needle_sim_ros.simulation import USED_POSES, NeedleSimulation
 
-# Verdicts of an offered pose that the simulator uses.
-USED_POSES = (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED, PoseVerdict.REANCHORED, PoseVerdict.RESTARTED)
+__all__ = ["USED_POSES", "InputRejected", "OfferedPose", "SimulatorInputs"]
 
 
 class InputRejected(ValueError):

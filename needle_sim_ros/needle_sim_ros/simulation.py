@@ -27,8 +27,11 @@ from needle_sim_ros.stepper import (POINT_LOAD_LIMIT, LoopStatistics, ModelBuild
                                     max_point_load)
 from needle_sim_ros.tissue.factory import build_tissue_model
 
-__all__ = ["LATE_POSE_WAIT", "POINT_LOAD_LIMIT", "InputLimits", "LoopStatistics", "NeedleSimulation", "StepRecord",
-           "max_point_load", "simulation_from_parameters"]
+# Verdicts of an offered pose that the simulator uses.
+USED_POSES = (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED, PoseVerdict.REANCHORED, PoseVerdict.RESTARTED)
+
+__all__ = ["LATE_POSE_WAIT", "POINT_LOAD_LIMIT", "USED_POSES", "InputLimits", "LoopStatistics", "NeedleSimulation",
+           "StepRecord", "max_point_load", "simulation_from_parameters"]
 
 
 def step_wrenches(records: Sequence[StepRecord]):
@@ -99,13 +102,12 @@ class NeedleSimulation:
     def offer_pose(self, t: float, position, orientation) -> PoseVerdict:
         """Offer a flange pose; the first valid pose (and a re-anchoring or a restart after a gap) starts the
         needle straight there."""
-        started = self.started
+        started = self.stepper.data.state is not None
         verdict = self.source.offer_pose(t, position, orientation, self.clock.pose_timeout if started else math.inf)
-        if verdict in (PoseVerdict.REANCHORED, PoseVerdict.RESTARTED) or (
-                not started and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)):
-            self.reset(self.source.motion_at(t), t)
-        elif verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED):
+        if started and (verdict is PoseVerdict.ACCEPTED or verdict is PoseVerdict.NORMALIZED):
             self.clock.pose_arrived(t)
+        elif verdict in USED_POSES:  # the first pose, or one the needle restarts at
+            self.reset(self.source.motion_at(t), t)
         return verdict
 
     def reset(self, base: BaseMotion, t: float) -> None:
@@ -134,7 +136,9 @@ class NeedleSimulation:
             self.discard_state()
         elif ahead_to_pose and not deterministic and state is not None:
             self.clock.lock_phase()
-        return self.advance_to(self.clock.target_time(now, deterministic, ahead_to_pose, self.source.trajectory.latest))
+        source = self.source
+        return self.clock.advance_to(self.clock.target_time(now, deterministic, ahead_to_pose,
+                                                            source.trajectory.latest), source)
 
     def advance_to(self, t_target: float) -> list[StepRecord]:
         """Integrate with fixed steps of dt until the next step would pass t_target (:meth:`ClockLoop.advance_to`)."""

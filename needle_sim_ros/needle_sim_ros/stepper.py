@@ -9,7 +9,6 @@ source (:class:`~needle_sim_ros.base_input.BaseInput`).
 """
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -137,6 +136,7 @@ class Stepper:
         self.restart_on_failure = restart_on_failure
         self.compiled_sequence = True
         self._sequence_plan: tuple = ((), None)  # (key, forces) of _sequence_forces
+        self.source = None  # the base source of the current run
 
     def rebuild_model(self, model_builder: ModelBuilder) -> None:
         """Swap in a model built with other damping (the one run-time model parameter), keeping the fixtures and the
@@ -229,11 +229,11 @@ class Stepper:
         return replace(straight, q=q)
 
     # -- steps ------------------------------------------------------------------------------------------------
-    def run(self, times: np.ndarray, source) -> list[StepRecord]:
-        """Steps ending at ``times`` (the clock loop's grid; the first may be shorter or longer than dt after a grid
-        shift) with the base motions from ``source`` (a :class:`~needle_sim_ros.base_input.BaseInput`). Runs of
-        steps go through the integrator's compiled sequence where it applies (:meth:`Integrator.supports_sequence`).
-        """
+    def run(self, times: np.ndarray, source, t_target: float) -> list[StepRecord]:
+        """Steps ending at ``times`` (the clock loop's grid up to ``t_target``; the first may be shorter or longer
+        than dt after a grid shift) with the base motions from ``source`` (a
+        :class:`~needle_sim_ros.base_input.BaseInput`). Runs of steps go through the integrator's compiled sequence
+        where it applies (:meth:`Integrator.supports_sequence`)."""
         records: list[StepRecord] = []
         data = self.data
         dt = self.dt
@@ -245,10 +245,11 @@ class Stepper:
         sequence = self.compiled_sequence and not stateful and not runs
         run = runs[0] if self.compiled_sequence and len(runs) == 1 and all(f is runs[0] for f in stateful) else None
         first_dt = float(times[0]) - data.state.t
-        regular = abs(first_dt - dt) <= 0.05 * dt + 4.0 * math.ulp(abs(times[-1]))  # not after a grid shift
+        regular = abs(first_dt - dt) <= 0.05 * dt + 4.0 * math.ulp(abs(t_target))  # not after a grid shift
         # the base from the received poses: a compiled run evaluates its motions and takes its steps in one call
         from_poses = source.from_poses
-        run_sequence = functools.partial(self._advance_from_trajectory, source) if from_poses else self._step_sequence
+        self.source = source
+        run_sequence = self._advance_from_trajectory if from_poses else self._step_sequence
         forces = self._sequence_forces(sequence)
         if from_poses and regular and forces is not None:
             motions, rotations = np.empty((count, 19)), np.empty((count, 3, 3))  # the run fills them
@@ -315,14 +316,14 @@ class Stepper:
         self._record_run(result, start, times, motions, rotations, records)
         return result.done
 
-    def _advance_from_trajectory(self, source, forces: list, times: np.ndarray, motions: np.ndarray,
-                                 rotations: np.ndarray, records: list[StepRecord]) -> int:
-        """Steps at ``times`` under ``forces`` with the base from the trajectory of ``source`` in one compiled call
-        (:mod:`needle_sim_ros.compiled_advance`), the base motions at all the times written into ``motions`` and
-        ``rotations`` first (a run that stops early leaves them for the general step); returns how many steps were
-        done (as :meth:`_step_sequence`)."""
+    def _advance_from_trajectory(self, forces: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
+                                 records: list[StepRecord]) -> int:
+        """Steps at ``times`` under ``forces`` with the base from the trajectory of :meth:`run`'s ``source`` in one
+        compiled call (:mod:`needle_sim_ros.compiled_advance`), the base motions at all the times written into
+        ``motions`` and ``rotations`` first (a run that stops early leaves them for the general step); returns how
+        many steps were done (as :meth:`_step_sequence`)."""
         start = time.perf_counter()
-        state = self.data.state
+        state, source = self.data.state, self.source
         before, after = self.integrator.sequence_arguments(self.dt, forces, float(times[0]), times.size,
                                                            self.data.integrator)
         fit, corrections, done = advance_from_trajectory(

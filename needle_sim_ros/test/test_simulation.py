@@ -102,7 +102,7 @@ def test_the_advance_in_one_compiled_call_agrees_with_the_general_path(monkeypat
     calls = []
     stepper = sims[0].stepper
     lane = stepper._advance_from_trajectory
-    monkeypatch.setattr(stepper, "_advance_from_trajectory", lambda *args: calls.append(len(args[2])) or lane(*args))
+    monkeypatch.setattr(stepper, "_advance_from_trajectory", lambda *args: calls.append(len(args[1])) or lane(*args))
     monkeypatch.setattr(stepper, "_step_sequence", lambda *args: pytest.fail("the staged sequence ran"))
     rng = np.random.default_rng(7)
     length, k = sims[0].model.props.length, 0

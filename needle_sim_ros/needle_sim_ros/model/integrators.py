@@ -150,6 +150,7 @@ class Integrator:
         self._sequence_cache: tuple = (None, 0.0, None, ())  # see sequence_arguments
         self.memory = IntegratorMemory(model.n_dof)
         self._sequence: SequenceBuffers | None = None
+        self._held = bool(model.partition.held)  # fixtures held where the needle started: their rows per clamp
 
     def initial_accelerations(self, state: State, forces=(), base: BaseMotion | None = None) -> np.ndarray:
         """q'' consistent with the equations of motion at the state (eq. 19), prescribed q''_c kept."""
@@ -250,7 +251,8 @@ class Integrator:
                 buffers.scale, buffers.tables, buffers.residual, memory.band, memory.pivots,
                 memory.factorization, ELEMENT_BANDWIDTH, memory.control, memory.last_motion))
             self._sequence_cache = cached
-        self._sequence_buffers().hold(memory.clamp)
+        if self._held:
+            self._sequence_buffers().hold(memory.clamp)
         return cached[3], run_outputs(steps, self.model.n_dof)
 
     def run_arguments(self, forces, dt: float, t_next: float,
@@ -262,7 +264,8 @@ class Integrator:
         factorization is invalidated."""
         memory = memory or self.memory
         memory.invalidate()
-        self._sequence_buffers().hold(memory.clamp)
+        if self._held:
+            self._sequence_buffers().hold(memory.clamp)
         key = (dt, self.newton_tol, self.max_newton_iterations)
         if self._run_cache[0] != key:  # the same work arrays every call: the tuple is made once per key
             buffers, solver = self._sequence_buffers(), self.solver
