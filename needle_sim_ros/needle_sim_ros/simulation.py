@@ -74,7 +74,7 @@ class NeedleSimulation:
         "stepper", 18)
     trajectory, twist, set_twist, pose_age = _parts("source", 4)
     base_motions, base_motion_at = _Part("source", "motions"), _Part("source", "motion_at")
-    max_catch_up, pose_timeout, next_step_end, lock_phase = _parts("clock", 4)
+    max_catch_up, next_step_end = _parts("clock", 2)
 
     def __init__(self, stepper: Stepper, source: BaseInput, max_catch_up: float = 0.05,
                  pose_timeout: float = 0.1) -> None:

@@ -1,11 +1,6 @@
-"""The simulator's stepper: the model, its data and the integrator, taking the steps at given end times (ROS-free).
-
-A :class:`Stepper` owns the mutable part of a simulated needle (its ``NeedleData``: state, step grid, integrator
-memory, point loads, force states) and advances it over the end times the clock loop hands it
-(:meth:`Stepper.run`): runs of steps in one compiled call where they apply (the step sequence, the one-call advance
-from the base trajectory, a compiled contribution's run), the general step (:func:`needle_sim_ros.model.step`)
-otherwise, and a needle restarted straight where a step fails. The base motion at the end times comes from a base
-source (:class:`~needle_sim_ros.base_input.BaseInput`).
+"""The simulator's stepper (ROS-free): model, data and integrator, taking the steps at the end times the clock loop
+hands it -- compiled runs where they apply, the general step (:func:`needle_sim_ros.model.step`) otherwise, a
+straight restart where a step fails -- with the base motions from a base source (:mod:`needle_sim_ros.base_input`).
 """
 from __future__ import annotations
 
@@ -17,31 +12,10 @@ from typing import Callable, NamedTuple, Sequence
 import numpy as np
 
 from needle_sim_ros.compiled_advance import NO_TWIST, advance_from_trajectory
-from needle_sim_ros.model import (
-    BaseMotion,
-    BaseWrench,
-    Gravity,
-    Integrator,
-    ModelShape,
-    NeedleData,
-    NeedleModel,
-    NeedleProperties,
-    PointLoad,
-    State,
-    StaticSolveFailed,
-    StepFailed,
-    StepInputs,
-    acting_forces,
-    check_forces,
-    elastic_energy,
-    initial_force_states,
-    kinetic_energy,
-    model_shape,
-    reaction_wrench,
-    solve_static,
-    stateful_forces,
-    step,
-)
+from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, ModelShape, NeedleData, NeedleModel,
+                                  NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed, StepInputs,
+                                  acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
+                                  model_shape, reaction_wrench, solve_static, stateful_forces, step)
 from needle_sim_ros.model.integrators import SequenceResult, same_objects
 from needle_sim_ros.model.partition import held_at
 from needle_sim_ros.model.sequence import IntegratorMemory
