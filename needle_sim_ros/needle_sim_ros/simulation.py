@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 import time
+from functools import partial
+from operator import attrgetter
 from typing import Callable, Sequence
 
 import numpy as np
@@ -44,24 +46,14 @@ def step_wrenches(records: Sequence[StepRecord]):
             yield record.t, force, torque
 
 
-class _Part:
-    """An attribute of one of the simulation's parts, read and written through the facade."""
-
-    def __init__(self, part: str, name: str = "") -> None:
-        self.part, self.name = part, name
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.name = self.name or name
-
-    def __get__(self, sim, owner=None):
-        return self if sim is None else getattr(getattr(sim, self.part), self.name)
-
-    def __set__(self, sim, value) -> None:
-        setattr(getattr(sim, self.part), self.name, value)
+def _set(part: str, name: str, sim, value) -> None:
+    setattr(getattr(sim, part), name, value)
 
 
-def _parts(part: str, count: int) -> tuple[_Part, ...]:
-    return tuple(_Part(part) for _ in range(count))
+def _via(part: str, names: str) -> tuple[property, ...]:
+    """Attributes ``names`` of one of the simulation's parts, in order, read (with a C getter: the node reads some
+    per pose) and written through the facade."""
+    return tuple(property(attrgetter(f"{part}.{name}"), partial(_set, part, name)) for name in names.split())
 
 
 class NeedleSimulation:
@@ -70,11 +62,12 @@ class NeedleSimulation:
     base input, restarts the needle (stepper and step grid together) and advances the clock loop."""
 
     (model, integrator, dt, data, state, base, statistics, extra_forces, point_loads, forces, model_forces,
-     compiled_sequence, after_step, set_point_load, clear_point_loads, tissue_readout, shape, energies) = _parts(
-        "stepper", 18)
-    trajectory, twist, set_twist, pose_age = _parts("source", 4)
-    base_motions, base_motion_at = _Part("source", "motions"), _Part("source", "motion_at")
-    max_catch_up, next_step_end = _parts("clock", 2)
+     compiled_sequence, after_step, set_point_load, clear_point_loads, tissue_readout, shape, energies) = _via(
+        "stepper", "model integrator dt data state base statistics extra_forces point_loads forces model_forces "
+                   "compiled_sequence after_step set_point_load clear_point_loads tissue_readout shape energies")
+    trajectory, twist, set_twist, pose_age, base_motions, base_motion_at = _via(
+        "source", "trajectory twist set_twist pose_age motions motion_at")
+    max_catch_up, next_step_end = _via("clock", "max_catch_up next_step_end")
 
     def __init__(self, stepper: Stepper, source: BaseInput, max_catch_up: float = 0.05,
                  pose_timeout: float = 0.1) -> None:
