@@ -38,7 +38,8 @@ def test_needle_common_imports_neither_package_above_it():
 
 def test_the_simulation_core_imports_no_needle_vision():
     core = REPO / "needle_sim_ros" / "needle_sim_ros"
-    files = [core / "simulation.py", *sorted((core / "model").rglob("*.py")), *sorted((core / "tissue").rglob("*.py"))]
+    layers = [core / f"{name}.py" for name in ("simulation", "stepper", "clock_loop", "base_input")]
+    files = [*layers, *sorted((core / "model").rglob("*.py")), *sorted((core / "tissue").rglob("*.py"))]
     assert all(path.is_file() for path in files) and len(files) > 20
     assert importers(files, {"needle_vision"}) == {}
 

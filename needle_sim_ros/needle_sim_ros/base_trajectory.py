@@ -19,7 +19,8 @@ never restates the earlier ones. (Restating them, one correction that replaced t
 came ahead of the served time: each restated correction faded faster than the one before, and with 1 kHz poses
 integrated at a 200 Hz clock the served base oscillated with 1e6 rad/s^2 and most steps failed.)
 
-ROS-free: the node converts messages into :class:`PoseSample` and asks :meth:`BaseTrajectory.motion_at`.
+ROS-free: :class:`~needle_sim_ros.base_input.BaseInput` offers it the poses and asks
+:meth:`BaseTrajectory.motions_at`.
 """
 from __future__ import annotations
 
@@ -55,19 +56,6 @@ class PoseSample(NamedTuple):
     t: float
     position: np.ndarray
     orientation: np.ndarray
-
-
-@dataclass(frozen=True)
-class BaseKinematics:
-    """Pose, velocity and acceleration of the base at one instant (world frame, SI)."""
-
-    position: np.ndarray
-    orientation: np.ndarray  # quaternion (x, y, z, w)
-    linear_velocity: np.ndarray
-    angular_velocity: np.ndarray
-    linear_acceleration: np.ndarray
-    angular_acceleration: np.ndarray
-    extrapolated: bool  # True when t lies beyond the newest sample
 
 
 @dataclass(frozen=True)
@@ -179,13 +167,6 @@ class BaseTrajectory:
         for kept in rejected:
             self._append(kept)
         return PoseVerdict.REANCHORED
-
-    def motion_at(self, t: float) -> BaseKinematics | None:
-        """Smoothed pose, velocity and acceleration at time t; None before the first sample (see :meth:`motions_at`)."""
-        if self._latest is None:
-            return None
-        m = self.motions_at(np.array([t], dtype=float))[0]
-        return BaseKinematics(m[0:3], m[3:7], m[7:10], m[10:13], m[13:16], m[16:19], t > self._latest.t)
 
     def motions_at(self, times: np.ndarray) -> np.ndarray:
         """Smoothed motion at each of the given times (k,), packed (k, 19) as [position, orientation (x, y, z, w),

@@ -6,7 +6,7 @@
 * a base pose must be in the world frame (or carry no frame); its stamp is used unless it is unset, or, on the wall
   clock, farther than ``max_stamp_offset`` from the receive time (a sender with another clock): then the receive
   time is (simulated time and bags keep every stamp);
-* a twist must be finite and in the world frame, within :class:`~needle_sim_ros.simulation.InputLimits`;
+* a twist must be finite and in the world frame, within :class:`~needle_sim_ros.base_input.InputLimits`;
 * a force (the ``tip_load`` topic, the ``apply_point_load`` service) is given in the world frame (or no frame) or
   in the base frame, which the current base orientation turns into the world frame (REP 103).
 
@@ -22,10 +22,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from needle_sim_ros.base_trajectory import PoseVerdict
-from needle_sim_ros.simulation import NeedleSimulation
+from needle_sim_ros.simulation import USED_POSES, NeedleSimulation
 
-# Verdicts of an offered pose that the simulator uses.
-USED_POSES = (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED, PoseVerdict.REANCHORED, PoseVerdict.RESTARTED)
+__all__ = ["USED_POSES", "InputRejected", "OfferedPose", "SimulatorInputs"]
 
 
 class InputRejected(ValueError):

@@ -1,4 +1,6 @@
 """Base-pose input: exact for constant-acceleration motion, smooth under noise, defined on bad input."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -16,6 +18,14 @@ def pose(t: float):
     return position, orientation
 
 
+def motion_at(trajectory: BaseTrajectory, t: float) -> SimpleNamespace:
+    """The packed motion at t (``motions_at``) by name; ``extrapolated``: t beyond the newest sample."""
+    m = trajectory.motions_at(np.array([t]))[0]
+    return SimpleNamespace(position=m[0:3], orientation=m[3:7], linear_velocity=m[7:10], angular_velocity=m[10:13],
+                           linear_acceleration=m[13:16], angular_acceleration=m[16:19],
+                           extrapolated=t > trajectory.latest.t)
+
+
 def filled(rate_hz=1000.0, duration=0.05, jitter=0.0, noise=0.0, seed=0):
     rng = np.random.default_rng(seed)
     trajectory = BaseTrajectory(TrajectoryLimits(window=0.02))
@@ -29,7 +39,7 @@ def filled(rate_hz=1000.0, duration=0.05, jitter=0.0, noise=0.0, seed=0):
 def test_constant_acceleration_motion_is_reproduced_exactly_between_jittered_samples():
     trajectory = filled(rate_hz=250.0, jitter=0.3)
     t = 0.0371
-    m = trajectory.motion_at(t)
+    m = motion_at(trajectory, t)
     p, q = pose(t)
     # Exact up to round-off: a quadratic fit reproduces a quadratic trajectory whatever the sample times.
     np.testing.assert_allclose(m.position, p, atol=1e-12)
@@ -44,7 +54,7 @@ def test_constant_acceleration_motion_is_reproduced_exactly_between_jittered_sam
 def test_noisy_poses_give_bounded_acceleration():
     noise = 1e-5  # 10 um position noise, typical of a robot's reported tool pose
     trajectory = filled(noise=noise)
-    m = trajectory.motion_at(0.049)
+    m = motion_at(trajectory, 0.049)
     # Raw second differences at 1 kHz would scatter by ~ noise * sqrt(6) / dt^2 = 24 m/s^2. The 20-sample
     # quadratic fit must stay within a small fraction of that: 3 m/s^2 is 8x better than finite differences.
     assert np.linalg.norm(m.linear_acceleration - ACCEL) < 3.0
@@ -53,10 +63,10 @@ def test_noisy_poses_give_bounded_acceleration():
 def test_beyond_the_newest_sample_the_pose_is_extrapolated_then_held():
     trajectory = filled(duration=0.05)
     newest = trajectory.latest.t
-    short = trajectory.motion_at(newest + 0.005)
+    short = motion_at(trajectory, newest + 0.005)
     assert short.extrapolated
     np.testing.assert_allclose(short.position, pose(newest + 0.005)[0], atol=1e-9)
-    held = trajectory.motion_at(newest + 1.0)
+    held = motion_at(trajectory, newest + 1.0)
     np.testing.assert_allclose(held.position, pose(newest + 0.01)[0], atol=1e-9)  # held at max_extrapolation
     assert np.all(held.linear_velocity == 0) and np.all(held.angular_acceleration == 0)
 
@@ -95,7 +105,7 @@ def test_consistent_jumped_poses_reanchor_the_trajectory():
     trajectory.offer(0.0, [0, 0, 0], [0, 0, 0, 1])
     verdicts = [trajectory.offer(0.001 * (k + 1), [0.5, 0, 0], [0, 0, 0, 1]) for k in range(5)]
     assert verdicts[:4] == [PoseVerdict.JUMP] * 4 and verdicts[4] is PoseVerdict.REANCHORED
-    np.testing.assert_allclose(trajectory.motion_at(0.005).position, [0.5, 0, 0])
+    np.testing.assert_allclose(motion_at(trajectory, 0.005).position, [0.5, 0, 0])
 
 
 def test_a_small_buffer_wraps_around_without_losing_the_window():
@@ -103,7 +113,7 @@ def test_a_small_buffer_wraps_around_without_losing_the_window():
     for k in range(100):  # the buffer holds 8 to 16 samples: the 20 ms window at 1 kHz is cut to the newest ones
         p, q = pose(k * 1e-3)
         assert trajectory.offer(k * 1e-3, p, q) is PoseVerdict.ACCEPTED
-    m = trajectory.motion_at(0.0985)
+    m = motion_at(trajectory, 0.0985)
     np.testing.assert_allclose(m.position, pose(0.0985)[0], atol=1e-12)
     np.testing.assert_allclose(m.linear_acceleration, ACCEL, atol=1e-6)
 

@@ -16,7 +16,8 @@ import needle_sim_ros
 
 PACKAGE = Path(needle_sim_ros.__file__).parent  # the installed package: what the executables run
 #: The ROS-free cores (packages and single modules of needle_sim_ros), as the README lists them.
-ROS_FREE = ("model", "tissue", "identification", "simulation", "base_trajectory", "comparison",
+ROS_FREE = ("model", "tissue", "identification", "simulation", "stepper", "clock_loop", "base_input", "base_trajectory",
+            "comparison",
             "parameters", "recording", "scenarios", "launch_support", "messages.geometry")
 #: Distributions of ROS 2 itself (the message packages are recognised by their suffixes).
 ROS_PACKAGES = ("rclpy", "rcl_interfaces", "builtin_interfaces", "rosidl_runtime_py", "rpyutils")
@@ -46,6 +47,18 @@ def test_offline_and_nodes_do_not_import_each_other(importer, forbidden):
                                    if name == forbidden or name.startswith(forbidden + "."))
                  for path in files}
     assert {path: names for path, names in offending.items() if names} == {}
+
+
+#: The simulator's layers, top down (issue 38): each imports none of the ones above it, and none imports the tissue.
+SIMULATION_LAYERS = ("simulation", "base_input", "clock_loop", "stepper")
+
+
+@pytest.mark.parametrize("layer", SIMULATION_LAYERS[1:])
+def test_a_base_pose_goes_down_the_simulation_layers_without_climbing_back(layer):
+    above = SIMULATION_LAYERS[:SIMULATION_LAYERS.index(layer)]
+    forbidden = {f"needle_sim_ros.{name}" for name in above} | {"needle_sim_ros.tissue"}
+    names = imported_modules((PACKAGE / f"{layer}.py").read_text(), "needle_sim_ros")
+    assert sorted(name for name in names if any(name == f or name.startswith(f + ".") for f in forbidden)) == []
 
 
 def test_imported_modules_sees_absolute_relative_and_nested_imports():

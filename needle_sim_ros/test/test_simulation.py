@@ -11,7 +11,7 @@ from failing_forces import PoisonedAfter
 from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrator, PointLoad, StepFailed
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_common.parameters import ParameterError
-from needle_sim_ros import simulation
+from needle_sim_ros import clock_loop
 from needle_sim_ros.simulation import simulation_from_parameters
 from needle_sim_ros.tissue import tissue_model
 
@@ -80,7 +80,7 @@ def test_a_shifted_step_runs_compiled_and_agrees_with_the_general_path(monkeypat
         sim.advance(0.010, deterministic=True)
         sim.data.grid_origin += 0.4e-3  # what lock_phase does: the next step lasts 1.4 dt
     general = []
-    monkeypatch.setattr(sims[0], "step", lambda *args, **kwargs: general.append(args))
+    monkeypatch.setattr(sims[0].stepper, "step", lambda *args, **kwargs: general.append(args))
     compiled, reference = (sim.advance(0.030, deterministic=True) for sim in sims)
     assert not general
     assert [r.t for r in compiled] == [r.t for r in reference] and compiled[0].t == pytest.approx(0.0114)
@@ -100,9 +100,10 @@ def test_the_advance_in_one_compiled_call_agrees_with_the_general_path(monkeypat
     sims = [simulation_from_parameters(p) for _ in range(2)]
     sims[1].compiled_sequence = False  # the reference: every step on the general path
     calls = []
-    lane = sims[0]._advance_from_trajectory
-    monkeypatch.setattr(sims[0], "_advance_from_trajectory", lambda *args: calls.append(len(args[1])) or lane(*args))
-    monkeypatch.setattr(sims[0], "_step_sequence", lambda *args: pytest.fail("the staged sequence ran"))
+    stepper = sims[0].stepper
+    lane = stepper._advance_from_trajectory
+    monkeypatch.setattr(stepper, "_advance_from_trajectory", lambda *args: calls.append(len(args[1])) or lane(*args))
+    monkeypatch.setattr(stepper, "_step_sequence", lambda *args: pytest.fail("the staged sequence ran"))
     rng = np.random.default_rng(7)
     length, k = sims[0].model.props.length, 0
     for sim in sims:
@@ -251,7 +252,7 @@ def live_pose_stream(period: float, jitter: float, poses: int, delay: float = 2e
     records, late, per_pose, ticked = [], [], [], []
     for k, stamp in enumerate(stamps):
         arrival, ticks = stamp + delay, 0
-        while sim.started and (tick_time := sim.next_step_end + simulation.LATE_POSE_WAIT * 1e-3) <= arrival:
+        while sim.started and (tick_time := sim.next_step_end + clock_loop.LATE_POSE_WAIT * 1e-3) <= arrival:
             tick = sim.advance(tick_time, deterministic=False, ahead_to_pose=True)
             records += tick
             ticks += len(tick)
@@ -281,7 +282,7 @@ def test_the_step_grid_locks_to_the_phase_of_the_pose_stream(period, jitter, mon
     regular = np.setdiff1d(np.arange(100, len(change)), shifted)
     assert change[shifted[shifted >= 100]].max(initial=0.0) <= change[regular].max()
     assert sim.statistics.failed_steps == 0
-    monkeypatch.setattr(simulation, "PHASE_COHERENCE", np.inf)
+    monkeypatch.setattr(clock_loop, "PHASE_COHERENCE", np.inf)
     _, _, late, per_pose, ticked = live_pose_stream(period, jitter, 2000)
     assert (late | (per_pose != 1) | (ticked > 0)).sum() >= 10
 
@@ -289,7 +290,7 @@ def test_the_step_grid_locks_to_the_phase_of_the_pose_stream(period, jitter, mon
 def test_poses_without_a_common_phase_leave_the_step_grid_where_it_is():
     """Poses every 1.5 steps alternate between two phases half a step apart: no consistent phase, no shift."""
     sim, records, late, per_pose, ticked = live_pose_stream(1.5e-3, 0.05, 600)
-    assert abs(sim.data.pose_phase) < simulation.PHASE_COHERENCE
+    assert abs(sim.data.pose_phase) < clock_loop.PHASE_COHERENCE
     assert np.allclose(np.diff([r.t for r in records]), 1e-3, atol=1e-6)  # no step but of dt: never shifted
 
 
@@ -363,7 +364,7 @@ def test_a_failed_step_with_tissue_changes_nothing(law):
     settings = sim.integrator.newton_tol, sim.integrator.max_newton_iterations
     sim.integrator.newton_tol, sim.integrator.max_newton_iterations = 1e-300, 1
     with pytest.raises(StepFailed):
-        sim.step(base, t)
+        sim.stepper.step(base, t)
     after = _simulation_state(sim)
     assert [name for name in before if after[name] != before[name]] == []
     assert sim.statistics.failed_steps == 1
@@ -385,7 +386,7 @@ def test_a_step_failing_after_converged_sub_steps_restores_the_integrators_memor
     sim.data.integrator.control[0] = 0  # on q_n, as after a fallback
     before = _simulation_state(sim)
     with pytest.raises(StepFailed):
-        sim.step(base, t)
+        sim.stepper.step(base, t)
     after = _simulation_state(sim)
     assert [name for name in before if after[name] != before[name]] == []
     assert sim.data.integrator.extrapolate is False
@@ -404,7 +405,7 @@ def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
         raise FloatingPointError("broken tissue law")
     monkeypatch.setattr(tissue_model, "advance_packed", broken)
     with pytest.raises(FloatingPointError):
-        sim.step(base, t)
+        sim.stepper.step(base, t)
     monkeypatch.undo()
     after = _simulation_state(sim)
     assert [name for name in before if after[name] != before[name]] == []
@@ -417,7 +418,7 @@ def test_extra_forces_are_checked_against_the_force_protocol_at_the_reset():
             return GeneralizedForce(np.zeros(model.n_dof))
 
     sim = simulation_from_parameters(PARAMETERS)
-    sim.extra_forces_builder = lambda model: [Undeclared()]
+    sim.stepper.extra_forces_builder = lambda model: [Undeclared()]
     with pytest.raises(TypeError, match="Undeclared must declare state_dependent"):
         sim.offer_pose(0.0, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
 
@@ -431,7 +432,7 @@ def test_a_copy_of_the_data_replays_an_insertion_exactly():
     saved = sim.data.copy()
 
     def run() -> tuple[list, dict]:
-        wrenches = [sim.step(base, t).wrench for t, base in motions]
+        wrenches = [sim.stepper.step(base, t).wrench for t, base in motions]
         return pickle.dumps(wrenches), _simulation_state(sim, False)
 
     first = run()

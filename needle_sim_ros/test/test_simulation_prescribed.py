@@ -10,9 +10,12 @@ import pytest
 
 from needle_sim_ros.experiments import EXPERIMENTS, TruthModel, run_ground_truth
 from failing_forces import PoisonedAfter
-from needle_sim_ros.model import BaseMotion, Gravity, Integrator, PointLoad, StepFailed, build_model, solve_static
+from needle_sim_ros.base_input import BaseInput
+from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, Integrator, PointLoad, StepFailed, build_model,
+                                  solve_static)
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters, simulation_from_parameters
+from needle_sim_ros.stepper import Stepper
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
 DT = 1e-3
@@ -107,3 +110,33 @@ def test_a_copy_of_the_data_keeps_the_sequences_factorization():
     first = replay()
     simulation.data.restore(saved)
     assert replay() == first
+
+
+@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "general"])
+def test_a_restart_with_a_new_clamp_pose_keeps_the_model_and_clamps_where_the_needle_restarted(compiled):
+    """The distal 40 % clamped (seed 000 Fig. 8), restarted at another pose of the pitching base: the model is the
+    same object, and the steps after the restart are those of a model built with the clamp fixed in the world at
+    that pose (the independent reference: a world-frame Fixture at the restart pose, a fresh integrator)."""
+    clamp = (0.6 * TruthModel().props.length, TruthModel().props.length)
+    model = build_model(TruthModel().props, n_elements=10, fixtures=(Fixture(interval=clamp, frame="start"),))
+    sim = NeedleSimulation(Stepper(model, Integrator(model), DT, restart_on_failure=False), BaseInput(base_at=pitching),
+                           max_catch_up=math.inf)
+    sim.compiled_sequence = compiled
+    sim.reset(pitching(0.0), 0.0)
+    sim.advance_to(0.05)
+    restart = 0.3  # the base pitched by 8.1 deg
+    sim.reset(pitching(restart), restart)
+    assert sim.model is model
+    base = pitching(restart)
+    world = build_model(TruthModel().props, n_elements=10, fixtures=(
+        Fixture(interval=clamp, frame="world", needle_pose=(base.position, base.orientation)),))
+    reference = NeedleSimulation.prescribed(world, Integrator(world), DT, pitching, world.straight_state(base, restart))
+    reference.compiled_sequence = compiled
+    np.testing.assert_array_equal(sim.state.q, reference.state.q)
+    ours, theirs = sim.advance_to(restart + 0.1), reference.advance_to(restart + 0.1)
+    assert len(ours) == len(theirs) == 100
+    np.testing.assert_allclose([r.wrench.force_base for r in ours], [r.wrench.force_base for r in theirs],
+                               rtol=0, atol=1e-9 * np.abs([r.wrench.force_base for r in theirs]).max())
+    np.testing.assert_allclose(sim.state.q, reference.state.q, rtol=0, atol=1e-12)
+    clamped = model.partition.held[0].dofs
+    np.testing.assert_array_equal(sim.state.q[clamped], world.straight_state(base, restart).q[clamped])  # held

@@ -18,12 +18,13 @@ from typing import Callable
 
 import numpy as np
 
-from needle_sim_ros.base_trajectory import BaseTrajectory
+from needle_sim_ros.base_input import BaseInput
 from needle_sim_ros.experiments.protocols import Experiment
 from needle_sim_ros.experiments.elastica import elastica_tip
-from needle_sim_ros.model import (BaseMotion, Centerline, Gravity, Integrator, ModelShape, NeedleProperties,
+from needle_sim_ros.model import (BaseMotion, Centerline, Fixture, Gravity, Integrator, ModelShape, NeedleProperties,
                                   PointLoad, StepFailed, build_model, solve_static)
 from needle_sim_ros.simulation import NeedleSimulation
+from needle_sim_ros.stepper import Stepper
 
 TIP_WEIGHT = "tip_weight"
 
@@ -73,20 +74,16 @@ class TruthSamples:
 
 def truth_simulation(experiment: Experiment, truth: TruthModel) -> NeedleSimulation:
     """The truth's simulator, reset at the protocol's start pose (clamped there if the protocol clamps)."""
-    def model_builder(fixtures: tuple) -> tuple:
-        model = build_model(truth.props, n_elements=truth.n_elements, rayleigh_alpha=truth.rayleigh_alpha,
-                            fixtures=fixtures)
-        return model, Integrator(model, method="generalized_alpha", rho_inf=truth.rho_inf)
-
     def tissue_builder(model) -> list:
         from needle_sim_ros.tissue import build_tissue_model
         return [build_tissue_model({"tissue.enable": True, **dict(truth.tissue)}, model)]
 
-    model, integrator = model_builder(())
-    simulation = NeedleSimulation(model, integrator, truth.dt, BaseTrajectory(),
-                                  extra_forces_builder=tissue_builder if experiment.tissue else None,
-                                  max_catch_up=math.inf, clamp_interval=experiment.clamp_interval,
-                                  model_builder=model_builder, base_at=experiment.base, restart_on_failure=False)
+    clamp = () if experiment.clamp_interval is None else (Fixture(interval=experiment.clamp_interval, frame="start"),)
+    model = build_model(truth.props, n_elements=truth.n_elements, rayleigh_alpha=truth.rayleigh_alpha, fixtures=clamp)
+    integrator = Integrator(model, method="generalized_alpha", rho_inf=truth.rho_inf)
+    stepper = Stepper(model, integrator, truth.dt, tissue_builder if experiment.tissue else None,
+                      restart_on_failure=False)
+    simulation = NeedleSimulation(stepper, BaseInput(base_at=experiment.base), max_catch_up=math.inf)
     simulation.compiled_sequence = False  # full Newton every step: the bags' truth is reproduced bit for bit
     base = experiment.base(0.0)
     simulation.reset(base, 0.0)

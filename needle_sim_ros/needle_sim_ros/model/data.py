@@ -21,12 +21,12 @@ from .reaction import BaseWrench, reaction_wrench
 class NeedleData:
     """Everything a step changes, in one place:
 
-    * ``state``: t, q, q', q'' and the integrator's history a of the last accepted step (None: not started);
-    * ``base``: the base motion (clamp point A) at t;
+    * ``state``: t, q, q', q'', the integrator's history a of the last accepted step and the base motion (clamp
+      point A) at t (None: not started; :attr:`base` is the state's);
     * ``grid_origin`` [s], ``step_index``: steps end at grid_origin + step_index dt (set at each (re)start; the
       live time loop may shift the origin by less than a step to keep the grid half a step from the poses);
     * ``pose_phase``: the poses' phase on the step grid, a running mean of exp(2 pi i x) over the accepted poses,
-      x = (pose time - grid_origin) / dt (0 at each (re)start; see ``NeedleSimulation.lock_phase``);
+      x = (pose time - grid_origin) / dt (0 at each (re)start; see ``ClockLoop.lock_phase``);
     * ``integrator``: the integrator's memory between steps: which predictor Newton starts from, and the
       factorization the compiled sequence keeps across steps while the base holds still (with its validity, step
       length and base motion);
@@ -41,20 +41,24 @@ class NeedleData:
 
     integrator: IntegratorMemory
     state: State | None = None
-    base: BaseMotion | None = None
     grid_origin: float = 0.0
     step_index: int = 0
     pose_phase: complex = 0j
     point_loads: dict[str, PointLoad] = field(default_factory=dict)
     force_states: tuple = ()
 
+    @property
+    def base(self) -> BaseMotion | None:
+        """The base motion at the state's time (None before the start)."""
+        return None if self.state is None else self.state.base
+
     def copy(self) -> NeedleData:
         return replace(self, point_loads=dict(self.point_loads), integrator=self.integrator.copy())
 
     def restore(self, saved: NeedleData) -> None:
         """Put back the values of ``saved`` (a :meth:`copy`)."""
-        self.state, self.base, self.grid_origin, self.step_index, self.pose_phase = (
-            saved.state, saved.base, saved.grid_origin, saved.step_index, saved.pose_phase)
+        self.state, self.grid_origin, self.step_index, self.pose_phase = (
+            saved.state, saved.grid_origin, saved.step_index, saved.pose_phase)
         self.integrator, self.point_loads, self.force_states = (saved.integrator.copy(), dict(saved.point_loads),
                                                                 saved.force_states)
 
@@ -102,8 +106,8 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
     1. inputs: the contributions acting over the step (:func:`acting_forces`), the integrator's memory;
     2. integrate: predictor, Newton, sub-stepping (:meth:`Integrator.step`; StepFailed if it cannot);
     3. accept: each stateful contribution advances its state to the new needle state;
-    4. commit: ``data`` takes the new state, base and force states (the step index is the time loop's); any error
-       before this leaves ``data`` as it was (the integrator's memory, updated in place, is put back);
+    4. commit: ``data`` takes the new state (with its base) and force states (the step index is the time loop's);
+       any error before this leaves ``data`` as it was (the integrator's memory, updated in place, is put back);
     5. outputs: the base wrench of the new state under the contributions of the next step.
     """
     base_next = inputs.base_next
@@ -117,6 +121,6 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
     except BaseException:
         data.integrator.control[:] = control
         raise
-    data.state, data.base, data.force_states = state, base_next, tuple(stateful)
+    data.state, data.force_states = state, tuple(stateful)
     wrench = reaction_wrench(model, state, base_next, acting_forces(forces, data))
     return StepOutput(wrench, result.newton_iterations, result.substeps)

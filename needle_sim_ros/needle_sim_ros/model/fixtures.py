@@ -25,7 +25,9 @@ class Fixture:
     nodes: node indices (negative ones count from the tip); interval: (s_start, s_end) [m] -- every node with
     reference arc length in the closed interval; both ends must be mesh nodes (choose ``element_lengths`` so), since
     a cable element cannot be clamped along part of its length.
-    frame: "world" (fixed), "base" (moves with the holder) or a callable t -> BaseMotion of a moving frame.
+    frame: "world" (fixed), "base" (moves with the holder), "start" (held in the world where the needle's base frame
+    was when the needle was (re)started: the pose is the needle's data, ``IntegratorMemory.clamp``, so one model
+    serves every restart) or a callable t -> BaseMotion of a moving frame.
     needle_pose: (position, orientation xyzw) of the straight needle's base frame in the fixture frame at the time of
     clamping; node i is held at rho = p + R s_i e_x with gradient tau = R e_x in that frame. Default: the needle lay
     along the frame's x axis from its origin.
@@ -37,8 +39,9 @@ class Fixture:
     needle_pose: tuple = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
 
     def __post_init__(self) -> None:
-        if not (self.frame in ("world", "base") or callable(self.frame)):
-            raise ValueError(f"Fixture.frame must be 'world', 'base' or a callable t -> BaseMotion, got {self.frame!r}")
+        if not (self.frame in ("world", "base", "start") or callable(self.frame)):
+            raise ValueError("Fixture.frame must be 'world', 'base', 'start' or a callable t -> BaseMotion, got "
+                             f"{self.frame!r}")
         if not self.nodes and self.interval is None:
             raise ValueError("Fixture needs nodes or an interval")
 

@@ -150,6 +150,7 @@ class Integrator:
         self._sequence_cache: tuple = (None, 0.0, None, ())  # see sequence_arguments
         self.memory = IntegratorMemory(model.n_dof)
         self._sequence: SequenceBuffers | None = None
+        self._held = bool(model.partition.held)  # fixtures held where the needle started: their rows per clamp
 
     def initial_accelerations(self, state: State, forces=(), base: BaseMotion | None = None) -> np.ndarray:
         """q'' consistent with the equations of motion at the state (eq. 19), prescribed q''_c kept."""
@@ -185,7 +186,9 @@ class Integrator:
         constant, varying, _ = self._split(forces)
         t_next = state.t + dt
         end = np.zeros((3, n))
-        model.partition.impose(base_next, t_next, end)
+        if memory.clamp is None and model.partition.held:
+            raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
+        model.partition.impose(base_next, t_next, end, memory.clamp)
         history = np.empty((4, n))
         history[0], history[1] = state.q, state.qd
         if state.aux is None:
@@ -248,6 +251,8 @@ class Integrator:
                 buffers.scale, buffers.tables, buffers.residual, memory.band, memory.pivots,
                 memory.factorization, ELEMENT_BANDWIDTH, memory.control, memory.last_motion))
             self._sequence_cache = cached
+        if self._held:
+            self._sequence_buffers().hold(memory.clamp)
         return cached[3], run_outputs(steps, self.model.n_dof)
 
     def run_arguments(self, forces, dt: float, t_next: float,
@@ -257,7 +262,10 @@ class Integrator:
         limit, base node buffers, active mask, scales, model tables, work arrays, bandwidth) and the constant
         external force. A fresh matrix every step, as :meth:`step`: the memory's kept
         factorization is invalidated."""
-        (memory or self.memory).invalidate()
+        memory = memory or self.memory
+        memory.invalidate()
+        if self._held:
+            self._sequence_buffers().hold(memory.clamp)
         key = (dt, self.newton_tol, self.max_newton_iterations)
         if self._run_cache[0] != key:  # the same work arrays every call: the tuple is made once per key
             buffers, solver = self._sequence_buffers(), self.solver

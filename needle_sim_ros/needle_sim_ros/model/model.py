@@ -88,14 +88,15 @@ class NeedleModel:
         """Element index and S, S_x, S_xx tables (eq. 4) at reference arc lengths in [0, L]."""
         return self.mesh.interpolation(arc_lengths)
 
-    def straight_state(self, base: BaseMotion, t: float = 0.0) -> State:
-        """Undeformed needle along the holder axis, moving rigidly with the base; clamped nodes as prescribed."""
+    def straight_state(self, base: BaseMotion, t: float = 0.0, clamp: BaseMotion | None = None) -> State:
+        """Undeformed needle along the holder axis, moving rigidly with the base; clamped nodes as prescribed (those
+        held where the needle started at ``clamp``, default: here, now)."""
         nodes = np.arange(self.n_nodes)
         local_r = self.node_arc_length[:, None] * np.array([[1.0, 0.0, 0.0]])
         local_rx = np.tile([1.0, 0.0, 0.0], (self.n_nodes, 1))
         values = np.zeros((3, self.n_dof))
         base.impose_nodes(local_r, local_rx, nodes, values)
-        self.partition.impose(base, t, values)
+        self.partition.impose(base, t, values, clamp)
         q, qd, qdd = values
         return State(q, qd, qdd, float(t), None, base)
 

@@ -26,15 +26,24 @@ class ConstraintGroup:
     local_rx: np.ndarray
     fixed: np.ndarray | None
 
-    def impose(self, base: BaseMotion, t: float, target: np.ndarray) -> None:
-        """Write the group's [q, qd, qdd] into target (3, n_dof)."""
+    def impose(self, base: BaseMotion, t: float, target: np.ndarray, clamp: BaseMotion | None = None) -> None:
+        """Write the group's [q, qd, qdd] into target (3, n_dof); ``clamp``: the pose of the frame "start" (None:
+        the needle starts now, held where the base is)."""
         if self.fixed is not None:
             target[:, self.dofs] = self.fixed
             return
-        motion = base if self.frame == "base" else self.frame(t)
+        if self.frame == "start":
+            motion = held_at(base) if clamp is None else clamp
+        else:
+            motion = base if self.frame == "base" else self.frame(t)
         if not isinstance(motion, BaseMotion):
             raise TypeError(f"fixture frame callable must return a BaseMotion, got {type(motion).__name__}")
         motion.impose_nodes(self.local_r, self.local_rx, self.nodes, target)
+
+
+def held_at(base: BaseMotion) -> BaseMotion:
+    """The frame "start" of fixtures for a needle started at ``base``: that pose, at rest."""
+    return BaseMotion(base.position, base.orientation)
 
 
 def _dofs(nodes: np.ndarray) -> np.ndarray:
@@ -88,10 +97,16 @@ class Partition:
         active[constrained] = False
         return cls(tuple(groups), np.sort(constrained), np.flatnonzero(active), active)
 
-    def impose(self, base: BaseMotion, t: float, target: np.ndarray) -> None:
-        """Write the prescribed q_c, q_c', q_c'' at time t into the rows of target (3, n_dof), in place."""
+    def impose(self, base: BaseMotion, t: float, target: np.ndarray, clamp: BaseMotion | None = None) -> None:
+        """Write the prescribed q_c, q_c', q_c'' at time t into the rows of target (3, n_dof), in place (``clamp``:
+        see :meth:`ConstraintGroup.impose`)."""
         for group in self.groups:
-            group.impose(base, t, target)
+            group.impose(base, t, target, clamp)
+
+    @property
+    def held(self) -> tuple[ConstraintGroup, ...]:
+        """The groups of the frame "start" (held where the needle started)."""
+        return tuple(group for group in self.groups if group.frame == "start")
 
 
 def hermite_quintic(start: np.ndarray, end: np.ndarray, h: float, theta: float) -> np.ndarray:

@@ -23,8 +23,8 @@ class SequenceBuffers:
         self.history = np.empty((4, n))  # rows q, q', q'', a of the start state
         self.residual = np.empty(n)
         groups = model.partition.groups
-        self.supported = all(g.fixed is not None or g.frame == "base" for g in groups)
-        moving = [g for g in groups if g.fixed is None]
+        self.supported = all(g.fixed is not None or g.frame in ("base", "start") for g in groups)
+        moving = [g for g in groups if g.frame == "base"]
         self.base_nodes = np.concatenate([g.nodes for g in moving]).astype(np.int64)
         self.base_local_r = np.ascontiguousarray(np.concatenate([g.local_r for g in moving]))
         self.base_local_rx = np.ascontiguousarray(np.concatenate([g.local_rx for g in moving]))
@@ -32,13 +32,25 @@ class SequenceBuffers:
         for group in groups:
             if group.fixed is not None:
                 self.prescribed[:, group.dofs] = group.fixed
+        self.held, self.clamp = model.partition.held, None  # the groups held where the needle started, their pose
+
+    def hold(self, clamp) -> None:
+        """Write the rows of the groups held where the needle started at ``clamp`` (``IntegratorMemory.clamp``)."""
+        if clamp is self.clamp or not self.held:
+            return
+        if clamp is None:
+            raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
+        for group in self.held:
+            clamp.impose_nodes(group.local_r, group.local_rx, group.nodes, self.prescribed)
+        self.clamp = clamp
 
 
 class IntegratorMemory:
     """What the integrator carries from one step to the next (part of the needle's data, changed in place by the
     integrator): ``control`` [extrapolate, factored]: whether Newton starts from the extrapolating predictor and
     whether the kept factorization is valid; the kept factorization of the compiled sequence (``band``, ``pivots``,
-    ``factorization``), the step length ``h`` and the packed base motion ``last_motion`` it was made for."""
+    ``factorization``), the step length ``h`` and the packed base motion ``last_motion`` it was made for; ``clamp``:
+    the pose of the fixtures of the frame "start", where the needle was (re)started (None: none yet)."""
 
     def __init__(self, n_dof: int) -> None:
         self.control = np.array([1, 0], dtype=np.int64)
@@ -47,6 +59,7 @@ class IntegratorMemory:
         self.factorization = np.zeros(1, dtype=np.int64)
         self.last_motion = np.full(19, np.nan)
         self.h = 0.0
+        self.clamp = None
 
     @property
     def extrapolate(self) -> bool:

@@ -1,10 +1,10 @@
 """`needle_simulator`: the ANCF needle in real time, driven by base-pose topics, publishing wrench and shape.
 
-Thin ROS layer over :class:`needle_sim_ros.simulation.NeedleSimulation` and
-:class:`needle_sim_ros.base_trajectory.BaseTrajectory`. A dedicated thread runs the fixed-rate loop: at each tick it
-takes the poses that arrived (polled subscriptions, :mod:`needle_sim_ros.nodes.polling`) and advances the model by
-elapsed clock time (not by counting wake-ups, which a loaded machine skips); the executor thread serves the tip
-load topic, services and parameters; an output thread publishes shapes, visualization and diagnostics.
+Thin ROS layer over :class:`needle_sim_ros.simulation.NeedleSimulation` (base input, clock loop, stepper). A
+dedicated thread runs the fixed-rate loop: at each tick it takes the poses that arrived (polled subscriptions,
+:mod:`needle_sim_ros.nodes.polling`) and advances the model by elapsed clock time (not by counting wake-ups, which
+a loaded machine skips); the executor thread serves the tip load topic, services and parameters; an output thread
+publishes shapes, visualization and diagnostics.
 
 With ``haptics.enable`` each step also yields the force the operator should feel on ``topics.haptic``
 (:mod:`needle_sim_ros.haptics`: frame, limits, a wall-clock pose watchdog with a resume ramp), and every stop
@@ -348,7 +348,7 @@ class NeedleSimulatorNode(LifecycleNode):
             if self.sim is None:  # unconfigured: configure builds with the new values
                 return
             if {"damping.rayleigh_alpha", "damping.rayleigh_beta"} & changed.keys():
-                self.sim.rebuild_model(model_builder_from_parameters(self.p))
+                self.sim.stepper.rebuild_model(model_builder_from_parameters(self.p))
 
     # -- the real-time loop ----------------------------------------------------------------------------------
     def start(self) -> None:
@@ -420,7 +420,7 @@ class NeedleSimulatorNode(LifecycleNode):
         a period after its end time is a deadline miss); between ticks a pose wakes the loop at once, which then
         integrates the step that ends at or after its stamp (``loop.ahead_to_pose``; the tick then waits
         ``LATE_POSE_WAIT`` of a period more for a late pose, so that the pose, not an extrapolation, drives its step:
-        the grid is half a step from the poses, ``NeedleSimulation.lock_phase``). In
+        the grid is half a step from the poses, ``ClockLoop.lock_phase``). In
         simulated time (no relation to this process's clock) ticks come every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
