@@ -68,3 +68,18 @@ def test_uncorrected_discs_move_the_ends(measured):
     needle's base > 0.1 mm beyond."""
     assert np.linalg.norm(measured["hook"][0].points[-1] - SHAPES["hook"][-1]) > 0.3e-3
     assert np.linalg.norm(measured["straight"][0].points[0] - SHAPES["straight"][0]) > 0.1e-3
+
+
+@pytest.mark.parametrize("bevel", [1e-3, 2e-3])
+@pytest.mark.parametrize("name", ["straight", "hook"])
+def test_bevelled_tip_keeps_its_taper_and_the_base_loses_its_disc(rig, scene, backgrounds, name, bevel):
+    """A bevel seen side-on (no disc drawn there) is placed from its fitted taper and not moved; the flat base is
+    (dark, seed 7, discs drawn: tips 0.02-0.08 mm either way, the base 0.12 -> 0.003 mm)."""
+    truth = SHAPES[name]
+    images = render_stereo_pair(rig, truth, NEEDLE_RADIUS, np.random.default_rng(7), scene=scene, end_caps=True,
+                                bevel_length=bevel)
+    centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
+    measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
+                                         ReconstructionConfig(needle_radius=NEEDLE_RADIUS), rig.world_from_left)
+    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.2e-3
+    assert np.linalg.norm(measurement.points[0] - truth[0]) <= 0.05e-3

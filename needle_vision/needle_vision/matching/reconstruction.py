@@ -356,7 +356,8 @@ def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray
     """``centerline`` of camera ``side`` shortened at each end by what the end's disc (``radius``, square to the
     needle) adds beyond the flat cut: a half ellipse of half axis a = f radius |cos theta| / Z along the needle
     (theta between the end's tangent and the viewing ray, Z the end's distance; from the first triangulation
-    ``points``, raw left frame), whose half-contrast point lies END_CAP_CROSSING a beyond the end."""
+    ``points``, raw left frame), whose half-contrast point lies END_CAP_CROSSING a beyond the end (tapered ends:
+    not moved)."""
     rig = rectification.rig
     camera, centre = (rig.left, np.zeros(3)) if side == "left" else (rig.right, rig.left_from_right.translation)
     ends = points[[0, -1]]
@@ -367,7 +368,10 @@ def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray
             > np.linalg.norm(image_ends - projected[::-1], axis=1).sum()):  # this view's curve runs the other way
         ends, tangents = ends[::-1], tangents[::-1]
     cuts = []
-    for end, tangent in zip(ends, tangents):
+    for end, tangent, taper in zip(ends, tangents, centerline.end_taper_px):
+        if taper > 0:  # a bevel seen side-on, already placed from its fitted taper
+            cuts.append(0.0)
+            continue
         ray = end - centre
         distance = float(np.linalg.norm(ray))
         cosine = abs(float(tangent @ ray)) / max(float(np.linalg.norm(tangent)) * distance, 1e-12)
