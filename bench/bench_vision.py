@@ -89,7 +89,13 @@ def stage_cpu(pipeline: StereoNeedlePipeline, pairs: list[tuple[np.ndarray, np.n
                                    replace(config.reconstruction, curve_fit=True), pipeline.output_from_left)
             for both in centerlines],
         "whole pair (process)": lambda: [pipeline.process(1.0, *pair) for pair in pairs]}
-    return ", ".join(f"{name} {cpu_timed(stage, repetitions) / len(pairs):.2f}" for name, stage in stages.items())
+    times = {name: cpu_timed(stage, repetitions) / len(pairs) for name, stage in stages.items()}
+    fit = replace(config.reconstruction, curve_fit=True)
+    cost = cpu_timed(lambda: [reconstruct_centerline(*both, pipeline.rectification, config.matching, fit,
+                                                     pipeline.output_from_left) for both in centerlines], repetitions
+                     ) / len(pairs) - times["matching + triangulation"] - times["ordering + resampling"]
+    return ", ".join(f"{name} {value:.2f}" for name, value in times.items()) + \
+        f"; the curve fit's cost (reconstruction with it less without) {cost:.2f}"
 
 
 def ready_pipeline(rig, scene, imaging, frames: int = 10, measured_rig=None) -> StereoNeedlePipeline:

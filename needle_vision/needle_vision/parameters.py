@@ -113,6 +113,9 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("reconstruction.curve_fit", False, "fit one smooth 3D curve to both views at once (B-spline with a "
               "prior on the change of bending; experimental, issue 39) instead of smoothing the per-point "
               "triangulation, which stays its initial guess and fallback"),
+    ParamSpec("reconstruction.needle_radius", 0.0, "the needle's radius: each flat end's disc, seen obliquely, "
+              "lengthens the images by up to that radius; the ends are moved back by it (0: unknown, not corrected) "
+              "[m]", 0.0, 0.01),
     ParamSpec("background.frames", 10, "first synchronised pairs, needle-free, averaged into the background; "
               "0: bootstrap from the first pair by erasing the needle [-]", 0, 100000),
     ParamSpec("background.learning_rate", 0.0, "running update of the background away from the needle per "
@@ -166,6 +169,7 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
                                             max_image_scatter=values["reconstruction.max_image_scatter"],
                                             max_uncertainty=values["reconstruction.max_uncertainty"],
                                             curve_fit=values["reconstruction.curve_fit"],
+                                            needle_radius=values["reconstruction.needle_radius"],
                                             base_point=np.array(values["base_point"])),
         background_frames=values["background.frames"],
         background_learning_rate=values["background.learning_rate"],

@@ -200,15 +200,43 @@ def _polygon_coverage(pixels: np.ndarray, polygon: np.ndarray, blur_sigma: float
                for ga, wa in zip(nodes, weights) for gn, wn in zip(nodes, weights))
 
 
+def _disc(centre: np.ndarray, normal: np.ndarray, radius: float, count: int = 64) -> np.ndarray:
+    """``count`` points ``(count, 3)`` on the circle of ``radius`` about ``centre`` square to ``normal``."""
+    normal = normal / np.linalg.norm(normal)
+    first = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    first /= np.linalg.norm(first)
+    second = np.cross(normal, first)
+    angle = np.linspace(0.0, 2 * np.pi, count, endpoint=False)[:, None]
+    return centre + radius * (np.cos(angle) * first + np.sin(angle) * second)
+
+
+def _half_plane(polygon: np.ndarray, point: np.ndarray, outward: np.ndarray) -> np.ndarray:
+    """The part of a convex ``polygon`` ``(k, 2)`` on the ``outward`` side of the line through ``point`` square to
+    it (Sutherland-Hodgman)."""
+    side = (polygon - point) @ outward
+    kept = []
+    for k in range(len(polygon)):
+        following = (k + 1) % len(polygon)
+        if side[k] >= 0:
+            kept.append(polygon[k])
+        if (side[k] >= 0) != (side[following] >= 0):
+            t = side[k] / (side[k] - side[following])
+            kept.append(polygon[k] + t * (polygon[following] - polygon[k]))
+    return np.array(kept).reshape(-1, 2)
+
+
 def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius: float, blur_sigma_px: float = 0.0,
-                    max_spacing_px: float = 0.5, bevel_length: float = 0.0
+                    max_spacing_px: float = 0.5, bevel_length: float = 0.0, end_caps: bool = False
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel response to a tube (flat ends) around a centerline given in the camera's optical frame: the
     covered fraction of each pixel's area, through a Gaussian point spread of ``blur_sigma_px``.
     ``bevel_length`` > 0 [m]: the last end is bevelled as seen side-on: its silhouette is a wedge, one edge
     straight up to the tip (the bevel's point, on the side of the image normal (-d_y, d_x) of the end direction
     d), the other converging on it linearly from ``bevel_length`` before the tip; the wedge's exact area coverage
-    is blurred by the point spread in both directions (along the needle too).
+    is blurred by the point spread in both directions (along the needle too). ``end_caps``: each flat end also
+    shows the half of its end disc (radius ``radius``, square to the end's tangent) that its projection puts
+    beyond the flat cut: an ellipse of half axis ~``radius * |cos|`` (the angle between the tangent and the viewing
+    ray) along the needle, nothing seen side-on, a whole disc seen end-on.
 
     Returns ``(rows, cols, coverage)`` of the pixels the tube touches. The centerline is resampled so that its
     projection has vertices at most ``max_spacing_px`` apart; the local half-width is the projected distance
@@ -269,9 +297,13 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
     coverage = _band_coverage(best[:, 3], best[:, :2], best[:, 2], blur_sigma_px)
     ends = ((centres[0], end_tangents[0]),) if bevel_length > 0 else ((centres[0], end_tangents[0]),
                                                                        (centres[-1], end_tangents[1]))
-    for end, outward in ends:
+    for (end, outward), point, inward in zip(ends, points[[0, -1]], (points[1] - points[0], points[-2] - points[-1])):
         near = np.linalg.norm(pixels - end, axis=1) < half_width.max() + 5 + 4 * blur_sigma_px  # + extension
         coverage[near] *= _end_fraction(-(pixels[near] - end) @ outward, outward, blur_sigma_px)
+        if end_caps:
+            cap = _half_plane(project(_disc(point, inward, radius)), end, outward)
+            if len(cap) >= 3:
+                coverage[near] += _polygon_coverage(pixels[near], cap, blur_sigma_px, outward)
     if bevel_length > 0:
         # Subtract the band beyond the wedge: from the bevel's start on the far edge to the point on the near
         # edge, then straight on. Pixels whose quadrature samples all lie past the tip (``reach``: the pixel's
@@ -314,14 +346,15 @@ def render_background_pair(rig: StereoRig, rng: np.random.Generator, *, scene: S
 
 def render_stereo_pair(rig: StereoRig, centerline_points_world: np.ndarray, radius: float,
                        rng: np.random.Generator, *, scene: Scene | None = None,
-                       imaging: Imaging = Imaging(), encoding: str = "mono8", bevel_length: float = 0.0
-                       ) -> tuple[np.ndarray, np.ndarray]:
+                       imaging: Imaging = Imaging(), encoding: str = "mono8", bevel_length: float = 0.0,
+                       end_caps: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Left and right images of a tube of ``radius`` [m] around ``centerline_points_world`` ``(n, 3)`` [m].
 
     The centerline is taken as the polyline through the points (give them densely, e.g. every 0.5 mm).
     ``encoding``: mono8, mono16, bgr8 or rgb8. ``scene`` defaults to ``make_scene(rig, rng(0))`` (make it once
     and pass it when rendering many frames: it costs ~0.1 s). ``bevel_length`` [m]: the last point's end
-    bevelled over that length (see :func:`needle_coverage`; 0: cut flat).
+    bevelled over that length (see :func:`needle_coverage`; 0: cut flat); ``end_caps``: the flat ends show their end
+    discs (see there).
     """
     points = np.asarray(centerline_points_world, dtype=float)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2 or not np.all(np.isfinite(points)):
@@ -336,7 +369,7 @@ def render_stereo_pair(rig: StereoRig, centerline_points_world: np.ndarray, radi
         if np.any(points_camera[:, 2] <= radius):
             raise ValueError(f"part of the needle is behind the {side} camera")
         rows, cols, coverage = needle_coverage(camera, points_camera, radius, imaging.blur_sigma_px,
-                                               bevel_length=bevel_length)
+                                               bevel_length=bevel_length, end_caps=end_caps)
         albedo[rows, cols] = (1 - coverage) * albedo[rows, cols] + coverage * scene.needle_albedo
         images.append(_expose(scene.illumination[k] * albedo, rng, imaging, encoding))
     return images[0], images[1]

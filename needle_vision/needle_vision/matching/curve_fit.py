@@ -414,7 +414,7 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
               views: tuple[np.ndarray, np.ndarray], noise: tuple[np.ndarray, np.ndarray],
               projections: tuple[np.ndarray, np.ndarray], *,
               knot_spacing: float, bending_weight: float, end_noise_px: float, max_gap: float,
-              sample_spacing: float, noise_inflation: float, iterations: int = 4, huber: float = 3.0,
+              sample_spacing: float, noise_inflation: float, iterations: int = 2, huber: float = 3.0,
               stride: int = 2) -> CurveFit | None:
     """Fit the curve (module docstring) to the rectified image centerlines ``views`` (left, right; ``(n, 2)``
     each, ordered along the needle, either direction) with per-point ``noise`` [px], from the ordered
@@ -457,7 +457,7 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
                                            feet[view_index == k]) for k, (v, m) in enumerate(zip(views, merged))])
     for k, view in enumerate(views):
         part = everything[:len(view)] if k == 0 else everything[len(views[0]):]
-        _feet(control, h, segments, length, projections[k], np.ascontiguousarray(view, dtype=float), part, False, 2)
+        _feet(control, h, segments, length, projections[k], np.ascontiguousarray(view, dtype=float), part, False, 1)
     all_views = np.concatenate([np.zeros(len(views[0]), np.int64), np.ones(len(views[1]), np.int64)])
     supported = _support(parameters, everything, np.ones(len(everything), np.bool_), all_views, length, max_gap)
     return CurveFit(points, tangents, sigma, supported, float(rms))

@@ -10,7 +10,7 @@ uncertainty propagated from the measured image noise (calibration error is not i
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numba
 import numpy as np
@@ -36,6 +36,9 @@ CORRELATED_NOISE_POINTS = 20
 #: Arc length [m] of the anchored stretch beside a stretch placed by continuity over which the needle's bending in
 #: depth, the scale of that stretch's unseen bending, is fitted (a quadratic; 0.1 mm of depth noise: ~1/m).
 CURVATURE_SPAN = 20e-3
+#: How far beyond a flat end each view puts it, over the half axis of its end disc's projection along the needle: the
+#: band-integrated profile of that half ellipse falls to half its level at sqrt(3)/2 of it (its chord's half width).
+END_CAP_CROSSING = math.sqrt(3.0) / 2
 #: ``uncertainty`` of a sample in a gap (no triangulated point within ``max_gap``): interpolated, not measured.
 UNMEASURED = -1.0
 
@@ -63,6 +66,7 @@ class ReconstructionConfig:
     knot_spacing: float = 5e-3        # [m] control point spacing of the fitted curve
     bending_weight: float = 10.0      # [m] weight of the bending-energy prior (integral of |C''|^2) of the fit
     end_noise_px: float = 0.1         # [px] 1-sigma error of the image ends in the fit
+    needle_radius: float = 0.0        # [m] its flat ends' discs lengthen the images (0: not corrected)
     base_point: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [m] near the base, output frame
 
 
@@ -287,6 +291,11 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
                            output_from_left: RigidTransform) -> Triangulation:
     """Rectify, correspond, triangulate and reject outliers (the part that does not depend on earlier frames);
     raises MatchError when too few points remain."""
+    if config.needle_radius > 0:
+        first = triangulate_centerline(left, right, rectification, matching,
+                                       replace(config, needle_radius=0.0, curve_fit=False), RigidTransform())
+        left, right = (_without_end_caps(centerline, side, first.points, rectification, config.needle_radius)
+                       for centerline, side in ((left, "left"), (right, "right")))
     scatter = max(left.noise_px, right.noise_px)
     if scatter > config.max_image_scatter:
         raise ImplausibleError(f"implausible: image centerline scatters {scatter:.2f} px across the curve "
@@ -340,6 +349,42 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     return Triangulation(output_from_left.apply(points), point_sigma, per_disparity * _slide(slope),
                          anchored, spacing, left, right,
                          None if fit is None else (output_from_left.apply(fit[0]), fit[1], fit[2]))
+
+
+def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray, rectification: Rectification,
+                      radius: float) -> ImageCenterline:
+    """``centerline`` of camera ``side`` shortened at each end by what the end's disc (``radius``, square to the
+    needle) adds beyond the flat cut: a half ellipse of half axis a = f radius |cos theta| / Z along the needle
+    (theta between the end's tangent and the viewing ray, Z the end's distance; from the first triangulation
+    ``points``, raw left frame), whose half-contrast point lies END_CAP_CROSSING a beyond the end (tapered ends:
+    not moved)."""
+    rig = rectification.rig
+    camera, centre = (rig.left, np.zeros(3)) if side == "left" else (rig.right, rig.left_from_right.translation)
+    ends = points[[0, -1]]
+    tangents = ends - points[[min(5, len(points) - 1), max(len(points) - 6, 0)]]
+    projected = rectification.project_rectified(ends, side)
+    image_ends = rectification.rectify(centerline.points[[0, -1]], side)
+    if (np.linalg.norm(image_ends - projected, axis=1).sum()
+            > np.linalg.norm(image_ends - projected[::-1], axis=1).sum()):  # this view's curve runs the other way
+        ends, tangents = ends[::-1], tangents[::-1]
+    cuts = []
+    for end, tangent, taper in zip(ends, tangents, centerline.end_taper_px):
+        if taper > 0:  # a bevel seen side-on, already placed from its fitted taper
+            cuts.append(0.0)
+            continue
+        ray = end - centre
+        distance = float(np.linalg.norm(ray))
+        cosine = abs(float(tangent @ ray)) / max(float(np.linalg.norm(tangent)) * distance, 1e-12)
+        cuts.append(END_CAP_CROSSING * camera.camera_matrix[0, 0] * radius * min(cosine, 1.0) / distance)
+    arc = arc_length(centerline.points)
+    start, stop = cuts[0], arc[-1] - cuts[1]
+    if stop - start < 0.5 * arc[-1]:
+        return centerline
+    new_arc = np.concatenate([[start], arc[(arc > start) & (arc < stop)], [stop]])
+    return replace(centerline, points=np.column_stack([np.interp(new_arc, arc, centerline.points[:, k])
+                                                       for k in range(2)]),
+                   contrast=np.interp(new_arc, arc, centerline.contrast),
+                   local_noise_px=np.interp(new_arc, arc, centerline.local_noise_px))
 
 
 def _slide(sin_angle: np.ndarray) -> np.ndarray:
