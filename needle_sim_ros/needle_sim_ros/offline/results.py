@@ -1,5 +1,8 @@
-"""Reading a pipeline log back (the live ``needle_compare`` recording or an offline run's MCAP) with the ``mcap``
-ROS 2 decoder (no rclpy), plus the ground truth of a synthetic bag, as plain arrays for plots and reports.
+"""A pipeline log (the live ``needle_compare`` recording or an offline run) as plain arrays for plots and reports,
+plus the ground truth of a synthetic bag.
+
+:class:`LogCollector` takes the serialized messages (CDR, read straight from the bytes: no message objects) as the
+offline pipeline writes them, or as :func:`read_pipeline_log` reads them back from an MCAP file.
 
 The comparison's error against the measurement mixes two errors; for the synthetic bags the ground truth separates
 them: :func:`versus_ground_truth` measures the model and the measurement each against the true centerline at the
@@ -7,13 +10,11 @@ measurement instants (same distance as the comparison: RMS of point-to-centerlin
 """
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from geometry_msgs.msg import WrenchStamped
-from needle_interfaces.msg import NeedleShape, ShapeError
-from rclpy.serialization import deserialize_message
 
 from needle_sim_ros.comparison import CenterlineSamples, compare_centerlines
 from needle_common.bag_reader import BagReader
@@ -22,18 +23,9 @@ NS = 1_000_000_000
 MODEL_TOPIC, MEASURED_TOPIC = "/needle/shape", "/needle/measured_shape"
 ERROR_TOPIC, WRENCH_TOPIC = "/shape_error", "/wrench"
 TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC = "/ground_truth/shape", "/ground_truth/wrench"
-
-
-def _time_ns(time) -> int:
-    return int(time.sec) * NS + int(time.nanosec)
-
-
-def _stamp(header) -> int:
-    return _time_ns(header.stamp)
-
-
-def _points(shape) -> np.ndarray:
-    return np.array([[p.x, p.y, p.z] for p in shape.points], dtype=float).reshape(-1, 3)
+TRUTH_TOPICS = (TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC)
+_STAMP, _UINT32 = struct.Struct("<iI"), struct.Struct("<I")
+_WRENCH, _ERROR_VALUES = struct.Struct("<6d"), struct.Struct("<3d")  # force, torque; rmse, max and tip error
 
 
 @dataclass
@@ -64,56 +56,92 @@ class PipelineLog:
         return (np.asarray(stamps_ns, dtype=np.int64) - self.start_ns) / NS
 
 
-MESSAGE_TYPES = {MODEL_TOPIC: NeedleShape, MEASURED_TOPIC: NeedleShape, ERROR_TOPIC: ShapeError,
-                 WRENCH_TOPIC: WrenchStamped, TRUTH_SHAPE_TOPIC: NeedleShape, TRUTH_WRENCH_TOPIC: WrenchStamped}
+class _Cdr:
+    """Reads a serialized message (XCDR1 little endian) field by field, aligned from the payload's start."""
+
+    def __init__(self, data: bytes | memoryview) -> None:
+        self.data, self.offset = data, 4
+
+    def take(self, fmt: struct.Struct, alignment: int) -> tuple:
+        self.offset += -(self.offset - 4) % alignment
+        values = fmt.unpack_from(self.data, self.offset)
+        self.offset += fmt.size
+        return values
+
+    def stamp(self) -> int:
+        sec, nanosec = self.take(_STAMP, 4)
+        return sec * NS + nanosec
+
+    def header(self) -> int:
+        """The header's stamp [ns]; its frame_id is skipped (as any string)."""
+        stamp = self.stamp()
+        self.skip_string()
+        return stamp
+
+    def skip_string(self) -> None:
+        (length,) = self.take(_UINT32, 4)
+        self.offset += length
+
+    def points(self) -> np.ndarray:
+        """A sequence of geometry_msgs/Point as (n, 3) floats (a copy)."""
+        (count,) = self.take(_UINT32, 4)
+        self.offset += -(self.offset - 4) % 8 if count else 0
+        return np.frombuffer(self.data, "<f8", 3 * count, self.offset).reshape(-1, 3).astype(float)
 
 
-def _decoded(reader: BagReader, topics: set[str]):
-    """(topic, message) of ``topics``, deserialized by rclpy's C code (the mcap library's dynamic Python decoder
-    took 2.3 s for the 7800 messages of a 6.2 s dynamic_pitch log)."""
-    for message in reader.messages(topics):
-        yield message.topic, deserialize_message(bytes(message.data), MESSAGE_TYPES[message.topic])
+class LogCollector:
+    """The log's series, message by message (serialized bytes of the topics above, others ignored)."""
+
+    def __init__(self) -> None:
+        self.model_shapes: dict[int, np.ndarray] = {}
+        self.measured_shapes: dict[int, np.ndarray] = {}
+        self.truth_shapes: dict[int, np.ndarray] = {}
+        self.wrenches: dict[str, list[tuple]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
+        self.errors: list[tuple[int, int, int, float, float, float]] = []
+        self.shapes = {MODEL_TOPIC: self.model_shapes, MEASURED_TOPIC: self.measured_shapes,
+                       TRUTH_SHAPE_TOPIC: self.truth_shapes}
+
+    def add(self, topic: str, data: bytes | memoryview) -> None:
+        cdr = _Cdr(data)
+        if topic in self.shapes:
+            stamp = cdr.header()
+            cdr.skip_string()  # source
+            self.shapes[topic][stamp] = cdr.points()
+        elif topic in self.wrenches:
+            self.wrenches[topic].append((cdr.header(), *cdr.take(_WRENCH, 8)))
+        elif topic == ERROR_TOPIC:
+            stamp = cdr.header()
+            model, measurement = cdr.stamp(), cdr.stamp()
+            self.errors.append((stamp, measurement, model, *cdr.take(_ERROR_VALUES, 8)))
+
+    def log(self, start_ns: int) -> PipelineLog:
+        errors = sorted(self.errors, key=lambda error: error[0])
+        times = np.array([error[1:3] for error in errors], dtype=np.int64).reshape(-1, 2)
+        values = np.array([error[3:] for error in errors], dtype=float).reshape(-1, 3)
+        return PipelineLog(start_ns, self.model_shapes, self.measured_shapes, self.truth_shapes, times[:, 0],
+                           times[:, 1], values[:, 0], values[:, 1], values[:, 2],
+                           *(_series(self.wrenches[t]) for t in (WRENCH_TOPIC, TRUTH_WRENCH_TOPIC)))
 
 
-def _wrench(messages: list) -> WrenchSeries | None:
-    if not messages:
+def _series(rows: list[tuple]) -> WrenchSeries | None:
+    if not rows:
         return None
-    return WrenchSeries(np.array([_stamp(m.header) for m in messages], dtype=np.int64),
-                        np.array([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for m in messages]),
-                        np.array([[m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z] for m in messages]))
+    values = np.array([row[1:] for row in rows], dtype=float)
+    return WrenchSeries(np.array([row[0] for row in rows], dtype=np.int64), values[:, :3], values[:, 3:])
 
 
 def read_pipeline_log(log: str | Path, bag: str | Path | None = None) -> PipelineLog:
     """Decode ``log`` (model/measured shapes, errors, wrench) and, if given, the bag's (.mcap file or bag
     directory) ground truth and start; a corrupt chunk of the bag is skipped (the comparison skipped it already)."""
-    truth = BagReader(bag) if bag is not None else None
-    result = PipelineLog(start_ns=0)
-    wrenches, truth_wrenches, errors = [], [], []
-    for topic, msg in _decoded(BagReader(log), {MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC}):
-        if topic == MODEL_TOPIC:
-            result.model_shapes[_stamp(msg.header)] = _points(msg)
-        elif topic == MEASURED_TOPIC:
-            result.measured_shapes[_stamp(msg.header)] = _points(msg)
-        elif topic == ERROR_TOPIC:
-            errors.append(msg)
-        else:
-            wrenches.append(msg)
-    if truth is not None:  # a corrupt chunk is skipped (the pipeline's reader counted it: summary corrupt_chunks)
-        for topic, msg in _decoded(truth, {TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC}):
-            if topic == TRUTH_SHAPE_TOPIC:
-                result.truth_shapes[_stamp(msg.header)] = _points(msg)
-            else:
-                truth_wrenches.append(msg)
-    result.start_ns = truth.start_time_ns if truth is not None else min(
-        [*result.model_shapes, *result.measured_shapes], default=0)
-    errors.sort(key=lambda m: _stamp(m.header))
-    result.error_times = np.array([_time_ns(m.measurement_stamp) for m in errors], dtype=np.int64)
-    result.model_times = np.array([_time_ns(m.model_stamp) for m in errors], dtype=np.int64)
-    result.rmse = np.array([m.rmse for m in errors])
-    result.max_error = np.array([m.max_error for m in errors])
-    result.tip_error = np.array([m.tip_error for m in errors])
-    result.wrench, result.truth_wrench = _wrench(wrenches), _wrench(truth_wrenches)
-    return result
+    collector = LogCollector()
+    for message in BagReader(log).messages([MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC]):
+        collector.add(message.topic, message.data)
+    if bag is None:
+        return collector.log(min([*collector.model_shapes, *collector.measured_shapes], default=0))
+    truth = BagReader(bag)
+    for message in truth.messages(TRUTH_TOPICS):
+        collector.add(message.topic, message.data)
+    return collector.log(truth.start_time_ns)
 
 
 def _rms_distance(reference: np.ndarray, points: np.ndarray) -> float:
