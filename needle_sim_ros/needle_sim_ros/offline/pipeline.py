@@ -42,9 +42,8 @@ from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, Ster
                                            simulator_values, stereo_values)
 from needle_common.bag_reader import BagReader, BagReadError
 from needle_common.qos import OfferedQos
-from needle_sim_ros.recording import WriterOptions
+from needle_sim_ros.recording import McapBagWriter, WriterOptions
 from needle_sim_ros.recording.playback import EXPECTED_TYPES
-from needle_sim_ros.recording.background_writer import BackgroundBagWriter
 
 NS = 1_000_000_000
 # Output topics (as the live pipeline names them) -> (type, offered QoS of the live publisher).
@@ -139,7 +138,7 @@ class OfflinePipeline:
                                  "that starts late clamps the needle elsewhere than the recording did")
         self.writer = None
         if output is not None:
-            self.writer = BackgroundBagWriter(output, WriterOptions(overwrite=True))
+            self.writer = McapBagWriter(output, WriterOptions(overwrite=True))
             wrench_qos = OfferedQos(depth=100, reliability="reliable" if self.parameters["needle_simulator"][
                 "qos.wrench"] == "reliable" else "best_effort")
             outputs = {**OUTPUT_TOPICS, "/wrench": (OUTPUT_TOPICS["/wrench"][0], wrench_qos)}
