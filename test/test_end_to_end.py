@@ -138,10 +138,11 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     from needle_common.cdr import pose_stamped
     from needle_sim_ros.messages.shape import model_shape_cdr
     from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
-    from needle_sim_ros.offline.stages import SimulatorStage, simulator_values
+    from needle_sim_ros.offline.stages import SimulatorStage
+    from needle_sim_ros.parameters.experiment import node_parameters
     from needle_sim_ros.simulation import simulation_from_parameters
 
-    p = simulator_values({"needle.elements": 6, "rates.shape_hz": 100.0})
+    p = node_parameters("needle_simulator", {"needle.elements": 6, "rates.shape_hz": 100.0})
     clock = [1_000_000_000 + 10_000_000 * k for k in range(21)]  # [ns] a pose every 10 ms, stamped with the clock
     poses = []
     for now in clock:

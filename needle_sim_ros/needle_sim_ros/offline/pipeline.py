@@ -20,10 +20,9 @@ from __future__ import annotations
 
 import struct
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape
@@ -38,8 +37,7 @@ from needle_sim_ros.messages.shape import model_shape_cdr
 from needle_sim_ros.parameters.compare import DISPLAY_TOPICS
 from needle_sim_ros.parameters.experiment import ExperimentConfig
 from needle_sim_ros.offline.results import TRUTH_TOPICS, LogCollector, PipelineLog
-from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
-                                           simulator_values, stereo_values)
+from needle_sim_ros.offline.stages import ComparisonStage, SimulatorStage, StereoStage, stereo_values
 from needle_common.bag_reader import BagReader, BagReadError
 from needle_common.qos import OfferedQos
 from needle_sim_ros.recording import McapBagWriter, WriterOptions
@@ -94,8 +92,8 @@ class OfflinePipeline:
         overrides = overrides or {}
         self.experiment = experiment
         self.warnings: list[str] = []
-        sim_values = simulator_values(experiment.values("needle_simulator", overrides.get("needle_simulator")))
-        cmp_values = compare_values(experiment.values("needle_compare", overrides.get("needle_compare")))
+        sim_values = experiment.values("needle_simulator", overrides.get("needle_simulator"))
+        cmp_values = experiment.values("needle_compare", overrides.get("needle_compare"))
         self.parameters = {"needle_simulator": sim_values, "needle_compare": cmp_values}
         self.simulator = SimulatorStage(sim_values)
         self.comparison = ComparisonStage(cmp_values)
@@ -152,6 +150,8 @@ class OfflinePipeline:
         last_progress = begin
         stereo_poses = self.stereo.base_pose_topic if self.stereo is not None else ""
         pose_topics = ("/base_pose", stereo_poses)
+        simulator_inputs = {"/base_pose": self.simulator.on_pose, "/base_twist": self.simulator.on_twist,
+                            "/tip_load": self.simulator.on_tip_load}
         try:
             for message in reader.messages(topics, start_time_ns=begin):
                 now = message.log_time_ns
@@ -171,14 +171,8 @@ class OfflinePipeline:
                     continue
                 if message.topic == stereo_poses:  # the stereo node's base_pose.topic (may be the simulator's)
                     self.stereo.on_base_pose(msg)
-                if message.topic in ("/base_pose", "/base_twist", "/tip_load"):
-                    with self._timed("simulator"):
-                        if message.topic == "/base_pose":
-                            self.simulator.on_pose(msg, now)
-                        elif message.topic == "/base_twist":
-                            self.simulator.on_twist(msg, now)
-                        else:
-                            self.simulator.on_tip_load(msg)
+                if message.topic in simulator_inputs:
+                    self._timed("simulator", simulator_inputs[message.topic], msg, now)
                     if message.topic == "/base_pose":
                         self._write("/base_pose", bytes(message.data), now)
                 elif message.topic == "/needle/measured_shape":
@@ -186,9 +180,7 @@ class OfflinePipeline:
                 elif message.topic.endswith("camera_info"):
                     self.stereo.on_camera_info(message.topic.split("/")[1], msg)
                 elif not truth and message.topic in self.stereo.image_topics:
-                    with self._timed("stereo"):
-                        shapes = self.stereo.on_image(message.topic.split("/")[1], msg)
-                    for shape in shapes:
+                    for shape in self._timed("stereo", self.stereo.on_image, message.topic.split("/")[1], msg):
                         self._measured(shape, now)
                 if progress is not None and now - last_progress >= NS // 10:
                     progress((now - begin) / NS)
@@ -217,11 +209,12 @@ class OfflinePipeline:
         }
         return OfflineRun(summary, output, self.collector.log(reader.start_time_ns))
 
-    @contextmanager
-    def _timed(self, stage: str) -> Iterator[None]:
+    def _timed(self, stage: str, function: Callable, *arguments) -> Any:
+        """``function(*arguments)``, its wall time added to the stage's."""
         start = time.perf_counter()
-        yield
+        result = function(*arguments)
         self.seconds[stage] += time.perf_counter() - start
+        return result
 
     def _write(self, topic: str, data: bytes | Any, now_ns: int) -> None:
         """Record an output message (serialized, or a message object) and collect it for the run's log."""
@@ -237,23 +230,17 @@ class OfflinePipeline:
 
     def _measured(self, msg: NeedleShape, now_ns: int) -> None:
         self._write("/needle/measured_shape", msg, now_ns)
-        with self._timed("comparison"):
-            outputs = self.comparison.on_measured(msg)
-        self._compared(outputs, now_ns)
+        self._compared(self._timed("comparison", self.comparison.on_measured, msg), now_ns)
 
     def _advance(self, now: int) -> None:
         """The simulator integrates up to the clock ``now``; its shapes go to the comparison."""
-        with self._timed("simulator"):
-            outputs = self.simulator.advance(now)
-        for kind, msg in outputs:
+        for kind, msg in self._timed("simulator", self.simulator.advance, now):
             if kind == "wrench":
                 self._write("/wrench", msg, now)
                 continue
             frame = self.simulator.p["frames.world"]
             self._write("/needle/shape", model_shape_cdr(msg, frame), now)
-            with self._timed("comparison"):
-                compared = self.comparison.on_model(msg, frame)
-            self._compared(compared, now)
+            self._compared(self._timed("comparison", self.comparison.on_model, msg, frame), now)
 
     def _prime_stereo(self, reader: BagReader, begin: int) -> None:
         """A slice that starts late still needs the needle-free background pairs from the bag's start."""

@@ -24,7 +24,8 @@ MODEL_TOPIC, MEASURED_TOPIC = "/needle/shape", "/needle/measured_shape"
 ERROR_TOPIC, WRENCH_TOPIC = "/shape_error", "/wrench"
 TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC = "/ground_truth/shape", "/ground_truth/wrench"
 TRUTH_TOPICS = (TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC)
-_STAMP, _UINT32 = struct.Struct("<iI"), struct.Struct("<I")
+_HEAD, _UINT32 = struct.Struct("<iII"), struct.Struct("<I")  # a header's stamp and its frame_id's length
+_STAMPS = struct.Struct("<iIiI")  # a ShapeError's model and measurement stamps
 _WRENCH, _ERROR_VALUES = struct.Struct("<6d"), struct.Struct("<3d")  # force, torque; rmse, max and tip error
 
 
@@ -56,63 +57,62 @@ class PipelineLog:
         return (np.asarray(stamps_ns, dtype=np.int64) - self.start_ns) / NS
 
 
-class _Cdr:
-    """Reads a serialized message (XCDR1 little endian) field by field, aligned from the payload's start."""
+def _header(data: bytes | memoryview) -> tuple[int, int]:
+    """(stamp [ns], offset after the frame_id) of a serialized message (XCDR1 little endian) that starts with a
+    std_msgs/Header."""
+    sec, nanosec, length = _HEAD.unpack_from(data, 4)
+    return sec * NS + nanosec, 16 + length
 
-    def __init__(self, data: bytes | memoryview) -> None:
-        self.data, self.offset = data, 4
 
-    def take(self, fmt: struct.Struct, alignment: int) -> tuple:
-        self.offset += -(self.offset - 4) % alignment
-        values = fmt.unpack_from(self.data, self.offset)
-        self.offset += fmt.size
-        return values
+def _aligned(offset: int, size: int) -> int:
+    return offset + -(offset - 4) % size  # CDR aligns from the payload's start, after the 4-byte encapsulation
 
-    def stamp(self) -> int:
-        sec, nanosec = self.take(_STAMP, 4)
-        return sec * NS + nanosec
 
-    def header(self) -> int:
-        """The header's stamp [ns]; its frame_id is skipped (as any string)."""
-        stamp = self.stamp()
-        self.skip_string()
-        return stamp
+def _wrench(data: bytes | memoryview) -> tuple:
+    """(stamp [ns], force (3), torque (3)) of a WrenchStamped."""
+    stamp, offset = _header(data)
+    return (stamp, *_WRENCH.unpack_from(data, _aligned(offset, 8)))
 
-    def skip_string(self) -> None:
-        (length,) = self.take(_UINT32, 4)
-        self.offset += length
 
-    def points(self) -> np.ndarray:
-        """A sequence of geometry_msgs/Point as (n, 3) floats (a copy)."""
-        (count,) = self.take(_UINT32, 4)
-        self.offset += -(self.offset - 4) % 8 if count else 0
-        return np.frombuffer(self.data, "<f8", 3 * count, self.offset).reshape(-1, 3).astype(float)
+def _shape(data: bytes | memoryview) -> tuple[int, np.ndarray]:
+    """(stamp [ns], points (n, 3), a copy) of a NeedleShape."""
+    stamp, offset = _header(data)
+    offset = _aligned(offset, 4)
+    offset = _aligned(offset + 4 + _UINT32.unpack_from(data, offset)[0], 4)  # after the source string
+    (count,) = _UINT32.unpack_from(data, offset)
+    offset = _aligned(offset + 4, 8) if count else offset + 4
+    return stamp, np.frombuffer(data, "<f8", 3 * count, offset).reshape(-1, 3).copy()
+
+
+def _error(data: bytes | memoryview) -> tuple:
+    """(stamp, measurement stamp, model stamp [ns], rmse, max error, tip error [m]) of a ShapeError."""
+    stamp, offset = _header(data)
+    offset = _aligned(offset, 4)
+    model_sec, model_nanosec, sec, nanosec = _STAMPS.unpack_from(data, offset)
+    return (stamp, sec * NS + nanosec, model_sec * NS + model_nanosec,
+            *_ERROR_VALUES.unpack_from(data, _aligned(offset + _STAMPS.size, 8)))
 
 
 class LogCollector:
-    """The log's series, message by message (serialized bytes of the topics above, others ignored)."""
+    """The log's series, message by message (serialized messages of the topics above, others ignored)."""
 
     def __init__(self) -> None:
         self.model_shapes: dict[int, np.ndarray] = {}
         self.measured_shapes: dict[int, np.ndarray] = {}
         self.truth_shapes: dict[int, np.ndarray] = {}
-        self.wrenches: dict[str, list[tuple]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
-        self.errors: list[tuple[int, int, int, float, float, float]] = []
         self.shapes = {MODEL_TOPIC: self.model_shapes, MEASURED_TOPIC: self.measured_shapes,
                        TRUTH_SHAPE_TOPIC: self.truth_shapes}
+        self.wrenches: dict[str, list[tuple]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
+        self.errors: list[tuple] = []
 
     def add(self, topic: str, data: bytes | memoryview) -> None:
-        cdr = _Cdr(data)
-        if topic in self.shapes:
-            stamp = cdr.header()
-            cdr.skip_string()  # source
-            self.shapes[topic][stamp] = cdr.points()
-        elif topic in self.wrenches:
-            self.wrenches[topic].append((cdr.header(), *cdr.take(_WRENCH, 8)))
+        if topic in self.wrenches:
+            self.wrenches[topic].append(_wrench(data))
+        elif topic in self.shapes:
+            stamp, points = _shape(data)
+            self.shapes[topic][stamp] = points
         elif topic == ERROR_TOPIC:
-            stamp = cdr.header()
-            model, measurement = cdr.stamp(), cdr.stamp()
-            self.errors.append((stamp, measurement, model, *cdr.take(_ERROR_VALUES, 8)))
+            self.errors.append(_error(data))
 
     def log(self, start_ns: int) -> PipelineLog:
         errors = sorted(self.errors, key=lambda error: error[0])
