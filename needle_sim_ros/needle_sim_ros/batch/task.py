@@ -18,7 +18,7 @@ from needle_sim_ros.batch.grid import SPECS, ParameterSet, canonical, split_inde
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
 from needle_sim_ros.parameters.experiment import ExperimentConfig, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
-from needle_sim_ros.offline.results import PipelineLog, WrenchSeries
+from needle_sim_ros.offline.results import PipelineLog, wrench_differences
 
 METRICS = ("rmse_mean_m", "rmse_max_m", "tip_error_mean_m", "wrench_force_rms_n", "wrench_moment_rms_nm",
            "compared")
@@ -70,26 +70,6 @@ def run_pipeline(spec: TaskSpec) -> tuple[dict[str, Any], PipelineLog, OfflinePi
     pipeline = OfflinePipeline(experiment, resolved_overrides(experiment, spec.parameters))
     run = pipeline.run(Path(spec.bag), None, 0.0, spec.duration)
     return run.summary, run.log, pipeline
-
-
-def _model_at(series: WrenchSeries, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    force = np.column_stack([np.interp(times, series.times, series.force[:, i]) for i in range(3)])
-    torque = np.column_stack([np.interp(times, series.times, series.torque[:, i]) for i in range(3)])
-    return force, torque
-
-
-def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None:
-    """Model minus reference force [N] and moment [N m] at the reference stamps inside the model's time span
-    (model wrench interpolated linearly); None when the bag has no reference wrench or the model none there."""
-    model, reference = log.wrench, log.truth_wrench
-    if model is None or reference is None or model.times.size < 2:
-        return None
-    inside = (reference.times >= model.times[0]) & (reference.times <= model.times[-1])
-    if not np.any(inside):
-        return None
-    times = reference.times[inside].astype(float)
-    force, torque = _model_at(WrenchSeries(model.times.astype(float), model.force, model.torque), times)
-    return force - reference.force[inside], torque - reference.torque[inside]
 
 
 def _one_line(error: BaseException) -> str:

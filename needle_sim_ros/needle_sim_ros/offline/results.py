@@ -165,30 +165,40 @@ def versus_ground_truth(log: PipelineLog) -> dict[str, float | int | None]:
             **wrench_versus_reference(log)}
 
 
+def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None:
+    """Model minus reference force [N] and moment [N m] at the reference stamps inside the model's time span (the
+    model's wrench interpolated linearly between its steps); None when either series is missing or nothing
+    overlaps."""
+    model, reference = log.wrench, log.truth_wrench
+    if model is None or reference is None or model.times.size < 2:
+        return None
+    order = np.argsort(model.times)
+    times = model.times[order].astype(float)
+    inside = (reference.times >= times[0]) & (reference.times <= times[-1])
+    if not np.any(inside):
+        return None
+    at = reference.times[inside].astype(float)
+
+    def interpolated(values: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(at, times, values[order, i]) for i in range(3)])
+
+    return interpolated(model.force) - reference.force[inside], interpolated(model.torque) - reference.torque[inside]
+
+
 def wrench_versus_reference(log: PipelineLog) -> dict[str, float | int | None]:
     """RMS and largest error of the simulator's wrench against the bag's reference wrench (``/ground_truth/
-    wrench``): force [N] and torque [N m] error magnitudes at the reference stamps inside the simulated span, the
-    simulator's wrench interpolated linearly between its steps; ``wrench_reference_rms_n`` is the reference
-    force's own RMS magnitude, for scale.  None where either series is missing."""
-    model, truth = log.wrench, log.truth_wrench
+    wrench``): force [N] and torque [N m] error magnitudes (:func:`wrench_differences`); ``wrench_reference_rms_n``
+    is the reference force's own RMS magnitude there, for scale.  None where either series is missing."""
     keys = ("wrench_force_rms_n", "wrench_force_max_n", "wrench_torque_rms_nm", "wrench_torque_max_nm",
             "wrench_reference_rms_n")
-    if model is None or truth is None or model.times.size < 2:
+    differences = wrench_differences(log)
+    if differences is None:
         return {"wrench_samples": 0, **dict.fromkeys(keys)}
-    order = np.argsort(model.times)
-    times = model.times[order]
-    inside = (truth.times >= times[0]) & (truth.times <= times[-1])
-    at = truth.times[inside].astype(float)
-
-    def error(model_values: np.ndarray, truth_values: np.ndarray) -> np.ndarray:
-        interpolated = np.column_stack([np.interp(at, times.astype(float), model_values[order, i]) for i in range(3)])
-        return np.linalg.norm(interpolated - truth_values[inside], axis=1)
-
-    force, torque = error(model.force, truth.force), error(model.torque, truth.torque)
-    if force.size == 0:
-        return {"wrench_samples": 0, **dict.fromkeys(keys)}
+    force, torque = (np.linalg.norm(values, axis=1) for values in differences)
+    reference = log.truth_wrench
+    inside = (reference.times >= log.wrench.times.min()) & (reference.times <= log.wrench.times.max())
     rms = (lambda values: float(np.sqrt(np.mean(values**2))))
     return {"wrench_samples": int(force.size), "wrench_force_rms_n": rms(force),
             "wrench_force_max_n": float(force.max()), "wrench_torque_rms_nm": rms(torque),
             "wrench_torque_max_nm": float(torque.max()),
-            "wrench_reference_rms_n": rms(np.linalg.norm(truth.force[inside], axis=1))}
+            "wrench_reference_rms_n": rms(np.linalg.norm(reference.force[inside], axis=1))}
