@@ -76,11 +76,10 @@ def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose"
 
 @dataclass
 class OfflineRun:
-    """Result of one offline run: the summary written as JSON, the output file and its series (with the bag's
-    ground truth) as arrays."""
+    """Result of one offline run: the summary written as JSON and the run's series (with the bag's ground truth) as
+    arrays."""
 
     summary: dict[str, Any]
-    log_path: Path | None
     log: PipelineLog
 
 
@@ -207,7 +206,7 @@ class OfflinePipeline:
                 (reader.corrupt_chunks, "corrupt chunk(s)"), (undecodable, "undecodable message(s)")) if n],
             "corrupt_chunks": reader.corrupt_chunks, "undecodable_messages": undecodable,
         }
-        return OfflineRun(summary, output, self.collector.log(reader.start_time_ns))
+        return OfflineRun(summary, self.collector.log(reader.start_time_ns))
 
     def _timed(self, stage: str, function: Callable, *arguments) -> Any:
         """``function(*arguments)``, its wall time added to the stage's."""
