@@ -169,7 +169,7 @@ class OfflinePipeline:
                                            f"{now / NS:.9f} s ({error})") from error
                     continue
                 if message.topic == stereo_poses:  # the stereo node's base_pose.topic (may be the simulator's)
-                    self.stereo.on_base_pose(msg)
+                    self._timed("stereo", self.stereo.on_base_pose, msg)
                 if message.topic in simulator_inputs:
                     self._timed("simulator", simulator_inputs[message.topic], msg, now)
                     if message.topic == "/base_pose":
@@ -177,7 +177,7 @@ class OfflinePipeline:
                 elif message.topic == "/needle/measured_shape":
                     self._measured(msg, now)
                 elif message.topic.endswith("camera_info"):
-                    self.stereo.on_camera_info(message.topic.split("/")[1], msg)
+                    self._timed("stereo", self.stereo.on_camera_info, message.topic.split("/")[1], msg)
                 elif not truth and message.topic in self.stereo.image_topics:
                     for shape in self._timed("stereo", self.stereo.on_image, message.topic.split("/")[1], msg):
                         self._measured(shape, now)
