@@ -62,7 +62,7 @@ def test_offline_batch_mode_is_deterministic(offline_dynamic, tmp_path):
     # The same bag slice and parameters give the same comparisons to the last bit (no wall-clock dependence).
     run = OfflinePipeline(experiment_for_bag(DYNAMIC)).run(DYNAMIC, None, duration=DYNAMIC_SLICE)
     first = offline_dynamic["summary"]["comparison"]
-    assert len(run.errors) == first["compared"]
+    assert len(run.log.rmse) == first["compared"]
     # the summaries accumulate in the pipeline's own order, so equal runs give equal means to the last bit
     assert run.summary["comparison"] == first
 
@@ -91,8 +91,8 @@ def test_a_wrong_youngs_modulus_gives_a_clearly_larger_error():
     right = OfflinePipeline(experiment).run(STATIC, None, duration=3.1)
     wrong = OfflinePipeline(experiment, {"needle_simulator": {"needle.youngs_modulus": 1.3 * 193e9}}).run(
         STATIC, None, duration=3.1)
-    assert [e.header.stamp for e in right.errors] == [e.header.stamp for e in wrong.errors] and len(right.errors) == 2
-    loaded_right, loaded_wrong = right.errors[1].rmse, wrong.errors[1].rmse
+    assert list(right.log.error_times) == list(wrong.log.error_times) and len(right.log.error_times) == 2
+    loaded_right, loaded_wrong = right.log.rmse[1], wrong.log.rmse[1]
     radius, length = 0.635e-3, 0.27
     deflection = 0.02 * G * length**3 / (3 * 193e9 * np.pi * radius**4 / 4)
     assert loaded_right < PAPER_RMSE
@@ -138,10 +138,11 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     from needle_common.cdr import pose_stamped
     from needle_sim_ros.messages.shape import model_shape_cdr
     from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
-    from needle_sim_ros.offline.stages import SimulatorStage, simulator_values
+    from needle_sim_ros.offline.stages import SimulatorStage
+    from needle_sim_ros.parameters.experiment import node_parameters
     from needle_sim_ros.simulation import simulation_from_parameters
 
-    p = simulator_values({"needle.elements": 6, "rates.shape_hz": 100.0})
+    p = node_parameters("needle_simulator", {"needle.elements": 6, "rates.shape_hz": 100.0})
     clock = [1_000_000_000 + 10_000_000 * k for k in range(21)]  # [ns] a pose every 10 ms, stamped with the clock
     poses = []
     for now in clock:
@@ -227,6 +228,48 @@ def assert_log_decodes_identically(path: Path) -> dict[str, list]:
 def test_offline_log_decodes_message_by_message_with_two_independent_readers(offline_dynamic):
     decoded = assert_log_decodes_identically(offline_dynamic["dir"] / "pipeline.mcap")
     assert len(decoded["/shape_error"]) == 3 and len(decoded["/wrench"]) == 2600  # one wrench per 1 ms step
+
+
+def test_the_runs_own_series_are_what_its_log_and_the_bag_hold(tmp_path):
+    """The run keeps its series and the bag's ground truth as it goes (needle_offline and needle_batch read neither
+    file again): the same values as mcap's ROS 2 decoder gives for the written log and the bag, and as the reading
+    of a live log (read_pipeline_log) gives."""
+    from needle_sim_ros.offline.results import read_pipeline_log
+    log = tmp_path / "log.mcap"
+    run = OfflinePipeline(experiment_for_bag(DYNAMIC)).run(DYNAMIC, log, start_offset=0.5, duration=2.1)
+    written, bag = decode_with_mcap_ros2(log), decode_with_mcap_ros2(DYNAMIC)
+
+    def stamp(msg) -> int:
+        return msg.sec * 1_000_000_000 + msg.nanosec
+
+    def shapes(messages, since=0, until=np.inf) -> dict:
+        return {stamp(m.header.stamp): [[p.x, p.y, p.z] for p in m.points] for m in messages
+                if since <= stamp(m.header.stamp) <= until}
+
+    def wrenches(messages) -> list:
+        return [(stamp(m.header.stamp), m.wrench.force.x, m.wrench.force.y, m.wrench.force.z, m.wrench.torque.x,
+                 m.wrench.torque.y, m.wrench.torque.z) for m in messages]
+
+    def series(values) -> list:
+        return [(int(t), *f, *m) for t, f, m in zip(values.times, values.force, values.torque)]
+
+    for got in (run.log, read_pipeline_log(log, DYNAMIC)):
+        assert {t: p.tolist() for t, p in got.model_shapes.items()} == shapes(written["/needle/shape"])
+        assert {t: p.tolist() for t, p in got.measured_shapes.items()} == shapes(written["/needle/measured_shape"])
+        errors = written["/shape_error"]
+        assert len(errors) == 3 and got.rmse.tolist() == [e.rmse for e in errors]
+        assert got.error_times.tolist() == [stamp(e.measurement_stamp) for e in errors]
+        assert got.model_times.tolist() == [stamp(e.model_stamp) for e in errors]
+        assert series(got.wrench) == wrenches(written["/wrench"]) and len(got.wrench.times) == 2100
+        truth = shapes(bag["/ground_truth/shape"])
+        assert {t: p.tolist() for t, p in got.truth_shapes.items() if t in got.measured_shapes} == \
+            {t: truth[t] for t in got.measured_shapes}
+        first, last = got.wrench.times[0], got.wrench.times[-1]
+        inside = [w for w in wrenches(bag["/ground_truth/wrench"]) if first <= w[0] <= last]
+        assert [w for w in series(got.truth_wrench) if first <= w[0] <= last] == inside and len(inside) > 200
+    with open(DYNAMIC, "rb") as stream:
+        start = make_reader(stream).get_summary().statistics.message_start_time
+    assert run.log.start_ns == read_pipeline_log(log, DYNAMIC).start_ns == start
 
 
 def test_offline_pipeline_reads_compressed_image_topics_as_it_reads_raw_ones(offline_dynamic, tmp_path):

@@ -11,8 +11,7 @@ pytest.importorskip("pandas", reason="needle_batch needs pandas (pip install pan
 pytest.importorskip("distributed", reason="needle_batch needs dask[distributed]")
 
 from batch_fixtures import TRUE_TISSUE, write_identification_bags  # noqa: E402
-from needle_sim_ros.parameters.experiment import node_values  # noqa: E402
-from needle_sim_ros.offline.stages import simulator_values  # noqa: E402
+from needle_sim_ros.parameters.experiment import node_parameters, node_values  # noqa: E402
 
 
 def test_identify_recovers_known_tissue_parameters(tmp_path):
@@ -34,6 +33,6 @@ def test_identify_recovers_known_tissue_parameters(tmp_path):
     assert all(b["rms_final"] < b["rms_initial"] for b in report["per_bag"])
     history = (out / "fit_history.csv").read_text().splitlines()
     assert len(history) - 1 == report["evaluations"] >= 3
-    values = simulator_values(node_values([out / "identified_params.yaml"], "needle_simulator"))
+    values = node_parameters("needle_simulator", node_values([out / "identified_params.yaml"], "needle_simulator"))
     assert values["tissue.layers.tip_stiffness"] == [pytest.approx(report["estimate"][0])]
     assert values["tissue.layers.friction_coulomb"] == [pytest.approx(report["estimate"][1])]

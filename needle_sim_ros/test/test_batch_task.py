@@ -2,8 +2,7 @@
 import numpy as np
 import pytest
 
-from needle_sim_ros.batch.task import wrench_differences
-from needle_sim_ros.offline.results import PipelineLog, WrenchSeries
+from needle_sim_ros.offline.results import PipelineLog, WrenchSeries, wrench_differences
 
 NS = 1_000_000_000
 

@@ -65,9 +65,10 @@ def test_twists_must_be_finite_in_the_world_frame_and_within_the_limits():
 def test_the_offline_stage_takes_recorded_twists_as_the_node_does():
     from geometry_msgs.msg import TwistStamped
 
-    from needle_sim_ros.offline.stages import SimulatorStage, simulator_values
+    from needle_sim_ros.offline.stages import SimulatorStage
+    from needle_sim_ros.parameters.experiment import node_parameters
 
-    stage = SimulatorStage(simulator_values({}))
+    stage = SimulatorStage(node_parameters("needle_simulator", {}))
     twist = TwistStamped()
     twist.header.frame_id, twist.twist.linear.x = "world", 0.02
     stage.on_twist(twist, 2_000_000_000)

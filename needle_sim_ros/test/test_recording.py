@@ -26,7 +26,6 @@ from needle_common.qos import OfferedQos, parse_offered_qos_profiles
 from needle_sim_ros.recording import (McapBagWriter, RecordingError, WriterOptions, message_definition, recover,
                                       type_description_hash)
 from needle_sim_ros.recording import mcap_writer, recovery
-from needle_sim_ros.recording.background_writer import BackgroundBagWriter
 from needle_common.qos import DURATION_INFINITE_NS
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[1]
@@ -270,38 +269,6 @@ def complete_chunk_messages(path: Path) -> int:
     except Exception:  # the reader fails at the cut: whatever it yielded before is the complete part
         pass
     return count
-
-
-def test_background_writer_writes_what_the_writer_in_process_writes(tmp_path):
-    direct = tmp_path / "direct.mcap"
-    written = write_samples(direct, repeats=300)  # > one hand-over batch
-    background = BackgroundBagWriter(tmp_path / "background.mcap")
-    for topic, message in sample_messages().items():
-        background.add_topic(topic, type_name(message), [BEST_EFFORT] if topic == "/wrench" else (OfferedQos(),))
-    for message in BagReader(direct).messages():  # the same bytes (rclpy leaves CDR padding uninitialised)
-        background.write(message.topic, bytes(message.data), message.log_time_ns)
-    assert background.close() == [tmp_path / "background.mcap"]
-    read = [[(m.topic, m.log_time_ns, m.data) for m in BagReader(path).messages()]
-            for path in (direct, tmp_path / "background.mcap")]
-    assert read[0] == read[1] and len(read[0]) == len(written)
-    assert BagReader(tmp_path / "background.mcap").topics["/wrench"].offered_qos == (BEST_EFFORT,)
-
-
-def test_background_writer_reports_the_writers_errors(tmp_path):
-    existing = tmp_path / "old.mcap"
-    existing.write_text("keep me")
-    writer = BackgroundBagWriter(existing)
-    with pytest.raises(RecordingError, match="already exists"):
-        writer.close()
-    full = tmp_path / "full.mcap"
-    full.symlink_to("/dev/full")
-    writer = BackgroundBagWriter(full, WriterOptions(overwrite=True))
-    with pytest.raises(RecordingError, match="disk full"):
-        writer.add_topic("/wrench", "geometry_msgs/msg/WrenchStamped")
-        for k in range(5000):
-            writer.write("/wrench", serialize_message(WrenchStamped()), k)
-        writer.close()
-    assert existing.read_text() == "keep me"
 
 
 def test_sigkilled_writer_leaves_a_file_recoverable_up_to_the_last_complete_chunk(tmp_path):

@@ -7,7 +7,6 @@ Only paths and parameters travel through the scheduler; the worker reads the bag
 from __future__ import annotations
 
 import hashlib
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +18,7 @@ from needle_sim_ros.batch.grid import SPECS, ParameterSet, canonical, split_inde
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
 from needle_sim_ros.parameters.experiment import ExperimentConfig, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
-from needle_sim_ros.offline.results import PipelineLog, WrenchSeries, read_pipeline_log
+from needle_sim_ros.offline.results import PipelineLog, wrench_differences
 
 METRICS = ("rmse_mean_m", "rmse_max_m", "tip_error_mean_m", "wrench_force_rms_n", "wrench_moment_rms_nm",
            "compared")
@@ -63,34 +62,14 @@ def resolved_overrides(experiment: ExperimentConfig, parameters: ParameterSet) -
     return result
 
 
-def run_pipeline(spec: TaskSpec, output_dir: Path) -> tuple[dict[str, Any], PipelineLog, OfflinePipeline]:
-    """The offline pipeline over the task's bag; returns its summary, its decoded log and the pipeline."""
+def run_pipeline(spec: TaskSpec) -> tuple[dict[str, Any], PipelineLog, OfflinePipeline]:
+    """The offline pipeline over the task's bag (no MCAP written); returns its summary, its log and the pipeline."""
     if not Path(spec.bag).exists():
         raise FileNotFoundError(f"bag '{spec.bag}' does not exist")
     experiment = load_experiment(spec.experiment, Path(spec.config_dir) if spec.config_dir else None)
     pipeline = OfflinePipeline(experiment, resolved_overrides(experiment, spec.parameters))
-    run = pipeline.run(Path(spec.bag), output_dir / "pipeline.mcap", 0.0, spec.duration)
-    return run.summary, read_pipeline_log(run.log_path, spec.bag), pipeline
-
-
-def _model_at(series: WrenchSeries, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    force = np.column_stack([np.interp(times, series.times, series.force[:, i]) for i in range(3)])
-    torque = np.column_stack([np.interp(times, series.times, series.torque[:, i]) for i in range(3)])
-    return force, torque
-
-
-def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None:
-    """Model minus reference force [N] and moment [N m] at the reference stamps inside the model's time span
-    (model wrench interpolated linearly); None when the bag has no reference wrench or the model none there."""
-    model, reference = log.wrench, log.truth_wrench
-    if model is None or reference is None or model.times.size < 2:
-        return None
-    inside = (reference.times >= model.times[0]) & (reference.times <= model.times[-1])
-    if not np.any(inside):
-        return None
-    times = reference.times[inside].astype(float)
-    force, torque = _model_at(WrenchSeries(model.times.astype(float), model.force, model.torque), times)
-    return force - reference.force[inside], torque - reference.torque[inside]
+    run = pipeline.run(Path(spec.bag), None, 0.0, spec.duration)
+    return run.summary, run.log, pipeline
 
 
 def _one_line(error: BaseException) -> str:
@@ -107,8 +86,7 @@ def run_row(spec: TaskSpec) -> dict[str, Any]:
     """The table row of a task: metrics (None where unavailable), wall time, status and error message."""
     start = time.perf_counter()
     try:
-        with tempfile.TemporaryDirectory(prefix="needle_batch_") as folder:
-            summary, log, _ = run_pipeline(spec, Path(folder))
+        summary, log, _ = run_pipeline(spec)
         c = summary["comparison"]
         row: dict[str, Any] = {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS)}
         row.update(rmse_mean_m=c["rmse_mean_m"], rmse_max_m=c["rmse_max_m"], tip_error_mean_m=c["tip_error_mean_m"],
@@ -136,8 +114,7 @@ def run_residuals(spec: TaskSpec, scales: ResidualScales) -> np.ndarray:
     """Signed residual vector of a bag: per compared measurement, each measured sample (in the model frame) minus
     its closest point on the paired model centerline / ``scales.shape``; then model minus reference force and
     moment at the reference stamps / their scales (if the bag has a reference wrench)."""
-    with tempfile.TemporaryDirectory(prefix="needle_batch_") as folder:
-        _, log, pipeline = run_pipeline(spec, Path(folder))
+    _, log, pipeline = run_pipeline(spec)
     model_from_camera = pipeline.comparison.session.model_from_camera
     parts = []
     for measured_ns, model_ns in zip(log.error_times, log.model_times):

@@ -29,7 +29,7 @@ from needle_common.parameters import ParameterError
 from needle_sim_ros.parameters.experiment import NODES, ExperimentConfigError, experiment_for_bag, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
 from needle_sim_ros.offline.plots import write_plots
-from needle_sim_ros.offline.results import read_pipeline_log, versus_ground_truth
+from needle_sim_ros.offline.results import versus_ground_truth
 from needle_common.bag_reader import BagReader, BagReadError
 from needle_sim_ros.recording import RecordingError
 
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     name = args.bag.stem
     output_dir = args.output_dir or Path("out") / name / "offline"
     try:
-        reader = BagReader(args.bag)
+        reader = BagReader(args.bag, args.stop_on_corrupt)
         reader.check_start_offset(args.start_offset)
         experiment = load_experiment(args.experiment) if args.experiment else experiment_for_bag(args.bag)
         pipeline = OfflinePipeline(experiment, overrides, stereo=False if args.no_stereo else None)
@@ -135,10 +135,8 @@ def run_and_publish(args: argparse.Namespace, experiment, pipeline: OfflinePipel
                   bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s of bag [{elapsed}<{remaining}]") as bar:
             def progress(done: float) -> None:
                 bar.update(min(round(done, 3), bar.total) - bar.n)
-            run = pipeline.run(args.bag, staging / "pipeline.mcap", args.start_offset, args.duration, progress,
-                               args.stop_on_corrupt)
-        summary = run.summary
-        log = read_pipeline_log(run.log_path, args.bag)
+            run = pipeline.run(reader, staging / "pipeline.mcap", args.start_offset, args.duration, progress)
+        summary, log = run.summary, run.log
     except (ParameterError, BagReadError, ValueError) as error:
         print(f"needle_offline: error: {error}", file=sys.stderr)
         return 2

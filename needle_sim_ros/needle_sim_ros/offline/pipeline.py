@@ -12,19 +12,20 @@ The output MCAP holds what ``needle_compare`` records in the live pipeline (``/n
 ``/needle/measured_shape``, ``/shape_error``, ``/base_pose``, ``/wrench`` and the compared centerlines'
 ``/compare/{model,measured}/{path,marker}``), with the same topic names, so the plots, reports and the Foxglove
 layout read either (TF is not written: the displayed messages are in the model frame). Nothing here depends on
-wall time: the same bag and parameters give the same file.
+wall time: the same bag and parameters give the same file. The run's series (shapes, errors, wrench) and the bag's
+ground truth are collected on the way (:class:`~needle_sim_ros.offline.results.LogCollector`): neither file is
+read again for the summary and plots.
 """
 from __future__ import annotations
 
 import struct
 import time
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
 from geometry_msgs.msg import TwistStamped, WrenchStamped
-from needle_interfaces.msg import NeedleShape, ShapeError
+from needle_interfaces.msg import NeedleShape
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo
 
@@ -35,13 +36,12 @@ from needle_sim_ros.messages.centerline_display import DISPLAY_TYPES
 from needle_sim_ros.messages.shape import model_shape_cdr
 from needle_sim_ros.parameters.compare import DISPLAY_TOPICS
 from needle_sim_ros.parameters.experiment import ExperimentConfig
-from needle_sim_ros.offline.stages import (ComparisonStage, SimulatorStage, StereoStage, compare_values,
-                                           simulator_values, stereo_values)
+from needle_sim_ros.offline.results import TRUTH_TOPICS, LogCollector, PipelineLog
+from needle_sim_ros.offline.stages import ComparisonStage, SimulatorStage, StereoStage, stereo_values
 from needle_common.bag_reader import BagReader, BagReadError
 from needle_common.qos import OfferedQos
-from needle_sim_ros.recording import WriterOptions
+from needle_sim_ros.recording import McapBagWriter, WriterOptions
 from needle_sim_ros.recording.playback import EXPECTED_TYPES
-from needle_sim_ros.recording.background_writer import BackgroundBagWriter
 
 NS = 1_000_000_000
 # Output topics (as the live pipeline names them) -> (type, offered QoS of the live publisher).
@@ -76,11 +76,11 @@ def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose"
 
 @dataclass
 class OfflineRun:
-    """Result of one offline run: the summary written as JSON and the output files."""
+    """Result of one offline run: the summary written as JSON and the run's series (with the bag's ground truth) as
+    arrays."""
 
     summary: dict[str, Any]
-    log_path: Path | None
-    errors: list[ShapeError] = field(default_factory=list)
+    log: PipelineLog
 
 
 class OfflinePipeline:
@@ -91,8 +91,8 @@ class OfflinePipeline:
         overrides = overrides or {}
         self.experiment = experiment
         self.warnings: list[str] = []
-        sim_values = simulator_values(experiment.values("needle_simulator", overrides.get("needle_simulator")))
-        cmp_values = compare_values(experiment.values("needle_compare", overrides.get("needle_compare")))
+        sim_values = experiment.values("needle_simulator", overrides.get("needle_simulator"))
+        cmp_values = experiment.values("needle_compare", overrides.get("needle_compare"))
         self.parameters = {"needle_simulator": sim_values, "needle_compare": cmp_values}
         self.simulator = SimulatorStage(sim_values)
         self.comparison = ComparisonStage(cmp_values)
@@ -104,8 +104,9 @@ class OfflinePipeline:
             self.stereo = StereoStage(values)
 
     def input_topics(self, reader: BagReader) -> list[str]:
-        """The recorded input topics; ValueError naming the topic if one has another type than the nodes expect."""
-        topics = ["/base_pose", "/base_twist", "/tip_load"]
+        """The recorded input topics (and ground truth); ValueError naming the topic if one has another type than
+        the nodes expect."""
+        topics = ["/base_pose", "/base_twist", "/tip_load", *TRUTH_TOPICS]
         topics += [*self.stereo.image_topics, "/left/camera_info", "/right/camera_info", self.stereo.base_pose_topic] \
             if self.use_stereo else ["/needle/measured_shape"]
         topics = list(dict.fromkeys(t for t in topics if t in reader.topics))
@@ -114,12 +115,15 @@ class OfflinePipeline:
                 raise ValueError(f"bag '{reader.path}': topic '{topic}' has type '{recorded}', expected '{expected}'")
         return topics
 
-    def run(self, bag: Path, output: Path | None, start_offset: float = 0.0, duration: float | None = None,
-            progress: Callable[[float], None] | None = None, stop_on_corrupt: bool = False) -> OfflineRun:
-        """Process the bag slice [start + start_offset, + duration] (s); write the log to ``output`` (.mcap).
-        ``progress(seconds)`` is told the bag time processed so far, about every 0.1 s of it. Corrupt chunks and
-        undecodable messages are skipped and counted (``stop_on_corrupt``: BagReadError instead)."""
-        reader = BagReader(bag, stop_on_corrupt)
+    def run(self, bag: Path | BagReader, output: Path | None, start_offset: float = 0.0,
+            duration: float | None = None, progress: Callable[[float], None] | None = None,
+            stop_on_corrupt: bool = False) -> OfflineRun:
+        """Process the bag slice [start + start_offset, + duration] (s); write the log to ``output`` (.mcap), if
+        given. ``progress(seconds)`` is told the bag time processed so far, about every 0.1 s of it. Corrupt chunks
+        and undecodable messages are skipped and counted (``stop_on_corrupt``: BagReadError instead; a given
+        reader keeps its own setting)."""
+        reader = bag if isinstance(bag, BagReader) else BagReader(bag, stop_on_corrupt)
+        bag = reader.path
         undecodable = 0
         topics = self.input_topics(reader)
         if "/base_pose" not in topics:
@@ -131,13 +135,13 @@ class OfflinePipeline:
                                  "that starts late clamps the needle elsewhere than the recording did")
         self.writer = None
         if output is not None:
-            self.writer = BackgroundBagWriter(output, WriterOptions(overwrite=True))
+            self.writer = McapBagWriter(output, WriterOptions(overwrite=True))
             wrench_qos = OfferedQos(depth=100, reliability="reliable" if self.parameters["needle_simulator"][
                 "qos.wrench"] == "reliable" else "best_effort")
             outputs = {**OUTPUT_TOPICS, "/wrench": (OUTPUT_TOPICS["/wrench"][0], wrench_qos)}
             for topic, (type_name, qos) in outputs.items():
                 self.writer.add_topic(topic, type_name, (qos,))
-        self.errors = []
+        self.collector = LogCollector()
         self.seconds = dict.fromkeys(("simulator", "stereo", "comparison"), 0.0)
         wall_start = time.perf_counter()
         if self.stereo is not None and begin > reader.start_time_ns:
@@ -145,14 +149,19 @@ class OfflinePipeline:
         last_progress = begin
         stereo_poses = self.stereo.base_pose_topic if self.stereo is not None else ""
         pose_topics = ("/base_pose", stereo_poses)
+        simulator_inputs = {"/base_pose": self.simulator.on_pose, "/base_twist": self.simulator.on_twist,
+                            "/tip_load": self.simulator.on_tip_load}
         try:
             for message in reader.messages(topics, start_time_ns=begin):
                 now = message.log_time_ns
                 if now > end:
                     break
-                self._advance(now)
+                truth = message.topic in TRUTH_TOPICS  # for the run's log only: no stage receives it
+                if not truth:
+                    self._advance(now)
                 try:
-                    msg = decode(message.topic, message.data, pose_topics)
+                    msg = self.collector.add(message.topic, message.data) if truth else \
+                        decode(message.topic, message.data, pose_topics)
                 except DECODE_ERRORS as error:
                     undecodable += 1
                     if stop_on_corrupt:
@@ -160,25 +169,17 @@ class OfflinePipeline:
                                            f"{now / NS:.9f} s ({error})") from error
                     continue
                 if message.topic == stereo_poses:  # the stereo node's base_pose.topic (may be the simulator's)
-                    self.stereo.on_base_pose(msg)
-                if message.topic in ("/base_pose", "/base_twist", "/tip_load"):
-                    with self._timed("simulator"):
-                        if message.topic == "/base_pose":
-                            self.simulator.on_pose(msg, now)
-                        elif message.topic == "/base_twist":
-                            self.simulator.on_twist(msg, now)
-                        else:
-                            self.simulator.on_tip_load(msg)
+                    self._timed("stereo", self.stereo.on_base_pose, msg)
+                if message.topic in simulator_inputs:
+                    self._timed("simulator", simulator_inputs[message.topic], msg, now)
                     if message.topic == "/base_pose":
                         self._write("/base_pose", bytes(message.data), now)
                 elif message.topic == "/needle/measured_shape":
                     self._measured(msg, now)
                 elif message.topic.endswith("camera_info"):
-                    self.stereo.on_camera_info(message.topic.split("/")[1], msg)
-                elif message.topic in self.stereo.image_topics:
-                    with self._timed("stereo"):
-                        shapes = self.stereo.on_image(message.topic.split("/")[1], msg)
-                    for shape in shapes:
+                    self._timed("stereo", self.stereo.on_camera_info, message.topic.split("/")[1], msg)
+                elif not truth and message.topic in self.stereo.image_topics:
+                    for shape in self._timed("stereo", self.stereo.on_image, message.topic.split("/")[1], msg):
                         self._measured(shape, now)
                 if progress is not None and now - last_progress >= NS // 10:
                     progress((now - begin) / NS)
@@ -205,44 +206,40 @@ class OfflinePipeline:
                 (reader.corrupt_chunks, "corrupt chunk(s)"), (undecodable, "undecodable message(s)")) if n],
             "corrupt_chunks": reader.corrupt_chunks, "undecodable_messages": undecodable,
         }
-        return OfflineRun(summary, output, self.errors)
+        return OfflineRun(summary, self.collector.log(reader.start_time_ns))
 
-    @contextmanager
-    def _timed(self, stage: str) -> Iterator[None]:
+    def _timed(self, stage: str, function: Callable, *arguments) -> Any:
+        """``function(*arguments)``, its wall time added to the stage's."""
         start = time.perf_counter()
-        yield
+        result = function(*arguments)
         self.seconds[stage] += time.perf_counter() - start
+        return result
 
     def _write(self, topic: str, data: bytes | Any, now_ns: int) -> None:
+        """Record an output message (serialized, or a message object) and collect it for the run's log."""
+        data = data if isinstance(data, bytes) else serialize_message(data)
+        self.collector.add(topic, data)
         if self.writer is not None:
-            self.writer.write(topic, data if isinstance(data, bytes) else serialize_message(data), now_ns)
+            self.writer.write(topic, data, now_ns)
 
     def _compared(self, outputs: list[tuple[str, Any]], now_ns: int) -> None:
-        """The comparison stage's outputs: shape errors (kept) and the compared centerlines' display messages."""
+        """The comparison stage's outputs: shape errors and the compared centerlines' display messages."""
         for topic, msg in outputs:
-            if topic == "shape_error":
-                self.errors.append(msg)
             self._write(f"/{topic}", msg, now_ns)
 
     def _measured(self, msg: NeedleShape, now_ns: int) -> None:
         self._write("/needle/measured_shape", msg, now_ns)
-        with self._timed("comparison"):
-            outputs = self.comparison.on_measured(msg)
-        self._compared(outputs, now_ns)
+        self._compared(self._timed("comparison", self.comparison.on_measured, msg), now_ns)
 
     def _advance(self, now: int) -> None:
         """The simulator integrates up to the clock ``now``; its shapes go to the comparison."""
-        with self._timed("simulator"):
-            outputs = self.simulator.advance(now)
-        for kind, msg in outputs:
+        for kind, msg in self._timed("simulator", self.simulator.advance, now):
             if kind == "wrench":
                 self._write("/wrench", msg, now)
                 continue
             frame = self.simulator.p["frames.world"]
             self._write("/needle/shape", model_shape_cdr(msg, frame), now)
-            with self._timed("comparison"):
-                compared = self.comparison.on_model(msg, frame)
-            self._compared(compared, now)
+            self._compared(self._timed("comparison", self.comparison.on_model, msg, frame), now)
 
     def _prime_stereo(self, reader: BagReader, begin: int) -> None:
         """A slice that starts late still needs the needle-free background pairs from the bag's start."""

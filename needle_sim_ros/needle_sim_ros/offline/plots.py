@@ -18,6 +18,13 @@ def _pyplot():
     return plt
 
 
+def _saved(plt, fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def chosen_measurements(log: PipelineLog, instants: Sequence[float], count: int = 5) -> list[int]:
     """Indices of the compared measurements nearest to ``instants`` [s from the bag start] (without repeats);
     with no instants, ``count`` spread evenly over the run."""
@@ -56,10 +63,7 @@ def plot_centerlines(log: PipelineLog, instants: Sequence[float], path: Path, ti
     ax.set_title(title or "needle centerline: model vs measurement")
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _saved(plt, fig, path)
 
 
 def plot_errors(log: PipelineLog, path: Path, title: str = "") -> Path:
@@ -75,10 +79,7 @@ def plot_errors(log: PipelineLog, path: Path, title: str = "") -> Path:
     ax.set_title(title or "model vs measurement")
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _saved(plt, fig, path)
 
 
 def plot_wrench(log: PipelineLog, path: Path, title: str = "") -> Path:
@@ -100,10 +101,7 @@ def plot_wrench(log: PipelineLog, path: Path, title: str = "") -> Path:
     for axis in axes:
         axis.grid(True, alpha=0.4)
         axis.legend(fontsize=7, ncol=2, loc="best")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _saved(plt, fig, path)
 
 
 def write_plots(log: PipelineLog, directory: Path, instants: Sequence[float] = (), title: str = "") -> list[Path]:

@@ -1,5 +1,8 @@
-"""Reading a pipeline log back (the live ``needle_compare`` recording or an offline run's MCAP) with the ``mcap``
-ROS 2 decoder (no rclpy), plus the ground truth of a synthetic bag, as plain arrays for plots and reports.
+"""A pipeline log (the live ``needle_compare`` recording or an offline run) as plain arrays for plots and reports,
+plus the ground truth of a synthetic bag.
+
+:class:`LogCollector` takes the serialized messages (CDR, read straight from the bytes: no message objects) as the
+offline pipeline writes them, or as :func:`read_pipeline_log` reads them back from an MCAP file.
 
 The comparison's error against the measurement mixes two errors; for the synthetic bags the ground truth separates
 them: :func:`versus_ground_truth` measures the model and the measurement each against the true centerline at the
@@ -7,13 +10,11 @@ measurement instants (same distance as the comparison: RMS of point-to-centerlin
 """
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from geometry_msgs.msg import WrenchStamped
-from needle_interfaces.msg import NeedleShape, ShapeError
-from rclpy.serialization import deserialize_message
 
 from needle_sim_ros.comparison import CenterlineSamples, compare_centerlines
 from needle_common.bag_reader import BagReader
@@ -22,18 +23,10 @@ NS = 1_000_000_000
 MODEL_TOPIC, MEASURED_TOPIC = "/needle/shape", "/needle/measured_shape"
 ERROR_TOPIC, WRENCH_TOPIC = "/shape_error", "/wrench"
 TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC = "/ground_truth/shape", "/ground_truth/wrench"
-
-
-def _time_ns(time) -> int:
-    return int(time.sec) * NS + int(time.nanosec)
-
-
-def _stamp(header) -> int:
-    return _time_ns(header.stamp)
-
-
-def _points(shape) -> np.ndarray:
-    return np.array([[p.x, p.y, p.z] for p in shape.points], dtype=float).reshape(-1, 3)
+TRUTH_TOPICS = (TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC)
+_HEAD, _UINT32 = struct.Struct("<iII"), struct.Struct("<I")  # a header's stamp and its frame_id's length
+_STAMPS = struct.Struct("<iIiI")  # a ShapeError's model and measurement stamps
+_WRENCH, _ERROR_VALUES = struct.Struct("<6d"), struct.Struct("<3d")  # force, torque; rmse, max and tip error
 
 
 @dataclass
@@ -64,56 +57,91 @@ class PipelineLog:
         return (np.asarray(stamps_ns, dtype=np.int64) - self.start_ns) / NS
 
 
-MESSAGE_TYPES = {MODEL_TOPIC: NeedleShape, MEASURED_TOPIC: NeedleShape, ERROR_TOPIC: ShapeError,
-                 WRENCH_TOPIC: WrenchStamped, TRUTH_SHAPE_TOPIC: NeedleShape, TRUTH_WRENCH_TOPIC: WrenchStamped}
+def _header(data: bytes | memoryview) -> tuple[int, int]:
+    """(stamp [ns], offset after the frame_id) of a serialized message (XCDR1 little endian) that starts with a
+    std_msgs/Header."""
+    sec, nanosec, length = _HEAD.unpack_from(data, 4)
+    return sec * NS + nanosec, 16 + length
 
 
-def _decoded(reader: BagReader, topics: set[str]):
-    """(topic, message) of ``topics``, deserialized by rclpy's C code (the mcap library's dynamic Python decoder
-    took 2.3 s for the 7800 messages of a 6.2 s dynamic_pitch log)."""
-    for message in reader.messages(topics):
-        yield message.topic, deserialize_message(bytes(message.data), MESSAGE_TYPES[message.topic])
+def _aligned(offset: int, size: int) -> int:
+    return offset + -(offset - 4) % size  # CDR aligns from the payload's start, after the 4-byte encapsulation
 
 
-def _wrench(messages: list) -> WrenchSeries | None:
-    if not messages:
+def _wrench(data: bytes | memoryview) -> tuple:
+    """(stamp [ns], force (3), torque (3)) of a WrenchStamped."""
+    stamp, offset = _header(data)
+    return (stamp, *_WRENCH.unpack_from(data, _aligned(offset, 8)))
+
+
+def _shape(data: bytes | memoryview) -> tuple[int, np.ndarray]:
+    """(stamp [ns], points (n, 3), a copy) of a NeedleShape."""
+    stamp, offset = _header(data)
+    offset = _aligned(offset, 4)
+    offset = _aligned(offset + 4 + _UINT32.unpack_from(data, offset)[0], 4)  # after the source string
+    (count,) = _UINT32.unpack_from(data, offset)
+    offset = _aligned(offset + 4, 8) if count else offset + 4
+    return stamp, np.frombuffer(data, "<f8", 3 * count, offset).reshape(-1, 3).copy()
+
+
+def _error(data: bytes | memoryview) -> tuple:
+    """(stamp, measurement stamp, model stamp [ns], rmse, max error, tip error [m]) of a ShapeError."""
+    stamp, offset = _header(data)
+    offset = _aligned(offset, 4)
+    model_sec, model_nanosec, sec, nanosec = _STAMPS.unpack_from(data, offset)
+    return (stamp, sec * NS + nanosec, model_sec * NS + model_nanosec,
+            *_ERROR_VALUES.unpack_from(data, _aligned(offset + _STAMPS.size, 8)))
+
+
+class LogCollector:
+    """The log's series, message by message (serialized messages of the topics above, others ignored)."""
+
+    def __init__(self) -> None:
+        self.model_shapes: dict[int, np.ndarray] = {}
+        self.measured_shapes: dict[int, np.ndarray] = {}
+        self.truth_shapes: dict[int, np.ndarray] = {}
+        self.shapes = {MODEL_TOPIC: self.model_shapes, MEASURED_TOPIC: self.measured_shapes,
+                       TRUTH_SHAPE_TOPIC: self.truth_shapes}
+        self.wrenches: dict[str, list[tuple]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
+        self.errors: list[tuple] = []
+
+    def add(self, topic: str, data: bytes | memoryview) -> None:
+        if topic in self.wrenches:
+            self.wrenches[topic].append(_wrench(data))
+        elif topic in self.shapes:
+            stamp, points = _shape(data)
+            self.shapes[topic][stamp] = points
+        elif topic == ERROR_TOPIC:
+            self.errors.append(_error(data))
+
+    def log(self, start_ns: int) -> PipelineLog:
+        errors = sorted(self.errors, key=lambda error: error[0])
+        times = np.array([error[1:3] for error in errors], dtype=np.int64).reshape(-1, 2)
+        values = np.array([error[3:] for error in errors], dtype=float).reshape(-1, 3)
+        return PipelineLog(start_ns, self.model_shapes, self.measured_shapes, self.truth_shapes, times[:, 0],
+                           times[:, 1], values[:, 0], values[:, 1], values[:, 2],
+                           *(_series(self.wrenches[t]) for t in (WRENCH_TOPIC, TRUTH_WRENCH_TOPIC)))
+
+
+def _series(rows: list[tuple]) -> WrenchSeries | None:
+    if not rows:
         return None
-    return WrenchSeries(np.array([_stamp(m.header) for m in messages], dtype=np.int64),
-                        np.array([[m.wrench.force.x, m.wrench.force.y, m.wrench.force.z] for m in messages]),
-                        np.array([[m.wrench.torque.x, m.wrench.torque.y, m.wrench.torque.z] for m in messages]))
+    values = np.array([row[1:] for row in rows], dtype=float)
+    return WrenchSeries(np.array([row[0] for row in rows], dtype=np.int64), values[:, :3], values[:, 3:])
 
 
 def read_pipeline_log(log: str | Path, bag: str | Path | None = None) -> PipelineLog:
     """Decode ``log`` (model/measured shapes, errors, wrench) and, if given, the bag's (.mcap file or bag
     directory) ground truth and start; a corrupt chunk of the bag is skipped (the comparison skipped it already)."""
-    truth = BagReader(bag) if bag is not None else None
-    result = PipelineLog(start_ns=0)
-    wrenches, truth_wrenches, errors = [], [], []
-    for topic, msg in _decoded(BagReader(log), {MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC}):
-        if topic == MODEL_TOPIC:
-            result.model_shapes[_stamp(msg.header)] = _points(msg)
-        elif topic == MEASURED_TOPIC:
-            result.measured_shapes[_stamp(msg.header)] = _points(msg)
-        elif topic == ERROR_TOPIC:
-            errors.append(msg)
-        else:
-            wrenches.append(msg)
-    if truth is not None:  # a corrupt chunk is skipped (the pipeline's reader counted it: summary corrupt_chunks)
-        for topic, msg in _decoded(truth, {TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC}):
-            if topic == TRUTH_SHAPE_TOPIC:
-                result.truth_shapes[_stamp(msg.header)] = _points(msg)
-            else:
-                truth_wrenches.append(msg)
-    result.start_ns = truth.start_time_ns if truth is not None else min(
-        [*result.model_shapes, *result.measured_shapes], default=0)
-    errors.sort(key=lambda m: _stamp(m.header))
-    result.error_times = np.array([_time_ns(m.measurement_stamp) for m in errors], dtype=np.int64)
-    result.model_times = np.array([_time_ns(m.model_stamp) for m in errors], dtype=np.int64)
-    result.rmse = np.array([m.rmse for m in errors])
-    result.max_error = np.array([m.max_error for m in errors])
-    result.tip_error = np.array([m.tip_error for m in errors])
-    result.wrench, result.truth_wrench = _wrench(wrenches), _wrench(truth_wrenches)
-    return result
+    collector = LogCollector()
+    for message in BagReader(log).messages([MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC]):
+        collector.add(message.topic, message.data)
+    if bag is None:
+        return collector.log(min([*collector.model_shapes, *collector.measured_shapes], default=0))
+    truth = BagReader(bag)
+    for message in truth.messages(TRUTH_TOPICS):
+        collector.add(message.topic, message.data)
+    return collector.log(truth.start_time_ns)
 
 
 def _rms_distance(reference: np.ndarray, points: np.ndarray) -> float:
@@ -137,30 +165,40 @@ def versus_ground_truth(log: PipelineLog) -> dict[str, float | int | None]:
             **wrench_versus_reference(log)}
 
 
+def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None:
+    """Model minus reference force [N] and moment [N m] at the reference stamps inside the model's time span (the
+    model's wrench interpolated linearly between its steps); None when either series is missing or nothing
+    overlaps."""
+    model, reference = log.wrench, log.truth_wrench
+    if model is None or reference is None or model.times.size < 2:
+        return None
+    order = np.argsort(model.times)
+    times = model.times[order].astype(float)
+    inside = (reference.times >= times[0]) & (reference.times <= times[-1])
+    if not np.any(inside):
+        return None
+    at = reference.times[inside].astype(float)
+
+    def interpolated(values: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(at, times, values[order, i]) for i in range(3)])
+
+    return interpolated(model.force) - reference.force[inside], interpolated(model.torque) - reference.torque[inside]
+
+
 def wrench_versus_reference(log: PipelineLog) -> dict[str, float | int | None]:
     """RMS and largest error of the simulator's wrench against the bag's reference wrench (``/ground_truth/
-    wrench``): force [N] and torque [N m] error magnitudes at the reference stamps inside the simulated span, the
-    simulator's wrench interpolated linearly between its steps; ``wrench_reference_rms_n`` is the reference
-    force's own RMS magnitude, for scale.  None where either series is missing."""
-    model, truth = log.wrench, log.truth_wrench
+    wrench``): force [N] and torque [N m] error magnitudes (:func:`wrench_differences`); ``wrench_reference_rms_n``
+    is the reference force's own RMS magnitude there, for scale.  None where either series is missing."""
     keys = ("wrench_force_rms_n", "wrench_force_max_n", "wrench_torque_rms_nm", "wrench_torque_max_nm",
             "wrench_reference_rms_n")
-    if model is None or truth is None or model.times.size < 2:
+    differences = wrench_differences(log)
+    if differences is None:
         return {"wrench_samples": 0, **dict.fromkeys(keys)}
-    order = np.argsort(model.times)
-    times = model.times[order]
-    inside = (truth.times >= times[0]) & (truth.times <= times[-1])
-    at = truth.times[inside].astype(float)
-
-    def error(model_values: np.ndarray, truth_values: np.ndarray) -> np.ndarray:
-        interpolated = np.column_stack([np.interp(at, times.astype(float), model_values[order, i]) for i in range(3)])
-        return np.linalg.norm(interpolated - truth_values[inside], axis=1)
-
-    force, torque = error(model.force, truth.force), error(model.torque, truth.torque)
-    if force.size == 0:
-        return {"wrench_samples": 0, **dict.fromkeys(keys)}
+    force, torque = (np.linalg.norm(values, axis=1) for values in differences)
+    reference = log.truth_wrench
+    inside = (reference.times >= log.wrench.times.min()) & (reference.times <= log.wrench.times.max())
     rms = (lambda values: float(np.sqrt(np.mean(values**2))))
     return {"wrench_samples": int(force.size), "wrench_force_rms_n": rms(force),
             "wrench_force_max_n": float(force.max()), "wrench_torque_rms_nm": rms(torque),
             "wrench_torque_max_nm": float(torque.max()),
-            "wrench_reference_rms_n": rms(np.linalg.norm(truth.force[inside], axis=1))}
+            "wrench_reference_rms_n": rms(np.linalg.norm(reference.force[inside], axis=1))}

@@ -30,7 +30,7 @@ from needle_vision.streams.image_codec import ImageFormatError, compressed_messa
 from needle_vision.streams.pairing import StampPairer as FramePairer
 from needle_common.cdr import PoseStamped
 from needle_common.transforms import quaternions_from_x_axes
-from needle_common.parameters import ROS_BUILTIN, ParameterError, ParamSpec, unknown_name_error
+from needle_common.parameters import ParameterError
 from needle_vision.parameters import base_pose_store, output_from_left, stereo_config, validate_all
 from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
 from needle_vision.streams.base_pose import store_base_pose
@@ -42,8 +42,6 @@ from needle_sim_ros.messages.centerline_display import ComparisonDisplay
 from needle_common.ros.needle_shape import needle_shape_msg
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg, time_msg
 from needle_sim_ros.model import ModelShape
-from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
-from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
 
 NS = 1_000_000_000
@@ -51,19 +49,6 @@ NS = 1_000_000_000
 
 def stamp_ns(header: Header) -> int:
     return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
-
-
-def validated(specs: list[ParamSpec], values: dict[str, Any], node: str) -> dict[str, Any]:
-    """Defaults overridden by ``values``, each checked like the node checks it; a name the node does not declare
-    is an error suggesting the nearest declared one."""
-    by_name = {spec.name: spec for spec in specs}
-    result = {spec.name: spec.default for spec in specs}
-    for name, value in values.items():
-        if name in by_name:
-            result[name] = by_name[name].validate(value)
-        elif name not in ROS_BUILTIN:
-            raise unknown_name_error(name, by_name, f"{node}: ")
-    return result
 
 
 class SimulatorStage:
@@ -108,7 +93,7 @@ class SimulatorStage:
         except InputRejected as error:
             self._reject(error.kind)
 
-    def on_tip_load(self, msg: WrenchStamped) -> None:
+    def on_tip_load(self, msg: WrenchStamped, now_ns: int) -> None:
         f = msg.wrench.force
         try:
             self.inputs.set_point_load(TIP_LOAD_TOPIC, self.props.length, msg.header.frame_id, (f.x, f.y, f.z),
@@ -266,13 +251,6 @@ class ComparisonStage:
         return self.session.finish()
 
 
-def simulator_values(values: dict[str, Any]) -> dict[str, Any]:
-    return validated(SIMULATOR_PARAMETERS, values, "needle_simulator")
-
-
-def compare_values(values: dict[str, Any]) -> dict[str, Any]:
-    return validated(COMPARE_PARAMETERS, values, "needle_compare")
-
-
 def stereo_values(values: dict[str, Any]) -> dict[str, Any]:
+    """The stereo node's values with its checks across parameters."""
     return validate_all({k: v for k, v in values.items() if k != "use_sim_time"})

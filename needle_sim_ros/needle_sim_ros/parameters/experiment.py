@@ -12,10 +12,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 from needle_common.package_files import share_file
-from needle_common.parameters import ParamSpec, load_params_file
+from needle_common.parameters import ROS_BUILTIN, ParamSpec, load_params_file, unknown_name_error
 
 #: The pipeline's nodes and the package whose share directory holds each node's config file.
 NODE_PACKAGES = {"needle_simulator": "needle_sim_ros", "needle_stereo": "needle_vision",
@@ -58,6 +58,20 @@ def node_values(files: Sequence[Path], node: str) -> dict[str, Any]:
     return values
 
 
+def node_parameters(node: str, values: Mapping[str, Any], base: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """``base`` (default: the node's declared defaults) updated with ``values``, each checked against its
+    declaration as the node checks it; a name the node does not declare (besides rclpy's own) is an error suggesting
+    the nearest declared one."""
+    specs = {spec.name: spec for spec in node_specs(node)}
+    result = dict(base) if base is not None else {name: spec.default for name, spec in specs.items()}
+    for name, value in values.items():
+        if name in specs:
+            result[name] = specs[name].validate(value)
+        elif name not in ROS_BUILTIN:
+            raise unknown_name_error(name, specs, f"{node}: ")
+    return result
+
+
 @dataclass(frozen=True)
 class PipelineSettings:
     """The ``needle_pipeline`` section: bag (a relative path is taken from the directory holding ``config/``),
@@ -81,9 +95,11 @@ class ExperimentConfig:
     def name(self) -> str:
         return self.path.stem
 
-    def values(self, node: str, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-        """Raw parameter values of ``node`` (node config, experiment file, then ``overrides``)."""
-        return {**node_values(self.files[node], node), **(overrides or {})}
+    def values(self, node: str, overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """Every parameter of ``node``: the declared default, the node config's and the experiment file's values
+        (checked as they are read), then ``overrides`` (checked here)."""
+        defaults = {spec.name: spec.default for spec in node_specs(node)}
+        return node_parameters(node, overrides or {}, {**defaults, **node_values(self.files[node], node)})
 
 
 def load_experiment(path: str | Path, config_dir: Path | None = None) -> ExperimentConfig:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-# Types the nodes of the suite expect on the topics of a recording (absolute names as recorded).
+# Types the nodes and tools of the suite expect on the topics of a recording (absolute names as recorded).
 EXPECTED_TYPES = {
     "/base_pose": "geometry_msgs/msg/PoseStamped", "/base_twist": "geometry_msgs/msg/TwistStamped",
     "/tip_load": "geometry_msgs/msg/WrenchStamped", "/wrench": "geometry_msgs/msg/WrenchStamped",
@@ -14,6 +14,8 @@ EXPECTED_TYPES = {
     "/left/camera_info": "sensor_msgs/msg/CameraInfo", "/right/camera_info": "sensor_msgs/msg/CameraInfo",
     "/needle/shape": "needle_interfaces/msg/NeedleShape", "/needle/measured_shape": "needle_interfaces/msg/NeedleShape",
     "/shape_error": "needle_interfaces/msg/ShapeError", "/clock": "rosgraph_msgs/msg/Clock",
+    "/ground_truth/shape": "needle_interfaces/msg/NeedleShape",
+    "/ground_truth/wrench": "geometry_msgs/msg/WrenchStamped",
 }
 
 
