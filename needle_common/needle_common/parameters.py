@@ -1,14 +1,11 @@
 """The one parameter system of the needle_sim suite, without ROS: declarations, params files, ROS arguments.
 
-:class:`ParamSpec` declares a parameter (name, type given by its default, default, range, choices, meaning with the
-unit in brackets); :func:`load_params_file` reads a ROS 2 params file (``/**``, node-name and namespaced sections,
-wildcards, several nodes in one file) and checks it as strictly as ``rcl`` does plus the specs' ranges, so a file
-that a node would refuse is refused by the offline tools too, with one message naming the file, the parameter and
-the problem (:class:`ParameterError`; unknown names suggest the nearest known one; a name like none of a node's
-in a shared ``/**`` section or a ``-p`` is only warned about). :func:`check_ros_arguments`
-applies it to the ``--params-file`` arguments of a node's command line before ``rclpy.init``. The nodes declare
-each spec with a ``ParameterDescriptor`` built from it (ROS side: ``needle_common.ros.ros_parameters``, used by every
-node of the suite). :func:`flatten_tree` is the one flattening of nested parameters into dotted names.
+:class:`ParamSpec` declares a parameter; :func:`load_params_file` reads a ROS 2 params file as strictly as ``rcl``
+does plus the specs' ranges, so a file that a node would refuse is refused by the offline tools too, with one
+message naming the file, the parameter and the problem (:class:`ParameterError`); :func:`check_ros_arguments`
+applies it to a node's command line before ``rclpy.init``. The nodes declare each spec with a
+``ParameterDescriptor`` built from it (``needle_common.ros.ros_parameters``). :func:`flatten_tree` is the one
+flattening of nested parameters into dotted names.
 
 The declarations themselves live with their packages: ``needle_vision.parameters`` (the stereo node's) and
 ``needle_sim_ros.parameters`` (the simulator's, the comparison's, the experiment files').

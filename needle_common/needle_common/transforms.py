@@ -162,10 +162,6 @@ class RigidTransform:
         """Map points ``(..., 3)`` from the child to the parent frame."""
         return np.asarray(points) @ self.rotation.T + self.translation
 
-    def apply_to_vectors(self, vectors: np.ndarray) -> np.ndarray:
-        """Rotate free vectors ``(..., 3)`` (velocities, tangents) from the child to the parent frame."""
-        return np.asarray(vectors) @ self.rotation.T
-
     def inverse(self) -> "RigidTransform":
         return RigidTransform(self.rotation.T, -self.rotation.T @ self.translation)
 

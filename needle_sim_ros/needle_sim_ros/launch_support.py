@@ -8,6 +8,7 @@ import atexit
 import os
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import yaml
@@ -115,15 +116,12 @@ def player_arguments(bag: str, namespace: str, nodes: list[str], compress_images
             *(["--compress-images", compress_images] if compress_images else [])]
 
 
-def image_transport(value: str) -> str:
-    """The launch argument ``image_transport``: 'raw' or 'compressed'."""
-    if value not in ("raw", "compressed"):
-        raise ValueError(f"launch argument 'image_transport' = '{value}': must be raw or compressed")
+def choice(name: str, value: str, allowed: tuple[str, ...]) -> str:
+    """A launch argument that must be one of ``allowed``; anything else is an error naming it."""
+    if value not in allowed:
+        raise ValueError(f"launch argument '{name}' = '{value}': must be {' or '.join(allowed)}")
     return value
 
 
-def image_codec(value: str) -> str:
-    """The launch argument ``image_codec``: 'png' or 'jpeg'."""
-    if value not in ("png", "jpeg"):
-        raise ValueError(f"launch argument 'image_codec' = '{value}': must be png or jpeg")
-    return value
+image_transport = partial(choice, "image_transport", allowed=("raw", "compressed"))
+image_codec = partial(choice, "image_codec", allowed=("png", "jpeg"))

@@ -23,8 +23,7 @@ from needle_sim_ros.base_input import BaseInput, InputLimits, MotionsAt
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
 from needle_sim_ros.clock_loop import LATE_POSE_WAIT, ClockLoop
 from needle_sim_ros.model import (BaseMotion, Fixture, Integrator, NeedleModel, State, build_model, check_forces,
-                                  needle_properties)
-from needle_sim_ros.model.config import element_lengths
+                                  load_needle_config)
 from needle_sim_ros.stepper import (POINT_LOAD_LIMIT, LoopStatistics, ModelBuilder, Stepper, StepRecord,
                                     max_point_load)
 from needle_sim_ros.tissue.factory import build_tissue_model
@@ -139,21 +138,13 @@ class NeedleSimulation:
 
 
 def model_builder_from_parameters(p: dict) -> ModelBuilder:
-    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them;
-    ``needle.element_lengths`` [m] other than [0.0] sets the mesh instead of uniform ``needle.elements``."""
-    props = needle_properties(p)
-    lengths = element_lengths(p)
+    """fixtures -> (model, integrator) as the `needle_simulator` parameters (flat dotted names) describe them
+    (:func:`~needle_sim_ros.model.load_needle_config`: ``needle.element_lengths`` other than [0.0] sets the mesh)."""
+    props, build, integrator_kwargs = load_needle_config(p)
 
     def model_builder(fixtures: tuple = ()) -> tuple[NeedleModel, Integrator]:
-        model = build_model(props, n_elements=len(lengths) if lengths else p["needle.elements"],
-                            element_lengths=lengths, axial_gauss=p["needle.axial_gauss_points"],
-                            bending_gauss=p["needle.bending_gauss_points"], rayleigh_alpha=p["damping.rayleigh_alpha"],
-                            rayleigh_beta=p["damping.rayleigh_beta"], fixtures=fixtures)
-        integrator = Integrator(model, method=p["integrator.method"], rho_inf=p["integrator.rho_inf"],
-                                newton_tol=p["integrator.newton_tolerance"],
-                                max_newton_iterations=p["integrator.max_newton_iterations"],
-                                max_substep_halvings=p["integrator.max_substep_halvings"])
-        return model, integrator
+        model = build_model(props, **{**build, "fixtures": fixtures})
+        return model, Integrator(model, **integrator_kwargs)
 
     return model_builder
 

@@ -83,10 +83,8 @@ class Stepper:
     track, stick anchors -- is kept in the data) acting every step in addition to gravity and the named point
     loads; they are made anew at every reset (and checked against the force protocol, :func:`check_forces`), with
     fresh states, so a restarted needle starts in fresh tissue. A step that fails even after the integrator's
-    sub-stepping changes nothing (:meth:`step`) and is counted in ``statistics.failed_steps``; :meth:`run` then
-    restarts the needle straight at the current base pose, the forces keeping the state of the last accepted step:
-    the output never contains NaN (with ``restart_on_failure`` False it raises the StepFailed instead, the data as
-    before the step). ``compiled_sequence`` False keeps every step on the general path (benchmarks of that path).
+    sub-stepping restarts the needle straight at the current base pose (:meth:`step`): the output never
+    contains NaN. ``compiled_sequence`` False keeps every step on the general path (benchmarks of that path).
 
     ``start_in_equilibrium``: a (re)started needle is at rest in static equilibrium under gravity and the point loads
     (seed 000 eq. 17 without inertia) instead of straight, so it does not first drop and swing (a free 18 G needle
@@ -234,7 +232,7 @@ class Stepper:
         if not regular:  # after a grid shift (lock_phase)
             if not (forces is not None
                     and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
-                records.append(self._step_or_restart(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
+                records.append(self.step(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
                                                      first_dt))
                 general = True
             data.step_index += 1
@@ -254,7 +252,7 @@ class Stepper:
                 if i == stop:  # all it was asked for: the next run (a step that failed takes the general step)
                     continue
             if i < count:
-                records.append(self._step_or_restart(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
+                records.append(self.step(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
                 general = True
                 data.step_index += 1
                 i += 1
@@ -353,30 +351,22 @@ class Stepper:
         self.data.state = State(rows[0], rows[1], rows[2], float(t), rows[3], BaseMotion.from_packed(motion, rotation))
 
     def step(self, base_next: BaseMotion, t_next: float, dt: float | None = None) -> StepRecord:
-        """One step of ``dt`` (default: the simulation's) with the general integrator path (sub-stepping,
-        state-dependent forces) to t_next (:func:`needle_sim_ros.model.step`): if anything fails the data is as
-        before the step and the error raised (StepFailed: counted in ``statistics.failed_steps``)."""
+        """One step of ``dt`` (default: the simulation's) to t_next on the general integrator path (sub-stepping,
+        state-dependent forces: :func:`needle_sim_ros.model.step`). A step that fails (StepFailed, counted in
+        ``statistics.failed_steps``) leaves the data as before it; the needle then restarts straight at the base
+        (the forces' state is that of the last accepted step: the restarted needle has not moved through the
+        tissue), or with ``restart_on_failure`` False the StepFailed is raised."""
         start = time.perf_counter()
         try:
             output = step(self.model, self.integrator, self.model_forces, self.data,
                           StepInputs(self.dt if dt is None else dt, float(t_next), base_next))
         except StepFailed:
             self.statistics.failed_steps += 1
-            raise
-        return self._finish_step(start, output.wrench, output.newton_iterations, output.substeps)
-
-    def _step_or_restart(self, base_next: BaseMotion, t_next: float, dt: float | None = None) -> StepRecord:
-        """:meth:`step`, or if it fails the needle restarted straight at the base (the forces' state is that of the
-        last accepted step: the restarted needle has not moved through the tissue); with ``restart_on_failure``
-        False the StepFailed is raised."""
-        start = time.perf_counter()
-        try:
-            return self.step(base_next, t_next, dt)
-        except StepFailed:
             if not self.restart_on_failure:
                 raise
             self.data.state = self.model.straight_state(base_next, float(t_next), self.data.integrator.clamp)
             return self._finish_step(start, reaction_wrench(self.model, self.state, base_next, self.forces), 0, 0)
+        return self._finish_step(start, output.wrench, output.newton_iterations, output.substeps)
 
     def _finish_step(self, start: float, wrench: BaseWrench, iterations: int, substeps: int) -> StepRecord:
         """Statistics, record and hook of the step that led to the current state, with its base wrench."""

@@ -9,10 +9,10 @@ import math
 import pytest
 from numba.core.dispatcher import Dispatcher
 
-from needle_sim_ros.model import BaseMotion, Gravity, build_model
+from needle_sim_ros.model import BaseMotion, Gravity, build_model, needle_properties
 from needle_sim_ros.model.newton import model_tables, unpack_tables
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
-from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters, needle_properties
+from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters
 from needle_sim_ros.tissue.factory import build_tissue_model
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}

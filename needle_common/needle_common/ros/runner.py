@@ -14,7 +14,7 @@ from typing import Callable, Sequence
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 
 from needle_common.parameters import ParameterError, ParamSpec, check_ros_arguments
@@ -38,20 +38,34 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
     except ParameterError as error:
         logger.fatal(str(error))
         return EXIT_BAD_ARGUMENTS
+    return run_nodes([make_node], args, logger, name)
+
+
+def run_nodes(makers: Sequence[Callable[[], Node]], args, logger, name: str) -> int:
+    """``rclpy.init(args)`` (SIGINT/SIGTERM handled here), construct the nodes (a ParameterError: exit status 2),
+    their ``start()`` hooks, spin them until SIGINT/SIGTERM (several: each in a thread of a MultiThreadedExecutor,
+    each node's callbacks mutually exclusive); exit status 0."""
     if not init_rclpy(args, logger, name, own_signals=True):
         return EXIT_BAD_ARGUMENTS
-    signals = StopSignals()
+    signals = StopSignals()  # before any node: e.g. the simulator's haptic zero goes out before rclpy shuts down
+    nodes = []
     try:
-        node = make_node()
+        for make in makers:
+            nodes.append(make())
     except ParameterError as error:
         logger.fatal(str(error))
+        for node in nodes:
+            node.destroy_node()
         rclpy.try_shutdown()
         return EXIT_BAD_ARGUMENTS
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    if hasattr(node, "start"):
-        node.start()
-    spin_until_shutdown(executor, [node], signals)
+    executor = SingleThreadedExecutor() if len(nodes) == 1 else MultiThreadedExecutor(num_threads=len(nodes) + 1)
+    for node in nodes:
+        executor.add_node(node)
+        if hasattr(node, "start"):
+            node.start()
+    if len(nodes) > 1:
+        logger.info(f"running {', '.join(node.get_name() for node in nodes)} in one process")
+    spin_until_shutdown(executor, nodes, signals)
     return 0
 
 
@@ -73,18 +87,15 @@ class StopSignals:
         self.received = number
 
 
-def spin_until_shutdown(executor: Executor, nodes: Sequence[Node], signals: StopSignals | None = None) -> None:
-    """Spin until SIGINT/SIGTERM (``signals``: ours, checked every :data:`SPIN_SLICE`; without: rclpy's, and a
-    context shut down while the executor waited is such a shutdown too, not an error), then the nodes' ``finish()``
+def spin_until_shutdown(executor: Executor, nodes: Sequence[Node], signals: StopSignals) -> None:
+    """Spin until SIGINT/SIGTERM (``signals``, checked every :data:`SPIN_SLICE`), then the nodes' ``finish()``
     hooks, their destruction and rclpy's shutdown (also when an exception escapes the executor)."""
     try:
-        if signals is None:
-            executor.spin()
-        while signals is not None and signals.received is None and rclpy.ok():
+        while signals.received is None and rclpy.ok():
             executor.spin_once(timeout_sec=SPIN_SLICE)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RCLError:  # the context was shut down (SIGINT) while the executor waited: a shutdown like the others
+    except RCLError:  # the context was shut down while the executor waited: a shutdown like the others
         if rclpy.ok():
             raise
     finally:

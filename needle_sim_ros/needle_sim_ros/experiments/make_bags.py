@@ -1,7 +1,7 @@
 """``needle_make_bags``: write the synthetic sample bags (rosbag2 MCAP) of :mod:`.protocols`, reproducibly.
 
-For each experiment: the ground truth (:mod:`.ground_truth`: 20 elements, alpha = 1/s, dt = 0.5 ms, exact base
-motion) is integrated once; the bag then holds
+For each experiment: the ground truth (:class:`.ground_truth.TruthModel`, exact base motion) is integrated once;
+the bag then holds
 
 * ``/base_pose`` (geometry_msgs/PoseStamped, frame ``world``) at 200 Hz: the exact pose of the clamp point A;
 * ``/tip_load`` (geometry_msgs/WrenchStamped, ``world``) at 50 Hz: the weight on the tip (static experiment);
@@ -66,13 +66,18 @@ class Rendering:
     shot_gain: float = 0.02
 
 
+def log_time(t: float) -> int:
+    return START_NS + int(round(t * 1e9))
+
+
 def stamp(t: float) -> Time:
-    sec, nanosec = divmod(START_NS + int(round(t * 1e9)), 10**9)
+    sec, nanosec = divmod(log_time(t), 10**9)
     return Time(sec=int(sec), nanosec=int(nanosec))
 
 
-def log_time(t: float) -> int:
-    return START_NS + int(round(t * 1e9))
+def rate_times(duration: float, rate: float) -> list[float]:
+    """Sample times [s] at ``rate`` [Hz] from 0 up to ``duration`` (both ends included)."""
+    return [k / rate for k in range(int(np.floor(duration * rate + 1e-9)) + 1)]
 
 
 def pose_msg(t: float, base: BaseMotion) -> PoseStamped:
@@ -134,13 +139,10 @@ class BagContent:
         """(time, order within a time, topic, factory) of every message, sorted by time."""
         e, truth = self.experiment, self.truth
         events: list = []
-        for k in range(int(np.floor(e.duration * e.pose_rate + 1e-9)) + 1):
-            t = k / e.pose_rate
+        for t in rate_times(e.duration, e.pose_rate):
             events.append((t, 1, "/base_pose", lambda t=t: pose_msg(t, e.base(t))))
-        if e.tip_load_rate:
-            for k in range(int(np.floor(e.duration * e.tip_load_rate + 1e-9)) + 1):
-                t = k / e.tip_load_rate
-                events.append((t, 2, "/tip_load", lambda t=t: wrench_msg(t, e.tip_force(t), np.zeros(3), WORLD)))
+        for t in rate_times(e.duration, e.tip_load_rate) if e.tip_load_rate else ():
+            events.append((t, 2, "/tip_load", lambda t=t: wrench_msg(t, e.tip_force(t), np.zeros(3), WORLD)))
         for t, force, torque in zip(truth.wrench_times, truth.force_base, truth.torque_base):
             events.append((t, 3, "/ground_truth/wrench", lambda t=t, f=force, m=torque: wrench_msg(t, f, m, BASE)))
         for i, t in enumerate(truth.shape_times):
@@ -194,8 +196,7 @@ class BagContent:
 def shape_times(experiment: Experiment) -> tuple[float, ...]:
     """When the ground truth's centerline is needed: the stereo frames, or the shape sensor's samples."""
     if experiment.shape_sensor_rate:
-        count = int(np.floor(experiment.duration * experiment.shape_sensor_rate + 1e-9)) + 1
-        return tuple(k / experiment.shape_sensor_rate for k in range(count))
+        return tuple(rate_times(experiment.duration, experiment.shape_sensor_rate))
     return experiment.frame_times
 
 

@@ -27,7 +27,6 @@ from needle_common.cdr import ENCAPSULATION
 from needle_vision.streams.image_codec import deserialize_image
 
 
-
 class _Buffer:
     """Little-endian CDR payload with alignment relative to its start."""
 

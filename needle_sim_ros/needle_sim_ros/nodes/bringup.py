@@ -18,11 +18,12 @@ import sys
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import MultiThreadedExecutor
 
-from needle_common.parameters import ParameterError
-from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
-from needle_common.ros.runner import StopSignals, spin_until_shutdown
+from needle_common.parameters import check_ros_arguments
+from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
+from needle_common.ros.runner import run_nodes
+
+from needle_sim_ros.parameters.experiment import NODES, load_experiment, node_specs
 
 NAME = "needle_bringup"
 COMPARE_REMAPS = ("needle_compare:model/shape:=needle/shape", "needle_compare:measured/shape:=needle/measured_shape")
@@ -45,7 +46,6 @@ def rcl_arguments(argv: list[str], args: argparse.Namespace) -> tuple[list[str],
     files: list[str] = []
     stereo = not args.no_stereo
     if args.experiment is not None:
-        from needle_sim_ros.parameters.experiment import load_experiment
         experiment = load_experiment(args.experiment)
         for path in dict.fromkeys(p for node_files in experiment.files.values() for p in node_files):
             files += ["--params-file", str(path)]
@@ -56,13 +56,7 @@ def rcl_arguments(argv: list[str], args: argparse.Namespace) -> tuple[list[str],
 
 def check_node_arguments(rcl_args: list[str], stereo: bool, logger) -> None:
     """Every --params-file checked for each node before rclpy reads them (ParameterError, a ValueError)."""
-    from needle_common.parameters import check_ros_arguments
-    from needle_vision.parameters import SPECS as STEREO_PARAMETERS
-
-    from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
-    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
-    nodes = {"needle_simulator": SIMULATOR_PARAMETERS, "needle_compare": COMPARE_PARAMETERS,
-             **({"needle_stereo": STEREO_PARAMETERS} if stereo else {})}
+    nodes = {name: node_specs(name) for name in NODES if stereo or name != "needle_stereo"}
     for name, specs in nodes.items():  # a '/**' section reaches all three nodes: each ignores the others' names
         others = {spec.name for other, other_specs in nodes.items() if other != name for spec in other_specs}
         check_ros_arguments(rcl_args, name, specs, logger.warning, others)
@@ -81,31 +75,12 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         logger.fatal(str(error))
         return EXIT_BAD_ARGUMENTS
-    if not init_rclpy(rcl_args, logger, NAME, own_signals=True):
-        return EXIT_BAD_ARGUMENTS
-    signals = StopSignals()  # the simulator's haptic zero goes out before rclpy shuts down
     from needle_vision.ros.stereo_node import NeedleStereoNode
 
     from needle_sim_ros.nodes.compare_node import CompareNode
     from needle_sim_ros.nodes.simulator_node import NeedleSimulatorNode
-    nodes = []
-    try:
-        for make in (NeedleSimulatorNode, *((NeedleStereoNode,) if stereo else ()), CompareNode):
-            nodes.append(make())
-    except ParameterError as error:
-        logger.fatal(str(error))
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        return EXIT_BAD_ARGUMENTS
-    executor = MultiThreadedExecutor(num_threads=len(nodes) + 1)
-    for node in nodes:
-        executor.add_node(node)
-        if hasattr(node, "start"):  # the hooks of needle_common.ros.runner.run_node
-            node.start()
-    logger.info(f"running {', '.join(node.get_name() for node in nodes)} in one process")
-    spin_until_shutdown(executor, nodes, signals)
-    return 0
+    return run_nodes((NeedleSimulatorNode, *((NeedleStereoNode,) if stereo else ()), CompareNode), rcl_args, logger,
+                     NAME)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 OK, WARN, ERROR = 0, 1, 2  # diagnostic_msgs/DiagnosticStatus levels (bytes 0, 1, 2)
-LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR"}
 DEADLINE_MISS_FRACTION = 0.01  # WARN when more than this fraction of a window's wall-clock steps missed
 
 

@@ -8,14 +8,11 @@ from __future__ import annotations
 
 from typing import Callable
 
-from lifecycle_msgs.msg import State as StateMsg
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
 from needle_common.parameters import ParameterError
 
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
-PRIMARY_STATES = {StateMsg.PRIMARY_STATE_UNCONFIGURED: "unconfigured", StateMsg.PRIMARY_STATE_INACTIVE: "inactive",
-                  StateMsg.PRIMARY_STATE_ACTIVE: "active", StateMsg.PRIMARY_STATE_FINALIZED: "finalized"}
 
 
 def autostart(node: LifecycleNode) -> None:

@@ -1,11 +1,8 @@
 """needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
 
-    needle_replay BAG [--rate R] [--start-offset S] [--loop] [--topics T ...] [--clock [HZ]] [--delay S]
-                      [--linger S] [--in-namespace] [--wait-for-subscribers S [--wait-for-nodes NODE ...]]
-                      [--start-paused] [--compress-images png|jpeg [--jpeg-quality Q]] [--ros-args -r FROM:=TO ...]
-
-BAG is a .mcap file or a bag directory. Messages are published as the recorded CDR bytes (no deserialization) with
-the QoS the recorded publishers offered; ``--clock`` publishes the playback time on /clock for use_sim_time.
+BAG (``needle_replay --help`` lists the options) is a .mcap file or a bag directory. Messages are published as the
+recorded CDR bytes (no deserialization) with the QoS the recorded publishers offered; ``--clock`` publishes the
+playback time on /clock for use_sim_time.
 Topics are renamed with ROS remapping rules (``--ros-args -r /wrench:=/replayed/wrench``), which apply to the
 recorded (absolute) topic names; ``--in-namespace`` publishes them in the player's namespace instead (``--ros-args
 -r __ns:=/robot1``: ``/wrench`` as ``/robot1/wrench``), where the nodes of a launch in that namespace read them.

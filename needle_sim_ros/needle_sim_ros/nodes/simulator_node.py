@@ -45,17 +45,17 @@ from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.haptics import ZERO, HapticShaper
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
-from needle_common.transforms import quaternions_from_x_axes
+from needle_common.transforms import conjugate, multiply, quaternion_matrix, quaternions_from_x_axes
 from needle_sim_ros.messages.geometry import compile_geometry_kernels, tube_triangles
 from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
-from needle_sim_ros.model import State, elastic_energy, kinetic_energy, model_shape
+from needle_sim_ros.model import BaseMotion, State, elastic_energy, kinetic_energy, model_shape
 from needle_sim_ros.nodes.diagnostics import ERROR, OK, WARN, HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
 from needle_common.ros.input_status import InputStatus
 from needle_common.ros.ros_parameters import declare_all, guard_dynamic_updates
 from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
 from needle_common.ros.runner import run_node
-from needle_sim_ros.nodes.tf_output import SimulatorTf
+from needle_common.ros.tf_output import TfOutput, transform_stamped
 from needle_sim_ros.parameters.simulator import FIXED_AT_CONSTRUCTION, SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
     LATE_POSE_WAIT, TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters,
@@ -111,7 +111,7 @@ class NeedleSimulatorNode(LifecycleNode):
         self._haptic_lock = threading.Lock()  # the loop's haptic wrenches vs. the zero of a stop
         self._haptic_live = False  # the loop may publish haptic wrenches (active, not stopping)
         self._clipped_reported = 0  # clipped components at the previous diagnostics report
-        self.tf = SimulatorTf(self, self.p["frames.world"], self.p["frames.base"], self.p["frames.tip"])
+        self.tf = TfOutput(self)  # world -> base (the base pose), base -> tip (the deformed needle's tip)
         # Poses and twists are taken by the integration loop itself at each tick (see nodes.polling).
         polled = PolledCallbackGroup()
         self._polled = [
@@ -196,12 +196,14 @@ class NeedleSimulatorNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
-        """Hold: no more steps, wrenches or shapes; the last state stays (``~/reset`` and loads still work); the
-        haptic output sends zero."""
+        """Hold (also at shutdown): no more steps, wrenches or shapes; the last state stays (``~/reset`` and loads
+        still work); the haptic output sends zero."""
         with self._lock:
             self.active = False
         self.zero_haptics()
         return TransitionCallbackReturn.SUCCESS
+
+    on_shutdown = on_deactivate
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         with self._lock:
@@ -209,12 +211,6 @@ class NeedleSimulatorNode(LifecycleNode):
         self.zero_haptics()
         gc.unfreeze()
         gc.collect()
-        return TransitionCallbackReturn.SUCCESS
-
-    def on_shutdown(self, state) -> TransitionCallbackReturn:
-        with self._lock:
-            self.active = False
-        self.zero_haptics()
         return TransitionCallbackReturn.SUCCESS
 
     # -- construction helpers --------------------------------------------------------------------------------
@@ -584,7 +580,12 @@ class NeedleSimulatorNode(LifecycleNode):
         tissue = (np.zeros(6) if readout is None else
                   np.array([readout.insertion_depth, readout.inserted_length, *readout.tip_force, readout.axial_force]))
         self.state_pub.publish(cdr.needle_state(stamp.sec, stamp.nanosec, frame, *tissue, *snap["energies"]))
-        self.tf.send(stamp, snap["base"], (shape.tip_position, shape.tip_orientation))
+        base = snap["base"]
+        if base is not None:
+            world, base_frame, tip = self.p["frames.world"], self.p["frames.base"], self.p["frames.tip"]
+            self.tf.send([transform_stamped(stamp, world, base_frame, base.position, base.orientation),
+                          transform_stamped(stamp, base_frame, tip, *tip_in_base(base, shape.tip_position,
+                                                                                  shape.tip_orientation))])
 
     def publish_periodic_outputs(self, now: float) -> None:
         shape_due = (not self.use_sim_time and self.due("shape", now, self.p["rates.shape_hz"])
@@ -676,6 +677,13 @@ class NeedleSimulatorNode(LifecycleNode):
                 level, message = OK, "rendering"
         return DiagnosticStatus(level=bytes([level]), name=f"{self.get_fully_qualified_name()}: haptics",
                                 message=message, hardware_id="needle_sim", values=key_values(values))
+
+
+def tip_in_base(base: BaseMotion, tip_position: np.ndarray, tip_orientation: np.ndarray) -> tuple:
+    """Tip pose relative to the base frame: p = R_b^T (p_tip - p_b), q = q_b^* q_tip."""
+    orientation = np.asarray(base.orientation, dtype=float)
+    position = quaternion_matrix(orientation).T @ (np.asarray(tip_position, dtype=float) - base.position)
+    return position, multiply(conjugate(orientation), np.asarray(tip_orientation, dtype=float))
 
 
 def key_values(values: dict) -> list[KeyValue]:

@@ -12,10 +12,6 @@ def _unit_quaternion(q) -> bool:
     return abs(float(np.linalg.norm(q)) - 1.0) < 1e-6
 
 
-def _positive_vector(v) -> bool:
-    return all(x > 0 for x in v)
-
-
 QOS_CHOICES = ("sensor_data", "reliable")
 
 SIMULATOR_PARAMETERS = [

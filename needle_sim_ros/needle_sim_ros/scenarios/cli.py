@@ -36,12 +36,10 @@ def main(argv: list[str] | None = None) -> int:
             if getattr(args, option) is not None:
                 check_output_file(getattr(args, option), f"--{option}")
         return args.run(args)
-    except (ValueError, OSError) as error:
-        print(f"needle_scenario {args.scenario}: error: {error}", file=sys.stderr)
-        return 2
-    except (StaticSolveFailed, StepFailed) as error:  # e.g. --tip-mass 1e300: inputs beyond what the model resolves
-        print(f"needle_scenario {args.scenario}: error: the model found no solution for these inputs: {error}",
-              file=sys.stderr)
+    except (ValueError, OSError, StaticSolveFailed, StepFailed) as error:
+        unsolved = isinstance(error, (StaticSolveFailed, StepFailed))  # e.g. --tip-mass 1e300: beyond the model
+        print(f"needle_scenario {args.scenario}: error: "
+              f"{'the model found no solution for these inputs: ' if unsolved else ''}{error}", file=sys.stderr)
         return 2
 
 

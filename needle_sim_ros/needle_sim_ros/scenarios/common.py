@@ -55,20 +55,20 @@ def checked_params_file(path: Path, prefixes: tuple[str, ...]) -> dict:
             for name, value in values.items() if name.startswith(prefixes)}
 
 
-def needle_configuration(args: argparse.Namespace) -> tuple[NeedleProperties, dict, dict, dict]:
-    """(props, build_model kwargs, Integrator kwargs, flat parameters) from --params files (applied in order,
-    each checked by the shared loader) and the command line."""
+def needle_configuration(args: argparse.Namespace) -> tuple[NeedleProperties, dict, dict, float]:
+    """(props, build_model kwargs, Integrator kwargs, time step [s]) from --params files (applied in order, each
+    checked by the shared loader) and the command line (``--dt`` if given)."""
     source: dict = {}
     for path in args.params:
         source.update(checked_params_file(path, tuple(g + "." for g in GROUPS)))
     props, build, integrator = load_needle_config(source)
-    parameters = needle_parameters(source)
     if args.elements is not None:
         build["n_elements"] = args.elements
         build.pop("element_lengths", None)
     if args.axial_gauss is not None:
         build["axial_gauss"] = args.axial_gauss
-    return props, build, integrator, parameters
+    dt = getattr(args, "dt", None)
+    return props, build, integrator, float(needle_parameters(source)["integrator.dt"]) if dt is None else dt
 
 
 def material(props: NeedleProperties) -> dict:

@@ -97,13 +97,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    props, build, integrator_kwargs, parameters = needle_configuration(args)
+    props, build, integrator_kwargs, dt = needle_configuration(args)
     overrides = ((args.method, "method", integrator_kwargs), (args.rho_inf, "rho_inf", integrator_kwargs),
                  (args.alpha, "rayleigh_alpha", build), (args.beta, "rayleigh_beta", build))
     for option, key, target in overrides:
         if option is not None:
             target[key] = option
-    dt = args.dt if args.dt is not None else float(parameters["integrator.dt"])
     result = simulate_release(props, build, integrator_kwargs, args.tip_mass, dt, args.duration,
                               args.sample_interval, args.centerline_samples)
     write_json(args.json, result)

@@ -26,7 +26,7 @@ from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_model
 from needle_sim_ros.simulation import NeedleSimulation
 
 from .common import (add_needle_arguments, advance_sampled, checked_params_file, figure, material,
-                     needle_configuration, save_figure, shape_json, write_json)
+                     needle_configuration, run_summary, save_figure, shape_json, write_json)
 from .insertion_motion import InsertionMotion
 
 
@@ -93,20 +93,14 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
             series[key].append(value)
 
     start = time.perf_counter()
-    integration_wall, _ = advance_sampled(simulation, n_steps, sample_every, record)
+    integration_wall, iterations = advance_sampled(simulation, n_steps, sample_every, record)
     state = simulation.state
     wall = time.perf_counter() - start
     winkler = np.asarray(config["tissue.layers.lateral_stiffness"], dtype=float)
     return {
         "scenario": "insertion",
-        "elements": model.n_elements,
-        "material": material(props),
-        "dt_s": dt,
-        "steps": n_steps,
-        "simulated_time_s": n_steps * dt,
-        "integration_wall_time_s": integration_wall,
+        **run_summary(model, integrator_kwargs, dt, n_steps, integration_wall, iterations),
         "wall_time_s": wall,
-        "real_time_factor": n_steps * dt / integration_wall,
         "motion": {"depths_m": list(motion.waypoints), "speed_m_s": motion.speed, "gap_m": motion.gap,
                    "roll_rad": motion.roll, "spin_rate_rad_s": motion.spin_rate, "duty_cycle": motion.duty_cycle},
         "parameters": {"needle": {**material(props), "elements": model.n_elements,
@@ -172,8 +166,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    props, build, integrator_kwargs, parameters = needle_configuration(args)
-    dt = args.dt if args.dt is not None else float(parameters["integrator.dt"])
+    props, build, integrator_kwargs, dt = needle_configuration(args)
     files = [shipped_tissue_config(), *args.params]
     tissue = {}
     for path in files:

@@ -115,8 +115,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    props, build, integrator_kwargs, parameters = needle_configuration(args)
-    dt = args.dt if args.dt is not None else float(parameters["integrator.dt"])
+    props, build, integrator_kwargs, dt = needle_configuration(args)
     result = simulate_pitch(props, build, integrator_kwargs, dt, math.radians(args.amplitude_deg), args.frequency,
                             args.periods, args.clamp_fraction, args.sample_interval, args.centerline_samples)
     write_json(args.json, result)
