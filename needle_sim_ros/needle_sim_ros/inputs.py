@@ -24,7 +24,12 @@ from scipy.spatial.transform import Rotation
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.simulation import USED_POSES, NeedleSimulation
 
-__all__ = ["USED_POSES", "InputRejected", "OfferedPose", "SimulatorInputs"]
+__all__ = ["USED_POSES", "InputRejected", "OfferedPose", "SimulatorInputs", "rejected_poses"]
+
+
+def rejected_poses(counts: dict[PoseVerdict, int]) -> int:
+    """How many of the counted poses the simulator did not use (every verdict outside ``USED_POSES``)."""
+    return sum(n for verdict, n in counts.items() if verdict not in USED_POSES)
 
 
 class InputRejected(ValueError):

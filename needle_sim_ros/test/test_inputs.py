@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.base_trajectory import PoseVerdict
-from needle_sim_ros.inputs import InputRejected, SimulatorInputs
+from needle_sim_ros.inputs import InputRejected, SimulatorInputs, rejected_poses
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
 
@@ -76,3 +76,13 @@ def test_the_offline_stage_takes_recorded_twists_as_the_node_does():
     twist.header.frame_id = "camera"
     stage.on_twist(twist, 3_000_000_000)
     assert stage.rejected == {"twist_rejected": 1} and stage.sim.twist[0] == 2.0
+
+
+def test_every_rejecting_verdict_counts_as_a_rejected_pose():
+    """The diagnostics' rejected_poses counts each verdict whose text says "rejected" (out of range included: it was
+    left out, so poses beyond pose_input.max_position never raised a WARN), and no accepted one."""
+    counts = {verdict: 1 for verdict in PoseVerdict}
+    rejecting = [verdict for verdict in PoseVerdict if verdict.value.startswith("rejected")]
+    assert PoseVerdict.OUT_OF_RANGE in rejecting
+    assert rejected_poses(counts) == len(rejecting)
+    assert rejected_poses({PoseVerdict.OUT_OF_RANGE: 3, PoseVerdict.ACCEPTED: 5}) == 3

@@ -43,7 +43,7 @@ from needle_common.parameters import ParameterError
 
 from needle_sim_ros.base_trajectory import PoseVerdict
 from needle_sim_ros.haptics import ZERO, HapticShaper
-from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
+from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs, rejected_poses
 from needle_sim_ros.messages import cdr
 from needle_common.transforms import conjugate, multiply, quaternion_matrix, quaternions_from_x_axes
 from needle_sim_ros.messages.geometry import compile_geometry_kernels, tube_triangles
@@ -638,9 +638,7 @@ class NeedleSimulatorNode(LifecycleNode):
                     "point_loads": len(sim.point_loads)})
                 stats.max_newton_iterations = 0
             started = sim is not None and sim.started
-        rejected = {"rejected_poses": sum(n for v, n in self.counters.items()
-                                          if v.name in ("NOT_FINITE", "ZERO_QUATERNION", "OUT_OF_ORDER", "JUMP"))
-                    + self.counters_other["wrong_frame"],
+        rejected = {"rejected_poses": rejected_poses(self.counters) + self.counters_other["wrong_frame"],
                     "rejected_twists": self.counters_other["twist_rejected"],
                     "rejected_tip_loads": self.counters_other["tip_load_rejected"]}
         health = self.health.assess({**values, **rejected}, started, values.get("pose_age_s", float("inf")),
