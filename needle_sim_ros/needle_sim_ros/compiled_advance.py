@@ -30,20 +30,17 @@ def apply_twist(flange: np.ndarray, times: np.ndarray, twist: np.ndarray, twist_
 
 
 @njit(cache=True)
-def advance_from_trajectory(times, flange, twist, twist_timeout, offset, offset_rotation, motions, rotations, q, qd,
-                            qdd, aux, history, coef, ext_Q, tol, max_iterations, prescribed, base_nodes, base_local_r,
-                            base_local_rx, active, scale, tables, residual, band, pivots, factorization, kl, control,
-                            last_motion, states, wrenches, iterations, *fit):
-    """Steps at the given end times: the flange motions (buffer (k, 19)) from the trajectory's fit (``fit``: the
-    21 arguments of :meth:`BaseTrajectory.fit_arguments`), the twist [t, v, w] within its timeout, the offset to
-    the clamp (motions and rotations buffers), then :func:`integrate_sequence` from the start state's q, q', q''
-    and a (:meth:`Integrator.sequence_arguments` from its history buffer on). Returns (fit, number of
-    corrections, steps done)."""
-    fitted, corrections = trajectory_motions(*fit, times, flange)
+def advance_from_trajectory(*arguments):
+    """Steps at the given end times from the trajectory's 21 arguments (:meth:`BaseTrajectory.fit_arguments`),
+    followed by the times, the flange motions buffer (k, 19), the twist and its timeout, the offset position and
+    rotation, the clamp motions (k, 19) and rotations (k, 3, 3) buffers, the start state's q, q', q'' and a, and
+    the arguments of :func:`integrate_sequence` after its motions and rotations, from its history buffer on
+    (:meth:`Integrator.sequence_arguments`). Returns (fit, number of corrections, steps done)."""
+    times, flange, twist, twist_timeout, offset, offset_rotation, motions, rotations = arguments[21:29]
+    fit, corrections = trajectory_motions(*arguments[:21], times, flange)
     apply_twist(flange, times, twist, twist_timeout)
     compose_offsets(flange, offset, offset_rotation, motions, rotations)
-    history[0], history[1], history[2], history[3] = q, qd, qdd, aux
-    done = integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed,
-                              base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band, pivots,
-                              factorization, kl, control, last_motion, states, wrenches, iterations)
-    return fitted, corrections, done
+    history = arguments[33]
+    history[0], history[1], history[2], history[3] = arguments[29:33]
+    done = integrate_sequence(history, times, motions, rotations, *arguments[34:])
+    return fit, corrections, done

@@ -558,9 +558,9 @@ class NeedleSimulation:
         before, after = self.integrator.sequence_arguments(self.dt, forces, float(times[0]), times.size,
                                                            self.data.integrator)
         fit, corrections, done = advance_from_trajectory(
-            times, np.empty((times.size, 19)), NO_TWIST if self.twist is None else self.twist, self.twist_timeout,
-            self._offset_position, self._offset_rotation, motions, rotations, state.q, state.qd, state.qdd,
-            state.aux, *before, *after, *self.trajectory.fit_arguments())
+            *self.trajectory.fit_arguments(), times, np.empty((times.size, 19)),
+            NO_TWIST if self.twist is None else self.twist, self.twist_timeout, self._offset_position,
+            self._offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, *after)
         self.trajectory.take_fit(fit, corrections, float(times[-1]))
         self._record_run(SequenceResult.of_run(done, after), start, times, motions, rotations, records)
         return done
