@@ -16,6 +16,7 @@ from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, M
                                   NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed, StepInputs,
                                   acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
                                   model_shape, reaction_wrench, solve_static, stateful_forces, step)
+from needle_sim_ros.model.contribution import ContributionRun
 from needle_sim_ros.model.integrators import SequenceResult, same_objects
 from needle_sim_ros.model.partition import held_at
 from needle_sim_ros.model.sequence import IntegratorMemory
@@ -108,6 +109,7 @@ class Stepper:
         self.restart_on_failure = restart_on_failure
         self.compiled_sequence = True
         self._sequence_plan: tuple = ((), None)  # (key, forces) of _sequence_forces
+        self._run_plan: ContributionRun | None = None  # the composed compiled run of _run_steps
         self.source = None  # the base source of the current run
 
     def rebuild_model(self, model_builder: ModelBuilder) -> None:
@@ -210,12 +212,12 @@ class Stepper:
         data = self.data
         dt = self.dt
         count = times.size
-        # the compiled sequence takes time-invariant forces only; a contribution that runs compiled itself (the
-        # tissue, a CompiledContribution) takes the run, a step at a time if a hook reads each step's state
+        # the compiled sequence takes time-invariant forces only; contributions that run compiled (the tissue,
+        # CompiledContributions) take a run composing them all, a step at a time if a hook reads each step's state
         stateful = [force for force in self.extra_forces if force.stateful]
         runs = [force for force in self.extra_forces if force.compiled_run]
         sequence = self.compiled_sequence and not stateful and not runs
-        run = runs[0] if self.compiled_sequence and len(runs) == 1 and all(f is runs[0] for f in stateful) else None
+        run = runs if self.compiled_sequence and runs and all(f.compiled_run for f in stateful) else None
         first_dt = float(times[0]) - data.state.t
         regular = abs(first_dt - dt) <= 0.05 * dt + 4.0 * math.ulp(abs(t_target))  # not after a grid shift
         # the base from the received poses: a compiled run evaluates its motions and takes its steps in one call
@@ -328,22 +330,23 @@ class Stepper:
         stats.step_wall_times.extend([wall] * done)
         stats.max_newton_iterations = max(stats.max_newton_iterations, *iterations)
 
-    def _run_steps(self, run, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
+    def _run_steps(self, runs: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                    records: list[StepRecord]) -> int:
-        """Steps at the given times in one compiled run of the contribution ``run`` (the tissue, a
-        CompiledContribution) where the other contributions are time-invariant (see :meth:`run`); returns
-        how many were done."""
+        """Steps at the given times in one compiled run composing the contributions ``runs`` (the tissue,
+        CompiledContributions; every stateful one among them) where the others are time-invariant (see
+        :meth:`run`); returns how many were done."""
         data = self.data
-        others = [*(force for force in self.model_forces if force is not run and not force.stateful),
-                  *data.point_loads.values()]
+        others = [*(force for force in self.model_forces if not force.compiled_run), *data.point_loads.values()]
         if not self.integrator.supports_sequence(others):
             return 0
         start = time.perf_counter()
-        own = data.force_states[0] if run.stateful else None
-        result, own = run.run_steps(self.model, self.integrator, self.state, own, self.dt, times, motions, rotations,
-                                    others, data.integrator)
-        if run.stateful:
-            data.force_states = (own,)
+        if self._run_plan is None or not same_objects(runs, self._run_plan.contributions):
+            self._run_plan = ContributionRun(runs)
+        states = iter(data.force_states)  # in the order of the stateful contributions, all among ``runs``
+        owns = [next(states) if force.stateful else None for force in runs]
+        result, owns = self._run_plan(self.model, self.integrator, self.state, owns, self.dt, times, motions,
+                                      rotations, others, data.integrator)
+        data.force_states = tuple(own for force, own in zip(runs, owns) if force.stateful)
         self._record_run(result, start, times, motions, rotations, records)
         return result.done
 

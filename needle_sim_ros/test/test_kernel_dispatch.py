@@ -12,7 +12,7 @@ from numba.core.dispatcher import Dispatcher
 from needle_sim_ros.model import BaseMotion, Gravity, build_model, needle_properties
 from needle_sim_ros.model.newton import model_tables, unpack_tables
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
-from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters
+from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters, simulation_from_parameters
 from needle_sim_ros.tissue.factory import build_tissue_model
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
@@ -46,6 +46,24 @@ def test_the_general_step_and_the_compiled_run_type_no_argument_in_python(compil
     records = []
     for k in range(40):  # one run per step, as the live loop at the pose rate
         records += simulation.advance_to(0.011 + 1e-3 * k)
+    assert len(records) == 40 and not typed, sorted(set(typed))
+
+
+def test_the_node_path_from_the_poses_types_no_argument_in_python(monkeypatch):
+    """The live loop's one compiled call per pose (``compiled_advance``: the trajectory's fit, the twist, the
+    offset and the steps), as the node drives it at 1 kHz."""
+    simulation = simulation_from_parameters(PARAMETERS)
+
+    def offer(k: int) -> list:
+        angle = math.radians(5.0) * math.sin(math.pi * k * 1e-3)
+        simulation.offer_pose(k * 1e-3, [0.0, 0.0, 0.0], [0.0, math.sin(0.5 * angle), 0.0, math.cos(0.5 * angle)])
+        return simulation.advance(k * 1e-3, deterministic=True)
+    for k in range(20):
+        offer(k)
+    typed = typed_in_python(monkeypatch)
+    records = []
+    for k in range(20, 60):
+        records += offer(k)
     assert len(records) == 40 and not typed, sorted(set(typed))
 
 

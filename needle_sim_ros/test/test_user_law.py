@@ -13,6 +13,7 @@ import pytest
 from needle_sim_ros.model import BaseMotion, Integrator
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters
+from needle_sim_ros.tissue.factory import build_tissue_model
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "examples" / "shaft_drag.py"
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
@@ -33,14 +34,33 @@ def moving(t: float) -> BaseMotion:
     return BaseMotion((0.0, SPEED * t, 0.0), (0.0, 0.0, 0.0, 1.0), linear_velocity=(0.0, SPEED, 0.0))
 
 
-@pytest.mark.parametrize("compiled", [False, True])
-def test_the_users_drag_law_holds_the_closed_form_on_both_paths(compiled, monkeypatch):
-    law_module = example()
+def drag(law_module, model, share: float = 1.0):
     (coefficient,) = law_module.PARAMETERS
+    return law_module.shaft_drag_from_parameters({coefficient.name: coefficient.validate(share * COEFFICIENT)}, model)
+
+
+def untouched_tissue(model):
+    """The shipped tissue with its entry surface 1 m beyond the tip: stateful, advanced every step, never reached."""
+    tissue = {name: value for name, value in PARAMETERS.items() if name.startswith("tissue.")}
+    return build_tissue_model({**tissue, "tissue.enable": True, "tissue.entry_point": [1.3, 0.0, 0.0]}, model)
+
+
+COMPOSITIONS = {  # the contributions besides gravity, from the model and the example module
+    "drag": lambda law, model: [drag(law, model)],
+    "tissue and drag": lambda law, model: [untouched_tissue(model), drag(law, model)],
+    "drag split in two around the tissue": lambda law, model: [drag(law, model, 1 / 3), untouched_tissue(model),
+                                                                drag(law, model, 2 / 3)],
+}
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize("composition", COMPOSITIONS)
+def test_the_users_drag_law_holds_the_closed_form_on_both_paths(composition, compiled, monkeypatch):
+    """Compiled: one run composes every contribution (2 or 3 of them with the tissue, stateful or not)."""
     model, integrator = model_builder_from_parameters(PARAMETERS)()
-    law = law_module.shaft_drag_from_parameters({coefficient.name: coefficient.validate(COEFFICIENT)}, model)
+    forces = COMPOSITIONS[composition](example(), model)
     simulation = NeedleSimulation.prescribed(model, integrator, 1e-3, moving, model.straight_state(moving(0.0)),
-                                             [law])
+                                             forces)
     simulation.compiled_sequence = compiled
     general = []
     step = Integrator.step
@@ -49,6 +69,8 @@ def test_the_users_drag_law_holds_the_closed_form_on_both_paths(compiled, monkey
     steps = round(SECONDS * 1e3)
     assert len(records) == steps
     assert len(general) == (1 if compiled else steps)  # compiled: all but the first step (no accelerations yet)
+    if compiled:
+        assert simulation._run_plan.contributions == tuple(forces)
     load, length = COEFFICIENT * SPEED**2, model.props.length
     wrench = records[-1].wrench
     assert wrench.force_world[1] == pytest.approx(-load * length, rel=1e-4)

@@ -1,10 +1,12 @@
-"""A state-dependent force law written once, as compiled kernels, for every path.
+"""Force laws written once, as compiled kernels, for every path, and the compiled run that composes them.
 
-A :class:`CompiledContribution` subclass names its ``assemble`` kernel (and, if it acts on the base element,
-``touches_base``; see :mod:`needle_sim_ros.model.step`) on a float64 array of its parameters (``state``). The
-general path (``Integrator.step``: sub-stepping, statics) calls the kernel through ``assemble_banded``; the
-simulator's compiled run composes it into :func:`~needle_sim_ros.model.step.run_steps` (``run_steps`` below),
-so the law runs at compiled speed with no change to the engine. ``docs/extending.md`` walks through an example.
+A contribution with ``compiled_run`` declares its :class:`~needle_sim_ros.model.step.Kernels` (``kernels``), its
+constants packed into one float64 array (``constants``) and, if stateful, its state packed (``packed_state``) and
+back (``unpacked_state``). :class:`ContributionRun` composes any number of them
+(:func:`~needle_sim_ros.model.step.compiled_run`) into one compiled run of steps. A :class:`CompiledContribution`
+subclass (a law without state) names its ``assemble`` kernel (and, if it acts on the base element,
+``touches_base``) on a float64 array of its parameters; the general path (``Integrator.step``: sub-stepping,
+statics) calls the same kernel through ``assemble_banded``. ``docs/extending.md`` walks through an example.
 """
 from __future__ import annotations
 
@@ -14,7 +16,9 @@ import numpy as np
 
 from .forces import ElementLocalForce
 from .integrators import SequenceResult, run_outputs
-from .step import compiled_run, off_base
+from .step import Kernels, compiled_run, constants_only, itself, keep, nothing, off_base, pack, unpack
+
+NO_STATE = np.zeros(0)
 
 
 class CompiledContribution(ElementLocalForce):
@@ -26,10 +30,18 @@ class CompiledContribution(ElementLocalForce):
     compiled_run: ClassVar[bool] = True
     assemble: ClassVar  # numba kernel (state, q, qd, rotation, Q, band, kl, c_q, c_qd) -> bool
     touches_base: ClassVar = off_base
-    _run: ClassVar = None
+    kernels: ClassVar[Kernels]
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.kernels = Kernels(constants_only, nothing, itself, cls.assemble, keep, cls.touches_base)
 
     def __init__(self, state: np.ndarray) -> None:
         self.state = np.ascontiguousarray(state, dtype=float)
+
+    @property
+    def constants(self) -> np.ndarray:
+        return self.state
 
     def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
         Q = np.zeros(model.n_dof)
@@ -40,18 +52,32 @@ class CompiledContribution(ElementLocalForce):
     def touches_element(self, model, element: int) -> bool:
         return element != 0 or bool(type(self).touches_base(self.state))
 
-    def run_steps(self, model, integrator, state, own, dt: float, times: np.ndarray, motions: np.ndarray,
-                  rotations: np.ndarray, forces, memory) -> tuple[SequenceResult, None]:
-        """Steps of dt from ``state`` (with ``aux``) to the end times in one compiled call, under ``forces``
-        (time-invariant) and this law (the ``compiled_run`` protocol of :class:`ForceContribution`)."""
-        cls = type(self)
-        if cls.__dict__.get("_run") is None:  # composed once per law
-            cls._run = compiled_run(cls.assemble, touches_base=cls.touches_base)
+
+class ContributionRun:
+    """The compiled run of steps through the given ``compiled_run`` contributions, composed once."""
+
+    def __init__(self, contributions) -> None:
+        self.contributions = tuple(contributions)
+        self.run = compiled_run(tuple(type(force).kernels for force in self.contributions))
+        self.constants = pack([force.constants for force in self.contributions])
+
+    def __call__(self, model, integrator, state, owns: list, dt: float, times: np.ndarray, motions: np.ndarray,
+                 rotations: np.ndarray, forces, memory) -> tuple[SequenceResult, list]:
+        """Steps of dt from ``state`` (with ``aux``) to the end times (k,), the base at each given packed (k, 19)
+        with rotations (k, 3, 3), under ``forces`` (time-invariant) and the contributions (``owns``: their states,
+        None for those without), in one compiled call; the run ends early at a step that does not converge
+        (integrate that one with the general step). Returns the steps done and the contributions' states."""
         k, n = times.size, model.n_dof
         needle, constant_Q = integrator.run_arguments(forces, dt, float(times[0]), memory)
         history = np.empty((4, n))
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
         outputs = run_outputs(k, n)
-        done, _ = cls._run(history, times, motions, rotations, needle[0], constant_Q, *needle[1:], memory.control,
-                           self.state, *outputs)
-        return SequenceResult.of_run(done, outputs), own
+        packed = pack([NO_STATE if own is None else force.packed_state(own)
+                       for force, own in zip(self.contributions, owns)])
+        done, after = self.run(history, times, motions, rotations, needle[0], constant_Q, *needle[1:],
+                               memory.control, packed, self.constants, *outputs)
+        result = SequenceResult.of_run(done, outputs)
+        if done == 0:
+            return result, owns
+        return result, [own if own is None else force.unpacked_state(array)
+                        for force, own, array in zip(self.contributions, owns, unpack(after, len(owns)))]

@@ -48,10 +48,10 @@ class ForceContribution:
       iteration matrix in one compiled pass, and ``touches_element``: whether a point lies in a given element
       now (the base wrench skips forces off the first element). False: Newton takes the dense Jacobians of
       ``evaluate``.
-    * ``compiled_run`` (default False): a state-dependent contribution that also integrates a run of steps (its
-      state, if stateful, advanced) in one compiled call, ``run_steps(model, integrator, state, own, dt, times,
-      motions, rotations, forces, memory) -> (SequenceResult, own')`` (the simulator's fast path, like the step
-      sequence; ``own`` None if not stateful): the tissue, a ``contribution.CompiledContribution``.
+    * ``compiled_run`` (default False): a state-dependent contribution given by compiled kernels (``kernels``,
+      ``constants``; if stateful ``packed_state`` and ``unpacked_state``, see ``contribution``) that the
+      simulator's fast path composes with any others into one compiled run of steps: the tissue, a
+      ``contribution.CompiledContribution``.
     """
 
     state_dependent: ClassVar[bool]
@@ -137,9 +137,9 @@ def check_forces(forces) -> tuple:
                    if getattr(type(force), hook) is getattr(ForceContribution, hook)]
         if force.element_local and missing:
             raise TypeError(f"force contribution {name} declares element_local = True but has no {missing[0]}()")
-        if force.compiled_run and not (force.state_dependent and callable(getattr(force, "run_steps", None))):
+        if force.compiled_run and not (force.state_dependent and hasattr(type(force), "kernels")):
             raise TypeError(f"force contribution {name} declares compiled_run = True but is not state-dependent "
-                            "with run_steps()")
+                            "with kernels")
         if all(isinstance(getattr(type(force), capability), bool) for capability in CAPABILITIES):
             _CHECKED_CLASSES.add(type(force))
     return forces

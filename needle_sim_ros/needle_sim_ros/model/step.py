@@ -3,22 +3,25 @@
 Per step, with fixed stages:
 1. predict -- the base node kinematics imposed from the packed base motion (eqs. 18-19), the predictor of the
    attempt (``newton.predict``);
-2. assemble -- the internal forces and the contribution's forces and Jacobians (``newton.newton``);
+2. assemble -- the internal forces and the contributions' forces and Jacobians (``newton.newton``);
 3. Newton with one retry policy: the extrapolating predictor first while it works, then q_n (predictor choice and
    budgets as :meth:`~needle_sim_ros.model.integrators.Integrator.step`); a step that does not converge ends the
    run, the caller integrates it with the general path (sub-stepping, errors) and continues;
-4. commit -- the state accepted and the contribution's state advanced (``advance``);
-5. reaction -- the base wrench (eq. 20) under the contribution's forces of the next step (evaluated only where
+4. commit -- the state accepted and the contributions' states advanced (``advance``);
+5. reaction -- the base wrench (eq. 20) under the contributions' forces of the next step (evaluated only where
    they act on the base element's rows).
 
-A contribution is its state (any numba value: a named tuple of arrays, or 0.0 for none) and four compiled
-kernels, passed to :func:`run_steps` by the module-level entry that composes them (``run_steps`` is inlined
-there, so the kernels are compile-time constants and the entry is cached like any other):
-* ``acting(state) -> forces``: what acts over the step starting from the state (only what ``assemble`` reads:
+A contribution is the state the loop carries (any numba value: a named tuple of arrays, or its constants) and
+six compiled kernels (:class:`Kernels`); :func:`compose` makes the kernels of any number of contributions those of
+one, and :func:`compiled_run` the module-level-like entry that inlines ``run_steps`` with them (the kernels are
+compile-time constants there; each entry is made once per process and cached on disk like any other):
+* ``load(state, constants) -> carried`` and ``store(carried) -> state``: the carried state from the packed state
+  and constants (float64 arrays: numba 0.59 types a tuple argument in Python on every call) and back;
+* ``acting(carried) -> forces``: what acts over the step starting from the state (only what ``assemble`` reads:
   it is passed to every correction);
 * ``assemble(forces, q, qd, rotation, Q, band, kl, c_q, c_qd) -> bool``: adds its generalized force to Q and, if
   ``band`` is not (0, 0), c_q dQ/dq + c_qd dQ/dq' to the band matrix; False if it cannot be assembled;
-* ``advance(state, q, qd, t) -> state``: the state after a step accepted at (q, q', t);
+* ``advance(carried, q, qd, t) -> carried``: the state after a step accepted at (q, q', t);
 * ``touches_base(forces) -> bool``: whether the forces act on the base element's rows (the reaction needs them).
 With no state-dependent contribution (``keep_matrix``) the iteration matrix is kept across steps while the base
 holds still and the steps converge in a single correction: then no matrix is assembled or factored at all (a
@@ -28,6 +31,15 @@ of 2.1; pitching base: 3.0 instead of 1.1).
 """
 from __future__ import annotations
 
+import hashlib
+import importlib.util
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import NamedTuple
+
+import numba
 import numpy as np
 from numba import njit
 
@@ -137,19 +149,155 @@ def off_base(state):
     return False
 
 
-def compiled_run(assemble, advance=keep, touches_base=off_base):
-    """The compiled run of steps (:func:`run_steps`, a fresh matrix every step) with one contribution given by its
-    kernels, whose state is one float64 array (its parameters and state in a named layout): a numba function of
-    (history, times, motions, rotations, scheme coefficients, constant force, ``Integrator.run_arguments`` after
-    the coefficients, control flags, state, states, wrenches, iterations) returning (steps done, state after)."""
+@njit(cache=True)
+def constants_only(state, constants):
+    """The load kernel of a contribution without state: its constants are what the step loop carries."""
+    return constants
 
-    @njit(cache=True)
-    def run(history, times, motions, rotations, coef, constant_Q, tol, max_iterations, prescribed, base_nodes,
-            base_local_r, base_local_rx, active, scale, tables, residual, band, ext_band, pivots, factorization, kl,
-            control, state, states, wrenches, iterations):
-        return run_steps(history, times, motions, rotations, constant_Q,
-                         (coef, tol, max_iterations, active, scale, tables, kl),
-                         (prescribed, base_nodes, base_local_r, base_local_rx),
-                         (residual, band, ext_band, pivots, factorization), control, np.empty(19), False, state,
-                         itself, assemble, advance, touches_base, (states, wrenches, iterations))
-    return run
+
+@njit(cache=True)
+def nothing(carried):
+    """The store kernel of a contribution without state."""
+    return np.zeros(0)
+
+
+def pack(arrays) -> np.ndarray:
+    """The packed arrays of composed contributions in one: the sizes of all but the last, then their values (one
+    array: itself)."""
+    if len(arrays) == 1:
+        return np.asarray(arrays[0], dtype=float)
+    return np.concatenate([[a.size for a in arrays[:-1]], *arrays]).astype(float, copy=False)
+
+
+def unpack(packed: np.ndarray, count: int) -> list[np.ndarray]:
+    """The ``count`` arrays of :func:`pack` (views)."""
+    if count == 1:
+        return [packed]
+    arrays, start = [], count - 1
+    for size in packed[:count - 1].astype(np.int64):
+        arrays.append(packed[start:start + size])
+        start += size
+    return [*arrays, packed[start:]]
+
+
+class Kernels(NamedTuple):
+    """A contribution's compiled kernels (module docstring): ``load(state, constants) -> carried`` from its packed
+    state and constants (float64 arrays), ``store(carried) -> state`` packed, then the step loop's four. Each a
+    module-level numba function (the composed run imports it by name)."""
+
+    load: object
+    store: object
+    acting: object
+    assemble: object
+    advance: object
+    touches_base: object
+
+
+_RUNS: dict[tuple[Kernels, ...], object] = {}
+_ARGUMENTS = ("history, times, motions, rotations, coef, constant_Q, tol, max_iterations, prescribed, base_nodes, "
+              "base_local_r, base_local_rx, active, scale, tables, residual, band, ext_band, pivots, factorization, "
+              "kl, control, state, constants, states, wrenches, iterations")
+
+
+def compiled_run(kernels: tuple[Kernels, ...]):
+    """The compiled run of steps (:func:`run_steps`, a fresh matrix every step) through the contributions given by
+    their kernels: a numba function of (history, times, motions, rotations, scheme coefficients, constant force,
+    ``Integrator.run_arguments`` after the coefficients, control flags, packed state, packed constants (both
+    :func:`pack`'s), states, wrenches, iterations) returning (steps done, packed state after).
+
+    Its source composes the kernels by name into a generated module (one file per composition, written once under
+    numba's cache directory), so that numba caches it on disk like any module-level function; one per process."""
+    kernels = tuple(kernels)
+    if kernels not in _RUNS:
+        module = _load_module(_composed_source(kernels))
+        _RUNS[kernels] = module.run
+    return _RUNS[kernels]
+
+
+def _composed_source(kernels: tuple[Kernels, ...]) -> str:
+    imports, count, each = [], len(kernels), range(len(kernels))
+    for i, contribution in enumerate(kernels):
+        for role, function in zip(Kernels._fields, contribution):
+            py_func = function.py_func
+            if "<locals>" in py_func.__qualname__:
+                raise TypeError(f"kernel {py_func.__qualname__} must be a module-level function")
+            imports.append(f"from {py_func.__module__} import {py_func.__name__} as {role}_{i}")
+    if count == 1:  # the contribution's own kernels
+        composed = "\n".join(f"{role} = {role}_0" for role in Kernels._fields)
+    else:  # carried states and forces are tuples; packed arrays: the sizes of all but the last, then the values
+        rows = "q, qd, rotation, Q, band, kl, c_q, c_qd"
+        load = ["    i, j = N - 1, N - 1"]
+        for k in range(count - 1):
+            load += [f"    s{k}, c{k} = state[i:i + int(state[{k}])], constants[j:j + int(constants[{k}])]",
+                     f"    i, j = i + int(state[{k}]), j + int(constants[{k}])"]
+        load += [f"    s{count - 1}, c{count - 1} = state[i:], constants[j:]",
+                 "    return (" + ", ".join(f"load_{k}(s{k}, c{k})" for k in each) + ",)"]
+        store = [f"    x{k} = store_{k}(carried[{k}])" for k in each]
+        store += ["    out = np.empty(N - 1 + " + " + ".join(f"x{k}.size" for k in each) + ")", "    i = N - 1"]
+        for k in each:
+            store += [f"    out[{k}] = x{k}.size"] if k < count - 1 else []
+            store += [f"    out[i:i + x{k}.size] = x{k}", f"    i += x{k}.size"]
+
+        def calls(role: str, name: str, arguments: str, joiner: str) -> str:
+            text = joiner.join(f"{role}_{k}({name}[{k}]{arguments})" for k in each)
+            return f"({text},)" if joiner == ", " else text
+        bodies = {"load(state, constants)": "\n".join(load),
+                  "store(carried)": "\n".join([*store, "    return out"]),
+                  "acting(carried)": "    return " + calls("acting", "carried", "", ", "),
+                  f"assemble(forces, {rows})": "    return " + calls("assemble", "forces", ", " + rows, " and "),
+                  "advance(carried, q, qd, t)": "    return " + calls("advance", "carried", ", q, qd, t", ", "),
+                  "touches_base(forces)": "    return " + calls("touches_base", "forces", "", " or ")}
+        composed = "\n\n\n".join(f"@njit(cache=True)\ndef {head}:\n{body}" for head, body in bodies.items())
+    return f'''"""Generated by needle_sim_ros.model.step.compiled_run: the compiled run of {count} contribution(s)."""
+import numpy as np
+from numba import njit
+
+from needle_sim_ros.model.step import run_steps
+{chr(10).join(imports)}
+
+N = {count}
+
+
+{composed}
+
+
+@njit(cache=True)
+def run({_ARGUMENTS}):
+    done, carried = run_steps(history, times, motions, rotations, constant_Q,
+                              (coef, tol, max_iterations, active, scale, tables, kl),
+                              (prescribed, base_nodes, base_local_r, base_local_rx),
+                              (residual, band, ext_band, pivots, factorization), control, np.empty(19), False,
+                              load(state, constants), acting, assemble, advance, touches_base,
+                              (states, wrenches, iterations))
+    return done, store(carried)
+'''
+
+
+def _load_module(source: str):
+    name = "needle_composed_" + hashlib.sha256(source.encode()).hexdigest()[:16]
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, _written(name, source))
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _written(name: str, source: str) -> Path:
+    """The composed module's file, written once (numba's cache keys on its time stamp) under numba's cache
+    directory, else the user's cache, else the temporary directory (a read-only home)."""
+    folders = [Path(numba.config.CACHE_DIR)] if numba.config.CACHE_DIR else []
+    folders += [Path.home() / ".cache" / "needle_sim", Path(tempfile.gettempdir()) / f"needle_sim-{os.getuid()}"]
+    for folder in (folder / "composed" for folder in folders):
+        path = folder / f"{name}.py"
+        try:
+            if not path.is_file() or path.read_text() != source:
+                folder.mkdir(parents=True, exist_ok=True)
+                scratch = folder / f".{name}.{os.getpid()}"
+                scratch.write_text(source)
+                os.replace(scratch, path)
+            return path
+        except OSError as error:
+            failure = error
+    raise failure

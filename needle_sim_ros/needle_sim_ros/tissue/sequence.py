@@ -20,7 +20,7 @@ from numba import literal_unroll, njit
 
 from needle_sim_ros.model.records import (put, take_flag, take_flags, take_float, take_index_matrix, take_indices,
                                           take_int, take_matrix, take_vector, view_matrix, view_vector)
-from needle_sim_ros.model.step import run_steps
+from needle_sim_ros.model.step import Kernels
 
 from .advance import advance_contact, advance_shaft, tip_parameters
 from .coupling import (bevel_tip_assembly, first_slot_in, shaft_arguments, shaft_forces_assembly,
@@ -257,17 +257,15 @@ def tissue_touches_base(f):
 
 
 @njit(cache=True)
-def integrate_tissue_sequence(history, times, motions, rotations, coef, constant_Q, tol, max_iterations, prescribed,
-                              base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band,
-                              ext_band, pivots, factorization, kl, control, record, parameters, states, wrenches,
-                              iterations):
-    """:func:`~needle_sim_ros.model.step.run_steps` with the tissue (a fresh matrix every step) from the packed
-    record and parameters; returns (steps done, the packed record after them)."""
-    step = TissueStep(unpack_record(record), unpack_parameters(parameters))
-    done, step = run_steps(history, times, motions, rotations, constant_Q,
-                           (coef, tol, max_iterations, active, scale, tables, kl),
-                           (prescribed, base_nodes, base_local_r, base_local_rx),
-                           (residual, band, ext_band, pivots, factorization), control, np.empty(19), False, step,
-                           tissue_acting, tissue_assemble, tissue_advance, tissue_touches_base,
-                           (states, wrenches, iterations))
-    return done, pack_record(step.record)
+def tissue_load(record, parameters):
+    """The step loop's load kernel: the carried ``TissueStep`` from the packed record and parameters."""
+    return TissueStep(unpack_record(record), unpack_parameters(parameters))
+
+
+@njit(cache=True)
+def tissue_store(step):
+    """The step loop's store kernel: the record after a run, packed."""
+    return pack_record(step.record)
+
+
+TISSUE_KERNELS = Kernels(tissue_load, tissue_store, tissue_acting, tissue_assemble, tissue_advance, tissue_touches_base)

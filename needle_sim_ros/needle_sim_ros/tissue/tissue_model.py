@@ -16,7 +16,6 @@ import numpy as np
 
 from needle_sim_ros.model import centerline
 from needle_sim_ros.model.forces import ForceContribution
-from needle_sim_ros.model.integrators import SequenceResult, run_outputs
 
 from .advance import tip_parameters
 from .bevel_tip import BevelTip
@@ -25,7 +24,7 @@ from .coupling import (NO_SHAFT_FORCES, BevelTipForce, ContactState, ShaftForces
 from .track import Track
 from .geometry import inserted_interval
 from .insertion_profile import InsertionForceProfile
-from .sequence import (Contact, TissueRecord, advance_packed, integrate_tissue_sequence, pack_parameters, pack_record,
+from .sequence import (TISSUE_KERNELS, Contact, TissueRecord, advance_packed, pack_parameters, pack_record,
                        unpack_record)
 
 
@@ -86,6 +85,7 @@ class TissueModel(ForceContribution):
     time_invariant = False
     stateful = True
     compiled_run = True
+    kernels = TISSUE_KERNELS
 
     def __init__(self, contact: TissueContact, shaft: ShaftSupport,
                  bevel: tuple[BevelTip, np.ndarray] | None = None,
@@ -112,7 +112,7 @@ class TissueModel(ForceContribution):
                          float(self.bevel_edge), profile is not None,
                          *((float(profile.a1), float(profile.a2), float(profile.cutting_force)) if profile
                            else (0.0, 0.0, 0.0)), float(speed_scale))
-        self.parameters = pack_parameters(contact_arguments, shaft.kernel_arguments, tip_arguments)
+        self.constants = pack_parameters(contact_arguments, shaft.kernel_arguments, tip_arguments)
 
     def initial_state(self, model) -> TissueState:
         """Fresh tissue: not punctured, no track, no shaft point inside."""
@@ -125,26 +125,16 @@ class TissueModel(ForceContribution):
 
     def advance(self, model, state, base, tissue: TissueState) -> TissueState:
         """The tissue after the accepted step to ``state`` (see the module docstring; ``advance``)."""
-        return TissueState(self, advance_packed(tissue.record, self.parameters, state.q, state.qd, float(state.t)))
+        return TissueState(self, advance_packed(tissue.record, self.constants, state.q, state.qd, float(state.t)))
 
-    def run_steps(self, model, integrator, state, tissue: TissueState, dt: float, times: np.ndarray,
-                  motions: np.ndarray, rotations: np.ndarray, forces, memory) -> tuple[SequenceResult, TissueState]:
-        """Steps of dt from ``state`` (with ``aux``) to the end times (k,), the base at each given packed (k, 19)
-        with rotations (k, 3, 3), under ``forces`` (time-invariant) and the tissue, in one compiled call
-        (``tissue.sequence``); the run ends early at a step that does not converge (integrate that one with the
-        general step). Returns the steps done and the tissue state after them."""
-        k, n = times.size, model.n_dof
-        needle, constant_Q = integrator.run_arguments(forces, dt, float(times[0]), memory)
-        history = np.empty((4, n))
-        history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
-        outputs = run_outputs(k, n)
-        done, record = integrate_tissue_sequence(history, times, motions, rotations, needle[0], constant_Q,
-                                                 *needle[1:], memory.control, tissue.record, self.parameters,
-                                                 *outputs)
-        result = SequenceResult.of_run(done, outputs)
-        if done == 0:
-            return result, tissue
-        return result, TissueState(self, record)
+    @staticmethod
+    def packed_state(tissue: TissueState) -> np.ndarray:
+        """The state a compiled run takes (``contribution.ContributionRun``)."""
+        return tissue.record
+
+    def unpacked_state(self, record: np.ndarray) -> TissueState:
+        """The state of the record a compiled run returns."""
+        return TissueState(self, record)
 
     def views(self, packed: np.ndarray) -> tuple[ContactState, ShaftState, tuple]:
         """The contact, the shaft state and the next step's contributions of a :class:`TissueState`'s record."""
