@@ -70,7 +70,7 @@ def test_the_users_drag_law_holds_the_closed_form_on_both_paths(composition, com
     assert len(records) == steps
     assert len(general) == (1 if compiled else steps)  # compiled: all but the first step (no accelerations yet)
     if compiled:
-        assert simulation._run_plan.contributions == tuple(forces)
+        assert simulation.stepper._run_plan.contributions == tuple(forces)
     load, length = COEFFICIENT * SPEED**2, model.props.length
     wrench = records[-1].wrench
     assert wrench.force_world[1] == pytest.approx(-load * length, rel=1e-4)
