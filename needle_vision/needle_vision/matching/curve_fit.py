@@ -79,14 +79,22 @@ def _project(projection, point, derivative, pixel, jacobian, tangent):  # pragma
 def _accumulate(normal, rhs, s, b, row, weight, residual):  # pragma: no cover - compiled
     """One weighted scalar residual of segment ``s`` into the normal equations: its row ``row`` (d residual / d point,
     (3,)) spread over the segment's four control points by the basis ``b`` (lower triangle of ``normal``)."""
+    r0, r1, r2 = row[0], row[1], row[2]
     for a in range(4):
         wa = weight * b[a]
         for c in range(a, 4):
             w = wa * b[c]
             first, second = 3 * (s + c), 3 * (s + a)
-            for i in range(3):
-                for j in range(3):
-                    normal[first + i, second + j] += w * row[j] * row[i]
+            w0, w1, w2 = w * r0, w * r1, w * r2
+            normal[first, second] += w0 * r0
+            normal[first, second + 1] += w1 * r0
+            normal[first, second + 2] += w2 * r0
+            normal[first + 1, second] += w0 * r1
+            normal[first + 1, second + 1] += w1 * r1
+            normal[first + 1, second + 2] += w2 * r1
+            normal[first + 2, second] += w0 * r2
+            normal[first + 2, second + 1] += w1 * r2
+            normal[first + 2, second + 2] += w2 * r2
         for k in range(3):
             rhs[3 * (s + a) + k] += wa * row[k] * residual
 
