@@ -46,26 +46,16 @@ from needle_vision.render import (NEEDLE_RADIUS, Imaging, Scene, default_rig, ma
 from needle_vision.calibration.sensitivity import simulate_checkerboard_calibration  # noqa: E402
 
 
-def timed(function, repetitions: int) -> tuple[float, float]:
-    """(min, median) wall time [ms] of ``function()``."""
+def timed(function, repetitions: int, clock=time.perf_counter) -> tuple[float, float]:
+    """(min, median) time [ms] of ``function()``: wall time, or with ``clock=time.thread_time`` the CPU time on the
+    calling thread (independent of other processes' load)."""
     function()
     samples = []
     for _ in range(repetitions):
-        start = time.perf_counter()
+        start = clock()
         function()
-        samples.append(time.perf_counter() - start)
+        samples.append(clock() - start)
     return 1e3 * min(samples), 1e3 * float(np.median(samples))
-
-
-def cpu_timed(function, repetitions: int) -> float:
-    """Median CPU time [ms] of ``function()`` on the calling thread (independent of other processes' load)."""
-    function()
-    samples = []
-    for _ in range(repetitions):
-        start = time.thread_time()
-        function()
-        samples.append(time.thread_time() - start)
-    return 1e3 * float(np.median(samples))
 
 
 def stage_cpu(pipeline: StereoNeedlePipeline, pairs: list[tuple[np.ndarray, np.ndarray]], repetitions: int) -> str:
@@ -89,11 +79,11 @@ def stage_cpu(pipeline: StereoNeedlePipeline, pairs: list[tuple[np.ndarray, np.n
                                    replace(config.reconstruction, curve_fit=True), pipeline.output_from_left)
             for both in centerlines],
         "whole pair (process)": lambda: [pipeline.process(1.0, *pair) for pair in pairs]}
-    times = {name: cpu_timed(stage, repetitions) / len(pairs) for name, stage in stages.items()}
+    times = {name: timed(stage, repetitions, time.thread_time)[1] / len(pairs) for name, stage in stages.items()}
     fit = replace(config.reconstruction, curve_fit=True)
-    cost = cpu_timed(lambda: [reconstruct_centerline(*both, pipeline.rectification, config.matching, fit,
-                                                     pipeline.output_from_left) for both in centerlines], repetitions
-                     ) / len(pairs) - times["matching + triangulation"] - times["ordering + resampling"]
+    cost = timed(lambda: [reconstruct_centerline(*both, pipeline.rectification, config.matching, fit,
+                                                 pipeline.output_from_left) for both in centerlines], repetitions,
+                 time.thread_time)[1] / len(pairs) - times["matching + triangulation"] - times["ordering + resampling"]
     return ", ".join(f"{name} {value:.2f}" for name, value in times.items()) + \
         f"; the curve fit's cost (reconstruction with it less without) {cost:.2f}"
 

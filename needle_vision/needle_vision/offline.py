@@ -119,10 +119,6 @@ def _bag_reader(path: Path) -> BagReader:
         raise InputError(str(error)) from error
 
 
-def _bag_files(path: Path) -> list[Path]:
-    return _bag_reader(path).files
-
-
 def _bag_records(path: Path, topics: list[str]) -> Iterator[BagMessage]:
     """The messages of ``topics`` in log-time order (payloads are views); unreadable files -> InputError."""
     try:
@@ -131,17 +127,15 @@ def _bag_records(path: Path, topics: list[str]) -> Iterator[BagMessage]:
         raise InputError(str(error)) from error
 
 
-def _bag_count(path: Path, topic: str) -> int | None:
+def _bag_topic(path: Path, topic: str) -> tuple[int, set[str]] | None:
+    """Message count and schema names of ``topic`` in the bag's summaries (None: a file has no summary)."""
     reader = _bag_reader(path)
     recorded = reader.topics.get("/" + topic.lstrip("/"))
-    return None if not reader.summarized else recorded.message_count if recorded else 0
-
-
-def _bag_types(path: Path, topic: str) -> set[str] | None:
-    """Schema names of ``topic``'s messages in the bag's summaries (None: a file has no summary)."""
-    reader = _bag_reader(path)
-    recorded = reader.topics.get("/" + topic.lstrip("/"))
-    return None if not reader.summarized else {recorded.type_name} if recorded and recorded.message_count else set()
+    if not reader.summarized:
+        return None
+    if recorded is None or not recorded.message_count:
+        return 0, set()
+    return recorded.message_count, {recorded.type_name}
 
 
 def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRig:
@@ -152,7 +146,7 @@ def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRi
     from mcap.reader import make_reader
 
     infos: dict[str, object] = {}
-    for file in _bag_files(path):
+    for file in _bag_reader(path).files:
         try:
             with open(file, "rb") as stream:
                 reader = make_reader(stream, decoder_factories=[DecoderFactory()])
@@ -176,7 +170,8 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, 
     an unusable encoding and frames without a partner are counted in ``skipped``."""
     left = "/" + left_topic.lstrip("/")
     base = "/" + base_topic.lstrip("/") if base_topic else ""
-    source = PairSource(_bag_count(path, left_topic), lambda: iter(()), False)
+    recorded = _bag_topic(path, left_topic)
+    source = PairSource(recorded and recorded[0], lambda: iter(()), False)
 
     def gray(image) -> np.ndarray:
         try:
@@ -230,7 +225,8 @@ def open_source(path: Path, fps: float, left_topic: str, right_topic: str, toler
         if base_topic:
             raise InputError(f"--base-pose-topic needs an MCAP input; '{path}' is an image folder")
         return folder_source(path, fps)
-    types = _bag_types(path, base_topic) if base_topic else None
+    recorded = _bag_topic(path, base_topic) if base_topic else None
+    types = recorded and recorded[1]
     if types is not None and not types:
         raise InputError(f"'{path}' has no messages on the base pose topic '{base_topic}'")
     if types and types != {POSE_TYPE}:

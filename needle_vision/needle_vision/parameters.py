@@ -146,6 +146,11 @@ def validate_all(values: dict[str, Any]) -> dict[str, Any]:
     return result
 
 
+#: The ReconstructionConfig fields set from the parameters ``reconstruction.<field>`` of the same name.
+_RECONSTRUCTION = tuple(spec.name.removeprefix("reconstruction.") for spec in SPECS
+                        if spec.name.startswith("reconstruction."))
+
+
 def stereo_config(values: dict[str, Any]) -> StereoConfig:
     """The pipeline settings from validated parameter values."""
     return StereoConfig(
@@ -159,17 +164,7 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
                                     max_link_angle_deg=values["detection.max_link_angle"]),
         matching=MatchingConfig(min_epipolar_angle_deg=values["matching.min_epipolar_angle"],
                                 max_epipolar_error_px=values["matching.max_epipolar_error"]),
-        reconstruction=ReconstructionConfig(min_depth=values["reconstruction.min_depth"],
-                                            max_depth=values["reconstruction.max_depth"],
-                                            outlier_sigma=values["reconstruction.outlier_sigma"],
-                                            outlier_floor=values["reconstruction.outlier_floor"],
-                                            smoothing_length=values["reconstruction.smoothing_length"],
-                                            sample_spacing=values["reconstruction.sample_spacing"],
-                                            max_length=values["reconstruction.max_length"],
-                                            max_image_scatter=values["reconstruction.max_image_scatter"],
-                                            max_uncertainty=values["reconstruction.max_uncertainty"],
-                                            curve_fit=values["reconstruction.curve_fit"],
-                                            needle_radius=values["reconstruction.needle_radius"],
+        reconstruction=ReconstructionConfig(**{name: values[f"reconstruction.{name}"] for name in _RECONSTRUCTION},
                                             base_point=np.array(values["base_point"])),
         background_frames=values["background.frames"],
         background_learning_rate=values["background.learning_rate"],

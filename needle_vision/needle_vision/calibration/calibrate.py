@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 
 from needle_common.cli_types import non_negative, positive, positive_int
+from needle_common.output_files import write_atomically
 from needle_vision.calibration.rig import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
 from needle_vision.offline import InputError, SkippedPair, command_status, decoded, open_source
 from needle_vision.calibration.rectification import Rectification
@@ -133,12 +134,6 @@ def _board(text: str) -> tuple[int, int]:
     return int(match.group(1)), int(match.group(2))
 
 
-def _write(path: Path, text: str) -> None:
-    partial = path.with_name(path.name + ".part")
-    partial.write_text(text)
-    partial.replace(path)
-
-
 def run(arguments: argparse.Namespace) -> int:
     source = open_source(Path(arguments.input), 1.0, arguments.left_topic, arguments.right_topic,
                          arguments.sync_tolerance)
@@ -169,10 +164,10 @@ def run(arguments: argparse.Namespace) -> int:
     ros = result.rig.with_ros_rectification()
     output = Path(arguments.output_dir)
     output.mkdir(parents=True, exist_ok=True)
-    _write(output / "left.yaml", camera_calibration_yaml(ros.left))
-    _write(output / "right.yaml", camera_calibration_yaml(ros.right))
     report = yaml.safe_dump(result.report(), sort_keys=False, default_flow_style=None)
-    _write(output / "calibration_report.yaml", report)
+    for name, text in (("left.yaml", camera_calibration_yaml(ros.left)),
+                       ("right.yaml", camera_calibration_yaml(ros.right)), ("calibration_report.yaml", report)):
+        write_atomically(output / name, lambda temporary, text=text: temporary.write_text(text))
     print(report.rstrip())
     print(f"-> {output / 'left.yaml'}, {output / 'right.yaml'}, {output / 'calibration_report.yaml'}")
     return 0

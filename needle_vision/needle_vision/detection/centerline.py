@@ -211,13 +211,6 @@ def _refine_path(image, background, polarity, path):  # pragma: no cover - compi
 
 
 @numba.njit(cache=True, nogil=True)
-def _full_resolution_path(image, background, polarity, path, factor):  # pragma: no cover - compiled
-    """The coarse ``path`` refined (:func:`_refine_path`) in full-resolution coordinates (of the coarse pixel
-    centres), smoothed over 3 points."""
-    return moving_average((_refine_path(image, background, polarity, path) + 0.5) * factor - 0.5, 3)
-
-
-@numba.njit(cache=True, nogil=True)
 def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, half_width):  # pragma: no cover
     """Centroid across each one-pixel slice: slice k is row ``fixed[k]`` (along_rows) or column ``fixed[k]``,
     spanning ``round(predicted[k]) ± half_width``. The weights are the relative contrast (B - I) / B: for a dark
@@ -845,7 +838,9 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
                           int(config.min_length_px / factor))
     if not paths:
         raise NoNeedleError("no pixel differs enough from the background")
-    paths = [_full_resolution_path(coarse, background.coarse, polarity, path, factor) for path in paths]
+    # Refined (:func:`_refine_path`), in full-resolution coordinates (of the coarse pixel centres), 3-point smoothed.
+    paths = [moving_average((_refine_path(coarse, background.coarse, polarity, path) + 0.5) * factor - 0.5, 3)
+             for path in paths]
     length = arc_length(paths[0])[-1]
     if length < config.min_length_px:
         raise NoNeedleError(f"largest foreground structure is {length:.0f} px long "

@@ -29,16 +29,13 @@ _JUMP_PX = 8.0
 
 @dataclass(frozen=True)
 class CurveFit:
-    """The fitted curve sampled densely from its first to its last control parameter: ``points (n, 3)`` and unit
-    ``tangents`` in the left rectified frame [m], ``sigma (n,)`` [m] (1-sigma across the needle, worst direction),
-    ``supported (n,)`` (both views have image points within ``max_gap`` around the sample), and the fit's
-    ``rms_normalised`` image residual (1 when the image noise is as assumed)."""
+    """The fitted curve sampled densely from its first to its last control parameter: ``points (n, 3)`` in the left
+    rectified frame [m], ``sigma (n,)`` [m] (1-sigma across the needle, worst direction) and ``supported (n,)`` (both
+    views have image points within ``max_gap`` around the sample)."""
 
     points: np.ndarray
-    tangents: np.ndarray
     sigma: np.ndarray
     supported: np.ndarray
-    rms_normalised: float
 
 
 @numba.njit(cache=True, nogil=True)
@@ -345,14 +342,13 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
 
 @numba.njit(cache=True, nogil=True)
 def _sample(control, h, length, factor, spacing, inflation):  # pragma: no cover - compiled
-    """Points, unit tangents and 1-sigma across the needle (worst direction; the covariance times ``inflation``)
+    """Points and 1-sigma across the needle (worst direction; the covariance times ``inflation``)
     every ~``spacing`` of the parameter, from 0 to ``length``."""
     count = control.shape[0]
     segments = count - 3
     covariance = _inverse_band(factor)
     n = max(int(np.ceil(length / spacing)), 1) + 1
     points = np.empty((n, 3))
-    tangents = np.empty((n, 3))
     sigma = np.empty(n)
     parameters = np.empty(n)
     b, d1, t = np.empty(4), np.empty(4), np.empty(3)
@@ -365,7 +361,6 @@ def _sample(control, h, length, factor, spacing, inflation):  # pragma: no cover
         norm = max(np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]), 1e-300)
         for k in range(3):
             t[k] /= norm
-            tangents[p, k] = t[k]
         block[:] = 0.0
         for a in range(4):
             for c in range(4):
@@ -391,7 +386,7 @@ def _sample(control, h, length, factor, spacing, inflation):  # pragma: no cover
                 a12 += e1[k] * block[k, j] * e2[j]
         largest = 0.5 * (a11 + a22) + np.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
         sigma[p] = np.sqrt(max(largest, 0.0) * inflation)
-    return points, tangents, sigma, parameters
+    return points, sigma, parameters
 
 
 @numba.njit(cache=True, nogil=True)
@@ -448,8 +443,8 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
     if not np.all(np.isfinite(control)):
         return None
     # The covariance scaled by the residuals' reduced chi-square when the images are noisier than their scatter said.
-    points, tangents, sigma, parameters = _sample(control, h, length, factor, sample_spacing,
-                                                  noise_inflation * max(rms, 1.0) ** 2)
+    points, sigma, parameters = _sample(control, h, length, factor, sample_spacing,
+                                        noise_inflation * max(rms, 1.0) ** 2)
     if not (np.all(np.isfinite(points)) and np.all(np.isfinite(sigma))):
         return None
     # Support from every image point (a hidden stretch is no shorter than its gap between single points).
@@ -460,4 +455,4 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
         _feet(control, h, segments, length, projections[k], np.ascontiguousarray(view, dtype=float), part, False, 1)
     all_views = np.concatenate([np.zeros(len(views[0]), np.int64), np.ones(len(views[1]), np.int64)])
     supported = _support(parameters, everything, np.ones(len(everything), np.bool_), all_views, length, max_gap)
-    return CurveFit(points, tangents, sigma, supported, float(rms))
+    return CurveFit(points, sigma, supported)
