@@ -108,15 +108,20 @@ class Arm:
                          ChangeState.Request(transition=Transition(id=transition_id))).success
 
 
-@pytest.fixture
-def arm(ros_env):
+def running(kind: type[Arm]):
+    """A stand-in arm of the given kind in a fresh rclpy context; stops the processes started for it, then itself."""
     rclpy.init()
-    stand_in = Arm()
+    stand_in = kind()
     stand_in.processes = []
     yield stand_in
     stop(stand_in.processes)
     stand_in.close()
     rclpy.shutdown()
+
+
+@pytest.fixture
+def arm(ros_env):
+    yield from running(Arm)
 
 
 def start(arm: Arm, env, tmp_path, arguments=(), **overrides) -> subprocess.Popen:
@@ -145,6 +150,20 @@ def rendering(arm: Arm, process, fraction: float = 0.95) -> None:
                process, what="the haptic force to reach the needle's weight")
 
 
+def zero_within_the_watchdog_time(arm: Arm) -> tuple[float, list]:
+    """After the poses stop: a zero within the (wall-clock) watchdog time, and nothing but zeros after it;
+    returns (the last pose's send time, what came after the watchdog time)."""
+    time.sleep(0.005)
+    silent_from = arm.last_sent
+    time.sleep(0.5)
+    after = arm.since(silent_from)
+    first_zero = next(entry[0] for entry in after if not entry[1].any())
+    assert first_zero - silent_from < TIMEOUT + 0.03, first_zero - silent_from
+    late = [entry for entry in after if entry[0] > silent_from + TIMEOUT + 0.03]
+    assert late and not norms(late).any() and not norms(late, 2).any()
+    return silent_from, late
+
+
 def test_the_watchdog_zeroes_a_silent_arm_ramps_back_and_deactivate_sends_zero(arm, ros_env, tmp_path):
     process = start(arm, ros_env, tmp_path, **HAPTICS)
     arm.streaming.set()
@@ -160,14 +179,7 @@ def test_the_watchdog_zeroes_a_silent_arm_ramps_back_and_deactivate_sends_zero(a
 
     # The arm goes silent: zero within the watchdog time, and zero keeps coming at the step rate.
     arm.streaming.clear()
-    time.sleep(0.005)
-    silent_from = arm.last_sent
-    time.sleep(0.5)
-    after = arm.since(silent_from)
-    first_zero = next(entry[0] for entry in after if not entry[1].any())
-    assert first_zero - silent_from < TIMEOUT + 0.03, first_zero - silent_from
-    late = [entry for entry in after if entry[0] > silent_from + TIMEOUT + 0.03]
-    assert not norms(late).any() and not norms(late, 2).any()
+    silent_from, late = zero_within_the_watchdog_time(arm)
     assert len([e for e in late if e[0] > silent_from + 0.1]) > 0.6 * 0.4 * 1000  # ~1 kHz of zeros
     assert any(s.level == b"\x02" and "watchdog" in s.message for s in arm.status("haptics"))
 
@@ -233,25 +245,7 @@ class SimulatedClockArm(Arm):
 
 @pytest.fixture
 def sim_arm(ros_env):
-    rclpy.init()
-    stand_in = SimulatedClockArm()
-    stand_in.processes = []
-    yield stand_in
-    stop(stand_in.processes)
-    stand_in.close()
-    rclpy.shutdown()
-
-
-def zero_within_the_watchdog_time(arm: Arm) -> None:
-    """After the poses stop: a zero within the (wall-clock) watchdog time, and nothing but zeros after it."""
-    time.sleep(0.005)
-    silent_from = arm.last_sent
-    time.sleep(0.5)
-    after = arm.since(silent_from)
-    first_zero = next(entry[0] for entry in after if not entry[1].any())
-    assert first_zero - silent_from < TIMEOUT + 0.03, first_zero - silent_from
-    late = [entry for entry in after if entry[0] > silent_from + TIMEOUT + 0.03]
-    assert late and not norms(late).any() and not norms(late, 2).any()
+    yield from running(SimulatedClockArm)
 
 
 def test_under_simulated_time_the_wall_clock_watchdog_zeroes_silent_poses_and_a_paused_clock(sim_arm, ros_env,
