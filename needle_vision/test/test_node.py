@@ -60,6 +60,19 @@ def _stop(node, process: subprocess.Popen) -> str:
     return output
 
 
+def _wait_for_node(node, process: subprocess.Popen, publishers, warm_up: float = 1.0) -> None:
+    """Spin until each of our ``publishers`` has the node as a subscriber and the node publishes its measured shape
+    (start-up: imports, compiled-code cache, discovery), check it is alive, then spin ``warm_up`` seconds more."""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (min(p.get_subscription_count() for p in publishers) < 1
+                                           or node.count_publishers("needle/measured_shape") < 1):
+        rclpy.spin_once(node, timeout_sec=0.1)
+    assert process.poll() is None, process.stdout.read()
+    end = time.monotonic() + warm_up
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.1)
+
+
 def _image_msg(image: np.ndarray, stamp: float, frame_id: str, encoding: str = "mono8") -> Image:
     fields = image_fields(image, "mono8")
     fields["encoding"] = encoding
@@ -178,10 +191,7 @@ def test_singular_right_projection_is_refused_without_a_crash(ros_env, rig):
         fields["right"]["p"] = list(fields["right"]["p"][:8]) + [0.0] * 4
         # camera_info is subscribed before the kernels load (seconds on a loaded machine), the outputs after them:
         # the node spins, and reads what was sent, once its outputs exist
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and (min(p.get_subscription_count() for p in infos.values()) < 1
-                                               or node.count_publishers("needle/measured_shape") < 1):
-            rclpy.spin_once(node, timeout_sec=0.1)
+        _wait_for_node(node, process, infos.values(), warm_up=0.0)
         end = time.monotonic() + 2.0
         while time.monotonic() < end:
             for side in ("left", "right"):
@@ -226,14 +236,7 @@ def test_node_measures_compressed_images_and_counts_every_skipped_pair(ros_env, 
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         images = {side: node.create_publisher(CompressedImage, f"{side}/image_raw/compressed", reliable)
                   for side in ("left", "right")}
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and (min(p.get_subscription_count() for p in images.values()) < 1
-                                               or node.count_publishers("needle/measured_shape") < 1):
-            rclpy.spin_once(node, timeout_sec=0.1)
-        assert process.poll() is None, process.stdout.read()
-        warm_up = time.monotonic() + 1.0
-        while time.monotonic() < warm_up:
-            rclpy.spin_once(node, timeout_sec=0.1)
+        _wait_for_node(node, process, images.values())
         needle = renders("planar")
         frames = [(1.00, background_frames[0], "png", ()), (1.01, background_frames[1], "png", ()),
                   (1.02, needle, "png", ()), (1.03, needle, "jpeg", ()), (1.04, needle, "png", ("left",)),
@@ -307,14 +310,7 @@ def test_node_tells_base_from_tip_by_the_base_pose(ros_env, tmp_path, rig, backg
             from needle_common.ros.tf_output import transform_stamped
             StaticTransformBroadcaster(node).sendTransform(transform_stamped(
                 node.get_clock().now().to_msg(), "world", "needle_base", [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]))
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and (min(p.get_subscription_count() for p in (*images.values(), poses)) < 1
-                                               or node.count_publishers("needle/measured_shape") < 1):
-            rclpy.spin_once(node, timeout_sec=0.1)
-        assert process.poll() is None, process.stdout.read()
-        warm_up = time.monotonic() + 1.0
-        while time.monotonic() < warm_up:
-            rclpy.spin_once(node, timeout_sec=0.1)
+        _wait_for_node(node, process, (*images.values(), poses))
         for stamp, (left, right) in ((1.00, background_frames[0]), (1.01, renders("planar")),
                                      (1.02, renders("planar"))):
             if source == "topic":
