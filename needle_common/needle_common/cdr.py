@@ -8,6 +8,19 @@ from typing import NamedTuple
 import numpy as np
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
+NS = 1_000_000_000
+_HEADER = struct.Struct("<iII")  # a std_msgs/Header's stamp (sec, nanosec) and its frame_id's length
+
+
+def aligned(offset: int, size: int) -> int:
+    """``offset`` aligned to ``size`` bytes: CDR aligns from the payload's start, after the 4-byte encapsulation."""
+    return offset + -(offset - 4) % size
+
+
+def header(data: bytes | memoryview) -> tuple[int, int]:
+    """(stamp [ns], offset after the frame_id) of a serialized message that starts with a std_msgs/Header."""
+    sec, nanosec, length = _HEADER.unpack_from(data, 4)
+    return sec * NS + nanosec, 16 + length
 
 
 class PoseStamped(NamedTuple):
@@ -31,11 +44,9 @@ def pose_stamped(data: bytes | memoryview) -> PoseStamped:
     if len(data) < 16 or bytes(data[:2]) != ENCAPSULATION[:2]:
         raise ValueError("not a little-endian CDR PoseStamped message")
     try:
-        sec, nanosec, length = struct.unpack_from("<iII", data, 4)
-        offset = 16 + length
-        frame_id = bytes(data[16:16 + max(length - 1, 0)]).decode("utf-8", "replace")
-        offset += -(offset - 4) % 8
-        values = np.frombuffer(data, dtype="<f8", count=7, offset=offset)
+        stamp, offset = header(data)
+        frame_id = bytes(data[16:offset - 1]).decode("utf-8", "replace") if offset > 16 else ""
+        values = np.frombuffer(data, dtype="<f8", count=7, offset=aligned(offset, 8))
     except (struct.error, ValueError) as error:
         raise ValueError(f"truncated PoseStamped message ({error})") from error
-    return PoseStamped(sec * 1_000_000_000 + nanosec, frame_id, values[:3], values[3:])
+    return PoseStamped(stamp, frame_id, values[:3], values[3:])

@@ -18,13 +18,13 @@ import numpy as np
 
 from needle_sim_ros.comparison import CenterlineSamples, compare_centerlines
 from needle_common.bag_reader import BagReader
+from needle_common.cdr import NS, aligned, header
 
-NS = 1_000_000_000
 MODEL_TOPIC, MEASURED_TOPIC = "/needle/shape", "/needle/measured_shape"
 ERROR_TOPIC, WRENCH_TOPIC = "/shape_error", "/wrench"
 TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC = "/ground_truth/shape", "/ground_truth/wrench"
 TRUTH_TOPICS = (TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC)
-_HEAD, _UINT32 = struct.Struct("<iII"), struct.Struct("<I")  # a header's stamp and its frame_id's length
+_UINT32 = struct.Struct("<I")
 _STAMPS = struct.Struct("<iIiI")  # a ShapeError's model and measurement stamps
 _WRENCH, _ERROR_VALUES = struct.Struct("<6d"), struct.Struct("<3d")  # force, torque; rmse, max and tip error
 
@@ -57,40 +57,29 @@ class PipelineLog:
         return (np.asarray(stamps_ns, dtype=np.int64) - self.start_ns) / NS
 
 
-def _header(data: bytes | memoryview) -> tuple[int, int]:
-    """(stamp [ns], offset after the frame_id) of a serialized message (XCDR1 little endian) that starts with a
-    std_msgs/Header."""
-    sec, nanosec, length = _HEAD.unpack_from(data, 4)
-    return sec * NS + nanosec, 16 + length
-
-
-def _aligned(offset: int, size: int) -> int:
-    return offset + -(offset - 4) % size  # CDR aligns from the payload's start, after the 4-byte encapsulation
-
-
 def _wrench(data: bytes | memoryview) -> tuple:
     """(stamp [ns], force (3), torque (3)) of a WrenchStamped."""
-    stamp, offset = _header(data)
-    return (stamp, *_WRENCH.unpack_from(data, _aligned(offset, 8)))
+    stamp, offset = header(data)
+    return (stamp, *_WRENCH.unpack_from(data, aligned(offset, 8)))
 
 
 def _shape(data: bytes | memoryview) -> tuple[int, np.ndarray]:
     """(stamp [ns], points (n, 3), a copy) of a NeedleShape."""
-    stamp, offset = _header(data)
-    offset = _aligned(offset, 4)
-    offset = _aligned(offset + 4 + _UINT32.unpack_from(data, offset)[0], 4)  # after the source string
+    stamp, offset = header(data)
+    offset = aligned(offset, 4)
+    offset = aligned(offset + 4 + _UINT32.unpack_from(data, offset)[0], 4)  # after the source string
     (count,) = _UINT32.unpack_from(data, offset)
-    offset = _aligned(offset + 4, 8) if count else offset + 4
+    offset = aligned(offset + 4, 8) if count else offset + 4
     return stamp, np.frombuffer(data, "<f8", 3 * count, offset).reshape(-1, 3).copy()
 
 
 def _error(data: bytes | memoryview) -> tuple:
     """(stamp, measurement stamp, model stamp [ns], rmse, max error, tip error [m]) of a ShapeError."""
-    stamp, offset = _header(data)
-    offset = _aligned(offset, 4)
+    stamp, offset = header(data)
+    offset = aligned(offset, 4)
     model_sec, model_nanosec, sec, nanosec = _STAMPS.unpack_from(data, offset)
     return (stamp, sec * NS + nanosec, model_sec * NS + model_nanosec,
-            *_ERROR_VALUES.unpack_from(data, _aligned(offset + _STAMPS.size, 8)))
+            *_ERROR_VALUES.unpack_from(data, aligned(offset + _STAMPS.size, 8)))
 
 
 class LogCollector:

@@ -21,6 +21,8 @@ from typing import Any, Mapping, NamedTuple
 import cv2
 import numpy as np
 
+from needle_common.cdr import aligned
+
 #: encoding -> (dtype, channels)
 ENCODINGS = {"mono8": (np.uint8, 1), "mono16": (np.uint16, 1), "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3)}
 
@@ -236,7 +238,7 @@ def deserialize_image(data: bytes, compressed: bool) -> SerializedImage:
 
     def take(fmt: str, align: int) -> tuple:
         nonlocal offset
-        offset += -(offset - 4) % align
+        offset = aligned(offset, align)
         values = struct.unpack_from(fmt, view, offset)
         offset += struct.calcsize(fmt)
         return values
