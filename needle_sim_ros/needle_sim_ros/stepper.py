@@ -234,8 +234,7 @@ class Stepper:
         if not regular:  # after a grid shift (lock_phase)
             if not (forces is not None
                     and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
-                records.append(self.step(BaseMotion.from_packed(motions[0], rotations[0]), times[0],
-                                                     first_dt))
+                records.append(self.step(BaseMotion.from_packed(motions[0], rotations[0]), times[0], first_dt))
                 general = True
             data.step_index += 1
             i = 1
