@@ -91,6 +91,7 @@ class NeedleSimulatorNode(LifecycleNode):
         self.counters = {verdict: 0 for verdict in PoseVerdict}
         self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0, "twist_rejected": 0, "tip_load_rejected": 0}
         self.started_at = math.nan  # stamp [s] of the pose the needle last (re)started at
+        self.activated_at = math.nan  # node clock [s] at the last activation
         self.deadline_misses = 0
         self.catch_up_steps = 0
         self.health = HealthMonitor()
@@ -183,6 +184,7 @@ class NeedleSimulatorNode(LifecycleNode):
         with self._lock:
             self.sim.trajectory.clear()
             self.sim.discard_state()
+            self.activated_at = self.now_seconds()
             dropped = sum(drain(subscription, run_callback=False) for subscription in self._polled)
             self.active = True
         if self.haptic_pub is not None:
@@ -633,6 +635,7 @@ class NeedleSimulatorNode(LifecycleNode):
                     "failed_steps": stats.failed_steps,
                     "poses_late_for_their_step": stats.late_poses,
                     "started_at_s": f"{self.started_at:.6f}",  # an epoch time in full, not .6g
+                    "activated_at_s": f"{self.activated_at:.6f}",
                     "skipped_time_s": stats.skipped_time,
                     "pose_age_s": sim.pose_age(self.now_seconds()),
                     "point_loads": len(sim.point_loads)})
