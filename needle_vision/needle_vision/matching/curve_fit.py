@@ -178,20 +178,13 @@ def _initial_control(points, abscissa, weights, count, h, bending):  # pragma: n
                 normal[s + a, s + c] += weights[i] * b[a] * b[c]
             for k in range(3):
                 rhs[s + a, k] += weights[i] * b[a] * points[i, k]
-    full = np.zeros((3 * count, 3 * count))
-    vector = np.zeros(3 * count)
+    scale = 1e-9 * max(np.max(np.abs(np.diag(normal))), 1e-300)
     for i in range(count):
-        for j in range(max(0, i - 3), min(count, i + 4)):
-            for k in range(3):
-                full[3 * i + k, 3 * j + k] = normal[i, j]
-        for k in range(3):
-            vector[3 * i + k] = rhs[i, k]
-    scale = 1e-9 * max(np.max(np.abs(np.diag(full))), 1e-300)
-    for i in range(3 * count):
-        full[i, i] += scale
-    if not _cholesky(full):
+        normal[i, i] += scale
+    if not _cholesky(normal):  # the same matrix for each coordinate
         return np.full((count, 3), np.nan)
-    return _solve(full, vector).reshape(count, 3)
+    return np.column_stack((_solve(normal, rhs[:, 0].copy()), _solve(normal, rhs[:, 1].copy()),
+                            _solve(normal, rhs[:, 2].copy())))
 
 
 @numba.njit(cache=True, nogil=True)
