@@ -17,6 +17,7 @@ direction across the needle. The per-point triangulation is the initial guess.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numba
 import numpy as np
@@ -400,15 +401,11 @@ def _support(length, left, right, feet, stride, parameters, max_gap):  # pragma:
 def _fit(initial, initial_weights, ends, left, right, left_noise, right_noise, projections, knot_spacing, bending,
          end_noise, max_gap, sample_spacing, inflation, iterations, huber, stride):  # pragma: no cover - compiled
     """:func:`fit_curve` in one compiled call: success, points, sigma, supported."""
-    n = initial.shape[0]
-    abscissa = np.zeros(n)
-    for i in range(1, n):
-        abscissa[i] = abscissa[i - 1] + np.sqrt((initial[i, 0] - initial[i - 1, 0]) ** 2
-                                                + (initial[i, 1] - initial[i - 1, 1]) ** 2
-                                                + (initial[i, 2] - initial[i - 1, 2]) ** 2)
+    steps = initial[1:] - initial[:-1]
+    abscissa = np.concatenate((np.zeros(1), np.cumsum(np.sqrt((steps * steps).sum(axis=1)))))
     length = abscissa[-1]
     empty = np.empty((0, 3)), np.empty(0), np.empty(0, np.bool_)
-    if n < 8 or not length > 4 * knot_spacing or min(left.shape[0], right.shape[0]) < 8:
+    if initial.shape[0] < 8 or not length > 4 * knot_spacing or min(left.shape[0], right.shape[0]) < 8:
         return False, *empty
     segments = max(int(np.ceil(length / knot_spacing)), 1)
     h = length / segments
@@ -420,8 +417,7 @@ def _fit(initial, initial_weights, ends, left, right, left_noise, right_noise, p
     counts = (left.shape[0] // stride, right.shape[0] // stride)
     observations = np.zeros((counts[0] + counts[1], 2))
     noise = np.zeros(counts[0] + counts[1])
-    views = np.zeros(counts[0] + counts[1], np.int64)
-    views[counts[0]:] = 1
+    views = (np.arange(counts[0] + counts[1]) >= counts[0]).astype(np.int64)
     for i in range(counts[0] + counts[1]):
         view, variance = (left, left_noise) if i < counts[0] else (right, right_noise)
         first = stride * (i if i < counts[0] else i - counts[0])
@@ -429,9 +425,8 @@ def _fit(initial, initial_weights, ends, left, right, left_noise, right_noise, p
             observations[i, 0] += view[j, 0] / stride
             observations[i, 1] += view[j, 1] / stride
             noise[i] += variance[j] ** 2 / stride
-    control, factor, feet, rms = _gauss_newton(control, h, length, observations, views, np.sqrt(noise),
-                                                       float(stride), ends, end_noise, projections, bending,
-                                                       iterations, huber)
+    control, factor, feet, rms = _gauss_newton(control, h, length, observations, views, np.sqrt(noise), float(stride),
+                                               ends, end_noise, projections, bending, iterations, huber)
     if not np.all(np.isfinite(control)):
         return False, *empty
     # The covariance scaled by the residuals' reduced chi-square when the images are noisier than their scatter said.
@@ -454,9 +449,7 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
     first and last points the two views see at ``ends (2, 2, 2)`` (view, end, pixel);
     ``projections``: the rectified 3x4 projections; the means of ``stride`` consecutive image points are fitted.
     None when the fit fails (singular or non-finite)."""
-    def array(values: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(values, dtype=float)
-
+    array = partial(np.ascontiguousarray, dtype=float)
     success, points, sigma, supported = _fit(
         array(initial), array(initial_weights), array(ends), *map(array, views), *map(array, noise),
         array(np.stack(projections)), knot_spacing, bending_weight, end_noise_px, max_gap, sample_spacing,
