@@ -74,10 +74,6 @@ def stage_cpu(pipeline: StereoNeedlePipeline, pairs: list[tuple[np.ndarray, np.n
         "ordering + resampling": lambda: [order_and_resample(triangulation, pipeline.rectification,
                                                              config.reconstruction, pipeline.output_from_left)
                                           for triangulation in triangulations],
-        "matching + triangulation + curve fit (reconstruction.curve_fit)": lambda: [
-            triangulate_centerline(*both, pipeline.rectification, config.matching,
-                                   replace(config.reconstruction, curve_fit=True), pipeline.output_from_left)
-            for both in centerlines],
         "whole pair (process)": lambda: [pipeline.process(1.0, *pair) for pair in pairs]}
     times = {name: timed(stage, repetitions, time.thread_time)[1] / len(pairs) for name, stage in stages.items()}
     fit = replace(config.reconstruction, curve_fit=True)
@@ -195,10 +191,13 @@ def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: 
               + stage_cpu(pipeline, needles, 5 if quick else 20) + ".\n")
         print(f"Load average before: {' / '.join(f'{v:.1f}' for v in os.getloadavg())} (1 / 5 / 15 min). "
               "CPU: user + system time of all threads per pair (best run). Decoding only: reading and decoding "
-              "the pairs with the same threads, nothing measured (the ceiling of the input).\n")
+              "the pairs with the same threads, nothing measured (the ceiling of the input), and its CPU per pair. "
+              "CPU-bound share: decoding's CPU over the whole run's, the fraction of the ceiling that the cores can "
+              "reach when both are busy (decoding and measuring share them).\n")
         print("| input | --workers (decoding and measuring threads) | wall [s] (best / median of 3) "
-              "| pairs/s (best / median) | CPU [ms/pair] | decoding only [pairs/s] |")
-        print("|---|---|---|---|---|---|")
+              "| pairs/s (best / median) | CPU [ms/pair] | decoding only [pairs/s] | decoding CPU [ms/pair] "
+              "| best / ceiling | CPU-bound share |")
+        print("|---|---|---|---|---|---|---|---|---|")
         for name, arguments in inputs.items():
             if only not in name:
                 continue
@@ -213,9 +212,11 @@ def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: 
                     cpus.append(time.process_time() - cpu)
                     assert code == 0, name
                 best, median = min(walls), float(np.median(walls))
-                ceiling = min(timed_decoding(arguments[0], workers) for _ in range(3))
+                ceiling, decoding_cpu = min(timed_decoding(arguments[0], workers) for _ in range(3))
+                run_cpu = cpus[walls.index(best)]
                 print(f"| {name} | {workers} | {best:.2f} / {median:.2f} | {count / best:.0f} / {count / median:.0f} "
-                      f"| {1e3 * cpus[walls.index(best)] / count:.1f} | {count / ceiling:.0f} |", flush=True)
+                      f"| {1e3 * run_cpu / count:.1f} | {count / ceiling:.0f} | {1e3 * decoding_cpu / count:.1f} "
+                      f"| {100 * ceiling / best:.0f} % | {100 * decoding_cpu / run_cpu:.0f} % |", flush=True)
         print(f"\nLoad average after: {' / '.join(f'{v:.1f}' for v in os.getloadavg())}.")
 
 
@@ -261,14 +262,14 @@ def epipolar_cases(rig, scene, seeds: tuple[int, ...]) -> None:
                     in zip(formats, *cells)) + " |", flush=True)
 
 
-def timed_decoding(path: str, workers: int) -> float:
-    """Wall time [s] of reading and decoding every pair of an input as needle_stereo_offline does."""
+def timed_decoding(path: str, workers: int) -> tuple[float, float]:
+    """Wall and CPU time [s] of reading and decoding every pair of an input as needle_stereo_offline does."""
     source = open_source(Path(path), 220.0, "left/image_raw", "right/image_raw", 0.002)
-    start = time.perf_counter()
+    cpu, start = time.process_time(), time.perf_counter()
     with contextlib.closing(decoded(source.jobs(), workers, 4 * workers + 4)) as loaded:
         for _, _, future, _ in loaded:
             future.result()
-    return time.perf_counter() - start
+    return time.perf_counter() - start, time.process_time() - cpu
 
 
 def main() -> None:

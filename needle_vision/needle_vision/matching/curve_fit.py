@@ -17,6 +17,7 @@ direction across the needle. The per-point triangulation is the initial guess.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numba
 import numpy as np
@@ -178,20 +179,13 @@ def _initial_control(points, abscissa, weights, count, h, bending):  # pragma: n
                 normal[s + a, s + c] += weights[i] * b[a] * b[c]
             for k in range(3):
                 rhs[s + a, k] += weights[i] * b[a] * points[i, k]
-    full = np.zeros((3 * count, 3 * count))
-    vector = np.zeros(3 * count)
+    scale = 1e-9 * max(np.max(np.abs(np.diag(normal))), 1e-300)
     for i in range(count):
-        for j in range(max(0, i - 3), min(count, i + 4)):
-            for k in range(3):
-                full[3 * i + k, 3 * j + k] = normal[i, j]
-        for k in range(3):
-            vector[3 * i + k] = rhs[i, k]
-    scale = 1e-9 * max(np.max(np.abs(np.diag(full))), 1e-300)
-    for i in range(3 * count):
-        full[i, i] += scale
-    if not _cholesky(full):
+        normal[i, i] += scale
+    if not _cholesky(normal):  # the same matrix for each coordinate
         return np.full((count, 3), np.nan)
-    return _solve(full, vector).reshape(count, 3)
+    return np.column_stack((_solve(normal, rhs[:, 0].copy()), _solve(normal, rhs[:, 1].copy()),
+                            _solve(normal, rhs[:, 2].copy())))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -251,8 +245,8 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
     """Fit (module docstring) from ``control (K, 3)``. ``observations (m, 2)`` rectified image points of both
     views (``views (m,)``: 0 left, 1 right; each view's points consecutive and in its curve order), ``noise (m,)``
     [px] (each point stands for ``multiplicity`` image points), ``ends (2, 2, 2)``: where each view sees the curve's
-    first and last point, ``projections (2, 3, 4)``. Returns the
-    control points, the Cholesky factor of the final normal matrix, the feet, the active flags and the normalised
+    first and last point, ``projections (2, 3, 4)``; ``iterations`` steps. Returns
+    the control points, the Cholesky factor of their normal matrix, the feet and the normalised
     RMS residual; NaN control points when the normal matrix is singular."""
     count = control.shape[0]
     segments = count - 3
@@ -260,13 +254,11 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
     m = observations.shape[0]
     prior = bending * _bending_matrix(count, h)
     feet = np.zeros(m)
-    active = np.zeros(m, np.bool_)
     normal = np.zeros((size, size))
     b, d1, point, derivative = np.empty(4), np.empty(4), np.empty(3), np.empty(3)
     pixel, jacobian, tangent, row = np.empty(2), np.empty((2, 3)), np.empty(2), np.empty(3)
     rms = 0.0
-    iteration, final = 0, False
-    while True:
+    for iteration in range(iterations + 1):  # the last pass: the covariance, feet and residuals at the result
         for v in range(2):
             index = np.flatnonzero(views == v)
             view_feet = feet[index]
@@ -278,13 +270,11 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
         total, used = 0.0, 0
         for i in range(m):
             u = feet[i]
-            active[i] = True
             s = _basis(u, h, segments, b, d1)
             _evaluate(control, s, b, d1, point, derivative)
             _project(projections[views[i]], point, derivative, pixel, jacobian, tangent)
             norm = np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1])
             if norm <= 0.0:
-                active[i] = False
                 continue
             # Across the projected curve; at a point beyond the curve's end (its foot clamped) in both directions.
             beyond = not 0.0 < u < length
@@ -325,19 +315,15 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
         for i in range(size):  # symmetric: the lower triangle was accumulated
             for j in range(i + 1, min(size, i + _BAND + 1)):
                 normal[i, j] = normal[j, i]
-        if final or iteration == iterations:
-            break
         if not _cholesky(normal):
-            return np.full((count, 3), np.nan), normal, feet, active, rms
+            return np.full((count, 3), np.nan), normal, feet, rms
+        if iteration == iterations:
+            break
         step = _solve(normal, rhs)
         for a in range(count):
             for k in range(3):
                 control[a, k] += step[3 * a + k]
-        iteration += 1
-        final = np.max(np.abs(step)) < 1e-6
-    if not _cholesky(normal):
-        return np.full((count, 3), np.nan), normal, feet, active, rms
-    return control, normal, feet, active, rms
+    return control, normal, feet, rms
 
 
 @numba.njit(cache=True, nogil=True)
@@ -390,19 +376,65 @@ def _sample(control, h, length, factor, spacing, inflation):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _support(parameters, feet, active, views, length, max_gap):  # pragma: no cover - compiled
-    """Whether both views have active image points (feet) around each parameter with no gap above ``max_gap``."""
+def _support(length, left, right, feet, stride, parameters, max_gap):  # pragma: no cover - compiled
+    """Whether both views have image points (``left``, ``right``: every one; their feet interpolated from the
+    ``feet`` of their means of ``stride``) around each of the ``parameters`` with no gap above ``max_gap``."""
     supported = np.ones(parameters.shape[0], np.bool_)
+    offset = 0
     for v in range(2):
-        chosen = np.sort(np.minimum(np.maximum(feet[(views == v) & active], 0.0), length))
-        edges = np.empty(chosen.shape[0] + 2)
+        view = left if v == 0 else right
+        merged = view.shape[0] // stride
+        everything = np.interp(np.arange(view.shape[0]) * 1.0, stride * np.arange(merged) + 0.5 * (stride - 1),
+                               feet[offset:offset + merged])
+        offset += merged
+        edges = np.empty(view.shape[0] + 2)
         edges[0], edges[-1] = 0.0, length
-        edges[1:-1] = chosen
+        edges[1:-1] = np.sort(everything)
         for p in range(parameters.shape[0]):
             k = min(max(np.searchsorted(edges, parameters[p]), 1), edges.shape[0] - 1)
             if edges[k] - edges[k - 1] > max_gap:
                 supported[p] = False
     return supported
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit(initial, initial_weights, ends, left, right, left_noise, right_noise, projections, knot_spacing, bending,
+         end_noise, max_gap, sample_spacing, inflation, iterations, huber, stride):  # pragma: no cover - compiled
+    """:func:`fit_curve` in one compiled call: success, points, sigma, supported."""
+    steps = initial[1:] - initial[:-1]
+    abscissa = np.concatenate((np.zeros(1), np.cumsum(np.sqrt((steps * steps).sum(axis=1)))))
+    length = abscissa[-1]
+    empty = np.empty((0, 3)), np.empty(0), np.empty(0, np.bool_)
+    if initial.shape[0] < 8 or not length > 4 * knot_spacing or min(left.shape[0], right.shape[0]) < 8:
+        return False, *empty
+    segments = max(int(np.ceil(length / knot_spacing)), 1)
+    h = length / segments
+    control = _initial_control(initial, abscissa, initial_weights, segments + 3, h, bending)
+    if not np.all(np.isfinite(control)):
+        return False, *empty
+    # Means of ``stride`` consecutive points (their centroids' aliasing alternates along the needle: means keep its
+    # cancellation, which every other point would not), each weighted as ``stride`` points.
+    counts = (left.shape[0] // stride, right.shape[0] // stride)
+    observations = np.zeros((counts[0] + counts[1], 2))
+    noise = np.zeros(counts[0] + counts[1])
+    views = (np.arange(counts[0] + counts[1]) >= counts[0]).astype(np.int64)
+    for i in range(counts[0] + counts[1]):
+        view, variance = (left, left_noise) if i < counts[0] else (right, right_noise)
+        first = stride * (i if i < counts[0] else i - counts[0])
+        for j in range(first, first + stride):
+            observations[i, 0] += view[j, 0] / stride
+            observations[i, 1] += view[j, 1] / stride
+            noise[i] += variance[j] ** 2 / stride
+    control, factor, feet, rms = _gauss_newton(control, h, length, observations, views, np.sqrt(noise), float(stride),
+                                               ends, end_noise, projections, bending, iterations, huber)
+    if not np.all(np.isfinite(control)):
+        return False, *empty
+    # The covariance scaled by the residuals' reduced chi-square when the images are noisier than their scatter said.
+    points, sigma, parameters = _sample(control, h, length, factor, sample_spacing, inflation * max(rms, 1.0) ** 2)
+    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(sigma))):
+        return False, *empty
+    # Support from every image point (a hidden stretch is no shorter than its gap between single points).
+    return True, points, sigma, _support(length, left, right, feet, stride, parameters, max_gap)
 
 
 def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray,
@@ -417,42 +449,9 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
     first and last points the two views see at ``ends (2, 2, 2)`` (view, end, pixel);
     ``projections``: the rectified 3x4 projections; the means of ``stride`` consecutive image points are fitted.
     None when the fit fails (singular or non-finite)."""
-    initial = np.ascontiguousarray(initial, dtype=float)
-    steps = np.linalg.norm(np.diff(initial, axis=0), axis=1)
-    abscissa = np.concatenate([[0.0], np.cumsum(steps)])
-    length = float(abscissa[-1])
-    if len(initial) < 8 or not length > 4 * knot_spacing or min(len(v) for v in views) < 8:
-        return None
-    segments = max(int(np.ceil(length / knot_spacing)), 1)
-    h = length / segments
-    count = segments + 3
-    control = _initial_control(initial, abscissa, np.ascontiguousarray(initial_weights, dtype=float), count, h,
-                               bending_weight)
-    if not np.all(np.isfinite(control)):
-        return None
-    # Means of ``stride`` consecutive points (their centroids' aliasing alternates along the needle: means keep its
-    # cancellation, which every other point would not), each weighted as ``stride`` points.
-    merged = [np.ascontiguousarray(v[:len(v) // stride * stride].reshape(-1, stride, 2).mean(axis=1)) for v in views]
-    observations = np.ascontiguousarray(np.vstack(merged), dtype=float)
-    noise = tuple(np.sqrt(np.mean(n[:len(n) // stride * stride].reshape(-1, stride) ** 2, axis=1)) for n in noise)
-    view_index = np.concatenate([np.zeros(len(merged[0]), np.int64), np.ones(len(merged[1]), np.int64)])
-    control, factor, feet, active, rms = _gauss_newton(
-        control, h, length, observations, view_index, np.ascontiguousarray(np.concatenate(noise), dtype=float),
-        float(stride), np.ascontiguousarray(ends, dtype=float), end_noise_px,
-        np.ascontiguousarray(np.stack(projections), dtype=float), bending_weight, iterations, huber)
-    if not np.all(np.isfinite(control)):
-        return None
-    # The covariance scaled by the residuals' reduced chi-square when the images are noisier than their scatter said.
-    points, sigma, parameters = _sample(control, h, length, factor, sample_spacing,
-                                        noise_inflation * max(rms, 1.0) ** 2)
-    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(sigma))):
-        return None
-    # Support from every image point (a hidden stretch is no shorter than its gap between single points).
-    everything = np.concatenate([np.interp(np.arange(len(v)), stride * np.arange(len(m)) + 0.5 * (stride - 1),
-                                           feet[view_index == k]) for k, (v, m) in enumerate(zip(views, merged))])
-    for k, view in enumerate(views):
-        part = everything[:len(view)] if k == 0 else everything[len(views[0]):]
-        _feet(control, h, segments, length, projections[k], np.ascontiguousarray(view, dtype=float), part, False, 1)
-    all_views = np.concatenate([np.zeros(len(views[0]), np.int64), np.ones(len(views[1]), np.int64)])
-    supported = _support(parameters, everything, np.ones(len(everything), np.bool_), all_views, length, max_gap)
-    return CurveFit(points, sigma, supported)
+    array = partial(np.ascontiguousarray, dtype=float)
+    success, points, sigma, supported = _fit(
+        array(initial), array(initial_weights), array(ends), *map(array, views), *map(array, noise),
+        array(np.stack(projections)), knot_spacing, bending_weight, end_noise_px, max_gap, sample_spacing,
+        noise_inflation, iterations, huber, stride)
+    return CurveFit(points, sigma, supported) if success else None
