@@ -67,6 +67,16 @@ def test_offline_batch_mode_is_deterministic(offline_dynamic, tmp_path):
     assert run.summary["comparison"] == first
 
 
+def test_two_offline_runs_write_the_same_bytes(offline_dynamic, tmp_path):
+    # A researcher diffing two runs' logs, or a cache keyed by content, needs the same file for the same input: no
+    # uninitialised CDR padding (rclpy's serialize_message leaves it), wall time or run-dependent metadata.
+    assert offline_main([str(DYNAMIC), "--duration", str(DYNAMIC_SLICE), "--output-dir", str(tmp_path), "--quiet",
+                         "--no-plots"]) == 0
+    first, second = (offline_dynamic["dir"] / "pipeline.mcap").read_bytes(), (tmp_path / "pipeline.mcap").read_bytes()
+    assert {"/needle/measured_shape", "/shape_error"} <= set(decode_with_mcap_ros2(tmp_path / "pipeline.mcap"))
+    assert first == second
+
+
 def test_offline_stereo_orders_base_and_tip_by_the_base_pose_as_the_node_does(tmp_path):
     """The stereo node tells base from tip by the bag's base poses (base_pose.topic); the offline stage must too.
     With base_point at the needle's tip (x = L; independent truth: the bag's needle is clamped at the origin along
