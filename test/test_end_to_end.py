@@ -167,11 +167,13 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
     end = clock[-1] + 10_000_000
 
     stage = SimulatorStage(p)
-    offline = []
-    for now, data in poses:  # as OfflinePipeline.run: advance to the message's time, then take the message
-        offline += stage.advance(now)
-        stage.on_pose(pose_stamped(data), now)
-    offline += stage.advance(end)
+    wrenches, shapes = [], []
+    for now, data in [*poses, (end, None)]:  # as OfflinePipeline.run: advance to the message's time, then take it
+        step_wrenches, step_shapes = stage.advance(now)
+        wrenches += step_wrenches
+        shapes += [shape for _, shape in step_shapes]
+        if data is not None:
+            stage.on_pose(pose_stamped(data), now)
 
     node = object.__new__(NeedleSimulatorNode)  # the node's methods on its state, without a ROS context
     published: dict[str, list[bytes]] = {"wrench": [], "shape": []}
@@ -193,11 +195,10 @@ def test_the_simulator_node_and_the_offline_stage_write_identical_wrench_and_sha
             node.on_pose(data, {"received_timestamp": now})
     assert node.counters[PoseVerdict.ACCEPTED] == len(poses) and stage.rejected == {}
 
-    wrenches = [data for kind, data in offline if kind == "wrench"]
     assert len(wrenches) == 200 and wrenches == published["wrench"]  # a step per ms up to the newest pose
     stamp = lambda data: data[4:12]  # noqa: E731  (sec, nanosec of the header)
     node_shapes = {stamp(data): data for data in published["shape"]}
-    offline_shapes = [model_shape_cdr(shape, p["frames.world"]) for kind, shape in offline if kind == "shape"]
+    offline_shapes = [model_shape_cdr(shape, p["frames.world"]) for shape in shapes]
     assert len(offline_shapes) == 20 and all(stamp(data) in node_shapes for data in offline_shapes)
     assert [node_shapes[stamp(data)] for data in offline_shapes] == offline_shapes
 

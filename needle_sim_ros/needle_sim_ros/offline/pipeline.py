@@ -36,7 +36,7 @@ from needle_sim_ros.messages.centerline_display import DISPLAY_TYPES
 from needle_sim_ros.messages.shape import model_shape_cdr
 from needle_sim_ros.parameters.compare import DISPLAY_TOPICS
 from needle_sim_ros.parameters.experiment import ExperimentConfig
-from needle_sim_ros.offline.results import TRUTH_TOPICS, LogCollector, PipelineLog
+from needle_sim_ros.offline.results import MODEL_TOPIC, TRUTH_TOPICS, WRENCH_TOPIC, LogCollector, PipelineLog
 from needle_sim_ros.offline.stages import ComparisonStage, MeasuredShape, SimulatorStage, StereoStage, stereo_values
 from needle_common.bag_reader import BagReader, BagReadError
 from needle_common.qos import OfferedQos
@@ -221,6 +221,11 @@ class OfflinePipeline:
         if self.writer is not None:
             self.writer.write(topic, data, now_ns)
 
+    def _write_wrenches(self, wrenches: list[bytes], now_ns: int) -> None:
+        self.collector.add_wrenches(WRENCH_TOPIC, wrenches)
+        if self.writer is not None:
+            self.writer.write_many(WRENCH_TOPIC, wrenches, now_ns)
+
     def _compared(self, outputs: list[tuple[str, bytes]], now_ns: int) -> None:
         """The comparison stage's outputs: shape errors and the compared centerlines' display messages."""
         for topic, msg in outputs:
@@ -231,14 +236,16 @@ class OfflinePipeline:
         self._compared(self._timed("comparison", self.comparison.on_measured, shape), now_ns)
 
     def _advance(self, now: int) -> None:
-        """The simulator integrates up to the clock ``now``; its shapes go to the comparison."""
-        for kind, msg in self._timed("simulator", self.simulator.advance, now):
-            if kind == "wrench":
-                self._write("/wrench", msg, now)
-                continue
-            frame = self.simulator.p["frames.world"]
-            self._write("/needle/shape", model_shape_cdr(msg, frame), now)
-            self._compared(self._timed("comparison", self.comparison.on_model, msg, frame), now)
+        """The simulator integrates up to the clock ``now``: its wrenches and shapes are written in step order, its
+        shapes go to the comparison."""
+        wrenches, shapes = self._timed("simulator", self.simulator.advance, now)
+        frame, written = self.simulator.p["frames.world"], 0
+        for steps, shape in shapes:
+            self._write_wrenches(wrenches[written:steps], now)
+            written = steps
+            self._write(MODEL_TOPIC, model_shape_cdr(shape, frame), now)
+            self._compared(self._timed("comparison", self.comparison.on_model, shape, frame), now)
+        self._write_wrenches(wrenches[written:], now)
 
     def _prime_stereo(self, reader: BagReader, begin: int) -> None:
         """A slice that starts late still needs the needle-free background pairs from the bag's start."""

@@ -118,23 +118,21 @@ class SimulatorStage:
             self._reject(error.kind)
 
     # --- outputs ---------------------------------------------------------------------------------------------
-    def advance(self, now_ns: int) -> list[tuple[str, Any]]:
-        """Integrate up to the clock ``now_ns`` (deterministic rule); returns, in time order, ('wrench', CDR bytes of
-        the WrenchStamped) per step and ('shape', :class:`ModelShape`) per shape period."""
+    def advance(self, now_ns: int) -> tuple[list[bytes], list[tuple[int, ModelShape]]]:
+        """Integrate up to the clock ``now_ns`` (deterministic rule); returns the CDR bytes of a WrenchStamped (base
+        frame) per step and, per shape period, a :class:`ModelShape` with the number of steps before it."""
         if not self.sim.started:
-            return []
-        outputs: list[tuple[str, Any]] = []
+            return [], []
         start = time.perf_counter()
         records = self.sim.advance(now_ns * 1e-9, deterministic=True)
         self.core_seconds += time.perf_counter() - start
         if not records:
-            return outputs
-        for data in cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records)):
-            outputs.append(("wrench", data))
-            self._steps_since_start += 1
-            if self._steps_since_start % self.shape_every == 0:
-                outputs.append(("shape", self.sim.shape(self.p["output.shape_samples"])))
-        return outputs
+            return [], []
+        wrenches = cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records))
+        first = self.shape_every - self._steps_since_start % self.shape_every
+        self._steps_since_start += len(wrenches)
+        return wrenches, [(steps, self.sim.shape(self.p["output.shape_samples"]))
+                          for steps in range(first, len(wrenches) + 1, self.shape_every)]
 
     def statistics(self) -> dict[str, Any]:
         stats = self.sim.statistics

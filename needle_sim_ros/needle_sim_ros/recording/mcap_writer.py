@@ -324,6 +324,14 @@ class McapBagWriter:
         self._guarded(self._write, channel, data, int(log_time_ns),
                       int(log_time_ns if publish_time_ns is None else publish_time_ns), sequence)
 
+    def write_many(self, topic: str, messages: list[bytes], log_time_ns: int) -> None:
+        """Append serialized messages of one topic received at one time."""
+        channel = self._channels.get(topic)
+        if channel is None:
+            raise KeyError(f"topic '{topic}' was not added to the recording")
+        for data in messages:
+            self._guarded(self._write, channel, data, log_time_ns, log_time_ns, 0)
+
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Key-value metadata record (Foxglove's metadata panel); repeated in every file of a split bag."""
         record = _StaticRecord(name, metadata={str(k): str(v) for k, v in data.items()})
