@@ -70,11 +70,11 @@ def test_offline_batch_mode_is_deterministic(offline_dynamic, tmp_path):
 def test_two_offline_runs_write_the_same_bytes(offline_dynamic, tmp_path):
     # A researcher diffing two runs' logs, or a cache keyed by content, needs the same file for the same input: no
     # uninitialised CDR padding (rclpy's serialize_message leaves it), wall time or run-dependent metadata.
-    assert offline_main([str(DYNAMIC), "--duration", str(DYNAMIC_SLICE), "--output-dir", str(tmp_path), "--quiet",
-                         "--no-plots"]) == 0
+    assert offline_main([str(DYNAMIC), "--duration", str(DYNAMIC_SLICE), "--output-dir", str(tmp_path), "--quiet"]) == 0
     first, second = (offline_dynamic["dir"] / "pipeline.mcap").read_bytes(), (tmp_path / "pipeline.mcap").read_bytes()
     assert {"/needle/measured_shape", "/shape_error"} <= set(decode_with_mcap_ros2(tmp_path / "pipeline.mcap"))
     assert first == second
+    assert not (tmp_path / "plots").exists()  # plots only when asked (--plots)
 
 
 def test_offline_stereo_orders_base_and_tip_by_the_base_pose_as_the_node_does(tmp_path):
@@ -311,7 +311,7 @@ def test_offline_pipeline_reads_compressed_image_topics_as_it_reads_raw_ones(off
     out = tmp_path / "offline"
     assert offline_main([str(bag), "--experiment", str(REPO / "config" / "experiments" / "dynamic_pitch.yaml"),
                          "--set", "needle_stereo:image_transport=compressed", "--duration", str(DYNAMIC_SLICE),
-                         "--output-dir", str(out), "--quiet", "--no-plots"]) == 0
+                         "--output-dir", str(out), "--quiet"]) == 0
     comparison = json.loads((out / "summary.json").read_text())["comparison"]
     raw = offline_dynamic["summary"]["comparison"]
     assert comparison["compared"] == raw["compared"] == 3
@@ -391,5 +391,5 @@ def test_bringup_composes_the_three_nodes_in_one_process(ros_env, tmp_path):
 def offline_dynamic(tmp_path_factory):
     directory = tmp_path_factory.mktemp("offline")
     assert offline_main([str(DYNAMIC), "--duration", str(DYNAMIC_SLICE), "--output-dir", str(directory),
-                         "--quiet"]) == 0
+                         "--quiet", "--plots"]) == 0
     return {"dir": directory, "summary": json.loads((directory / "summary.json").read_text())}
