@@ -187,21 +187,25 @@ class _McapFile:
             self.stream.position, len(record), log_time_ns, log_time_ns, len(data), name, media_type))
         self.stream.write(record)
 
-    def add_message(self, channel_id: int, log_time_ns: int, data: bytes, publish_time_ns: int, sequence: int) -> None:
-        """Append a message to the open chunk; the chunk is written when it holds ``chunk_size`` bytes or spans
-        ``chunk_interval`` of log time."""
+    def add_messages(self, channel_id: int, messages: list[bytes], log_time_ns: int, publish_time_ns: int,
+                     sequence: int) -> None:
+        """Append messages received at one time to the open chunk; the chunk is written when it holds
+        ``chunk_size`` bytes or spans ``chunk_interval`` of log time."""
         start, end = self._chunk_times if self._chunk else (log_time_ns, log_time_ns)
         self._chunk_times = (min(start, log_time_ns), max(end, log_time_ns))
-        self._index.setdefault(channel_id, []).append((log_time_ns, self._chunk_size))
-        self._chunk += (_MESSAGE.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time_ns,
-                                      publish_time_ns), data)
-        self._chunk_size += 31 + len(data)
-        self.counts[channel_id] += 1
+        index, size, chunk = self._index.setdefault(channel_id, []), self._chunk_size, self._chunk
+        for data in messages:
+            index.append((log_time_ns, size))
+            chunk += (_MESSAGE.pack(Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time_ns,
+                                    publish_time_ns), data)
+            size += 31 + len(data)
+        self._chunk_size = size
+        self.counts[channel_id] += len(messages)
         self.first_log_time_ns = log_time_ns if self.first_log_time_ns is None else \
             min(self.first_log_time_ns, log_time_ns)
         self.last_log_time_ns = max(self.last_log_time_ns, log_time_ns)
         interval = self.options.chunk_interval
-        if self._chunk_size >= self.options.chunk_size or (interval and log_time_ns - start >= interval * 1e9):
+        if size >= self.options.chunk_size or (interval and log_time_ns - start >= interval * 1e9):
             self.flush()
 
     def flush(self) -> None:
@@ -320,19 +324,17 @@ class McapBagWriter:
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None,
               sequence: int = 0) -> None:
         """Append one serialized message; ``log_time_ns`` is the receive time (rosbag2's recv_timestamp)."""
-        channel = self._channels.get(topic)
-        if channel is None:
-            raise KeyError(f"topic '{topic}' was not added to the recording")
-        self._guarded(self._write, channel, data, int(log_time_ns),
-                      int(log_time_ns if publish_time_ns is None else publish_time_ns), sequence)
+        self.write_many(topic, [data], log_time_ns, publish_time_ns, sequence)
 
-    def write_many(self, topic: str, messages: list[bytes], log_time_ns: int) -> None:
-        """Append serialized messages of one topic received at one time."""
+    def write_many(self, topic: str, messages: list[bytes], log_time_ns: int, publish_time_ns: int | None = None,
+                   sequence: int = 0) -> None:
+        """Append serialized messages of one topic received (and published) at one time."""
         channel = self._channels.get(topic)
         if channel is None:
             raise KeyError(f"topic '{topic}' was not added to the recording")
-        for data in messages:
-            self._guarded(self._write, channel, data, log_time_ns, log_time_ns, 0)
+        if messages:
+            self._guarded(self._write, channel, messages, int(log_time_ns),
+                          int(log_time_ns if publish_time_ns is None else publish_time_ns), sequence)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Key-value metadata record (Foxglove's metadata panel); repeated in every file of a split bag."""
@@ -468,9 +470,10 @@ class McapBagWriter:
             log_time_ns - file.first_log_time_ns >= self.options.max_file_duration * 1e9
         return bool(too_big or too_long)
 
-    def _write(self, channel: _Channel, data: bytes, log_time_ns: int, publish_time_ns: int, sequence: int) -> None:
+    def _write(self, channel: _Channel, messages: list[bytes], log_time_ns: int, publish_time_ns: int,
+               sequence: int) -> None:
         if self.is_directory and self._split_due(self._file, log_time_ns):
             self._finish_file()
             self._open_next_file()
-        self._file.add_message(self._file.channel_ids[channel.topic], log_time_ns, data, publish_time_ns, sequence)
-        channel.message_count += 1
+        self._file.add_messages(self._file.channel_ids[channel.topic], messages, log_time_ns, publish_time_ns, sequence)
+        channel.message_count += len(messages)
