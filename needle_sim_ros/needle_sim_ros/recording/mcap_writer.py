@@ -86,17 +86,6 @@ class _Channel:
     message_count: int = 0
 
 
-@dataclass
-class _StaticRecord:
-    """Metadata or attachment written into every file of the bag."""
-
-    name: str
-    metadata: dict[str, str] | None = None
-    media_type: str = ""
-    data: bytes = b""
-    log_time_ns: int = 0
-
-
 class _UnbufferedFile:
     """Output stream that hands every record to the OS at once and counts the bytes written."""
 
@@ -172,20 +161,16 @@ class _McapFile:
         self._write(channel)
         return channel.id
 
-    def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        builder = RecordBuilder()
-        Metadata(name, data).write(builder)
-        record = builder.end()
-        self._summary[Opcode.METADATA_INDEX].append(MetadataIndex(self.stream.position, len(record), name))
-        self.stream.write(record)
-
-    def add_attachment(self, log_time_ns: int, name: str, media_type: str, data: bytes) -> None:
-        builder = RecordBuilder()
-        Attachment(log_time_ns, log_time_ns, name, media_type, data).write(builder)
-        record = builder.end()
-        self._summary[Opcode.ATTACHMENT_INDEX].append(AttachmentIndex(
-            self.stream.position, len(record), log_time_ns, log_time_ns, len(data), name, media_type))
-        self.stream.write(record)
+    def add_static(self, record: Metadata | Attachment) -> None:
+        """A metadata record or an attachment, indexed in the summary."""
+        offset = self._write(record)
+        length = self.stream.position - offset
+        if isinstance(record, Metadata):
+            self._summary[Opcode.METADATA_INDEX].append(MetadataIndex(offset, length, record.name))
+        else:
+            self._summary[Opcode.ATTACHMENT_INDEX].append(AttachmentIndex(
+                offset=offset, length=length, create_time=record.create_time, log_time=record.log_time,
+                data_size=len(record.data), name=record.name, media_type=record.media_type))
 
     def add_messages(self, channel_id: int, messages: list[bytes], log_time_ns: int, publish_time_ns: int,
                      sequence: int) -> None:
@@ -281,7 +266,7 @@ class McapBagWriter:
             raise ValueError(f"splitting by max_file_size/max_file_duration needs a bag directory path "
                              f"(without .mcap suffix), got '{self.path}'")
         self._channels: dict[str, _Channel] = {}
-        self._static: list[_StaticRecord] = []
+        self._static: list[Metadata | Attachment] = []  # written into every file of the bag
         self._files: list[FileSummary] = []
         self._file: _McapFile | None = None
         self._failure: str | None = None
@@ -338,15 +323,16 @@ class McapBagWriter:
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Key-value metadata record (Foxglove's metadata panel); repeated in every file of a split bag."""
-        record = _StaticRecord(name, metadata={str(k): str(v) for k, v in data.items()})
-        self._static.append(record)
-        self._guarded(self._write_static, record)
+        self._add_static(Metadata(name=name, metadata={str(k): str(v) for k, v in data.items()}))
 
     def add_attachment(self, name: str, media_type: str, data: bytes, log_time_ns: int = 0) -> None:
         """Attachment (e.g. a parameter file); repeated in every file of a split bag."""
-        record = _StaticRecord(name, media_type=media_type, data=bytes(data), log_time_ns=int(log_time_ns))
+        self._add_static(Attachment(create_time=int(log_time_ns), log_time=int(log_time_ns), name=name,
+                                    media_type=media_type, data=bytes(data)))
+
+    def _add_static(self, record: Metadata | Attachment) -> None:
         self._static.append(record)
-        self._guarded(self._write_static, record)
+        self._guarded(self._file.add_static, record)
 
     def flush_due(self, now_ns: int) -> None:
         """Write the open chunk if it has waited ``chunk_interval`` (call periodically when messages are sparse)."""
@@ -403,7 +389,7 @@ class McapBagWriter:
 
     def _start_file(self) -> None:
         for record in self._static:
-            self._write_static(record)
+            self._file.add_static(record)
         for channel in self._channels.values():
             self._register(channel)
 
@@ -421,7 +407,8 @@ class McapBagWriter:
         file = self._file
         summary = self._summary(file)
         metadata = bag_metadata(self._topic_summaries(), [*self._files, summary], self.custom_data)
-        file.add_metadata(METADATA_RECORD_NAME, {METADATA_RECORD_KEY: metadata_record_text(metadata)})
+        file.add_static(Metadata(name=METADATA_RECORD_NAME,
+                                 metadata={METADATA_RECORD_KEY: metadata_record_text(metadata)}))
         file.finish()
         self._files.append(summary)
         self._file = None
@@ -455,12 +442,6 @@ class McapBagWriter:
             file.schema_ids[key] = file.add_schema(channel.schema_name, channel.schema_encoding, channel.schema_data)
         file.channel_ids[channel.topic] = file.add_channel(
             channel.topic, channel.message_encoding, file.schema_ids[key], channel.metadata)
-
-    def _write_static(self, record: _StaticRecord) -> None:
-        if record.metadata is not None:
-            self._file.add_metadata(record.name, record.metadata)
-        else:
-            self._file.add_attachment(record.log_time_ns, record.name, record.media_type, record.data)
 
     def _split_due(self, file: _McapFile, log_time_ns: int) -> bool:
         if file.first_log_time_ns is None:
