@@ -95,6 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--instants", type=float, nargs="+", help="centerline plot instants [s from the bag start]")
     parser.add_argument("--no-stereo", action="store_true", help="compare a recorded needle/measured_shape instead")
     parser.add_argument("--plots", action="store_true", help="also write plots/ (~1 s more)")
+    parser.add_argument("--no-plots", dest="plots", action="store_false", help="no plots (the default since plots "
+                        "became an option; accepted for the scripts that passed it)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--stop-on-corrupt", action="store_true", help="stop at a corrupt chunk or message of the "
                         "bag (default: skip it and count it in the summary)")
