@@ -57,7 +57,7 @@ class PipelineLog:
         return (np.asarray(stamps_ns, dtype=np.int64) - self.start_ns) / NS
 
 
-def _wrenches(messages: list[bytes | memoryview]) -> tuple[np.ndarray, np.ndarray]:
+def _wrenches(messages: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
     """(stamps [ns] (n,), force and torque (n, 6)) of WrenchStamped messages with frame_ids of one length."""
     rows = np.frombuffer(b"".join(messages), np.uint8).reshape(len(messages), -1)
     at = aligned(header(messages[0])[1], 8)
@@ -93,19 +93,19 @@ class LogCollector:
         self.truth_shapes: dict[int, np.ndarray] = {}
         self.shapes = {MODEL_TOPIC: self.model_shapes, MEASURED_TOPIC: self.measured_shapes,
                        TRUTH_SHAPE_TOPIC: self.truth_shapes}
-        self.wrenches: dict[str, list[bytes | memoryview]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
+        self.wrenches: dict[str, list[bytes]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
         self.errors: list[tuple] = []
 
     def add(self, topic: str, data: bytes | memoryview) -> None:
         if topic in self.wrenches:
-            self.wrenches[topic].append(data)
+            self.wrenches[topic].append(bytes(data))  # a copy: a view would keep the bag's whole chunk
         elif topic in self.shapes:
             stamp, points = _shape(data)
             self.shapes[topic][stamp] = points
         elif topic == ERROR_TOPIC:
             self.errors.append(_error(data))
 
-    def add_wrenches(self, topic: str, messages: list[bytes | memoryview]) -> None:
+    def add_wrenches(self, topic: str, messages: list[bytes]) -> None:
         """Messages of a wrench topic, in order (decoded together when the log is made)."""
         self.wrenches[topic] += messages
 
@@ -118,7 +118,7 @@ class LogCollector:
                            *(_series(self.wrenches[t]) for t in (WRENCH_TOPIC, TRUTH_WRENCH_TOPIC)))
 
 
-def _series(messages: list[bytes | memoryview]) -> WrenchSeries | None:
+def _series(messages: list[bytes]) -> WrenchSeries | None:
     """The series of WrenchStamped messages, decoded in runs of messages of one length (frame_ids as long)."""
     if not messages:
         return None
