@@ -109,7 +109,7 @@ def test_a_flipped_bit_skips_one_chunk_or_stops_on_request(tmp_path):
 
 def offline(bag: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
     return subprocess.run(["needle_offline", str(bag), "--experiment", str(EXPERIMENT), "--output-dir", str(out),
-                           "--duration", "1.5", "--no-plots", "--quiet", *extra],
+                           "--duration", "1.5", "--quiet", *extra],
                           cwd=REPO, capture_output=True, text=True, timeout=600)
 
 

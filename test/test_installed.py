@@ -97,7 +97,7 @@ def test_needle_offline_runs_a_bundled_bag_with_the_installed_experiment(install
     help_text = subprocess.run([command, "--help"], cwd=elsewhere, env=install_env, capture_output=True, text=True,
                                timeout=120)
     assert help_text.returncode == 0 and "usage: needle_offline" in help_text.stdout
-    result = subprocess.run([command, str(REPO / "bags" / "insertion.mcap"), "--duration", "0.3", "--no-plots",
+    result = subprocess.run([command, str(REPO / "bags" / "insertion.mcap"), "--duration", "0.3",
                              "--quiet", "--output-dir", "out"], cwd=elsewhere, env=install_env, capture_output=True,
                             text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr

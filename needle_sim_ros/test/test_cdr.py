@@ -15,6 +15,7 @@ import pickle
 import struct
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -32,7 +33,7 @@ from needle_sim_ros.messages.centerline_display import COLORS, centerline_displa
 from needle_common.transforms import quaternions_from_x_axes
 from needle_sim_ros.messages.geometry import polyline_tangents, tube_triangles
 from needle_common.ros.needle_shape import needle_shape_msg
-from needle_sim_ros.messages.shape import time_msg
+from needle_sim_ros.messages.shape import shape_error_cdr, shape_error_msg, time_msg
 
 FRAMES = ("", "w", "ab", "abc", "world", "abcdefg", "needle_base")  # with the NUL: 1, 2, 3, 4, 6, 8, 12 bytes
 COUNTS = (0, 1, 3, 50)
@@ -216,6 +217,19 @@ def test_needle_shape_is_rclpys(serializers):
                     # the message objects the stereo stage and the bag generator build are the same message
                     assert needle_shape_msg(header(frame), source, points, tangents, arc, tip, quaternion,
                                             uncertainty) == messages[-1]
+    assert_rclpy_bytes(serializers, encoded, messages)
+
+
+def test_shape_error_is_rclpys(serializers):
+    encoded, messages = [], []
+    for frame in FRAMES:
+        for count in COUNTS:
+            rng = np.random.default_rng(count)
+            result = SimpleNamespace(rmse=rng.random(), max_error=rng.random(), tip_error=rng.random(),
+                                     matched_samples=count, errors=rng.random(count), arc_length=rng.random(count))
+            model, measured = header(frame), Header(stamp=Time(sec=SEC + 1, nanosec=7), frame_id="camera")
+            encoded.append(shape_error_cdr(result, model, measured))
+            messages.append(shape_error_msg(result, model, measured))
     assert_rclpy_bytes(serializers, encoded, messages)
 
 

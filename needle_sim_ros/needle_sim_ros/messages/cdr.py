@@ -199,6 +199,21 @@ def needle_shape(sec: int, nanosec: int, frame_id: str, source: str, points: np.
     return buffer.bytes()
 
 
+def shape_error(sec: int, nanosec: int, frame_id: str, model_stamp: tuple[int, int],
+                measurement_stamp: tuple[int, int], rmse: float, max_error: float, tip_error: float,
+                matched_samples: int, errors: np.ndarray, arc_length: np.ndarray) -> bytes:
+    """needle_interfaces/msg/ShapeError; the stamps as (sec, nanosec)."""
+    buffer = _Buffer()
+    _header(buffer, sec, nanosec, frame_id)
+    buffer.time(*model_stamp)
+    buffer.time(*measurement_stamp)
+    buffer.doubles(np.array([rmse, max_error, tip_error]))
+    buffer.uint32(matched_samples)
+    buffer.float64_sequence(errors)
+    buffer.float64_sequence(arc_length)
+    return buffer.bytes()
+
+
 class DecodedImage(NamedTuple):
     """The fields of a ``sensor_msgs/msg/Image``; ``data`` is a read-only view into the serialized bytes."""
 

@@ -36,3 +36,11 @@ def shape_error_msg(result, model_header: Header, measured_header: Header) -> Sh
                       rmse=result.rmse, max_error=result.max_error, tip_error=result.tip_error,
                       matched_samples=result.matched_samples, errors=result.errors.tolist(),
                       arc_length=result.arc_length.tolist())
+
+
+def shape_error_cdr(result, model_header: Header, measured_header: Header) -> bytes:
+    """:func:`shape_error_msg`, serialized (zero padding: the same bytes in every run)."""
+    stamp, model = measured_header.stamp, model_header.stamp
+    return cdr.shape_error(stamp.sec, stamp.nanosec, model_header.frame_id, (model.sec, model.nanosec),
+                           (stamp.sec, stamp.nanosec), result.rmse, result.max_error, result.tip_error,
+                           result.matched_samples, result.errors, result.arc_length)

@@ -26,7 +26,7 @@ from typing import Any, Callable
 
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo
 
 from needle_common.cdr import pose_stamped
@@ -36,8 +36,8 @@ from needle_sim_ros.messages.centerline_display import DISPLAY_TYPES
 from needle_sim_ros.messages.shape import model_shape_cdr
 from needle_sim_ros.parameters.compare import DISPLAY_TOPICS
 from needle_sim_ros.parameters.experiment import ExperimentConfig
-from needle_sim_ros.offline.results import TRUTH_TOPICS, LogCollector, PipelineLog
-from needle_sim_ros.offline.stages import ComparisonStage, SimulatorStage, StereoStage, stereo_values
+from needle_sim_ros.offline.results import MODEL_TOPIC, TRUTH_TOPICS, WRENCH_TOPIC, LogCollector, PipelineLog
+from needle_sim_ros.offline.stages import ComparisonStage, MeasuredShape, SimulatorStage, StereoStage, stereo_values
 from needle_common.bag_reader import BagReader, BagReadError
 from needle_common.qos import OfferedQos
 from needle_sim_ros.recording import McapBagWriter, WriterOptions
@@ -175,7 +175,7 @@ class OfflinePipeline:
                     if message.topic == "/base_pose":
                         self._write("/base_pose", bytes(message.data), now)
                 elif message.topic == "/needle/measured_shape":
-                    self._measured(msg, now)
+                    self._measured(MeasuredShape.recorded(msg, bytes(message.data)), now)
                 elif message.topic.endswith("camera_info"):
                     self._timed("stereo", self.stereo.on_camera_info, message.topic.split("/")[1], msg)
                 elif not truth and message.topic in self.stereo.image_topics:
@@ -215,31 +215,37 @@ class OfflinePipeline:
         self.seconds[stage] += time.perf_counter() - start
         return result
 
-    def _write(self, topic: str, data: bytes | Any, now_ns: int) -> None:
-        """Record an output message (serialized, or a message object) and collect it for the run's log."""
-        data = data if isinstance(data, bytes) else serialize_message(data)
+    def _write(self, topic: str, data: bytes, now_ns: int) -> None:
+        """Record a serialized output message and collect it for the run's log."""
         self.collector.add(topic, data)
         if self.writer is not None:
             self.writer.write(topic, data, now_ns)
 
-    def _compared(self, outputs: list[tuple[str, Any]], now_ns: int) -> None:
+    def _write_wrenches(self, wrenches: list[bytes], now_ns: int) -> None:
+        self.collector.add_wrenches(WRENCH_TOPIC, wrenches)
+        if self.writer is not None:
+            self.writer.write_many(WRENCH_TOPIC, wrenches, now_ns)
+
+    def _compared(self, outputs: list[tuple[str, bytes]], now_ns: int) -> None:
         """The comparison stage's outputs: shape errors and the compared centerlines' display messages."""
         for topic, msg in outputs:
             self._write(f"/{topic}", msg, now_ns)
 
-    def _measured(self, msg: NeedleShape, now_ns: int) -> None:
-        self._write("/needle/measured_shape", msg, now_ns)
-        self._compared(self._timed("comparison", self.comparison.on_measured, msg), now_ns)
+    def _measured(self, shape: MeasuredShape, now_ns: int) -> None:
+        self._write("/needle/measured_shape", shape.data, now_ns)
+        self._compared(self._timed("comparison", self.comparison.on_measured, shape), now_ns)
 
     def _advance(self, now: int) -> None:
-        """The simulator integrates up to the clock ``now``; its shapes go to the comparison."""
-        for kind, msg in self._timed("simulator", self.simulator.advance, now):
-            if kind == "wrench":
-                self._write("/wrench", msg, now)
-                continue
-            frame = self.simulator.p["frames.world"]
-            self._write("/needle/shape", model_shape_cdr(msg, frame), now)
-            self._compared(self._timed("comparison", self.comparison.on_model, msg, frame), now)
+        """The simulator integrates up to the clock ``now``: its wrenches and shapes are written in step order, its
+        shapes go to the comparison."""
+        wrenches, shapes = self._timed("simulator", self.simulator.advance, now)
+        frame, written = self.simulator.p["frames.world"], 0
+        for steps, shape in shapes:
+            self._write_wrenches(wrenches[written:steps], now)
+            written = steps
+            self._write(MODEL_TOPIC, model_shape_cdr(shape, frame), now)
+            self._compared(self._timed("comparison", self.comparison.on_model, shape, frame), now)
+        self._write_wrenches(wrenches[written:], now)
 
     def _prime_stereo(self, reader: BagReader, begin: int) -> None:
         """A slice that starts late still needs the needle-free background pairs from the bag's start."""

@@ -26,7 +26,7 @@ TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC = "/ground_truth/shape", "/ground_truth/wr
 TRUTH_TOPICS = (TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC)
 _UINT32 = struct.Struct("<I")
 _STAMPS = struct.Struct("<iIiI")  # a ShapeError's model and measurement stamps
-_WRENCH, _ERROR_VALUES = struct.Struct("<6d"), struct.Struct("<3d")  # force, torque; rmse, max and tip error
+_ERROR_VALUES = struct.Struct("<3d")  # rmse, max and tip error
 
 
 @dataclass
@@ -57,10 +57,12 @@ class PipelineLog:
         return (np.asarray(stamps_ns, dtype=np.int64) - self.start_ns) / NS
 
 
-def _wrench(data: bytes | memoryview) -> tuple:
-    """(stamp [ns], force (3), torque (3)) of a WrenchStamped."""
-    stamp, offset = header(data)
-    return (stamp, *_WRENCH.unpack_from(data, aligned(offset, 8)))
+def _wrenches(messages: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps [ns] (n,), force and torque (n, 6)) of WrenchStamped messages with frame_ids of one length."""
+    rows = np.frombuffer(b"".join(messages), np.uint8).reshape(len(messages), -1)
+    at = aligned(header(messages[0])[1], 8)
+    stamps = np.ascontiguousarray(rows[:, 4:12]).view("<i4").astype(np.int64)
+    return stamps[:, 0] * NS + (stamps[:, 1] & 0xFFFFFFFF), np.ascontiguousarray(rows[:, at:at + 48]).view("<f8")
 
 
 def _shape(data: bytes | memoryview) -> tuple[int, np.ndarray]:
@@ -91,17 +93,21 @@ class LogCollector:
         self.truth_shapes: dict[int, np.ndarray] = {}
         self.shapes = {MODEL_TOPIC: self.model_shapes, MEASURED_TOPIC: self.measured_shapes,
                        TRUTH_SHAPE_TOPIC: self.truth_shapes}
-        self.wrenches: dict[str, list[tuple]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
+        self.wrenches: dict[str, list[bytes]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
         self.errors: list[tuple] = []
 
     def add(self, topic: str, data: bytes | memoryview) -> None:
         if topic in self.wrenches:
-            self.wrenches[topic].append(_wrench(data))
+            self.wrenches[topic].append(bytes(data))  # a copy: a view would keep the bag's whole chunk
         elif topic in self.shapes:
             stamp, points = _shape(data)
             self.shapes[topic][stamp] = points
         elif topic == ERROR_TOPIC:
             self.errors.append(_error(data))
+
+    def add_wrenches(self, topic: str, messages: list[bytes]) -> None:
+        """Messages of a wrench topic, in order (decoded together when the log is made)."""
+        self.wrenches[topic] += messages
 
     def log(self, start_ns: int) -> PipelineLog:
         errors = sorted(self.errors, key=lambda error: error[0])
@@ -112,11 +118,17 @@ class LogCollector:
                            *(_series(self.wrenches[t]) for t in (WRENCH_TOPIC, TRUTH_WRENCH_TOPIC)))
 
 
-def _series(rows: list[tuple]) -> WrenchSeries | None:
-    if not rows:
+def _series(messages: list[bytes]) -> WrenchSeries | None:
+    """The series of WrenchStamped messages, decoded in runs of messages of one length (frame_ids as long)."""
+    if not messages:
         return None
-    values = np.array([row[1:] for row in rows], dtype=float)
-    return WrenchSeries(np.array([row[0] for row in rows], dtype=np.int64), values[:, :3], values[:, 3:])
+    blocks = []
+    while messages:
+        same = next((i for i, data in enumerate(messages) if len(data) != len(messages[0])), len(messages))
+        blocks.append(_wrenches(messages[:same]))
+        messages = messages[same:]
+    values = np.concatenate([block[1] for block in blocks])
+    return WrenchSeries(np.concatenate([block[0] for block in blocks]), values[:, :3], values[:, 3:])
 
 
 def read_pipeline_log(log: str | Path, bag: str | Path | None = None) -> PipelineLog:

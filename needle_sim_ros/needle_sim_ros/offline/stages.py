@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import Any, NamedTuple
+
+import numpy as np
 
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape
@@ -39,8 +41,7 @@ from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
-from needle_common.ros.needle_shape import needle_shape_msg
-from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg, time_msg
+from needle_sim_ros.messages.shape import shape_arrays, shape_error_cdr, time_msg
 from needle_sim_ros.model import ModelShape
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
 
@@ -49,6 +50,21 @@ NS = 1_000_000_000
 
 def stamp_ns(header: Header) -> int:
     return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
+
+
+class MeasuredShape(NamedTuple):
+    """A ``needle/measured_shape``: its header, centerline and serialized NeedleShape."""
+
+    header: Header
+    points: np.ndarray
+    arc_length: np.ndarray
+    data: bytes
+
+    @classmethod
+    def recorded(cls, msg: NeedleShape, data: bytes) -> "MeasuredShape":
+        """A recorded one (``msg`` decoded from ``data``)."""
+        points, arc_length, _ = shape_arrays(msg)
+        return cls(msg.header, points, arc_length, data)
 
 
 class SimulatorStage:
@@ -102,23 +118,21 @@ class SimulatorStage:
             self._reject(error.kind)
 
     # --- outputs ---------------------------------------------------------------------------------------------
-    def advance(self, now_ns: int) -> list[tuple[str, Any]]:
-        """Integrate up to the clock ``now_ns`` (deterministic rule); returns, in time order, ('wrench', CDR bytes of
-        the WrenchStamped) per step and ('shape', :class:`ModelShape`) per shape period."""
+    def advance(self, now_ns: int) -> tuple[list[bytes], list[tuple[int, ModelShape]]]:
+        """Integrate up to the clock ``now_ns`` (deterministic rule); returns the CDR bytes of a WrenchStamped (base
+        frame) per step and, per shape period, a :class:`ModelShape` with the number of steps before it."""
         if not self.sim.started:
-            return []
-        outputs: list[tuple[str, Any]] = []
+            return [], []
         start = time.perf_counter()
         records = self.sim.advance(now_ns * 1e-9, deterministic=True)
         self.core_seconds += time.perf_counter() - start
         if not records:
-            return outputs
-        for data in cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records)):
-            outputs.append(("wrench", data))
-            self._steps_since_start += 1
-            if self._steps_since_start % self.shape_every == 0:
-                outputs.append(("shape", self.sim.shape(self.p["output.shape_samples"])))
-        return outputs
+            return [], []
+        wrenches = cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records))
+        first = self.shape_every - self._steps_since_start % self.shape_every
+        self._steps_since_start += len(wrenches)
+        return wrenches, [(steps, self.sim.shape(self.p["output.shape_samples"]))
+                          for steps in range(first, len(wrenches) + 1, self.shape_every)]
 
     def statistics(self) -> dict[str, Any]:
         stats = self.sim.statistics
@@ -190,7 +204,7 @@ class StereoStage:
         if rig is not None:
             self.pipeline = self._pipeline(rig)
 
-    def on_image(self, side: str, msg: Image | cdr.DecodedImage | cdr.DecodedCompressedImage) -> list[NeedleShape]:
+    def on_image(self, side: str, msg: Image | cdr.DecodedImage | cdr.DecodedCompressedImage) -> list[MeasuredShape]:
         pair = self.pairer.push(side, msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, msg)
         if pair is None:
             return []
@@ -208,9 +222,10 @@ class StereoStage:
         if result.status is not FrameStatus.MEASURED:
             return []
         m = result.measurement
-        header = Header(stamp=pair.left.header.stamp, frame_id=self.values["output_frame"] or pair.left.header.frame_id)
-        return [needle_shape_msg(header, NeedleShape.SOURCE_STEREO, m.points, m.tangents, m.arc_length, m.points[-1],
-                                 quaternions_from_x_axes(m.tangents[-1]), m.uncertainty)]
+        stamp, frame = pair.left.header.stamp, self.values["output_frame"] or pair.left.header.frame_id
+        data = cdr.needle_shape(stamp.sec, stamp.nanosec, frame, NeedleShape.SOURCE_STEREO, m.points, m.tangents,
+                                m.arc_length, m.points[-1], quaternions_from_x_axes(m.tangents[-1]), m.uncertainty)
+        return [MeasuredShape(Header(stamp=stamp, frame_id=frame), m.points, m.arc_length, data)]
 
     def statistics(self) -> dict[str, Any]:
         return {"pairs": dict(self.outcomes), "unpaired_frames": self.pairer.dropped}
@@ -233,17 +248,16 @@ class ComparisonStage:
         return self.outputs(self.session.add_model(stamp_ns(header), frame_id, header, shape.line.points,
                                                    shape.line.arc_length))
 
-    def on_measured(self, msg: NeedleShape) -> list[tuple[str, Any]]:
-        points, arc_length, _ = shape_arrays(msg)
-        return self.outputs(self.session.add_measurement(stamp_ns(msg.header), msg.header.frame_id, msg.header,
-                                                         points, arc_length))
+    def on_measured(self, shape: MeasuredShape) -> list[tuple[str, Any]]:
+        return self.outputs(self.session.add_measurement(stamp_ns(shape.header), shape.header.frame_id, shape.header,
+                                                         shape.points, shape.arc_length))
 
     def outputs(self, compared: list[ComparedPair]) -> list[tuple[str, Any]]:
-        """As the node publishes them: ('shape_error', ShapeError) per comparison, then its display topics'
-        serialized Path and Marker messages (:class:`ComparisonDisplay`)."""
-        result: list[tuple[str, Any]] = []
+        """As the node publishes them, serialized: ('shape_error', ShapeError) per comparison, then its display
+        topics' Path and Marker messages (:class:`ComparisonDisplay`)."""
+        result: list[tuple[str, bytes]] = []
         for pair in compared:
-            result.append(("shape_error", shape_error_msg(pair.result, pair.model_tag, pair.measured_tag)))
+            result.append(("shape_error", shape_error_cdr(pair.result, pair.model_tag, pair.measured_tag)))
             result.extend(self.display.outputs(pair).items())
         return result
 
