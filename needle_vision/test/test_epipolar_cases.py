@@ -7,7 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from vision_shapes import EPIPOLAR_SHAPES, SHAPES, distance_to_curve
+import rod_equilibria
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, distance_to_curve
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.detection.centerline import extract_centerline
@@ -138,3 +139,54 @@ def test_max_uncertainty_flags_samples_as_unmeasured(rig, polarities, curve_fit)
     _, arc = distance_to_curve(strict.points, truth)
     assert np.median(arc[flagged]) > 0.18
 
+
+#: The rod S seen bright: the right view's base end (the needle leaving the holder at ~45 deg in the image, where its
+#: curvature is largest) is found 2-12 px short and the tip ~1 px off in that view, before and after issue 39's
+#: centerline change (seeds 7, 1007, 2007): its 3D tip is 0.33 mm off and samples lie up to 10 sigma off.
+ROD_S_BRIGHT = pytest.mark.xfail(reason="rod_s bright: the right view's base end is found 2-12 px short (end "
+                                        "detection, not the matching)", strict=True)
+
+
+def _rod_cases() -> list:
+    return [pytest.param(name, polarity, marks=ROD_S_BRIGHT if (name, polarity) == ("rod_s", "bright") else ())
+            for name in ROD_EPIPOLAR_SHAPES for polarity in ("dark", "bright")]
+
+
+@pytest.mark.parametrize("name, polarity", _rod_cases())
+def test_rod_equilibria_per_point(rig, polarities, name, polarity):
+    """Elastic-rod equilibria along the epipolar lines (the simulator's static solve, rod_equilibria.py), the
+    default per-point path (seed 7): calibrated (measured 100 % within 3 sigma, worst 1.1-2.4 sigma), tip within
+    0.2 mm (0.03-0.11 mm). The stretches along the lines are flagged where their sigma exceeds 1 mm (coverage: the
+    down curl 0.66-0.68, the up curl 1.01, the S 0.61)."""
+    truth = ROD_EPIPOLAR_SHAPES[name]
+    measurement = _measure(rig, polarities, name, polarity, ReconstructionConfig(), ROD_EPIPOLAR_SHAPES)
+    _calibrated(measurement, truth)
+    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.2e-3
+
+
+@pytest.mark.parametrize("name, polarity", _rod_cases())
+def test_rod_equilibria_fitted_over_the_whole_needle(rig, polarities, name, polarity):
+    """The curve fitted to both views measures the rod equilibria along their whole length (max_uncertainty 1 mm,
+    coverage >= 0.95; measured 0.98-1.00) with a calibrated sigma (worst 1.0-3.9 sigma), where the centerlines'
+    correlated error no longer tilts the stretches along the lines (issue 39; the smoothstep shapes' turning plane,
+    not an equilibrium, is still bowed 0.7 mm by the rod prior). RMS (seed 7) 0.03 mm on the up curl, 0.07 on the
+    S, 0.09-0.11 mm on the down curl (its ~100 mm tail within 10 deg of the lines: not yet <= 0.10 when bright)."""
+    truth = ROD_EPIPOLAR_SHAPES[name]
+    measurement = _measure(rig, polarities, name, polarity, replace(FIT, max_uncertainty=1e-3), ROD_EPIPOLAR_SHAPES)
+    distance = _calibrated(measurement, truth)
+    assert measurement.coverage >= 0.95
+    assert np.sqrt(np.mean(distance[measurement.measured] ** 2)) <= 0.12e-3
+
+
+def test_rod_equilibria_are_the_simulators_static_solve():
+    """The stored shapes are what needle_sim_ros's static solve gives today (regenerated and compared: a change of
+    the model or the needle's defaults shows here); each is 0.27 m long and ends or runs along the baseline (z)."""
+    pytest.importorskip("needle_sim_ros.model", reason="needs needle_sim_ros (the simulator) to regenerate")
+    fresh = rod_equilibria.equilibria()
+    assert sorted(fresh) == sorted(ROD_EPIPOLAR_SHAPES)
+    for name, points in fresh.items():
+        np.testing.assert_allclose(points, ROD_EPIPOLAR_SHAPES[name], rtol=0, atol=1e-9)
+        tangent = np.gradient(points, axis=0)
+        along = np.abs(tangent[:, 2]) / np.linalg.norm(tangent, axis=1)
+        assert np.linalg.norm(np.diff(points, axis=0), axis=1).sum() == pytest.approx(0.27, abs=1e-5)
+        assert np.count_nonzero(along > np.cos(np.radians(10))) * 0.25e-3 >= 30e-3
