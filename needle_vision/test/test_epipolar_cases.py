@@ -86,14 +86,15 @@ def test_per_point_uncertainty_on_the_earlier_cases(rig, polarities, name, polar
     """The per-point path on the earlier shapes, dark and bright (seed 7): calibrated (measured 100 % within 3 sigma,
     worst 1.1-2.3 sigma; before: 98.9-100 %, worst 3.5 sigma). The hook's tail along the epipolar lines was flagged
     in part (coverage 0.77-0.89), measured whole since issue 39's covered-fraction centroids; the stretch seen
-    end-on is flagged (coverage 0.849-0.91: the bright one one sample fewer than the 0.851 before); the rest 1.00.
+    end-on is flagged (coverage 0.91; the bright one 0.85 before the slices were selected on their covered
+    fraction); the rest 1.00.
     Tip within 0.2 mm (measured 0.01-0.16 mm): the bright 3D needle's left tip lay 7.8 px beyond its last slice,
     past the end profile's reach (2.4 mm off; the profile now reaches 6 half widths when it does not fall
     within 2)."""
     measurement = _measure(rig, polarities, name, polarity, ReconstructionConfig(), SHAPES)
     _calibrated(measurement, SHAPES[name])
     assert np.linalg.norm(measurement.points[-1] - SHAPES[name][-1]) <= 0.2e-3
-    assert measurement.coverage >= (0.7 if name == "hook" else 0.84 if name == "end_on" else 0.99)
+    assert measurement.coverage >= (0.7 if name == "hook" else 0.85 if name == "end_on" else 0.99)
 
 
 @pytest.mark.parametrize("name", list(SHAPES))
@@ -140,11 +141,12 @@ def test_max_uncertainty_flags_samples_as_unmeasured(rig, polarities, curve_fit)
     assert np.median(arc[flagged]) > 0.18
 
 
-#: The rod S seen bright: the right view's base end (the needle leaving the holder at ~45 deg in the image, where its
-#: curvature is largest) is found 2-12 px short and the tip ~1 px off in that view, before and after issue 39's
-#: centerline change (seeds 7, 1007, 2007): its 3D tip is 0.33 mm off and samples lie up to 10 sigma off.
-ROD_S_BRIGHT = pytest.mark.xfail(reason="rod_s bright: the right view's base end is found 2-12 px short (end "
-                                        "detection, not the matching)", strict=True)
+#: The rod S seen bright: its ends are found ~1 px off in the images (the right view's tip and base, the left view's
+#: base at seeds 7 and 2007: the needle leaves the holder at ~45 deg in the image, where its curvature is largest;
+#: the right base was 2-12 px short while the slices were selected on their relative contrast): its 3D tip is
+#: 0.35 mm off, per-point 97.4 % within 3 sigma (worst 4.3), the fit's RMS 0.13 mm.
+ROD_S_BRIGHT = pytest.mark.xfail(reason="rod_s bright: its image ends are found ~1 px off (end detection, not the "
+                                        "matching)", strict=True)
 
 
 def _rod_cases() -> list:

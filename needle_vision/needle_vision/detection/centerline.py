@@ -59,11 +59,11 @@ class CenterlineConfig:
 @dataclass(frozen=True)
 class ImageCenterline:
     """Centerline points ``(n, 2)`` (x, y raw pixels) ordered from one end to the other, their slice contrast
-    (sum of relative contrast across the slice), the robust scatter [px] of the points across the curve, and
-    that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW`` points: the noise
-    grows where the needle's contrast is lower, e.g. in front of a darker background); ``end_taper_px``: how far
-    [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen side-on: half its
-    length; 0 for a flat end)."""
+    (sum of the covered fraction across the slice: the needle's width along it), the robust scatter [px] of the
+    points across the curve, and that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW``
+    points: the noise grows where the needle's contrast is lower, e.g. in front of a darker background);
+    ``end_taper_px``: how far [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen
+    side-on: half its length; 0 for a flat end)."""
 
     points: np.ndarray
     contrast: np.ndarray
@@ -221,7 +221,7 @@ def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, 
     needle's own intensity ``needle[k]`` (N) is given (non-empty), the covered fraction (B - I) / (B - N): the
     relative contrast is the covered fraction times 1 - N / B, which the background's albedo texture modulates
     across the slice (a bright needle on a dark background: ~+-15 %, a centroid error correlated over ~4 px of
-    texture). Returns (centroid, relative contrast sum); contrast 0 when the slice leaves the image."""
+    texture). Returns (centroid, contrast sum: of the weights); contrast 0 when the slice leaves the image."""
     height, width = image.shape
     n = fixed.shape[0]
     centroid = np.empty(n)
@@ -235,18 +235,16 @@ def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, 
             centroid[k] = predicted[k]
             continue
         covered = needle.shape[0] > 0
-        sr, sw, sc = 0.0, 0.0, 0.0
+        sw, sc = 0.0, 0.0
         for c in range(centre - half_width, centre + half_width + 1):
             if along_rows[k]:
                 b, v = background[f, c], image[f, c]
             else:
                 b, v = background[c, f], image[c, f]
-            r = polarity * (b - v) / max(b, 1.0)
-            w = polarity * (b - v) / max(polarity * (b - needle[k]), 1.0) if covered else r
-            sr += r
+            w = polarity * (b - v) / max(polarity * (b - needle[k]) if covered else b, 1.0)
             sw += w
             sc += w * c
-        contrast[k] = sr
+        contrast[k] = sw
         centroid[k] = sc / sw if sw > 0 else predicted[k]
     return centroid, contrast
 
@@ -752,7 +750,8 @@ def _slice_points(image, background, polarity, path, half_width, wide, min_contr
                                           relative)
     needle = _needle_levels(image, polarity, along_rows, fixed, centroid, contrast, NEEDLE_LEVEL_WINDOW)
     if needle.shape[0] > 0:
-        centroid, _ = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width, needle)
+        centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width,
+                                              needle)
     n = contrast.shape[0]
     points = np.empty((n, 2))
     for k in range(n):
