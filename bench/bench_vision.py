@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "needle_vision" / "test"))
-from vision_shapes import EPIPOLAR_SHAPES, SHAPES, distance_to_curve  # noqa: E402  (the tests' known needle shapes)
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, distance_to_curve  # noqa: E402  (tests' shapes)
 
 from needle_vision.calibration.rectification import Rectification  # noqa: E402
 from needle_vision.calibration.rig import camera_calibration_yaml  # noqa: E402
@@ -238,7 +238,7 @@ def epipolar_cases(rig, scene, seeds: tuple[int, ...]) -> None:
           "per-point -> curve fit.\n")
     print("| case | polarity | seed | RMS [mm] | max [mm] | tip [mm] | coverage | within 3σ | worst d/σ |")
     print("|---|---|---|---|---|---|---|---|---|")
-    for name, truth in {**EPIPOLAR_SHAPES, **SHAPES}.items():
+    for name, truth in {**EPIPOLAR_SHAPES, **ROD_EPIPOLAR_SHAPES, **SHAPES}.items():
         length = np.linalg.norm(np.diff(truth, axis=0), axis=1).sum()
         for polarity, (polarity_scene, backgrounds) in polarities.items():
             for seed in seeds:

@@ -7,7 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from vision_shapes import EPIPOLAR_SHAPES, SHAPES, distance_to_curve
+import rod_equilibria
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, distance_to_curve
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.detection.centerline import extract_centerline
@@ -54,9 +55,10 @@ def _calibrated(measurement: NeedleMeasurement, truth: np.ndarray) -> np.ndarray
 @pytest.mark.parametrize("name", list(EPIPOLAR_SHAPES))
 def test_fitted_curve_uncertainty_is_calibrated(rig, polarities, name, polarity):
     """The fit's sigma (image noise through its covariance, with a correlated part of the image error) holds the
-    truth: measured (seed 7) 100 % within 3 sigma, worst 0.8-1.9 sigma; RMS over the measured samples 0.03-0.11 mm
-    (coverage 0.58-0.82 at max_uncertainty 0.3 mm: the stretches along the epipolar lines are flagged). The
-    per-point path: see test_per_point_uncertainty_is_calibrated."""
+    truth: measured (seed 7) 100 % within 3 sigma, worst 1.0-1.9 sigma; RMS over the measured samples 0.03-0.05 mm
+    (0.03-0.11 before issue 39's covered-fraction centroids; coverage 0.62-0.87 at max_uncertainty 0.3 mm, was
+    0.58-0.82: the stretches along the epipolar lines are flagged). The per-point path: see
+    test_per_point_uncertainty_is_calibrated."""
     measurement = _measure(rig, polarities, name, polarity, FIT)
     distance = _calibrated(measurement, EPIPOLAR_SHAPES[name])
     assert np.sqrt(np.mean(distance[measurement.measured] ** 2)) <= 0.15e-3
@@ -68,8 +70,8 @@ def test_fitted_curve_uncertainty_is_calibrated(rig, polarities, name, polarity)
 def test_per_point_uncertainty_is_calibrated(rig, polarities, name, polarity):
     """The default per-point path's sigma includes the correlated image error's slide along the epipolar lines,
     which the smoothing does not average (reconstruction._slide), and the unseen bending of the stretches placed by
-    continuity (reconstruction._continuity_sigma): measured (seed 7) 100 % within 3 sigma, worst 1.1-2.9 sigma;
-    those stretches flagged at the default max_uncertainty (coverage 0.60-0.81). Before: the turning plane's 70 mm
+    continuity (reconstruction._continuity_sigma): measured (seed 7) 100 % within 3 sigma, worst 1.1-2.4 sigma;
+    those stretches flagged at the default max_uncertainty (coverage 0.61-0.84). Before: the turning plane's 70 mm
     tail, interpolated 1-2.7 mm off under a 0.7 mm sigma, 85-90 % within 3 sigma, worst 3.6-4.0 sigma.
     Tip within 0.2 mm (measured 0.04-0.13 mm): the S's tip, where it straightens out of its bend, was extrapolated
     0.4-0.5 px aside in each view by the end's quadratic, 0.24-0.28 mm off (a cubic term where significant)."""
@@ -82,10 +84,13 @@ def test_per_point_uncertainty_is_calibrated(rig, polarities, name, polarity):
 @pytest.mark.parametrize("name", list(SHAPES))
 def test_per_point_uncertainty_on_the_earlier_cases(rig, polarities, name, polarity):
     """The per-point path on the earlier shapes, dark and bright (seed 7): calibrated (measured 100 % within 3 sigma,
-    worst 0.9-2.8 sigma; before: 98.9-100 %, worst 3.5 sigma); only the hook's tail along the epipolar lines is
-    flagged in part (coverage 0.77-0.89; the others as before: end-on 0.86-0.91, the rest 1.00). Tip within 0.2 mm
-    (measured 0.01-0.18 mm): the bright 3D needle's left tip lay 7.8 px beyond its last slice, past the end profile's
-    reach (2.4 mm off; the profile now reaches 6 half widths when it does not fall within 2)."""
+    worst 1.1-2.3 sigma; before: 98.9-100 %, worst 3.5 sigma). The hook's tail along the epipolar lines was flagged
+    in part (coverage 0.77-0.89), measured whole since issue 39's covered-fraction centroids; the stretch seen
+    end-on is flagged (coverage 0.91; the bright one 0.85 before the slices were selected on their covered
+    fraction); the rest 1.00.
+    Tip within 0.2 mm (measured 0.01-0.16 mm): the bright 3D needle's left tip lay 7.8 px beyond its last slice,
+    past the end profile's reach (2.4 mm off; the profile now reaches 6 half widths when it does not fall
+    within 2)."""
     measurement = _measure(rig, polarities, name, polarity, ReconstructionConfig(), SHAPES)
     _calibrated(measurement, SHAPES[name])
     assert np.linalg.norm(measurement.points[-1] - SHAPES[name][-1]) <= 0.2e-3
@@ -134,3 +139,56 @@ def test_max_uncertainty_flags_samples_as_unmeasured(rig, polarities, curve_fit)
     assert np.all(strict.uncertainty[flagged] == UNMEASURED) and np.count_nonzero(flagged) >= 20
     _, arc = distance_to_curve(strict.points, truth)
     assert np.median(arc[flagged]) > 0.18
+
+
+#: The rod S seen bright: its ends are found ~1 px off in the images (the right view's tip and base, the left view's
+#: base at seeds 7 and 2007: the needle leaves the holder at ~45 deg in the image, where its curvature is largest;
+#: the right base was 2-12 px short while the slices were selected on their relative contrast): its 3D tip is
+#: 0.35 mm off, per-point 97.4 % within 3 sigma (worst 4.3), the fit's RMS 0.13 mm.
+ROD_S_BRIGHT = pytest.mark.xfail(reason="rod_s bright: its image ends are found ~1 px off (end detection, not the "
+                                        "matching)", strict=True)
+
+
+def _rod_cases() -> list:
+    return [pytest.param(name, polarity, marks=ROD_S_BRIGHT if (name, polarity) == ("rod_s", "bright") else ())
+            for name in ROD_EPIPOLAR_SHAPES for polarity in ("dark", "bright")]
+
+
+@pytest.mark.parametrize("name, polarity", _rod_cases())
+def test_rod_equilibria_per_point(rig, polarities, name, polarity):
+    """Elastic-rod equilibria along the epipolar lines (the simulator's static solve, rod_equilibria.py), the
+    default per-point path (seed 7): calibrated (measured 100 % within 3 sigma, worst 1.1-2.4 sigma), tip within
+    0.2 mm (0.03-0.11 mm). The stretches along the lines are flagged where their sigma exceeds 1 mm (coverage: the
+    down curl 0.66-0.68, the up curl 1.01, the S 0.61)."""
+    truth = ROD_EPIPOLAR_SHAPES[name]
+    measurement = _measure(rig, polarities, name, polarity, ReconstructionConfig(), ROD_EPIPOLAR_SHAPES)
+    _calibrated(measurement, truth)
+    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.2e-3
+
+
+@pytest.mark.parametrize("name, polarity", _rod_cases())
+def test_rod_equilibria_fitted_over_the_whole_needle(rig, polarities, name, polarity):
+    """The curve fitted to both views measures the rod equilibria along their whole length (max_uncertainty 1 mm,
+    coverage >= 0.95; measured 0.98-1.00) with a calibrated sigma (worst 1.0-3.9 sigma), where the centerlines'
+    correlated error no longer tilts the stretches along the lines (issue 39; the smoothstep shapes' turning plane,
+    not an equilibrium, is still bowed 0.7 mm by the rod prior). RMS (seed 7) 0.03 mm on the up curl, 0.07 on the
+    S, 0.09-0.11 mm on the down curl (its ~100 mm tail within 10 deg of the lines: not yet <= 0.10 when bright)."""
+    truth = ROD_EPIPOLAR_SHAPES[name]
+    measurement = _measure(rig, polarities, name, polarity, replace(FIT, max_uncertainty=1e-3), ROD_EPIPOLAR_SHAPES)
+    distance = _calibrated(measurement, truth)
+    assert measurement.coverage >= 0.95
+    assert np.sqrt(np.mean(distance[measurement.measured] ** 2)) <= 0.12e-3
+
+
+def test_rod_equilibria_are_the_simulators_static_solve():
+    """The stored shapes are what needle_sim_ros's static solve gives today (regenerated and compared: a change of
+    the model or the needle's defaults shows here); each is 0.27 m long and ends or runs along the baseline (z)."""
+    pytest.importorskip("needle_sim_ros.model", reason="needs needle_sim_ros (the simulator) to regenerate")
+    fresh = rod_equilibria.equilibria()
+    assert sorted(fresh) == sorted(ROD_EPIPOLAR_SHAPES)
+    for name, points in fresh.items():
+        np.testing.assert_allclose(points, ROD_EPIPOLAR_SHAPES[name], rtol=0, atol=1e-9)
+        tangent = np.gradient(points, axis=0)
+        along = np.abs(tangent[:, 2]) / np.linalg.norm(tangent, axis=1)
+        assert np.linalg.norm(np.diff(points, axis=0), axis=1).sum() == pytest.approx(0.27, abs=1e-5)
+        assert np.count_nonzero(along > np.cos(np.radians(10))) * 0.25e-3 >= 30e-3

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
+import rod_equilibria
 from needle_vision.calibration.rig import StereoRig
 from needle_vision.matching.reconstruction import UNMEASURED, NeedleMeasurement
 from needle_vision.render import NEEDLE_LENGTH, project_points
@@ -158,3 +159,10 @@ EPIPOLAR_SHAPES = {
     # A 3D curve whose bending plane turns 100 deg over its first 200 mm; its last 70 mm run along -z.
     "turning_plane": _turning_plane(),
 }
+
+#: Shapes along the epipolar lines that are elastic-rod equilibria of the seed 000 needle (the simulator's static solve
+#: under its weight and a tip load; rod_equilibria.py, stored in data/): `rod_curl_down` curls down until its last
+#: ~100 mm hang along -z, `rod_curl_up` curls up towards the cameras until its tip points along +z (its last ~35 mm
+#: within 10 deg), `rod_s` is an S whose middle ~120 mm run within 10 deg of -z. The older EPIPOLAR_SHAPES are
+#: smoothstep curvature profiles, not equilibria (the turning plane's bend fades out inside its unseen stretch).
+ROD_EPIPOLAR_SHAPES = rod_equilibria.load()

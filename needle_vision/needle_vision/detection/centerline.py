@@ -7,8 +7,9 @@ extract the background, find the needle points).
    path, which orders the needle from one end to the other; other components whose ends face its ends (a
    needle cut by an occluder) are joined to it, the hidden stretch between them left without points.
 2. Full-resolution refinement: the band around the coarse path is cut into axis-aligned one-pixel slices
-   (columns where the needle runs closer to horizontal, rows elsewhere); the centroid of the background-
-   subtracted grey levels across each slice is a centerline point (no image interpolation). Integer sampling
+   (columns where the needle runs closer to horizontal, rows elsewhere); the centroid of the covered fraction
+   (B - I) / (B - N) across each slice is a centerline point (no image interpolation; N the needle's own grey
+   level along it, so the background's texture does not weight the slice). Integer sampling
    of the pixel-integrated profile leaves a small aliasing error that oscillates with the sub-pixel phase:
    up to ~0.04 px for a 2.5 px wide needle imaged with no lens blur, negligible with a realistic blur
    (Gaussian point spread sigma >= 0.5 px). Weak slices (gaps, beyond the ends) are dropped.
@@ -33,6 +34,8 @@ NOISE_WINDOW = 61
 #: [px] consecutive centerline points farther apart are separated by a hidden stretch (shorter runs of weak
 #: slices are bridged as before).
 GAP_PX = 40.0
+#: [slices] running median of the needle's own intensity along the needle (the covered fraction's denominator).
+NEEDLE_LEVEL_WINDOW = 41
 
 
 class NoNeedleError(ValueError):
@@ -56,11 +59,11 @@ class CenterlineConfig:
 @dataclass(frozen=True)
 class ImageCenterline:
     """Centerline points ``(n, 2)`` (x, y raw pixels) ordered from one end to the other, their slice contrast
-    (sum of relative contrast across the slice), the robust scatter [px] of the points across the curve, and
-    that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW`` points: the noise
-    grows where the needle's contrast is lower, e.g. in front of a darker background); ``end_taper_px``: how far
-    [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen side-on: half its
-    length; 0 for a flat end)."""
+    (sum of the covered fraction across the slice: the needle's width along it), the robust scatter [px] of the
+    points across the curve, and that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW``
+    points: the noise grows where the needle's contrast is lower, e.g. in front of a darker background);
+    ``end_taper_px``: how far [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen
+    side-on: half its length; 0 for a flat end)."""
 
     points: np.ndarray
     contrast: np.ndarray
@@ -211,11 +214,14 @@ def _refine_path(image, background, polarity, path):  # pragma: no cover - compi
 
 
 @numba.njit(cache=True, nogil=True)
-def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, half_width):  # pragma: no cover
+def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, half_width,
+                     needle):  # pragma: no cover - compiled
     """Centroid across each one-pixel slice: slice k is row ``fixed[k]`` (along_rows) or column ``fixed[k]``,
-    spanning ``round(predicted[k]) ± half_width``. The weights are the relative contrast (B - I) / B: for a dark
-    needle ~ coverage * (1 - needle/background), far less sensitive to background texture than B - I.
-    Returns (centroid, contrast sum); contrast 0 when the slice leaves the image."""
+    spanning ``round(predicted[k]) ± half_width``. The weights are the relative contrast (B - I) / B, or where the
+    needle's own intensity ``needle[k]`` (N) is given (non-empty), the covered fraction (B - I) / (B - N): the
+    relative contrast is the covered fraction times 1 - N / B, which the background's albedo texture modulates
+    across the slice (a bright needle on a dark background: ~+-15 %, a centroid error correlated over ~4 px of
+    texture). Returns (centroid, contrast sum: of the weights); contrast 0 when the slice leaves the image."""
     height, width = image.shape
     n = fixed.shape[0]
     centroid = np.empty(n)
@@ -228,18 +234,46 @@ def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, 
                 or f >= (height if along_rows[k] else width):
             centroid[k] = predicted[k]
             continue
+        covered = needle.shape[0] > 0
         sw, sc = 0.0, 0.0
         for c in range(centre - half_width, centre + half_width + 1):
             if along_rows[k]:
                 b, v = background[f, c], image[f, c]
             else:
                 b, v = background[c, f], image[c, f]
-            w = polarity * (b - v) / max(b, 1.0)
+            w = polarity * (b - v) / max(polarity * (b - needle[k]) if covered else b, 1.0)
             sw += w
             sc += w * c
         contrast[k] = sw
         centroid[k] = sc / sw if sw > 0 else predicted[k]
     return centroid, contrast
+
+
+@numba.njit(cache=True, nogil=True)
+def _needle_levels(image, polarity, along_rows, fixed, centroid, contrast, window):  # pragma: no cover - compiled
+    """The needle's own intensity N at each slice: the grey level of the pixel nearest its centroid (covered by the
+    needle), a running median over ``window`` of the slices whose contrast is at least half the median (the light
+    is smooth along the needle; the others take their nearest such slice's). Empty when fewer than ``window``
+    slices qualify."""
+    n = centroid.shape[0]
+    height, width = image.shape
+    strong = contrast > 0.5 * np.median(contrast[contrast > 0]) if np.any(contrast > 0) else contrast > 0
+    selected = np.flatnonzero(strong)
+    if selected.shape[0] < window:
+        return np.zeros(0)
+    levels = np.empty(selected.shape[0])
+    for j in range(selected.shape[0]):
+        k = selected[j]
+        c = min(max(int(np.floor(centroid[k] + 0.5)), 0), (width if along_rows[k] else height) - 1)
+        levels[j] = image[fixed[k], c] if along_rows[k] else image[c, fixed[k]]
+    levels = _running_median(levels, window, True)
+    out = np.empty(n)
+    j = 0
+    for k in range(n):
+        while j + 1 < selected.shape[0] and abs(selected[j + 1] - k) <= abs(selected[j] - k):
+            j += 1
+        out[k] = levels[j]
+    return out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -710,8 +744,14 @@ def _slice_points(image, background, polarity, path, half_width, wide, min_contr
     ``min_profile_fraction`` of it; beyond them, the partly covered slices at the tips are dropped); ``keep`` is
     empty when fewer than 3 slices have contrast or are full."""
     along_rows, fixed, predicted, obliquity = _slices_along(path)
-    centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, predicted, wide)
-    centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width)
+    relative = np.zeros(0)
+    centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, predicted, wide, relative)
+    centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width,
+                                          relative)
+    needle = _needle_levels(image, polarity, along_rows, fixed, centroid, contrast, NEEDLE_LEVEL_WINDOW)
+    if needle.shape[0] > 0:
+        centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width,
+                                              needle)
     n = contrast.shape[0]
     points = np.empty((n, 2))
     for k in range(n):
