@@ -1,4 +1,4 @@
-"""The tissue's compiled run of steps (its composition in ``model.step``) against the general step (``model.data.step`` with
+"""The tissue's compiled run of steps (its ``model.step`` composition) against the general step (``data.step`` with
 ``TissueModel.advance``): the same needle states, wrenches and tissue states (bit for bit with requirements.lock,
 to the last bits with noble's numpy/numba, see RATE_TOLERANCE) for every axial law,
 through the capsule puncture and the bevel's engagement; and the track projection's pruned search against a
