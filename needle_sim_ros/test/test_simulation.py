@@ -407,7 +407,7 @@ def test_a_force_that_fails_to_advance_rolls_the_step_back(monkeypatch):
 
     def broken(*args):
         raise FloatingPointError("broken tissue law")
-    monkeypatch.setattr(tissue_model, "advance_packed", broken)
+    monkeypatch.setattr(tissue_model.TissueModel, "advance", broken)
     with pytest.raises(FloatingPointError):
         sim.stepper.step(base, t)
     monkeypatch.undo()

@@ -1,4 +1,4 @@
-"""The tissue's compiled run of steps (``tissue.sequence``) against the general step (``model.data.step`` with
+"""The tissue's compiled run of steps (its ``model.step`` composition) against the general step (``data.step`` with
 ``TissueModel.advance``): the same needle states, wrenches and tissue states (bit for bit with requirements.lock,
 to the last bits with noble's numpy/numba, see RATE_TOLERANCE) for every axial law,
 through the capsule puncture and the bevel's engagement; and the track projection's pruned search against a
@@ -8,7 +8,6 @@ import pytest
 
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import simulation_from_parameters
-from needle_sim_ros.tissue.sequence import unpack_record
 from needle_sim_ros.tissue.tissue_model import TissueModel, TissueState
 from needle_sim_ros.tissue.track import project_on_polyline
 
@@ -121,7 +120,7 @@ def assert_same(a, b, tolerance: float = 0.0, path: str = "force_states") -> Non
         for key in a:
             assert_same(a[key], b[key], tolerance, f"{path}.{key}")
     elif isinstance(a, TissueState):  # field by field
-        assert_same(unpack_record(a.record), unpack_record(b.record), tolerance, path)
+        assert_same(a.records, b.records, tolerance, path)
     elif hasattr(a, "__slots__"):  # the track
         assert_same(a.__reduce__()[1], b.__reduce__()[1], tolerance, path)
     elif hasattr(a, "__dict__"):

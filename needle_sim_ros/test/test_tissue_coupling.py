@@ -3,8 +3,11 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.model import BaseMotion, Integrator, NeedleProperties, build_model, elastic_energy, kinetic_energy
-from needle_sim_ros.tissue.coupling import BevelTipForce, ShaftForces, TipResistance
+from needle_sim_ros.model.step import pack
+from needle_sim_ros.tissue.contact import pack_contact
 from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_model
+from needle_sim_ros.tissue.shaft_force import FROZEN_FIELDS, pack_shaft
+from needle_sim_ros.tissue.tissue_model import TissueState
 
 PROPS = NeedleProperties(0.27, 0.635e-3, 193e9, 8000.0, gravity=(0.0, 0.0, 0.0))   # seed 000 needle
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
@@ -70,40 +73,38 @@ def test_shaft_support_jacobians_match_finite_differences_in_stick_and_slip(mode
     tissue = build_tissue_model(config(bevel_tip__enable=False), model)
     state, base, own = inserted_state(model, tissue, 0.03)
     assert own.shaft.active.sum() >= 10
-    shaft, = tissue.at(own)
-    lateral, axial = shaft.parts
-    assert axial.weights.sum() == pytest.approx(0.03)               # weights add up to the inserted length
+    contact, shaft = own.records
+    lateral, axial = (dict(zip(FROZEN_FIELDS, part)) for part in (shaft.lateral, shaft.axial))
+    assert axial["weights"].sum() == pytest.approx(0.03)            # weights add up to the inserted length
     # the lateral springs hold the cut part: all of it but the last track spacing at most
-    assert 0.03 - own.contact.track.spacing <= lateral.weights.sum() <= 0.03 + 1e-9
+    assert 0.03 - own.contact.track.spacing <= lateral["weights"].sum() <= 0.03 + 1e-9
     # push every other anchor beyond the stick band (0.3 mm): those points slip, the others stick
-    anchors = axial.anchor_points.copy()
-    anchors[::2] -= 1e-3 * axial.tangents[::2]
-    shaft = ShaftForces(lateral, axial._replace(anchor_points=anchors))
+    axial["anchor_points"][::2] -= 1e-3 * axial["tangents"][::2]
+    moved = shaft._replace(axial=tuple(axial.values()))
+    shaft, = tissue.at(TissueState(tissue, pack([pack_contact(contact), pack_shaft(moved)])))
     q, qd = perturbed(state, np.random.default_rng(4))
     result = finite_difference_check(shaft, model, q, qd, base)
     assert np.abs(result.Q).max() > 0
 
 
-def test_bevel_and_tip_resistance_jacobians_match_finite_differences(model):
+@pytest.mark.parametrize("bevel", [False, True])
+def test_bevel_and_tip_resistance_jacobians_match_finite_differences(model, bevel):
+    # the tip forces alone (no shaft support): the seed 002 tip resistance, with or without the bevel tip
     tissue = build_tissue_model(config(insertion_profile__enable=True, insertion_profile__puncture_depth=0.005,
-                                      insertion_profile__cutting_speed_scale=1e-2), model)
-
-    def tip_forces(own):
-        return (next(f for f in tissue.at(own) if isinstance(f, BevelTipForce)),
-                next(f for f in tissue.at(own) if isinstance(f, TipResistance)))
+                                      insertion_profile__cutting_speed_scale=1e-2, bevel_tip__enable=bevel,
+                                      shaft__lateral_support=False, shaft__axial_model="none"), model)
     # before puncture: capsule stiffness along the entry normal
     state, base, own = inserted_state(model, tissue, 0.003)
     assert not own.contact.punctured
     q, qd = perturbed(state, np.random.default_rng(5))
-    assert np.abs(finite_difference_check(tip_forces(own)[1], model, q, qd, base).Q).max() > 0
+    assert np.abs(finite_difference_check(tissue.at(own)[0], model, q, qd, base).Q).max() > 0
     # after puncture, cutting at 6 mm/s (inside the 10 mm/s ramp of F_c): tip force depends on r_x and v
     state, base, own = inserted_state(model, tissue, 0.02, velocity=0.006, t=1.0, own=own)
     assert own.contact.punctured and own.contact.at_front
-    bevel, tip = tip_forces(own)
-    assert tip.cutting and bevel.scale > 0
+    punctured, cutting = own.records[-1]
+    assert punctured and cutting and (not bevel or own.records[2][0] > 0)   # the bevel's scale
     q, qd = perturbed(state, np.random.default_rng(6))
-    assert np.abs(finite_difference_check(tip, model, q, qd, base).Q).max() > 0
-    assert np.abs(finite_difference_check(bevel, model, q, qd, base).Q).max() > 0
+    assert np.abs(finite_difference_check(tissue.at(own)[0], model, q, qd, base).Q).max() > 0
 
 
 def test_passive_tissue_never_adds_energy(model):
@@ -115,8 +116,7 @@ def test_passive_tissue_never_adds_energy(model):
     state.qd[6:] = 0.02 * rng.normal(size=state.qd.size - 6)
     integrator = Integrator(model, method="generalized_alpha", rho_inf=1.0)   # no numerical dissipation
     def energy_of(state):
-        return (kinetic_energy(model, state.qd) + elastic_energy(model, state.q)
-                + tissue.at(own)[0].elastic_energy(model, state.q))
+        return kinetic_energy(model, state.qd) + elastic_energy(model, state.q) + shaft_energy(own, state.q)
 
     energy = [energy_of(state)]
     for _ in range(200):
@@ -131,6 +131,21 @@ def test_passive_tissue_never_adds_energy(model):
     assert np.all(np.diff(energy) <= 1e-3 * energy[0])
     assert np.all(energy[1:] <= energy[0])
     assert energy[-1] < 0.6 * energy[0]                                       # and it does dissipate
+
+
+def shaft_energy(own, q) -> float:
+    """Energy [J] stored in the lateral springs and the sticking axial anchors (stick band |u| <= C/k_a) of the
+    shaft's frozen points, from their record."""
+    energy = 0.0
+    for part in own.records[1][3:]:
+        p = dict(zip(FROZEN_FIELDS, part))
+        r = np.einsum("ka,kai->ki", p["S"], q.reshape(-1, 3)[p["slots"]])
+        offset = r - p["anchor_points"]
+        u = np.einsum("ki,ki->k", offset, p["tangents"])
+        lateral = 0.5 * p["lateral_stiffness"] * np.sum((offset - u[:, None] * p["tangents"]) ** 2, axis=1)
+        band = p["coulomb"] / p["stick_stiffness"]
+        energy += float(p["weights"] @ (lateral + 0.5 * p["stick_stiffness"] * np.clip(u, -band, band) ** 2))
+    return energy
 
 
 def test_friction_work_equals_force_times_distance_in_the_coupled_model(model):
@@ -165,7 +180,7 @@ def test_readout_of_a_straight_inserted_needle(model):
     readout = tissue.readout(model, own, state, base)
     assert readout.insertion_depth == pytest.approx(0.025)
     assert readout.inserted_length == pytest.approx(0.025, abs=1e-9)
-    bevel = tissue.at(own)[1].unit_bevel
+    bevel = tissue.bevel[0]
     k_t = 9.42e3
     # at the front of a fresh cut: bevel P against the insertion and Q toward +y (the configured bevel side)
     np.testing.assert_allclose(readout.tip_force, k_t * np.array([-bevel.axial_force, bevel.transverse_force, 0]),

@@ -53,12 +53,39 @@ class CompiledContribution(ElementLocalForce):
         return element != 0 or bool(type(self).touches_base(self.state))
 
 
+class ComposedForces(ElementLocalForce):
+    """The forces of a composition (:func:`~needle_sim_ros.model.step.compose`) over one step at its packed state
+    and constants: the general path runs the same kernels as the compiled run."""
+
+    state_dependent: ClassVar[bool] = True
+    time_invariant: ClassVar[bool] = False
+    stateful: ClassVar[bool] = False
+
+    def __init__(self, composition, state: np.ndarray, constants: np.ndarray) -> None:
+        self.composition, self.state, self.constants = composition, state, constants
+
+    def assemble_banded(self, model, q, qd, t, base, band, kl, c_q, c_qd) -> np.ndarray:
+        Q = np.zeros(model.n_dof)
+        if not self.composition.packed_assemble(self.state, self.constants, q, qd, base.rotation, Q, band, kl, c_q,
+                                                c_qd):
+            raise FloatingPointError("the composed forces cannot be assembled at this state")
+        return Q
+
+    def touches_element(self, model, element: int) -> bool:
+        return element != 0 or model.n_elements == 1 or bool(
+            self.composition.packed_touches_base(self.state, self.constants))
+
+    def parts(self, q: np.ndarray, qd: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        """Each composed contribution's generalized force alone at (q, q') (count, n_dof)."""
+        return self.composition.packed_parts(self.state, self.constants, q, qd, rotation)
+
+
 class ContributionRun:
     """The compiled run of steps through the given ``compiled_run`` contributions, composed once."""
 
     def __init__(self, contributions) -> None:
         self.contributions = tuple(contributions)
-        self.run = compiled_run(tuple(type(force).kernels for force in self.contributions))
+        self.run = compiled_run(tuple(force.kernels for force in self.contributions))
         self.constants = pack([force.constants for force in self.contributions])
 
     def __call__(self, model, integrator, state, owns: list, dt: float, times: np.ndarray, motions: np.ndarray,

@@ -137,7 +137,7 @@ def check_forces(forces) -> tuple:
                    if getattr(type(force), hook) is getattr(ForceContribution, hook)]
         if force.element_local and missing:
             raise TypeError(f"force contribution {name} declares element_local = True but has no {missing[0]}()")
-        if force.compiled_run and not (force.state_dependent and hasattr(type(force), "kernels")):
+        if force.compiled_run and not (force.state_dependent and hasattr(force, "kernels")):
             raise TypeError(f"force contribution {name} declares compiled_run = True but is not state-dependent "
                             "with kernels")
         if all(isinstance(getattr(type(force), capability), bool) for capability in CAPABILITIES):

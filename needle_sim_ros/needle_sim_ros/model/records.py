@@ -10,7 +10,7 @@ counts (see ``pack`` in the contributions).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, types
+from numba import literal_unroll, njit, types
 from numba.extending import overload
 
 
@@ -107,3 +107,19 @@ def take_index_matrix(buffer, cursor):
 @njit(cache=True)
 def take_flags(buffer, cursor):
     return take_vector(buffer, cursor) != 0.0
+
+
+@njit(cache=True)
+def put_all(buffer, cursor, fields):
+    """``put`` each of a tuple's fields in order."""
+    for field in literal_unroll(fields):
+        put(buffer, cursor, field)
+
+
+def packed(*fields) -> np.ndarray:
+    """The fields (scalars, 1-d and 2-d arrays) as one float64 array in ``put``'s layout (from Python)."""
+    chunks = []
+    for field in fields:
+        array = np.asarray(field, dtype=float)
+        chunks += [array.reshape(1)] if array.ndim == 0 else [np.array(array.shape, dtype=float), array.ravel()]
+    return np.concatenate(chunks) if chunks else np.zeros(0)

@@ -1,11 +1,14 @@
-"""The tissue as one stateful force contribution: contact, track, shaft support, tip forces and their readout.
+"""The tissue as one stateful force contribution composed of its parts: the contact (the shared record) and each
+force -- the shaft support, the bevel tip, the seed 002 tip resistance -- a contribution of its own with its typed
+record and compiled kernels (``contact``, ``shaft_force``, ``tip_forces``), composed once by the engine
+(``model.step.compose``); the readout.
 
 A :class:`TissueModel` is immutable (the block, the laws and their parameters); everything that changes as the
-needle moves through the tissue is a :class:`TissueState` value kept in ``NeedleData`` (``force_states``).  Once
-per accepted step :meth:`TissueModel.advance` returns the next state: contact and track updated, shaft points
-anchored or slipped, the LuGre bristle state advanced, and the contributions that act over the next step with
-their data frozen (``TissueState.forces``, what :meth:`TissueModel.at` hands to the integrator).  A state is
-never changed in place, so a copy of the data is a copy of references and a failed step leaves it as it was.
+needle moves through the tissue is a :class:`TissueState` value kept in ``NeedleData`` (``force_states``): the
+parts' records packed into one array. Once per accepted step :meth:`TissueModel.advance` returns the next state
+(the composition's advance: contact and track updated, then each force from it). The compiled run and the general
+path (:meth:`TissueModel.at`: ``contribution.ComposedForces``) run the same kernels. A state is never changed in
+place, so a copy of the data is a copy of references and a failed step leaves it as it was.
 """
 from __future__ import annotations
 
@@ -15,25 +18,25 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from needle_sim_ros.model import centerline
+from needle_sim_ros.model.contribution import ComposedForces
 from needle_sim_ros.model.forces import ForceContribution
+from needle_sim_ros.model.records import packed
+from needle_sim_ros.model.step import compose, pack, unpack
 
-from .advance import tip_parameters
 from .bevel_tip import BevelTip
-from .coupling import (NO_SHAFT_FORCES, BevelTipForce, ContactState, ShaftForces, ShaftState, ShaftSupport,
-                       TipResistance, TissueContact, _Frozen, tip_coordinates)
-from .track import Track
+from .contact import CONTACT_KERNELS, unpack_contact
+from .coupling import ContactState, ShaftState, ShaftSupport, TissueContact, tip_coordinates
 from .geometry import inserted_interval
 from .insertion_profile import InsertionForceProfile
-from .sequence import (TISSUE_KERNELS, Contact, TissueRecord, advance_packed, pack_parameters, pack_record,
-                       unpack_record)
+from .shaft_force import SHAFT_KERNELS, inactive_part, unpack_shaft
+from .tip_forces import BEVEL_KERNELS, RESISTANCE_KERNELS
+from .track import Track
 
 
 class TissueState:
-    """The tissue's state after a step: its ``sequence.TissueRecord`` packed into one array (``record``), as the
-    compiled advance returns it and the next compiled run takes it.
-
-    The objects the general path and the readout use -- ``contact``, ``shaft`` and ``forces`` (the contributions
-    acting over the next step) -- are built from it on first use. A value: never changed in place."""
+    """The tissue's state after a step: its parts' records packed into one array (``record``, ``step.pack``), as
+    the compiled advance returns it and the next compiled run takes it. ``contact`` and ``shaft`` (the views the
+    readout and tools use) are built from it on first use. A value: never changed in place."""
 
     __slots__ = ("tissue", "record", "_views")
 
@@ -46,16 +49,19 @@ class TissueState:
         return TissueState, (self.tissue, self.record)
 
     @property
+    def records(self) -> tuple:
+        """The parts' records: the contact's and the shaft's (``ContactRecord``, ``ShaftRecord``), then the tip
+        forces' packed arrays."""
+        states = unpack(self.record, len(self.tissue.at_tip))
+        return (unpack_contact(states[0]), unpack_shaft(states[1]), *(state.copy() for state in states[2:]))
+
+    @property
     def contact(self) -> ContactState:
         return self._built()[0]
 
     @property
     def shaft(self) -> ShaftState:
         return self._built()[1]
-
-    @property
-    def forces(self) -> tuple:
-        return self._built()[2]
 
     def _built(self) -> tuple:
         if self._views is None:
@@ -85,7 +91,6 @@ class TissueModel(ForceContribution):
     time_invariant = False
     stateful = True
     compiled_run = True
-    kernels = TISSUE_KERNELS
 
     def __init__(self, contact: TissueContact, shaft: ShaftSupport,
                  bevel: tuple[BevelTip, np.ndarray] | None = None,
@@ -101,31 +106,40 @@ class TissueModel(ForceContribution):
         self.shaft = shaft
         self.bevel = bevel
         self.tip_resistance = tip_resistance
-        block = contact.block
-        contact_arguments = (block.entry_point, block.entry_normal, float(contact.puncture_depth or 0.0),
-                             float(contact.initial.track.spacing))
-        unit, side = bevel if bevel is not None else (None, np.zeros(3))
-        profile, speed_scale = tip_resistance if tip_resistance is not None else (None, 1.0)
-        self.bevel_edge = unit.edge_a if unit else 1.0  # a [m]: the bevel's embedded fraction is depth / a
-        tip_arguments = (unit is not None, float(unit.axial_force) if unit else 0.0,
-                         float(unit.transverse_force) if unit else 0.0, np.asarray(side, dtype=float),
-                         float(self.bevel_edge), profile is not None,
-                         *((float(profile.a1), float(profile.a2), float(profile.cutting_force)) if profile
-                           else (0.0, 0.0, 0.0)), float(speed_scale))
-        self.constants = pack_parameters(contact_arguments, shaft.kernel_arguments, tip_arguments)
+        block, track = contact.block, contact.initial.track
+        # each part: kernels, constants, initial state, whether it acts at the tip (the readout's tip force)
+        parts = [(CONTACT_KERNELS, packed(block.entry_point, block.entry_normal, float(contact.puncture_depth or 0.0),
+                                          track.spacing),
+                  packed(False, 0.0, 0.0, 0.0, False, np.nan, *track.kernel_arrays), False),
+                 (SHAFT_KERNELS, packed(*shaft.kernel_arguments),
+                  packed(shaft.initial.law, shaft.initial.anchor, shaft.initial.active, *inactive_part(),
+                         *inactive_part()), False)]
+        if bevel is not None:
+            unit, side = bevel
+            parts.append((BEVEL_KERNELS, packed(unit.axial_force, unit.transverse_force, side, unit.edge_a,
+                                                *block.kernel_tables), np.zeros(1), True))
+        if tip_resistance is not None:
+            profile, speed_scale = tip_resistance
+            parts.append((RESISTANCE_KERNELS, packed(block.entry_point, block.entry_normal, profile.a1, profile.a2,
+                                                     profile.cutting_force, speed_scale, block.thickness),
+                          np.zeros(2), True))
+        kernels, constants, initial, self.at_tip = zip(*parts)
+        self.composition = compose(kernels, shared=True)
+        self.kernels = self.composition.kernels
+        self.constants = pack(constants)
+        self._initial = pack(initial)
+
+    def __reduce__(self):
+        return TissueModel, (self.contact, self.shaft, self.bevel, self.tip_resistance)
 
     def initial_state(self, model) -> TissueState:
         """Fresh tissue: not punctured, no track, no shaft point inside."""
-        contact, shaft = self.contact.initial, self.shaft.initial
-        lateral, axial = (part.fields for part in NO_SHAFT_FORCES.parts)
-        fresh = Contact(bool(contact.punctured), float(contact.tip_depth), float(contact.tip_axial_speed),
-                        float(contact.step_duration), bool(contact.at_front), *contact.track.kernel_arrays)
-        return TissueState(self, pack_record(TissueRecord(fresh, np.nan, float(shaft.law), shaft.anchor,
-                                                          shaft.active, lateral, axial)))
+        return TissueState(self, self._initial)
 
     def advance(self, model, state, base, tissue: TissueState) -> TissueState:
-        """The tissue after the accepted step to ``state`` (see the module docstring; ``advance``)."""
-        return TissueState(self, advance_packed(tissue.record, self.constants, state.q, state.qd, float(state.t)))
+        """The tissue after the accepted step to ``state`` (the contact, then each force from it)."""
+        return TissueState(self, self.composition.packed_advance(tissue.record, self.constants, state.q, state.qd,
+                                                                 float(state.t)))
 
     @staticmethod
     def packed_state(tissue: TissueState) -> np.ndarray:
@@ -136,45 +150,30 @@ class TissueModel(ForceContribution):
         """The state of the record a compiled run returns."""
         return TissueState(self, record)
 
-    def views(self, packed: np.ndarray) -> tuple[ContactState, ShaftState, tuple]:
-        """The contact, the shaft state and the next step's contributions of a :class:`TissueState`'s record."""
-        record = unpack_record(packed)
-        c = record.contact
+    def views(self, record: np.ndarray) -> tuple[ContactState, ShaftState]:
+        """The contact and the shaft state of a :class:`TissueState`'s record."""
+        states = unpack(record, len(self.at_tip))
+        c, shaft = unpack_contact(states[0]), unpack_shaft(states[1])
         track = Track(self.contact.initial.track.spacing, c.vertices, c.arc, c.direction, c.previous_tip,
                       c.end_tangent)
         contact = ContactState(bool(c.punctured), float(c.tip_depth), float(c.tip_speed), float(c.step_duration),
-                               bool(c.at_front), None if math.isnan(record.time) else float(record.time), track)
-        shaft_forces = ShaftForces(_Frozen.from_fields(record.lateral), _Frozen.from_fields(record.axial))
-        return contact, ShaftState(record.anchor, record.active, record.law_state), self._forces(contact, shaft_forces)
-
-    def _forces(self, contact: ContactState, shaft_forces: ShaftForces) -> tuple:
-        """The contributions of the next step: the shaft's, the bevel tip's and the seed 002 tip's
-        (``advance.tip_parameters``)."""
-        forces: list = [shaft_forces]
-        block = self.contact.block
-        scale, cutting = tip_parameters(contact.punctured, contact.at_front, contact.tip_depth, self.bevel_edge,
-                                        *block.kernel_tables)
-        if self.bevel is not None:
-            forces.append(BevelTipForce(*self.bevel, float(scale)))
-        if self.tip_resistance is not None:
-            forces.append(TipResistance(block, *self.tip_resistance, contact.punctured, bool(cutting)))
-        return tuple(forces)
+                               bool(c.at_front), None if math.isnan(c.time) else float(c.time), track)
+        return contact, ShaftState(shaft.anchor, shaft.active, shaft.law_state)
 
     def at(self, tissue: TissueState) -> tuple:
-        """The contributions acting over the step that starts from ``tissue``."""
-        return tissue.forces
+        """The forces acting over the step that starts from ``tissue``: the composition's, at its state."""
+        return (ComposedForces(self.composition, tissue.record, self.constants),)
 
     def readout(self, model, tissue: TissueState, state, base) -> TissueReadout:
-        """What the simulator publishes at ``state`` with the tissue in ``tissue``."""
+        """What the simulator publishes at ``state`` with the tissue in ``tissue``: the tip force is the sum of the
+        tip forces' generalized forces on the tip's position rows, the total that of every part's on all nodes'
+        position rows (the Hermite position shape functions sum to one)."""
         block = self.contact.block
         r_tip, _ = tip_coordinates(state.q)
         depth = max(float(block.depth(r_tip)), 0.0)
         line = centerline(model, state.q, max(4 * model.n_nodes, 16))
         s_entry, s_tip = inserted_interval(block, line.points, line.arc_length)
-        tip_force = np.zeros(3)
-        total = np.zeros(3)
-        for force in tissue.forces:
-            on_tip, on_needle = force.resultants(model, state, base)
-            tip_force += on_tip
-            total += on_needle
+        parts = self.at(tissue)[0].parts(state.q, state.qd, base.rotation)
+        tip_force = parts[np.array(self.at_tip), -6:-3].sum(axis=0)
+        total = parts.reshape(len(self.at_tip), -1, 3)[:, 0::2].sum(axis=(0, 1))
         return TissueReadout(depth, s_tip - s_entry, tip_force, float(-total @ base.rotation[:, 0]))

@@ -1,0 +1,187 @@
+"""The shaft support as a contribution: lateral Winkler springs and dampers over the cut tissue and the axial
+stick-slip law on the shaft points (``coupling.ShaftSupport``), with the points' data frozen over each step.
+
+``ShaftRecord``: the axial law's state, the points' anchors (track coordinates) and active flags, and the next
+step's frozen lateral and axial parts (``FROZEN_FIELDS`` tuples). After each step ``advance_shaft`` reads the
+contact (``contact.ContactRecord``). Kernels: ``SHAFT_KERNELS``.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from needle_sim_ros.model.records import (put_all, take_float, take_flag, take_flags, take_index_matrix, take_indices,
+                                          take_int, take_matrix, take_vector, view_matrix, view_vector)
+from needle_sim_ros.model.step import Kernels
+
+from .coupling import (first_slot_in, lateral_quadrature, shaft_arguments, shaft_contact_points,
+                       shaft_forces_assembly, slip_anchors)
+from .geometry import LATERAL_ROWS, layer_rows
+from .shaft_laws import NO_LAW, law_advance, law_coefficients
+
+# the fields of a frozen part: the points' indices, weights, slots, S, S_x, anchor points, tangents, anchor depths,
+# lateral stiffness and damping, then the axial law's coefficients (``shaft_laws.AxialCoefficients``) and k_a
+FROZEN_FIELDS = ("index", "weights", "slots", "S", "S_x", "anchor_points", "tangents", "anchor_depth",
+                 "lateral_stiffness", "lateral_damping", "coulomb", "viscous", "offset", "sign_gain", "velocity_scale",
+                 "stick_stiffness")
+
+
+class ShaftRecord(NamedTuple):
+    """The shaft's state (module docstring)."""
+
+    law_state: float
+    anchor: np.ndarray    # shaft points' anchors (track coordinates)
+    active: np.ndarray    # shaft points inside the tissue
+    lateral: tuple        # frozen lateral part of the next step (``FROZEN_FIELDS``)
+    axial: tuple          # frozen axial part
+
+
+class ShaftStep(NamedTuple):
+    """What the step loop carries: the record and ``ShaftSupport.kernel_arguments``."""
+
+    record: ShaftRecord
+    constants: tuple
+
+
+@njit(cache=True)
+def inactive_part():
+    """A frozen part without points (``FROZEN_FIELDS``)."""
+    empty = np.zeros(0)
+    return (np.zeros(0, dtype=np.int64), empty, np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4)), np.zeros((0, 4)),
+            np.zeros((0, 3)), np.zeros((0, 3)), empty, empty, empty, empty, empty, 0.0, 0.0, 0.0, 1.0)
+
+
+@njit(cache=True)
+def lateral_part(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, entry_point, entry_normal,
+                 bottoms, table):
+    """Frozen lateral Winkler support of the needle's arc interval in cut tissue (``lateral_quadrature``; layer
+    stiffness and damping at the rest points' depths)."""
+    weights, slots, S, S_x, points, tangents, depth = lateral_quadrature(
+        q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, entry_point, entry_normal)
+    if weights.size == 0:
+        return inactive_part()
+    values = layer_rows(bottoms, table, depth, LATERAL_ROWS)
+    zero = np.zeros(weights.size)
+    return (np.zeros(0, dtype=np.int64), weights, slots, S, S_x, points, tangents, depth, values[0].copy(),
+            values[1].copy(), zero, zero, 0.0, 0.0, 0.0, 1.0)
+
+
+@njit(cache=True)
+def advance_shaft(q, vertices, arc, end_tangent, tip_depth, tip_speed, step_duration, anchor, was_active, law_state,
+                  arc_lengths, point_weights, margin, S, S_x, slots, lateral, law_kind, law_parameters,
+                  stick_stiffness, entry_point, entry_normal, bottoms, table, node_arc, element_lengths, xi, w):
+    """The shaft after a step to q (contact advanced): (law state, anchors, active points, frozen lateral part,
+    frozen axial part). The law's state advances first; with a started track the lateral part covers the cut
+    interval and, with an axial law, the points inside the tissue are active (entering ones anchored where they
+    are) and their anchors slip beyond the stick band. A point an arc length a behind the tip is at most a
+    shallower than the tip, so only points closer to the tip than its depth (plus ``margin``, the outer
+    neighbours for the entry coverage) are candidates."""
+    law_state = law_advance(law_kind, law_parameters, law_state, tip_depth, tip_speed, step_duration)
+    active = np.zeros(arc_lengths.size, dtype=np.bool_)
+    if arc.size == 0:
+        return ShaftRecord(law_state, anchor, active, inactive_part(), inactive_part())
+    if lateral:
+        lateral_frozen = lateral_part(q, node_arc, element_lengths, arc_lengths[-1], xi, w, vertices, arc,
+                                      end_tangent, entry_point, entry_normal, bottoms, table)
+    else:
+        lateral_frozen = inactive_part()
+    if law_kind == NO_LAW:
+        return ShaftRecord(law_state, anchor, active, lateral_frozen, inactive_part())
+    anchor = anchor.copy()
+    index, coverage, tangents, points, depth, u = shaft_contact_points(
+        q, arc_lengths, arc_lengths[-1] - tip_depth - margin, S, S_x, slots, entry_point, entry_normal, bottoms[-1],
+        was_active, active, anchor, vertices, arc, end_tangent)
+    if index.size == 0:
+        return ShaftRecord(law_state, anchor, active, lateral_frozen, inactive_part())
+    coulomb, viscous, offset, sign_gain, velocity_scale = law_coefficients(law_kind, law_parameters, law_state,
+                                                                           depth, tip_depth, bottoms, table)
+    weights, slots_in, S_in, S_x_in = slip_anchors(anchor, index, u, coulomb, stick_stiffness, points, tangents,
+                                                   point_weights, coverage, slots, S, S_x)
+    zero = np.zeros(index.size)
+    return ShaftRecord(law_state, anchor, active, lateral_frozen,
+                       (index, weights, slots_in, S_in, S_x_in, points, tangents, depth, zero, zero, coulomb, viscous,
+                        offset, sign_gain, velocity_scale, stick_stiffness))
+
+
+@njit(cache=True)
+def _write(buffer, record):
+    cursor = np.zeros(1, dtype=np.int64)
+    put_all(buffer, cursor, (record.law_state, record.anchor, record.active))
+    put_all(buffer, cursor, record.lateral)
+    put_all(buffer, cursor, record.axial)
+    return cursor[0]
+
+
+@njit(cache=True)
+def pack_shaft(record):
+    """A ``ShaftRecord`` as one float64 array."""
+    buffer = np.empty(_write(np.empty(0), record))
+    _write(buffer, record)
+    return buffer
+
+
+@njit(cache=True)
+def _take_part(buffer, cursor):
+    return (take_indices(buffer, cursor), take_vector(buffer, cursor), take_index_matrix(buffer, cursor),
+            take_matrix(buffer, cursor), take_matrix(buffer, cursor), take_matrix(buffer, cursor),
+            take_matrix(buffer, cursor), take_vector(buffer, cursor), take_vector(buffer, cursor),
+            take_vector(buffer, cursor), take_vector(buffer, cursor), take_vector(buffer, cursor),
+            take_float(buffer, cursor), take_float(buffer, cursor), take_float(buffer, cursor),
+            take_float(buffer, cursor))
+
+
+@njit(cache=True)
+def unpack_shaft(buffer):
+    """The ``ShaftRecord`` of ``pack_shaft``'s array."""
+    cursor = np.zeros(1, dtype=np.int64)
+    return ShaftRecord(take_float(buffer, cursor), take_vector(buffer, cursor), take_flags(buffer, cursor),
+                       _take_part(buffer, cursor), _take_part(buffer, cursor))
+
+
+@njit(cache=True)
+def shaft_load(state, constants):
+    """The record and ``ShaftSupport.kernel_arguments`` (packed by ``records.packed``)."""
+    c = np.zeros(1, dtype=np.int64)  # constants: views into the buffer
+    b = constants
+    arguments = (view_vector(b, c), view_vector(b, c), take_float(b, c), view_matrix(b, c), view_matrix(b, c),
+                 take_index_matrix(b, c), take_flag(b, c), take_int(b, c), view_vector(b, c), take_float(b, c),
+                 view_vector(b, c), view_vector(b, c), view_vector(b, c), view_matrix(b, c), view_vector(b, c),
+                 view_vector(b, c), view_vector(b, c), view_vector(b, c))
+    return ShaftStep(unpack_shaft(state), arguments)
+
+
+@njit(cache=True)
+def shaft_store(carried):
+    return pack_shaft(carried.record)
+
+
+@njit(cache=True)
+def shaft_acting(carried):
+    """Both parts' point-force arguments and whether a point lies on the base element."""
+    r = carried.record
+    return (shaft_arguments(r.lateral), shaft_arguments(r.axial),
+            first_slot_in(r.lateral[2], 0) or first_slot_in(r.axial[2], 0))
+
+
+@njit(cache=True)
+def shaft_assemble(forces, q, qd, rotation, Q, band, kl, c_q, c_qd):
+    shaft_forces_assembly(q, qd, forces[0], forces[1], Q, band, kl, c_q, c_qd)
+    return True
+
+
+@njit(cache=True)
+def shaft_advance(carried, q, qd, t, contact):
+    r, c = carried.record, contact.record
+    record = advance_shaft(q, c.vertices, c.arc, c.end_tangent, c.tip_depth, c.tip_speed, c.step_duration, r.anchor,
+                           r.active, r.law_state, *carried.constants)
+    return ShaftStep(record, carried.constants)
+
+
+@njit(cache=True)
+def shaft_touches_base(forces):
+    return forces[2]
+
+
+SHAFT_KERNELS = Kernels(shaft_load, shaft_store, shaft_acting, shaft_assemble, shaft_advance, shaft_touches_base)
