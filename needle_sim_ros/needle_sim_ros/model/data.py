@@ -10,8 +10,7 @@ from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 from .forces import PointLoad, check_forces
-from .integrators import Integrator
-from .sequence import IntegratorMemory
+from .integrators import Integrator, IntegratorMemory
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
 from .reaction import BaseWrench, reaction_wrench
