@@ -35,8 +35,8 @@ def advance_from_trajectory(sample_times, positions, orientations, count, t_newe
                             previous_fit, deltas, starts, blends, corrections, times, flange, twist, twist_timeout,
                             offset, offset_rotation, motions, rotations, q, qd, qdd, aux, history, coef, ext_Q, tol,
                             max_iterations, prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables,
-                            residual, band, pivots, factorization, kl, control, last_motion, states, wrenches,
-                            iterations):
+                            residual, band, pivots, factorization, kl, control, keep_matrix, last_motion, states,
+                            wrenches, iterations):
     """Steps at the end times ``times`` from the trajectory's fit (sample_times ... corrections:
     :meth:`BaseTrajectory.fit_arguments`, the arguments of :func:`trajectory_motions`): the flange motions into the
     buffer ``flange`` (k, 19), the twist [t, v, w] within its timeout, the offset position and rotation, the clamp
@@ -53,5 +53,5 @@ def advance_from_trajectory(sample_times, positions, orientations, count, t_newe
     history[0], history[1], history[2], history[3] = q, qd, qdd, aux
     done = integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed,
                               base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band, pivots,
-                              factorization, kl, control, last_motion, states, wrenches, iterations)
+                              factorization, kl, control, keep_matrix, last_motion, states, wrenches, iterations)
     return fit, corrections, done

@@ -301,7 +301,8 @@ class Stepper:
         fit, corrections, done = advance_from_trajectory(
             *source.trajectory.fit_arguments(), times, np.empty((times.size, 19)),
             NO_TWIST if source.twist is None else source.twist, source.twist_timeout, source.offset_position,
-            source.offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, *after)
+            source.offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, True,
+            self.data.integrator.last_motion, *after)
         source.trajectory.take_fit(fit, corrections, float(times[-1]))
         self._record_run(SequenceResult.of_run(done, after), start, times, motions, rotations, records)
         return done

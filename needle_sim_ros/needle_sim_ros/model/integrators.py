@@ -67,14 +67,15 @@ def run_outputs(steps: int, n_dof: int) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 class StepResult(NamedTuple):
-    """The new state, total Newton corrections, number of sub-steps used (1 = none), convergence flag and the
-    last scaled Newton correction (max |dq| / L for positions, |dr_x| for gradients)."""
+    """The new state, total Newton corrections, number of sub-steps used (1 = none), convergence flag and, from
+    the compiled run, the wrench on the holder [force, torque world; force, torque base frame] (12,) under the
+    step's forces (None: not computed)."""
 
     state: State
     newton_iterations: int
     substeps: int
     converged: bool
-    residual_norm: float
+    wrench: np.ndarray | None = None
 
 
 def scheme_coefficients(method: str, rho_inf: float) -> tuple[float, ...]:
@@ -310,6 +311,18 @@ class Integrator:
         end = np.zeros((3, n))
         if memory.clamp is None and model.partition.held:
             raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
+        first, failure = 0, ""  # sub-step halvings: from 1 where the compiled run's step did not converge
+        if state.aux is not None and self.supports_sequence(forces):  # the compiled run's step, a fresh matrix
+            motion = np.concatenate([base_next.position, base_next.orientation, base_next.linear_velocity,
+                                     base_next.angular_velocity, base_next.linear_acceleration,
+                                     base_next.angular_acceleration])
+            run = self.step_sequence(state, dt, motion[None], np.ascontiguousarray(base_next.rotation)[None], forces,
+                                     memory, keep_matrix=False)
+            if run.done:
+                rows = run.states[0]
+                return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next),
+                                  int(run.iterations[0]), 1, True, run.wrenches[0])
+            first, failure = 1, f"Newton did not converge at t = {t_next:.6g} s"
         model.partition.impose(base_next, t_next, end, memory.clamp)
         history = np.empty((4, n))
         history[0], history[1] = state.q, state.qd
@@ -320,17 +333,16 @@ class Integrator:
         rotation = np.ascontiguousarray(base_next.rotation)
         axis = rotation[:, 0].copy()
         kl = bandwidth(model, varying, state.q, state.qd, t_next, base_next)
-        failure = ""
-        for halvings in range(self.max_substep_halvings + 1):
+        for halvings in range(first, self.max_substep_halvings + 1):
             n_sub = 2**halvings
             outcome = self._attempt(history, end, dt, n_sub, state.t, base_next, axis, rotation, constant, varying,
                                     kl, memory.control)
             if isinstance(outcome, str):
                 failure = outcome
                 continue
-            values, iterations, norm = outcome
-            new_state = State(values[0], values[1], values[2], t_next, values[3], base_next)
-            return StepResult(new_state, iterations, n_sub, True, norm)
+            values, iterations = outcome
+            return StepResult(State(values[0], values[1], values[2], t_next, values[3], base_next), iterations, n_sub,
+                              True)
         raise StepFailed(f"step {state.t:.6g} -> {t_next:.6g} s failed with up to {2**self.max_substep_halvings} "
                          f"sub-steps ({self.method}, dt = {dt:g} s): {failure}")
 
@@ -340,25 +352,29 @@ class Integrator:
         return self.work.supported and self._split(forces)[2]
 
     def step_sequence(self, state: State, dt: float, motions: np.ndarray, rotations: np.ndarray,
-                      forces=(), memory: IntegratorMemory | None = None) -> SequenceResult:
+                      forces=(), memory: IntegratorMemory | None = None, keep_matrix: bool = True) -> SequenceResult:
         """Up to k steps of dt from ``state`` (which must carry ``aux``), the base at each step's end given packed
         (k, 19) with rotations (k, 3, 3) (:meth:`BaseMotion.from_packed`); compiled
-        (:func:`~needle_sim_ros.model.step.integrate_sequence`). Only where :meth:`supports_sequence`. The run ends
-        early at a step that does not converge: integrate that one with :meth:`step`."""
+        (:func:`~needle_sim_ros.model.step.integrate_sequence`; ``keep_matrix``: the memory's factorization kept
+        across steps where it may be). Only where :meth:`supports_sequence`. The run ends early at a step that does
+        not converge: integrate that one with :meth:`step`."""
         k = motions.shape[0]
         before, after = self.sequence_arguments(dt, forces, state.t + dt, k, memory)
         history = before[0]
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
         times = state.t + dt * np.arange(1, k + 1)
-        done = integrate_sequence(history, times, motions, rotations, *before[1:], *after)
+        memory = memory or self.memory
+        done = integrate_sequence(history, times, motions, rotations, *before[1:], keep_matrix, memory.last_motion,
+                                  *after)
         return SequenceResult.of_run(done, after)
 
     def sequence_arguments(self, dt: float, forces, t_next: float, steps: int,
                            memory: IntegratorMemory | None = None) -> tuple[tuple, tuple]:
         """The arguments of :func:`integrate_sequence` for ``steps`` steps of ``dt`` under ``forces`` (see
         :meth:`step_sequence`; ``t_next``: the first step's end time): those around the packed base motions and
-        rotations (the history buffer for the start state's rows first, then the scheme, model and memory
-        arrays; made once per step length and memory), and the outputs (states, wrenches, iterations), new."""
+        rotations (the history buffer for the start state's rows first, then the scheme, model and memory arrays
+        up to the control flags; made once per step length and memory), and the outputs (states, wrenches,
+        iterations), new."""
         memory = memory or self.memory
         if memory.h != dt:
             memory.h = dt
@@ -373,7 +389,7 @@ class Integrator:
                 buffers.history, self._coefficients(dt), ext_Q, self.newton_tol, self.max_newton_iterations,
                 buffers.prescribed, buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
                 buffers.scale, buffers.tables, buffers.residual, memory.band, memory.pivots,
-                memory.factorization, ELEMENT_BANDWIDTH, memory.control, memory.last_motion))
+                memory.factorization, ELEMENT_BANDWIDTH, memory.control))
             self._sequence_cache = cached
         if self._held:
             self.work.hold(memory.clamp)
@@ -428,13 +444,13 @@ class Integrator:
 
     def _attempt(self, history, end, dt, n_sub, t0, base, axis, rotation, constant, varying, kl, control):
         """Integrate n_sub equal sub-steps, each by the one compiled step (:func:`~needle_sim_ros.model.step.
-        solve_step`; interpreted where contributions are written in Python); (values (4, n), iterations, norm) or a
-        failure message. ``control``: the memory's flags (the predictor choice is updated in place)."""
+        solve_step`; interpreted where contributions are written in Python); (values (4, n), iterations) or a failure
+        message. ``control``: the memory's flags (the predictor choice is updated in place)."""
         h = dt / n_sub
         coef = self._coefficients(h)
         constrained = self.model.partition.constrained_dofs
         work = self.work
-        current, total, norm = history, 0, 0.0
+        current, total = history, 0
         for k in range(1, n_sub + 1):
             t = t0 + k * h
             prescribed = end
@@ -460,4 +476,4 @@ class Integrator:
                 reason = "singular or non-finite" if status < 0 else "no convergence"
                 return f"Newton {reason} at t = {t:.6g} s (last scaled correction {norm:.3g})"
             current = values
-        return current, total, norm
+        return current, total

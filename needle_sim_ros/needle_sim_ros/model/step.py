@@ -157,14 +157,15 @@ def general_step(values, current, prescribed, constant_Q, axis, rotation, coef, 
 @njit(cache=True)
 def integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed, base_nodes,
                        base_local_r, base_local_rx, active, scale, tables, residual, band, pivots, factorization, kl,
-                       control, last_motion, states, wrenches, iterations):
-    """:func:`run_steps` without state-dependent contributions (gravity, world-frame point loads; the matrix kept
-    across steps where it may be): the fast path of the simulator's fixed-rate loop. Returns the steps done."""
+                       control, keep_matrix, last_motion, states, wrenches, iterations):
+    """:func:`run_steps` without state-dependent contributions (gravity, world-frame point loads): the simulator's
+    fixed-rate loop with the matrix kept across steps where it may be (``keep_matrix``), and the general step
+    (``Integrator.step``) on a fresh one. Returns the steps done."""
     done, _ = run_steps(history, times, motions, rotations, ext_Q,
                         (coef, tol, max_iterations, active, scale, tables, kl),
                         (prescribed, base_nodes, base_local_r, base_local_rx),
-                        (residual, band, np.zeros((0, 0)), pivots, factorization), control, last_motion, True, 0.0,
-                        itself, no_forces, keep, off_base, (states, wrenches, iterations))
+                        (residual, band, np.zeros((0, 0)), pivots, factorization), control, last_motion,
+                        keep_matrix, 0.0, itself, no_forces, keep, off_base, (states, wrenches, iterations))
     return done
 
 
