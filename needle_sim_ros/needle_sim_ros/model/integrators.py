@@ -30,7 +30,7 @@ import numpy as np
 
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
-from .newton import CONVERGED, assemble_system, model_tables, newton, newton_solve
+from .newton import CONVERGED, assemble_system, model_tables, newton
 from .banded import (ELEMENT_BANDWIDTH, add_dense_to_band, band_cholesky, band_structure, band_width_columns,
                      cholesky_solve)
 from .forces import check_forces
@@ -230,12 +230,9 @@ class Work:
 
     def newton(self, values, history, prescribed, coef, dynamic: bool, predictor: int, axis, rotation, constant_Q,
                assembled, kl: int, tol: float, max_iterations: int, always_refactor: bool):
-        """:func:`~needle_sim_ros.model.newton.newton` with the contributions ``assembled`` (the ``forces`` of
-        :func:`assemble_python`), compiled without any; (status, iterations, last scaled correction)."""
-        if not assembled[1]:
-            return newton_solve(values, history, prescribed, coef, dynamic, predictor, self.active, self.scale,
-                                self.tables, axis, constant_Q, self.residual, self.band(kl), self.pivots,
-                                self.factorization, kl, tol, max_iterations, always_refactor)
+        """:func:`~needle_sim_ros.model.newton.newton` (its loop interpreted, its kernels compiled) with the
+        contributions ``assembled`` (the ``forces`` of :func:`assemble_python`); (status, iterations, last scaled
+        correction)."""
         return newton.py_func(values, history, prescribed, coef, dynamic, predictor, self.active, self.scale,
                               self.tables, axis, constant_Q, np.empty(self.n_dof), self.residual, self.band(kl),
                               self.band(kl, "external"), self.pivots, self.factorization, kl, tol, max_iterations,
@@ -305,14 +302,12 @@ class Integrator:
         memory = memory or self.memory
         memory.invalidate()  # the sequence's kept factorization is of another motion now
         model = self.model
-        n = model.n_dof
-        constant, varying, _ = self._split(forces)
+        constant, varying, time_invariant = self._split(forces)
         t_next = state.t + dt
-        end = np.zeros((3, n))
         if memory.clamp is None and model.partition.held:
             raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
         first, failure = 0, ""  # sub-step halvings: from 1 where the compiled run's step did not converge
-        if state.aux is not None and self.supports_sequence(forces):  # the compiled run's step, a fresh matrix
+        if state.aux is not None and time_invariant and self.work.supported:  # the compiled run's step
             motion = np.concatenate([base_next.position, base_next.orientation, base_next.linear_velocity,
                                      base_next.angular_velocity, base_next.linear_acceleration,
                                      base_next.angular_acceleration])
@@ -323,6 +318,8 @@ class Integrator:
                 return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next),
                                   int(run.iterations[0]), 1, True, run.wrenches[0])
             first, failure = 1, f"Newton did not converge at t = {t_next:.6g} s"
+        n = model.n_dof
+        end = np.zeros((3, n))
         model.partition.impose(base_next, t_next, end, memory.clamp)
         history = np.empty((4, n))
         history[0], history[1] = state.q, state.qd

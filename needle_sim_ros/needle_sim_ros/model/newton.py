@@ -301,12 +301,3 @@ def newton(values, history, prescribed, coef, dynamic, predictor, active, scale,
 def no_forces(forces, q, qd, rotation, Q, band, kl, c_q, c_qd):
     """The assemble kernel of no contribution (a constant external force only)."""
     return True
-
-
-@njit(cache=True)
-def newton_solve(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q, residual,
-                 band, pivots, factorization, kl, tol, max_iterations, always_refactor, fresh_matrix=True):
-    """:func:`newton` with a constant external force ext_Q only (statics' compiled entry)."""
-    return newton(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q,
-                  np.empty(ext_Q.size), residual, band, np.zeros((0, 0)), pivots, factorization, kl, tol,
-                  max_iterations, always_refactor, fresh_matrix, no_forces, 0.0, np.eye(3))
