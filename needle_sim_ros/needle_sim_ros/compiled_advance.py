@@ -4,7 +4,7 @@ Where the compiled step sequence applies (:meth:`Integrator.supports_sequence`) 
 poses, the simulator's :meth:`~needle_sim_ros.simulation.NeedleSimulation.advance_to` takes its steps with a single
 numba call instead of one per stage: the trajectory's fit (refitted once per new sample) evaluated at the step
 end times, the fresh twist feed-forward, the flange-to-clamp offset, and the steps themselves
-(:func:`~needle_sim_ros.model.sequence.integrate_sequence`). Each stage is the same compiled function the staged
+(:func:`~needle_sim_ros.model.step.integrate_sequence`). Each stage is the same compiled function the staged
 path calls, so both give the same bits.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from numba import njit
 
 from needle_sim_ros.base_trajectory import trajectory_motions
 from needle_sim_ros.model.kinematics import compose_offsets
-from needle_sim_ros.model.sequence import integrate_sequence
+from needle_sim_ros.model.step import integrate_sequence
 
 NO_TWIST = np.full(7, np.nan)  # twist argument without a twist: [t, linear velocity, angular velocity]
 
@@ -30,17 +30,28 @@ def apply_twist(flange: np.ndarray, times: np.ndarray, twist: np.ndarray, twist_
 
 
 @njit(cache=True)
-def advance_from_trajectory(*arguments):
-    """Steps at the given end times from the trajectory's 21 arguments (:meth:`BaseTrajectory.fit_arguments`),
-    followed by the times, the flange motions buffer (k, 19), the twist and its timeout, the offset position and
-    rotation, the clamp motions (k, 19) and rotations (k, 3, 3) buffers, the start state's q, q', q'' and a, and
-    the arguments of :func:`integrate_sequence` after its motions and rotations, from its history buffer on
-    (:meth:`Integrator.sequence_arguments`). Returns (fit, number of corrections, steps done)."""
-    times, flange, twist, twist_timeout, offset, offset_rotation, motions, rotations = arguments[21:29]
-    fit, corrections = trajectory_motions(*arguments[:21], times, flange)
+def advance_from_trajectory(sample_times, positions, orientations, count, t_newest, p_newest, q_newest, window,
+                            max_extrapolation, fit, refit, continued, served, t_previous, p_previous, q_previous,
+                            previous_fit, deltas, starts, blends, corrections, times, flange, twist, twist_timeout,
+                            offset, offset_rotation, motions, rotations, q, qd, qdd, aux, history, coef, ext_Q, tol,
+                            max_iterations, prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables,
+                            residual, band, pivots, factorization, kl, control, keep_matrix, last_motion, states,
+                            wrenches, iterations):
+    """Steps at the end times ``times`` from the trajectory's fit (sample_times ... corrections:
+    :meth:`BaseTrajectory.fit_arguments`, the arguments of :func:`trajectory_motions`): the flange motions into the
+    buffer ``flange`` (k, 19), the twist [t, v, w] within its timeout, the offset position and rotation, the clamp
+    motions and rotations into ``motions`` (k, 19) and ``rotations`` (k, 3, 3), then the steps from the start state
+    (q, qd, qdd, aux) by :func:`integrate_sequence` (history ... iterations: its arguments after the motions and
+    rotations, :meth:`Integrator.sequence_arguments`). Every argument is an array or a number, named: numba types
+    each in C (0.59 types a tuple in Python on every call). Returns (fit, number of corrections, steps done)."""
+    fit, corrections = trajectory_motions(sample_times, positions, orientations, count, t_newest, p_newest, q_newest,
+                                          window, max_extrapolation, fit, refit, continued, served, t_previous,
+                                          p_previous, q_previous, previous_fit, deltas, starts, blends, corrections,
+                                          times, flange)
     apply_twist(flange, times, twist, twist_timeout)
     compose_offsets(flange, offset, offset_rotation, motions, rotations)
-    history = arguments[33]
-    history[0], history[1], history[2], history[3] = arguments[29:33]
-    done = integrate_sequence(history, times, motions, rotations, *arguments[34:])
+    history[0], history[1], history[2], history[3] = q, qd, qdd, aux
+    done = integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed,
+                              base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band, pivots,
+                              factorization, kl, control, keep_matrix, last_motion, states, wrenches, iterations)
     return fit, corrections, done

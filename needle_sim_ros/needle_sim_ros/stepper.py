@@ -17,9 +17,8 @@ from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, M
                                   acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
                                   model_shape, reaction_wrench, solve_static, stateful_forces, step)
 from needle_sim_ros.model.contribution import ContributionRun
-from needle_sim_ros.model.integrators import SequenceResult, same_objects
+from needle_sim_ros.model.integrators import IntegratorMemory, SequenceResult, same_objects
 from needle_sim_ros.model.partition import held_at
-from needle_sim_ros.model.sequence import IntegratorMemory
 
 # Largest sum of point-load magnitudes, as a multiple of the needle's bending load scale E I / L^2. Found by
 # experiment (README, reliability): with the default discretisation (10 elements, 2 axial Gauss points, dt = 1 ms,
@@ -302,7 +301,8 @@ class Stepper:
         fit, corrections, done = advance_from_trajectory(
             *source.trajectory.fit_arguments(), times, np.empty((times.size, 19)),
             NO_TWIST if source.twist is None else source.twist, source.twist_timeout, source.offset_position,
-            source.offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, *after)
+            source.offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, True,
+            self.data.integrator.last_motion, *after)
         source.trajectory.take_fit(fit, corrections, float(times[-1]))
         self._record_run(SequenceResult.of_run(done, after), start, times, motions, rotations, records)
         return done

@@ -10,8 +10,7 @@ from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 from .forces import PointLoad, check_forces
-from .integrators import Integrator
-from .sequence import IntegratorMemory
+from .integrators import Integrator, IntegratorMemory
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
 from .reaction import BaseWrench, reaction_wrench
@@ -108,7 +107,8 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
     3. accept: each stateful contribution advances its state to the new needle state;
     4. commit: ``data`` takes the new state (with its base) and force states (the step index is the time loop's);
        any error before this leaves ``data`` as it was (the integrator's memory, updated in place, is put back);
-    5. outputs: the base wrench of the new state under the contributions of the next step.
+    5. outputs: the base wrench of the new state under the contributions of the next step (the compiled run's
+       where it took the step without state-dependent contributions).
     """
     base_next = inputs.base_next
     control = data.integrator.control.copy()
@@ -122,5 +122,7 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
         data.integrator.control[:] = control
         raise
     data.state, data.force_states = state, tuple(stateful)
-    wrench = reaction_wrench(model, state, base_next, acting_forces(forces, data))
+    w = result.wrench
+    wrench = reaction_wrench(model, state, base_next, acting_forces(forces, data)) if w is None or stateful else \
+        BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12])
     return StepOutput(wrench, result.newton_iterations, result.substeps)

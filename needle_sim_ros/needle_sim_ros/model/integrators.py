@@ -30,13 +30,12 @@ import numpy as np
 
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
-from .newton import (CONVERGED, NewtonSolver, assemble_system, keeps_extrapolating, predictor_budget,
-                     predictor_for_attempt)
-from .banded import ELEMENT_BANDWIDTH, band_cholesky, cholesky_solve
+from .newton import CONVERGED, assemble_system, model_tables, newton
+from .banded import (ELEMENT_BANDWIDTH, add_dense_to_band, band_cholesky, band_structure, band_width_columns,
+                     cholesky_solve)
 from .forces import check_forces
 from .partition import hermite_quintic
-from .sequence import IntegratorMemory, SequenceBuffers, integrate_sequence
-from .step import EXTRAPOLATE
+from .step import EXTRAPOLATE, FACTORED, general_step, integrate_sequence, interpreted, solve_step
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
 
@@ -68,14 +67,15 @@ def run_outputs(steps: int, n_dof: int) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 class StepResult(NamedTuple):
-    """The new state, total Newton corrections, number of sub-steps used (1 = none), convergence flag and the
-    last scaled Newton correction (max |dq| / L for positions, |dr_x| for gradients)."""
+    """The new state, total Newton corrections, number of sub-steps used (1 = none), convergence flag and, from
+    the compiled run, the wrench on the holder [force, torque world; force, torque base frame] (12,) under the
+    step's forces (None: not computed)."""
 
     state: State
     newton_iterations: int
     substeps: int
     converged: bool
-    residual_norm: float
+    wrench: np.ndarray | None = None
 
 
 def scheme_coefficients(method: str, rho_inf: float) -> tuple[float, ...]:
@@ -121,6 +121,127 @@ def constant_force(model: NeedleModel, forces, t: float, base: BaseMotion) -> np
     return total
 
 
+def assemble_python(forces, q, qd, rotation, Q, band, kl, c_q, c_qd) -> bool:
+    """The assemble kernel (:mod:`needle_sim_ros.model.step`) of contributions written in Python: ``forces`` is
+    (model, contributions, t, base motion, load factor); their forces times the load factor into Q and, with a band,
+    the load factor times c_q dQ/dq + c_qd dQ/dq' into it (dense Jacobians copied in)."""
+    model, varying, t, base, factor = forces
+    for force in varying:
+        if not band.shape[0]:  # a chord step: Q alone
+            Q += factor * np.asarray(force.generalized_force(model, q, qd, t, base), dtype=float)
+        elif force.element_local:
+            Q += factor * force.assemble_banded(model, q, qd, t, base, band, kl, factor * c_q, factor * c_qd)
+        else:
+            generalized = force.evaluate(model, q, qd, t, base)
+            Q += factor * np.asarray(generalized.Q, dtype=float)
+            for matrix, weight in zip(generalized[1:], (c_q, c_qd)):
+                if matrix is not None:
+                    add_dense_to_band(np.asarray(matrix, dtype=float), factor * weight, band, kl)
+    return True
+
+
+def bandwidth(model, varying, q, qd, t: float, base) -> int:
+    """The iteration matrix's bandwidth under the contributions ``varying`` at (q, q'): an element's, or wider where
+    a dense Jacobian couples coordinates farther apart."""
+    kl = ELEMENT_BANDWIDTH
+    for force in varying:
+        if not force.element_local:
+            for matrix in force.evaluate(model, q, qd, t, base)[1:]:
+                if matrix is not None:
+                    kl = max(kl, band_structure(np.asarray(matrix, dtype=float))[0])
+    return kl
+
+
+class IntegratorMemory:
+    """What the integrator carries from one step to the next (part of the needle's data, changed in place by the
+    integrator): ``control`` [extrapolate, factored]: whether Newton starts from the extrapolating predictor and
+    whether the kept factorization is valid; the kept factorization of the compiled sequence (``band``, ``pivots``,
+    ``factorization``), the step length ``h`` and the packed base motion ``last_motion`` it was made for; ``clamp``:
+    the pose of the fixtures of the frame "start", where the needle was (re)started (None: none yet)."""
+
+    def __init__(self, n_dof: int) -> None:
+        self.control = np.array([1, 0], dtype=np.int64)
+        self.band = np.zeros((n_dof, band_width_columns(ELEMENT_BANDWIDTH)))
+        self.pivots = np.zeros(n_dof, dtype=np.int64)
+        self.factorization = np.zeros(1, dtype=np.int64)
+        self.last_motion = np.full(19, np.nan)
+        self.h = 0.0
+        self.clamp = None
+
+    @property
+    def extrapolate(self) -> bool:
+        return bool(self.control[EXTRAPOLATE])
+
+    def invalidate(self) -> None:
+        """The kept factorization no longer belongs to the current motion (e.g. after a general step)."""
+        self.control[FACTORED] = 0
+
+    def copy(self) -> IntegratorMemory:
+        memory = IntegratorMemory.__new__(IntegratorMemory)
+        memory.__dict__.update({name: value.copy() if isinstance(value, np.ndarray) else value
+                                for name, value in self.__dict__.items()})
+        return memory
+
+
+class Work:
+    """The step's work arrays of one model: the model tables, active mask and scales, the residual, pivots and
+    factorization kind, the band buffers of each bandwidth (``band``), and the compiled runs' start rows
+    (``history``) and prescribed rows: world-fixed ones once, the base nodes' per step, the held ones per clamp
+    (``hold``)."""
+
+    def __init__(self, model) -> None:
+        n = self.n_dof = model.n_dof
+        self.tables = model_tables(model)
+        self.active = model.partition.active
+        self.scale = model.increment_scale
+        self.history = np.empty((4, n))
+        self.residual = np.empty(n)
+        self.pivots = np.empty(n, dtype=np.int64)
+        self.factorization = np.zeros(1, dtype=np.int64)
+        self._bands: dict[tuple[str, int], np.ndarray] = {}
+        groups = model.partition.groups
+        self.supported = all(g.fixed is not None or g.frame in ("base", "start") for g in groups)
+        moving = [g for g in groups if g.frame == "base"]
+        self.base_nodes = np.concatenate([g.nodes for g in moving]).astype(np.int64)
+        self.base_local_r = np.ascontiguousarray(np.concatenate([g.local_r for g in moving]))
+        self.base_local_rx = np.ascontiguousarray(np.concatenate([g.local_rx for g in moving]))
+        self.prescribed = np.zeros((3, n))
+        for group in groups:
+            if group.fixed is not None:
+                self.prescribed[:, group.dofs] = group.fixed
+        self.held, self.clamp = model.partition.held, None  # the groups held where the needle started, their pose
+
+    def hold(self, clamp) -> None:
+        """Write the rows of the groups held where the needle started at ``clamp`` (``IntegratorMemory.clamp``)."""
+        if clamp is self.clamp or not self.held:
+            return
+        if clamp is None:
+            raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
+        for group in self.held:
+            clamp.impose_nodes(group.local_r, group.local_rx, group.nodes, self.prescribed)
+        self.clamp = clamp
+
+    def band(self, kl: int, name: str = "matrix") -> np.ndarray:
+        """The iteration matrix's band buffer (``name`` "external": the external forces' part) for bandwidth kl."""
+        key = (name, kl)
+        if key not in self._bands:
+            self._bands[key] = np.zeros((self.n_dof, band_width_columns(kl)))
+        return self._bands[key]
+
+    def newton(self, values, history, prescribed, coef, dynamic: bool, predictor: int, axis, rotation, constant_Q,
+               assembled, kl: int, tol: float, max_iterations: int, always_refactor: bool):
+        """:func:`~needle_sim_ros.model.newton.newton` (its loop interpreted, its kernels compiled) with the
+        contributions ``assembled`` (the ``forces`` of :func:`assemble_python`); (status, iterations, last scaled
+        correction)."""
+        return newton.py_func(values, history, prescribed, coef, dynamic, predictor, self.active, self.scale,
+                              self.tables, axis, constant_Q, np.empty(self.n_dof), self.residual, self.band(kl),
+                              self.band(kl, "external"), self.pivots, self.factorization, kl, tol, max_iterations,
+                              always_refactor, True, assemble_python, assembled, rotation)
+
+
+_python_step = interpreted(solve_step, newton=newton.py_func)  # the one step, interpreted for laws in Python
+
+
 class Integrator:
     """Fixed-step implicit integrator (module docstring). newton_tol: bound on the scaled Newton correction.
     Keeps work buffers: use one integrator per thread. What carries from one step to the next is an
@@ -142,14 +263,13 @@ class Integrator:
         self.newton_tol = float(newton_tol)
         self.max_newton_iterations = int(max_newton_iterations)
         self.max_substep_halvings = int(max_substep_halvings)
-        self.solver = NewtonSolver(model)
+        self.work = Work(model)
         self._constant_cache: tuple[tuple, np.ndarray] = ((), np.zeros(model.n_dof))
         self._split_cache: tuple[tuple, list, list, bool] = ((), [], [], True)
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
         self._run_cache: tuple[tuple, tuple] = ((), ())
         self._sequence_cache: tuple = (None, 0.0, None, ())  # see sequence_arguments
         self.memory = IntegratorMemory(model.n_dof)
-        self._sequence: SequenceBuffers | None = None
         self._held = bool(model.partition.held)  # fixtures held where the needle started: their rows per clamp
 
     def initial_accelerations(self, state: State, forces=(), base: BaseMotion | None = None) -> np.ndarray:
@@ -161,14 +281,14 @@ class Integrator:
         ext_Q = constant_force(model, constant, state.t, base)
         for force in varying:
             ext_Q += force.evaluate(model, state.q, state.qd, state.t, base).Q
-        solver = self.solver
-        band = solver.band(ELEMENT_BANDWIDTH)
-        assemble_system(state.q, state.qd, qdd, solver.tables, np.ascontiguousarray(base.axis), ext_Q,
-                        np.zeros((0, 0)), 0.0, 1.0, 0.0, solver.active, solver.residual, band, ELEMENT_BANDWIDTH, True)
+        work = self.work
+        band = work.band(ELEMENT_BANDWIDTH)
+        assemble_system(state.q, state.qd, qdd, work.tables, np.ascontiguousarray(base.axis), ext_Q,
+                        np.zeros((0, 0)), 0.0, 1.0, 0.0, work.active, work.residual, band, ELEMENT_BANDWIDTH, True)
         if not band_cholesky(band, ELEMENT_BANDWIDTH):
             raise StepFailed("initial accelerations: mass matrix not positive definite")
-        cholesky_solve(band, ELEMENT_BANDWIDTH, solver.residual)
-        qdd -= solver.residual
+        cholesky_solve(band, ELEMENT_BANDWIDTH, work.residual)
+        qdd -= work.residual
         if not np.all(np.isfinite(qdd)):
             raise StepFailed(f"initial accelerations are not finite at t = {state.t}")
         return qdd
@@ -182,12 +302,24 @@ class Integrator:
         memory = memory or self.memory
         memory.invalidate()  # the sequence's kept factorization is of another motion now
         model = self.model
-        n = model.n_dof
-        constant, varying, _ = self._split(forces)
+        constant, varying, time_invariant = self._split(forces)
         t_next = state.t + dt
-        end = np.zeros((3, n))
         if memory.clamp is None and model.partition.held:
             raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
+        first, failure = 0, ""  # sub-step halvings: from 1 where the compiled run's step did not converge
+        if state.aux is not None and time_invariant and self.work.supported:  # the compiled run's step
+            motion = np.concatenate([base_next.position, base_next.orientation, base_next.linear_velocity,
+                                     base_next.angular_velocity, base_next.linear_acceleration,
+                                     base_next.angular_acceleration])
+            run = self.step_sequence(state, dt, motion[None], np.ascontiguousarray(base_next.rotation)[None], forces,
+                                     memory, keep_matrix=False)
+            if run.done:
+                rows = run.states[0]
+                return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next),
+                                  int(run.iterations[0]), 1, True, run.wrenches[0])
+            first, failure = 1, f"Newton did not converge at t = {t_next:.6g} s"
+        n = model.n_dof
+        end = np.zeros((3, n))
         model.partition.impose(base_next, t_next, end, memory.clamp)
         history = np.empty((4, n))
         history[0], history[1] = state.q, state.qd
@@ -195,46 +327,51 @@ class Integrator:
             history[2] = history[3] = self.initial_accelerations(state, forces, state.base or base_next)
         else:
             history[2], history[3] = state.qdd, state.aux
-        axis = np.ascontiguousarray(base_next.axis)
-        failure = ""
-        for halvings in range(self.max_substep_halvings + 1):
+        rotation = np.ascontiguousarray(base_next.rotation)
+        axis = rotation[:, 0].copy()
+        kl = bandwidth(model, varying, state.q, state.qd, t_next, base_next)
+        for halvings in range(first, self.max_substep_halvings + 1):
             n_sub = 2**halvings
-            outcome = self._attempt(history, end, dt, n_sub, state.t, base_next, axis, constant, varying,
-                                    memory.control)
+            outcome = self._attempt(history, end, dt, n_sub, state.t, base_next, axis, rotation, constant, varying,
+                                    kl, memory.control)
             if isinstance(outcome, str):
                 failure = outcome
                 continue
-            values, iterations, norm = outcome
-            new_state = State(values[0], values[1], values[2], t_next, values[3], base_next)
-            return StepResult(new_state, iterations, n_sub, True, norm)
+            values, iterations = outcome
+            return StepResult(State(values[0], values[1], values[2], t_next, values[3], base_next), iterations, n_sub,
+                              True)
         raise StepFailed(f"step {state.t:.6g} -> {t_next:.6g} s failed with up to {2**self.max_substep_halvings} "
                          f"sub-steps ({self.method}, dt = {dt:g} s): {failure}")
 
     def supports_sequence(self, forces) -> bool:
         """Whether :meth:`step_sequence` applies: the constrained coordinates follow the base or are fixed in the
         world, and every force is time-invariant (gravity, world-frame point loads)."""
-        return self._sequence_buffers().supported and self._split(forces)[2]
+        return self.work.supported and self._split(forces)[2]
 
     def step_sequence(self, state: State, dt: float, motions: np.ndarray, rotations: np.ndarray,
-                      forces=(), memory: IntegratorMemory | None = None) -> SequenceResult:
+                      forces=(), memory: IntegratorMemory | None = None, keep_matrix: bool = True) -> SequenceResult:
         """Up to k steps of dt from ``state`` (which must carry ``aux``), the base at each step's end given packed
-        (k, 19) with rotations (k, 3, 3) (:meth:`BaseMotion.from_packed`); compiled, see
-        :mod:`needle_sim_ros.model.sequence`. Only where :meth:`supports_sequence`. The run ends early at a step
-        that does not converge: integrate that one with :meth:`step`."""
+        (k, 19) with rotations (k, 3, 3) (:meth:`BaseMotion.from_packed`); compiled
+        (:func:`~needle_sim_ros.model.step.integrate_sequence`; ``keep_matrix``: the memory's factorization kept
+        across steps where it may be). Only where :meth:`supports_sequence`. The run ends early at a step that does
+        not converge: integrate that one with :meth:`step`."""
         k = motions.shape[0]
         before, after = self.sequence_arguments(dt, forces, state.t + dt, k, memory)
         history = before[0]
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
         times = state.t + dt * np.arange(1, k + 1)
-        done = integrate_sequence(history, times, motions, rotations, *before[1:], *after)
+        memory = memory or self.memory
+        done = integrate_sequence(history, times, motions, rotations, *before[1:], keep_matrix, memory.last_motion,
+                                  *after)
         return SequenceResult.of_run(done, after)
 
     def sequence_arguments(self, dt: float, forces, t_next: float, steps: int,
                            memory: IntegratorMemory | None = None) -> tuple[tuple, tuple]:
         """The arguments of :func:`integrate_sequence` for ``steps`` steps of ``dt`` under ``forces`` (see
         :meth:`step_sequence`; ``t_next``: the first step's end time): those around the packed base motions and
-        rotations (the history buffer for the start state's rows first, then the scheme, model and memory
-        arrays; made once per step length and memory), and the outputs (states, wrenches, iterations), new."""
+        rotations (the history buffer for the start state's rows first, then the scheme, model and memory arrays
+        up to the control flags; made once per step length and memory), and the outputs (states, wrenches,
+        iterations), new."""
         memory = memory or self.memory
         if memory.h != dt:
             memory.h = dt
@@ -244,15 +381,15 @@ class Integrator:
                 and same_objects(forces, cached[2])):
             constant, _, time_invariant = self._split(forces)
             ext_Q = self._constant_force(constant, t_next, None)
-            buffers = self._sequence_buffers()
+            buffers = self.work
             cached = (memory, dt, tuple(forces) if time_invariant else None, (
                 buffers.history, self._coefficients(dt), ext_Q, self.newton_tol, self.max_newton_iterations,
                 buffers.prescribed, buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
                 buffers.scale, buffers.tables, buffers.residual, memory.band, memory.pivots,
-                memory.factorization, ELEMENT_BANDWIDTH, memory.control, memory.last_motion))
+                memory.factorization, ELEMENT_BANDWIDTH, memory.control))
             self._sequence_cache = cached
         if self._held:
-            self._sequence_buffers().hold(memory.clamp)
+            self.work.hold(memory.clamp)
         return cached[3], run_outputs(steps, self.model.n_dof)
 
     def run_arguments(self, forces, dt: float, t_next: float,
@@ -265,21 +402,16 @@ class Integrator:
         memory = memory or self.memory
         memory.invalidate()
         if self._held:
-            self._sequence_buffers().hold(memory.clamp)
+            self.work.hold(memory.clamp)
         key = (dt, self.newton_tol, self.max_newton_iterations)
         if self._run_cache[0] != key:  # the same work arrays every call: the tuple is made once per key
-            buffers, solver = self._sequence_buffers(), self.solver
+            buffers = work = self.work
             self._run_cache = (key, (
                 self._coefficients(dt), self.newton_tol, self.max_newton_iterations, buffers.prescribed,
                 buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active, buffers.scale,
-                buffers.tables, buffers.residual, solver.band(ELEMENT_BANDWIDTH),
-                solver.band(ELEMENT_BANDWIDTH, "external"), solver.pivots, solver.factorization, ELEMENT_BANDWIDTH))
+                buffers.tables, buffers.residual, work.band(ELEMENT_BANDWIDTH),
+                work.band(ELEMENT_BANDWIDTH, "external"), work.pivots, work.factorization, ELEMENT_BANDWIDTH))
         return self._run_cache[1], self._constant_force(self._split(forces)[0], t_next, None)
-
-    def _sequence_buffers(self) -> SequenceBuffers:
-        if self._sequence is None:
-            self._sequence = SequenceBuffers(self.model)
-        return self._sequence
 
     def _split(self, forces) -> tuple[list, list, bool]:
         """(state-independent, state-dependent, all time-invariant) contributions: checked and split once while
@@ -307,13 +439,15 @@ class Integrator:
             self._constant_cache = (tuple(forces), total)
         return total
 
-    def _attempt(self, history, end, dt, n_sub, t0, base, axis, constant, varying, control):
-        """Integrate n_sub equal sub-steps; (values (4, n), iterations, norm) or a failure message. ``control``:
-        the memory's flags (the predictor choice is updated in place)."""
+    def _attempt(self, history, end, dt, n_sub, t0, base, axis, rotation, constant, varying, kl, control):
+        """Integrate n_sub equal sub-steps, each by the one compiled step (:func:`~needle_sim_ros.model.step.
+        solve_step`; interpreted where contributions are written in Python); (values (4, n), iterations) or a failure
+        message. ``control``: the memory's flags (the predictor choice is updated in place)."""
         h = dt / n_sub
         coef = self._coefficients(h)
         constrained = self.model.partition.constrained_dofs
-        current, total, norm = history, 0, 0.0
+        work = self.work
+        current, total = history, 0
         for k in range(1, n_sub + 1):
             t = t0 + k * h
             prescribed = end
@@ -322,20 +456,21 @@ class Integrator:
                 prescribed[:, constrained] = hermite_quintic(history[:3, constrained], end[:, constrained], dt,
                                                              k / n_sub)
             ext_Q = self._constant_force(constant, t, base)
-            for attempt in range(2):
-                predictor = predictor_for_attempt(attempt, control[EXTRAPOLATE] == 1)
-                budget = predictor_budget(predictor, self.max_newton_iterations)
-                values = np.empty_like(history)
-                status, iterations, norm = self.solver.solve(values, current, prescribed, coef, True, axis, ext_Q,
-                                                             varying, t, base, self.newton_tol, budget, False,
-                                                             predictor=predictor)
-                total += iterations
-                if status == CONVERGED:
-                    # extrapolate again once q_n converges quickly (smooth motion); keep q_n after a failure
-                    control[EXTRAPOLATE] = int(keeps_extrapolating(predictor, iterations))
-                    break
+            values = np.empty_like(history)
+            if varying:
+                status, iterations, norm = _python_step(
+                    values, current, prescribed, axis, rotation, ext_Q, np.empty(ext_Q.size),
+                    (coef, self.newton_tol, self.max_newton_iterations, work.active, work.scale, work.tables, kl),
+                    (work.residual, work.band(kl), work.band(kl, "external"), work.pivots, work.factorization),
+                    control, False, False, (self.model, varying, t, base, 1.0), assemble_python)
+            else:
+                status, iterations, norm = general_step(
+                    values, current, prescribed, ext_Q, axis, rotation, coef, self.newton_tol,
+                    self.max_newton_iterations, work.active, work.scale, work.tables, kl, work.residual,
+                    work.band(kl), work.pivots, work.factorization, control)
+            total += iterations
             if status != CONVERGED:
-                reason = "singular or non-finite" if status < 0 else f"no convergence in {iterations} iterations"
+                reason = "singular or non-finite" if status < 0 else "no convergence"
                 return f"Newton {reason} at t = {t:.6g} s (last scaled correction {norm:.3g})"
             current = values
-        return current, total, norm
+        return current, total

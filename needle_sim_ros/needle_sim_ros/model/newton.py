@@ -14,8 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .banded import (ELEMENT_BANDWIDTH, FAST, add_dense_to_band, band_cholesky, band_factor, band_solve, band_structure,
-                     band_symmetric, band_width_columns, cholesky_solve)
+from .banded import FAST, band_cholesky, band_factor, band_solve, band_symmetric, cholesky_solve
 from .damping import add_axial_damping
 from .elastic import add_elastic
 
@@ -302,98 +301,3 @@ def newton(values, history, prescribed, coef, dynamic, predictor, active, scale,
 def no_forces(forces, q, qd, rotation, Q, band, kl, c_q, c_qd):
     """The assemble kernel of no contribution (a constant external force only)."""
     return True
-
-
-@njit(cache=True)
-def newton_solve(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q, residual,
-                 band, pivots, factorization, kl, tol, max_iterations, always_refactor, fresh_matrix=True):
-    """:func:`newton` with a constant external force ext_Q only (the general path's and statics' entry)."""
-    return newton(values, history, prescribed, coef, dynamic, predictor, active, scale, tables, axis, ext_Q,
-                  np.empty(ext_Q.size), residual, band, np.zeros((0, 0)), pivots, factorization, kl, tol,
-                  max_iterations, always_refactor, fresh_matrix, no_forces, 0.0, np.eye(3))
-
-
-_NO_MATRIX = np.zeros((0, 0))
-
-
-class NewtonSolver:
-    """Buffers and the Python-side Newton loop for one model.
-
-    With only a constant external force (``varying`` empty) the whole loop runs compiled (``newton_solve``);
-    otherwise the state-dependent contributions are evaluated before every correction and, whenever the matrix is
-    refactored, their Jacobians enter it through one band buffer: element-local contributions assemble their blocks
-    into it (``assemble_banded``), the others' dense Jacobians are copied in (the band widens if one couples farther
-    than an element). Not thread-safe: one solver per thread.
-    """
-
-    def __init__(self, model) -> None:
-        self.model = model
-        self.tables = model_tables(model)
-        self.active = model.partition.active
-        self.scale = model.increment_scale
-        self.residual = np.empty(model.n_dof)
-        self.pivots = np.empty(model.n_dof, dtype=np.int64)
-        self.factorization = np.zeros(1, dtype=np.int64)
-        self._bands: dict[tuple[str, int], np.ndarray] = {}
-
-    def band(self, kl: int, name: str = "matrix") -> np.ndarray:
-        """The iteration matrix's band buffer (``name`` "external": the external forces' part) for bandwidth kl."""
-        key = (name, kl)
-        if key not in self._bands:
-            self._bands[key] = np.zeros((self.model.n_dof, band_width_columns(kl)))
-        return self._bands[key]
-
-    def solve(self, values, history, prescribed, coef, dynamic: bool, axis, constant_Q, varying, t: float, base,
-              tol: float, max_iterations: int, always_refactor: bool, load_factor: float = 1.0,
-              predictor: int = PREDICT_ACCELERATION):
-        """Run Newton in place on values (rows q, q', q'', a); returns (status, iterations, last correction)."""
-        if not varying:
-            return newton_solve(values, history, prescribed, coef, dynamic, predictor, self.active, self.scale,
-                                self.tables,
-                                axis, constant_Q, self.residual, self.band(ELEMENT_BANDWIDTH), self.pivots,
-                                self.factorization, ELEMENT_BANDWIDTH, tol, max_iterations, always_refactor)
-        if dynamic:
-            predict(values, history, prescribed, coef, self.active, predictor)
-        c_qd = load_factor * rate_coefficients(coef, dynamic)[1]
-        refactor, previous, norm, kl, symmetric, ext_band = True, np.inf, np.inf, ELEMENT_BANDWIDTH, True, _NO_MATRIX
-        q, qd = values[0], values[1]
-        for iteration in range(max_iterations):
-            ext_Q = constant_Q.copy()
-            if refactor:
-                ext_band, kl = self._external(varying, q, qd, t, base, load_factor, c_qd, ext_Q)
-                symmetric = band_symmetric(ext_band, kl)
-            else:  # a chord step reuses the factorization: Q alone
-                for force in varying:
-                    Q = force.generalized_force(self.model, q, qd, t, base)
-                    ext_Q += load_factor * np.asarray(Q, dtype=float)
-            norm = iterate(values, history, coef, dynamic, self.active, self.scale, self.tables, axis, ext_Q, ext_band,
-                           self.residual, self.band(kl), self.pivots, self.factorization, kl, refactor, symmetric)
-            action = newton_control(norm, previous, tol, always_refactor)
-            if action == CONVERGED or action == FAILED:
-                return action, iteration + 1, norm
-            refactor, previous = action == REFACTOR, norm
-        return 1, max_iterations, norm
-
-    def _external(self, varying, q, qd, t, base, load_factor: float, c_qd: float,
-                  ext_Q: np.ndarray) -> tuple[np.ndarray, int]:
-        """Add the state-dependent forces' Q (times the load factor) to ext_Q; return their part of the iteration
-        matrix, -load_factor (dQ/dq + c_C dQ/dq'), as a band buffer, and its bandwidth."""
-        model, kl, dense = self.model, ELEMENT_BANDWIDTH, []
-        for force in varying:
-            if not force.element_local:
-                generalized = force.evaluate(model, q, qd, t, base)
-                dense.append(generalized)
-                for matrix in generalized[1:]:
-                    if matrix is not None:
-                        kl = max(kl, band_structure(np.asarray(matrix, dtype=float))[0])
-        ext_band = self.band(kl, "external")
-        ext_band.fill(0.0)
-        for generalized in dense:
-            ext_Q += load_factor * np.asarray(generalized.Q, dtype=float)
-            for matrix, factor in zip(generalized[1:], (-load_factor, -c_qd)):
-                if matrix is not None:
-                    add_dense_to_band(np.asarray(matrix, dtype=float), factor, ext_band, kl)
-        for force in varying:
-            if force.element_local:
-                ext_Q += load_factor * force.assemble_banded(model, q, qd, t, base, ext_band, kl, -load_factor, -c_qd)
-        return ext_band, kl

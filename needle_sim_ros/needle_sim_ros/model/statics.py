@@ -7,11 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .integrators import constant_force, split_forces
+from .integrators import Work, bandwidth, constant_force, split_forces
 from .kinematics import BaseMotion
 from .mesh import shape_functions
 from .model import NeedleModel, State
-from .newton import CONVERGED, NewtonSolver
+from .newton import CONVERGED, PREDICT_POSITION
 
 
 class StaticSolveFailed(RuntimeError):
@@ -66,16 +66,19 @@ def solve_static(model: NeedleModel, base: BaseMotion, forces=(), load_steps: in
     values[1:] = 0.0
     constant, varying = split_forces(forces)
     total_constant = constant_force(model, constant, t, base)
-    solver = NewtonSolver(model)
+    work = Work(model)
     unused = np.zeros((4, n))
-    axis = np.ascontiguousarray(base.axis)
+    rotation = np.ascontiguousarray(base.rotation)
+    axis = rotation[:, 0].copy()
+    kl = bandwidth(model, varying, values[0], values[1], t, base)
     load, increment = 0.0, 1.0 / load_steps
     iterations, accepted, bisections = 0, 0, 0
     while load < 1.0:
         target = min(1.0, load + increment)
         trial = values.copy()
-        status, used, norm = solver.solve(trial, unused, unused, np.ones(7), False, axis, target * total_constant,
-                                          varying, t, base, newton_tol, max_newton_iterations, True, target)
+        status, used, norm = work.newton(trial, unused, unused, np.ones(7), False, PREDICT_POSITION, axis, rotation,
+                                         target * total_constant, (model, varying, t, base, target), kl, newton_tol,
+                                         max_newton_iterations, True)
         iterations += used
         if status == CONVERGED:
             values, load, accepted = trial, target, accepted + 1

@@ -36,6 +36,7 @@ import importlib.util
 import os
 import sys
 import tempfile
+import types
 from pathlib import Path
 from typing import NamedTuple
 
@@ -44,7 +45,8 @@ import numpy as np
 from numba import njit
 
 from .kinematics import rigid_node_kinematics
-from .newton import CONVERGED, keeps_extrapolating, newton, predictor_budget, predictor_for_attempt, unpack_tables
+from .newton import (CONVERGED, keeps_extrapolating, newton, no_forces, predictor_budget, predictor_for_attempt,
+                     unpack_tables)
 from .reaction import base_wrench_kernel
 
 EXTRAPOLATE, FACTORED = 0, 1  # entries of the control flags
@@ -69,6 +71,32 @@ def base_tables(tables):
 
 
 @njit(inline="always")
+def solve_step(values, current, prescribed, axis, rotation, constant_Q, ext_Q, solver, work, control, keep_matrix,
+               moved, forces, assemble):
+    """Stages 2-3 of a step from ``current`` (rows q, q', q'', a) to ``values`` with the constrained rows
+    ``prescribed``: assemble and Newton with the one retry policy, the extrapolating predictor first while it works,
+    then q_n (``solver``, ``work``: see :func:`run_steps`). Returns (status, Newton corrections, last scaled
+    correction)."""
+    coef, tol, max_iterations, active, scale, tables, kl = solver
+    residual, band, ext_band, pivots, factorization = work
+    total, status, norm = 0, -1, np.inf
+    for attempt in range(2):
+        predictor = predictor_for_attempt(attempt, control[EXTRAPOLATE] == 1)
+        budget = predictor_budget(predictor, max_iterations)
+        fresh = not keep_matrix or control[FACTORED] == 0 or moved
+        status, used, norm = newton(values, current, prescribed, coef, True, predictor, active, scale, tables, axis,
+                                    constant_Q, ext_Q, residual, band, ext_band, pivots, factorization, kl, tol,
+                                    budget, False, fresh, assemble, forces, rotation)
+        total += used
+        if keep_matrix:
+            control[FACTORED] = 1 if status != -1 else 0
+        if status == CONVERGED:
+            control[EXTRAPOLATE] = 1 if keeps_extrapolating(predictor, used) else 0
+            break
+    return status, total, norm
+
+
+@njit(inline="always")
 def run_steps(history, times, motions, rotations, constant_Q, solver, base, work, control, last_motion, keep_matrix,
               state, acting, assemble, advance, touches_base, outputs):
     """Integrate from history (rows q, q', q'', a at t_n) one step per end time (k,) and packed base motion
@@ -80,16 +108,14 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
     the world frame, force, torque in the base frame] into wrenches (k, 12) and its Newton corrections into
     iterations (k,). Returns (steps done: k, or the index of the first step that did not converge; the
     contribution's state after them)."""
-    coef, tol, max_iterations, active, scale, tables, kl = solver
     prescribed, base_nodes, base_local_r, base_local_rx = base
-    residual, band, ext_band, pivots, factorization = work
     states, wrenches, iterations = outputs
     values = np.empty_like(history)
     current = history.copy()
     n = history.shape[1]
     ext_Q = np.empty(n)
     no_band = np.zeros((0, 0))
-    rows = base_tables(tables)
+    rows = base_tables(solver[5])
     forces = acting(state)
     for i in range(times.size):
         motion, rotation = motions[i], rotations[i]
@@ -98,21 +124,8 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
         if keep_matrix:
             moved = np.any(motion != last_motion)
             last_motion[:] = motion
-        total = 0
-        status = -1
-        for attempt in range(2):  # 2.-3. assemble and Newton, one retry from q_n
-            predictor = predictor_for_attempt(attempt, control[EXTRAPOLATE] == 1)
-            budget = predictor_budget(predictor, max_iterations)
-            fresh = not keep_matrix or control[FACTORED] == 0 or moved
-            status, used, norm = newton(values, current, prescribed, coef, True, predictor, active, scale, tables,
-                                        axis, constant_Q, ext_Q, residual, band, ext_band, pivots, factorization, kl,
-                                        tol, budget, False, fresh, assemble, forces, rotation)
-            total += used
-            if keep_matrix:
-                control[FACTORED] = 1 if status != -1 else 0
-            if status == CONVERGED:
-                control[EXTRAPOLATE] = 1 if keeps_extrapolating(predictor, used) else 0
-                break
+        status, total, _ = solve_step(values, current, prescribed, axis, rotation, constant_Q, ext_Q, solver, work,
+                                      control, keep_matrix, moved, forces, assemble)  # 2.-3.
         if status != CONVERGED:
             control[FACTORED] = 0
             return i, state
@@ -129,6 +142,40 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
             assemble(forces, q, qd, rotation, ext_Q, no_band, 0, 0.0, 0.0)
         wrenches[i] = base_wrench_kernel(q, qd, values[2], *rows, rotation, ext_Q[:6].copy())
     return times.size, state
+
+
+@njit(cache=True)
+def general_step(values, current, prescribed, constant_Q, axis, rotation, coef, tol, max_iterations, active, scale,
+                 tables, kl, residual, band, pivots, factorization, control):
+    """:func:`solve_step` on a fresh matrix under constant forces only: the general path's (sub-)step."""
+    return solve_step(values, current, prescribed, axis, rotation, constant_Q, np.empty(constant_Q.size),
+                      (coef, tol, max_iterations, active, scale, tables, kl),
+                      (residual, band, np.zeros((0, 0)), pivots, factorization), control, False, False, 0.0,
+                      no_forces)
+
+
+@njit(cache=True)
+def integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed, base_nodes,
+                       base_local_r, base_local_rx, active, scale, tables, residual, band, pivots, factorization, kl,
+                       control, keep_matrix, last_motion, states, wrenches, iterations):
+    """:func:`run_steps` without state-dependent contributions (gravity, world-frame point loads): the simulator's
+    fixed-rate loop with the matrix kept across steps where it may be (``keep_matrix``), and the general step
+    (``Integrator.step``) on a fresh one. Returns the steps done."""
+    done, _ = run_steps(history, times, motions, rotations, ext_Q,
+                        (coef, tol, max_iterations, active, scale, tables, kl),
+                        (prescribed, base_nodes, base_local_r, base_local_rx),
+                        (residual, band, np.zeros((0, 0)), pivots, factorization), control, last_motion,
+                        keep_matrix, 0.0, itself, no_forces, keep, off_base, (states, wrenches, iterations))
+    return done
+
+
+def interpreted(function, **callees):
+    """The source of the compiled ``function`` run by the interpreter, with the named callees replaced (their own
+    interpreted versions): the one Newton step for contributions written in Python (``assemble`` a Python
+    function)."""
+    source = function.py_func
+    return types.FunctionType(source.__code__, {**source.__globals__, **callees}, source.__name__,
+                              source.__defaults__)
 
 
 @njit(cache=True)
