@@ -395,7 +395,7 @@ class Integrator:
     def run_arguments(self, forces, dt: float, t_next: float,
                       memory: IntegratorMemory | None = None) -> tuple[tuple, np.ndarray]:
         """The needle's part of a compiled run with state-dependent contributions besides ``forces`` (which must be
-        time-invariant, :meth:`supports_sequence`), e.g. ``tissue.sequence``: (coefficients, tolerance, iteration
+        time-invariant, :meth:`supports_sequence`), e.g. the tissue: (coefficients, tolerance, iteration
         limit, base node buffers, active mask, scales, model tables, work arrays, bandwidth) and the constant
         external force. A fresh matrix every step, as :meth:`step`: the memory's kept
         factorization is invalidated."""
