@@ -7,7 +7,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import rod_equilibria
 from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, distance_to_curve
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.detection.background import BackgroundModel, ContrastThreshold
@@ -156,7 +155,8 @@ def _rod_cases() -> list:
 
 @pytest.mark.parametrize("name, polarity", _rod_cases())
 def test_rod_equilibria_per_point(rig, polarities, name, polarity):
-    """Elastic-rod equilibria along the epipolar lines (the simulator's static solve, rod_equilibria.py), the
+    """Elastic-rod equilibria along the epipolar lines (the simulator's static solve: the suite's
+    test/rod_equilibria.py), the
     default per-point path (seed 7): calibrated (measured 100 % within 3 sigma, worst 1.1-2.4 sigma), tip within
     0.2 mm (0.03-0.11 mm). The stretches along the lines are flagged where their sigma exceeds 1 mm (coverage: the
     down curl 0.66-0.68, the up curl 1.01, the S 0.61)."""
@@ -178,17 +178,3 @@ def test_rod_equilibria_fitted_over_the_whole_needle(rig, polarities, name, pola
     distance = _calibrated(measurement, truth)
     assert measurement.coverage >= 0.95
     assert np.sqrt(np.mean(distance[measurement.measured] ** 2)) <= 0.12e-3
-
-
-def test_rod_equilibria_are_the_simulators_static_solve():
-    """The stored shapes are what needle_sim_ros's static solve gives today (regenerated and compared: a change of
-    the model or the needle's defaults shows here); each is 0.27 m long and ends or runs along the baseline (z)."""
-    pytest.importorskip("needle_sim_ros.model", reason="needs needle_sim_ros (the simulator) to regenerate")
-    fresh = rod_equilibria.equilibria()
-    assert sorted(fresh) == sorted(ROD_EPIPOLAR_SHAPES)
-    for name, points in fresh.items():
-        np.testing.assert_allclose(points, ROD_EPIPOLAR_SHAPES[name], rtol=0, atol=1e-9)
-        tangent = np.gradient(points, axis=0)
-        along = np.abs(tangent[:, 2]) / np.linalg.norm(tangent, axis=1)
-        assert np.linalg.norm(np.diff(points, axis=0), axis=1).sum() == pytest.approx(0.27, abs=1e-5)
-        assert np.count_nonzero(along > np.cos(np.radians(10))) * 0.25e-3 >= 30e-3

@@ -2,10 +2,11 @@
 renders and the "no invented points" check."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from scipy.optimize import brentq
 
-import rod_equilibria
 from needle_vision.calibration.rig import StereoRig
 from needle_vision.matching.reconstruction import UNMEASURED, NeedleMeasurement
 from needle_vision.render import NEEDLE_LENGTH, project_points
@@ -161,8 +162,10 @@ EPIPOLAR_SHAPES = {
 }
 
 #: Shapes along the epipolar lines that are elastic-rod equilibria of the seed 000 needle (the simulator's static solve
-#: under its weight and a tip load; rod_equilibria.py, stored in data/): `rod_curl_down` curls down until its last
-#: ~100 mm hang along -z, `rod_curl_up` curls up towards the cameras until its tip points along +z (its last ~35 mm
-#: within 10 deg), `rod_s` is an S whose middle ~120 mm run within 10 deg of -z. The older EPIPOLAR_SHAPES are
-#: smoothstep curvature profiles, not equilibria (the turning plane's bend fades out inside its unseen stretch).
-ROD_EPIPOLAR_SHAPES = rod_equilibria.load()
+#: under its weight and a tip load; made by the suite's test/rod_equilibria.py, stored in data/): `rod_curl_down`
+#: curls down until its last ~100 mm hang along -z, `rod_curl_up` curls up towards the cameras until its tip points
+#: along +z (its last ~35 mm within 10 deg), `rod_s` is an S whose middle ~120 mm run within 10 deg of -z. The older
+#: EPIPOLAR_SHAPES are smoothstep curvature profiles, not equilibria (the turning plane's bend fades out inside its
+#: unseen stretch).
+ROD_EPIPOLAR_SHAPES = {
+    path.stem: np.load(path) for path in sorted((Path(__file__).parent / "data").glob("rod_*.npy"))}

@@ -1,7 +1,9 @@
 """Needles along the epipolar lines that are elastic-rod equilibria (issue 39): the seed 000 needle (needle_sim_ros
 defaults, 30 elements) clamped at the origin, under its own weight and a load at the tip, from the simulator's
 static solve (``needle_sim_ros.model.solve_static``). The rig's baseline runs along world z, so each shape ends or
-runs along z. Stored as ``data/<name>.npy`` (1081 points, 0.25 mm apart); run this file to regenerate them."""
+runs along z. Stored for needle_vision's tests as ``needle_vision/test/data/<name>.npy`` (1081 points, 0.25 mm
+apart); run this file to regenerate them. Suite-level: it composes both packages (needle_vision's tests only read
+the stored shapes)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,7 +12,7 @@ import numpy as np
 from scipy.optimize import brentq, newton
 from scipy.spatial.transform import Rotation
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "needle_vision" / "test" / "data"
 SAMPLES = 1081
 ELEMENTS = 30
 Z = np.array([0.0, 0.0, 1.0])
@@ -72,11 +74,6 @@ def equilibria() -> dict[str, np.ndarray]:
         # An S whose middle runs along -z.
         "rod_s": _s(solve, 0.3, 30.0),
     }
-
-
-def load() -> dict[str, np.ndarray]:
-    """The stored shapes."""
-    return {path.stem: np.load(path) for path in sorted(DATA.glob("rod_*.npy"))}
 
 
 if __name__ == "__main__":
