@@ -9,8 +9,9 @@ from setuptools.command.install import install
 package_name = "needle_sim_ros"
 
 # Compiles the simulator's numba kernels for its default configuration, and those of its tissue models (off by
-# default; the default ones, then LuGre with the seed 002 tip: +2.5 s), into the kernel cache (NUMBA_CACHE_DIR if
-# set, else __pycache__ next to the installed modules), so that the first start of a fresh install loads them.
+# default) in every composition a user switches to (bevel tip on/off x seed 002 tip on/off; the axial law, Karnopp
+# or LuGre, is a value of the same kernels: both run once), into the kernel cache (NUMBA_CACHE_DIR if set, else
+# __pycache__ next to the installed modules), so that the first start of a fresh install loads them.
 COMPILE_KERNELS = """
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 import time
@@ -20,8 +21,10 @@ defaults = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
 start = time.perf_counter()
 compile_kernels(defaults)
 compile_geometry_kernels()
-compile_tissue_kernels(defaults)
-compile_tissue_kernels({**defaults, "tissue.shaft.axial_model": "lugre", "tissue.insertion_profile.enable": True})
+for bevel in (True, False):
+    for law, profile in (("karnopp", False), ("lugre", True)):
+        compile_tissue_kernels({**defaults, "tissue.bevel_tip.enable": bevel, "tissue.shaft.axial_model": law,
+                                "tissue.insertion_profile.enable": profile})
 seconds = time.perf_counter() - start
 print(f"needle_sim_ros: compiled the simulator's numba kernels in {seconds:.0f} s")
 """

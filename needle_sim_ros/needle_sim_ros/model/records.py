@@ -10,7 +10,7 @@ counts (see ``pack`` in the contributions).
 from __future__ import annotations
 
 import numpy as np
-from numba import literal_unroll, njit, types
+from numba import njit, types
 from numba.extending import overload
 
 
@@ -109,11 +109,21 @@ def take_flags(buffer, cursor):
     return take_vector(buffer, cursor) != 0.0
 
 
-@njit(cache=True)
 def put_all(buffer, cursor, fields):
     """``put`` each of a tuple's fields in order."""
-    for field in literal_unroll(fields):
-        put(buffer, cursor, field)
+    raise NotImplementedError("put_all runs compiled only")
+
+
+@overload(put_all)
+def _put_all(buffer, cursor, fields):
+    if not isinstance(fields, types.BaseTuple):
+        return None
+    # one ``put`` per field in straight-line code: ``literal_unroll`` over a mixed tuple cost ~70 ns per field
+    source = "def put_fields(buffer, cursor, fields):\n    pass\n" + "".join(
+        f"    put(buffer, cursor, fields[{i}])\n" for i in range(len(fields)))
+    scope = {"put": put}
+    exec(source, scope)
+    return scope["put_fields"]
 
 
 def packed(*fields) -> np.ndarray:
