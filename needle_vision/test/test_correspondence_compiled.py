@@ -131,4 +131,4 @@ def test_compiled_match_equals_the_numpy_formulation(rig, backgrounds, renders, 
             reference = numpy_match(left, oriented, rectification.epipolar_axis, config, visible)
             assert len(match.left) == len(reference[0]) > 100
             for got, expected in zip((match.left, match.right, match.anchored, match.sin_angle), reference):
-                np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+                np.testing.assert_allclose(got, expected, rtol=1e-11, atol=1e-9)
