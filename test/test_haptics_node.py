@@ -173,7 +173,8 @@ def test_the_watchdog_zeroes_a_silent_arm_ramps_back_and_deactivate_sends_zero(a
     # holding the needle feels), with the sign of the wrench output.
     recent = arm.haptic[-100:]
     assert {entry[3] for entry in recent} == {"world"}
-    force = np.mean([entry[1] for entry in recent], axis=0)
+    # the median: a starved host may delay the arm's poses past the watchdog time (a zero, then the ramp back)
+    force = np.median([entry[1] for entry in recent], axis=0)
     np.testing.assert_allclose(force, [0.0, 0.0, -WEIGHT], atol=0.03 * WEIGHT)
     np.testing.assert_allclose(np.mean(arm.wrenches[-100:], axis=0)[:3], force, atol=0.03 * WEIGHT)
 
