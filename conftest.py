@@ -17,10 +17,16 @@ def ros_env() -> dict:
     The domain id is derived from the pid so that parallel test runs on one machine do not see each other
     (ids 1..100 keep within the range where every DDS port is valid). The test process itself joins the same
     domain (for rclpy nodes created in tests); its previous settings are restored at the end of the session.
+
+    Fast DDS talks over UDP (loopback) only, never through its shared-memory transport: tests stop and kill
+    processes, and a participant killed or stopped while it holds a lock of a shared-memory port can hang every
+    participant created after it on the machine (eProsima/Fast-DDS#1144). A CI run hung that way after a failed
+    test: the next test's node never came up.
     """
     env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
-    saved = {key: os.environ.get(key) for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+               FASTDDS_BUILTIN_TRANSPORTS="UDPv4", PYTHONUNBUFFERED="1")
+    saved = {key: os.environ.get(key) for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE",
+                                                  "FASTDDS_BUILTIN_TRANSPORTS")}
     os.environ.update({key: env[key] for key in saved})
     yield env
     for key, value in saved.items():
