@@ -65,15 +65,16 @@ def rviz_references(config: dict) -> tuple[dict[str, tuple[str, str]], set[str]]
     return topics, frames
 
 
-def graph_snapshot() -> dict[str, tuple[list[str], list[str]]]:
-    """{topic: (types, reliability of each publisher)} as this process's node discovers the graph."""
+def graph_snapshot(expected: set[str]) -> dict[str, tuple[list[str], list[str]]]:
+    """{topic: (types, reliability of each publisher)} as this process's node discovers the graph: once every
+    ``expected`` topic has a publisher, or after 30 s (discovery takes longer on a loaded host)."""
     import rclpy
     from rclpy.qos import ReliabilityPolicy
     rclpy.init()
     node = rclpy.create_node("layout_graph_probe")
     try:
-        end = time.monotonic() + 3.0
-        while time.monotonic() < end:  # discovery
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and not all(node.count_publishers(name) for name in expected):
             rclpy.spin_once(node, timeout_sec=0.1)
         return {name: (types, ["reliable" if info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
                                else "best_effort" for info in node.get_publishers_info_by_topic(name)])
@@ -101,7 +102,7 @@ def pipeline_log(ros_env, tmp_path_factory):
                                  "--wait-for-subscribers", "60", "--delay", "1.0"],
                                 env=env, capture_output=True, text=True, timeout=120)
         assert replay.returncode == 0, replay.stdout + replay.stderr
-        graph = graph_snapshot()
+        graph = graph_snapshot(set(rviz_references(yaml.safe_load(RVIZ.read_text()))[0]))
     finally:
         bringup.send_signal(signal.SIGINT)
         output, _ = bringup.communicate(timeout=30)
