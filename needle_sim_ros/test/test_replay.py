@@ -261,10 +261,12 @@ def shapes_bag(path: Path, count: int, offset: float) -> None:
     camera = CAMERA_TO_MODEL.inverse().apply(model[::3] + [0.0, 0.0, offset])
 
     def shape(points, arc, frame, stamp, source):
+        """Serialized with 8 trailing bytes (an rmw's serialized size may exceed the content): the log must keep the
+        bytes as received, where a re-serialization drops them."""
         msg = NeedleShape(source=source, arc_length=list(arc), points=[Point(x=p[0], y=p[1], z=p[2]) for p in points])
         msg.header.frame_id = frame
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
-        return serialize_message(msg)
+        return serialize_message(msg) + bytes(8)
 
     with McapBagWriter(path) as writer:
         writer.add_topic("/model/shape", "needle_interfaces/msg/NeedleShape")
@@ -313,6 +315,12 @@ def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(no
         counts = {topics[i]: n for i, n in statistics.channel_message_counts.items()}
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
         attachments = [a.name for a in reader.iter_attachments()]
+        logged = {topic: [m.data for _, c, m in reader.iter_messages(topics=[topic])]
+                  for topic in ("/model/shape", "/measured/shape")}
+    with open(tmp_path / "shapes.mcap", "rb") as stream:
+        bag = make_reader(stream)
+        recorded = {topic: [m.data for _, c, m in bag.iter_messages(topics=[topic])] for topic in logged}
+    assert logged == recorded  # the bytes received, byte for byte
     # The compared centerlines for RViz/Foxglove: at most display.rate (10 Hz) of the compared pairs.
     displays = {f"/compare/{kind}/{what}" for kind in ("model", "measured") for what in ("path", "marker")}
     assert len({counts[t] for t in displays}) == 1 and 1 <= counts["/compare/model/path"] < count - 1

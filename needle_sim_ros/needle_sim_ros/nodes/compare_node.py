@@ -21,6 +21,7 @@ from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.node import Node
 from nav_msgs.msg import Path
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
 
@@ -94,13 +95,15 @@ class CompareNode(Node):
         if self.recorder is not None and v["log.tf"]:
             self._record_tf()
         inputs = InputStatus(self)
-        inputs.track(self.create_subscription(NeedleShape, "model/shape", self.on_model, QoSProfile(depth=50)))
+        # The inputs arrive serialized: the log holds the bytes received, not rclpy's re-serialization of them.
+        inputs.track(self.create_subscription(NeedleShape, "model/shape", self.on_model, QoSProfile(depth=50),
+                                              raw=True))
         if v["measured_input"] == "shape":
             inputs.track(self.create_subscription(NeedleShape, "measured/shape", self.on_measured_shape,
-                                                  QoSProfile(depth=10)))
+                                                  QoSProfile(depth=10), raw=True))
         else:
             inputs.track(self.create_subscription(PointCloud2, "measured/points", self.on_measured_points,
-                                                  QoSProfile(depth=10)))
+                                                  QoSProfile(depth=10), raw=True))
         input_qos = QoSProfile(depth=100) if v["qos.inputs"] == "reliable" else QoSProfile(
             depth=100, reliability=qos_profile_sensor_data.reliability)
         for topic, message_type in (("base_pose", PoseStamped), ("wrench", WrenchStamped)):
@@ -145,20 +148,23 @@ class CompareNode(Node):
     def warn_rejected(self, what: str, reason: str) -> None:
         self.get_logger().warning(f"ignoring {what}: {reason}", throttle_duration_sec=WARN_PERIOD)
 
-    def on_model(self, msg: NeedleShape) -> None:
-        self.log("model/shape", msg, NeedleShape)
+    def on_model(self, data: bytes) -> None:
+        self.log("model/shape", data, NeedleShape)
+        msg = deserialize_message(data, NeedleShape)
         points, arc_length, _ = shape_arrays(msg)
         self.publish(self.session.add_model(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header, points,
                                             arc_length))
 
-    def on_measured_shape(self, msg: NeedleShape) -> None:
-        self.log("measured/shape", msg, NeedleShape)
+    def on_measured_shape(self, data: bytes) -> None:
+        self.log("measured/shape", data, NeedleShape)
+        msg = deserialize_message(data, NeedleShape)
         points, arc_length, _ = shape_arrays(msg)
         self.publish(self.session.add_measurement(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header,
                                                   points, arc_length))
 
-    def on_measured_points(self, msg: PointCloud2) -> None:
-        self.log("measured/points", msg, PointCloud2)
+    def on_measured_points(self, data: bytes) -> None:
+        self.log("measured/points", data, PointCloud2)
+        msg = deserialize_message(data, PointCloud2)
         try:
             points = cloud_points(msg)
         except ValueError as error:
