@@ -44,7 +44,7 @@ from needle_vision.calibration.rig import CalibrationError, StereoRig, load_came
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
 from needle_common.cdr import CameraInfo, PoseStamped, camera_info, pose_stamped
-from needle_common.cli_types import positive, positive_int
+from needle_common.cli_types import command_status, positive, positive_int
 from needle_common.output_files import check_output_file
 from needle_common.parameters import ParameterError, load_params_file, valid_topic_name
 from needle_vision.parameters import SPECS, base_pose_store, output_from_left, stereo_config, validate_all
@@ -561,20 +561,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     arguments = parser.parse_args(argv)
     return command_status("needle_stereo_offline", run, arguments, (ParameterError, CalibrationError, InputError,
-                                                                    OSError), NothingMeasured)
-
-
-def command_status(prog: str, run: Callable[[argparse.Namespace], int], arguments: argparse.Namespace,
-                   bad_input: tuple[type[Exception], ...], failure: type[Exception]) -> int:
-    """``run(arguments)``'s status; bad input: a one-line message and 2, ``failure``: a one-line message and 1."""
-    try:
-        return run(arguments)
-    except bad_input as error:
-        print(f"{prog}: error: {error}", file=sys.stderr)
-        return 2
-    except failure as error:
-        print(f"{prog}: {error}", file=sys.stderr)
-        return 1
+                                                                    OSError), (NothingMeasured,))
 
 
 if __name__ == "__main__":
