@@ -97,10 +97,21 @@ source "$VENV/needle_env.sh"
 # 5. Workspace build --------------------------------------------------------------------------
 # The packages own their config (the repository's config/ only links into them).
 src_dirs=(needle_interfaces needle_common needle_sim_ros needle_vision)
-src_hash=$(cd "$REPO" && find "${src_dirs[@]}" -type f \
-             -not -path '*/__pycache__/*' -not -name '*.pyc' -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
-if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INSTALL/setup.bash" ]; then
+python_packages=(needle_common needle_sim_ros needle_vision)
+source_files() { (cd "$REPO" && find "$@" -type f -not -path '*/__pycache__/*' -not -name '*.pyc' -print0 | sort -z); }
+src_hash=$(cd "$REPO" && source_files "${src_dirs[@]}" | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
+# colcon's (non-symlink) install of a Python package never removes a file: a module deleted from the sources stays
+# in build/<package>/build/lib and is installed again. A package whose list of files changed is built afresh.
+relisted=()
+for package in "${python_packages[@]}"; do
+  [ "$(cat "$STAMPS/files_$package" 2>/dev/null)" = "$(source_files "$package" | sha256sum)" ] || relisted+=("$package")
+done
+if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INSTALL/setup.bash" ] \
+    || [ ${#relisted[@]} -gt 0 ]; then
   mkdir -p "$REPO/$BUILD"
+  for package in "${relisted[@]}"; do
+    rm -rf "${REPO:?}/$BUILD/$package" "${REPO:?}/$INSTALL/$package"
+  done
   # numba checks only a kernel's own file, so a cached caller would keep a changed callee's old code: the install
   # step compiles every kernel anew into an empty cache
   rm -rf "$REPO/$BUILD/numba_cache"
@@ -111,6 +122,9 @@ if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INS
       > "$BUILD/colcon_build.log" 2>&1) \
     || { tail -n 60 "$REPO/$BUILD/colcon_build.log" >&2; die "colcon build failed (full log: $BUILD/colcon_build.log)"; }
   echo "$src_hash" > "$STAMPS/build"
+  for package in "${python_packages[@]}"; do
+    source_files "$package" | sha256sum > "$STAMPS/files_$package"
+  done
   # shellcheck disable=SC1091
   source "$VENV/needle_env.sh"
 else

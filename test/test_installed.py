@@ -8,6 +8,7 @@ import math
 import os
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -69,6 +70,18 @@ def _flatten(prefix: str, value, out: dict) -> dict:
     else:
         out[prefix] = value
     return out
+
+
+@pytest.mark.parametrize("package", ["needle_common", "needle_sim_ros", "needle_vision"])
+def test_the_install_space_has_no_module_whose_source_is_gone(package):
+    """Every installed module has its source: a module deleted from the sources is not importable from install/
+    (colcon's install never removes a file; scripts/setup_env.sh builds a package whose files changed afresh)."""
+    installed = INSTALL / package / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
+    if not (installed / package).is_dir():
+        pytest.skip(f"no install space of {package}: run scripts/setup_env.sh (colcon build) first")
+    orphans = [str(module.relative_to(installed)) for module in sorted((installed / package).rglob("*.py"))
+               if not (REPO / package / module.relative_to(installed)).is_file()]
+    assert not orphans, f"installed without a source (run scripts/setup_env.sh again): {', '.join(orphans)}"
 
 
 def test_needle_scenario_insertion_uses_the_installed_tissue_config(install_env, elsewhere):

@@ -50,3 +50,53 @@ def pose_stamped(data: bytes | memoryview) -> PoseStamped:
     except (struct.error, ValueError) as error:
         raise ValueError(f"truncated PoseStamped message ({error})") from error
     return PoseStamped(stamp, frame_id, values[:3], values[3:])
+
+
+class CameraInfo(NamedTuple):
+    """The calibration fields of a ``sensor_msgs/msg/CameraInfo`` (binning and ROI are not read): stamp [ns],
+    frame_id, image size [px], distortion model and D, K (9), R (9), P (12) as read-only views of the bytes."""
+
+    stamp_ns: int
+    frame_id: str
+    height: int
+    width: int
+    distortion_model: str
+    d: np.ndarray
+    k: np.ndarray
+    r: np.ndarray
+    p: np.ndarray
+
+
+def _string(data: bytes | memoryview, offset: int) -> tuple[str, int]:
+    """(the CDR string at ``offset``, the offset after it)."""
+    (length,) = struct.unpack_from("<I", data, aligned(offset, 4))
+    start = aligned(offset, 4) + 4
+    if start + length > len(data):
+        raise ValueError(f"a string of {length} bytes runs past the message's end")
+    return bytes(data[start:start + length - 1]).decode("utf-8", "replace") if length else "", start + length
+
+
+def _doubles(data: bytes | memoryview, offset: int, count: int) -> tuple[np.ndarray, int]:
+    """(``count`` float64 from ``offset`` aligned to 8, the offset after them)."""
+    start = aligned(offset, 8)
+    return np.frombuffer(data, dtype="<f8", count=count, offset=start), start + 8 * count
+
+
+def camera_info(data: bytes | memoryview) -> CameraInfo:
+    """Decode a serialized ``sensor_msgs/msg/CameraInfo``; ValueError when it is not one (another encoding, cut
+    short)."""
+    if len(data) < 16 or bytes(data[:2]) != ENCAPSULATION[:2]:
+        raise ValueError("not a little-endian CDR CameraInfo message")
+    try:
+        stamp, _ = header(data)
+        frame_id, offset = _string(data, 12)
+        height, width = struct.unpack_from("<II", data, aligned(offset, 4))
+        distortion_model, offset = _string(data, aligned(offset, 4) + 8)
+        (count,) = struct.unpack_from("<I", data, aligned(offset, 4))
+        d, offset = _doubles(data, aligned(offset, 4) + 4, count)
+        k, offset = _doubles(data, offset, 9)
+        r, offset = _doubles(data, offset, 9)
+        p, _ = _doubles(data, offset, 12)
+    except (struct.error, ValueError) as error:
+        raise ValueError(f"truncated CameraInfo message ({error})") from error
+    return CameraInfo(stamp, frame_id, height, width, distortion_model, d, k, r, p)

@@ -43,8 +43,8 @@ from needle_vision.streams.base_pose import store_base_pose
 from needle_vision.calibration.rig import CalibrationError, StereoRig, load_camera_calibration, rig_from_camera_infos
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
-from needle_common.cdr import PoseStamped, pose_stamped
-from needle_common.cli_types import positive, positive_int
+from needle_common.cdr import CameraInfo, PoseStamped, camera_info, pose_stamped
+from needle_common.cli_types import command_status, positive, positive_int
 from needle_common.output_files import check_output_file
 from needle_common.parameters import ParameterError, load_params_file, valid_topic_name
 from needle_vision.parameters import SPECS, base_pose_store, output_from_left, stereo_config, validate_all
@@ -64,17 +64,18 @@ class InputError(ValueError):
 #: the previous pair)
 PairJob = tuple[int, float, Callable[[], tuple[np.ndarray, np.ndarray]], list[PoseStamped]]
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 
 
 @dataclass
 class PairSource:
     """The synchronised pairs of one input: their count (an estimate for a bag, None if unknown), the jobs in
-    order, whether it is an image folder, the left frame_id, a counter of frames that could not be used and
-    one of base poses that could not be read."""
+    order, the bag's reader (None: an image folder), the left frame_id, a counter of frames that could not be used
+    and one of base poses that could not be read."""
 
     count: int | None
     jobs: Callable[[], Iterator[PairJob]]
-    is_folder: bool
+    reader: BagReader | None
     frame_id: str = ""
     skipped: Counter = field(default_factory=Counter)
     poses_skipped: Counter = field(default_factory=Counter)
@@ -105,7 +106,7 @@ def folder_source(folder: Path, fps: float) -> PairSource:
     def jobs() -> Iterator[PairJob]:
         for k, name in enumerate(common):
             yield k, k / fps, lambda name=name: (_read_image(sides[0] / name), _read_image(sides[1] / name)), []
-    return PairSource(len(common), jobs, True, "left_optical")
+    return PairSource(len(common), jobs, None, "left_optical")
 
 
 def _bag_reader(path: Path) -> BagReader:
@@ -119,17 +120,16 @@ def _bag_reader(path: Path) -> BagReader:
         raise InputError(str(error)) from error
 
 
-def _bag_records(path: Path, topics: list[str]) -> Iterator[BagMessage]:
+def _bag_records(reader: BagReader, topics: list[str]) -> Iterator[BagMessage]:
     """The messages of ``topics`` in log-time order (payloads are views); unreadable files -> InputError."""
     try:
-        yield from _bag_reader(path).messages(topics)
+        yield from reader.messages(topics)
     except BagReadError as error:
         raise InputError(str(error)) from error
 
 
-def _bag_topic(path: Path, topic: str) -> tuple[int, set[str]] | None:
+def _bag_topic(reader: BagReader, topic: str) -> tuple[int, set[str]] | None:
     """Message count and schema names of ``topic`` in the bag's summaries (None: a file has no summary)."""
-    reader = _bag_reader(path)
     recorded = reader.topics.get("/" + topic.lstrip("/"))
     if not reader.summarized:
         return None
@@ -138,40 +138,35 @@ def _bag_topic(path: Path, topic: str) -> tuple[int, set[str]] | None:
     return recorded.message_count, {recorded.type_name}
 
 
-def bag_rig(path: Path, left_info_topic: str, right_info_topic: str) -> StereoRig:
+def bag_rig(reader: BagReader, left_info_topic: str, right_info_topic: str) -> StereoRig:
     """The rig from the first camera_info message of each camera in the bag."""
-    from mcap_ros2.decoder import DecoderFactory
-
     topics = {"/" + t.lstrip("/"): side for t, side in ((left_info_topic, "left"), (right_info_topic, "right"))}
-    from mcap.reader import make_reader
-
-    infos: dict[str, object] = {}
-    for file in _bag_reader(path).files:
-        try:
-            with open(file, "rb") as stream:
-                reader = make_reader(stream, decoder_factories=[DecoderFactory()])
-                for _, channel, _, message in reader.iter_decoded_messages(topics=sorted(topics)):
-                    infos.setdefault(topics["/" + channel.topic.lstrip("/")], message)
-                    if len(infos) == 2:
-                        break
-        except Exception as error:  # noqa: BLE001 - corrupt file
-            raise InputError(f"cannot read '{file}': {str(error) or type(error).__name__}") from error
-        if len(infos) == 2:
-            break
+    infos: dict[str, CameraInfo] = {}
+    with closing(_bag_records(reader, sorted(topics))) as records:
+        for topic, schema, _, data in records:
+            if schema != CAMERA_INFO_TYPE:
+                raise InputError(f"topic {topic} of '{reader.path}' has type '{schema}', not {CAMERA_INFO_TYPE}")
+            try:
+                infos.setdefault(topics[topic], camera_info(data))
+            except ValueError as error:
+                raise InputError(f"{topic} of '{reader.path}': {error}") from error
+            if len(infos) == 2:
+                break
     if len(infos) < 2:
         raise InputError(f"the bag has no {' / '.join(topics)} messages; give calibration files instead")
     return rig_from_camera_infos(infos["left"], infos["right"])
 
 
-def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, base_topic: str = "",
+def bag_source(reader: BagReader, left_topic: str, right_topic: str, tolerance: float, base_topic: str = "",
                queue_size: int = 8) -> PairSource:
     """Synchronised pairs of the bag's image topics (raw or compressed) with the ``base_topic`` poses read
     before each (paired as the node pairs them: ``tolerance``, ``queue_size`` frames per camera waiting); images of
     an unusable encoding and frames without a partner are counted in ``skipped``."""
     left = "/" + left_topic.lstrip("/")
     base = "/" + base_topic.lstrip("/") if base_topic else ""
-    recorded = _bag_topic(path, left_topic)
-    source = PairSource(recorded and recorded[0], lambda: iter(()), False)
+    path = reader.path
+    recorded = _bag_topic(reader, left_topic)
+    source = PairSource(recorded and recorded[0], lambda: iter(()), reader)
 
     def gray(image) -> np.ndarray:
         try:
@@ -184,7 +179,7 @@ def bag_source(path: Path, left_topic: str, right_topic: str, tolerance: float, 
         source.poses_skipped.clear()
         pairer = StampPairer(tolerance, queue_size)
         index, poses = 0, []
-        for topic, schema, _, data in _bag_records(path, [left_topic, right_topic] + ([base] if base else [])):
+        for topic, schema, _, data in _bag_records(reader, [left_topic, right_topic] + ([base] if base else [])):
             if topic == base:
                 if schema != POSE_TYPE:
                     raise InputError(f"base pose topic {topic} of '{path}' has type '{schema}', not {POSE_TYPE}")
@@ -225,14 +220,15 @@ def open_source(path: Path, fps: float, left_topic: str, right_topic: str, toler
         if base_topic:
             raise InputError(f"--base-pose-topic needs an MCAP input; '{path}' is an image folder")
         return folder_source(path, fps)
-    recorded = _bag_topic(path, base_topic) if base_topic else None
+    reader = _bag_reader(path)
+    recorded = _bag_topic(reader, base_topic) if base_topic else None
     types = recorded and recorded[1]
     if types is not None and not types:
         raise InputError(f"'{path}' has no messages on the base pose topic '{base_topic}'")
     if types and types != {POSE_TYPE}:
         raise InputError(f"base pose topic '{base_topic}' of '{path}' has type '{', '.join(sorted(types))}', "
                          f"not {POSE_TYPE}")
-    return bag_source(path, left_topic, right_topic, tolerance, base_topic, queue_size)
+    return bag_source(reader, left_topic, right_topic, tolerance, base_topic, queue_size)
 
 
 def decoded(jobs: Iterator[PairJob], workers: int, depth: int
@@ -425,10 +421,10 @@ def run(arguments: argparse.Namespace) -> int:
     if values["left_calibration_file"]:
         rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
                                                  load_camera_calibration(values["right_calibration_file"]))
-    elif source.is_folder:
+    elif source.reader is None:
         raise InputError("an image folder needs calibration files (--left-calibration/--right-calibration)")
     else:
-        rig = bag_rig(source_path, arguments.left_info_topic, arguments.right_info_topic)
+        rig = bag_rig(source.reader, arguments.left_info_topic, arguments.right_info_topic)
     pipeline = StereoNeedlePipeline(rig, stereo_config(values), output_from_left(values), base_pose_store(values))
     mode = arguments.background or "first"
     frames = arguments.frames
@@ -565,20 +561,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     arguments = parser.parse_args(argv)
     return command_status("needle_stereo_offline", run, arguments, (ParameterError, CalibrationError, InputError,
-                                                                    OSError), NothingMeasured)
-
-
-def command_status(prog: str, run: Callable[[argparse.Namespace], int], arguments: argparse.Namespace,
-                   bad_input: tuple[type[Exception], ...], failure: type[Exception]) -> int:
-    """``run(arguments)``'s status; bad input: a one-line message and 2, ``failure``: a one-line message and 1."""
-    try:
-        return run(arguments)
-    except bad_input as error:
-        print(f"{prog}: error: {error}", file=sys.stderr)
-        return 2
-    except failure as error:
-        print(f"{prog}: {error}", file=sys.stderr)
-        return 1
+                                                                    OSError), (NothingMeasured,))
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from vision_shapes import SHAPES, distance_to_curve
+from needle_common.cdr import camera_info
 from needle_vision.calibration.rig import camera_info_fields
 from needle_vision.streams.image_codec import image_fields
 from needle_vision.offline import main
@@ -108,6 +109,33 @@ def test_mcap_bag_with_camera_info_and_bad_frames(tmp_path, rig, background_fram
     report = capsys.readouterr().out
     assert "unsupported image encoding 'yuv422'" in report and "without a partner" in report
     assert "1  needle measured" in report
+
+
+def test_a_bag_is_opened_once_and_its_camera_info_decoded_by_the_project(tmp_path, rig, background_frames, renders,
+                                                                          monkeypatch):
+    """One BagReader per run (its summaries read once: before, up to four), the calibration from its camera_info
+    messages decoded by needle_common.cdr (before: mcap_ros2's decoder on a second opening of every file)."""
+    from needle_common.bag_reader import BagReader
+    import needle_vision.offline as offline
+
+    bag = tmp_path / "recording.mcap"
+    write_bag(bag, rig, [(1.0 + 0.01 * k, *pair) for k, pair in enumerate(background_frames[:3])]
+              + [(1.03, *renders("planar"))])
+    opened, decoded = [], []
+
+    class CountedReader(BagReader):
+        def __init__(self, *arguments, **options) -> None:
+            opened.append(arguments[0])
+            super().__init__(*arguments, **options)
+
+    def counted_camera_info(data):
+        decoded.append(bytes(data[:4]))
+        return camera_info(data)
+    monkeypatch.setattr(offline, "BagReader", CountedReader)
+    monkeypatch.setattr(offline, "camera_info", counted_camera_info)
+    assert main([str(bag), "--params", str(params_file(tmp_path, rig)), "--output", str(tmp_path / "out.csv"),
+                 "--quiet", "--background", "median"]) == 0  # median: a pass of its own before the measured one
+    assert opened == [bag] and len(decoded) == 2
 
 
 def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):

@@ -28,10 +28,10 @@ import cv2
 import numpy as np
 import yaml
 
-from needle_common.cli_types import non_negative, positive, positive_int
+from needle_common.cli_types import command_status, non_negative, positive, positive_int
 from needle_common.output_files import write_atomically
 from needle_vision.calibration.rig import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
-from needle_vision.offline import InputError, SkippedPair, command_status, decoded, open_source
+from needle_vision.offline import InputError, SkippedPair, decoded, open_source
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.calibration.sensitivity import board_corners
 
@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=positive_int, default=min(4, os.cpu_count() or 1), help="detection threads")
     arguments = parser.parse_args(argv)
     return command_status("needle_stereo_calibrate", run, arguments, (InputError, CalibrationError, OSError),
-                          CalibrationFailed)
+                          (CalibrationFailed,))
 
 
 if __name__ == "__main__":
