@@ -312,7 +312,11 @@ def _composed_source(groups: tuple[Parts, ...], run: bool) -> str:
     load += _split("constants", len(groups), [f"cg{g}" for g in range(len(groups))])
     for g, ks in enumerate(members):
         load += _split(f"sg{g}", len(ks), [f"s{k}" for k in ks]) + _split(f"cg{g}", len(ks), [f"c{k}" for k in ks])
-    load.append("    return (" + "".join(f"load_{k}(s{k}, c{k}), " for k in each) + ")")
+    # run: the constant force (and a work array for the contributions after the first) ride along, one level
+    extra = (["constant_Q", "own"] if len(groups) > 1 else ["constant_Q"]) if run else []
+    ride = "".join(f"carried[{len(flat) + j}], " for j in range(len(extra)))
+    load.append("    return (" + "".join(f"load_{k}(s{k}, c{k}), " for k in each) + "".join(f"{e}, " for e in extra)
+                + ")")
     store = [f"    x{k} = store_{k}(carried[{k}])" for k in each]  # one buffer in pack's layout, two levels
     store += [f"    n{g} = {len(ks) - 1} + " + " + ".join(f"x{k}.size" for k in ks) for g, ks in enumerate(members)]
     store += [f"    out = np.empty({len(groups) - 1} + " + " + ".join(f"n{g}" for g in range(len(groups))) + ")",
@@ -329,34 +333,31 @@ def _composed_source(groups: tuple[Parts, ...], run: bool) -> str:
         else:  # the record first, then each part from it
             advance.append(f"    a{ks[0]} = advance_{ks[0]}(carried[{ks[0]}], q, qd, t)")
             advance += [f"    a{k} = advance_{k}(carried[{k}], q, qd, t, a{ks[0]})" for k in ks[1:]]
-    advance.append("    return (" + "".join(f"a{k}, " for k in each) + ")")
+    advance.append("    return (" + "".join(f"a{k}, " for k in each) + ride + ")")
 
     def added(ks, into: str) -> str:
         return " and ".join(f"assemble_{k}(forces[{k}], q, qd, rotation, {into}, band, kl, c_q, c_qd)" for k in ks)
-    bodies = {"load(state, constants)": "\n".join(load),
+    bodies = {f"load(state, constants{''.join(', ' + e for e in extra)})": "\n".join(load),
               "store(carried)": "\n".join([*store, "    return out"]),
-              "acting(carried)": "    return (" + "".join(f"acting_{k}(carried[{k}]), " for k in each) + ")",
+              "acting(carried)": "    return (" + "".join(f"acting_{k}(carried[{k}]), " for k in each) + ride + ")",
               "advance(carried, q, qd, t)": "\n".join(advance),
               "touches_base(forces)": "    return " + " or ".join(f"touches_base_{k}(forces[{k}])" for k in each)}
-    if run:  # the constant force and a work array ride along with the carried state and the forces
-        assemble = ["    forces, constant, own = wrapped", f"    ok = {added(members[0], 'Q')}", "    Q += constant"]
+    if run:
+        assemble = [f"    ok = {added(members[0], 'Q')}", f"    Q += forces[{len(flat)}]"]
         for ks in members[1:]:
-            assemble += ["    own[:] = 0.0", f"    ok = ok and {added(ks, 'own')}", "    Q += own"]
-        bodies.update({"run_acting(wrapped)": "    return (acting(wrapped[0]), wrapped[1], wrapped[2])",
-                       f"run_assemble(wrapped, {rows})": "\n".join([*assemble, "    return ok"]),
-                       "run_advance(wrapped, q, qd, t)":
-                           "    return (advance(wrapped[0], q, qd, t), wrapped[1], wrapped[2])",
-                       "run_touches_base(wrapped)": "    return touches_base(wrapped[0])"})
-        own = "constant_Q.size" if len(groups) > 1 else "0"
+            own = f"forces[{len(flat) + 1}]"
+            assemble += [f"    {own}[:] = 0.0", f"    ok = ok and {added(ks, own)}", f"    Q += {own}"]
+        bodies[f"assemble(forces, {rows})"] = "\n".join([*assemble, "    return ok"])
+        own = ", np.empty(constant_Q.size)" if len(groups) > 1 else ""
         entry = f"""@njit(cache=True)
 def run({_ARGUMENTS}):
-    done, wrapped = run_steps(history, times, motions, rotations, np.zeros(constant_Q.size), constant_Q,
+    done, carried = run_steps(history, times, motions, rotations, np.zeros(constant_Q.size), constant_Q,
                               (coef, tol, max_iterations, active, scale, tables, kl),
                               (prescribed, base_nodes, base_local_r, base_local_rx),
                               (residual, band, ext_band, pivots, factorization), control, np.empty(19), False,
-                              (load(state, constants), constant_Q, np.empty({own})), run_acting, run_assemble,
-                              run_advance, run_touches_base, (states, wrenches, iterations))
-    return done, store(wrapped[0])"""
+                              load(state, constants, constant_Q{own}), acting, assemble, advance, touches_base,
+                              (states, wrenches, iterations))
+    return done, store(carried)"""
     else:
         parts = ["    out = np.zeros((N, q.size))", "    no_band = np.zeros((0, 0))"]
         parts += [f"    assemble_{k}(forces[{k}], q, qd, rotation, out[{k}], no_band, 0, 0.0, 0.0)" for k in each]
