@@ -12,9 +12,10 @@ Per step, with fixed stages:
    they act on the base element's rows).
 
 A contribution is the state the loop carries (any numba value: a named tuple of arrays, or its constants) and
-six compiled kernels (:class:`Kernels`); :func:`compose` makes the kernels of any number of contributions those of
-one, and :func:`compiled_run` the module-level-like entry that inlines ``run_steps`` with them (the kernels are
-compile-time constants there; each entry is made once per process and cached on disk like any other):
+six compiled kernels (:class:`Kernels`), or parts of such (:func:`parts_of`: the tissue); :func:`compiled_run` makes
+the module-level-like entry that inlines ``run_steps`` with every part's kernels, one level (the kernels are
+compile-time constants there; each entry is made once per process and cached on disk like any other), and
+:func:`compose` the same parts' functions on packed arrays for the general path:
 * ``load(state, constants) -> carried`` and ``store(carried) -> state``: the carried state from the packed state
   and constants (float64 arrays: numba 0.59 types a tuple argument in Python on every call) and back;
 * ``acting(carried) -> forces``: what acts over the step starting from the state (only what ``assemble`` reads:
