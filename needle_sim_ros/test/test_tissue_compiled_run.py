@@ -3,11 +3,19 @@
 to the last bits with noble's numpy/numba, see RATE_TOLERANCE) for every axial law,
 through the capsule puncture and the bevel's engagement; and the track projection's pruned search against a
 brute-force projection."""
+import sys
+
 import numpy as np
 import pytest
 
+from needle_sim_ros.model.contribution import ContributionRun
+from needle_sim_ros.model.step import Kernels
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
-from needle_sim_ros.simulation import simulation_from_parameters
+from needle_sim_ros.simulation import model_builder_from_parameters, simulation_from_parameters
+from needle_sim_ros.tissue.contact import CONTACT_KERNELS
+from needle_sim_ros.tissue.factory import build_tissue_model
+from needle_sim_ros.tissue.shaft_force import SHAFT_KERNELS
+from needle_sim_ros.tissue.tip_forces import BEVEL_KERNELS, RESISTANCE_KERNELS
 from needle_sim_ros.tissue.tissue_model import TissueModel, TissueState
 from needle_sim_ros.tissue.track import project_on_polyline
 
@@ -99,6 +107,18 @@ def test_a_hook_on_every_step_keeps_the_tissue_steps_compiled(monkeypatch):
     assert len(records) == 590 and sim.data.force_states[0].contact.punctured
     assert len(calls) <= 2  # the first step (no consistent accelerations yet) and nothing else
     assert seen == [(record.t, record.t) for record in records]
+
+
+def test_the_run_composes_the_tissue_parts_directly():
+    """The simulator's compiled run imports each enabled tissue part's kernels itself, one level (before: the
+    tissue's own composed module, nested inside the run)."""
+    model, _ = model_builder_from_parameters(PARAMETERS)(())
+    config = {name: value for name, value in PARAMETERS.items() if name.startswith("tissue.")}
+    tissue = build_tissue_model({**config, "tissue.enable": True, "tissue.insertion_profile.enable": True}, model)
+    run = sys.modules[ContributionRun([tissue]).run.py_func.__module__]
+    for k, kernels in enumerate((CONTACT_KERNELS, SHAFT_KERNELS, BEVEL_KERNELS, RESISTANCE_KERNELS)):
+        for role, function in zip(Kernels._fields, kernels):
+            assert getattr(run, f"{role}_{k}") is function, (role, k)
 
 
 def assert_same(a, b, tolerance: float = 0.0, path: str = "force_states") -> None:

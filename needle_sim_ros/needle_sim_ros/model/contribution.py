@@ -1,9 +1,10 @@
 """Force laws written once, as compiled kernels, for every path, and the compiled run that composes them.
 
-A contribution with ``compiled_run`` declares its :class:`~needle_sim_ros.model.step.Kernels` (``kernels``), its
-constants packed into one float64 array (``constants``) and, if stateful, its state packed (``packed_state``) and
-back (``unpacked_state``). :class:`ContributionRun` composes any number of them
-(:func:`~needle_sim_ros.model.step.compiled_run`) into one compiled run of steps. A :class:`CompiledContribution`
+A contribution with ``compiled_run`` declares its :class:`~needle_sim_ros.model.step.Kernels` (``kernels``; or its
+parts', :func:`~needle_sim_ros.model.step.parts_of`, e.g. the tissue), its constants packed into one float64 array
+(``constants``; of parts: ``step.pack``'s of theirs) and, if stateful, its state packed likewise (``packed_state``)
+and back (``unpacked_state``). :class:`ContributionRun` composes any number of them, every part one level
+(:func:`~needle_sim_ros.model.step.compiled_run`), into one compiled run of steps. A :class:`CompiledContribution`
 subclass (a law without state) names its ``assemble`` kernel (and, if it acts on the base element,
 ``touches_base``) on a float64 array of its parameters; the general path (``Integrator.step``: sub-stepping,
 statics) calls the same kernel through ``assemble_banded``. ``docs/extending.md`` walks through an example.

@@ -12,9 +12,10 @@ Per step, with fixed stages:
    they act on the base element's rows).
 
 A contribution is the state the loop carries (any numba value: a named tuple of arrays, or its constants) and
-six compiled kernels (:class:`Kernels`); :func:`compose` makes the kernels of any number of contributions those of
-one, and :func:`compiled_run` the module-level-like entry that inlines ``run_steps`` with them (the kernels are
-compile-time constants there; each entry is made once per process and cached on disk like any other):
+six compiled kernels (:class:`Kernels`), or parts of such (:func:`parts_of`: the tissue); :func:`compiled_run` makes
+the module-level-like entry that inlines ``run_steps`` with every part's kernels, one level (the kernels are
+compile-time constants there; each entry is made once per process and cached on disk like any other), and
+:func:`compose` the same parts' functions on packed arrays for the general path:
 * ``load(state, constants) -> carried`` and ``store(carried) -> state``: the carried state from the packed state
   and constants (float64 arrays: numba 0.59 types a tuple argument in Python on every call) and back;
 * ``acting(carried) -> forces``: what acts over the step starting from the state (only what ``assemble`` reads:
@@ -97,10 +98,12 @@ def solve_step(values, current, prescribed, axis, rotation, constant_Q, ext_Q, s
 
 
 @njit(inline="always")
-def run_steps(history, times, motions, rotations, constant_Q, solver, base, work, control, last_motion, keep_matrix,
-              state, acting, assemble, advance, touches_base, outputs):
+def run_steps(history, times, motions, rotations, constant_Q, held_Q, solver, base, work, control, last_motion,
+              keep_matrix, state, acting, assemble, advance, touches_base, outputs):
     """Integrate from history (rows q, q', q'', a at t_n) one step per end time (k,) and packed base motion
-    (k, 19) with rotations (k, 3, 3) (module docstring). ``solver``: (scheme coefficients, tolerance, iteration
+    (k, 19) with rotations (k, 3, 3) (module docstring). Every assembly starts from ``constant_Q``: the constant
+    force, or zero where ``assemble`` adds the constant itself; ``held_Q`` is the constant force (the reaction's
+    where the contributions do not act on the base element). ``solver``: (scheme coefficients, tolerance, iteration
     limit, active mask, scales, model tables, bandwidth); ``base``: (prescribed rows, base nodes, their local
     offsets r and r_x); ``work``: (residual, band, ext_band, pivots, factorization). ``control`` [extrapolate,
     factored] and ``last_motion`` (the motion the kept factorization in ``band`` was made for) carry over between
@@ -137,9 +140,11 @@ def run_steps(history, times, motions, rotations, constant_Q, solver, base, work
         q, qd = values[0], values[1]
         state = advance(state, q, qd, times[i])
         forces = acting(state)
-        ext_Q[:] = constant_Q  # 5. reaction
-        if n == 12 or touches_base(forces):
+        if n == 12 or touches_base(forces):  # 5. reaction
+            ext_Q[:] = constant_Q
             assemble(forces, q, qd, rotation, ext_Q, no_band, 0, 0.0, 0.0)
+        else:
+            ext_Q[:] = held_Q
         wrenches[i] = base_wrench_kernel(q, qd, values[2], *rows, rotation, ext_Q[:6].copy())
     return times.size, state
 
@@ -161,7 +166,7 @@ def integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max
     """:func:`run_steps` without state-dependent contributions (gravity, world-frame point loads): the simulator's
     fixed-rate loop with the matrix kept across steps where it may be (``keep_matrix``), and the general step
     (``Integrator.step``) on a fresh one. Returns the steps done."""
-    done, _ = run_steps(history, times, motions, rotations, ext_Q,
+    done, _ = run_steps(history, times, motions, rotations, ext_Q, ext_Q,
                         (coef, tol, max_iterations, active, scale, tables, kl),
                         (prescribed, base_nodes, base_local_r, base_local_rx),
                         (residual, band, np.zeros((0, 0)), pivots, factorization), control, last_motion,
@@ -240,96 +245,125 @@ class Kernels(NamedTuple):
     touches_base: object
 
 
-_RUNS: dict[tuple[Kernels, ...], object] = {}
+Parts = tuple[Kernels, ...]  # a contribution made of parts: the first a record that the others read
+_RUNS: dict[tuple[Parts, ...], object] = {}
 _ARGUMENTS = ("history, times, motions, rotations, coef, constant_Q, tol, max_iterations, prescribed, base_nodes, "
               "base_local_r, base_local_rx, active, scale, tables, residual, band, ext_band, pivots, factorization, "
               "kl, control, state, constants, states, wrenches, iterations")
 
 
-def compiled_run(kernels: tuple[Kernels, ...]):
-    """The compiled run of steps (:func:`run_steps`, a fresh matrix every step) through the contributions given by
-    their kernels: a numba function of (history, times, motions, rotations, scheme coefficients, constant force,
-    ``Integrator.run_arguments`` after the coefficients, control flags, packed state, packed constants (both
-    :func:`pack`'s), states, wrenches, iterations) returning (steps done, packed state after).
+def parts_of(kernels: Kernels | Parts) -> Parts:
+    """A contribution's kernels as its parts: one :class:`Kernels`, or parts (the first a shared record whose
+    carried state after the step each other part's advance takes as a fifth argument)."""
+    return (kernels,) if isinstance(kernels, Kernels) else tuple(kernels)
 
-    Its source composes the kernels by name into a generated module (one file per composition, written once under
-    numba's cache directory), so that numba caches it on disk like any module-level function; one per process."""
-    kernels = tuple(kernels)
-    if kernels not in _RUNS:
-        _RUNS[kernels] = _load_module(_composed_source(kernels, False, True)).run
-    return _RUNS[kernels]
+
+def compiled_run(kernels: tuple[Kernels | Parts, ...]):
+    """The compiled run of steps (:func:`run_steps`, a fresh matrix every step) through the contributions given by
+    their kernels (each a :class:`Kernels` or its parts, :func:`parts_of`): a numba function of (history, times,
+    motions, rotations, scheme coefficients, constant force, ``Integrator.run_arguments`` after the coefficients,
+    control flags, packed state, packed constants, states, wrenches, iterations) returning (steps done, packed state
+    after). The packed arrays are :func:`pack`'s of the contributions' (a contribution of parts: :func:`pack`'s of
+    its parts').
+
+    Its source composes every part's kernels by name, one level, into a generated module (one file per composition,
+    written once under numba's cache directory), so that numba caches it on disk like any module-level function;
+    one per process. Forces are added in the general path's order (``integrators.assemble_python``: the constant
+    force, then each contribution's sum): into a zero Q the first contribution's parts, then the constant force,
+    then each other contribution summed on a zeroed work array, so both paths give the same bits."""
+    groups = tuple(parts_of(contribution) for contribution in kernels)
+    if groups not in _RUNS:
+        _RUNS[groups] = _load_module(_composed_source(groups, True)).run
+    return _RUNS[groups]
 
 
 def compose(kernels: tuple[Kernels, ...], shared: bool = False):
-    """The generated module of the contributions given by their kernels, composed into one: its ``kernels``
-    (:class:`Kernels`, on :func:`pack`'s packed states and constants) and, on the packed arrays (for the general
-    path and readouts), ``packed_assemble(state, constants, q, qd, rotation, Q, band, kl, c_q, c_qd)``,
-    ``packed_advance(state, constants, q, qd, t)``, ``packed_touches_base(state, constants)`` and
-    ``packed_parts(state, constants, q, qd, rotation)``: each contribution's generalized force alone (count, n).
-    ``shared``: the first contribution is a record the others read: their advance kernels take
-    (carried, q, qd, t, the first's carried state after the step)."""
-    module = _load_module(_composed_source(tuple(kernels), shared, False))
-    module.kernels = Kernels(*(getattr(module, role) for role in Kernels._fields))
-    return module
+    """The generated module of the contributions given by their kernels, composed into one on :func:`pack`'s
+    packed states and constants, for the general path and readouts: ``packed_assemble(state, constants, q, qd,
+    rotation, Q, band, kl, c_q, c_qd)`` (each contribution's force added to Q in order), ``packed_advance(state,
+    constants, q, qd, t)``, ``packed_touches_base(state, constants)`` and ``packed_parts(state, constants, q, qd,
+    rotation)``: each contribution's generalized force alone (count, n). ``shared``: they are the parts of one
+    contribution (:func:`parts_of`), the first a record the others read."""
+    return _load_module(_composed_source((tuple(kernels),) if shared else tuple((k,) for k in kernels), False))
 
 
-def _composed_source(kernels: tuple[Kernels, ...], shared: bool, run: bool) -> str:
-    imports, count, each = [], len(kernels), range(len(kernels))
-    for i, contribution in enumerate(kernels):
+def _split(array: str, count: int, names: list[str]) -> list[str]:
+    """Source lines slicing :func:`pack`'s ``array`` into its ``count`` arrays ``names``."""
+    if count == 1:
+        return [f"    {names[0]} = {array}"]
+    lines = [f"    i = {count - 1}"]
+    for k in range(count - 1):
+        lines += [f"    {names[k]} = {array}[i:i + int({array}[{k}])]", f"    i += int({array}[{k}])"]
+    return [*lines, f"    {names[-1]} = {array}[i:]"]
+
+
+def _composed_source(groups: tuple[Parts, ...], run: bool) -> str:
+    imports, rows = [], "q, qd, rotation, Q, band, kl, c_q, c_qd"
+    flat = [kernels for group in groups for kernels in group]
+    for k, contribution in enumerate(flat):
         for role, function in zip(Kernels._fields, contribution):
             py_func = function.py_func
             if "<locals>" in py_func.__qualname__:
                 raise TypeError(f"kernel {py_func.__qualname__} must be a module-level function")
-            imports.append(f"from {py_func.__module__} import {py_func.__name__} as {role}_{i}")
-    rows = "q, qd, rotation, Q, band, kl, c_q, c_qd"
-    if count == 1 and run:  # the contribution's own kernels
-        composed = "\n".join(f"{role} = {role}_0" for role in Kernels._fields)
-    else:  # carried states and forces are tuples; packed arrays: the sizes of all but the last, then the values
-        load = ["    i, j = N - 1, N - 1"]
-        for k in range(count - 1):
-            load += [f"    s{k}, c{k} = state[i:i + int(state[{k}])], constants[j:j + int(constants[{k}])]",
-                     f"    i, j = i + int(state[{k}]), j + int(constants[{k}])"]
-        load += [f"    s{count - 1}, c{count - 1} = state[i:], constants[j:]",
-                 "    return (" + ", ".join(f"load_{k}(s{k}, c{k})" for k in each) + ",)"]
-        store = [f"    x{k} = store_{k}(carried[{k}])" for k in each]
-        store += ["    out = np.empty(N - 1 + " + " + ".join(f"x{k}.size" for k in each) + ")", "    i = N - 1"]
-        for k in each:
-            store += [f"    out[{k}] = x{k}.size"] if k < count - 1 else []
+            imports.append(f"from {py_func.__module__} import {py_func.__name__} as {role}_{k}")
+    first = [sum(map(len, groups[:g])) for g in range(len(groups))]  # each group's first part
+    members = [list(range(start, start + len(group))) for start, group in zip(first, groups)]
+    each = range(len(flat))
+    load = _split("state", len(groups), [f"sg{g}" for g in range(len(groups))])
+    load += _split("constants", len(groups), [f"cg{g}" for g in range(len(groups))])
+    for g, ks in enumerate(members):
+        load += _split(f"sg{g}", len(ks), [f"s{k}" for k in ks]) + _split(f"cg{g}", len(ks), [f"c{k}" for k in ks])
+    # run: the constant force (and a work array for the contributions after the first) ride along, one level
+    extra = (["constant_Q", "own"] if len(groups) > 1 else ["constant_Q"]) if run else []
+    ride = "".join(f"carried[{len(flat) + j}], " for j in range(len(extra)))
+    load.append("    return (" + "".join(f"load_{k}(s{k}, c{k}), " for k in each) + "".join(f"{e}, " for e in extra)
+                + ")")
+    store = [f"    x{k} = store_{k}(carried[{k}])" for k in each]  # one buffer in pack's layout, two levels
+    store += [f"    n{g} = {len(ks) - 1} + " + " + ".join(f"x{k}.size" for k in ks) for g, ks in enumerate(members)]
+    store += [f"    out = np.empty({len(groups) - 1} + " + " + ".join(f"n{g}" for g in range(len(groups))) + ")",
+              f"    i = {len(groups) - 1}"]
+    store += [f"    out[{g}] = n{g}" for g in range(len(groups) - 1)]
+    for ks in members:
+        store += [f"    out[i + {j}] = x{k}.size" for j, k in enumerate(ks[:-1])] + [f"    i += {len(ks) - 1}"]
+        for k in ks:
             store += [f"    out[i:i + x{k}.size] = x{k}", f"    i += x{k}.size"]
+    advance = []
+    for ks in members:
+        if len(ks) == 1:
+            advance.append(f"    a{ks[0]} = advance_{ks[0]}(carried[{ks[0]}], q, qd, t)")
+        else:  # the record first, then each part from it
+            advance.append(f"    a{ks[0]} = advance_{ks[0]}(carried[{ks[0]}], q, qd, t)")
+            advance += [f"    a{k} = advance_{k}(carried[{k}], q, qd, t, a{ks[0]})" for k in ks[1:]]
+    advance.append("    return (" + "".join(f"a{k}, " for k in each) + ride + ")")
 
-        def calls(role: str, name: str, arguments: str, joiner: str) -> str:
-            text = joiner.join(f"{role}_{k}({name}[{k}]{arguments})" for k in each)
-            return f"({text},)" if joiner == ", " else text
-        if shared:  # the others read the first's state after the step
-            advance = ("    first = advance_0(carried[0], q, qd, t)\n    return (first, "
-                       + "".join(f"advance_{k}(carried[{k}], q, qd, t, first), " for k in each if k) + ")")
-        else:
-            advance = "    return " + calls("advance", "carried", ", q, qd, t", ", ")
-        assemble = "    return " + calls("assemble", "forces", ", " + rows, " and ")
-        if not run:  # one force, as the general path adds it: its own Q, then added
-            own = " and ".join(f"assemble_{k}(forces[{k}], q, qd, rotation, own, band, kl, c_q, c_qd)" for k in each)
-            assemble = "\n".join(["    own = np.zeros(Q.size)", f"    ok = {own}", "    Q += own", "    return ok"])
-        parts = ["    out = np.zeros((N, q.size))", "    no_band = np.zeros((0, 0))"]
-        parts += [f"    assemble_{k}(forces[{k}], q, qd, rotation, out[{k}], no_band, 0, 0.0, 0.0)" for k in each]
-        bodies = {"load(state, constants)": "\n".join(load),
-                  "store(carried)": "\n".join([*store, "    return out"]),
-                  "acting(carried)": "    return " + calls("acting", "carried", "", ", "),
-                  f"assemble(forces, {rows})": assemble,
-                  "advance(carried, q, qd, t)": advance,
-                  "touches_base(forces)": "    return " + calls("touches_base", "forces", "", " or "),
-                  "_parts(forces, q, qd, rotation)": "\n".join([*parts, "    return out"])}
-        composed = "\n\n\n".join(f"@njit(cache=True)\ndef {head}:\n{body}" for head, body in bodies.items())
+    def added(ks, into: str) -> str:
+        return " and ".join(f"assemble_{k}(forces[{k}], q, qd, rotation, {into}, band, kl, c_q, c_qd)" for k in ks)
+    bodies = {f"load(state, constants{''.join(', ' + e for e in extra)})": "\n".join(load),
+              "store(carried)": "\n".join([*store, "    return out"]),
+              "acting(carried)": "    return (" + "".join(f"acting_{k}(carried[{k}]), " for k in each) + ride + ")",
+              "advance(carried, q, qd, t)": "\n".join(advance),
+              "touches_base(forces)": "    return " + " or ".join(f"touches_base_{k}(forces[{k}])" for k in each)}
     if run:
+        assemble = [f"    ok = {added(members[0], 'Q')}", f"    Q += forces[{len(flat)}]"]
+        for ks in members[1:]:
+            own = f"forces[{len(flat) + 1}]"
+            assemble += [f"    {own}[:] = 0.0", f"    ok = ok and {added(ks, own)}", f"    Q += {own}"]
+        bodies[f"assemble(forces, {rows})"] = "\n".join([*assemble, "    return ok"])
+        own = ", np.empty(constant_Q.size)" if len(groups) > 1 else ""
         entry = f"""@njit(cache=True)
 def run({_ARGUMENTS}):
-    done, carried = run_steps(history, times, motions, rotations, constant_Q,
+    done, carried = run_steps(history, times, motions, rotations, np.zeros(constant_Q.size), constant_Q,
                               (coef, tol, max_iterations, active, scale, tables, kl),
                               (prescribed, base_nodes, base_local_r, base_local_rx),
                               (residual, band, ext_band, pivots, factorization), control, np.empty(19), False,
-                              load(state, constants), acting, assemble, advance, touches_base,
+                              load(state, constants, constant_Q{own}), acting, assemble, advance, touches_base,
                               (states, wrenches, iterations))
     return done, store(carried)"""
     else:
+        parts = ["    out = np.zeros((N, q.size))", "    no_band = np.zeros((0, 0))"]
+        parts += [f"    assemble_{k}(forces[{k}], q, qd, rotation, out[{k}], no_band, 0, 0.0, 0.0)" for k in each]
+        bodies.update({f"assemble(forces, {rows})": f"    return {added(each, 'Q')}",
+                       "_parts(forces, q, qd, rotation)": "\n".join([*parts, "    return out"])})
         entry = f"""@njit(cache=True)
 def packed_assemble(state, constants, {rows}):
     return assemble(acting(load(state, constants)), {rows})
@@ -348,15 +382,16 @@ def packed_touches_base(state, constants):
 @njit(cache=True)
 def packed_parts(state, constants, q, qd, rotation):
     return _parts(acting(load(state, constants)), q, qd, rotation)"""
+    composed = "\n\n\n".join(f"@njit(cache=True)\ndef {head}:\n{body}" for head, body in bodies.items())
     what = "run" if run else "composition"
-    return f'''"""Generated by needle_sim_ros.model.step: the compiled {what} of {count} contribution(s)."""
+    return f'''"""Generated by needle_sim_ros.model.step: the compiled {what} of {len(flat)} part(s)."""
 import numpy as np
 from numba import njit
 
 from needle_sim_ros.model.step import run_steps
 {chr(10).join(imports)}
 
-N = {count}
+N = {len(flat)}
 
 
 {composed}

@@ -1,7 +1,8 @@
 """The tissue as one stateful force contribution composed of its parts: the contact (the shared record) and each
 force -- the shaft support, the bevel tip, the seed 002 tip resistance -- a contribution of its own with its typed
-record and compiled kernels (``contact``, ``shaft_force``, ``tip_forces``), composed once by the engine
-(``model.step.compose``); the readout.
+record and compiled kernels (``contact``, ``shaft_force``, ``tip_forces``): the tissue's ``kernels`` are its parts',
+which the engine's compiled run composes directly (``model.step.compiled_run``) and the general path as one
+contribution (``model.step.compose``); the readout.
 
 A :class:`TissueModel` is immutable (the block, the laws and their parameters); everything that changes as the
 needle moves through the tissue is a :class:`TissueState` value kept in ``NeedleData`` (``force_states``): the
@@ -124,8 +125,8 @@ class TissueModel(ForceContribution):
                                                      profile.cutting_force, speed_scale, block.thickness),
                           np.zeros(2), True))
         kernels, constants, initial, self.at_tip = zip(*parts)
-        self.composition = compose(kernels, shared=True)
-        self.kernels = self.composition.kernels
+        self.kernels = kernels  # the engine composes the parts directly (``model.step.compiled_run``)
+        self.composition = compose(kernels, shared=True)  # the same parts for the general path and the readout
         self.constants = pack(constants)
         self._initial = pack(initial)
 
