@@ -376,8 +376,10 @@ TAPER_SIGNIFICANCE = 5.0
 #: The end's lateral extrapolation takes a cubic term (the curvature changing along the 80 slices before the end)
 #: when its coefficient exceeds this many white-noise standard errors. The centroids' errors are correlated over ~20
 #: slices, so noise alone reaches ~5 (seeds 7 and 1007, both polarities, straight/planar/3D/S/curl: up to 5.2 over
-#: 48 ends); the S whose tip straightens out of its bend (s_epipolar) reads 16-33.
-CURVATURE_RAMP_SIGNIFICANCE = 10.0
+#: 48 ends); the S whose tip straightens out of its bend (s_epipolar) reads 16-33, the rod S's tips 5-8 (band
+#: centroids on the covered fraction): at 10 their quadratic put them 0.15-0.25 px aside (the 3D tip 0.25-0.3 mm off),
+#: at 5 within 0.05 px. (At 3 a planar needle's 2 mm bevel took a cubic on noise: tip 0.03 -> 0.22 mm, seed 10007.)
+CURVATURE_RAMP_SIGNIFICANCE = 5.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -508,17 +510,19 @@ def _principal_direction(points):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _contrast_grid(image, background, polarity, centre, direction, s, u, needle):  # pragma: no cover - compiled
-    """The contrast interpolated bilinearly on the grid ``centre + s direction + u normal``: relative to the
-    background, (B - I) / B (signed by ``polarity``), or, given the needle's own intensity ``needle`` > 0, the
-    covered fraction (B - I) / (B - N) (its denominator at least |B - N| / 4 and 1)."""
+def _contrast_grid(image, background, polarity, centre, direction, s, u, shift,
+                   needle):  # pragma: no cover - compiled
+    """The contrast interpolated bilinearly on the grid ``centre + s direction + (u + shift(s)) normal`` (``shift``
+    per ``s``: the grid bent along the needle): relative to the background, (B - I) / B (signed by ``polarity``),
+    or, given the needle's own intensity ``needle`` > 0, the covered fraction (B - I) / (B - N) (its denominator at
+    least |B - N| / 4 and 1)."""
     normal = np.array([-direction[1], direction[0]])
     height, width = image.shape
     grid = np.empty((s.shape[0], u.shape[0]))
     for i in range(s.shape[0]):
         for j in range(u.shape[0]):
-            x = centre[0] + s[i] * direction[0] + u[j] * normal[0]
-            y = centre[1] + s[i] * direction[1] + u[j] * normal[1]
+            x = centre[0] + s[i] * direction[0] + (u[j] + shift[i]) * normal[0]
+            y = centre[1] + s[i] * direction[1] + (u[j] + shift[i]) * normal[1]
             x0, y0 = min(int(x), width - 2), min(int(y), height - 2)
             fx, fy = x - x0, y - y0
             value = 0.0
@@ -542,11 +546,13 @@ def _column_medians(rows):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _band_centroids(image, background, polarity, points, rows, half_band):  # pragma: no cover - compiled
-    """The centerline points ``(n, 2)`` re-measured over the needle's blurred band only: the centroid of the relative
-    contrast (B - I) / B across the row (``rows``) or column through each point, in a window of ``half_band`` px
-    (the band's half width across the slice) about the point, its edge pixels weighted by their overlap; re-centred
-    once. A point whose window leaves the image is kept."""
+def _band_centroids(image, background, polarity, points, rows, half_band,
+                    needle):  # pragma: no cover - compiled
+    """The centerline points ``(n, 2)`` re-measured over the needle's blurred band only: the centroid of the contrast
+    (as :func:`_contrast_grid`'s: the covered fraction given the needle's intensity ``needle`` > 0, else relative)
+    across the row (``rows``) or column through each point, in a window of ``half_band`` px (the band's half width
+    across the slice) about the point, its edge pixels weighted by their overlap; re-centred once. A point whose
+    window leaves the image is kept."""
     height, width = image.shape
     out = points.copy()
     a = 0 if rows else 1  # the coordinate measured across the slice
@@ -565,7 +571,8 @@ def _band_centroids(image, background, polarity, points, rows, half_band):  # pr
                     b, v = background[f, c], image[f, c]
                 else:
                     b, v = background[c, f], image[c, f]
-                w = window * polarity * (b - v) / max(b, 1.0)
+                scale = max(b, 1.0) if needle <= 0 else max(polarity * (b - needle), 0.25 * abs(b - needle), 1.0)
+                w = window * polarity * (b - v) / scale
                 sw += w
                 sc += w * c
             if sw <= 0:
@@ -581,9 +588,10 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
     A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely) gives
-    the direction of the profile of the covered fraction (B - I) / (B - N) integrated across the needle's band (its
-    blurred edges included; N the needle's own intensity); the end is where that profile falls to half its level (a
-    flat end is a step blurred symmetrically). The points within ``half_width + 1`` px of the end (centroids biased
+    the direction of the profile (its grid bent along the needle's curvature) of the covered fraction
+    (B - I) / (B - N) integrated across the needle's band (its blurred edges included; N the needle's own
+    intensity); the end is where that profile falls to half its level (a flat end is a step blurred
+    symmetrically). The points within ``half_width + 1`` px of the end (centroids biased
     by the oblique cut) are replaced by a quadratic (the needle's curvature; a cubic where its change along them is
     significant) fitted to the 80 before them, evenly
     spaced at the centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls
@@ -602,20 +610,31 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     direction, centre = _principal_direction(points[n - 30:n - 8])
     normal = np.array([-direction[1], direction[0]])
     along = (points[:, 0] - centre[0]) * direction[0] + (points[:, 1] - centre[1]) * direction[1]
+    # The profile's grid is bent along the needle: a quadratic of the points' lateral offset from the line, fitted
+    # to the points 8-60 from the end, shifts each of its rows. (A curved end leaves the straight line's band: the
+    # rod S at 0.01 /px, its end 7-11 deg off the line, ~1.5 px aside, lost contrast before its end and read as
+    # tapered, the end put 1-1.6 px beyond.)
+    aside = (points[:, 0] - centre[0]) * normal[0] + (points[:, 1] - centre[1]) * normal[1]
+    bend = np.empty((52, 3))
+    for k in range(52):
+        t = along[n - 60 + k]
+        bend[k, 0], bend[k, 1], bend[k, 2] = t * t, t, 1.0
+    bend_coefficients = np.linalg.lstsq(bend, np.ascontiguousarray(aside[n - 60:n - 8]))[0]
     # The profile runs 2 half widths beyond the last slice; 6 when it does not fall within that, if its end then lies
     # beyond the last slice (the last slices dropped short of the end: a bright needle's tip 7.8 px beyond its last
     # slice, 2.4 mm off in 3D; a fall before the last slice is a faint stretch, not the end).
     for reach in (2.0 * half_width, 6.0 * half_width):
         s = np.arange(along[n - 30], along[n - 1] + reach, step)
         u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
+        shift = (bend_coefficients[0] * s + bend_coefficients[1]) * s + bend_coefficients[2]
         height, width = image.shape
-        for corner_s in (s[0], s[-1]):  # an affine grid: its extremes are at the corners
+        for i in range(s.shape[0]):  # each row's extremes are at its ends
             for corner_u in (u[0], u[-1]):
-                x = centre[0] + corner_s * direction[0] + corner_u * normal[0]
-                y = centre[1] + corner_s * direction[1] + corner_u * normal[1]
+                x = centre[0] + s[i] * direction[0] + (corner_u + shift[i]) * normal[0]
+                y = centre[1] + s[i] * direction[1] + (corner_u + shift[i]) * normal[1]
                 if x < 0 or y < 0 or x > width - 1 or y > height - 1:
                     return none
-        grid = _contrast_grid(image, background, polarity, centre, direction, s, u, 0.0)
+        grid = _contrast_grid(image, background, polarity, centre, direction, s, u, shift, 0.0)
         inside = s <= along[n - 9]
         cross = _column_medians(grid[inside])
         # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
@@ -643,16 +662,17 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     # the end's depth is their disparity). The needle's own intensity N (smooth: the light's), from the band's
     # fitted contrast over the harmonic mean of B, gives the covered fraction (B - I) / (B - N) to locate the end.
     # (Whether the end is tapered is decided above: the thresholds are those measured on the relative contrast.)
+    needle = 0.0
     if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
         inverse = 0.0
         for i in range(s.shape[0]):
             for j in range(u.shape[0]):
                 if inside[i] and band[j]:
-                    x = centre[0] + s[i] * direction[0] + u[j] * normal[0]
-                    y = centre[1] + s[i] * direction[1] + u[j] * normal[1]
+                    x = centre[0] + s[i] * direction[0] + (u[j] + shift[i]) * normal[0]
+                    y = centre[1] + s[i] * direction[1] + (u[j] + shift[i]) * normal[1]
                     inverse += 1.0 / max(float(background[int(y + 0.5), int(x + 0.5)]), 1.0)
         needle = (1.0 - polarity * band_contrast) * np.count_nonzero(inside) * np.count_nonzero(band) / inverse
-        covered = _contrast_grid(image, background, polarity, centre, direction, s, u, needle)
+        covered = _contrast_grid(image, background, polarity, centre, direction, s, u, shift, needle)
         covered_profile = moving_average(covered[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
         covered_level = np.median(covered_profile[inside])
         covered_first = _crossing(s, covered_profile, 0.75 * covered_level, along[n - 9])
@@ -678,11 +698,14 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         return none
     # Quadratic lateral offset against the distance along the line (least squares, centred abscissa), fitted to the
     # slices' centroids over the needle's blurred band only: the slices' margins add noise with the largest lever
-    # arm, which the extrapolation to the end amplifies (straight needle: 0.057 -> 0.036 px a slice).
+    # arm, which the extrapolation to the end amplifies (straight needle: 0.057 -> 0.036 px a slice). Weighted by the
+    # covered fraction where N is known (the relative contrast's texture modulation put the bright rod S's right tip
+    # 0.14 px aside).
     rows = abs(direction[1]) > abs(direction[0])
     half_band = min(max(band_half_width + 2 * side_sigma, 1.0), half_width) / max(abs(direction[1 if rows else 0]),
                                                                                    0.5)
-    fit = _band_centroids(image, background, polarity, points[kept - 80:kept], rows, min(half_band, half_width))
+    fit = _band_centroids(image, background, polarity, points[kept - 80:kept], rows, min(half_band, half_width),
+                           needle)
     abscissa = (fit[:, 0] - centre[0]) * direction[0] + (fit[:, 1] - centre[1]) * direction[1]
     offset = abscissa.mean()
     lateral = (fit[:, 0] - centre[0]) * normal[0] + (fit[:, 1] - centre[1]) * normal[1]
