@@ -240,14 +240,15 @@ def test_poses_received_before_activation_are_dropped(driver, ros_env, tmp_path)
     """A driver streaming before the node is active (autostart: its subscription queues poses while the kernels
     load, when discovery is faster than the loading): the needle starts at a pose that came after activation, not
     at the oldest queued one (which made the first steps lag by the queue's length: 0.379 s of simulated time
-    skipped and a warning at every start). Checked on the start stamp itself, not on the skipped time, which a
-    starved machine also produces."""
+    skipped and a warning at every start). Checked on when the start pose reached the node's process (the
+    middleware's reception stamp), not on the skipped time, which a starved machine also produces, nor on the pose's
+    own stamp: a CI run at load delivered a pose stamped 0.24 s before the activation after it."""
     process = start(driver, ros_env, tmp_path, **{"rates.diagnostics_hz": 5.0})
     wait_for(driver, lambda: driver.wrenches, process, what="a wrench")
     _, _, values = wait_for_diagnostic(driver, process, lambda lv, m, v: "waiting for" not in m,
                                        "a report after the first pose")
-    # a pose published just before the activation may reach the queue after it was drained: a few ms, not 0.379 s
-    assert float(values["started_at_s"]) > float(values["activated_at_s"]) - 0.02, values
+    # a pose that reached the process just before the activation may be queued after the drain: a few ms, not 0.379 s
+    assert float(values["start_received_at_s"]) > float(values["activated_at_s"]) - 0.02, values
     assert time.time() - float(values["started_at_s"]) < 2.0, values
     process.terminate()
     process.communicate(timeout=10)

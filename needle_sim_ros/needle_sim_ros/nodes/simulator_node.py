@@ -92,6 +92,7 @@ class NeedleSimulatorNode(LifecycleNode):
         self.counters_other = {"wrong_frame": 0, "stamp_replaced": 0, "twist_rejected": 0, "tip_load_rejected": 0}
         self.started_at = math.nan  # stamp [s] of the pose the needle last (re)started at
         self.activated_at = math.nan  # node clock [s] at the last activation
+        self.start_received_at = math.nan  # system clock [s] when that pose reached this process (middleware)
         self.deadline_misses = 0
         self.catch_up_steps = 0
         self.health = HealthMonitor()
@@ -265,7 +266,7 @@ class NeedleSimulatorNode(LifecycleNode):
             age = max(time.time() - info["received_timestamp"] * 1e-9, 0.0)  # system clock, as rmw stamps it
             self.haptics.pose_arrived(time.monotonic() - age)
         if (self.sim.started and not started) or verdict in (PoseVerdict.RESTARTED, PoseVerdict.REANCHORED):
-            self.started_at = stamp
+            self.started_at, self.start_received_at = stamp, info["received_timestamp"] * 1e-9
         if self.sim.started and not started:
             self.get_logger().info(f"first base pose received (stamp {stamp:.6f} s): needle initialised at rest at it")
         if verdict is PoseVerdict.NORMALIZED:
@@ -636,6 +637,7 @@ class NeedleSimulatorNode(LifecycleNode):
                     "poses_late_for_their_step": stats.late_poses,
                     "started_at_s": f"{self.started_at:.6f}",  # an epoch time in full, not .6g
                     "activated_at_s": f"{self.activated_at:.6f}",
+                    "start_received_at_s": f"{self.start_received_at:.6f}",
                     "skipped_time_s": stats.skipped_time,
                     "pose_age_s": sim.pose_age(self.now_seconds()),
                     "point_loads": len(sim.point_loads)})
