@@ -328,12 +328,9 @@ def _composed_source(groups: tuple[Parts, ...], run: bool) -> str:
         for k in ks:
             store += [f"    out[i:i + x{k}.size] = x{k}", f"    i += x{k}.size"]
     advance = []
-    for ks in members:
-        if len(ks) == 1:
-            advance.append(f"    a{ks[0]} = advance_{ks[0]}(carried[{ks[0]}], q, qd, t)")
-        else:  # the record first, then each part from it
-            advance.append(f"    a{ks[0]} = advance_{ks[0]}(carried[{ks[0]}], q, qd, t)")
-            advance += [f"    a{k} = advance_{k}(carried[{k}], q, qd, t, a{ks[0]})" for k in ks[1:]]
+    for ks in members:  # the record first, then each other part from it
+        advance.append(f"    a{ks[0]} = advance_{ks[0]}(carried[{ks[0]}], q, qd, t)")
+        advance += [f"    a{k} = advance_{k}(carried[{k}], q, qd, t, a{ks[0]})" for k in ks[1:]]
     advance.append("    return (" + "".join(f"a{k}, " for k in each) + ride + ")")
 
     def added(ks, into: str) -> str:

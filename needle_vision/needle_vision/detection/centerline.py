@@ -511,6 +511,13 @@ def _principal_direction(points):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _contrast_scale(b, polarity, needle):  # pragma: no cover - compiled
+    """The contrast's denominator at background ``b``: B (at least 1) for the relative contrast (B - I) / B, or, given
+    the needle's own intensity ``needle`` > 0, B - N for the covered fraction (at least |B - N| / 4 and 1)."""
+    return max(b, 1.0) if needle <= 0 else max(polarity * (b - needle), 0.25 * abs(b - needle), 1.0)
+
+
+@numba.njit(cache=True, nogil=True)
 def _contrast_grid(image, background, polarity, centre, direction, s, u, shift,
                    needle):  # pragma: no cover - compiled
     """The contrast interpolated bilinearly on the grid ``centre + s direction + (u + shift(s)) normal`` (``shift``
@@ -531,7 +538,7 @@ def _contrast_grid(image, background, polarity, centre, direction, s, u, shift,
                 for dx in range(2):
                     b = float(background[y0 + dy, x0 + dx])
                     weight = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
-                    scale = max(b, 1.0) if needle <= 0 else max(polarity * (b - needle), 0.25 * abs(b - needle), 1.0)
+                    scale = _contrast_scale(b, polarity, needle)
                     value += weight * polarity * (b - image[y0 + dy, x0 + dx]) / scale
             grid[i, j] = value
     return grid
@@ -572,7 +579,7 @@ def _band_centroids(image, background, polarity, points, rows, half_band,
                     b, v = background[f, c], image[f, c]
                 else:
                     b, v = background[c, f], image[c, f]
-                scale = max(b, 1.0) if needle <= 0 else max(polarity * (b - needle), 0.25 * abs(b - needle), 1.0)
+                scale = _contrast_scale(b, polarity, needle)
                 w = window * polarity * (b - v) / scale
                 sw += w
                 sc += w * c
