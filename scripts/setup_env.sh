@@ -97,13 +97,13 @@ source "$VENV/needle_env.sh"
 # 5. Workspace build --------------------------------------------------------------------------
 # The packages own their config (the repository's config/ only links into them).
 src_dirs=(needle_interfaces needle_common needle_sim_ros needle_vision)
-python_packages=(needle_common needle_sim_ros needle_vision)
 source_files() { (cd "$REPO" && find "$@" -type f -not -path '*/__pycache__/*' -not -name '*.pyc' -print0 | sort -z); }
 src_hash=$(cd "$REPO" && source_files "${src_dirs[@]}" | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
-# colcon's (non-symlink) install of a Python package never removes a file: a module deleted from the sources stays
-# in build/<package>/build/lib and is installed again. A package whose list of files changed is built afresh.
+# colcon's (non-symlink) install never removes a file: a module deleted from a Python package's sources stays in
+# build/<package>/build/lib and is installed again, an interface deleted from needle_interfaces keeps its generated
+# code in install/. A package whose list of files changed is built afresh.
 relisted=()
-for package in "${python_packages[@]}"; do
+for package in "${src_dirs[@]}"; do
   [ "$(cat "$STAMPS/files_$package" 2>/dev/null)" = "$(source_files "$package" | sha256sum)" ] || relisted+=("$package")
 done
 if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INSTALL/setup.bash" ] \
@@ -122,7 +122,7 @@ if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INS
       > "$BUILD/colcon_build.log" 2>&1) \
     || { tail -n 60 "$REPO/$BUILD/colcon_build.log" >&2; die "colcon build failed (full log: $BUILD/colcon_build.log)"; }
   echo "$src_hash" > "$STAMPS/build"
-  for package in "${python_packages[@]}"; do
+  for package in "${src_dirs[@]}"; do
     source_files "$package" | sha256sum > "$STAMPS/files_$package"
   done
   # shellcheck disable=SC1091

@@ -84,6 +84,18 @@ def test_the_install_space_has_no_module_whose_source_is_gone(package):
     assert not orphans, f"installed without a source (run scripts/setup_env.sh again): {', '.join(orphans)}"
 
 
+
+def test_the_install_space_has_no_interface_whose_source_is_gone():
+    """Every installed message and service of needle_interfaces has its source: one deleted from the sources
+    keeps its generated code in install/ unless the package is built afresh (scripts/setup_env.sh does)."""
+    share = INSTALL / "needle_interfaces" / "share" / "needle_interfaces"
+    if not share.is_dir():
+        pytest.skip("no install space of needle_interfaces: run scripts/setup_env.sh (colcon build) first")
+    orphans = [f"{kind}/{interface.name}" for kind in ("msg", "srv")
+               for interface in sorted((share / kind).glob("*.idl"))
+               if not (REPO / "needle_interfaces" / kind / f"{interface.stem}.{kind}").is_file()]
+    assert not orphans, f"installed without a source (run scripts/setup_env.sh again): {', '.join(orphans)}"
+
 def test_needle_scenario_insertion_uses_the_installed_tissue_config(install_env, elsewhere):
     shipped = _flatten("", yaml.safe_load((SHARE["needle_sim_ros"] / "config" / "tissue.yaml").read_text())
                        ["/**"]["ros__parameters"], {})
