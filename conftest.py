@@ -37,12 +37,14 @@ def ros_env() -> dict:
 
 
 @pytest.fixture(scope="session")
-def run_install_hook() -> Callable[[Path, float], subprocess.CompletedProcess]:
-    """``run(setup_py, timeout)``: the ``COMPILE_KERNELS`` snippet of a package's setup.py (what its install step,
-    run by colcon build, executes against the installed package), run in a child interpreter; its output as text."""
-    def run(setup_py: Path, timeout: float) -> subprocess.CompletedProcess:
+def run_install_hook() -> Callable[..., subprocess.CompletedProcess]:
+    """``run(setup_py, timeout, env=None)``: the ``COMPILE_KERNELS`` snippet of a package's setup.py (what its install
+    step, run by colcon build, executes against the installed package), run in a child interpreter with ``env``
+    added to the environment; its output as text."""
+    def run(setup_py: Path, timeout: float, env: dict | None = None) -> subprocess.CompletedProcess:
         tree = ast.parse(setup_py.read_text())
         snippet = next(node.value.value for node in tree.body if isinstance(node, ast.Assign)
                        and getattr(node.targets[0], "id", "") == "COMPILE_KERNELS")
-        return subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=timeout)
+        return subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=timeout,
+                              env={**os.environ, **(env or {})})
     return run

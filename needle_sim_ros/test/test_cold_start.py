@@ -1,6 +1,11 @@
 """Cold start (issue #12): after `compile_kernels` the node's pose path compiles nothing more."""
+import json
+import os
+import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from geometry_msgs.msg import PoseStamped
 from numba.core.dispatcher import Dispatcher
@@ -74,9 +79,57 @@ def test_an_insertion_needs_no_kernel_beyond_compile_kernels_with_the_tissue_on(
     assert compiled_specializations() == compiled
 
 
-def test_the_install_hook_compiles_against_the_installed_package(run_install_hook):
+@pytest.fixture(scope="module")
+def hook_cache(run_install_hook, tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """A kernel cache filled by setup.py's install hook alone, as on a fresh install, and the hook's output."""
+    cache = tmp_path_factory.mktemp("numba_cache")
+    result = run_install_hook(Path(__file__).resolve().parents[1] / "setup.py", 800, {"NUMBA_CACHE_DIR": str(cache)})
+    assert result.returncode == 0, result.stderr
+    return cache, result
+
+
+@pytest.mark.slow
+def test_the_install_hook_compiles_against_the_installed_package(hook_cache):
     """setup.py's install step (what colcon build runs) compiles the kernels with a snippet of its own; a stale
     import there would only print a warning at build time and leave every fresh install compiling at first start."""
-    result = run_install_hook(Path(__file__).resolve().parents[1] / "setup.py", 600)
+    assert "compiled the simulator's numba kernels" in hook_cache[1].stdout
+
+
+# Counts, in a fresh process, the kernels numba compiles (cache misses) while ``compile_kernels`` -- what the node's
+# on_configure runs -- prepares each tissue setting a user can switch to (every composition of its parts).
+TISSUE_SWITCHES = """
+import itertools, json, sys
+from numba.core.dispatcher import Dispatcher
+from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+from needle_sim_ros.simulation import compile_kernels
+from needle_sim_ros.tissue.factory import AXIAL_MODELS
+
+def misses():
+    return {f"{name}.{kernel_name}": sum(kernel.stats.cache_misses.values())
+            for name, module in list(sys.modules.items()) for kernel_name, kernel in list(vars(module).items())
+            if isinstance(kernel, Dispatcher) and sum(kernel.stats.cache_misses.values())}
+
+defaults = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
+compiled = {}
+for law, lateral, bevel, profile in itertools.product(AXIAL_MODELS, (True, False), (True, False), (True, False)):
+    before = misses()
+    compile_kernels({**defaults, "tissue.enable": True, "tissue.shaft.axial_model": law,
+                     "tissue.shaft.lateral_support": lateral, "tissue.bevel_tip.enable": bevel,
+                     "tissue.insertion_profile.enable": profile})
+    new = sorted(name for name, count in misses().items() if count != before.get(name, 0))
+    if new:
+        compiled[f"{law}, lateral {lateral}, bevel {bevel}, profile {profile}"] = new
+print(json.dumps(compiled))
+"""
+
+
+@pytest.mark.slow
+def test_switching_the_tissue_setting_compiles_nothing_at_configure(hook_cache):
+    """Whatever tissue laws a user switches on (axial law x lateral support x bevel tip x seed 002 profile), the
+    node's configure loads every kernel from the cache the install hook filled: it compiles none (which would take
+    up to a minute with the node unresponsive). Checked on the hook's own cache, filled from empty, so that no
+    other test's compilation can stand in for it."""
+    result = subprocess.run([sys.executable, "-c", TISSUE_SWITCHES], capture_output=True, text=True, timeout=600,
+                            env={**os.environ, "NUMBA_CACHE_DIR": str(hook_cache[0])})
     assert result.returncode == 0, result.stderr
-    assert "compiled the simulator's numba kernels" in result.stdout
+    assert json.loads(result.stdout.splitlines()[-1]) == {}
