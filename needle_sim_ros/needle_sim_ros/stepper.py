@@ -17,7 +17,7 @@ from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, M
                                   acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
                                   model_shape, reaction_wrench, solve_static, stateful_forces, step)
 from needle_sim_ros.model.contribution import ContributionRun
-from needle_sim_ros.model.integrators import IntegratorMemory, same_objects
+from needle_sim_ros.model.integrators import IntegratorMemory, run_outputs, same_objects
 from needle_sim_ros.model.partition import held_at
 
 # Largest sum of point-load magnitudes, as a multiple of the needle's bending load scale E I / L^2. Found by
@@ -109,6 +109,9 @@ class Stepper:
         self.compiled_sequence = True
         self._sequence_plan: tuple = ((), None)  # (key, forces) of _sequence_forces
         self._run_plan: ContributionRun | None = None  # the composed compiled run of _run_steps
+        # (integrator, forces, memory, arguments) of _advance_from_trajectory's call: the sequence's arguments while
+        # they hold
+        self._advance_plan: tuple = (None, None, None, ())
         self.source = None  # the base source of the current run
 
     def rebuild_model(self, model_builder: ModelBuilder) -> None:
@@ -298,14 +301,22 @@ class Stepper:
         ``motions`` and ``rotations`` first (a run that stops early leaves them for the general step); returns how
         many steps were done (as :meth:`_step_sequence`)."""
         start = time.perf_counter()
-        state, source = self.data.state, self.source
-        before, after = self.integrator.sequence_arguments(self.dt, forces, times[0], times.size, self.data.integrator)
+        state, source, memory = self.data.state, self.source, self.data.integrator
+        integrator = self.integrator
+        work, (plan_integrator, plan_forces, plan_memory, arguments) = integrator.work, self._advance_plan
+        if not (plan_forces is forces and plan_memory is memory and plan_integrator is integrator
+                and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
+            # else: the checks and caches of sequence_arguments
+            before, _ = integrator.sequence_arguments(self.dt, forces, float(times[0]), 0, memory)
+            self._advance_plan = (integrator, forces, memory, (*before, memory.last_motion))
+            arguments = self._advance_plan[3]
+        outputs = run_outputs(times.size, self.model.n_dof)
         trajectory = source.trajectory
         fit, corrections, done = advance_from_trajectory(
             *trajectory.fit_arguments(), times, source.packed, motions, rotations, state.q, state.qd, state.qdd,
-            state.aux, *before, self.data.integrator.last_motion, *after)
+            state.aux, *arguments, *outputs)
         trajectory.take_fit(fit, corrections, float(times[-1]))
-        self._record_run(done, after, start, times, motions, rotations, records)
+        self._record_run(done, outputs, start, times, motions, rotations, records)
         return done
 
     def _record_run(self, done: int, outputs: tuple, start: float, times: np.ndarray, motions: np.ndarray,

@@ -308,15 +308,18 @@ class Integrator:
             raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
         first, failure = 0, ""  # sub-step halvings: from 1 where the compiled run's step did not converge
         if state.aux is not None and time_invariant and self.work.supported:  # the compiled run's step
-            motion = np.concatenate([base_next.position, base_next.orientation, base_next.linear_velocity,
+            motion = np.concatenate((base_next.position, base_next.orientation, base_next.linear_velocity,
                                      base_next.angular_velocity, base_next.linear_acceleration,
-                                     base_next.angular_acceleration])
-            run = self.step_sequence(state, dt, motion[None], np.ascontiguousarray(base_next.rotation)[None], forces,
-                                     memory, keep_matrix=False)
-            if run.done:
-                rows = run.states[0]
-                return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next),
-                                  int(run.iterations[0]), 1, True, run.wrenches[0])
+                                     base_next.angular_acceleration)).reshape(1, 19)
+            before, (states, wrenches, iterations) = self.sequence_arguments(dt, forces, t_next, 1, memory)
+            history = before[0]  # as step_sequence, without its general k steps' times and result
+            history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
+            if integrate_sequence(history, np.array((t_next,)), motion,
+                                  np.ascontiguousarray(base_next.rotation).reshape(1, 3, 3), *before[1:], False,
+                                  memory.last_motion, states, wrenches, iterations):
+                rows = states[0]
+                return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next), int(iterations[0]),
+                                  1, True, wrenches[0])
             first, failure = 1, f"Newton did not converge at t = {t_next:.6g} s"
         n = model.n_dof
         end = np.zeros((3, n))
