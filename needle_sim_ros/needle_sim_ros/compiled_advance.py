@@ -54,3 +54,4 @@ def advance_from_trajectory(sample_times, positions, orientations, count, t_newe
                               base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band, pivots,
                               factorization, kl, control, True, last_motion, states, wrenches, iterations)
     return fit, corrections, done
+
