@@ -50,6 +50,7 @@ class BaseInput:
         self.packed[0] = twist_timeout
         self.packed[8:11] = flange_offset[0]
         self.packed[11:20] = quaternion_matrix(unit_quaternion(flange_offset[1], "flange_offset.orientation")).ravel()
+        self._parts = (self.packed[1:8], self.packed[8:11], self.packed[11:20].reshape(3, 3))  # views, made once
         self.limits = limits
         self.base_at = base_at
         self.motions_at = motions_at
@@ -60,11 +61,11 @@ class BaseInput:
 
     @property
     def offset_position(self) -> np.ndarray:
-        return self.packed[8:11]
+        return self._parts[1]
 
     @property
     def offset_rotation(self) -> np.ndarray:
-        return self.packed[11:20].reshape(3, 3)
+        return self._parts[2]
 
     @property
     def twist(self) -> np.ndarray | None:
@@ -120,10 +121,10 @@ class BaseInput:
                                                m.linear_acceleration, m.angular_acceleration)) for m in motions])
             return values.reshape(len(times), 19), np.array([m.rotation for m in motions]).reshape(len(times), 3, 3)
         flange = self.trajectory.motions_at(times)
-        packed = self.packed
-        apply_twist(flange, times, packed[1:8], packed[0])
+        twist, offset, offset_rotation = self._parts
+        apply_twist(flange, times, twist, self.twist_timeout)
         values, rotations = np.empty_like(flange), np.empty((len(times), 3, 3))
-        compose_offsets(flange, packed[8:11], packed[11:20].reshape(3, 3), values, rotations)
+        compose_offsets(flange, offset, offset_rotation, values, rotations)
         return values, rotations
 
     def pose_age(self, now: float) -> float:
