@@ -87,7 +87,7 @@ class BaseInput:
         trajectory = self.trajectory
         latest = trajectory.latest
         verdict = trajectory.offer(t, position, orientation)
-        if (verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED) and latest is not None and t - latest.t > gap
+        if (latest is not None and t - latest.t > gap and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)
                 and magnitude(np.asarray(position, dtype=float) - latest.position) > self.limits.resume_tolerance):
             trajectory.clear()
             trajectory.offer(t, position, orientation)
