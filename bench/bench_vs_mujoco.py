@@ -14,7 +14,10 @@ ones the segments stretch to 3x their length under the 80 g load) and it has no 
   kept at the tip, 10 g at mid-span, and the general one-step path (``Integrator.step``, the path state-dependent
   forces take, in the same time loop). Ours is ``NeedleSimulation`` as the node drives it (a pose and ``advance``
   per 1 ms, reaction wrench included) and with the poses given first and 50 ms per ``advance_to`` (offline);
-  MuJoCo is ``mj_step`` in a loop. Time is this process's CPU time (both sides run on one thread): on a shared
+  MuJoCo is ``mj_step`` in a loop. Next to the node path, its compiled call alone (the one numba call per pose:
+  base motion from the pose fit, step and wrench, its arguments' unboxing included, the Python around it not),
+  and after the table the general path against MuJoCo in the same run and the floor of any call from Python
+  into numba (one array argument). Time is this process's CPU time (both sides run on one thread): on a shared
   machine the time other processes or the hypervisor take is not charged to either side; each path's runs
   alternate between the two sides, the best run of each is reported.
 * Accuracy: tip position under the needle's weight plus an 80 g tip mass against the exact elastica
@@ -29,6 +32,9 @@ import time
 
 import numpy as np
 
+from numba import njit
+
+import needle_sim_ros.stepper as stepper_module
 from needle_sim_ros.experiments.elastica import elastica_tip
 from needle_sim_ros.model import BaseMotion, Gravity, PointLoad, solve_static, tip_pose
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
@@ -138,6 +144,42 @@ def simulator_step_time(gravity: bool, kept_load: float, at_mid: bool, seconds: 
     return per_step
 
 
+def compiled_call_time(gravity: bool, kept_load: float, at_mid: bool, seconds: float) -> float:
+    """Mean CPU time per step of the node path's compiled call alone (``compiled_advance.advance_from_trajectory``:
+    the argument unboxing, the base motion from the pose fit and the step with its wrench), in a run as the node
+    drives it (:func:`simulator_step_time`), without the Python around it."""
+    spent = [0.0]
+    inner = stepper_module.advance_from_trajectory
+
+    def timed(*arguments):
+        start = CLOCK()
+        result = inner(*arguments)
+        spent[0] += CLOCK() - start
+        return result
+    stepper_module.advance_from_trajectory = timed
+    try:
+        simulator_step_time(gravity, kept_load, at_mid, seconds, False)
+    finally:
+        stepper_module.advance_from_trajectory = inner
+    return spent[0] / round(seconds / DT)
+
+
+@njit
+def _first(values):
+    return values[0]
+
+
+def dispatch_floor(calls: int = 100_000) -> float:
+    """Mean CPU time of a numba call with one array argument returning one float: the least a call from Python
+    into compiled code costs here (the dispatcher types the argument, unboxes it and boxes the result)."""
+    values = np.zeros(3)
+    _first(values)
+    start = CLOCK()
+    for _ in range(calls):
+        _first(values)
+    return (CLOCK() - start) / calls
+
+
 def general_step_time(seconds: float) -> float:
     """Mean time per step of the general path (Integrator.step: full Newton, any force; reaction wrench
     included) after the release, the simulator's time loop kept off the compiled sequence."""
@@ -198,17 +240,23 @@ def main() -> None:
              ("10 g kept at the tip, gravity", True, RELEASED_MASS * G, False),
              ("10 g at mid-span, gravity", True, RELEASED_MASS * G, True)]
     print("| path | MuJoCo [us/step] | node: pose + advance per step [us] | speed vs MuJoCo "
-          "| offline: 50 ms per advance_to [us] | speed vs MuJoCo |\n|---|---|---|---|---|---|")
+          "| node's compiled call alone [us] | speed vs MuJoCo "
+          "| offline: 50 ms per advance_to [us] | speed vs MuJoCo |\n|---|---|---|---|---|---|---|---|")
     compile_kernels(PARAMETERS)
     for name, gravity, load, at_mid in paths:
         runs = [(mujoco_step_time(mujoco, gravity, load, at_mid, args.seconds),
                  simulator_step_time(gravity, load, at_mid, args.seconds, False),
+                 compiled_call_time(gravity, load, at_mid, args.seconds),
                  simulator_step_time(gravity, load, at_mid, args.seconds, True)) for _ in range(args.repeats)]
-        theirs, node, offline = np.min(runs, axis=0)
-        print(f"| {name} | {theirs * 1e6:.1f} | {node * 1e6:.1f} | {theirs / node:.2f}x | {offline * 1e6:.1f} "
-              f"| {theirs / offline:.2f}x |")
-    general = min(general_step_time(args.seconds) for _ in range(args.repeats))
-    print(f"\nGeneral path (Integrator.step, released 10 g, gravity): {general * 1e6:.1f} us/step")
+        theirs, node, call, offline = np.min(runs, axis=0)
+        print(f"| {name} | {theirs * 1e6:.1f} | {node * 1e6:.1f} | {theirs / node:.2f}x | {call * 1e6:.1f} "
+              f"| {theirs / call:.2f}x | {offline * 1e6:.1f} | {theirs / offline:.2f}x |")
+    runs = [(mujoco_step_time(mujoco, True, 0.0, False, args.seconds), general_step_time(args.seconds))
+            for _ in range(args.repeats)]
+    theirs, general = np.min(runs, axis=0)
+    print(f"\nGeneral path (Integrator.step, released 10 g, gravity): {general * 1e6:.1f} us/step, "
+          f"{theirs / general:.2f}x MuJoCo ({theirs * 1e6:.1f} us/step in this run)")
+    print(f"numba call floor (one array argument, one float returned): {dispatch_floor() * 1e6:.2f} us per call")
 
 
 if __name__ == "__main__":

@@ -14,11 +14,12 @@ import numpy as np
 from needle_common.transforms import quaternion_matrix, unit_quaternion
 
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict
-from needle_sim_ros.compiled_advance import NO_TWIST, apply_twist
+from needle_sim_ros.compiled_advance import apply_twist
 from needle_sim_ros.model import BaseMotion
 from needle_sim_ros.model.kinematics import compose_offsets
 from needle_sim_ros.stepper import magnitude
 
+PACKED_SIZE = 20  # BaseInput.packed
 MotionsAt = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
@@ -43,13 +44,37 @@ class BaseInput:
                  limits: InputLimits = InputLimits(), base_at: Callable[[float], BaseMotion] | None = None,
                  motions_at: MotionsAt | None = None) -> None:
         self.trajectory = BaseTrajectory() if trajectory is None else trajectory
-        self.offset_position = np.asarray(flange_offset[0], dtype=float)
-        self.offset_rotation = quaternion_matrix(unit_quaternion(flange_offset[1], "flange_offset.orientation"))
-        self.twist_timeout = twist_timeout
+        # [twist timeout, twist [t, v, w] (NaN t: none), offset position, offset rotation (row-major)]: what the
+        # compiled advance reads, in one array (one argument)
+        self.packed = np.full(PACKED_SIZE, np.nan)
+        self.packed[0] = twist_timeout
+        self.packed[8:11] = flange_offset[0]
+        self.packed[11:20] = quaternion_matrix(unit_quaternion(flange_offset[1], "flange_offset.orientation")).ravel()
+        self._parts = (self.packed[1:8], self.packed[8:11], self.packed[11:20].reshape(3, 3))  # views, made once
         self.limits = limits
-        self.twist: np.ndarray | None = None  # [t, linear velocity, angular velocity] (set_twist)
         self.base_at = base_at
         self.motions_at = motions_at
+
+    @property
+    def twist_timeout(self) -> float:
+        return float(self.packed[0])
+
+    @property
+    def offset_position(self) -> np.ndarray:
+        return self._parts[1]
+
+    @property
+    def offset_rotation(self) -> np.ndarray:
+        return self._parts[2]
+
+    @property
+    def twist(self) -> np.ndarray | None:
+        """The twist feed-forward [t, linear velocity, angular velocity] (:meth:`set_twist`), None before one."""
+        return None if np.isnan(self.packed[1]) else self.packed[1:8].copy()
+
+    @twist.setter
+    def twist(self, value: np.ndarray | None) -> None:
+        self.packed[1:8] = np.nan if value is None else value
 
     @property
     def from_poses(self) -> bool:
@@ -62,7 +87,7 @@ class BaseInput:
         trajectory = self.trajectory
         latest = trajectory.latest
         verdict = trajectory.offer(t, position, orientation)
-        if (verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED) and latest is not None and t - latest.t > gap
+        if (latest is not None and t - latest.t > gap and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)
                 and magnitude(np.asarray(position, dtype=float) - latest.position) > self.limits.resume_tolerance):
             trajectory.clear()
             trajectory.offer(t, position, orientation)
@@ -96,9 +121,10 @@ class BaseInput:
                                                m.linear_acceleration, m.angular_acceleration)) for m in motions])
             return values.reshape(len(times), 19), np.array([m.rotation for m in motions]).reshape(len(times), 3, 3)
         flange = self.trajectory.motions_at(times)
-        apply_twist(flange, times, NO_TWIST if self.twist is None else self.twist, self.twist_timeout)
+        twist, offset, offset_rotation = self._parts
+        apply_twist(flange, times, twist, self.twist_timeout)
         values, rotations = np.empty_like(flange), np.empty((len(times), 3, 3))
-        compose_offsets(flange, self.offset_position, self.offset_rotation, values, rotations)
+        compose_offsets(flange, offset, offset_rotation, values, rotations)
         return values, rotations
 
     def pose_age(self, now: float) -> float:

@@ -129,7 +129,7 @@ class BaseTrajectory:
         t = float(t)
         latest, limits = self._latest, self.limits
         reference = latest if latest is not None else _ORIGIN
-        norm, rescaled, largest, unit, distance, angle = _checked_pose(
+        norm, rescaled, largest, distance, angle = _checked_pose(
             t, position, orientation, reference.position, reference.orientation, latest is not None)
         if not norm >= 0.0:
             return PoseVerdict.NOT_FINITE
@@ -139,12 +139,12 @@ class BaseTrajectory:
             return PoseVerdict.OUT_OF_RANGE
         verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= limits.quaternion_tolerance and not rescaled \
             else PoseVerdict.NORMALIZED
-        sample = PoseSample(t, position, unit)
+        sample = PoseSample(t, position, orientation)  # the unit quaternion now
         if latest is not None:
             if t <= latest.t:
                 return PoseVerdict.OUT_OF_ORDER
             # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
-            if not self._within_limits((distance, angle)):
+            if not (distance <= limits.max_position_jump and angle <= limits.max_orientation_jump):  # _within_limits
                 return self._handle_jump(sample)
         self._rejected.clear()
         self._append(sample)
@@ -291,21 +291,22 @@ _ORIGIN = PoseSample(0.0, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))  # refere
 
 @njit(cache=True)
 def _checked_pose(t: float, position: np.ndarray, orientation: np.ndarray, p_latest: np.ndarray,
-                  q_latest: np.ndarray, has_latest: bool) -> tuple[float, bool, float, np.ndarray, float, float]:
+                  q_latest: np.ndarray, has_latest: bool) -> tuple[float, bool, float, float, float]:
     """A pose sample checked in one call: (|orientation| after rescaling, NaN if any field is not finite; whether
-    the orientation was rescaled because |q|^2 would overflow; largest |position coordinate|; unit orientation;
-    distance and rotation angle from the latest sample, 0 without one or for an invalid sample)."""
+    the orientation was rescaled because |q|^2 would overflow; largest |position coordinate|; distance and rotation
+    angle from the latest sample, 0 without one or for an invalid sample). A valid sample's ``orientation`` (the
+    caller's own copy) becomes the unit quaternion in place: no array is made, none returned."""
     scale = np.max(np.abs(orientation))
     rescaled = 1e100 < scale < np.inf  # |q|^2 would overflow: a non-unit quaternion like any other
     if rescaled:
-        orientation = orientation / scale
+        orientation[:] = orientation / scale
     norm = _quaternion_norm(t, position, orientation)
     largest = np.max(np.abs(position))
     if not norm >= 1e-9:
-        return norm, rescaled, largest, orientation.copy(), 0.0, 0.0
-    unit = orientation / norm
-    distance, angle = _pose_deviation(p_latest, q_latest, position, unit) if has_latest else (0.0, 0.0)
-    return norm, rescaled, largest, unit, distance, angle
+        return norm, rescaled, largest, 0.0, 0.0
+    orientation[:] = orientation / norm
+    distance, angle = _pose_deviation(p_latest, q_latest, position, orientation) if has_latest else (0.0, 0.0)
+    return norm, rescaled, largest, distance, angle
 
 
 @njit(cache=True)

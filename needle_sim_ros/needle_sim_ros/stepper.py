@@ -11,13 +11,13 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from needle_sim_ros.compiled_advance import NO_TWIST, advance_from_trajectory
+from needle_sim_ros.compiled_advance import advance_from_trajectory
 from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, ModelShape, NeedleData, NeedleModel,
                                   NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed, StepInputs,
                                   acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
                                   model_shape, reaction_wrench, solve_static, stateful_forces, step)
 from needle_sim_ros.model.contribution import ContributionRun
-from needle_sim_ros.model.integrators import IntegratorMemory, SequenceResult, same_objects
+from needle_sim_ros.model.integrators import IntegratorMemory, run_outputs, same_objects
 from needle_sim_ros.model.partition import held_at
 
 # Largest sum of point-load magnitudes, as a multiple of the needle's bending load scale E I / L^2. Found by
@@ -109,6 +109,9 @@ class Stepper:
         self.compiled_sequence = True
         self._sequence_plan: tuple = ((), None)  # (key, forces) of _sequence_forces
         self._run_plan: ContributionRun | None = None  # the composed compiled run of _run_steps
+        # (integrator, forces, memory, arguments) of _advance_from_trajectory's call: the sequence's arguments while
+        # they hold
+        self._advance_plan: tuple = (None, None, None, ())
         self.source = None  # the base source of the current run
 
     def rebuild_model(self, model_builder: ModelBuilder) -> None:
@@ -213,10 +216,12 @@ class Stepper:
         count = times.size
         # the compiled sequence takes time-invariant forces only; contributions that run compiled (the tissue,
         # CompiledContributions) take a run composing them all, a step at a time if a hook reads each step's state
-        stateful = [force for force in self.extra_forces if force.stateful]
-        runs = [force for force in self.extra_forces if force.compiled_run]
-        sequence = self.compiled_sequence and not stateful and not runs
-        run = runs if self.compiled_sequence and runs and all(f.compiled_run for f in stateful) else None
+        sequence, run = self.compiled_sequence, None
+        if self.extra_forces:
+            stateful = [force for force in self.extra_forces if force.stateful]
+            runs = [force for force in self.extra_forces if force.compiled_run]
+            sequence = sequence and not stateful and not runs
+            run = runs if self.compiled_sequence and runs and all(f.compiled_run for f in stateful) else None
         first_dt = float(times[0]) - data.state.t
         regular = abs(first_dt - dt) <= 0.05 * dt + 4.0 * math.ulp(abs(t_target))  # not after a grid shift
         # the base from the received poses: a compiled run evaluates its motions and takes its steps in one call
@@ -240,7 +245,8 @@ class Stepper:
             forces = self._sequence_forces(sequence)
         while i < count:
             if forces is not None:
-                done = run_sequence(forces, times[i:], motions[i:], rotations[i:], records)
+                done = run_sequence(forces, times[i:], motions[i:], rotations[i:], records) if i else \
+                    run_sequence(forces, times, motions, rotations, records)
                 data.step_index += done
                 i += done
             elif run is not None and data.state.aux is not None:
@@ -285,7 +291,7 @@ class Stepper:
         start = time.perf_counter()
         result = self.integrator.step_sequence(self.state, self.dt if dt is None else dt, motions, rotations, forces,
                                                self.data.integrator)
-        self._record_run(result, start, times, motions, rotations, records)
+        self._record_run(result.done, result[1:], start, times, motions, rotations, records)
         return result.done
 
     def _advance_from_trajectory(self, forces: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
@@ -295,39 +301,57 @@ class Stepper:
         ``motions`` and ``rotations`` first (a run that stops early leaves them for the general step); returns how
         many steps were done (as :meth:`_step_sequence`)."""
         start = time.perf_counter()
-        state, source = self.data.state, self.source
-        before, after = self.integrator.sequence_arguments(self.dt, forces, float(times[0]), times.size,
-                                                           self.data.integrator)
+        state, source, memory = self.data.state, self.source, self.data.integrator
+        integrator = self.integrator
+        work, (plan_integrator, plan_forces, plan_memory, arguments) = integrator.work, self._advance_plan
+        if not (plan_forces is forces and plan_memory is memory and plan_integrator is integrator
+                and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
+            # else: the checks and caches of sequence_arguments
+            before, _ = integrator.sequence_arguments(self.dt, forces, float(times[0]), 0, memory)
+            self._advance_plan = (integrator, forces, memory, (*before, memory.last_motion))
+            arguments = self._advance_plan[3]
+        outputs = run_outputs(times.size, self.model.n_dof)
+        trajectory = source.trajectory
         fit, corrections, done = advance_from_trajectory(
-            *source.trajectory.fit_arguments(), times, np.empty((times.size, 19)),
-            NO_TWIST if source.twist is None else source.twist, source.twist_timeout, source.offset_position,
-            source.offset_rotation, motions, rotations, state.q, state.qd, state.qdd, state.aux, *before, True,
-            self.data.integrator.last_motion, *after)
-        source.trajectory.take_fit(fit, corrections, float(times[-1]))
-        self._record_run(SequenceResult.of_run(done, after), start, times, motions, rotations, records)
+            *trajectory.fit_arguments(), times, source.packed, motions, rotations, state.q, state.qd, state.qdd,
+            state.aux, *arguments, *outputs)
+        trajectory.take_fit(fit, corrections, float(times[-1]))
+        self._record_run(done, outputs, start, times, motions, rotations, records)
         return done
 
-    def _record_run(self, result, start: float, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
-                    records: list[StepRecord]) -> None:
-        """Records, hook calls, statistics and the final state of a compiled run started at ``start``."""
-        done = result.done
+    def _record_run(self, done: int, outputs: tuple, start: float, times: np.ndarray, motions: np.ndarray,
+                    rotations: np.ndarray, records: list[StepRecord]) -> None:
+        """Records, hook calls, statistics and the final state of the first ``done`` steps of a compiled run's
+        ``outputs`` (states, wrenches, iterations: :func:`~needle_sim_ros.model.integrators.run_outputs`) started at
+        ``start``."""
         if not done:
             return
         wall = (time.perf_counter() - start) / done
         hook = self.after_step
-        end_times, iterations = times[:done].tolist(), result.iterations.tolist()
-        for i, (t, w) in enumerate(zip(end_times, result.wrenches)):
-            record = StepRecord(t, BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]), iterations[i], 1, wall)
+        states, wrenches, iterations = outputs
+        stats = self.statistics
+        if done == 1 and hook is None:  # the live loop's run: one step per pose
+            w, n = wrenches[0], int(iterations[0])
+            t = float(times[0])
+            records.append(StepRecord(t, BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]), n, 1, wall))
+            self._set_state(states[0], t, motions[0], rotations[0])
+            stats.steps += 1
+            stats.step_wall_times.append(wall)
+            if n > stats.max_newton_iterations:
+                stats.max_newton_iterations = n
+            return
+        end_times, counts = times[:done].tolist(), iterations[:done].tolist()
+        for i, (t, w) in enumerate(zip(end_times, wrenches)):
+            record = StepRecord(t, BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]), counts[i], 1, wall)
             records.append(record)
             if hook is not None:  # the hook reads the state of its step
-                self._set_state(result.states[i], t, motions[i], rotations[i])
+                self._set_state(states[i], t, motions[i], rotations[i])
                 hook(record)
         if hook is None:  # otherwise the last step's state is set already
-            self._set_state(result.states[done - 1], end_times[-1], motions[done - 1], rotations[done - 1])
-        stats = self.statistics
+            self._set_state(states[done - 1], end_times[-1], motions[done - 1], rotations[done - 1])
         stats.steps += done
         stats.step_wall_times.extend([wall] * done)
-        stats.max_newton_iterations = max(stats.max_newton_iterations, *iterations)
+        stats.max_newton_iterations = max(stats.max_newton_iterations, *counts)
 
     def _run_steps(self, runs: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                    records: list[StepRecord]) -> int:
@@ -346,7 +370,7 @@ class Stepper:
         result, owns = self._run_plan(self.model, self.integrator, self.state, owns, self.dt, times, motions,
                                       rotations, others, data.integrator)
         data.force_states = tuple(own for force, own in zip(runs, owns) if force.stateful)
-        self._record_run(result, start, times, motions, rotations, records)
+        self._record_run(result.done, result[1:], start, times, motions, rotations, records)
         return result.done
 
     def _set_state(self, rows: np.ndarray, t: float, motion: np.ndarray, rotation: np.ndarray) -> None:

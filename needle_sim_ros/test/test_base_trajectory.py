@@ -92,6 +92,19 @@ def test_bad_poses_get_their_verdict(position, orientation, verdict):
         assert trajectory.latest.t == 0.0  # rejected samples never enter the buffer
 
 
+
+@pytest.mark.parametrize("orientation, unit", [([0.0, 0.0, 0.0, 2.0], [0.0, 0.0, 0.0, 1.0]),
+                                               ([0.0, 0.0, 3e200, 3e200], [0.0, 0.0, 0.5 ** 0.5, 0.5 ** 0.5])])
+def test_a_normalized_pose_leaves_the_callers_arrays_as_they_were(orientation, unit):
+    """The check normalizes the trajectory's own copy in place (also one whose |q|^2 would overflow): the caller's
+    arrays (a message's) are not touched, and the sample is the unit quaternion (written out by hand)."""
+    position, given = np.array([0.4, 0.0, 0.3]), np.array(orientation)
+    trajectory = BaseTrajectory()
+    assert trajectory.offer(0.0, position, given) is PoseVerdict.NORMALIZED
+    assert given.tolist() == orientation and position.tolist() == [0.4, 0.0, 0.3]
+    np.testing.assert_allclose(trajectory.latest.orientation, unit, rtol=0.0, atol=1e-15)
+    assert trajectory.latest.orientation is not given
+
 def test_out_of_order_and_duplicate_stamps_are_rejected():
     trajectory = BaseTrajectory()
     trajectory.offer(1.0, [0, 0, 0], [0, 0, 0, 1])

@@ -20,8 +20,8 @@ def test_the_general_step_is_one_compiled_call_and_holds_the_needle_and_its_load
     simulation = NeedleSimulation.prescribed(model, integrator, 1e-3, lambda t: BASE, start, [load])
     simulation.compiled_sequence = False  # every step on the general path
     calls = []
-    original = integrators.integrate_sequence
-    monkeypatch.setattr(integrators, "integrate_sequence", lambda *args: calls.append(1) or original(*args))
+    original = integrators.step_to
+    monkeypatch.setattr(integrators, "step_to", lambda *args: calls.append(1) or original(*args))
     records = simulation.advance_to(0.02)
     assert len(records) == 20 and len(calls) == 19
     props = model.props

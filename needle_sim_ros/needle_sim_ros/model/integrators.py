@@ -27,6 +27,7 @@ import operator
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
@@ -64,6 +65,28 @@ def run_outputs(steps: int, n_dof: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     """New output arrays of a compiled run of ``steps`` steps: states (steps, 4, n_dof), wrenches (steps, 12),
     Newton corrections (steps,)."""
     return np.empty((steps, 4, n_dof)), np.empty((steps, 12)), np.zeros(steps, dtype=np.int64)
+
+
+@njit(cache=True)
+def step_to(q, qd, qdd, aux, t_next, position, orientation, linear_velocity, angular_velocity, linear_acceleration,
+            angular_acceleration, rotation, history, coef, ext_Q, tol, max_iterations, prescribed, base_nodes,
+            base_local_r, base_local_rx, active, scale, tables, residual, band, pivots, factorization, kl, control,
+            last_motion, states, wrenches, iterations):
+    """One step from (q, qd, qdd, aux) to ``t_next`` with the base motion given by its fields (those of a
+    :class:`BaseMotion`) and rotation, on a fresh matrix: :func:`integrate_sequence` for one step (history ...
+    iterations: its arguments after the motions and rotations, :meth:`Integrator.sequence_arguments`), the packed
+    motion, end time and start rows made here rather than by numpy calls from Python. Returns the steps done (0: not
+    converged)."""
+    motion = np.empty((1, 19))
+    motion[0, 0:3], motion[0, 3:7], motion[0, 7:10] = position, orientation, linear_velocity
+    motion[0, 10:13], motion[0, 13:16], motion[0, 16:19] = angular_velocity, linear_acceleration, angular_acceleration
+    rotations = np.empty((1, 3, 3))
+    rotations[0] = rotation
+    times = np.full(1, t_next)
+    history[0], history[1], history[2], history[3] = q, qd, qdd, aux
+    return integrate_sequence(history, times, motion, rotations, coef, ext_Q, tol, max_iterations, prescribed,
+                              base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band, pivots,
+                              factorization, kl, control, False, last_motion, states, wrenches, iterations)
 
 
 class StepResult(NamedTuple):
@@ -308,15 +331,14 @@ class Integrator:
             raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
         first, failure = 0, ""  # sub-step halvings: from 1 where the compiled run's step did not converge
         if state.aux is not None and time_invariant and self.work.supported:  # the compiled run's step
-            motion = np.concatenate([base_next.position, base_next.orientation, base_next.linear_velocity,
-                                     base_next.angular_velocity, base_next.linear_acceleration,
-                                     base_next.angular_acceleration])
-            run = self.step_sequence(state, dt, motion[None], np.ascontiguousarray(base_next.rotation)[None], forces,
-                                     memory, keep_matrix=False)
-            if run.done:
-                rows = run.states[0]
-                return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next),
-                                  int(run.iterations[0]), 1, True, run.wrenches[0])
+            before, (states, wrenches, iterations) = self.sequence_arguments(dt, forces, t_next, 1, memory)
+            if step_to(state.q, state.qd, state.qdd, state.aux, t_next, base_next.position, base_next.orientation,
+                       base_next.linear_velocity, base_next.angular_velocity, base_next.linear_acceleration,
+                       base_next.angular_acceleration, base_next.rotation, *before, memory.last_motion, states,
+                       wrenches, iterations):
+                rows = states[0]
+                return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next), int(iterations[0]),
+                                  1, True, wrenches[0])
             first, failure = 1, f"Newton did not converge at t = {t_next:.6g} s"
         n = model.n_dof
         end = np.zeros((3, n))
