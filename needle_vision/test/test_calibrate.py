@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from vision_shapes import SHAPES, distance_to_curve
-from needle_vision.calibration.board_render import render_board_pair
+from board_render import render_board_pair
 from needle_vision.calibration.calibrate import main
 from needle_vision.calibration.rig import StereoRig, load_camera_calibration
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline
