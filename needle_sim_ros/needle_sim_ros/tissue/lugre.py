@@ -39,7 +39,6 @@ import numpy as np
 from numba import njit
 
 PARAMETER_NAMES = ("f1", "f2", "sigma0", "sigma1", "sigma2", "alpha")
-PARAMETER_UNITS = ("N/m", "N/m", "N/m^2", "N/m", "N/m", "1/m")
 _G_FLOOR = 1e-9   # [N/m] g is kept positive when an estimator wanders to f1 + f2 exp(-alpha l) <= 0
 
 
