@@ -1,2 +1,2 @@
 """Stereo calibration: the rig model (camera_calibration YAMLs, CameraInfo), rectification, the
-needle_stereo_calibrate tool and its sensitivity analysis."""
+needle_stereo_calibrate tool."""
