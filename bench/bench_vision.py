@@ -43,7 +43,7 @@ from needle_vision.matching.reconstruction import (ReconstructionConfig, order_a
                                                    reconstruct_centerline, triangulate_centerline)
 from needle_vision.render import (NEEDLE_RADIUS, Imaging, Scene, default_rig, make_scene,  # noqa: E402
                                   render_background_pair, render_stereo_pair)
-from needle_vision.calibration.sensitivity import simulate_checkerboard_calibration  # noqa: E402
+from board_render import simulate_checkerboard_calibration  # noqa: E402  (the calibration tests' boards)
 
 
 def timed(function, repetitions: int, clock=time.perf_counter) -> tuple[float, float]:

@@ -5,6 +5,7 @@ import pytest
 from needle_sim_ros.identification.lugre_ekf import (TABLE_I_GROUPS, LuGreEstimator, fisher_information,
                                                      identify_record)
 from needle_sim_ros.tissue.lugre import PARAMETER_NAMES, LuGreParameters, ModifiedLuGre
+from lugre_record import simulate
 
 TRUE = LuGreParameters(f1=8.0, f2=500.0, sigma0=2.5e5, sigma1=50.0, sigma2=12.0, alpha=125.0)
 DT = 0.005                      # seed 003 samples the force at 200 Hz
@@ -27,7 +28,7 @@ def lspb_record():
 @pytest.fixture(scope="module")
 def record():
     l, v = lspb_record()
-    f, _ = ModifiedLuGre(TRUE).simulate(l, v, DT)
+    f, _ = simulate(ModifiedLuGre(TRUE), l, v, DT)
     return l, v, f + np.random.default_rng(1).normal(0.0, NOISE, f.size)
 
 

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
-from needle_sim_ros.experiments.elastica import cantilever_beta_l
 from scipy.integrate import simpson
+from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 from needle_sim_ros.model import (BaseMotion, Fixture, ForceContribution, GeneralizedForce, Gravity, Integrator,
@@ -18,6 +18,12 @@ NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, de
 WEIGHTLESS = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0,
                               gravity=(0.0, 0.0, 0.0))
 BASE = BaseMotion((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+
+
+def cantilever_beta_l(n_modes: int) -> list[float]:
+    """Euler-Bernoulli clamped-free eigenvalues beta_n L: roots of cos(x) cosh(x) = -1."""
+    return [brentq(lambda x: np.cos(x) * np.cosh(x) + 1.0, (k + 0.3) * np.pi, (k + 0.7) * np.pi, xtol=1e-14)
+            for k in range(n_modes)]
 
 
 def linearized_modes(model):

@@ -2,7 +2,7 @@
 wrench (test 2), mesh convergence (test 6), fixtures and load stepping."""
 import numpy as np
 import pytest
-from needle_sim_ros.experiments.elastica import elastica, elastica_tip, linear_cantilever_tip_deflection
+from needle_sim_ros.experiments.elastica import elastica, elastica_tip
 from scipy.integrate import simpson
 
 from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, LineLoad, NeedleProperties, NodalLoad, PointLoad,
@@ -11,6 +11,11 @@ from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, LineLoad, Needle
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
 BASE = BaseMotion((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
 G = 9.81
+
+
+def linear_cantilever_tip_deflection(EI: float, length: float, w: float, P: float) -> float:
+    """Euler-Bernoulli small-deflection tip deflection (downwards positive) [m]."""
+    return P * length**3 / (3.0 * EI) + w * length**4 / (8.0 * EI)
 
 
 def tip_masses_solved(model, masses):

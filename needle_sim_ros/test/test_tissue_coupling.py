@@ -8,6 +8,7 @@ from needle_sim_ros.tissue.contact import pack_contact
 from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_model
 from needle_sim_ros.tissue.shaft_force import FROZEN_FIELDS, pack_shaft
 from needle_sim_ros.tissue.tissue_model import TissueState
+from lugre_record import simulate
 
 PROPS = NeedleProperties(0.27, 0.635e-3, 193e9, 8000.0, gravity=(0.0, 0.0, 0.0))   # seed 000 needle
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
@@ -230,7 +231,7 @@ def test_lugre_axial_law_reproduces_the_seed_003_curve_in_the_coupled_model(mode
         coupled.append(readout.axial_force)
     coupled = np.array(coupled)
     seed = ModifiedLuGre(LuGreParameters(8.0, 500.0, 2.5e5, 50.0, 12.0, 125.0), 1e-4)
-    standalone, _ = seed.simulate(np.array(depths), np.array(velocities), dt)
+    standalone, _ = simulate(seed, np.array(depths), np.array(velocities), dt)
     inserting = np.array(velocities) > 0
     # the coupled state z lags the readout by one step and sums over shaft points: 3 % of the peak force
     np.testing.assert_allclose(coupled[inserting], standalone[inserting], atol=0.03 * standalone.max())

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from needle_sim_ros.tissue.geometry import TissueBlock, TissueLayer, inserted_interval
+from needle_sim_ros.tissue.geometry import LATERAL_ROWS, TissueBlock, TissueLayer, inserted_interval, layer_rows
 from needle_sim_ros.tissue.track import Track, locate_on_polyline, project_on_polyline
 
 
@@ -27,7 +27,7 @@ def test_depth_layers_and_values():
     points = np.array([[0.09, 0, 0], [0.105, 1, 0], [0.2, 0, 3]])
     np.testing.assert_allclose(BLOCK.depth(points), [-0.01, 0.005, 0.1])
     np.testing.assert_array_equal(BLOCK.layer_index(BLOCK.depth(points)), [2, 0, 1])
-    np.testing.assert_allclose(BLOCK.layer_value("lateral_stiffness", BLOCK.depth(points)), [0.0, 1.0, 2.0])
+    np.testing.assert_allclose(layer_rows(*BLOCK.kernel_tables, BLOCK.depth(points), LATERAL_ROWS)[0], [0.0, 1.0, 2.0])
     finite = TissueBlock(np.zeros(3), np.array([0, 0, -1.0]), (layer(0.05),))
     assert not finite.inside(0.06) and finite.inside(0.01)          # a finite block can be passed through
 

@@ -24,12 +24,6 @@ def test_profile_has_the_seed_shape():
     x_mid = np.linspace(0.02, 0.05, 7)
     np.testing.assert_allclose(TRUE.total_force(x_mid, 0.06) - TRUE.friction_force(x_mid), 1.2)  # eq. 3
     assert TRUE.total_force(0.08, 0.06) == pytest.approx(TRUE.friction_force(0.08))          # phase III
-    h = 1e-7
-    for x0 in (0.005, 0.03):
-        fd_stiffness = (TRUE.stiffness_force(x0 + h) - TRUE.stiffness_force(x0 - h)) / (2 * h)
-        fd_friction = (TRUE.friction_force(x0 + h) - TRUE.friction_force(x0 - h)) / (2 * h)
-        assert TRUE.stiffness_slope(x0) == pytest.approx(fd_stiffness, rel=1e-6)   # quadratic: exact up to rounding
-        assert TRUE.friction_slope(x0) == pytest.approx(fd_friction, rel=1e-5)     # h^2 w^2 / 6 ~ 1e-9
 
 
 def test_fit_recovers_parameters_from_noisy_record():

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.tissue.lugre import LuGreParameters, ModifiedLuGre, axial_force, rk3_step
+from lugre_record import simulate
 
 TRUE = LuGreParameters(f1=8.0, f2=500.0, sigma0=2.5e5, sigma1=50.0, sigma2=12.0, alpha=125.0)
 
@@ -16,7 +17,7 @@ def insertion_retraction(depth=0.05, speed=0.01, dt=0.005, hold=0.5):
 
 def test_force_rises_drops_at_puncture_plateaus_and_turns_negative_on_retraction():
     l, v = insertion_retraction()
-    f, _ = ModifiedLuGre(TRUE).simulate(l, v, 0.005)
+    f, _ = simulate(ModifiedLuGre(TRUE), l, v, 0.005)
     inserting = v > 0
     fi, li = f[inserting], l[inserting]
     k_peak = np.argmax(fi)
@@ -36,7 +37,7 @@ def test_steady_state_is_the_analytic_one():
     # alpha = 0 makes g constant: at constant speed z -> g / sigma0 and f -> l (g + sigma2) exactly.
     p = LuGreParameters(f1=8.0, f2=2.0, sigma0=2.5e5, sigma1=50.0, sigma2=12.0, alpha=0.0)
     l, v = insertion_retraction(hold=0.0)
-    f, z = ModifiedLuGre(p).simulate(l, v, 0.005)
+    f, z = simulate(ModifiedLuGre(p), l, v, 0.005)
     k = np.flatnonzero(v > 0)[-1]
     assert z[k] == pytest.approx(10.0 / 2.5e5, rel=1e-9)
     assert f[k] == pytest.approx(l[k] * (10.0 + 12.0), rel=1e-9)

@@ -1,19 +1,10 @@
 """``needle_stereo_offline``: measure the needle in recorded stereo frames, headless (seed 000, Sec. III-A).
 
-Input is either a folder with ``left/`` and ``right/`` sub-folders of images paired by file name (stamps from
-``--fps``), or a rosbag2 MCAP recording (an ``.mcap`` file or a bag folder) with ``sensor_msgs/Image`` or
-``sensor_msgs/CompressedImage`` topics, read as serialized bytes (raw pixels are never copied). Images are
-decoded on a thread pool ahead of the measurement (OpenCV releases the GIL); with ``--workers`` >= 2, pairs are
-also measured concurrently once the background and polarity are settled (the compiled kernels release the GIL too),
-their order-dependent part (base/tip by continuity, tracking, CSV) completed in input order: the same CSV. OpenCV's
-own thread pool is off during a run (``--workers`` is the parallelism). Grey 8-bit BMPs are read as their rows. The
-calibration comes from camera_calibration YAML files or, for a bag without them, from its ``camera_info`` topics.
-Settings are the node's parameters, read from a ROS 2 params file; ``--polarity``, ``--background``, ``--frames`` and
-``--output-frame`` override the common ones; ``--base-pose-topic`` reads the needle's base poses from the bag
-to tell base from tip. Output: one CSV row per centerline sample (frame = index of the synchronised pair, stamp [s],
-sample, arc length, x, y, z, uncertainty [m], and velocity/acceleration with tracking); its first line names the
-frame and units. Exit status: 0 when at least one pair was measured, 1 when
-none was, 2 on bad input.
+Inputs, options, the CSV and the exit status: README, "needle_stereo_offline". Images are decoded on a thread pool
+ahead of the measurement (OpenCV releases the GIL); with ``--workers`` >= 2, pairs are also measured concurrently once
+the background and polarity are settled (the compiled kernels release the GIL too), their order-dependent part
+(base/tip by continuity, tracking, CSV) completed in input order: the same CSV. OpenCV's own thread pool is off
+during a run (``--workers`` is the parallelism).
 
     needle_stereo_offline recording.mcap --params config/needle_stereo.yaml --output needle.csv
 """
@@ -556,8 +547,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--base-pose-topic", metavar="TOPIC", help="geometry_msgs/PoseStamped of the needle base "
                         "in the bag (e.g. base_pose): base and tip are told by it (base_pose.max_age, "
                         "base_pose.offset of the params file)")
-    parser.add_argument("--left-info-topic", default="left/camera_info")
-    parser.add_argument("--right-info-topic", default="right/camera_info")
+    parser.add_argument("--left-info-topic", default="left/camera_info", help="CameraInfo topic: the calibration "
+                        "of a bag without --left/right-calibration or calibration files in --params")
+    parser.add_argument("--right-info-topic", default="right/camera_info", help="as --left-info-topic")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     arguments = parser.parse_args(argv)
     return command_status("needle_stereo_offline", run, arguments, (ParameterError, CalibrationError, InputError,

@@ -9,12 +9,12 @@ import pytest
 import yaml
 
 from vision_shapes import SHAPES, distance_to_curve
-from needle_vision.calibration.board_render import render_board_pair
+from board_render import random_board_pose, render_board_pair
 from needle_vision.calibration.calibrate import main
 from needle_vision.calibration.rig import StereoRig, load_camera_calibration
 from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeline
 from needle_vision.render import project_points
-from needle_vision.calibration.sensitivity import board_corners, random_board_pose
+from needle_vision.calibration.calibrate import board_corners
 
 BOARD, SQUARE, VIEWS = (9, 6), 0.02, 36
 

@@ -1,20 +1,7 @@
 """A node's input connections: how many publishers each input subscription has matched, on ``/diagnostics`` and on
-the readiness topic.
-
-DDS discovery is two-sided: a publisher can see a subscription (``get_subscription_count``) before the
-subscription has matched the publisher, and what it publishes in between never arrives. Only the subscribing node
-knows its side, so each node reports it, twice a second of steady time (also while a simulated clock stands
-still): a ``DiagnosticStatus`` named ``/<namespace>/<node>: inputs`` whose values are the resolved input topics
-with their matched publisher counts, WARN while a required one has none (an optional input without a publisher,
-e.g. the simulator's ``base_twist`` in a setup that publishes only poses, is OK). A node that drops its input while
-not ready (the simulator, until its lifecycle state is active) adds ``accepting``: ``true`` / ``false``. The header
-stamp is the node's clock (with ``use_sim_time``: zero until its first ``/clock``), so a player can also tell that
-the node follows its clock.
-
-The same report (a ``DiagnosticArray`` of that one status) goes to :data:`READINESS_TOPIC`, reliable and
-transient-local (latched: a reader that comes later gets each node's last report at once), which is the start
-handshake: :class:`InputReports` reads it (``needle_replay --wait-for-subscribers``, ``--wait-for-nodes``, the main
-job); ``/diagnostics`` is for people and aggregators only.
+the latched readiness topic (:data:`READINESS_TOPIC`), the start handshake that :class:`InputReports` reads
+(``needle_replay --wait-for-subscribers``, ``--wait-for-nodes``, the main job). What a report holds and why (DDS
+discovery is two-sided: only the subscriber knows that it has matched a publisher): README, "Input reports".
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Independent reference solutions (no ANCF code) for the tests and the bag generator: the exact elastica of a
-cantilever, linear beam theory and the clamped-free Euler-Bernoulli eigenvalues.
+cantilever.
 
 Exact inextensible elastica of a horizontal cantilever under a uniform vertical load w [N/m] (own weight) and a
 vertical tip load P [N], both downwards: with theta(s) the tangent angle,
@@ -35,14 +35,3 @@ def elastica(EI: float, length: float, w: float, P: float) -> tuple[np.ndarray, 
     bound = (P * length + 0.5 * w * length**2) / EI
     root = brentq(lambda k: end(k)[1], -1.001 * bound, 0.0, xtol=1e-15, rtol=1e-14)
     return end(root)[2:], EI * root
-
-
-def linear_cantilever_tip_deflection(EI: float, length: float, w: float, P: float) -> float:
-    """Euler-Bernoulli small-deflection tip deflection (downwards positive) [m]."""
-    return P * length**3 / (3.0 * EI) + w * length**4 / (8.0 * EI)
-
-
-def cantilever_beta_l(n_modes: int) -> list[float]:
-    """Euler-Bernoulli clamped-free eigenvalues beta_n L: roots of cos(x) cosh(x) = -1."""
-    return [brentq(lambda x: np.cos(x) * np.cosh(x) + 1.0, (k + 0.3) * np.pi, (k + 0.7) * np.pi, xtol=1e-14)
-            for k in range(n_modes)]

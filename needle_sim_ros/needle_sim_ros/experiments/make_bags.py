@@ -1,19 +1,8 @@
 """``needle_make_bags``: write the synthetic sample bags (rosbag2 MCAP) of :mod:`.protocols`, reproducibly.
 
-For each experiment: the ground truth (:class:`.ground_truth.TruthModel`, exact base motion) is integrated once;
-the bag then holds
-
-* ``/base_pose`` (geometry_msgs/PoseStamped, frame ``world``) at 200 Hz: the exact pose of the clamp point A;
-* ``/tip_load`` (geometry_msgs/WrenchStamped, ``world``) at 50 Hz: the weight on the tip (static experiment);
-* ``/left|right/image_raw`` (sensor_msgs/Image, mono8, 1440x1080) and ``/left|right/camera_info``: the ground-truth
-  centerline rendered by ``needle_vision.render`` (rig ``default_rig()``, one scene per bag, sensor noise) at the
-  protocol's frame times, after one needle-free pair at the bag start (the background);
-* ``/needle/measured_shape`` (needle_interfaces/NeedleShape, source ``fbg``) at 20 Hz: a shape-sensing needle's
-  centerline (ground truth every 10 mm plus white noise) — insertion only;
-* ``/ground_truth/shape`` (NeedleShape, source ``ground_truth``) at the frame/sensor times and
-  ``/ground_truth/wrench`` (WrenchStamped, ``needle_base``: the needle on its holder) at 100 Hz.
-
-Stamps are the log times, starting at 1 700 000 000 s. Everything is seeded: the same command writes the same bags.
+For each experiment the ground truth (:class:`.ground_truth.TruthModel`, exact base motion) is integrated once and
+its bag written; the topics, rates and frames are listed in bags/README.md. Stamps are the log times, starting at
+1 700 000 000 s. Everything is seeded: the same command writes the same bags.
 
     needle_make_bags [--output-dir bags] [--experiments static_tip_load dynamic_pitch insertion]
 """

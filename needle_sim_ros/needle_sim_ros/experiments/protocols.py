@@ -5,18 +5,8 @@ exact velocity and acceleration), what is hung on the needle, what is clamped, a
 same description drives the ground-truth run (:mod:`.ground_truth`) and the bag writer (:mod:`.make_bags`).
 
 World frame as in ``needle_vision.render.default_rig()``: A at the origin, the undeformed needle along +x, z up;
-the stereo cameras look at the needle from +y.
-
-* ``static_tip_load`` (Fig. 7): base fixed; weights of 0, 20, 40, 60, 80 g hung on the tip one after another
-  (each added over 0.5 s with a cosine ramp, then held 1 s); one stereo pair at the end of each hold.
-* ``dynamic_pitch`` (Fig. 8): the distal 40 % of the needle clamped where it lies at the start; after 1 s at rest
-  the base pitches about its local y axis through A, theta(t) = 5° (1 - cos 2 pi f (t - 1)), f = 0.2 Hz (a 10°
-  range starting and ending at rest), for one period T = 5 s; stereo pairs at 2 fps.
-* ``insertion``: after 1 s at rest the base moves along +x into a tissue block whose surface is 10 mm in front of
-  the tip (the tissue models' defaults), accelerating to 10 mm/s over 0.5 s, 40 mm in total; a fibre-Bragg-grating
-  shape sensor in the needle reports the centerline at 20 Hz (no images).
-* ``steering_insertion``: as ``insertion`` at 6 mm/s, 60 mm, with a 180° roll of the base (cosine ramp over 1 s)
-  halfway: the bevel turns and the path bends back.
+the stereo cameras look at the needle from +y. The experiments (``EXPERIMENTS``) are described each by its
+``description`` and in bags/README.md.
 """
 from __future__ import annotations
 

@@ -1,29 +1,11 @@
 """needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
 
-BAG (``needle_replay --help`` lists the options) is a .mcap file or a bag directory. Messages are published as the
-recorded CDR bytes (no deserialization) with the QoS the recorded publishers offered; ``--clock`` publishes the
-playback time on /clock for use_sim_time.
-Topics are renamed with ROS remapping rules (``--ros-args -r /wrench:=/replayed/wrench``), which apply to the
-recorded (absolute) topic names; ``--in-namespace`` publishes them in the player's namespace instead (``--ros-args
--r __ns:=/robot1``: ``/wrench`` as ``/robot1/wrench``), where the nodes of a launch in that namespace read them.
-
-``--wait-for-subscribers S`` waits until every played topic has a subscriber and every subscriber that reports its
-inputs on the latched ``/needle_sim/readiness`` (this suite's nodes: ``needle_common.ros.input_status``) has matched
-the topic from its own side, following the start time on /clock with ``--clock``: discovery is two-sided, and
-messages published before the subscriber has matched the publisher are lost. With ``--wait-for-nodes
-/needle_simulator ...`` it waits for those nodes instead: until each has reported and matched the played topics it
-subscribes to and its other inputs that someone publishes (the comparison's /wrench from the simulator), while
-topics none of them subscribes to (a bag's ground truth) hold nothing (the launch files play whole bags this way).
-``--start-paused`` waits for a call of the service ``~/resume`` (std_srvs/Trigger) first, for whoever starts the
-nodes to say when they are ready. Both hold the start time on /clock meanwhile. After the last message the player
-waits up to ``--linger`` seconds until every reliable subscriber has acknowledged all it played (a large message
-whose fragment was lost is resent only then: on a loaded machine the last image of a bag could otherwise never
-arrive), holding the end time on /clock; it warns of the topics still unacknowledged.
-
-``--compress-images png|jpeg`` plays the recorded ``sensor_msgs/Image`` topics as a camera publishing through
-image_transport's compressed plugin does: ``sensor_msgs/CompressedImage`` on ``<topic>/compressed`` (format
-``"mono8; png compressed mono8"``, ...), encoded as each message is due (PNG is lossless; JPEG at
-``--jpeg-quality``, default 95).
+Options (``needle_replay --help``) and their behaviour: README, "needle_replay". Messages are published as the
+recorded CDR bytes (no deserialization) with the QoS the recorded publishers offered. The start handshake
+(``--wait-for-subscribers``, ``--wait-for-nodes``) reads the subscribers' own reports on the latched readiness topic
+(``needle_common.ros.input_status``): discovery is two-sided, and messages published before a subscriber has
+matched the publisher are lost. ``--linger`` waits for every reliable subscriber's acknowledgement at the end: a
+large message whose fragment was lost is resent only then.
 """
 from __future__ import annotations
 

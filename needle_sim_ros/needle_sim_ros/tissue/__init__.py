@@ -9,7 +9,6 @@ from .angular_spring import AngularSpringNeedle
 from .bevel_tip import BevelTip
 from .geometry import TissueBlock, TissueLayer, inserted_interval
 from .insertion_profile import InsertionForceProfile
-from .karnopp import KarnoppFriction
 from .lugre import LuGreParameters, ModifiedLuGre
 
 _COUPLING_NAMES = ("build_tissue_model", "TISSUE_PARAMETERS", "TissueModel", "TissueReadout")
@@ -23,4 +22,4 @@ def __getattr__(name: str):
 
 
 __all__ = ["AngularSpringNeedle", "BevelTip", "TissueBlock", "TissueLayer", "inserted_interval",
-           "InsertionForceProfile", "KarnoppFriction", "LuGreParameters", "ModifiedLuGre", *_COUPLING_NAMES]
+           "InsertionForceProfile", "LuGreParameters", "ModifiedLuGre", *_COUPLING_NAMES]

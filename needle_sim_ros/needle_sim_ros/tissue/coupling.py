@@ -3,13 +3,9 @@ compiled point-force and contact-point kernels (the contributions themselves: ``
 ``tip_forces``).
 
 * ``TissueContact``: the block, the capsule puncture and the track cut by the tip; ``ContactState``: the contact
-  after a step (tip depth and axial speed, puncture, at the cut front, the track), a view of its record.
-* ``ShaftSupport``: lateral Winkler springs and dampers (per unit length) perpendicular to the needle on the part
-  of it that lies in tissue the tip has already cut (path memory, ``track``; the cut front holds nothing
-  laterally), integrated by Gauss quadrature; along the needle, the selected axial law of ``shaft_laws`` on
-  material shaft points anchored to the track (stick-slip; without a law the needle slides freely). The points'
-  state (``ShaftState``, a view) and each step's frozen points (``shaft_force``) are assembled by the shared
-  point-force kernel over the inserted part only.
+  after a step, a view of its record.
+* ``ShaftSupport``: the Winkler lateral support over the cut tissue and an axial stick-slip law (``shaft_laws``) on
+  shaft points; their state ``ShaftState`` (a view).
 """
 from __future__ import annotations
 
@@ -53,7 +49,7 @@ class ContactState(NamedTuple):
 class TissueContact:
     """How the needle meets the tissue (immutable): the block, the track spacing, and ``puncture_depth``: the depth
     [m] the tip must reach before the capsule tears and the track starts (seed 002 d1; None: the tissue is cut from
-    first contact). ``advance.advance_contact`` advances a ``ContactState``."""
+    first contact). ``contact.advance_contact`` advances a ``ContactState``."""
 
     def __init__(self, block: TissueBlock, spacing: float, puncture_depth: float | None = None) -> None:
         self.block = block
@@ -290,7 +286,7 @@ class ShaftSupport:
     ``arc_lengths`` (k,), base to tip, with length shares ``weights`` (k,) [m], each anchored to the track once
     inside the tissue (stick-slip); without a law the needle slides freely.  Both are assembled with the model's
     point-force kernel over the points inside the tissue only, so the cost grows with the inserted length.
-    ``advance.advance_shaft`` advances a ``ShaftState`` with ``kernel_arguments``.
+    ``shaft_force.advance_shaft`` advances a ``ShaftState`` with ``kernel_arguments``.
     """
 
     def __init__(self, model, block: TissueBlock, arc_lengths: np.ndarray, weights: np.ndarray, lateral: bool,

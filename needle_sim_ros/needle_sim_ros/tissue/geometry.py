@@ -89,15 +89,6 @@ class TissueBlock:
         flat = np.ascontiguousarray(depth, dtype=float).reshape(-1)
         return _layer_index(self._bottoms, flat).reshape(np.shape(depth))
 
-    def layer_value(self, name: str, depth) -> np.ndarray:
-        """Per-layer parameter ``name`` at each depth (0 outside the block)."""
-        return self.kernel_tables[1][ROW[name]][self.layer_index(depth)]
-
-    def layer_values(self, names, depth) -> tuple[np.ndarray, ...]:
-        """Several per-layer parameters at each depth (one layer lookup)."""
-        index = self.layer_index(depth)
-        return tuple(self.kernel_tables[1][ROW[name]][index] for name in names)
-
 
 def inserted_interval(block: TissueBlock, points: np.ndarray, arc_length: np.ndarray) -> tuple[float, float]:
     """Reference arc-length interval (s_entry, s_tip) of the needle below the entry surface.

@@ -69,10 +69,6 @@ class InsertionForceProfile:
         x = np.asarray(x, dtype=float)
         return self.a1 * x + self.a2 * x**2
 
-    def stiffness_slope(self, x):
-        """dF_s/dx [N/m]."""
-        return self.a1 + 2.0 * self.a2 * np.asarray(x, dtype=float)
-
     @cached_property
     def series_parameters(self) -> np.ndarray:
         """[w_1..w_M, A_0..A_M, B_1..B_M] (``fourier_series``)."""
@@ -83,14 +79,6 @@ class InsertionForceProfile:
         x = np.asarray(x, dtype=float)
         parameters = self.series_parameters
         return np.reshape([fourier_series(parameters, value) for value in x.ravel()], x.shape)
-
-    def friction_slope(self, x):
-        """dF_f/dx [N/m]."""
-        x = np.asarray(x, dtype=float)
-        w = np.asarray(self.frequencies, dtype=float)
-        phase = np.multiply.outer(x, w)
-        return (-np.sin(phase) @ (w * np.asarray(self.cos_coefficients[1:]))
-                + np.cos(phase) @ (w * np.asarray(self.sin_coefficients)))
 
     def total_force(self, x, exit_depth: float = np.inf):
         """Model of the measured insertion force F_a [N] for a monotonic insertion to depth x: eq. 1 before d1,

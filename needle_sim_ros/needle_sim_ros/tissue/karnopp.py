@@ -17,72 +17,12 @@ Definitions this module adds to the seed (issue #5 asks for them):
   anchor slides with the shaft (plastic slip) and the Coulomb traction saturates at ``-C_n sgn(u)``.  The viscous
   part ``-b_n v`` acts in both regimes.  In steady sliding this reproduces eq. 2 exactly, per unit length.
 
-All functions are vectorized over points (arrays of any shape broadcast together).
+The test oracle ``KarnoppFriction`` (needle_sim_ros/test/test_tissue_karnopp.py) drives this law on a rigid shaft.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numba import njit
-
-
-@dataclass(frozen=True)
-class KarnoppFriction:
-    """Parameters of the shaft friction law (seed 001 eq. 2 plus the stick band above).
-
-    coulomb: C_n, Coulomb (static = kinetic) friction per unit inserted length [N/m] (seed 001: 6).
-    viscous: b_n, viscous friction per unit inserted length and unit sliding velocity [N s/m^2] (seed 001: 120).
-    stick_stiffness: k_a, axial stiffness of the stick anchors per unit length [N/m^2]; the stick band is
-        ``|u| < C_n / k_a``.
-    """
-
-    coulomb: float
-    viscous: float
-    stick_stiffness: float
-
-    def __post_init__(self) -> None:
-        for name in ("coulomb", "viscous"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value < 0.0:
-                raise ValueError(f"KarnoppFriction.{name} must be finite and >= 0, got {value!r}")
-        if not np.isfinite(self.stick_stiffness) or self.stick_stiffness <= 0.0:
-            raise ValueError(f"KarnoppFriction.stick_stiffness must be finite and > 0, got {self.stick_stiffness!r}")
-
-    @property
-    def stick_band(self) -> float:
-        """Half-width C_n / k_a [m] of the pre-sliding band in which the shaft sticks to the tissue."""
-        return self.coulomb / self.stick_stiffness
-
-    def sliding_force(self, depth, velocity):
-        """Eq. 2 (mirrored for retraction): axial friction force [N] on a shaft sliding at ``velocity`` [m/s]
-        with ``depth`` [m] inserted, signed like the force ON the needle along the insertion direction."""
-        depth = np.asarray(depth, dtype=float)
-        velocity = np.asarray(velocity, dtype=float)
-        return -(self.coulomb * np.sign(velocity) + self.viscous * velocity) * depth
-
-    def traction(self, elastic_displacement, velocity, coulomb=None, viscous=None):
-        """Axial traction per unit length on the shaft [N/m] and its derivatives.
-
-        elastic_displacement: u = axial position of the shaft point minus its stick anchor [m].
-        velocity: axial sliding velocity of the shaft point relative to the tissue [m/s].
-        coulomb, viscous: optional per-point overrides of C_n and b_n (per-layer values); k_a is shared.
-        Returns (t, dt_du, dt_dv): ``t = -(clip(k_a u, -C_n, C_n) + b_n v)`` (``axial_traction``).
-        """
-        u, v, c_n, b_n = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (
-            elastic_displacement, velocity, self.coulomb if coulomb is None else coulomb,
-            self.viscous if viscous is None else viscous)))
-        out = np.empty((3,) + u.shape)
-        flat = out.reshape(3, -1)
-        for k, args in enumerate(zip(u.ravel(), v.ravel(), c_n.ravel(), b_n.ravel())):
-            flat[:, k] = axial_traction(args[0], args[1], self.stick_stiffness, args[2], args[3], 0.0, 0.0, 0.0)
-        return out[0], out[1], out[2]
-
-    def slipped_displacement(self, elastic_displacement, coulomb=None):
-        """Plastic return: the elastic displacement left after the anchors slid (clipped to the stick band)."""
-        c_n = self.coulomb if coulomb is None else np.asarray(coulomb, dtype=float)
-        band = c_n / self.stick_stiffness
-        return np.clip(np.asarray(elastic_displacement, dtype=float), -band, band)
 
 
 @njit(cache=True)

@@ -39,7 +39,6 @@ import numpy as np
 from numba import njit
 
 PARAMETER_NAMES = ("f1", "f2", "sigma0", "sigma1", "sigma2", "alpha")
-PARAMETER_UNITS = ("N/m", "N/m", "N/m^2", "N/m", "N/m", "1/m")
 _G_FLOOR = 1e-9   # [N/m] g is kept positive when an estimator wanders to f1 + f2 exp(-alpha l) <= 0
 
 
@@ -227,15 +226,3 @@ class ModifiedLuGre:
     def force(self, z, depth, velocity) -> float:
         """Axial force f [N] resisting the motion (positive while inserting)."""
         return float(axial_force(z, self.parameters.as_array(), depth, velocity, self.velocity_scale)[0])
-
-    def simulate(self, depth: np.ndarray, velocity: np.ndarray, dt: float, z0: float = 0.0):
-        """Force f_k and state z_k at samples k of a depth/velocity record sampled every dt (z_0 = z0)."""
-        depth = np.asarray(depth, dtype=float)
-        velocity = np.asarray(velocity, dtype=float)
-        forces, states = np.empty(depth.size), np.empty(depth.size)
-        z = z0
-        for k in range(depth.size):
-            states[k] = z
-            forces[k] = self.force(z, depth[k], velocity[k])
-            z = self.step(z, depth[k], velocity[k], dt)
-        return forces, states

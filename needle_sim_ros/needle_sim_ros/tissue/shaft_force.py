@@ -22,7 +22,7 @@ from .geometry import LATERAL_ROWS, layer_rows
 from .shaft_laws import NO_LAW, law_advance, law_coefficients
 
 # the fields of a frozen part: the points' indices, weights, slots, S, S_x, anchor points, tangents, anchor depths,
-# lateral stiffness and damping, then the axial law's coefficients (``shaft_laws.AxialCoefficients``) and k_a
+# lateral stiffness and damping, then the axial law's coefficients (``shaft_laws.law_coefficients``) and k_a
 FROZEN_FIELDS = ("index", "weights", "slots", "S", "S_x", "anchor_points", "tangents", "anchor_depth",
                  "lateral_stiffness", "lateral_damping", "coulomb", "viscous", "offset", "sign_gain", "velocity_scale",
                  "stick_stiffness")

@@ -19,32 +19,20 @@ anchor (layer lookup), ``insertion_depth`` the depth of the tip.
 """
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 from numba import njit
 
-from .geometry import FRICTION_ROWS, LAYER_PARAMETERS, TissueBlock, layer_rows
+from .geometry import FRICTION_ROWS, TissueBlock, layer_rows
 from .insertion_profile import InsertionForceProfile, fourier_series
 from .lugre import ModifiedLuGre, bracket_kernel, bristle_step
 
 NO_LAW, KARNOPP, PROFILE, LUGRE = 0, 1, 2, 3  # ``kind`` of each law: how the compiled kernels below read it
 
 
-class AxialCoefficients(NamedTuple):
-    """Coefficients of the traction law above for n points: coulomb C (n,) [N/m], viscous b (n,) [N s/m^2],
-    offset A [N/m], sign_gain B [N/m], velocity_scale v_s [m/s]."""
-
-    coulomb: np.ndarray
-    viscous: np.ndarray
-    offset: float
-    sign_gain: float
-    velocity_scale: float
-
-
 @njit(cache=True)
 def law_coefficients(kind, parameters, law_state, anchor_depth, insertion_depth, bottoms, table):
-    """The traction law's coefficients (``AxialCoefficients`` fields) of a law ``kind`` with its ``parameters``
+    """The traction law's coefficients (coulomb C (n,) [N/m], viscous b (n,) [N s/m^2], offset A [N/m], sign_gain
+    B [N/m], velocity_scale v_s [m/s]) of a law ``kind`` with its ``parameters``
     and state for points with anchors at ``anchor_depth`` (n,) while the tip is at ``insertion_depth``; ``bottoms``
     and ``table``: the block's layer tables (``TissueBlock.kernel_tables``)."""
     n = anchor_depth.size
@@ -74,28 +62,14 @@ def law_advance(kind, parameters, law_state, insertion_depth, insertion_speed, d
     return law_state
 
 
-_NO_LAYERS = (np.array([np.inf]), np.zeros((len(LAYER_PARAMETERS), 2)))
-
-
 class ShaftLaw:
     """An axial law: its ``kind``, ``parameters`` (array), ``stick_stiffness`` k_a [N/m^2] and initial state, read by
-    the compiled kernels; ``coefficients`` and ``advance`` call them."""
+    the compiled kernels ``law_coefficients`` and ``law_advance``."""
 
     kind = NO_LAW
     initial_state = 0.0
     stick_stiffness = 1.0
     parameters = np.zeros(0)
-    block: TissueBlock | None = None
-
-    def coefficients(self, law_state: float, anchor_depth: np.ndarray, insertion_depth: float) -> AxialCoefficients:
-        bottoms, table = _NO_LAYERS if self.block is None else self.block.kernel_tables
-        return AxialCoefficients(*law_coefficients(self.kind, self.parameters, float(law_state),
-                                                   np.ascontiguousarray(anchor_depth, dtype=float),
-                                                   float(insertion_depth), bottoms, table))
-
-    def advance(self, law_state: float, insertion_depth: float, insertion_speed: float, dt: float) -> float:
-        return law_advance(self.kind, self.parameters, float(law_state), float(insertion_depth),
-                           float(insertion_speed), float(dt))
 
 
 def _stick_stiffness(value: float) -> float:
@@ -105,7 +79,7 @@ def _stick_stiffness(value: float) -> float:
 
 
 class KarnoppShaftFriction(ShaftLaw):
-    """Seed 001 eq. 2 with the stick band of ``karnopp.KarnoppFriction``; C_n, b_n per layer."""
+    """Seed 001 eq. 2 with the stick band of ``karnopp``; C_n, b_n per layer."""
 
     kind = KARNOPP
 

@@ -1,15 +1,10 @@
 """The tissue as one stateful force contribution composed of its parts: the contact (the shared record) and each
-force -- the shaft support, the bevel tip, the seed 002 tip resistance -- a contribution of its own with its typed
-record and compiled kernels (``contact``, ``shaft_force``, ``tip_forces``): the tissue's ``kernels`` are its parts',
-which the engine's compiled run composes directly (``model.step.compiled_run``) and the general path as one
-contribution (``model.step.compose``); the readout.
+force -- the shaft support, the bevel tip, the seed 002 tip resistance -- with its typed record and compiled kernels
+(``contact``, ``shaft_force``, ``tip_forces``), which every path runs (``model.step.compiled_run``, ``compose``).
 
-A :class:`TissueModel` is immutable (the block, the laws and their parameters); everything that changes as the
-needle moves through the tissue is a :class:`TissueState` value kept in ``NeedleData`` (``force_states``): the
-parts' records packed into one array. Once per accepted step :meth:`TissueModel.advance` returns the next state
-(the composition's advance: contact and track updated, then each force from it). The compiled run and the general
-path (:meth:`TissueModel.at`: ``contribution.ComposedForces``) run the same kernels. A state is never changed in
-place, so a copy of the data is a copy of references and a failed step leaves it as it was.
+A :class:`TissueModel` is immutable; what changes as the needle moves is a :class:`TissueState` in ``NeedleData``
+(``force_states``): the parts' records packed into one array, replaced (never changed in place) once per accepted
+step by :meth:`TissueModel.advance`, so a failed step leaves it as it was.
 """
 from __future__ import annotations
 

@@ -1,2 +1,2 @@
 """Stereo calibration: the rig model (camera_calibration YAMLs, CameraInfo), rectification, the
-needle_stereo_calibrate tool, its sensitivity analysis and the board renderer of its tests."""
+needle_stereo_calibrate tool."""

@@ -1,15 +1,10 @@
 """``needle_stereo_calibrate``: stereo calibration of the two cameras from checkerboard pairs (seed 000, Sec. III-A
 needs a calibrated rig).
 
-Input: a folder with ``left/`` and ``right/`` images paired by file name, or a rosbag2 MCAP recording with the two
-image topics (raw or compressed), read as ``needle_stereo_offline`` reads them. In each pair the board's inner
-corners are found (``cv2.findChessboardCornersSB``); each camera is calibrated with OpenCV's 5-coefficient model
-(``plumb_bob``), then ``cv2.stereoCalibrate`` refines both cameras' intrinsics with the rotation and translation
-between them (ROS ``camera_calibration`` keeps the intrinsics fixed: on renders of the sample rig that leaves the
-needle 0.17 mm off instead of 0.04-0.10 mm). Output: ``left.yaml`` and ``right.yaml`` in the camera_calibration
-format the node and the offline command read (R and P from ``stereoRectify`` with ``CALIB_ZERO_DISPARITY``), and
-``calibration_report.yaml``: RMS reprojection errors [px] per camera and of the stereo fit, the worst view, and the
-rectification quality: the epipolar error of the corners after the pipeline's own rectification [px].
+Input read as ``needle_stereo_offline`` reads it; outputs and accuracy: README, "Calibration". Each camera is
+calibrated alone (``plumb_bob``), then ``cv2.stereoCalibrate`` refines both cameras' intrinsics with the extrinsics
+(ROS ``camera_calibration`` keeps the intrinsics fixed: on the sample rig's renders the needle ends 0.17 mm off
+instead of 0.04-0.10 mm); R and P come from ``stereoRectify`` with ``CALIB_ZERO_DISPARITY``.
 Exit status 0 on success, 1 when too few pairs show the board, 2 on bad input.
 
     needle_stereo_calibrate board_images/ --board 9x6 --square 0.015 --output-dir calibration/
@@ -33,13 +28,21 @@ from needle_common.output_files import write_atomically
 from needle_vision.calibration.rig import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
 from needle_vision.offline import InputError, SkippedPair, decoded, open_source
 from needle_vision.calibration.rectification import Rectification
-from needle_vision.calibration.sensitivity import board_corners
 
 MIN_VIEWS = 6  # pairs showing the whole board in both images
 
 
 class CalibrationFailed(RuntimeError):
     """The images do not allow a calibration (exit status 1); the message says why."""
+
+
+def board_corners(corners: tuple[int, int], square: float) -> np.ndarray:
+    """Inner corners ``(cols * rows, 3)`` of a checkerboard in its own frame [m], centred, row by row (OpenCV's
+    order for ``patternSize = corners``), z = 0."""
+    grid = np.zeros((corners[0] * corners[1], 3), np.float32)
+    grid[:, :2] = np.mgrid[0:corners[0], 0:corners[1]].T.reshape(-1, 2) * square
+    grid[:, :2] -= grid[:, :2].mean(axis=0)
+    return grid
 
 
 def find_corners(image: np.ndarray, corners: tuple[int, int]) -> np.ndarray | None:

@@ -9,10 +9,8 @@ extract the background, find the needle points).
 2. Full-resolution refinement: the band around the coarse path is cut into axis-aligned one-pixel slices
    (columns where the needle runs closer to horizontal, rows elsewhere); the centroid of the covered fraction
    (B - I) / (B - N) across each slice is a centerline point (no image interpolation; N the needle's own grey
-   level along it, so the background's texture does not weight the slice). Integer sampling
-   of the pixel-integrated profile leaves a small aliasing error that oscillates with the sub-pixel phase:
-   up to ~0.04 px for a 2.5 px wide needle imaged with no lens blur, negligible with a realistic blur
-   (Gaussian point spread sigma >= 0.5 px). Weak slices (gaps, beyond the ends) are dropped.
+   level along it, so the background's texture does not weight the slice; the aliasing error of integer sampling,
+   ~0.04 px with no lens blur, is negligible at a realistic blur). Weak slices (gaps, beyond the ends) are dropped.
 3. The ends to sub-pixel from the covered fraction's profile along the needle's end direction
    (:func:`_end_along_profile`).
 """
@@ -366,20 +364,14 @@ def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
 
 
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
-#: tapered (a bevel seen side-on). Over 20 noise seeds of the six render shapes a flat end's ratio is 0.85-1.14
-#: and a 1 mm bevel's 1.15-1.75, a 2 mm one's 2.2-3.4 (1.5 missed 1 mm bevels: tips 0.3-0.5 mm short).
+#: tapered (a bevel seen side-on): over 20 noise seeds a flat end's ratio is 0.85-1.14, a 1 mm bevel's 1.15-1.75.
 TAPER_FACTOR = 1.15
 #: ... and by more than this many times the profile's relative scatter along the needle (a weak needle's noisy
-#: profile does not tell a taper: a flat end's spread ratio scatters ~3x the profile's scatter about 1). Was a
-#: fixed 5 % scatter limit, which also dropped 2 mm bevels (ratio 3, scatter 5-6 % with the taper's top in it).
+#: profile does not tell a taper: a flat end's ratio scatters ~3x the profile's scatter about 1).
 TAPER_SIGNIFICANCE = 5.0
 #: The end's lateral extrapolation takes a cubic term (the curvature changing along the 80 slices before the end)
 #: when its coefficient exceeds this many white-noise standard errors. The centroids' errors are correlated over ~20
-#: slices, so noise alone reaches ~5 (seeds 7 and 1007, both polarities, straight/planar/3D/S/curl: up to 5.2 over
-#: 48 ends); the S whose tip straightens out of its bend (s_epipolar) reads 16-33, the rod S's tips 5-8 (band
-#: centroids on the covered fraction): at 10 their quadratic put them 0.15-0.25 px aside (the 3D tip 0.25-0.3 mm off),
-#: at 5 within 0.05 px. But at 5 the offline median-background case (test_offline_modes) took a cubic on noise: tips
-#: 0.17 mm off (< 0.1 at 10); at 3 a planar needle's 2 mm bevel did (tip 0.03 -> 0.22 mm, seed 10007). Kept at 10.
+#: slices, so noise alone reaches ~5; at 5 the median-background case (test_offline_modes) took a cubic on noise.
 CURVATURE_RAMP_SIGNIFICANCE = 10.0
 
 
@@ -592,6 +584,18 @@ def _band_centroids(image, background, polarity, points, rows, half_band,
 
 
 @numba.njit(cache=True, nogil=True)
+def _profile_crossings(s, grid, band, inside, start):  # pragma: no cover - compiled
+    """The end profile (``grid`` summed over the ``band`` columns, 3-point averaged), its median level over the
+    ``inside`` rows and its 75 %, 50 % and 25 % crossings beyond ``start``; whether all three were found."""
+    profile = moving_average(grid[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
+    level = np.median(profile[inside])
+    first = _crossing(s, profile, 0.75 * level, start)
+    end = _crossing(s, profile, 0.5 * level, start)
+    last = _crossing(s, profile, 0.25 * level, start)
+    return profile, level, first, end, last, level > 0 and not (np.isnan(first) or np.isnan(end) or np.isnan(last))
+
+
+@numba.njit(cache=True, nogil=True)
 def _end_along_profile(image, background, polarity, points, half_width, step=0.25):  # pragma: no cover - compiled
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
@@ -619,9 +623,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     normal = np.array([-direction[1], direction[0]])
     along = (points[:, 0] - centre[0]) * direction[0] + (points[:, 1] - centre[1]) * direction[1]
     # The profile's grid is bent along the needle: a quadratic of the points' lateral offset from the line, fitted
-    # to the points 8-60 from the end, shifts each of its rows. (A curved end leaves the straight line's band: the
-    # rod S at 0.01 /px, its end 7-11 deg off the line, ~1.5 px aside, lost contrast before its end and read as
-    # tapered, the end put 1-1.6 px beyond.)
+    # to the points 8-60 from the end, shifts each of its rows (a curved end leaves the straight line's band).
     aside = (points[:, 0] - centre[0]) * normal[0] + (points[:, 1] - centre[1]) * normal[1]
     bend = np.empty((52, 3))
     for k in range(52):
@@ -629,8 +631,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         bend[k, 0], bend[k, 1], bend[k, 2] = t * t, t, 1.0
     bend_coefficients = np.linalg.lstsq(bend, np.ascontiguousarray(aside[n - 60:n - 8]))[0]
     # The profile runs 2 half widths beyond the last slice; 6 when it does not fall within that, if its end then lies
-    # beyond the last slice (the last slices dropped short of the end: a bright needle's tip 7.8 px beyond its last
-    # slice, 2.4 mm off in 3D; a fall before the last slice is a faint stretch, not the end).
+    # beyond the last slice (the last slices dropped short of the end; a fall before it is a faint stretch).
     for reach in (2.0 * half_width, 6.0 * half_width):
         s = np.arange(along[n - 30], along[n - 1] + reach, step)
         u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
@@ -646,17 +647,12 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         inside = s <= along[n - 9]
         cross = _column_medians(grid[inside])
         # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
-        # margins add noise, not contrast (about a third less noise in the end's position).
+        # margins add noise, not contrast.
         side_sigma, band_centre, band_half_width, band_contrast = _side_blur(u, cross)
         band = np.abs(u - band_centre) <= band_half_width + 2 * side_sigma
         if np.count_nonzero(band) < 3:
             band[:] = True
-        profile = moving_average(grid[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
-        level = np.median(profile[inside])
-        first = _crossing(s, profile, 0.75 * level, along[n - 9])
-        end = _crossing(s, profile, 0.5 * level, along[n - 9])
-        last = _crossing(s, profile, 0.25 * level, along[n - 9])
-        found = level > 0 and not (np.isnan(first) or np.isnan(end) or np.isnan(last))
+        profile, level, first, end, last, found = _profile_crossings(s, grid, band, inside, along[n - 9])
         if found and (reach == 2.0 * half_width or end > along[n - 1]):
             break
         if reach > 2.0 * half_width:
@@ -665,11 +661,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     spread = last - first
     scatter = 1.4826 * np.median(np.abs(profile[inside] - level)) / level
     tapered = not np.isnan(blur) and spread > blur * max(TAPER_FACTOR, 1 + TAPER_SIGNIFICANCE * scatter)
-    # The relative contrast is the covered fraction times 1 - N / B: the background's texture modulates it along
-    # the needle (albedo +-10 % over ~4 px: a taper's fitted middle 0.1 px off, differently in each view, where
-    # the end's depth is their disparity). The needle's own intensity N (smooth: the light's), from the band's
-    # fitted contrast over the harmonic mean of B, gives the covered fraction (B - I) / (B - N) to locate the end.
-    # (Whether the end is tapered is decided above: the thresholds are those measured on the relative contrast.)
+    # The relative contrast is the covered fraction times 1 - N / B, modulated by the background's texture. The
+    # needle's own intensity N, from the band's fitted contrast over the harmonic mean of B, gives the covered fraction
+    # (B - I) / (B - N) to locate the end (whether it is tapered is decided above, on the relative contrast).
     needle = 0.0
     if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
         inverse = 0.0
@@ -681,18 +675,14 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
                     inverse += 1.0 / max(float(background[int(y + 0.5), int(x + 0.5)]), 1.0)
         needle = (1.0 - polarity * band_contrast) * np.count_nonzero(inside) * np.count_nonzero(band) / inverse
         covered = _contrast_grid(image, background, polarity, centre, direction, s, u, shift, needle)
-        covered_profile = moving_average(covered[:, band].sum(axis=1).reshape(-1, 1), 3)[:, 0]
-        covered_level = np.median(covered_profile[inside])
-        covered_first = _crossing(s, covered_profile, 0.75 * covered_level, along[n - 9])
-        covered_end = _crossing(s, covered_profile, 0.5 * covered_level, along[n - 9])
-        covered_last = _crossing(s, covered_profile, 0.25 * covered_level, along[n - 9])
-        if covered_level > 0 and not (np.isnan(covered_first) or np.isnan(covered_end) or np.isnan(covered_last)):
+        covered_profile, covered_level, covered_first, covered_end, covered_last, covered_found = _profile_crossings(
+            s, covered, band, inside, along[n - 9])
+        if covered_found:
             profile, level, end, spread = covered_profile, covered_level, covered_end, covered_last - covered_first
     half_taper = 0.0
     if tapered and spread > blur:
         # The blur along the profile: the side edges' (the same point spread and pixel area), plus the moving
-        # average's. (Less 1/6 px² for the interpolation, it had made up for the renderer's taper drawn short:
-        # noise-free half tapers 0.03-0.13 px long, the end +0.09 px beyond at 1 mm bevels, -0.04 px without.)
+        # average's.
         sigma = np.sqrt(side_sigma ** 2 + 2 * step ** 2 / 3)
         window = (s >= end - 2 * (spread + blur)) & (s <= end + 2 * (spread + blur))
         middle, taper = _taper_fit(s[window], profile[window] / level, end, 2 * np.sqrt(spread ** 2 - blur ** 2),
@@ -705,10 +695,8 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     if kept < 80 or end <= along[kept - 1]:
         return none
     # Quadratic lateral offset against the distance along the line (least squares, centred abscissa), fitted to the
-    # slices' centroids over the needle's blurred band only: the slices' margins add noise with the largest lever
-    # arm, which the extrapolation to the end amplifies (straight needle: 0.057 -> 0.036 px a slice). Weighted by the
-    # covered fraction where N is known (the relative contrast's texture modulation put the bright rod S's right tip
-    # 0.14 px aside).
+    # slices' centroids over the needle's blurred band only (the margins' noise has the largest lever arm), weighted
+    # by the covered fraction where N is known.
     rows = abs(direction[1]) > abs(direction[0])
     half_band = min(max(band_half_width + 2 * side_sigma, 1.0), half_width) / max(abs(direction[1 if rows else 0]),
                                                                                    0.5)
@@ -717,9 +705,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     abscissa = (fit[:, 0] - centre[0]) * direction[0] + (fit[:, 1] - centre[1]) * direction[1]
     offset = abscissa.mean()
     lateral = (fit[:, 0] - centre[0]) * normal[0] + (fit[:, 1] - centre[1]) * normal[1]
-    # A cubic term where it stands out of the fit's noise (CURVATURE_RAMP_SIGNIFICANCE standard errors): the needle's
-    # curvature changing along the 80 slices (an S straightening out near its tip), which the quadratic extrapolates
-    # 0.3-0.5 px aside.
+    # A cubic term where it stands out of the fit's noise (CURVATURE_RAMP_SIGNIFICANCE standard errors).
     design = np.empty((80, 4))
     for k in range(80):
         t = abscissa[k] - offset

@@ -27,11 +27,8 @@ MIN_IMAGE_NOISE_PX = 0.02
 #: 1-sigma error [px] of the needle's end positions along the needle (sub-pixel edge; flat or bevelled end).
 END_LOCALIZATION_PX = 0.3
 #: Correlated part of the image centerlines' lateral error [px] and the points it spans: the fitted curve averages
-#: white noise over hundreds of points but not this. 41-point means of the error against the projected truth, since
-#: the slices' weights are the covered fraction (issue 39): noise-free renders 0.001-0.003 px RMS, at most 0.008 px
-#: on a curl (0.019-0.025, up to 0.07 px on a bright needle with the relative contrast, which the background's
-#: texture modulated: the constant was 0.035 then); with sensor noise they are the white noise's (~0.01 px). 0.02:
-#: over twice the largest noise-free one (0.015 left a bright rod curl's fitted sample at 4.9 sigma).
+#: white noise over hundreds of points but not this. Over twice the largest noise-free 41-point mean error against
+#: the projected truth (0.008 px on a curl; 0.015 left a bright rod curl's fitted sample at 4.9 sigma).
 CORRELATED_NOISE_PX = 0.02
 CORRELATED_NOISE_POINTS = 20
 #: Arc length [m] of the anchored stretch beside a stretch placed by continuity over which the needle's bending in

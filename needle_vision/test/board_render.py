@@ -1,17 +1,22 @@
-"""Synthetic stereo images of a checkerboard for testing stereo calibration (rig model of
-:mod:`needle_vision.render`: distorted pinhole cameras, lens blur, sensor noise).
+"""Synthetic checkerboards for the calibration tests and bench/bench_vision.py: stereo images of a board (rig model
+of :mod:`needle_vision.render`: distorted pinhole cameras, lens blur, sensor noise), random board poses, and a
+simulated calibration from noisy corners (calibration sensitivity).
 
 Each pixel is traced back through the camera's distortion (``cv2.undistortPoints``) to its viewing ray, the ray
 is cut with the board plane, and the board's pattern is sampled there on a ``supersample`` x ``supersample``
 grid inside the pixel (area averaging: anti-aliased edges). The board has ``corners + 1`` squares per side, the
 first (top-left in board coordinates) black, inside a white margin one square wide; around it, a plain grey
-background. Corner positions in board coordinates are :func:`needle_vision.calibration.sensitivity.board_corners`.
+background. Corner positions in board coordinates are :func:`needle_vision.calibration.calibrate.board_corners`.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from needle_vision.calibration.calibrate import board_corners
 from needle_vision.calibration.rig import CameraCalibration, StereoRig
 from needle_vision.render import Imaging, project_points, world_from_camera
 from needle_vision.render import _expose as expose  # the renderer's sensor model (noise, quantisation)
@@ -82,3 +87,57 @@ def render_board_pair(rig: StereoRig, world_from_board: RigidTransform, corners:
     """Left and right mono8 images of the board (``corners`` inner corners, ``square`` [m])."""
     return tuple(render_board_view(rig, world_from_board, side, corners, square, rng, imaging)
                  for side in ("left", "right"))
+
+
+@dataclass(frozen=True)
+class SimulatedCalibration:
+    """Estimated rig (same world pose as the true one) and the RMS reprojection errors [px] of the fits."""
+
+    rig: StereoRig
+    rms_left: float
+    rms_right: float
+    rms_stereo: float
+
+
+def random_board_pose(rig: StereoRig, rng: np.random.Generator, centre: np.ndarray, tilt: float = 0.6,
+                      spread: tuple[float, float, float] = (0.12, 0.1, 0.1)) -> RigidTransform:
+    """Pose of a board in the world frame: facing the left camera, tilted by up to ``tilt`` [rad] about its
+    in-plane axes, turned at random about its normal, and shifted by up to ``spread`` [m] from ``centre``."""
+    towards_cameras = world_from_camera(rig, "left").translation - centre
+    facing = Rotation.align_vectors([towards_cameras], [[0.0, 0.0, 1.0]])[0]
+    turn = Rotation.from_rotvec(np.append(rng.uniform(-tilt, tilt, 2), rng.uniform(-np.pi, np.pi)))
+    return RigidTransform((facing * turn).as_matrix(), centre + rng.uniform(-np.asarray(spread), spread))
+
+
+def simulate_checkerboard_calibration(rig: StereoRig, rng: np.random.Generator, *, reprojection_rms_px: float = 0.14,
+                                      views: int = 25, corners: tuple[int, int] = (9, 6), square: float = 0.03,
+                                      centre: np.ndarray = np.array([0.135, 0.0, -0.04])) -> SimulatedCalibration:
+    """Calibrate ``rig`` from ``views`` noisy checkerboard views (board of ``corners`` inner corners, ``square``
+    [m]) held around ``centre`` (world frame [m], default: the middle of the needle's volume), as ROS
+    ``camera_calibration`` does (each camera alone, then ``stereoCalibrate`` with the intrinsics fixed); the corner
+    noise per coordinate is ``reprojection_rms_px / sqrt(2)``."""
+    grid = board_corners(corners, square)
+    object_points, left_points, right_points = [], [], []
+    while len(object_points) < views:
+        board = random_board_pose(rig, rng, centre).apply(grid)
+        seen = []
+        for side, camera in (("left", rig.left), ("right", rig.right)):
+            pixels = project_points(rig, board, side)
+            if np.any(pixels < 10) or np.any(pixels > [camera.width - 10, camera.height - 10]):
+                break
+            noise = rng.normal(0.0, reprojection_rms_px / np.sqrt(2), pixels.shape)
+            seen.append((pixels + noise).astype(np.float32))
+        if len(seen) == 2:
+            object_points.append(grid)
+            left_points.append(seen[0])
+            right_points.append(seen[1])
+    size = rig.left.image_size
+    rms_left, k_left, d_left, *_ = cv2.calibrateCamera(object_points, left_points, size, None, None)
+    rms_right, k_right, d_right, *_ = cv2.calibrateCamera(object_points, right_points, size, None, None)
+    rms_stereo, k_left, d_left, k_right, d_right, rotation, translation, *_ = cv2.stereoCalibrate(
+        object_points, left_points, right_points, k_left, d_left, k_right, d_right, size,
+        flags=cv2.CALIB_FIX_INTRINSIC)
+    estimated = StereoRig(CameraCalibration(*size, k_left, d_left.ravel(), camera_name="left"),
+                          CameraCalibration(*size, k_right, d_right.ravel(), camera_name="right"),
+                          rotation, translation.ravel(), rig.world_from_left)
+    return SimulatedCalibration(estimated, float(rms_left), float(rms_right), float(rms_stereo))
