@@ -27,6 +27,9 @@ from needle_common.cdr import ENCAPSULATION
 from needle_vision.streams.image_codec import deserialize_image
 
 
+_STAMP, _WRENCH = struct.Struct("<iI"), struct.Struct("<6d")  # a header's stamp; a Wrench
+
+
 class _Buffer:
     """Little-endian CDR payload with alignment relative to its start."""
 
@@ -100,13 +103,14 @@ def wrench_stamped_many(frame_id: str, wrenches) -> list[bytes]:
     """geometry_msgs/msg/WrenchStamped of each (time [s], force (3,), torque (3,)) in ``wrenches``, stamped as
     ``time_msg`` stamps the time. One template per frame, filled in place (~1 us per message)."""
     head = _wrench_header(frame_id)
-    template = bytearray(head + bytes(48))
+    at, template = len(head), bytearray(head + bytes(48))
+    stamp, values = _STAMP.pack_into, _WRENCH.pack_into
     messages = []
     for t, force, torque in wrenches:
         t = float(t)
         sec = math.floor(t)
-        struct.pack_into("<iI", template, 4, sec, min(round((t - sec) * 1e9), 999_999_999))
-        struct.pack_into("<6d", template, len(head), *force, *torque)
+        stamp(template, 4, sec, min(round((t - sec) * 1e9), 999_999_999))
+        values(template, at, *force, *torque)
         messages.append(bytes(template))
     return messages
 
