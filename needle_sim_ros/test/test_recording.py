@@ -97,6 +97,19 @@ def write_samples(path, options=WriterOptions(), repeats=20, qos=(OfferedQos(),)
     return written
 
 
+def test_message_index_records_are_mcaps():
+    """The writer packs a chunk's message indexes itself: the same bytes as the mcap library's record."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import MessageIndex
+
+    from needle_sim_ros.recording.mcap_writer import _message_index
+
+    for entries in ([], [(1_700_000_000_123_456_789, 0)], [(t, 31 * t) for t in range(1000, 1300)]):
+        builder = RecordBuilder()
+        MessageIndex(7, entries).write(builder)
+        assert _message_index(7, entries) == builder.end()
+
+
 def test_written_file_decodes_message_by_message_with_mcap_ros2(tmp_path):
     path = tmp_path / "run.mcap"
     written = write_samples(path)
