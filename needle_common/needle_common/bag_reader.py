@@ -109,6 +109,7 @@ class BagReader:
         self.summarized = True
         self.files = bag_files(self.path)
         self.topics: dict[str, RecordedTopic] = {}
+        self._summaries: dict[Path, object] = {}  # each file's summary, read once (parsed in Python)
         self.start_time_ns: int | None = None
         self.end_time_ns: int | None = None
         for file in self.files:
@@ -132,7 +133,7 @@ class BagReader:
             raise BagReadError(f"cannot read '{file}': the file is empty (0 bytes)")
         try:
             with open(file, "rb") as stream:
-                summary = make_reader(stream).get_summary()
+                summary = self._summaries[file] = make_reader(stream).get_summary()
         except FileNotFoundError as error:
             raise BagReadError(f"cannot read '{file}': listed in the bag's metadata.yaml but missing") from error
         except (OSError, *CHUNK_ERRORS) as error:
@@ -182,7 +183,7 @@ class BagReader:
 
     def _file_messages(self, file: Path, wanted: set[str] | None, start: int) -> Iterator[BagMessage]:
         with open(file, "rb") as stream:
-            summary = make_reader(stream).get_summary()
+            summary = self._summaries[file] if file in self._summaries else make_reader(stream).get_summary()
             if summary is None or not summary.chunk_indexes:
                 yield from _library_messages(stream, summary, wanted, start)
                 return

@@ -23,6 +23,9 @@ LIVELINESS = ("system_default", "automatic", "manual_by_node", "manual_by_topic"
 # Infinity as reported by Foxy-era RMW implementations, read as infinite (as rosbag2 does).
 _LEGACY_INFINITE = {(0x7FFFFFFF, 0xFFFFFFFF), (0x7FFFFFFF, 0x7FFFFFFF), divmod(0x7FFFFFFFFFFFFFFF, 10**9)}
 
+# libyaml's safe loader and dumper where PyYAML has them (~10x faster, same documents): a recording's channels
+_LOADER, _DUMPER = getattr(yaml, "CSafeLoader", yaml.SafeLoader), getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+
 
 @dataclass(frozen=True)
 class OfferedQos:
@@ -90,7 +93,8 @@ def offered_qos_profiles_yaml(profiles: Sequence[OfferedQos]) -> str:
     """Channel metadata value ``offered_qos_profiles``: a YAML list of version-9 profiles ('' for none)."""
     if not profiles:
         return ""
-    return yaml.safe_dump([p.as_dict() for p in profiles], sort_keys=False, default_flow_style=False).rstrip("\n")
+    return yaml.dump([p.as_dict() for p in profiles], Dumper=_DUMPER, sort_keys=False,
+                     default_flow_style=False).rstrip("\n")
 
 
 def parse_offered_qos_profiles(text: str) -> list[OfferedQos]:
@@ -98,7 +102,7 @@ def parse_offered_qos_profiles(text: str) -> list[OfferedQos]:
     if not text or not text.strip():
         return []
     try:
-        items = yaml.safe_load(text)
+        items = yaml.load(text, Loader=_LOADER)  # noqa: S506 - a safe loader
         return [OfferedQos.from_dict(item) for item in items]
     except (yaml.YAMLError, TypeError, KeyError, AttributeError) as error:
         raise ValueError(f"offered_qos_profiles is not a list of QoS profiles: {error}") from None

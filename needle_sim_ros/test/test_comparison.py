@@ -99,6 +99,8 @@ def test_short_measurement_tip_error_and_outlier_gate():
 
 @pytest.mark.parametrize("points, arc_length, message", [
     (np.array([[0.0, 0.0, np.nan]]), None, "finite"),
+    (np.array([[np.inf, -np.inf, 0.0], [0.0, 0.0, 0.0]]), None, "finite"),
+    (np.zeros((2, 3)), [0.0, np.inf], "finite"),
     (np.zeros((0, 3)), None, "non-empty"),
     (np.zeros((3, 2)), None, "non-empty"),
     (np.zeros((3, 3)), [0.0, 0.1], "arc_length has 2 values"),
@@ -107,6 +109,12 @@ def test_short_measurement_tip_error_and_outlier_gate():
 def test_bad_centerlines_are_rejected_with_a_reason(points, arc_length, message):
     with pytest.raises(ComparisonError, match=message):
         CenterlineSamples(points, arc_length)
+
+
+def test_finite_centerlines_whose_sums_overflow_are_accepted():
+    """The finiteness check tries the sum first: a sum that overflows must not reject finite samples."""
+    points = np.array([[1e308, 1e308, 0.0], [1e308, 1e308, 1.0]])
+    assert CenterlineSamples(points, [1e308, 1.7e308]).points is not None
 
 
 def test_nothing_matched_is_an_error_not_nan():

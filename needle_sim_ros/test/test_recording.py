@@ -97,6 +97,19 @@ def write_samples(path, options=WriterOptions(), repeats=20, qos=(OfferedQos(),)
     return written
 
 
+def test_message_index_records_are_mcaps():
+    """The writer packs a chunk's message indexes itself: the same bytes as the mcap library's record."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import MessageIndex
+
+    from needle_sim_ros.recording.mcap_writer import _message_index
+
+    for entries in ([], [(1_700_000_000_123_456_789, 0)], [(t, 31 * t) for t in range(1000, 1300)]):
+        builder = RecordBuilder()
+        MessageIndex(7, entries).write(builder)
+        assert _message_index(7, entries) == builder.end()
+
+
 def test_written_file_decodes_message_by_message_with_mcap_ros2(tmp_path):
     path = tmp_path / "run.mcap"
     written = write_samples(path)
@@ -179,6 +192,27 @@ def test_rosbag2_v8_and_v9_qos_texts_are_read():
         parse_offered_qos_profiles("- nonsense")
 
 
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+@pytest.mark.parametrize("split", [False, True])
+def test_background_compression_writes_the_same_files(tmp_path, compression, split):
+    """Chunks compressed on the worker thread: byte for byte the file(s) written without it (also split by size)."""
+    samples = sample_messages()
+    messages = [(topic, 1_700_000_000_000_000_000 + k * 10_000_000 + i, serialize_message(message))
+                for k in range(40) for i, (topic, message) in enumerate(samples.items())]
+    files = []
+    for background in (False, True):
+        options = WriterOptions(compression=compression, chunk_size=2048, max_file_size=4096 if split else 0,
+                                background=background)
+        path = tmp_path / str(background) / ("bag" if split else "run.mcap")  # the name is in the bag metadata
+        with McapBagWriter(path, options) as writer:
+            for topic, message in samples.items():
+                writer.add_topic(topic, type_name(message))
+            for topic, stamp, data in messages:
+                writer.write(topic, data, stamp)
+        files.append([f.read_bytes() for f in sorted(path.glob("*.mcap"))] if split else [path.read_bytes()])
+    assert len(files[0]) > (2 if split else 0) and files[0] == files[1]
+
+
 def test_bag_directory_split_by_size_reads_back_whole(tmp_path):
     bag = tmp_path / "split_bag"
     written = write_samples(bag, WriterOptions(chunk_size=2048, max_file_size=4096), repeats=40)
@@ -217,9 +251,10 @@ def test_full_disk_gives_a_clear_error(tmp_path):
         McapBagWriter(full, WriterOptions(overwrite=True))
 
 
-def test_disk_full_mid_recording_stops_cleanly_and_the_file_is_recoverable(tmp_path, monkeypatch):
+@pytest.mark.parametrize("background", [False, True])
+def test_disk_full_mid_recording_stops_cleanly_and_the_file_is_recoverable(tmp_path, monkeypatch, background):
     path = tmp_path / "run.mcap"
-    writer = McapBagWriter(path, WriterOptions(chunk_size=1024, chunk_interval=0))
+    writer = McapBagWriter(path, WriterOptions(chunk_size=1024, chunk_interval=0, background=background))
     writer.add_topic("/chatter", "std_msgs/msg/String")
     real_write, budget = os.write, [6000]
 

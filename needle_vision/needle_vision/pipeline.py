@@ -53,9 +53,15 @@ def detect_polarity(darkening: np.ndarray, brightening: np.ndarray, background: 
     neither dominates (no needle, or noise). ``darkening``/``brightening``: how much darker/brighter than the
     background each pixel is [DN]. The needle is one long structure, texture and noise are scattered."""
     factor = threshold.downsample
-    limit = np.maximum(threshold.relative * downsample(background, factor), threshold.absolute)
-    darker, brighter = (_largest_component(downsample(excess, factor) > limit)
-                        for excess in (darkening, brightening))
+    return _coarse_polarity(downsample(darkening, factor), downsample(brightening, factor),
+                            downsample(background, factor), threshold)
+
+
+def _coarse_polarity(darkening: np.ndarray, brightening: np.ndarray, background: np.ndarray,
+                     threshold: ContrastThreshold) -> int:
+    """:func:`detect_polarity` of images already downsampled by ``threshold.downsample``."""
+    limit = np.maximum(threshold.relative * background, threshold.absolute)
+    darker, brighter = (_largest_component(excess > limit) for excess in (darkening, brightening))
     if darker >= 2 * brighter and darker > 0:
         return 1
     if brighter >= 2 * darker and brighter > 0:
@@ -167,8 +173,10 @@ class StereoNeedlePipeline:
                                      for image in (left, right))
         backgrounds = self.backgrounds
         if not self.polarity:  # decided here, kept only once a needle is measured with it (not on empty frames)
-            difference = backgrounds[0].image - left.astype(np.float32)
-            polarity = detect_polarity(difference, -difference, backgrounds[0].image, threshold)
+            # the coarse brightening is minus the coarse darkening (area averages commute with the sign exactly), and
+            # the background's coarse image is kept: one downsampling instead of three
+            coarse = downsample(backgrounds[0].image - left.astype(np.float32), threshold.downsample)
+            polarity = _coarse_polarity(coarse, -coarse, backgrounds[0].coarse, threshold)
             if not polarity:
                 return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
             threshold = replace(threshold, polarity=polarity)

@@ -160,3 +160,24 @@ def test_polarity_is_detected_automatically(rig, albedo, polarity, frames):
     distance, _ = distance_to_curve(result.measurement.points, SHAPES["planar"])
     # A third of the dark needle's contrast, or a background bootstrapped from this frame: 0.1-0.3 mm.
     assert np.sqrt(np.mean(distance ** 2)) < 0.35e-3
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_polarity_from_the_coarse_difference_is_detect_polaritys(seed):
+    """The pipeline decides the polarity on its averaged background from one downsampled difference and the
+    background's kept coarse image: the same bits as detect_polarity's three downsamplings of the full images."""
+    from needle_vision.detection.background import downsample
+    from needle_vision.pipeline import _coarse_polarity, detect_polarity
+
+    rng = np.random.default_rng(seed)
+    background = rng.uniform(20.0, 230.0, (216, 288)).astype(np.float32)
+    image = (background - rng.normal(0.0, 8.0, background.shape)).astype(np.float32)
+    image[100:104, 20:260] -= 60.0 * (1 - 2 * (seed % 2))  # a dark or a bright needle
+    threshold = ContrastThreshold()
+    difference = background - image
+    coarse = downsample(difference, threshold.downsample)
+    assert np.array_equal(downsample(-difference, threshold.downsample), -coarse)
+    assert np.array_equal(BackgroundModel(background, threshold).coarse, downsample(background, threshold.downsample))
+    expected = detect_polarity(difference, -difference, background, threshold)
+    assert expected == (1 if seed % 2 == 0 else -1)
+    assert _coarse_polarity(coarse, -coarse, downsample(background, threshold.downsample), threshold) == expected

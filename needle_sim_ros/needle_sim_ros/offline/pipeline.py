@@ -135,7 +135,7 @@ class OfflinePipeline:
                                  "that starts late clamps the needle elsewhere than the recording did")
         self.writer = None
         if output is not None:
-            self.writer = McapBagWriter(output, WriterOptions(overwrite=True))
+            self.writer = McapBagWriter(output, WriterOptions(overwrite=True, background=True))
             wrench_qos = OfferedQos(depth=100, reliability="reliable" if self.parameters["needle_simulator"][
                 "qos.wrench"] == "reliable" else "best_effort")
             outputs = {**OUTPUT_TOPICS, "/wrench": (OUTPUT_TOPICS["/wrench"][0], wrench_qos)}

@@ -41,7 +41,7 @@ from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
-from needle_sim_ros.messages.shape import shape_arrays, shape_error_cdr, time_msg
+from needle_sim_ros.messages.shape import Tag, shape_arrays, shape_error_cdr, stamp_of
 from needle_sim_ros.model import ModelShape
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
 
@@ -244,9 +244,9 @@ class ComparisonStage:
         self.display = ComparisonDisplay(v["display.rate"], v["display.tube_radius"], self.session.model_from_camera)
 
     def on_model(self, shape: ModelShape, frame_id: str) -> list[tuple[str, Any]]:
-        header = Header(stamp=time_msg(shape.t), frame_id=frame_id)
-        return self.outputs(self.session.add_model(stamp_ns(header), frame_id, header, shape.line.points,
-                                                   shape.line.arc_length))
+        stamp = stamp_of(shape.t)
+        return self.outputs(self.session.add_model(stamp.sec * NS + stamp.nanosec, frame_id, Tag(stamp, frame_id),
+                                                   shape.line.points, shape.line.arc_length))
 
     def on_measured(self, shape: MeasuredShape) -> list[tuple[str, Any]]:
         return self.outputs(self.session.add_measurement(stamp_ns(shape.header), shape.header.frame_id, shape.header,

@@ -17,16 +17,18 @@ import os
 import struct
 import zlib
 from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import lz4.frame
+import numpy as np
 import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header,
-                          MessageIndex, Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
+                          Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
 from mcap.writer import LIBRARY_IDENTIFIER, MCAP0_MAGIC
 
 from needle_sim_ros.recording.bag_metadata import (METADATA_RECORD_KEY, METADATA_RECORD_NAME, FileSummary,
@@ -39,6 +41,7 @@ PROFILE = "ros2"
 LIBRARY = f"needle_sim_ros recorder; {LIBRARY_IDENTIFIER}"
 _COMPRESSION = ("zstd", "lz4", "none")
 _MESSAGE = struct.Struct("<BQHIQQ")  # a Message record: opcode, length, channel id, sequence, log and publish time
+_INDEX_HEAD = struct.Struct("<BQHI")  # a MessageIndex record: opcode, length, channel id, entries' byte length
 
 
 class RecordingError(RuntimeError):
@@ -56,6 +59,8 @@ class WriterOptions:
     max_file_size: bytes [B] after which a bag directory continues in a new file; 0 = never.
     max_file_duration: log-time span [s] after which a bag directory continues in a new file; 0 = never.
     overwrite: replace an existing output instead of refusing.
+    background: compress each chunk on a worker thread (zstd and lz4 release the GIL) and write it with the next
+        message: the same file, with the compression off the caller's thread (the offline pipeline's).
     """
 
     compression: str = "zstd"
@@ -64,6 +69,7 @@ class WriterOptions:
     max_file_size: int = 0
     max_file_duration: float = 0.0
     overwrite: bool = False
+    background: bool = False
 
     def __post_init__(self) -> None:
         if self.compression not in _COMPRESSION:
@@ -128,6 +134,8 @@ class _McapFile:
         self._index: dict[int, list[tuple[int, int]]] = {}
         self._compress = {"zstd": zstandard.ZstdCompressor(level=1).compress, "lz4": lz4.frame.compress}.get(
             options.compression)
+        self._worker = ThreadPoolExecutor(1, "mcap-compress") if options.background and self._compress else None
+        self._pending: tuple | None = None  # a chunk being compressed: (future, its fields)
         self.stream.write(MCAP0_MAGIC)
         self._write(Header(PROFILE, LIBRARY))
 
@@ -141,7 +149,11 @@ class _McapFile:
         return self._chunk_times[0] if self._chunk else None
 
     def _write(self, *records) -> int:
-        """Write records; returns the offset of the first."""
+        """Write records (after a chunk being compressed); returns the offset of the first."""
+        self.write_pending()
+        return self._records(*records)
+
+    def _records(self, *records) -> int:
         builder, offset = RecordBuilder(), self.stream.position
         for record in records:
             record.write(builder)
@@ -176,6 +188,8 @@ class _McapFile:
                      sequence: int) -> None:
         """Append messages received at one time to the open chunk; the chunk is written when it holds
         ``chunk_size`` bytes or spans ``chunk_interval`` of log time."""
+        if self._pending is not None and self._pending[0].done():
+            self.write_pending()
         start, end = self._chunk_times if self._chunk else (log_time_ns, log_time_ns)
         self._chunk_times = (min(start, log_time_ns), max(end, log_time_ns))
         index, size, chunk = self._index.setdefault(channel_id, []), self._chunk_size, self._chunk
@@ -194,31 +208,56 @@ class _McapFile:
             self.flush()
 
     def flush(self) -> None:
-        """Write the open chunk and its message indexes."""
+        """Write the open chunk and its message indexes (with ``background``: compress it on the worker; it is
+        written by the next write, :meth:`write_pending`)."""
+        self.write_pending()
         if not self._chunk:
             return
         data = b"".join(self._chunk)
-        compressed = self._compress(data) if self._compress else data
+        fields = (len(data), self._chunk_times, self._index)
+        self._chunk, self._chunk_size, self._index = [], 0, {}
+        if self._worker is None:
+            self._write_chunk(self._pack(data), *fields)
+        else:
+            self._pending = (self._worker.submit(self._pack, data), *fields)
+
+    def _pack(self, data: bytes) -> tuple[bytes, int]:
+        """The chunk's records compressed, and their CRC."""
+        return (self._compress(data) if self._compress else data), zlib.crc32(data)
+
+    def write_pending(self) -> None:
+        """Write the chunk being compressed, if any (waits for it)."""
+        if self._pending is not None:
+            future, *fields = self._pending
+            self._pending = None
+            self._write_chunk(future.result(), *fields)
+
+    def _write_chunk(self, packed: tuple[bytes, int], size: int, times: tuple[int, int],
+                     index: dict[int, list[tuple[int, int]]]) -> None:
+        compressed, crc = packed
         chunk = Chunk(compression=self.options.compression if self._compress else "", data=compressed,
-                      message_start_time=self._chunk_times[0], message_end_time=self._chunk_times[1],
-                      uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data))
-        start = self._write(chunk)
-        indexes = self.stream.position
-        offsets = {}
-        for channel_id, records in self._index.items():
-            offsets[channel_id] = self.stream.position
-            self._write(MessageIndex(channel_id, records))
+                      message_start_time=times[0], message_end_time=times[1], uncompressed_crc=crc,
+                      uncompressed_size=size)
+        start = self._records(chunk)
+        indexes = position = self.stream.position
+        offsets, records = {}, []
+        for channel_id, entries in index.items():
+            offsets[channel_id] = position
+            records.append(_message_index(channel_id, entries))
+            position += len(records[-1])
+        self.stream.write(b"".join(records))
         self._summary[Opcode.CHUNK_INDEX].append(ChunkIndex(
             chunk_start_offset=start, chunk_length=indexes - start, message_index_offsets=offsets,
             message_index_length=self.stream.position - indexes, compression=chunk.compression,
-            compressed_size=len(compressed), uncompressed_size=len(data), message_start_time=chunk.message_start_time,
+            compressed_size=len(compressed), uncompressed_size=size, message_start_time=chunk.message_start_time,
             message_end_time=chunk.message_end_time))
-        self._chunk, self._chunk_size, self._index = [], 0, {}
 
     def finish(self) -> None:
         """Write the open chunk, the data end, the summary and the footer, and close the file."""
         self.flush()
         self._write(DataEnd(0))
+        if self._worker is not None:
+            self._worker.shutdown()
         stats, summary = self._statistics, self._summary
         stats.message_count = sum(self.counts.values())
         stats.message_start_time, stats.message_end_time = self.first_log_time_ns or 0, self.last_log_time_ns
@@ -242,6 +281,13 @@ class _McapFile:
         self._write(Footer(start, offsets, crc))
         self.stream.write(MCAP0_MAGIC)
         self.stream.close()
+
+
+def _message_index(channel_id: int, entries: list[tuple[int, int]]) -> bytes:
+    """The MessageIndex record of a chunk's (log time, offset) entries of one channel: the bytes of
+    :class:`mcap.records.MessageIndex`, packed at once (its writer packs each number apart: ~5 ms per run)."""
+    data = np.array(entries, dtype="<u8").tobytes()
+    return _INDEX_HEAD.pack(Opcode.MESSAGE_INDEX, 6 + len(data), channel_id, len(data)) + data
 
 
 def _describe(error: OSError, path: Path) -> str:
@@ -453,8 +499,10 @@ class McapBagWriter:
 
     def _write(self, channel: _Channel, messages: list[bytes], log_time_ns: int, publish_time_ns: int,
                sequence: int) -> None:
-        if self.is_directory and self._split_due(self._file, log_time_ns):
-            self._finish_file()
-            self._open_next_file()
+        if self.is_directory:
+            self._file.write_pending()  # the file's size counts it
+            if self._split_due(self._file, log_time_ns):
+                self._finish_file()
+                self._open_next_file()
         self._file.add_messages(self._file.channel_ids[channel.topic], messages, log_time_ns, publish_time_ns, sequence)
         channel.message_count += len(messages)

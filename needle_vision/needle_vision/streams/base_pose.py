@@ -33,7 +33,7 @@ class BasePoseStore:
         self.offset = tuple(float(v) for v in offset)
         self.capacity = capacity
         self._stamps: list[float] = []
-        self._points: list[np.ndarray] = []
+        self._poses: list[tuple] = []  # (position, unit quaternion, output_from_pose): the point made when asked
 
     def __len__(self) -> int:
         return len(self._stamps)
@@ -42,22 +42,26 @@ class BasePoseStore:
             output_from_pose: RigidTransform | None = None) -> None:
         """Store the base point of a pose given in a frame whose pose in the output frame is
         ``output_from_pose`` (None: the output frame itself). ValueError for non-finite values or a zero
-        quaternion (nothing stored)."""
+        quaternion (nothing stored). The point is computed when :meth:`base_at` asks for it (poses come at 1 kHz,
+        pairs at tens of Hz)."""
+        position, orientation = _floats(position), _floats(orientation)
         values = (stamp, *position, *orientation)
-        if len(values) != 8 or not all(math.isfinite(v) for v in values):
+        if len(values) != 8 or not all(map(math.isfinite, values)):
             raise ValueError("non-finite stamp, position or orientation")
         norm = math.hypot(*orientation)
         if norm < 1e-9:
             raise ValueError("zero quaternion")
-        shift = rotate([q / norm for q in orientation], self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
-        point = np.array([p + s for p, s in zip(position, shift)])
-        if output_from_pose is not None:
-            point = output_from_pose.apply(point)
         index = bisect.bisect_right(self._stamps, stamp)
         self._stamps.insert(index, float(stamp))
-        self._points.insert(index, point)
+        self._poses.insert(index, (position, [q / norm for q in orientation], output_from_pose))
         if len(self._stamps) > self.capacity:
-            del self._stamps[0], self._points[0]
+            del self._stamps[0], self._poses[0]
+
+    def _point(self, position: Sequence[float], unit_quaternion: list[float],
+               output_from_pose: RigidTransform | None) -> np.ndarray:
+        shift = rotate(unit_quaternion, self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
+        point = np.array([p + s for p, s in zip(position, shift)])
+        return point if output_from_pose is None else output_from_pose.apply(point)
 
     def base_at(self, stamp: float) -> np.ndarray | None:
         """The base point [m, output frame] of the pose nearest in time to ``stamp``, or None when none is
@@ -67,7 +71,12 @@ class BasePoseStore:
                       key=lambda k: abs(self._stamps[k] - stamp), default=None)
         if nearest is None or abs(self._stamps[nearest] - stamp) > self.max_age:
             return None
-        return self._points[nearest]
+        return self._point(*self._poses[nearest])
+
+
+def _floats(values: Sequence[float]) -> list[float]:
+    """Python floats (a pose's arrays: numpy scalars cost more in the arithmetic here)."""
+    return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
 
 
 IDENTITY = RigidTransform()  # built once: its checks cost ~0.2 ms, and the poses come at 1 kHz
