@@ -5,8 +5,10 @@ import pytest
 
 from needle_sim_ros.model import (NeedleProperties, axial_strain, build_model, curvature, elastic_energy,
                                   elastic_forces, tangent_stiffness)
+from needle_sim_ros.model.banded import ELEMENT_BANDWIDTH, band_to_dense, band_width_columns
 from needle_sim_ros.model.damping import reference_stiffness_slots
 from needle_sim_ros.model.mesh import shape_functions
+from needle_sim_ros.model.newton import assemble_system, model_tables
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
 
@@ -146,3 +148,35 @@ def test_exact_curvature_and_strain_of_a_circular_arc():
     stretched[:, 0] *= 1.01
     stretched[:, 1] *= 1.01
     assert np.allclose(curvature(model, stretched.ravel(), s), 1 / (1.01 * rho), rtol=1e-3)
+
+
+def test_iteration_matrix_full_and_lower_against_finite_differences():
+    """The Newton matrix J = dR/dq of the dynamic residual (elastic, axial strain-rate damping, mass, Rayleigh
+    damping) from ``assemble_system`` against central differences of its own residual, with q' and q'' affine in q
+    as in a step; the lower-triangle assembly (what the Cholesky reads) equals the full band's lower triangle."""
+    model = build_model(NEEDLE, 4, rayleigh_alpha=2.0, rayleigh_beta=1e-3)
+    rng = np.random.default_rng(3)
+    n, kl = model.n_dof, ELEMENT_BANDWIDTH
+    q = straight(model) + 0.01 * rng.normal(size=n)
+    qd0, qdd0 = 1e-3 * rng.normal(size=n), 100.0 * rng.normal(size=n)  # slow: the omitted term stays small
+    c_M, c_C = 3.0e6, 2.0e3  # dq''/dq, dq'/dq
+    tables, axis, active = model_tables(model), np.array([0.6, 0.0, 0.8]), np.ones(n, dtype=bool)
+    empty, ext_Q = np.zeros((0, 0)), np.zeros(n)
+
+    def assembled(x: np.ndarray, with_matrix: bool, lower: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        residual, band = np.zeros(n), np.zeros((n, band_width_columns(kl)))
+        shift = x - q
+        assemble_system(x, qd0 + c_C * shift, qdd0 + c_M * shift, tables, axis, ext_Q, empty, 1.0, c_M, c_C, active,
+                        residual, band, kl, with_matrix, lower)
+        return residual, band
+
+    residual, band = assembled(q, True)
+    J = band_to_dense(band, kl)
+    h = 1e-7
+    differences = np.array([(assembled(q + h * e, False)[0] - assembled(q - h * e, False)[0]) / (2 * h)
+                            for e in np.eye(n)]).T
+    # the matrix omits the axial damping's q-derivative (damping module docstring): small against c_C beta EA
+    assert np.abs(J - differences).max() < 1e-4 * np.abs(J).max()
+    lower = assembled(q, True, True)[1]
+    assert np.array_equal(assembled(q, False)[0], residual)
+    assert np.array_equal(np.tril(band_to_dense(lower, kl)), np.tril(J))

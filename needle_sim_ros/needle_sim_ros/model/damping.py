@@ -8,7 +8,8 @@ rotation of the gradients r_x away from t -- under large deflections that is a s
 huge E A (a needle vibrating with 10 mm tip amplitude lost 99 % of its energy in 10 periods instead of 38 %).
 So the two parts are applied objectively:
 * axial: the Kelvin-Voigt strain-rate form  Q_d,a = -beta int EA (r_x . r_x') S_x^T r_x  (eps' = r_x . r_x'),
-  which equals beta kron(K_a, t t^T) q' at the straight state and vanishes for any rigid rotation;
+  which equals beta kron(K_a, t t^T) q' at the straight state and vanishes for any rigid rotation (evaluated at
+  the axial Gauss points with the elastic forces, ``elastic.add_elastic``);
 * bending: beta kron(K_b, I - t t^T) q' with t the current axis of the holder (the reference state turns with the
   holder, so rigid motions of the straight needle are not damped).  For a deformed needle this linear part is not
   exactly free of a net moment (of order beta EI kappa omega: ~4e-7 N m for a 10 mm tip vibration with
@@ -22,7 +23,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from .elastic import ElasticTables
 from .mesh import slot_matrix
@@ -50,28 +50,3 @@ def damping_tables(mass_slots: np.ndarray, elastic: ElasticTables, alpha: float,
             raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
     _, bending = reference_stiffness_slots(elastic)
     return DampingTables(alpha * mass_slots + beta * bending, -beta * bending, beta * elastic.axial_weights)
-
-
-@njit(cache=True)
-def add_axial_damping(q, qd, axial_S_x, strain_rate_weights, forces):
-    """forces += Q_d,a = -int beta EA (r_x . r_x') S_x^T r_x. Its matrix (-dQ_d,a/dq') has the axial stiffness's
-    blocks at the same points: ``add_elastic`` adds it with them."""
-    rx = np.empty(3)
-    rxd = np.empty(3)
-    for j in range(axial_S_x.shape[0]):
-        first = 6 * j
-        for point in range(axial_S_x.shape[1]):
-            w = strain_rate_weights[j, point]
-            if w == 0.0:
-                continue
-            d = axial_S_x[j, point]
-            rx[:] = 0.0
-            rxd[:] = 0.0
-            for a in range(4):
-                for c in range(3):
-                    rx[c] += d[a] * q[first + 3 * a + c]
-                    rxd[c] += d[a] * qd[first + 3 * a + c]
-            rate = rx[0] * rxd[0] + rx[1] * rxd[1] + rx[2] * rxd[2]
-            for a in range(4):
-                for c in range(3):
-                    forces[first + 3 * a + c] -= w * rate * d[a] * rx[c]

@@ -15,7 +15,6 @@ import numpy as np
 from numba import njit
 
 from .banded import FAST, band_cholesky, band_factor, band_solve, band_symmetric, cholesky_solve
-from .damping import add_axial_damping
 from .elastic import add_elastic
 
 CONVERGED, CHORD, REFACTOR, FAILED = 0, 1, 2, -1
@@ -70,61 +69,68 @@ def unpack_tables(tables):
 
 @njit(cache=True, fastmath=FAST)
 def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, active, residual, band, kl,
-                    with_matrix):
-    """residual <- R (zero on constrained rows); if with_matrix, band <- J (identity on constrained rows/cols).
-    tables: ``model_tables``; ext_band: the external forces' part of J, -(c_K dQ_ext/dq + c_C dQ_ext/dq'), in the
-    layout of ``band`` (same kl), or a (0, 0) array for zero."""
+                    with_matrix, lower=False):
+    """residual <- R (zero on constrained rows); if with_matrix, band <- J (identity on constrained rows/cols), with
+    ``lower`` its lower triangle and diagonal only (what ``band_cholesky`` reads of a symmetric J; the band's other
+    entries are left as they were). tables: ``model_tables``; ext_band: the external forces' part of J,
+    -(c_K dQ_ext/dq + c_C dQ_ext/dq'), in the layout of ``band`` (same kl), or a (0, 0) array for zero."""
     (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
      damping_transverse, strain_rate_weights) = unpack_tables(tables)
     n = q.size
     residual[:] = 0.0
     if with_matrix:
-        band[:, :] = 0.0
+        band[:, :kl + 1 if lower else band.shape[1]] = 0.0
     add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, residual, band, kl,
-                c_K, with_matrix, strain_rate_weights, c_C)  # with the axial damping's matrix
-    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, residual)
+                c_K, with_matrix, strain_rate_weights, c_C, qd, lower)  # with the axial damping's force and matrix
     for i in range(n):
         residual[i] = -residual[i] - ext_Q[i]
     n_slots = mass_slots.shape[0]
     a0, a1, a2 = axis[0], axis[1], axis[2]
+    t00, t01, t02, t11, t12, t22 = a0 * a0, a0 * a1, a0 * a2, a1 * a1, a1 * a2, a2 * a2
     for s in range(n_slots):
-        for s2 in range(max(0, s - 3), min(n_slots, s + 4)):
+        node = s // 2
+        m0 = m1 = m2 = 0.0
+        last = s + 1 if with_matrix and lower else min(n_slots, 2 * node + 4)
+        for s2 in range(max(0, 2 * node - 2), min(n_slots, 2 * node + 4)):  # the slots of the nodes beside
             m = mass_slots[s, s2]
             ci = damping_isotropic[s, s2]
             ca = damping_transverse[s, s2]
-            if m == 0.0 and ci == 0.0 and ca == 0.0:  # slots of different elements
-                continue
             v0, v1, v2 = qd[3 * s2], qd[3 * s2 + 1], qd[3 * s2 + 2]
             transverse = ca * (a0 * v0 + a1 * v1 + a2 * v2)
-            residual[3 * s] += m * qdd[3 * s2] + ci * v0 + transverse * a0
-            residual[3 * s + 1] += m * qdd[3 * s2 + 1] + ci * v1 + transverse * a1
-            residual[3 * s + 2] += m * qdd[3 * s2 + 2] + ci * v2 + transverse * a2
-            if with_matrix:  # the 3 x 3 block (c_M m + c_C ci) I + c_C ca t t^T at rows 3 s, columns 3 s2
+            m0 += m * qdd[3 * s2] + ci * v0 + transverse * a0
+            m1 += m * qdd[3 * s2 + 1] + ci * v1 + transverse * a1
+            m2 += m * qdd[3 * s2 + 2] + ci * v2 + transverse * a2
+            if with_matrix and s2 < last:  # the 3 x 3 block (c_M m + c_C ci) I + c_C ca t t^T at rows 3 s, columns 3 s2
                 isotropic = c_M * m + c_C * ci
                 along = c_C * ca
                 offset = 3 * (s2 - s) + kl
                 first = band[3 * s]  # matrix column 3 s2 + c2 of row 3 s + c at band[3 s + c, offset + c2 - c]
                 second = band[3 * s + 1]
                 third = band[3 * s + 2]
-                first[offset] += isotropic + along * a0 * a0
-                first[offset + 1] += along * a0 * a1
-                first[offset + 2] += along * a0 * a2
-                second[offset - 1] += along * a1 * a0
-                second[offset] += isotropic + along * a1 * a1
-                second[offset + 1] += along * a1 * a2
-                third[offset - 2] += along * a2 * a0
-                third[offset - 1] += along * a2 * a1
-                third[offset] += isotropic + along * a2 * a2
+                first[offset] += isotropic + along * t00
+                second[offset - 1] += along * t01
+                second[offset] += isotropic + along * t11
+                third[offset - 2] += along * t02
+                third[offset - 1] += along * t12
+                third[offset] += isotropic + along * t22
+                if s2 < s or not lower:
+                    first[offset + 1] += along * t01
+                    first[offset + 2] += along * t02
+                    second[offset + 1] += along * t12
+        residual[3 * s] += m0
+        residual[3 * s + 1] += m1
+        residual[3 * s + 2] += m2
     if with_matrix and ext_band.shape[0] > 0:
         for i in range(n):
-            for column in range(2 * kl + 1):
+            for column in range(kl + 1 if lower else 2 * kl + 1):
                 band[i, column] += ext_band[i, column]
     for i in range(n):
         if not active[i]:
             residual[i] = 0.0
             if with_matrix:
-                for j in range(max(0, i - kl), min(n, i + kl + 1)):
+                for j in range(max(0, i - kl), i if lower else min(n, i + kl + 1)):  # row i (left of the diagonal)
                     band[i, j - i + kl] = 0.0
+                for j in range(i + 1 if lower else max(0, i - kl), min(n, i + kl + 1)):  # column i (below it)
                     band[j, i - j + kl] = 0.0
                 band[i, kl] = 1.0
 
@@ -217,7 +223,8 @@ def iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, 
     Returns the scaled correction max_i |dq_i| / scale_i, or -1 for a singular matrix or non-finite values."""
     c_M, c_C = rate_coefficients(coef, dynamic)
     q, qd, qdd = values[0], values[1], values[2]
-    assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, 1.0, c_M, c_C, active, residual, band, kl, refactor)
+    assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, 1.0, c_M, c_C, active, residual, band, kl, refactor,
+                    symmetric)
     if refactor:
         factorization[0] = CHOLESKY
         if not (symmetric and band_cholesky(band, kl)):

@@ -18,7 +18,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .damping import add_axial_damping
 from .elastic import ElasticTables, add_elastic
 from .kinematics import BaseMotion, cross, rotate_back
 from .model import NeedleModel, State
@@ -50,8 +49,7 @@ def base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, be
     internal = np.zeros(12)
     no_band = np.zeros((1, 1))
     add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, internal, no_band, 0,
-                0.0, False)
-    add_axial_damping(q, qd, axial_S_x, strain_rate_weights, internal)
+                0.0, False, strain_rate_weights, 0.0, qd)
     result = np.empty(6)
     for s in range(2):
         for c in range(3):
