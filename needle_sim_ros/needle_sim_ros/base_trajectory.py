@@ -144,7 +144,7 @@ class BaseTrajectory:
             if t <= latest.t:
                 return PoseVerdict.OUT_OF_ORDER
             # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
-            if not (distance <= limits.max_position_jump and angle <= limits.max_orientation_jump):  # _within_limits
+            if not self._within_limits(distance, angle):
                 return self._handle_jump(sample)
         self._rejected.clear()
         self._append(sample)
@@ -153,11 +153,11 @@ class BaseTrajectory:
     def _deviation(self, reference: PoseSample, sample: PoseSample) -> tuple[float, float]:
         return _pose_deviation(reference.position, reference.orientation, sample.position, sample.orientation)
 
-    def _within_limits(self, deviation: tuple[float, float]) -> bool:
-        return deviation[0] <= self.limits.max_position_jump and deviation[1] <= self.limits.max_orientation_jump
+    def _within_limits(self, distance: float, angle: float) -> bool:
+        return distance <= self.limits.max_position_jump and angle <= self.limits.max_orientation_jump
 
     def _handle_jump(self, sample: PoseSample) -> PoseVerdict:
-        if self._rejected and not self._within_limits(self._deviation(self._rejected[-1], sample)):
+        if self._rejected and not self._within_limits(*self._deviation(self._rejected[-1], sample)):
             self._rejected.clear()
         self._rejected.append(sample)
         if len(self._rejected) < self.limits.reanchor_after:

@@ -110,8 +110,8 @@ class ClockLoop:
         count = math.floor((t_target + slack - data.grid_origin) / dt) - data.step_index
         if count <= 0:
             return []
-        origin, first = data.grid_origin, data.step_index + 1
-        times = np.array([origin + dt * index for index in range(first, first + count)])  # grid_time, inlined
+        grid_time, first = self.grid_time, data.step_index + 1
+        times = np.array([grid_time(index) for index in range(first, first + count)])
         return self.stepper.run(times, source, t_target)
 
     @property
