@@ -142,7 +142,7 @@ def build_tissue_model(config, model) -> TissueModel:
     contact = TissueContact(block, float(cfg["tissue.track.spacing"]),
                             profile.puncture_depth if profile_enabled else None)
     stick_stiffness = float(cfg["tissue.shaft.stick_stiffness"])
-    axial_law = {"karnopp": lambda: KarnoppShaftFriction(block, stick_stiffness),
+    axial_law = {"karnopp": lambda: KarnoppShaftFriction(stick_stiffness),
                  "insertion_profile": lambda: ProfileShaftFriction(profile, stick_stiffness),
                  "lugre": lambda: LuGreShaftForce(cfg.lugre()),
                  "none": lambda: None}[axial_model]()

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .geometry import FRICTION_ROWS, TissueBlock, layer_rows
+from .geometry import FRICTION_ROWS, layer_rows
 from .insertion_profile import InsertionForceProfile, fourier_series
 from .lugre import ModifiedLuGre, bracket_kernel, bristle_step
 
@@ -79,12 +79,12 @@ def _stick_stiffness(value: float) -> float:
 
 
 class KarnoppShaftFriction(ShaftLaw):
-    """Seed 001 eq. 2 with the stick band of ``karnopp``; C_n, b_n per layer."""
+    """Seed 001 eq. 2 with the stick band of ``karnopp``; C_n, b_n per layer (the block's layer tables, read by the
+    compiled kernels)."""
 
     kind = KARNOPP
 
-    def __init__(self, block: TissueBlock, stick_stiffness: float) -> None:
-        self.block = block
+    def __init__(self, stick_stiffness: float) -> None:
         self.stick_stiffness = _stick_stiffness(stick_stiffness)
 
 
