@@ -10,16 +10,17 @@
         pose_frame:=PSM1_base haptic_topic:=servo_cf experiment:=my_tool.yaml      # a CRTK (dVRK-style) arm
 
 Modes: ``sim`` runs the simulator in wall-clock time on poses from ``pose_topic``; ``replay`` adds stereo
-reconstruction, comparison and the bag player in simulated time (the bag starts once the simulator is active, and
+reconstruction, comparison and the bag player in simulated time (the bag plays once the simulator is active, and
 the launch ends when the bag has played unless ``keep_alive:=true``); ``external`` is replay without the player
 (simulated time from another /clock source, e.g. ``ros2 bag play --clock``); ``hil`` is the wall-clock simulator
 with its haptic output on (``haptics.enable``): a robot driver's measured pose in (CRTK ``measured_cp``), the force
 the operator should feel out on ``haptic_topic`` (CRTK ``servo_cf``).
 
-The simulator is sequenced through its lifecycle: configure at start, then activate (``activate:=false``: configure
-only; ``configure:=false``: no transition at all, a lifecycle manager drives it). The simulator exiting with an error,
-or failing a transition (its configure rejected, an error in a callback), ends the launch with a non-zero status; so
-does the bag player failing.
+The simulator configures and activates itself at start (its ``autostart``: no launch event to miss, see the README);
+``activate:=false``: the launch only configures it; ``configure:=false``: no transition at all, a lifecycle manager
+drives it. The simulator exiting with an error (a bad parameter, its configure rejected at start: status 2), or
+failing a transition the launch sees (its transition_event), ends the launch with a non-zero status; so does the bag
+player failing.
 Experiment sections keyed by a bare node name apply in any namespace, the namespace of a parent launch's
 PushRosNamespace included.
 """
@@ -92,11 +93,13 @@ def _nodes(context):
     extra = [experiment] if experiment else []
     common = {"use_sim_time": settings["use_sim_time"]}
     haptics = {"haptics.enable": True} if settings["haptics"] else {}
+    configure = flag("configure", arg["configure"])
+    autostart = configure and flag("activate", arg["activate"])
     simulator = LifecycleNode(
         package="needle_sim_ros", executable="needle_simulator", name="needle_simulator",
         namespace=arg["namespace"], output="screen",
         parameters=[f"{config}/needle_simulator.yaml", *extra, common, haptics,
-                    {"autostart": False, "frames.world": arg["pose_frame"]}],
+                    {"autostart": autostart, "frames.world": arg["pose_frame"]}],
         remappings=[("base_pose", arg["pose_topic"]), ("wrench", arg["wrench_topic"]),
                     ("haptic/wrench", arg["haptic_topic"])])
     actions = [simulator,
@@ -106,14 +109,9 @@ def _nodes(context):
                    matcher=lambda event: isinstance(event, StateTransition) and event.action is simulator
                    and failed_transition(event.start_state, event.goal_state),
                    entities=[OpaqueFunction(function=_transition_failed)]))]
-    if flag("configure", arg["configure"]):
+    if configure and not autostart:  # the change_state service, called until it answers
         actions.append(EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
                                                    transition_id=Transition.TRANSITION_CONFIGURE)))
-        if flag("activate", arg["activate"]):
-            actions.append(RegisterEventHandler(OnStateTransition(
-                target_lifecycle_node=simulator, start_state="configuring", goal_state="inactive", handle_once=True,
-                entities=[EmitEvent(event=ChangeState(lifecycle_node_matcher=matches_action(simulator),
-                                                      transition_id=Transition.TRANSITION_ACTIVATE))])))
     nodes = ["needle_simulator"]  # the nodes the bag player waits for
     compressed = image_transport(arg["image_transport"]) == "compressed"
     if _choice("stereo", arg["stereo"], settings["stereo"]):
@@ -132,16 +130,17 @@ def _nodes(context):
                         {"log.path": unique_log_path(arg["log"], arg["log_dir"])}],
             remappings=[("model/shape", "needle/shape"), ("measured/shape", "needle/measured_shape"),
                         ("base_pose", arg["pose_topic"]), ("wrench", arg["wrench_topic"])]))
-    if settings["player"]:  # once the simulator is first active and every node has matched the bag's topics
+    if settings["player"]:  # plays once every node has matched the bag's topics and takes input (the simulator: active)
         player = Node(package="needle_sim_ros", executable="needle_replay", name="needle_replay",
                       namespace=arg["namespace"], output="screen",
                       arguments=player_arguments(arg["bag"], namespace, nodes,
                                                  image_codec(arg["image_codec"]) if compressed else ""))
-        actions += [
-            RegisterEventHandler(OnStateTransition(target_lifecycle_node=simulator, start_state="activating",
-                                                   goal_state="active", handle_once=True, entities=[player])),
-            RegisterEventHandler(OnProcessExit(target_action=player, on_exit=_ends_launch(
-                "needle_replay", not flag("keep_alive", arg["keep_alive"]))))]
+        # Activated by a lifecycle manager, any time later: the player starts at its first activation.
+        start = player if autostart else RegisterEventHandler(OnStateTransition(
+            target_lifecycle_node=simulator, start_state="activating", goal_state="active", handle_once=True,
+            entities=[player]))
+        actions += [start, RegisterEventHandler(OnProcessExit(target_action=player, on_exit=_ends_launch(
+            "needle_replay", not flag("keep_alive", arg["keep_alive"]))))]
     return actions
 
 
