@@ -372,7 +372,7 @@ TAPER_SIGNIFICANCE = 5.0
 #: The end's lateral extrapolation takes a cubic term (the curvature changing along the 80 slices before the end)
 #: when its coefficient exceeds this many white-noise standard errors and the end lies within ``CUBIC_REACH`` of the
 #: fitted span beyond it. The centroids' errors are correlated over ~20 slices, so noise alone reaches ~5; over 208
-#: flat ends of 16 shapes, both polarities, the cubic put the end nearer in 88 % of those at 5-7 standard errors and
+#: flat ends of 13 shapes, both polarities, the cubic put the end nearer in 88 % of those at 5-7 standard errors and
 #: in all beyond 7 (the rod S's tips read 6.4-8.9).
 CURVATURE_RAMP_SIGNIFICANCE = 5.0
 #: A third-order term's extrapolation error grows with the cube of the distance: flat ends lie 5-8 px beyond the
