@@ -370,9 +370,16 @@ TAPER_FACTOR = 1.15
 #: profile does not tell a taper: a flat end's ratio scatters ~3x the profile's scatter about 1).
 TAPER_SIGNIFICANCE = 5.0
 #: The end's lateral extrapolation takes a cubic term (the curvature changing along the 80 slices before the end)
-#: when its coefficient exceeds this many white-noise standard errors. The centroids' errors are correlated over ~20
-#: slices, so noise alone reaches ~5; at 5 the median-background case (test_offline_modes) took a cubic on noise.
-CURVATURE_RAMP_SIGNIFICANCE = 10.0
+#: when its coefficient exceeds this many white-noise standard errors and the end lies within ``CUBIC_REACH`` of the
+#: fitted span beyond it. The centroids' errors are correlated over ~20 slices, so noise alone reaches ~5; over 208
+#: flat ends of 13 shapes, both polarities, the cubic put the end nearer in 88 % of those at 5-7 standard errors and
+#: in all beyond 7 (the rod S's tips read 6.4-8.9).
+CURVATURE_RAMP_SIGNIFICANCE = 5.0
+#: A third-order term's extrapolation error grows with the cube of the distance: flat ends lie 5-8 px beyond the
+#: last fitted slice, bevels' 8-13 px (their cubics read below 5 standard errors); the offline median background
+#: (test_offline_modes), which holds part of the needle where every frame's needle covers it, reads as 18-25 px half
+#: tapers, the end 42-55 px beyond, where cubics of 6.5-9.8 standard errors moved it by 1.4-2.8 px.
+CUBIC_REACH = 0.25
 
 
 @numba.njit(cache=True, nogil=True)
@@ -605,7 +612,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     intensity); the end is where that profile falls to half its level (a flat end is a step blurred
     symmetrically). The points within ``half_width + 1`` px of the end (centroids biased
     by the oblique cut) are replaced by a quadratic (the needle's curvature; a cubic where its change along them is
-    significant) fitted to the 80 before them, evenly
+    significant and the end near) fitted to the 80 before them, evenly
     spaced at the centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls
     (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its
     noise), a blurred linear taper is fitted to the profile and the end put half its length beyond its middle (least
@@ -705,7 +712,8 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     abscissa = (fit[:, 0] - centre[0]) * direction[0] + (fit[:, 1] - centre[1]) * direction[1]
     offset = abscissa.mean()
     lateral = (fit[:, 0] - centre[0]) * normal[0] + (fit[:, 1] - centre[1]) * normal[1]
-    # A cubic term where it stands out of the fit's noise (CURVATURE_RAMP_SIGNIFICANCE standard errors).
+    # A cubic term where it stands out of the fit's noise (CURVATURE_RAMP_SIGNIFICANCE standard errors) and the
+    # extrapolation is short (CUBIC_REACH).
     design = np.empty((80, 4))
     for k in range(80):
         t = abscissa[k] - offset
@@ -713,7 +721,8 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     coefficients = np.linalg.lstsq(design, lateral)[0]
     residual = lateral - design @ coefficients
     variance = (residual @ residual) / 76.0 * np.linalg.inv(design.T @ design)[0, 0]
-    if coefficients[0] * coefficients[0] <= CURVATURE_RAMP_SIGNIFICANCE ** 2 * variance:
+    if end - along[kept - 1] > CUBIC_REACH * (along[kept - 1] - along[kept - 80]) \
+            or coefficients[0] * coefficients[0] <= CURVATURE_RAMP_SIGNIFICANCE ** 2 * variance:
         coefficients[0] = 0.0
         coefficients[1:] = np.linalg.lstsq(np.ascontiguousarray(design[:, 1:]), lateral)[0]
     # As many points as the centerline's own spacing (the slices' step along the needle) puts up to the end, evenly
