@@ -14,7 +14,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from needle_sim_ros.model.forces import assemble_point_forces
 from needle_sim_ros.model.kinematics import dot3, offset_dot
 from needle_sim_ros.model.mesh import hermite_shapes, interpolate
 
@@ -22,9 +21,6 @@ from .geometry import TissueBlock
 from .karnopp import axial_traction
 from .shaft_laws import ShaftLaw
 from .track import Track, locate_on_polyline, project_on_blocks, project_on_polyline, segment_blocks
-
-
-_NO_GRADIENT = np.zeros((0, 3, 3))  # the shaft's point forces do not depend on r_x
 
 
 def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -62,32 +58,6 @@ _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(LATERAL_GAUSS_POINTS)
 
 
 @njit(cache=True)
-def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping, stick_stiffness, coulomb,
-                       viscous, offset, sign_gain, velocity_scale):
-    """Force per length on each shaft point and dF/dr, dF/dv: lateral springs and dampers perpendicular to the
-    track tangent tau, and the axial traction of ``karnopp.axial_traction`` along it (1 kHz loop: compiled)."""
-    n = r.shape[0]
-    force = np.zeros((n, 3))
-    d_dr = np.zeros((n, 3, 3))
-    d_dv = np.zeros((n, 3, 3))
-    for k in range(n):
-        tau = tangents[k]
-        u = offset_dot(r[k], anchors[k], tau)
-        v_axial = dot3(v[k], tau)
-        t, dt_du, dt_dv = axial_traction(u, v_axial, stick_stiffness, coulomb[k], viscous[k], offset, sign_gain,
-                                         velocity_scale)
-        for i in range(3):
-            force[k, i] = (-lateral_stiffness[k] * (r[k, i] - anchors[k, i] - u * tau[i])
-                           - lateral_damping[k] * (v[k, i] - v_axial * tau[i]) + t * tau[i])
-            for j in range(3):
-                tt = tau[i] * tau[j]
-                perpendicular = (1.0 if i == j else 0.0) - tt
-                d_dr[k, i, j] = -lateral_stiffness[k] * perpendicular + dt_du * tt
-                d_dv[k, i, j] = -lateral_damping[k] * perpendicular + dt_dv * tt
-    return force, d_dr, d_dv
-
-
-@njit(cache=True)
 def interpolate_pair(slots, S_a, x_a, S_b, x_b):
     """Two interpolations (k, 3) at interpolation points (model.interpolation): shape functions S_a of
     coordinates x_a (e.g. S of q: positions) and S_b of x_b (e.g. S of q': velocities, S_x of q: gradients)."""
@@ -95,21 +65,54 @@ def interpolate_pair(slots, S_a, x_a, S_b, x_b):
 
 
 @njit(cache=True)
-def point_kinematics(q, qd, slots, S):
-    """Positions and velocities (k, 3) of interpolation points (model.interpolation) at (q, qd)."""
-    return interpolate_pair(slots, S, q, S, qd)
-
-
-@njit(cache=True)
 def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, lateral_stiffness, lateral_damping,
                             stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale, Q, band, kl, c_q,
                             c_qd):
-    """Kinematics, ``shaft_point_forces`` and assembly of one part's points (ShaftSupport) in one compiled call:
-    adds to Q and, unless band is (0, 0) (Q alone), c_q dQ/dq + c_qd dQ/dq' to the band matrix."""
-    r, v = point_kinematics(q, qd, slots, S)
-    force, d_dr, d_dv = shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping,
-                                           stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale)
-    assemble_point_forces(slots, S, S_x, weights, force, d_dr, _NO_GRADIENT, d_dv, Q, band, kl, c_q, c_qd)
+    """The force per length of one part's points (ShaftSupport) added to Q and, unless band is (0, 0) (Q alone),
+    c_q dQ/dq + c_qd dQ/dq' to the band matrix, in one pass over the points without temporaries (it runs at every
+    Newton correction): each point's position r and velocity v (eq. 3), lateral springs and dampers perpendicular
+    to the track tangent tau and the axial traction of ``karnopp.axial_traction`` along it, scattered as
+    ``model.forces.assemble_point_forces`` does (same arithmetic, the same bits) with dF/dr, dF/dv and no
+    dF/dr_x."""
+    with_matrix = band.shape[0] > 0
+    r, v, force = np.empty(3), np.empty(3), np.empty(3)
+    position = np.empty((3, 3))  # c_q dF/dr + c_qd dF/dv of the point
+    for k in range(slots.shape[0]):
+        r[:] = 0.0
+        v[:] = 0.0
+        for a in range(4):
+            first = 3 * slots[k, a]
+            for i in range(3):
+                r[i] += S[k, a] * q[first + i]
+                v[i] += S[k, a] * qd[first + i]
+        tau = tangents[k]
+        u = offset_dot(r, anchors[k], tau)
+        v_axial = dot3(v, tau)
+        t, dt_du, dt_dv = axial_traction(u, v_axial, stick_stiffness, coulomb[k], viscous[k], offset, sign_gain,
+                                         velocity_scale)
+        for i in range(3):
+            force[i] = (-lateral_stiffness[k] * (r[i] - anchors[k, i] - u * tau[i])
+                        - lateral_damping[k] * (v[i] - v_axial * tau[i]) + t * tau[i])
+            if with_matrix:
+                for j in range(3):
+                    tt = tau[i] * tau[j]
+                    perpendicular = (1.0 if i == j else 0.0) - tt
+                    position[i, j] = (c_q * (-lateral_stiffness[k] * perpendicular + dt_du * tt)
+                                      + c_qd * (-lateral_damping[k] * perpendicular + dt_dv * tt))
+        for a in range(4):
+            ia = 3 * slots[k, a]
+            wa = weights[k] * S[k, a]
+            for c in range(3):
+                Q[ia + c] += wa * force[c]
+            if not with_matrix:
+                continue
+            for b in range(4):
+                ib = 3 * slots[k, b]
+                cr = wa * S[k, b]
+                for c in range(3):
+                    row = ia + c
+                    for c2 in range(3):
+                        band[row, ib + c2 - row + kl] += cr * position[c, c2]
 
 
 @njit(cache=True)
