@@ -217,29 +217,56 @@ def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_poi
     """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``):
     marks them in ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track,
     and returns their indices, entry coverage, needle tangents, anchor points on the track and those points'
-    depths, and the axial offsets u = (r - anchor point) . tangent."""
-    candidates = np.flatnonzero(arc_lengths > candidate_arc)
-    r, tangents = needle_points(S[candidates], S_x[candidates], slots[candidates], q)
-    depth = np.empty(candidates.size)
-    for k in range(candidates.size):
+    depths, and the axial offsets u = (r - anchor point) . tangent. The arc lengths increase, so the candidates
+    are the points from the first beyond ``candidate_arc`` on (scalar loops: it runs every step)."""
+    first = np.searchsorted(arc_lengths, candidate_arc, side="right")
+    r, tangents = needle_points(S[first:], S_x[first:], slots[first:], q)
+    m = r.shape[0]
+    depth = np.empty(m)
+    inside = np.empty(m, dtype=np.bool_)
+    count = 0
+    for k in range(m):
         depth[k] = ((r[k, 0] - entry_point[0]) * entry_normal[0] + (r[k, 1] - entry_point[1]) * entry_normal[1]
                     + (r[k, 2] - entry_point[2]) * entry_normal[2])
-    inside = (depth > 0.0) & (depth < thickness)
-    coverage = entry_coverage(arc_lengths[candidates], depth, inside)[inside]
-    index, r, tangents = candidates[inside], r[inside], tangents[inside]
-    active[index] = True
-    entering = ~was_active[index]
-    if np.any(entering):                                 # an entering point anchors where it is
-        anchor[index[entering]] = project_on_polyline(vertices, arc, end_tangent, r[entering])[0]
-    points = locate_on_polyline(vertices, arc, end_tangent, np.maximum(anchor[index], 0.0))[0]
-    point_depth = np.empty(index.size)
-    u = np.empty(index.size)
-    for k in range(index.size):
+        inside[k] = depth[k] > 0.0 and depth[k] < thickness
+        count += inside[k]
+    covered = entry_coverage(arc_lengths[first:], depth, inside)
+    index, coverage = np.empty(count, dtype=np.int64), np.empty(count)
+    entering = 0
+    j = 0
+    for k in range(m):  # the inside points' rows moved up in place (j <= k)
+        if inside[k]:
+            index[j], coverage[j] = first + k, covered[k]
+            for i in range(3):
+                r[j, i], tangents[j, i] = r[k, i], tangents[k, i]
+            active[first + k] = True
+            entering += not was_active[first + k]
+            j += 1
+    if entering:                                         # an entering point anchors where it is
+        new = np.empty((entering, 3))
+        e = 0
+        for j in range(count):
+            if not was_active[index[j]]:
+                new[e] = r[j]
+                e += 1
+        projected = project_on_polyline(vertices, arc, end_tangent, new)[0]
+        e = 0
+        for j in range(count):
+            if not was_active[index[j]]:
+                anchor[index[j]] = projected[e]
+                e += 1
+    held = np.empty(count)
+    for j in range(count):
+        held[j] = max(anchor[index[j]], 0.0)
+    points = locate_on_polyline(vertices, arc, end_tangent, held)[0]
+    point_depth = np.empty(count)
+    u = np.empty(count)
+    for k in range(count):
         point_depth[k] = ((points[k, 0] - entry_point[0]) * entry_normal[0] + (points[k, 1] - entry_point[1])
                           * entry_normal[1] + (points[k, 2] - entry_point[2]) * entry_normal[2])
         u[k] = ((r[k, 0] - points[k, 0]) * tangents[k, 0] + (r[k, 1] - points[k, 1]) * tangents[k, 1]
                 + (r[k, 2] - points[k, 2]) * tangents[k, 2])
-    return index, coverage, tangents, points, point_depth, u
+    return index, coverage, tangents[:count], points, point_depth, u
 
 
 @njit(cache=True)
