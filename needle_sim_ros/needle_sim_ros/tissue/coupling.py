@@ -14,7 +14,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from needle_sim_ros.model.forces import assemble_point_forces
 from needle_sim_ros.model.kinematics import dot3, offset_dot
 from needle_sim_ros.model.mesh import hermite_shapes, interpolate
 
@@ -22,9 +21,6 @@ from .geometry import TissueBlock
 from .karnopp import axial_traction
 from .shaft_laws import ShaftLaw
 from .track import Track, locate_on_polyline, project_on_blocks, project_on_polyline, segment_blocks
-
-
-_NO_GRADIENT = np.zeros((0, 3, 3))  # the shaft's point forces do not depend on r_x
 
 
 def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -62,32 +58,6 @@ _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(LATERAL_GAUSS_POINTS)
 
 
 @njit(cache=True)
-def shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping, stick_stiffness, coulomb,
-                       viscous, offset, sign_gain, velocity_scale):
-    """Force per length on each shaft point and dF/dr, dF/dv: lateral springs and dampers perpendicular to the
-    track tangent tau, and the axial traction of ``karnopp.axial_traction`` along it (1 kHz loop: compiled)."""
-    n = r.shape[0]
-    force = np.zeros((n, 3))
-    d_dr = np.zeros((n, 3, 3))
-    d_dv = np.zeros((n, 3, 3))
-    for k in range(n):
-        tau = tangents[k]
-        u = offset_dot(r[k], anchors[k], tau)
-        v_axial = dot3(v[k], tau)
-        t, dt_du, dt_dv = axial_traction(u, v_axial, stick_stiffness, coulomb[k], viscous[k], offset, sign_gain,
-                                         velocity_scale)
-        for i in range(3):
-            force[k, i] = (-lateral_stiffness[k] * (r[k, i] - anchors[k, i] - u * tau[i])
-                           - lateral_damping[k] * (v[k, i] - v_axial * tau[i]) + t * tau[i])
-            for j in range(3):
-                tt = tau[i] * tau[j]
-                perpendicular = (1.0 if i == j else 0.0) - tt
-                d_dr[k, i, j] = -lateral_stiffness[k] * perpendicular + dt_du * tt
-                d_dv[k, i, j] = -lateral_damping[k] * perpendicular + dt_dv * tt
-    return force, d_dr, d_dv
-
-
-@njit(cache=True)
 def interpolate_pair(slots, S_a, x_a, S_b, x_b):
     """Two interpolations (k, 3) at interpolation points (model.interpolation): shape functions S_a of
     coordinates x_a (e.g. S of q: positions) and S_b of x_b (e.g. S of q': velocities, S_x of q: gradients)."""
@@ -95,21 +65,54 @@ def interpolate_pair(slots, S_a, x_a, S_b, x_b):
 
 
 @njit(cache=True)
-def point_kinematics(q, qd, slots, S):
-    """Positions and velocities (k, 3) of interpolation points (model.interpolation) at (q, qd)."""
-    return interpolate_pair(slots, S, q, S, qd)
-
-
-@njit(cache=True)
 def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, lateral_stiffness, lateral_damping,
                             stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale, Q, band, kl, c_q,
                             c_qd):
-    """Kinematics, ``shaft_point_forces`` and assembly of one part's points (ShaftSupport) in one compiled call:
-    adds to Q and, unless band is (0, 0) (Q alone), c_q dQ/dq + c_qd dQ/dq' to the band matrix."""
-    r, v = point_kinematics(q, qd, slots, S)
-    force, d_dr, d_dv = shaft_point_forces(r, v, anchors, tangents, lateral_stiffness, lateral_damping,
-                                           stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale)
-    assemble_point_forces(slots, S, S_x, weights, force, d_dr, _NO_GRADIENT, d_dv, Q, band, kl, c_q, c_qd)
+    """The force per length of one part's points (ShaftSupport) added to Q and, unless band is (0, 0) (Q alone),
+    c_q dQ/dq + c_qd dQ/dq' to the band matrix, in one pass over the points without temporaries (it runs at every
+    Newton correction): each point's position r and velocity v (eq. 3), lateral springs and dampers perpendicular
+    to the track tangent tau and the axial traction of ``karnopp.axial_traction`` along it, scattered as
+    ``model.forces.assemble_point_forces`` does (same arithmetic, the same bits) with dF/dr, dF/dv and no
+    dF/dr_x."""
+    with_matrix = band.shape[0] > 0
+    r, v, force = np.empty(3), np.empty(3), np.empty(3)
+    position = np.empty((3, 3))  # c_q dF/dr + c_qd dF/dv of the point
+    for k in range(slots.shape[0]):
+        r[:] = 0.0
+        v[:] = 0.0
+        for a in range(4):
+            first = 3 * slots[k, a]
+            for i in range(3):
+                r[i] += S[k, a] * q[first + i]
+                v[i] += S[k, a] * qd[first + i]
+        tau = tangents[k]
+        u = offset_dot(r, anchors[k], tau)
+        v_axial = dot3(v, tau)
+        t, dt_du, dt_dv = axial_traction(u, v_axial, stick_stiffness, coulomb[k], viscous[k], offset, sign_gain,
+                                         velocity_scale)
+        for i in range(3):
+            force[i] = (-lateral_stiffness[k] * (r[i] - anchors[k, i] - u * tau[i])
+                        - lateral_damping[k] * (v[i] - v_axial * tau[i]) + t * tau[i])
+            if with_matrix:
+                for j in range(3):
+                    tt = tau[i] * tau[j]
+                    perpendicular = (1.0 if i == j else 0.0) - tt
+                    position[i, j] = (c_q * (-lateral_stiffness[k] * perpendicular + dt_du * tt)
+                                      + c_qd * (-lateral_damping[k] * perpendicular + dt_dv * tt))
+        for a in range(4):
+            ia = 3 * slots[k, a]
+            wa = weights[k] * S[k, a]
+            for c in range(3):
+                Q[ia + c] += wa * force[c]
+            if not with_matrix:
+                continue
+            for b in range(4):
+                ib = 3 * slots[k, b]
+                cr = wa * S[k, b]
+                for c in range(3):
+                    row = ia + c
+                    for c2 in range(3):
+                        band[row, ib + c2 - row + kl] += cr * position[c, c2]
 
 
 @njit(cache=True)
@@ -214,29 +217,56 @@ def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_poi
     """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``):
     marks them in ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track,
     and returns their indices, entry coverage, needle tangents, anchor points on the track and those points'
-    depths, and the axial offsets u = (r - anchor point) . tangent."""
-    candidates = np.flatnonzero(arc_lengths > candidate_arc)
-    r, tangents = needle_points(S[candidates], S_x[candidates], slots[candidates], q)
-    depth = np.empty(candidates.size)
-    for k in range(candidates.size):
+    depths, and the axial offsets u = (r - anchor point) . tangent. The arc lengths increase, so the candidates
+    are the points from the first beyond ``candidate_arc`` on (scalar loops: it runs every step)."""
+    first = np.searchsorted(arc_lengths, candidate_arc, side="right")
+    r, tangents = needle_points(S[first:], S_x[first:], slots[first:], q)
+    m = r.shape[0]
+    depth = np.empty(m)
+    inside = np.empty(m, dtype=np.bool_)
+    count = 0
+    for k in range(m):
         depth[k] = ((r[k, 0] - entry_point[0]) * entry_normal[0] + (r[k, 1] - entry_point[1]) * entry_normal[1]
                     + (r[k, 2] - entry_point[2]) * entry_normal[2])
-    inside = (depth > 0.0) & (depth < thickness)
-    coverage = entry_coverage(arc_lengths[candidates], depth, inside)[inside]
-    index, r, tangents = candidates[inside], r[inside], tangents[inside]
-    active[index] = True
-    entering = ~was_active[index]
-    if np.any(entering):                                 # an entering point anchors where it is
-        anchor[index[entering]] = project_on_polyline(vertices, arc, end_tangent, r[entering])[0]
-    points = locate_on_polyline(vertices, arc, end_tangent, np.maximum(anchor[index], 0.0))[0]
-    point_depth = np.empty(index.size)
-    u = np.empty(index.size)
-    for k in range(index.size):
+        inside[k] = depth[k] > 0.0 and depth[k] < thickness
+        count += inside[k]
+    covered = entry_coverage(arc_lengths[first:], depth, inside)
+    index, coverage = np.empty(count, dtype=np.int64), np.empty(count)
+    entering = 0
+    j = 0
+    for k in range(m):  # the inside points' rows moved up in place (j <= k)
+        if inside[k]:
+            index[j], coverage[j] = first + k, covered[k]
+            for i in range(3):
+                r[j, i], tangents[j, i] = r[k, i], tangents[k, i]
+            active[first + k] = True
+            entering += not was_active[first + k]
+            j += 1
+    if entering:                                         # an entering point anchors where it is
+        new = np.empty((entering, 3))
+        e = 0
+        for j in range(count):
+            if not was_active[index[j]]:
+                new[e] = r[j]
+                e += 1
+        projected = project_on_polyline(vertices, arc, end_tangent, new)[0]
+        e = 0
+        for j in range(count):
+            if not was_active[index[j]]:
+                anchor[index[j]] = projected[e]
+                e += 1
+    held = np.empty(count)
+    for j in range(count):
+        held[j] = max(anchor[index[j]], 0.0)
+    points = locate_on_polyline(vertices, arc, end_tangent, held)[0]
+    point_depth = np.empty(count)
+    u = np.empty(count)
+    for k in range(count):
         point_depth[k] = ((points[k, 0] - entry_point[0]) * entry_normal[0] + (points[k, 1] - entry_point[1])
                           * entry_normal[1] + (points[k, 2] - entry_point[2]) * entry_normal[2])
         u[k] = ((r[k, 0] - points[k, 0]) * tangents[k, 0] + (r[k, 1] - points[k, 1]) * tangents[k, 1]
                 + (r[k, 2] - points[k, 2]) * tangents[k, 2])
-    return index, coverage, tangents, points, point_depth, u
+    return index, coverage, tangents[:count], points, point_depth, u
 
 
 @njit(cache=True)

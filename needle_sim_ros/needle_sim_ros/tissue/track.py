@@ -156,15 +156,17 @@ def project_on_polyline(vertices, arc, end_tangent, points):
 @njit(cache=True)
 def project_on_blocks(vertices, arc, end_tangent, points, centres, radii):
     """``project_on_polyline`` with the polyline's ``segment_blocks``: blocks whose bounding sphere lies farther
-    than an upper bound of the closest distance (the nearest sphere's far side) are skipped; they cannot hold it,
-    so the result is the full scan's, at a cost that grows with the track length by the block count only."""
+    than an upper bound of the closest distance are skipped; they cannot hold it, so the result is the full scan's,
+    at a cost that grows with the track length by the block count only. The bound is the closest of the
+    continuation and of the vertices of the block whose centre is nearest (vertices lie on the polyline): a point
+    near the track scans the one or two blocks around it. Distances are compared squared (one root per point)."""
     count = arc.size
     n = points.shape[0]
     coordinate = np.empty(n)
     distance = np.empty(n)
     end = vertices[count - 1]
     blocks = radii.size
-    centre_distance = np.empty(blocks)
+    centre_distance2 = np.empty(blocks)
     for k in range(n):
         p = points[k]
         beyond = max((p[0] - end[0]) * end_tangent[0] + (p[1] - end[1]) * end_tangent[1]
@@ -173,17 +175,24 @@ def project_on_blocks(vertices, arc, end_tangent, points, centres, radii):
         for i in range(3):
             d = p[i] - end[i] - beyond * end_tangent[i]
             best += d * d
-        bound = best
+        nearest, nearest_distance2 = -1, np.inf
         for b in range(blocks):
             d2 = 0.0
             for i in range(3):
                 d2 += (p[i] - centres[b, i]) ** 2
-            centre_distance[b] = np.sqrt(d2)
-            bound = min(bound, (centre_distance[b] + radii[b]) ** 2)
-        bound = bound * (1.0 + 1e-9) + 1e-24
+            centre_distance2[b] = d2
+            if d2 < nearest_distance2:
+                nearest, nearest_distance2 = b, d2
+        bound = best
+        if nearest >= 0:
+            for j in range(nearest * PROJECTION_BLOCK, min((nearest + 1) * PROJECTION_BLOCK, count - 1) + 1):
+                d2 = 0.0
+                for i in range(3):
+                    d2 += (p[i] - vertices[j, i]) ** 2
+                bound = min(bound, d2)
+        reach = np.sqrt(bound * (1.0 + 1e-9) + 1e-24)
         for b in range(blocks):
-            gap = centre_distance[b] - radii[b]
-            if gap > 0.0 and gap * gap > bound:
+            if centre_distance2[b] > (radii[b] + reach) ** 2:
                 continue
             for j in range(b * PROJECTION_BLOCK, min((b + 1) * PROJECTION_BLOCK, count - 1)):
                 length2 = 0.0
