@@ -40,9 +40,9 @@ def step_wrenches(records: Sequence[StepRecord]):
     floats: what the simulator publishes on ``wrench`` (a step whose wrench is not finite is left out: never NaN on
     the wire)."""
     for record in records:
-        force, torque = record.wrench.force_base.tolist(), record.wrench.torque_base.tolist()
-        if all(map(math.isfinite, force)) and all(map(math.isfinite, torque)):
-            yield record.t, force, torque
+        values = record.wrench.values[6:12].tolist()
+        if all(map(math.isfinite, values)):
+            yield record.t, values[:3], values[3:]
 
 
 def _set(part: str, name: str, sim, value) -> None:

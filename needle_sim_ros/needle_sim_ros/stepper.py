@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
+from itertools import repeat
 from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
@@ -333,7 +334,7 @@ class Stepper:
         if done == 1 and hook is None:  # the live loop's run: one step per pose
             w, n = wrenches[0], int(iterations[0])
             t = float(times[0])
-            records.append(StepRecord(t, BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]), n, 1, wall))
+            records.append(StepRecord(t, BaseWrench(w), n, 1, wall))
             self._set_state(states[0], t, motions[0], rotations[0])
             stats.steps += 1
             stats.step_wall_times.append(wall)
@@ -341,14 +342,15 @@ class Stepper:
                 stats.max_newton_iterations = n
             return
         end_times, counts = times[:done].tolist(), iterations[:done].tolist()
-        for i, (t, w) in enumerate(zip(end_times, wrenches)):
-            record = StepRecord(t, BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12]), counts[i], 1, wall)
-            records.append(record)
-            if hook is not None:  # the hook reads the state of its step
+        if hook is None:  # the records, then the last step's state
+            records += map(StepRecord, end_times, map(BaseWrench, wrenches), counts, repeat(1), repeat(wall))
+            self._set_state(states[done - 1], end_times[-1], motions[done - 1], rotations[done - 1])
+        else:  # the hook reads the state of its step
+            for i, (t, w) in enumerate(zip(end_times, wrenches)):
+                record = StepRecord(t, BaseWrench(w), counts[i], 1, wall)
+                records.append(record)
                 self._set_state(states[i], t, motions[i], rotations[i])
                 hook(record)
-        if hook is None:  # otherwise the last step's state is set already
-            self._set_state(states[done - 1], end_times[-1], motions[done - 1], rotations[done - 1])
         stats.steps += done
         stats.step_wall_times.extend([wall] * done)
         stats.max_newton_iterations = max(stats.max_newton_iterations, *counts)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import struct
 from functools import lru_cache
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -27,7 +27,7 @@ from needle_common.cdr import ENCAPSULATION
 from needle_vision.streams.image_codec import deserialize_image
 
 
-_STAMP, _WRENCH = struct.Struct("<iI"), struct.Struct("<6d")  # a header's stamp; a Wrench
+_STAMP = struct.Struct("<iI")  # a header's stamp
 
 
 class _Buffer:
@@ -91,27 +91,26 @@ class _Buffer:
 
 
 @lru_cache(maxsize=8)
-def _wrench_header(frame_id: str) -> bytes:
-    """Encapsulation and the header of a WrenchStamped with a zero stamp, padded for the doubles that follow."""
+def _wrench_layout(frame_id: str) -> tuple[bytes, bytes, Callable[..., bytes]]:
+    """A WrenchStamped of this frame as one struct: the encapsulation, the stamp, the bytes from the frame_id's
+    length to the doubles (fixed per frame) and the Wrench; returns those two fixed parts and the struct's pack."""
     prefix = _Buffer()
     _header(prefix, 0, 0, frame_id)
     prefix.align(8)
-    return ENCAPSULATION + b"".join(prefix.parts)
+    head = ENCAPSULATION + b"".join(prefix.parts)
+    return head[:4], head[12:], struct.Struct(f"<4siI{len(head) - 12}s6d").pack
 
 
 def wrench_stamped_many(frame_id: str, wrenches) -> list[bytes]:
     """geometry_msgs/msg/WrenchStamped of each (time [s], force (3,), torque (3,)) in ``wrenches``, stamped as
-    ``time_msg`` stamps the time. One template per frame, filled in place (~1 us per message)."""
-    head = _wrench_header(frame_id)
-    at, template = len(head), bytearray(head + bytes(48))
-    stamp, values = _STAMP.pack_into, _WRENCH.pack_into
+    ``time_msg`` stamps the time. One struct per frame packs each message at once (~1 us per message)."""
+    encapsulation, middle, pack = _wrench_layout(frame_id)
+    floor = math.floor
     messages = []
     for t, force, torque in wrenches:
         t = float(t)
-        sec = math.floor(t)
-        stamp(template, 4, sec, min(round((t - sec) * 1e9), 999_999_999))
-        values(template, at, *force, *torque)
-        messages.append(bytes(template))
+        sec = floor(t)
+        messages.append(pack(encapsulation, sec, min(round((t - sec) * 1e9), 999_999_999), middle, *force, *torque))
     return messages
 
 

@@ -124,5 +124,5 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
     data.state, data.force_states = state, tuple(stateful)
     w = result.wrench
     wrench = reaction_wrench(model, state, base_next, acting_forces(forces, data)) if w is None or stateful else \
-        BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12])
+        BaseWrench(w)
     return StepOutput(wrench, result.newton_iterations, result.substeps)

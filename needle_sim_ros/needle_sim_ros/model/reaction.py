@@ -24,12 +24,27 @@ from .model import NeedleModel, State
 
 
 class BaseWrench(NamedTuple):
-    """Force [N] and moment about A [N m] of the needle on its holder, in the world and in the base frame."""
+    """Force [N] and moment about A [N m] of the needle on its holder, in the world and in the base frame: the
+    (12,) ``values`` [force_world, torque_world, force_base, torque_base] as :func:`holder_wrench` writes them
+    (a step's record holds them as they come; the parts are views made when read)."""
 
-    force_world: np.ndarray
-    torque_world: np.ndarray
-    force_base: np.ndarray
-    torque_base: np.ndarray
+    values: np.ndarray
+
+    @property
+    def force_world(self) -> np.ndarray:
+        return self.values[0:3]
+
+    @property
+    def torque_world(self) -> np.ndarray:
+        return self.values[3:6]
+
+    @property
+    def force_base(self) -> np.ndarray:
+        return self.values[6:9]
+
+    @property
+    def torque_base(self) -> np.ndarray:
+        return self.values[9:12]
 
 
 @lru_cache(maxsize=32)
@@ -113,4 +128,4 @@ def reaction_wrench(model: NeedleModel, state: State, base: BaseMotion | None = 
         raise ValueError("reaction_wrench needs the base motion (argument base or state.base)")
     w = base_wrench_kernel(state.q, state.qd, state.qdd, *base_rows(model), base.rotation,
                            _base_external(model, state, base, forces))
-    return BaseWrench(w[0:3], w[3:6], w[6:9], w[9:12])
+    return BaseWrench(w)

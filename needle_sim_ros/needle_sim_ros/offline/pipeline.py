@@ -65,12 +65,12 @@ DECODE_ERRORS = (ValueError, RuntimeError, IndexError, struct.error, UnicodeDeco
 def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose",)) -> Any:
     """An input message from its serialized bytes (images and the ``pose_topics``' poses decoded directly:
     :mod:`needle_sim_ros.messages.cdr`, :mod:`needle_common.cdr`)."""
+    if topic in pose_topics:  # the most frequent: first
+        return pose_stamped(data)
     if topic.endswith("image_raw"):
         return cdr.image(data)
     if topic.endswith("image_raw/compressed"):
         return cdr.compressed_image(data)
-    if topic in pose_topics:
-        return pose_stamped(data)
     return deserialize_message(bytes(data), INPUT_TYPES[topic])
 
 
@@ -245,7 +245,7 @@ class OfflinePipeline:
             written = steps
             self._write(MODEL_TOPIC, model_shape_cdr(shape, frame), now)
             self._compared(self._timed("comparison", self.comparison.on_model, shape, frame), now)
-        self._write_wrenches(wrenches[written:], now)
+        self._write_wrenches(wrenches[written:] if written else wrenches, now)
 
     def _prime_stereo(self, reader: BagReader, begin: int) -> None:
         """A slice that starts late still needs the needle-free background pairs from the bag's start."""
