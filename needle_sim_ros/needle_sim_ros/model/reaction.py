@@ -30,21 +30,10 @@ class BaseWrench(NamedTuple):
 
     values: np.ndarray
 
-    @property
-    def force_world(self) -> np.ndarray:
-        return self.values[0:3]
-
-    @property
-    def torque_world(self) -> np.ndarray:
-        return self.values[3:6]
-
-    @property
-    def force_base(self) -> np.ndarray:
-        return self.values[6:9]
-
-    @property
-    def torque_base(self) -> np.ndarray:
-        return self.values[9:12]
+    force_world = property(lambda self: self.values[0:3])
+    torque_world = property(lambda self: self.values[3:6])
+    force_base = property(lambda self: self.values[6:9])
+    torque_base = property(lambda self: self.values[9:12])
 
 
 @lru_cache(maxsize=32)
