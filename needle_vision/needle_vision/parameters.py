@@ -111,7 +111,7 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("reconstruction.max_uncertainty", 0.001, "samples whose 1-sigma uncertainty exceeds this are flagged "
               "unmeasured (uncertainty -1) [m]", 1e-6, 1.0),
     ParamSpec("reconstruction.curve_fit", False, "fit one smooth 3D curve to both views at once (B-spline with a "
-              "prior on the change of bending; experimental, issue 39) instead of smoothing the per-point "
+              "bending-energy prior; experimental, issue 39) instead of smoothing the per-point "
               "triangulation, which stays its initial guess and fallback"),
     ParamSpec("reconstruction.needle_radius", 0.0, "the needle's radius: each flat end's disc, seen obliquely, "
               "lengthens the images by up to that radius; the ends are moved back by it (0: unknown, not corrected) "

@@ -11,8 +11,9 @@ curve, ``n_i`` the projected curve's normal there, ``sigma_i`` its local image n
 bending-energy prior (Gauss-Newton, the feet re-projected each iteration, Huber weights against stray points).
 Where the needle runs along the epipolar lines the images say nothing about depth; the curve's continuity carries
 it across from the stretches around, and the fit's covariance (the normal matrix's inverse: image noise through
-the Jacobian, with the prior) says how well: each sample's sigma is the standard deviation along the worst
-direction across the needle. The per-point triangulation is the initial guess.
+the Jacobian, with the prior; the image noise's correlated part widens the image terms only) says how well: each
+sample's sigma is the standard deviation along the worst direction across the needle.
+The per-point triangulation is the initial guess.
 """
 from __future__ import annotations
 
@@ -241,13 +242,14 @@ def _feet(control, h, segments, length, projection, observations, feet, first, s
 
 @numba.njit(cache=True, nogil=True)
 def _gauss_newton(control, h, length, observations, views, noise, multiplicity, ends, end_noise, projections,
-                  bending, iterations, huber):  # pragma: no cover - compiled
+                  bending, iterations, huber, inflation):  # pragma: no cover - compiled
     """Fit (module docstring) from ``control (K, 3)``. ``observations (m, 2)`` rectified image points of both
     views (``views (m,)``: 0 left, 1 right; each view's points consecutive and in its curve order), ``noise (m,)``
     [px] (each point stands for ``multiplicity`` image points), ``ends (2, 2, 2)``: where each view sees the curve's
     first and last point, ``projections (2, 3, 4)``; ``iterations`` steps. Returns
-    the control points, the Cholesky factor of their normal matrix, the feet and the normalised
-    RMS residual; NaN control points when the normal matrix is singular."""
+    the control points, the Cholesky factor of their covariance's inverse (the normal matrix at the result with the
+    image terms' variance times ``inflation`` and the residuals' reduced chi-square when above 1, the prior's not),
+    the feet and the normalised RMS residual; NaN control points when the normal matrix is singular."""
     count = control.shape[0]
     segments = count - 3
     size = 3 * count
@@ -306,6 +308,14 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
                     row[k] = tx * jacobian[0, k] + ty * jacobian[1, k]
                 weight = 1.0 / (end_noise * end_noise)
                 _accumulate(normal, rhs, s, b, row, weight, residual)
+        if iteration == iterations:
+            # The covariance: the correlated image error and noisier images than their scatter said widen what the
+            # images say (their terms' variance), not what the prior says (inflating it all overstated sigma 2-4x
+            # along the epipolar lines, where the prior carries the curve).
+            scale = 1.0 / (inflation * max(rms, 1.0) ** 2)
+            for i in range(size):
+                for j in range(max(0, i - _BAND), i + 1):
+                    normal[i, j] *= scale
         for a in range(count):  # the prior: its curvature term and its gradient at the current control points
             for c in range(max(0, a - 3), min(count, a + 4)):
                 for k in range(3):
@@ -327,9 +337,9 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
 
 
 @numba.njit(cache=True, nogil=True)
-def _sample(control, h, length, factor, spacing, inflation):  # pragma: no cover - compiled
-    """Points and 1-sigma across the needle (worst direction; the covariance times ``inflation``)
-    every ~``spacing`` of the parameter, from 0 to ``length``."""
+def _sample(control, h, length, factor, spacing):  # pragma: no cover - compiled
+    """Points and 1-sigma across the needle (worst direction of the covariance whose inverse's Cholesky factor is
+    ``factor``) every ~``spacing`` of the parameter, from 0 to ``length``."""
     count = control.shape[0]
     segments = count - 3
     covariance = _inverse_band(factor)
@@ -371,7 +381,7 @@ def _sample(control, h, length, factor, spacing, inflation):  # pragma: no cover
                 a22 += e2[k] * block[k, j] * e2[j]
                 a12 += e1[k] * block[k, j] * e2[j]
         largest = 0.5 * (a11 + a22) + np.sqrt(0.25 * (a11 - a22) ** 2 + a12 * a12)
-        sigma[p] = np.sqrt(max(largest, 0.0) * inflation)
+        sigma[p] = np.sqrt(max(largest, 0.0))
     return points, sigma, parameters
 
 
@@ -426,11 +436,10 @@ def _fit(initial, initial_weights, ends, left, right, left_noise, right_noise, p
             observations[i, 1] += view[j, 1] / stride
             noise[i] += variance[j] ** 2 / stride
     control, factor, feet, rms = _gauss_newton(control, h, length, observations, views, np.sqrt(noise), float(stride),
-                                               ends, end_noise, projections, bending, iterations, huber)
+                                               ends, end_noise, projections, bending, iterations, huber, inflation)
     if not np.all(np.isfinite(control)):
         return False, *empty
-    # The covariance scaled by the residuals' reduced chi-square when the images are noisier than their scatter said.
-    points, sigma, parameters = _sample(control, h, length, factor, sample_spacing, inflation * max(rms, 1.0) ** 2)
+    points, sigma, parameters = _sample(control, h, length, factor, sample_spacing)
     if not (np.all(np.isfinite(points)) and np.all(np.isfinite(sigma))):
         return False, *empty
     # Support from every image point (a hidden stretch is no shorter than its gap between single points).
@@ -448,7 +457,9 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
     triangulated points ``initial (k, 3)`` [m] in the left rectified frame (weights: their inverse variance) whose
     first and last points the two views see at ``ends (2, 2, 2)`` (view, end, pixel);
     ``projections``: the rectified 3x4 projections; the means of ``stride`` consecutive image points are fitted.
-    None when the fit fails (singular or non-finite)."""
+    The sigma's covariance takes the image terms' variance ``noise_inflation`` times larger (and by the residuals'
+    reduced chi-square when above 1), the prior's as it is: where the prior carries the curve (along the epipolar
+    lines) inflating it too overstated sigma 2-4x. None when the fit fails (singular or non-finite)."""
     array = partial(np.ascontiguousarray, dtype=float)
     success, points, sigma, supported = _fit(
         array(initial), array(initial_weights), array(ends), *map(array, views), *map(array, noise),

@@ -460,7 +460,7 @@ def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, spacing: float,
     rotation = rectification.rotation_left
     noise = tuple(np.maximum(np.maximum(c.local_noise_px, c.noise_px), MIN_IMAGE_NOISE_PX) for c in centerlines)
     # Each run of CORRELATED_NOISE_POINTS points carries the correlated error once: its variance over the white
-    # noise's variance of their mean scales the covariance.
+    # noise's variance of their mean scales the image terms' variance in the covariance (not the prior's).
     white = float(np.median(np.concatenate(noise)))
     inflation = 1.0 + CORRELATED_NOISE_POINTS * (CORRELATED_NOISE_PX / white) ** 2
     # The ends as the correspondence placed them (moved onto a common epipolar line, bevels shared): their
