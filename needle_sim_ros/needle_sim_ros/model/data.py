@@ -62,15 +62,6 @@ class NeedleData:
                                                                 saved.force_states)
 
 
-class StepInputs(NamedTuple):
-    """What drives one step: its length dt [s], its end time [s] on the time loop's grid (t + dt up to rounding)
-    and the base motion then."""
-
-    dt: float
-    t_next: float
-    base_next: BaseMotion
-
-
 class StepOutput(NamedTuple):
     """What a step produced: the base wrench (eq. 20) and the integrator's effort."""
 
@@ -93,14 +84,17 @@ def acting_forces(forces, data: NeedleData) -> list:
     """The contributions acting over the step that starts from ``data``: those of ``forces`` without state, the
     point loads, then each stateful one's contributions ``at`` its state in ``data``."""
     acting = [force for force in forces if not force.stateful]
-    acting.extend(data.point_loads.values())
-    for force, own in stateful_forces(forces, data.force_states):
-        acting.extend(force.at(own))
+    stateful = len(acting) < len(forces) or data.force_states
+    acting += data.point_loads.values()
+    for force, own in stateful_forces(forces, data.force_states) if stateful else ():
+        acting += force.at(own)
     return acting
 
 
-def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, inputs: StepInputs) -> StepOutput:
-    """One step of ``data`` (started) to ``inputs.t_next`` under the contributions ``forces``, in fixed phases:
+def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, dt: float, t_next: float,
+         base_next: BaseMotion) -> StepOutput:
+    """One step of ``data`` (started) of length ``dt`` to ``t_next`` (on the time loop's grid: t + dt up to
+    rounding), the base motion then ``base_next``, under the contributions ``forces``, in fixed phases:
 
     1. inputs: the contributions acting over the step (:func:`acting_forces`), the integrator's memory;
     2. integrate: predictor, Newton, sub-stepping (:meth:`Integrator.step`; StepFailed if it cannot);
@@ -110,19 +104,21 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
     5. outputs: the base wrench of the new state under the contributions of the next step (the compiled run's
        where it took the step without state-dependent contributions).
     """
-    base_next = inputs.base_next
     control = data.integrator.control.copy()
+    acting = acting_forces(forces, data)
     try:
-        result = integrator.step(data.state, inputs.dt, base_next, acting_forces(forces, data), data.integrator)
+        result = integrator.step(data.state, dt, base_next, acting, data.integrator)
         state = result.state
-        state.t = float(inputs.t_next)
-        stateful = [force.advance(model, state, base_next, own)
-                    for force, own in stateful_forces(forces, data.force_states)]
+        state.t = t_next
+        stateful = tuple(force.advance(model, state, base_next, own)
+                         for force, own in stateful_forces(forces, data.force_states)) if data.force_states else ()
     except BaseException:
         data.integrator.control[:] = control
         raise
-    data.state, data.force_states = state, tuple(stateful)
+    data.state = state
+    if stateful:
+        data.force_states = stateful
+        acting = acting_forces(forces, data)
     w = result.wrench
-    wrench = reaction_wrench(model, state, base_next, acting_forces(forces, data)) if w is None or stateful else \
-        BaseWrench(w)
+    wrench = reaction_wrench(model, state, base_next, acting) if w is None or stateful else BaseWrench(w)
     return StepOutput(wrench, result.newton_iterations, result.substeps)
