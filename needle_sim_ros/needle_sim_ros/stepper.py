@@ -267,7 +267,7 @@ class Stepper:
                 general = True
                 data.step_index += 1
                 i += 1
-                forces = self._sequence_forces(sequence)
+                forces = self._sequence_forces(sequence) if sequence else None
         if general and not np.isfinite(data.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
             data.state = self.model.straight_state(self.base, data.state.t, data.integrator.clamp)
@@ -398,7 +398,7 @@ class Stepper:
                 raise
             self.data.state = self.model.straight_state(base_next, float(t_next), self.data.integrator.clamp)
             return self._finish_step(start, reaction_wrench(self.model, self.state, base_next, self.forces), 0, 0)
-        return self._finish_step(start, *output)
+        return self._finish_step(start, output.wrench, output.newton_iterations, output.substeps)
 
     def _finish_step(self, start: float, wrench: BaseWrench, iterations: int, substeps: int) -> StepRecord:
         """Statistics, record and hook of the step that led to the current state, with its base wrench."""

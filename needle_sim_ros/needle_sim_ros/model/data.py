@@ -7,13 +7,12 @@ in fixed phases and changes it only once the step has succeeded: a failed step l
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
 
 from .forces import PointLoad, check_forces
-from .integrators import Integrator, IntegratorMemory
+from .integrators import Integrator, IntegratorMemory, StepResult
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
-from .reaction import BaseWrench, reaction_wrench
+from .reaction import reaction_wrench
 
 
 @dataclass
@@ -62,14 +61,6 @@ class NeedleData:
                                                                 saved.force_states)
 
 
-class StepOutput(NamedTuple):
-    """What a step produced: the base wrench (eq. 20) and the integrator's effort."""
-
-    wrench: BaseWrench
-    newton_iterations: int
-    substeps: int
-
-
 def initial_force_states(model: NeedleModel, forces) -> tuple:
     """The initial state of each stateful contribution in ``forces`` (checked against the force protocol)."""
     return tuple(force.initial_state(model) for force in check_forces(forces) if force.stateful)
@@ -92,7 +83,7 @@ def acting_forces(forces, data: NeedleData) -> list:
 
 
 def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, dt: float, t_next: float,
-         base_next: BaseMotion) -> StepOutput:
+         base_next: BaseMotion) -> StepResult:
     """One step of ``data`` (started) of length ``dt`` to ``t_next`` (on the time loop's grid: t + dt up to
     rounding), the base motion then ``base_next``, under the contributions ``forces``, in fixed phases:
 
@@ -102,7 +93,7 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, d
     4. commit: ``data`` takes the new state (with its base) and force states (the step index is the time loop's);
        any error before this leaves ``data`` as it was (the integrator's memory, updated in place, is put back);
     5. outputs: the base wrench of the new state under the contributions of the next step (the compiled run's
-       where it took the step without state-dependent contributions).
+       where it took the step without state-dependent contributions), in the returned :class:`StepResult`.
     """
     control = data.integrator.control.copy()
     acting = acting_forces(forces, data)
@@ -119,6 +110,6 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, d
     if stateful:
         data.force_states = stateful
         acting = acting_forces(forces, data)
-    w = result.wrench
-    wrench = reaction_wrench(model, state, base_next, acting) if w is None or stateful else BaseWrench(w)
-    return StepOutput(wrench, result.newton_iterations, result.substeps)
+    if result.wrench is None or stateful:
+        result = result._replace(wrench=reaction_wrench(model, state, base_next, acting))
+    return result

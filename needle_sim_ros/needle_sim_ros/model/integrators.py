@@ -36,6 +36,7 @@ from .banded import (ELEMENT_BANDWIDTH, add_dense_to_band, band_cholesky, band_s
                      cholesky_solve)
 from .forces import check_forces
 from .partition import hermite_quintic
+from .reaction import BaseWrench
 from .step import EXTRAPOLATE, FACTORED, general_step, integrate_sequence, interpreted, solve_step
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
@@ -81,6 +82,7 @@ def step_to(q, qd, qdd, aux, t_next, packed, rotation, history, coef, ext_Q, tol
     rotations = np.empty((1, 3, 3))
     rotations[0] = rotation
     history[0], history[1], history[2], history[3] = q, qd, qdd, aux
+    control[FACTORED] = 0  # the fresh matrix replaces the factorization a run kept
     states, wrenches, iterations = np.empty((1, 4, q.size)), np.empty((1, 12)), np.zeros(1, dtype=np.int64)
     done = integrate_sequence(history, np.full(1, t_next), motion, rotations, coef, ext_Q, tol, max_iterations,
                               prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables, residual,
@@ -91,14 +93,13 @@ def step_to(q, qd, qdd, aux, t_next, packed, rotation, history, coef, ext_Q, tol
 
 class StepResult(NamedTuple):
     """The new state, total Newton corrections, number of sub-steps used (1 = none), convergence flag and, from
-    the compiled run, the wrench on the holder [force, torque world; force, torque base frame] (12,) under the
-    step's forces (None: not computed)."""
+    the compiled run, the wrench on the holder under the step's forces (None: not computed)."""
 
     state: State
     newton_iterations: int
     substeps: int
     converged: bool
-    wrench: np.ndarray | None = None
+    wrench: BaseWrench | None = None
 
 
 def scheme_coefficients(method: str, rho_inf: float) -> tuple[float, ...]:
@@ -288,7 +289,7 @@ class Integrator:
         self.max_substep_halvings = int(max_substep_halvings)
         self.work = Work(model)
         self._constant_cache: tuple[tuple, np.ndarray] = ((), np.zeros(model.n_dof))
-        self._split_cache: tuple[tuple, list, list, bool] = ((), [], [], True)
+        self._split_cache: tuple[tuple, tuple[list, list, bool]] = ((), ([], [], True))
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
         self._run_cache: tuple[tuple, tuple] = ((), ())
         self._sequence_cache: tuple = (None, 0.0, None, ())  # see sequence_arguments
@@ -323,7 +324,6 @@ class Integrator:
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be finite and > 0, got {dt!r}")
         memory = memory or self.memory
-        memory.invalidate()  # the sequence's kept factorization is of another motion now
         constant, varying, time_invariant = self._split(forces)
         t_next = state.t + dt
         if memory.clamp is None and self._held:
@@ -335,8 +335,9 @@ class Integrator:
                                                memory.last_motion)
             if rows is not None:
                 return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next), iterations, 1, True,
-                                  wrench)
+                                  BaseWrench(wrench))
             first, failure = 1, f"Newton did not converge at t = {t_next:.6g} s"
+        memory.invalidate()  # the sequence's kept factorization is of another motion now
         model, n = self.model, self.work.n_dof
         end = np.zeros((3, n))
         model.partition.impose(base_next, t_next, end, memory.clamp)
@@ -434,11 +435,10 @@ class Integrator:
         the same force objects are passed."""
         forces = tuple(forces)
         cached = self._split_cache
-        if same_objects(forces, cached[0]):
-            return cached[1:]
-        constant, varying = split_forces(forces)
-        self._split_cache = (forces, constant, varying, all(force.time_invariant for force in forces))
-        return self._split_cache[1:]
+        if len(forces) == len(cached[0]) and all(map(operator.is_, forces, cached[0])):
+            return cached[1]
+        self._split_cache = (forces, (*split_forces(forces), all(force.time_invariant for force in forces)))
+        return self._split_cache[1]
 
     def _coefficients(self, h: float) -> np.ndarray:
         if self._coef_cache[0] != h:
