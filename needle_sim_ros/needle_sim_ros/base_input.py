@@ -117,9 +117,8 @@ class BaseInput:
             return self.motions_at(times)
         if self.base_at is not None:
             motions = [self.base_at(float(t)) for t in times]
-            values = np.array([np.concatenate((m.position, m.orientation, m.linear_velocity, m.angular_velocity,
-                                               m.linear_acceleration, m.angular_acceleration)) for m in motions])
-            return values.reshape(len(times), 19), np.array([m.rotation for m in motions]).reshape(len(times), 3, 3)
+            return (np.array([m.packed for m in motions]).reshape(len(times), 19),
+                    np.array([m.rotation for m in motions]).reshape(len(times), 3, 3))
         flange = self.trajectory.motions_at(times)
         twist, offset, offset_rotation = self._parts
         apply_twist(flange, times, twist, self.twist_timeout)

@@ -40,7 +40,7 @@ def step_wrenches(records: Sequence[StepRecord]):
     floats: what the simulator publishes on ``wrench`` (a step whose wrench is not finite is left out: never NaN on
     the wire)."""
     for record in records:
-        values = record.wrench.values[6:12].tolist()
+        values = record.wrench.base.tolist()
         if all(map(math.isfinite, values)):
             yield record.t, values[:3], values[3:]
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from needle_sim_ros.compiled_advance import advance_from_trajectory
 from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, ModelShape, NeedleData, NeedleModel,
-                                  NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed, StepInputs,
+                                  NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed,
                                   acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
                                   model_shape, reaction_wrench, solve_static, stateful_forces, step)
 from needle_sim_ros.model.contribution import ContributionRun
@@ -232,14 +232,17 @@ class Stepper:
         forces = self._sequence_forces(sequence)
         if from_poses and regular and forces is not None:
             motions, rotations = np.empty((count, 19)), np.empty((count, 3, 3))  # the run fills them
-        else:
+        elif sequence or run is not None or source.base_at is None or source.motions_at is not None:
             motions, rotations = source.motions(times)  # once: the general path takes them one at a time
+        else:  # every step on the general path: the prescribed base's motions themselves, not packed
+            motions, rotations = [source.base_at(float(t)) for t in times], None
         i = 0
         general = False  # whether a step left the compiled sequence (whose converged states are finite)
         if not regular:  # after a grid shift (lock_phase)
             if not (forces is not None
                     and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
-                records.append(self.step(BaseMotion.from_packed(motions[0], rotations[0]), times[0], first_dt))
+                records.append(self.step(motions[0] if rotations is None else
+                                         BaseMotion.from_packed(motions[0], rotations[0]), times[0], first_dt))
                 general = True
             data.step_index += 1
             i = 1
@@ -259,11 +262,12 @@ class Stepper:
                 if i == stop:  # all it was asked for: the next run (a step that failed takes the general step)
                     continue
             if i < count:
-                records.append(self.step(BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
+                records.append(self.step(motions[i] if rotations is None else
+                                         BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
                 general = True
                 data.step_index += 1
                 i += 1
-                forces = self._sequence_forces(sequence)
+                forces = self._sequence_forces(sequence) if sequence else None
         if general and not np.isfinite(data.state.q).all():  # never carry a non-finite state on
             self.statistics.failed_steps += 1
             data.state = self.model.straight_state(self.base, data.state.t, data.integrator.clamp)
@@ -308,7 +312,7 @@ class Stepper:
         if not (plan_forces is forces and plan_memory is memory and plan_integrator is integrator
                 and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
             # else: the checks and caches of sequence_arguments
-            before, _ = integrator.sequence_arguments(self.dt, forces, float(times[0]), 0, memory)
+            before = integrator.sequence_arguments(self.dt, forces, float(times[0]), memory)
             self._advance_plan = (integrator, forces, memory, (*before, memory.last_motion))
             arguments = self._advance_plan[3]
         outputs = run_outputs(times.size, self.model.n_dof)
@@ -386,8 +390,8 @@ class Stepper:
         tissue), or with ``restart_on_failure`` False the StepFailed is raised."""
         start = time.perf_counter()
         try:
-            output = step(self.model, self.integrator, self.model_forces, self.data,
-                          StepInputs(self.dt if dt is None else dt, float(t_next), base_next))
+            output = step(self.model, self.integrator, self.model_forces, self.data, self.dt if dt is None else dt,
+                          float(t_next), base_next)
         except StepFailed:
             self.statistics.failed_steps += 1
             if not self.restart_on_failure:

@@ -2,7 +2,7 @@
 mass, exact-curvature elastic forces with analytic Jacobian, Rayleigh damping, general external forces, a rigid
 base driving the constrained coordinates, fixtures, implicit integrators, statics and the base reaction wrench."""
 from .config import load_needle_config, needle_parameters, needle_properties
-from .data import NeedleData, StepInputs, StepOutput, acting_forces, initial_force_states, stateful_forces, step
+from .data import NeedleData, acting_forces, initial_force_states, stateful_forces, step
 from .elastic import elastic_energy, elastic_forces, tangent_stiffness
 from .fixtures import Fixture
 from .forces import (ElementLocalForce, ForceContribution, GeneralizedForce, Gravity, LineLoad, MaterialPointForce,
@@ -26,6 +26,6 @@ __all__ = [
     "reaction_wrench", "base_constraint_force", "BaseWrench", "centerline", "Centerline", "tip_pose",
     "ModelShape", "model_shape",
     "axial_strain", "curvature", "kinetic_energy", "elastic_energy", "gravitational_energy", "elastic_forces",
-    "tangent_stiffness", "load_needle_config", "needle_parameters", "needle_properties", "NeedleData", "StepInputs",
-    "StepOutput", "acting_forces", "initial_force_states", "stateful_forces", "step",
+    "tangent_stiffness", "load_needle_config", "needle_parameters", "needle_properties", "NeedleData",
+    "acting_forces", "initial_force_states", "stateful_forces", "step",
 ]

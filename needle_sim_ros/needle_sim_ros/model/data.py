@@ -7,13 +7,12 @@ in fixed phases and changes it only once the step has succeeded: a failed step l
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
 
 from .forces import PointLoad, check_forces
-from .integrators import Integrator, IntegratorMemory
+from .integrators import Integrator, IntegratorMemory, StepResult
 from .kinematics import BaseMotion
 from .model import NeedleModel, State
-from .reaction import BaseWrench, reaction_wrench
+from .reaction import reaction_wrench
 
 
 @dataclass
@@ -62,23 +61,6 @@ class NeedleData:
                                                                 saved.force_states)
 
 
-class StepInputs(NamedTuple):
-    """What drives one step: its length dt [s], its end time [s] on the time loop's grid (t + dt up to rounding)
-    and the base motion then."""
-
-    dt: float
-    t_next: float
-    base_next: BaseMotion
-
-
-class StepOutput(NamedTuple):
-    """What a step produced: the base wrench (eq. 20) and the integrator's effort."""
-
-    wrench: BaseWrench
-    newton_iterations: int
-    substeps: int
-
-
 def initial_force_states(model: NeedleModel, forces) -> tuple:
     """The initial state of each stateful contribution in ``forces`` (checked against the force protocol)."""
     return tuple(force.initial_state(model) for force in check_forces(forces) if force.stateful)
@@ -93,14 +75,17 @@ def acting_forces(forces, data: NeedleData) -> list:
     """The contributions acting over the step that starts from ``data``: those of ``forces`` without state, the
     point loads, then each stateful one's contributions ``at`` its state in ``data``."""
     acting = [force for force in forces if not force.stateful]
-    acting.extend(data.point_loads.values())
-    for force, own in stateful_forces(forces, data.force_states):
-        acting.extend(force.at(own))
+    stateful = len(acting) < len(forces) or data.force_states
+    acting += data.point_loads.values()
+    for force, own in stateful_forces(forces, data.force_states) if stateful else ():
+        acting += force.at(own)
     return acting
 
 
-def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, inputs: StepInputs) -> StepOutput:
-    """One step of ``data`` (started) to ``inputs.t_next`` under the contributions ``forces``, in fixed phases:
+def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, dt: float, t_next: float,
+         base_next: BaseMotion) -> StepResult:
+    """One step of ``data`` (started) of length ``dt`` to ``t_next`` (on the time loop's grid: t + dt up to
+    rounding), the base motion then ``base_next``, under the contributions ``forces``, in fixed phases:
 
     1. inputs: the contributions acting over the step (:func:`acting_forces`), the integrator's memory;
     2. integrate: predictor, Newton, sub-stepping (:meth:`Integrator.step`; StepFailed if it cannot);
@@ -108,21 +93,23 @@ def step(model: NeedleModel, integrator: Integrator, forces, data: NeedleData, i
     4. commit: ``data`` takes the new state (with its base) and force states (the step index is the time loop's);
        any error before this leaves ``data`` as it was (the integrator's memory, updated in place, is put back);
     5. outputs: the base wrench of the new state under the contributions of the next step (the compiled run's
-       where it took the step without state-dependent contributions).
+       where it took the step without state-dependent contributions), in the returned :class:`StepResult`.
     """
-    base_next = inputs.base_next
     control = data.integrator.control.copy()
+    acting = acting_forces(forces, data)
     try:
-        result = integrator.step(data.state, inputs.dt, base_next, acting_forces(forces, data), data.integrator)
+        result = integrator.step(data.state, dt, base_next, acting, data.integrator)
         state = result.state
-        state.t = float(inputs.t_next)
-        stateful = [force.advance(model, state, base_next, own)
-                    for force, own in stateful_forces(forces, data.force_states)]
+        state.t = t_next
+        stateful = tuple(force.advance(model, state, base_next, own)
+                         for force, own in stateful_forces(forces, data.force_states)) if data.force_states else ()
     except BaseException:
         data.integrator.control[:] = control
         raise
-    data.state, data.force_states = state, tuple(stateful)
-    w = result.wrench
-    wrench = reaction_wrench(model, state, base_next, acting_forces(forces, data)) if w is None or stateful else \
-        BaseWrench(w)
-    return StepOutput(wrench, result.newton_iterations, result.substeps)
+    data.state = state
+    if stateful:
+        data.force_states = stateful
+        acting = acting_forces(forces, data)
+    if result.wrench is None or stateful:
+        result = result._replace(wrench=reaction_wrench(model, state, base_next, acting))
+    return result

@@ -36,6 +36,7 @@ from .banded import (ELEMENT_BANDWIDTH, add_dense_to_band, band_cholesky, band_s
                      cholesky_solve)
 from .forces import check_forces
 from .partition import hermite_quintic
+from .reaction import BaseWrench
 from .step import EXTRAPOLATE, FACTORED, general_step, integrate_sequence, interpreted, solve_step
 
 METHODS = ("generalized_alpha", "hht", "backward_euler")
@@ -68,37 +69,37 @@ def run_outputs(steps: int, n_dof: int) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 @njit(cache=True)
-def step_to(q, qd, qdd, aux, t_next, position, orientation, linear_velocity, angular_velocity, linear_acceleration,
-            angular_acceleration, rotation, history, coef, ext_Q, tol, max_iterations, prescribed, base_nodes,
-            base_local_r, base_local_rx, active, scale, tables, residual, band, pivots, factorization, kl, control,
-            last_motion, states, wrenches, iterations):
-    """One step from (q, qd, qdd, aux) to ``t_next`` with the base motion given by its fields (those of a
-    :class:`BaseMotion`) and rotation, on a fresh matrix: :func:`integrate_sequence` for one step (history ...
-    iterations: its arguments after the motions and rotations, :meth:`Integrator.sequence_arguments`), the packed
-    motion, end time and start rows made here rather than by numpy calls from Python. Returns the steps done (0: not
-    converged)."""
+def step_to(q, qd, qdd, aux, t_next, packed, rotation, history, coef, ext_Q, tol, max_iterations, prescribed,
+            base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band, pivots, factorization, kl,
+            control, last_motion):
+    """One step from (q, qd, qdd, aux) to ``t_next`` with the base motion ``packed`` (:attr:`BaseMotion.packed`)
+    and its rotation, on a fresh matrix: :func:`integrate_sequence` for one step (history ... last_motion: its
+    arguments after the motions and rotations, :meth:`Integrator.sequence_arguments`), the start rows, motion, end
+    time and outputs made here rather than by numpy calls from Python. Returns (rows [q, q', q'', a] (4, n_dof),
+    wrench (12,), Newton corrections), the rows None where Newton did not converge."""
     motion = np.empty((1, 19))
-    motion[0, 0:3], motion[0, 3:7], motion[0, 7:10] = position, orientation, linear_velocity
-    motion[0, 10:13], motion[0, 13:16], motion[0, 16:19] = angular_velocity, linear_acceleration, angular_acceleration
+    motion[0] = packed
     rotations = np.empty((1, 3, 3))
     rotations[0] = rotation
-    times = np.full(1, t_next)
     history[0], history[1], history[2], history[3] = q, qd, qdd, aux
-    return integrate_sequence(history, times, motion, rotations, coef, ext_Q, tol, max_iterations, prescribed,
-                              base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band, pivots,
-                              factorization, kl, control, False, last_motion, states, wrenches, iterations)
+    control[FACTORED] = 0  # the fresh matrix replaces the factorization a run kept
+    states, wrenches, iterations = np.empty((1, 4, q.size)), np.empty((1, 12)), np.zeros(1, dtype=np.int64)
+    done = integrate_sequence(history, np.full(1, t_next), motion, rotations, coef, ext_Q, tol, max_iterations,
+                              prescribed, base_nodes, base_local_r, base_local_rx, active, scale, tables, residual,
+                              band, pivots, factorization, kl, control, False, last_motion, states, wrenches,
+                              iterations)
+    return (states[0] if done else None), wrenches[0], iterations[0]
 
 
 class StepResult(NamedTuple):
     """The new state, total Newton corrections, number of sub-steps used (1 = none), convergence flag and, from
-    the compiled run, the wrench on the holder [force, torque world; force, torque base frame] (12,) under the
-    step's forces (None: not computed)."""
+    the compiled run, the wrench on the holder under the step's forces (None: not computed)."""
 
     state: State
     newton_iterations: int
     substeps: int
     converged: bool
-    wrench: np.ndarray | None = None
+    wrench: BaseWrench | None = None
 
 
 def scheme_coefficients(method: str, rho_inf: float) -> tuple[float, ...]:
@@ -288,7 +289,7 @@ class Integrator:
         self.max_substep_halvings = int(max_substep_halvings)
         self.work = Work(model)
         self._constant_cache: tuple[tuple, np.ndarray] = ((), np.zeros(model.n_dof))
-        self._split_cache: tuple[tuple, list, list, bool] = ((), [], [], True)
+        self._split_cache: tuple[tuple, tuple[list, list, bool]] = ((), ([], [], True))
         self._coef_cache: tuple[float, np.ndarray] = (0.0, np.zeros(7))
         self._run_cache: tuple[tuple, tuple] = ((), ())
         self._sequence_cache: tuple = (None, 0.0, None, ())  # see sequence_arguments
@@ -323,24 +324,21 @@ class Integrator:
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be finite and > 0, got {dt!r}")
         memory = memory or self.memory
-        memory.invalidate()  # the sequence's kept factorization is of another motion now
-        model = self.model
         constant, varying, time_invariant = self._split(forces)
         t_next = state.t + dt
-        if memory.clamp is None and model.partition.held:
+        if memory.clamp is None and self._held:
             raise ValueError("a fixture of the frame 'start' needs the pose the needle started at (memory.clamp)")
         first, failure = 0, ""  # sub-step halvings: from 1 where the compiled run's step did not converge
         if state.aux is not None and time_invariant and self.work.supported:  # the compiled run's step
-            before, (states, wrenches, iterations) = self.sequence_arguments(dt, forces, t_next, 1, memory)
-            if step_to(state.q, state.qd, state.qdd, state.aux, t_next, base_next.position, base_next.orientation,
-                       base_next.linear_velocity, base_next.angular_velocity, base_next.linear_acceleration,
-                       base_next.angular_acceleration, base_next.rotation, *before, memory.last_motion, states,
-                       wrenches, iterations):
-                rows = states[0]
-                return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next), int(iterations[0]),
-                                  1, True, wrenches[0])
+            rows, wrench, iterations = step_to(state.q, state.qd, state.qdd, state.aux, t_next, base_next.packed,
+                                               base_next.rotation, *self.sequence_arguments(dt, forces, t_next, memory),
+                                               memory.last_motion)
+            if rows is not None:
+                return StepResult(State(rows[0], rows[1], rows[2], t_next, rows[3], base_next), iterations, 1, True,
+                                  BaseWrench(wrench))
             first, failure = 1, f"Newton did not converge at t = {t_next:.6g} s"
-        n = model.n_dof
+        memory.invalidate()  # the sequence's kept factorization is of another motion now
+        model, n = self.model, self.work.n_dof
         end = np.zeros((3, n))
         model.partition.impose(base_next, t_next, end, memory.clamp)
         history = np.empty((4, n))
@@ -378,7 +376,7 @@ class Integrator:
         across steps where it may be). Only where :meth:`supports_sequence`. The run ends early at a step that does
         not converge: integrate that one with :meth:`step`."""
         k = motions.shape[0]
-        before, after = self.sequence_arguments(dt, forces, state.t + dt, k, memory)
+        before, after = self.sequence_arguments(dt, forces, state.t + dt, memory), run_outputs(k, self.work.n_dof)
         history = before[0]
         history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
         times = state.t + dt * np.arange(1, k + 1)
@@ -387,24 +385,21 @@ class Integrator:
                                   *after)
         return SequenceResult.of_run(done, after)
 
-    def sequence_arguments(self, dt: float, forces, t_next: float, steps: int,
-                           memory: IntegratorMemory | None = None) -> tuple[tuple, tuple]:
-        """The arguments of :func:`integrate_sequence` for ``steps`` steps of ``dt`` under ``forces`` (see
-        :meth:`step_sequence`; ``t_next``: the first step's end time): those around the packed base motions and
-        rotations (the history buffer for the start state's rows first, then the scheme, model and memory arrays
-        up to the control flags; made once per step length and memory), and the outputs (states, wrenches,
-        iterations), new."""
+    def sequence_arguments(self, dt: float, forces, t_next: float, memory: IntegratorMemory | None = None) -> tuple:
+        """The arguments of :func:`integrate_sequence` for steps of ``dt`` under ``forces`` (see
+        :meth:`step_sequence`; ``t_next``: the first step's end time) around the packed base motions and rotations:
+        the history buffer for the start state's rows first, then the scheme, model and memory arrays up to the
+        control flags (made once per step length and memory)."""
         memory = memory or self.memory
         if memory.h != dt:
             memory.h = dt
             memory.invalidate()
-        cached = self._sequence_cache  # (memory, dt, forces, arguments): the same time-invariant forces
-        if not (cached[0] is memory and cached[1] == dt and cached[2] is not None
-                and same_objects(forces, cached[2])):
-            constant, _, time_invariant = self._split(forces)
+        constant, _, time_invariant = self._split(forces)
+        cached = self._sequence_cache  # (memory, dt, constant forces of _split, arguments): time-invariant forces
+        if not (cached[0] is memory and cached[1] == dt and cached[2] is constant):
             ext_Q = self._constant_force(constant, t_next, None)
             buffers = self.work
-            cached = (memory, dt, tuple(forces) if time_invariant else None, (
+            cached = (memory, dt, constant if time_invariant else None, (
                 buffers.history, self._coefficients(dt), ext_Q, self.newton_tol, self.max_newton_iterations,
                 buffers.prescribed, buffers.base_nodes, buffers.base_local_r, buffers.base_local_rx, buffers.active,
                 buffers.scale, buffers.tables, buffers.residual, memory.band, memory.pivots,
@@ -412,7 +407,7 @@ class Integrator:
             self._sequence_cache = cached
         if self._held:
             self.work.hold(memory.clamp)
-        return cached[3], run_outputs(steps, self.model.n_dof)
+        return cached[3]
 
     def run_arguments(self, forces, dt: float, t_next: float,
                       memory: IntegratorMemory | None = None) -> tuple[tuple, np.ndarray]:
@@ -440,11 +435,10 @@ class Integrator:
         the same force objects are passed."""
         forces = tuple(forces)
         cached = self._split_cache
-        if same_objects(forces, cached[0]):
-            return cached[1:]
-        constant, varying = split_forces(forces)
-        self._split_cache = (forces, constant, varying, all(force.time_invariant for force in forces))
-        return self._split_cache[1:]
+        if len(forces) == len(cached[0]) and all(map(operator.is_, forces, cached[0])):
+            return cached[1]
+        self._split_cache = (forces, (*split_forces(forces), all(force.time_invariant for force in forces)))
+        return self._split_cache[1]
 
     def _coefficients(self, h: float) -> np.ndarray:
         if self._coef_cache[0] != h:

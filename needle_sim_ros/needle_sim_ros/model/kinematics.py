@@ -48,6 +48,7 @@ class BaseMotion:
     linear_acceleration: np.ndarray = _ZERO3
     angular_acceleration: np.ndarray = _ZERO3
     rotation: np.ndarray = field(init=False, repr=False, compare=False)
+    packed: np.ndarray = field(init=False, repr=False, compare=False)  # the six fields' buffer (19,): views of it
 
     def __post_init__(self) -> None:
         # one packed buffer: validation and conversion of all six fields with few numpy calls (hot path)
@@ -65,6 +66,7 @@ class BaseMotion:
         for name, part in _FIELDS:
             object.__setattr__(self, name, values[part])
         object.__setattr__(self, "rotation", quaternion_matrix(values[3:7]))
+        object.__setattr__(self, "packed", values)
 
     @property
     def axis(self) -> np.ndarray:
@@ -76,7 +78,10 @@ class BaseMotion:
         """From already validated packed fields (19,) [position, orientation, v, w, a, alpha] and the matching
         rotation matrix, without copying or checking (the compiled paths produce these)."""
         motion = object.__new__(cls)
-        motion.__dict__.update({name: values[part] for name, part in _FIELDS}, rotation=rotation)  # frozen: no setattr
+        motion.__dict__.update(  # frozen: no setattr
+            position=values[0:3], orientation=values[3:7], linear_velocity=values[7:10],
+            angular_velocity=values[10:13], linear_acceleration=values[13:16], angular_acceleration=values[16:19],
+            rotation=rotation, packed=values)
         return motion
 
     @classmethod
@@ -89,7 +94,7 @@ class BaseMotion:
                      angular_acceleration)
         offset = _vector(offset_position, "offset_position")
         offset_rotation = quaternion_matrix(unit_quaternion(offset_orientation, "offset_orientation"))
-        packed = np.concatenate([getattr(flange, name) for name, _ in _FIELDS])[None, :]
+        packed = flange.packed[None, :]
         values, rotations = np.empty((1, 19)), np.empty((1, 3, 3))
         compose_offsets(packed, offset, offset_rotation, values, rotations)
         return cls.from_packed(values[0], rotations[0])

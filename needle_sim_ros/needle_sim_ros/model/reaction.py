@@ -34,6 +34,7 @@ class BaseWrench(NamedTuple):
     torque_world = property(lambda self: self.values[3:6])
     force_base = property(lambda self: self.values[6:9])
     torque_base = property(lambda self: self.values[9:12])
+    base = property(lambda self: self.values[6:12])  # [force_base, torque_base]: what the simulator publishes
 
 
 @lru_cache(maxsize=32)
