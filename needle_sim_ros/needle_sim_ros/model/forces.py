@@ -378,11 +378,14 @@ def scatter_point(slots, S, S_x, k, weight, force, position, gradient, with_grad
         for b in range(4):
             ib = 3 * slots[k, b]
             cr = wa * S[k, b]
-            cx = c_q * wa * S_x[k, b]
-            for c in range(3):
-                row = ia + c
-                for c2 in range(3):
-                    entry = cr * position[c, c2]
-                    if with_gradient:
-                        entry += cx * gradient[c, c2]
-                    band[row, ib + c2 - row + kl] += entry
+            if with_gradient:  # the branch outside the inner loops (the shaft's scatter has no gradient)
+                cx = c_q * wa * S_x[k, b]
+                for c in range(3):
+                    row = ia + c
+                    for c2 in range(3):
+                        band[row, ib + c2 - row + kl] += cr * position[c, c2] + cx * gradient[c, c2]
+            else:
+                for c in range(3):
+                    row = ia + c
+                    for c2 in range(3):
+                        band[row, ib + c2 - row + kl] += cr * position[c, c2]
