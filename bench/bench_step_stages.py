@@ -28,7 +28,7 @@ from needle_sim_ros.tissue.coupling import shaft_contact_points
 from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_model, flatten_tissue_config
 from needle_sim_ros.tissue.shaft_force import lateral_part, shaft_acting, shaft_assemble
 from needle_sim_ros.tissue.tip_forces import bevel_assemble
-from needle_sim_ros.tissue.track import project_on_blocks, segment_blocks
+from needle_sim_ros.tissue.track import project_on_blocks
 
 PARAMETERS = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
 DT, STEPS, REPEATS, CALLS, G = 1e-3, 3000, 7, 20000, 9.81
@@ -93,8 +93,8 @@ def tissue_advance_loop(count, advance, carried, q, qd, t):
 def lateral_loop(count, contact, constants, q):
     c, k = contact, constants
     for _ in range(count):
-        lateral_part(q, k[14], k[15], k[0][-1], k[16], k[17], c.vertices, c.arc, c.end_tangent, k[10], k[11], k[12],
-                     k[13])
+        lateral_part(q, k[14], k[15], k[0][-1], k[16], k[17], c.vertices, c.arc, c.end_tangent, c.centres, c.radii,
+                     k[10], k[11], k[12], k[13])
 
 
 @njit
@@ -103,14 +103,13 @@ def contact_points_loop(count, contact, record, constants, q):
     for _ in range(count):
         shaft_contact_points(q, k[0], k[0][-1] - c.tip_depth - k[2], k[3], k[4], k[5], k[10], k[11], k[12][-1],
                              record.active, np.zeros(k[0].size, dtype=np.bool_), record.anchor.copy(), c.vertices,
-                             c.arc, c.end_tangent)
+                             c.arc, c.end_tangent, c.centres, c.radii)
 
 
 @njit
 def projection_loop(count, contact, points):
-    centres, radii = segment_blocks(contact.vertices, contact.arc)
     for _ in range(count):
-        project_on_blocks(contact.vertices, contact.arc, contact.end_tangent, points, centres, radii)
+        project_on_blocks(contact.vertices, contact.arc, contact.end_tangent, points, contact.centres, contact.radii)
 
 
 def per_call(loop, *arguments) -> float:

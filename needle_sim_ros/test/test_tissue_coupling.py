@@ -8,6 +8,7 @@ from needle_sim_ros.tissue.contact import pack_contact
 from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_model
 from needle_sim_ros.tissue.shaft_force import FROZEN_FIELDS, pack_shaft
 from needle_sim_ros.tissue.tissue_model import TissueState
+from needle_sim_ros.tissue.track import segment_blocks
 from lugre_record import simulate
 
 PROPS = NeedleProperties(0.27, 0.635e-3, 193e9, 8000.0, gravity=(0.0, 0.0, 0.0))   # seed 000 needle
@@ -68,6 +69,21 @@ def perturbed(state, rng, amplitude=2e-5):
 @pytest.fixture(scope="module")
 def model():
     return build_model(PROPS, n_elements=10)
+
+
+def test_contact_keeps_the_segment_blocks_of_its_track(model):
+    """The contact record's segment blocks (made again only when the track grows) are its track's at every step:
+    the track started, grown by a few vertices, and not grown."""
+    tissue = build_tissue_model(config(), model)
+    own, sizes = None, []
+    for depth in (0.03, 0.0305, 0.0305):
+        _, _, own = inserted_state(model, tissue, depth, own=own)
+        contact = own.records[0]
+        sizes.append(contact.arc.size)
+        centres, radii = segment_blocks(contact.vertices, contact.arc)
+        np.testing.assert_array_equal(contact.centres, centres)
+        np.testing.assert_array_equal(contact.radii, radii)
+    assert sizes[0] > 16 and sizes[1] > sizes[0] and sizes[2] == sizes[1]
 
 
 def test_shaft_support_jacobians_match_finite_differences_in_stick_and_slip(model):

@@ -16,7 +16,7 @@ from needle_sim_ros.model.kinematics import dot3, offset_dot
 from needle_sim_ros.model.records import put_all, take_flag, take_float, take_matrix, take_vector, view_vector
 from needle_sim_ros.model.step import Kernels, off_base
 
-from .track import cut_polyline
+from .track import cut_polyline, segment_blocks
 
 
 class ContactRecord(NamedTuple):
@@ -33,6 +33,8 @@ class ContactRecord(NamedTuple):
     direction: np.ndarray
     previous_tip: np.ndarray
     end_tangent: np.ndarray
+    centres: np.ndarray   # the track's ``track.segment_blocks``, made again only when it grows
+    radii: np.ndarray
 
 
 class ContactConstants(NamedTuple):
@@ -82,9 +84,12 @@ def advance_contact(c, p, q, qd, t):
         previous_tip = r_tip
         length = arc[-1]
         at_front = tip_depth > 0.0 and length + offset_dot(r_tip, vertices[-1], end_tangent) >= length - p.spacing
+    centres, radii = c.centres, c.radii
+    if arc.size != c.arc.size:
+        centres, radii = segment_blocks(vertices, arc)
     step_duration = 0.0 if np.isnan(c.time) else max(t - c.time, 0.0)
     return ContactRecord(punctured, tip_depth, tip_speed, step_duration, at_front, t, vertices, arc, direction,
-                         previous_tip, end_tangent)
+                         previous_tip, end_tangent, centres, radii)
 
 
 @njit(cache=True)
@@ -108,7 +113,8 @@ def unpack_contact(buffer):
     c = np.zeros(1, dtype=np.int64)
     return ContactRecord(take_flag(buffer, c), take_float(buffer, c), take_float(buffer, c), take_float(buffer, c),
                          take_flag(buffer, c), take_float(buffer, c), take_matrix(buffer, c), take_vector(buffer, c),
-                         take_vector(buffer, c), take_vector(buffer, c), take_vector(buffer, c))
+                         take_vector(buffer, c), take_vector(buffer, c), take_vector(buffer, c),
+                         take_matrix(buffer, c), take_vector(buffer, c))
 
 
 @njit(cache=True)

@@ -14,13 +14,14 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from needle_sim_ros.model.forces import scatter_point
 from needle_sim_ros.model.kinematics import dot3, offset_dot
 from needle_sim_ros.model.mesh import hermite_shapes, interpolate
 
 from .geometry import TissueBlock
 from .karnopp import axial_traction
 from .shaft_laws import ShaftLaw
-from .track import Track, locate_on_polyline, project_on_blocks, project_on_polyline, segment_blocks
+from .track import Track, locate_on_polyline, project_on_blocks
 
 
 def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -69,11 +70,10 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
                             stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale, Q, band, kl, c_q,
                             c_qd):
     """The force per length of one part's points (ShaftSupport) added to Q and, unless band is (0, 0) (Q alone),
-    c_q dQ/dq + c_qd dQ/dq' to the band matrix, in one pass over the points without temporaries (it runs at every
-    Newton correction): each point's position r and velocity v (eq. 3), lateral springs and dampers perpendicular
-    to the track tangent tau and the axial traction of ``karnopp.axial_traction`` along it, scattered as
-    ``model.forces.assemble_point_forces`` does (same arithmetic, the same bits) with dF/dr, dF/dv and no
-    dF/dr_x."""
+    c_q dQ/dq + c_qd dQ/dq' to the band matrix, in one pass over the points without per-point temporaries (it runs
+    at every Newton correction): each point's position r and velocity v (eq. 3), lateral springs and dampers
+    perpendicular to the track tangent tau and the axial traction of ``karnopp.axial_traction`` along it, scattered
+    by ``model.forces.scatter_point`` with dF/dr, dF/dv and no dF/dr_x."""
     with_matrix = band.shape[0] > 0
     r, v, force = np.empty(3), np.empty(3), np.empty(3)
     position = np.empty((3, 3))  # c_q dF/dr + c_qd dF/dv of the point
@@ -99,20 +99,7 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
                     perpendicular = (1.0 if i == j else 0.0) - tt
                     position[i, j] = (c_q * (-lateral_stiffness[k] * perpendicular + dt_du * tt)
                                       + c_qd * (-lateral_damping[k] * perpendicular + dt_dv * tt))
-        for a in range(4):
-            ia = 3 * slots[k, a]
-            wa = weights[k] * S[k, a]
-            for c in range(3):
-                Q[ia + c] += wa * force[c]
-            if not with_matrix:
-                continue
-            for b in range(4):
-                ib = 3 * slots[k, b]
-                cr = wa * S[k, b]
-                for c in range(3):
-                    row = ia + c
-                    for c2 in range(3):
-                        band[row, ib + c2 - row + kl] += cr * position[c, c2]
+        scatter_point(slots, S, S_x, k, weights[k], force, position, position, False, Q, band, kl, c_q)
 
 
 @njit(cache=True)
@@ -191,12 +178,12 @@ def entry_coverage(arc_lengths, depth, inside):
 
 
 @njit(cache=True)
-def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, entry_point,
-                       entry_normal):
+def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, centres, radii,
+                       entry_point, entry_normal):
     """Gauss points of the needle's arc interval in cut tissue (``advance.lateral_part``): weights,
     slots, S, S_x (``cut_quadrature``), the rest points on the track (each needle point's projection), the needle
-    tangents and the rest points' depths; none if the interval is empty."""
-    centres, radii = segment_blocks(vertices, arc)
+    tangents and the rest points' depths; none if the interval is empty. ``centres``, ``radii``: the track's
+    ``track.segment_blocks``."""
     tip_coordinate = project_on_blocks(vertices, arc, end_tangent, q[-6:-3].reshape(1, 3), centres, radii)[0][0]
     upper = s_tip - max(tip_coordinate - arc[-1], 0.0)
     lower = max(s_tip - tip_coordinate, 0.0)
@@ -213,12 +200,13 @@ def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc
 
 @njit(cache=True)
 def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_point, entry_normal, thickness,
-                         was_active, active, anchor, vertices, arc, end_tangent):
+                         was_active, active, anchor, vertices, arc, end_tangent, centres, radii):
     """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``):
     marks them in ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track,
     and returns their indices, entry coverage, needle tangents, anchor points on the track and those points'
     depths, and the axial offsets u = (r - anchor point) . tangent. The arc lengths increase, so the candidates
-    are the points from the first beyond ``candidate_arc`` on (scalar loops: it runs every step)."""
+    are the points from the first beyond ``candidate_arc`` on (scalar loops: it runs every step); ``centres``,
+    ``radii``: the track's ``track.segment_blocks``."""
     first = np.searchsorted(arc_lengths, candidate_arc, side="right")
     r, tangents = needle_points(S[first:], S_x[first:], slots[first:], q)
     m = r.shape[0]
@@ -249,7 +237,7 @@ def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_poi
             if not was_active[index[j]]:
                 new[e] = r[j]
                 e += 1
-        projected = project_on_polyline(vertices, arc, end_tangent, new)[0]
+        projected = project_on_blocks(vertices, arc, end_tangent, new, centres, radii)[0]
         e = 0
         for j in range(count):
             if not was_active[index[j]]:

@@ -54,12 +54,13 @@ def inactive_part():
 
 
 @njit(cache=True)
-def lateral_part(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, entry_point, entry_normal,
-                 bottoms, table):
+def lateral_part(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, centres, radii, entry_point,
+                 entry_normal, bottoms, table):
     """Frozen lateral Winkler support of the needle's arc interval in cut tissue (``lateral_quadrature``; layer
     stiffness and damping at the rest points' depths)."""
     weights, slots, S, S_x, points, tangents, depth = lateral_quadrature(
-        q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, entry_point, entry_normal)
+        q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, centres, radii, entry_point,
+        entry_normal)
     if weights.size == 0:
         return inactive_part()
     values = layer_rows(bottoms, table, depth, LATERAL_ROWS)
@@ -69,9 +70,10 @@ def lateral_part(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_
 
 
 @njit(cache=True)
-def advance_shaft(q, vertices, arc, end_tangent, tip_depth, tip_speed, step_duration, anchor, was_active, law_state,
-                  arc_lengths, point_weights, margin, S, S_x, slots, lateral, law_kind, law_parameters,
-                  stick_stiffness, entry_point, entry_normal, bottoms, table, node_arc, element_lengths, xi, w):
+def advance_shaft(q, vertices, arc, end_tangent, centres, radii, tip_depth, tip_speed, step_duration, anchor,
+                  was_active, law_state, arc_lengths, point_weights, margin, S, S_x, slots, lateral, law_kind,
+                  law_parameters, stick_stiffness, entry_point, entry_normal, bottoms, table, node_arc, element_lengths,
+                  xi, w):
     """The shaft after a step to q (contact advanced): (law state, anchors, active points, frozen lateral part,
     frozen axial part). The law's state advances first; with a started track the lateral part covers the cut
     interval and, with an axial law, the points inside the tissue are active (entering ones anchored where they
@@ -84,7 +86,7 @@ def advance_shaft(q, vertices, arc, end_tangent, tip_depth, tip_speed, step_dura
         return ShaftRecord(law_state, anchor, active, inactive_part(), inactive_part())
     if lateral:
         lateral_frozen = lateral_part(q, node_arc, element_lengths, arc_lengths[-1], xi, w, vertices, arc,
-                                      end_tangent, entry_point, entry_normal, bottoms, table)
+                                      end_tangent, centres, radii, entry_point, entry_normal, bottoms, table)
     else:
         lateral_frozen = inactive_part()
     if law_kind == NO_LAW:
@@ -92,7 +94,7 @@ def advance_shaft(q, vertices, arc, end_tangent, tip_depth, tip_speed, step_dura
     anchor = anchor.copy()
     index, coverage, tangents, points, depth, u = shaft_contact_points(
         q, arc_lengths, arc_lengths[-1] - tip_depth - margin, S, S_x, slots, entry_point, entry_normal, bottoms[-1],
-        was_active, active, anchor, vertices, arc, end_tangent)
+        was_active, active, anchor, vertices, arc, end_tangent, centres, radii)
     if index.size == 0:
         return ShaftRecord(law_state, anchor, active, lateral_frozen, inactive_part())
     coulomb, viscous, offset, sign_gain, velocity_scale = law_coefficients(law_kind, law_parameters, law_state,
@@ -174,8 +176,8 @@ def shaft_assemble(forces, q, qd, rotation, Q, band, kl, c_q, c_qd):
 @njit(cache=True)
 def shaft_advance(carried, q, qd, t, contact):
     r, c = carried.record, contact.record
-    record = advance_shaft(q, c.vertices, c.arc, c.end_tangent, c.tip_depth, c.tip_speed, c.step_duration, r.anchor,
-                           r.active, r.law_state, *carried.constants)
+    record = advance_shaft(q, c.vertices, c.arc, c.end_tangent, c.centres, c.radii, c.tip_depth, c.tip_speed,
+                           c.step_duration, r.anchor, r.active, r.law_state, *carried.constants)
     return ShaftStep(record, carried.constants)
 
 

@@ -94,7 +94,6 @@ class ProfileShaftFriction(ShaftLaw):
     kind = PROFILE
 
     def __init__(self, profile: InsertionForceProfile, stick_stiffness: float) -> None:
-        self.profile = profile
         self.parameters = profile.series_parameters
         self.stick_stiffness = _stick_stiffness(stick_stiffness)
 
@@ -106,5 +105,4 @@ class LuGreShaftForce(ShaftLaw):
     kind = LUGRE
 
     def __init__(self, model: ModifiedLuGre) -> None:
-        self.model = model
         self.parameters = np.append(model.parameters.as_array(), model.velocity_scale)

@@ -106,7 +106,8 @@ class TissueModel(ForceContribution):
         # each part: kernels, constants, initial state, whether it acts at the tip (the readout's tip force)
         parts = [(CONTACT_KERNELS, packed(block.entry_point, block.entry_normal, float(contact.puncture_depth or 0.0),
                                           track.spacing),
-                  packed(False, 0.0, 0.0, 0.0, False, np.nan, *track.kernel_arrays), False),
+                  packed(False, 0.0, 0.0, 0.0, False, np.nan, *track.kernel_arrays, np.zeros((0, 3)), np.zeros(0)),
+                  False),  # the fresh track: empty, so are its segment blocks
                  (SHAFT_KERNELS, packed(*shaft.kernel_arguments),
                   packed(shaft.initial.law, shaft.initial.anchor, shaft.initial.active, *inactive_part(),
                          *inactive_part()), False)]
