@@ -110,8 +110,9 @@ class ClockLoop:
         count = math.floor((t_target + slack - data.grid_origin) / dt) - data.step_index
         if count <= 0:
             return []
-        first = data.step_index + 1
-        return self.stepper.run(self.grid_time(np.arange(first, first + count)), source, t_target)
+        grid_time, first = self.grid_time, data.step_index + 1
+        times = np.array([grid_time(index) for index in range(first, first + count)])
+        return self.stepper.run(times, source, t_target)
 
     @property
     def next_step_end(self) -> float:
@@ -119,6 +120,6 @@ class ClockLoop:
         return self.grid_time(self.data.step_index + 1)
 
     def grid_time(self, index):
-        """End time of step ``index`` (or of each of an array of them) since the (re)start: origin + index dt,
-        rounded once (no accumulation: at epoch times a sum of 1 ms steps would drift by 70 ns per step)."""
+        """End time of step ``index`` since the (re)start: origin + index dt, rounded once (no accumulation: at
+        epoch times a sum of 1 ms steps would drift by 70 ns per step)."""
         return self.data.grid_origin + self.dt * index
