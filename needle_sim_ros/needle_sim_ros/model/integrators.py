@@ -435,7 +435,7 @@ class Integrator:
         the same force objects are passed."""
         forces = tuple(forces)
         cached = self._split_cache
-        if len(forces) == len(cached[0]) and all(map(operator.is_, forces, cached[0])):
+        if same_objects(forces, cached[0]):
             return cached[1]
         self._split_cache = (forces, (*split_forces(forces), all(force.time_invariant for force in forces)))
         return self._split_cache[1]
