@@ -115,8 +115,8 @@ class BaseInput:
         takes them, and their rotations (k, 3, 3)."""
         if self.motions_at is not None:
             return self.motions_at(times)
-        if self.base_at is not None:
-            motions = [self.base_at(float(t)) for t in times]
+        motions = self.prescribed_motions(times)
+        if motions is not None:
             return (np.array([m.packed for m in motions]).reshape(len(times), 19),
                     np.array([m.rotation for m in motions]).reshape(len(times), 3, 3))
         flange = self.trajectory.motions_at(times)
@@ -125,6 +125,13 @@ class BaseInput:
         values, rotations = np.empty_like(flange), np.empty((len(times), 3, 3))
         compose_offsets(flange, offset, offset_rotation, values, rotations)
         return values, rotations
+
+    def prescribed_motions(self, times: np.ndarray) -> list[BaseMotion] | None:
+        """A prescribed base's own motions at ``times`` (``base_at``), for steps that take them one at a time;
+        None where the motions come packed (``motions_at``, the received poses: :meth:`motions`)."""
+        if self.motions_at is not None or self.base_at is None:
+            return None
+        return [self.base_at(float(t)) for t in times]
 
     def pose_age(self, now: float) -> float:
         latest = self.trajectory.latest

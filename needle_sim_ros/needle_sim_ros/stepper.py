@@ -232,17 +232,19 @@ class Stepper:
         forces = self._sequence_forces(sequence)
         if from_poses and regular and forces is not None:
             motions, rotations = np.empty((count, 19)), np.empty((count, 3, 3))  # the run fills them
-        elif sequence or run is not None or source.base_at is None or source.motions_at is not None:
-            motions, rotations = source.motions(times)  # once: the general path takes them one at a time
-        else:  # every step on the general path: the prescribed base's motions themselves, not packed
-            motions, rotations = [source.base_at(float(t)) for t in times], None
+        else:  # once: the general path takes them one at a time (a prescribed base's own, where every step does)
+            prescribed = None if sequence or run is not None else source.prescribed_motions(times)
+            motions, rotations = source.motions(times) if prescribed is None else (prescribed, None)
+
+        def motion(index: int) -> BaseMotion:
+            return motions[index] if rotations is None else BaseMotion.from_packed(motions[index], rotations[index])
+
         i = 0
         general = False  # whether a step left the compiled sequence (whose converged states are finite)
         if not regular:  # after a grid shift (lock_phase)
             if not (forces is not None
                     and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
-                records.append(self.step(motions[0] if rotations is None else
-                                         BaseMotion.from_packed(motions[0], rotations[0]), times[0], first_dt))
+                records.append(self.step(motion(0), times[0], first_dt))
                 general = True
             data.step_index += 1
             i = 1
@@ -262,8 +264,7 @@ class Stepper:
                 if i == stop:  # all it was asked for: the next run (a step that failed takes the general step)
                     continue
             if i < count:
-                records.append(self.step(motions[i] if rotations is None else
-                                         BaseMotion.from_packed(motions[i], rotations[i]), times[i]))
+                records.append(self.step(motion(i), times[i]))
                 general = True
                 data.step_index += 1
                 i += 1
