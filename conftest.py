@@ -10,30 +10,31 @@ from typing import Callable
 import pytest
 
 
+# The ROS 2 settings of every participant of a test run, the test process's own and its children's.
+ROS_TEST_ENV = {"ROS_DOMAIN_ID": str(1 + os.getpid() % 100), "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
+                "FASTRTPS_DEFAULT_PROFILES_FILE": str(Path(__file__).with_name("test") / "fastdds_udp_localhost.xml")}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """One isolated ROS 2 domain for the test run, set before anything in this process creates a participant (Fast
+    DDS reads its profile file once, at the first).
+
+    The domain id is derived from the pid so that parallel test runs on one machine do not see each other (ids
+    1..100 keep within the range where every DDS port is valid); discovery stays on this host.
+
+    Fast DDS talks over UDP on 127.0.0.1 only, never through its shared-memory transport: tests stop and kill
+    processes, and a participant killed or stopped while it holds a lock of a shared-memory port can hang every
+    participant created after it on the machine (eProsima/Fast-DDS#1144). rmw_fastrtps's LOCALHOST discovery range
+    adds that transport itself (FASTDDS_BUILTIN_TRANSPORTS does not remove it), so the range is left to Fast DDS
+    (SYSTEM_DEFAULT) and test/fastdds_udp_localhost.xml sets up localhost discovery without it.
+    """
+    os.environ.update(ROS_TEST_ENV)
+
+
 @pytest.fixture(scope="session")
 def ros_env() -> dict:
-    """Environment for nodes in child processes: a ROS domain of this test run only, discovery on this host only.
-
-    The domain id is derived from the pid so that parallel test runs on one machine do not see each other
-    (ids 1..100 keep within the range where every DDS port is valid). The test process itself joins the same
-    domain (for rclpy nodes created in tests); its previous settings are restored at the end of the session.
-
-    Fast DDS talks over UDP (loopback) only, never through its shared-memory transport: tests stop and kill
-    processes, and a participant killed or stopped while it holds a lock of a shared-memory port can hang every
-    participant created after it on the machine (eProsima/Fast-DDS#1144). A CI run hung that way after a failed
-    test: the next test's node never came up.
-    """
-    env = dict(os.environ, ROS_DOMAIN_ID=str(1 + os.getpid() % 100), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               FASTDDS_BUILTIN_TRANSPORTS="UDPv4", PYTHONUNBUFFERED="1")
-    saved = {key: os.environ.get(key) for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE",
-                                                  "FASTDDS_BUILTIN_TRANSPORTS")}
-    os.environ.update({key: env[key] for key in saved})
-    yield env
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
+    """Environment for nodes in child processes: the test run's ROS domain (``ROS_TEST_ENV``), unbuffered output."""
+    return dict(os.environ, **ROS_TEST_ENV, PYTHONUNBUFFERED="1")
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,5 @@
 """The middleware is real: custom messages and a 1 kHz wrench stream cross an OS process boundary."""
+import re
 import subprocess
 import sys
 import time
@@ -99,3 +100,24 @@ def test_polled_subscriptions_deliver_like_an_executor(node):
     assert len(plain) == 2 and all(isinstance(msg, WrenchStamped) for msg in plain)
     assert len(with_info) == 1 and isinstance(with_info[0][0], WrenchStamped)
     assert with_info[0][1]["received_timestamp"] > 0
+
+
+SHM_PROBE = """
+import os, rclpy
+rclpy.init()
+node = rclpy.create_node("shm_probe")
+print(*os.listdir("/dev/shm"))
+"""
+
+
+def test_the_suites_participants_open_no_shared_memory_port(ros_env):
+    """The test domain's Fast DDS participants talk over UDP only (conftest.py): while a node of it is up, /dev/shm
+    holds no shared-memory port of the domain's port range (7400 + 250 * domain ...). A participant stopped or
+    killed while holding such a port's lock could hang every later one (eProsima/Fast-DDS#1144); rmw_fastrtps's own
+    LOCALHOST range opens them."""
+    domain = int(ros_env["ROS_DOMAIN_ID"])
+    ports = range(7400 + 250 * domain, 7400 + 250 * (domain + 1))
+    probe = subprocess.run([sys.executable, "-c", SHM_PROBE], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert probe.returncode == 0, probe.stderr
+    opened = {int(port) for port in re.findall(r"fastrtps_port(\d+)", probe.stdout)}
+    assert not opened & set(ports), sorted(opened & set(ports))
