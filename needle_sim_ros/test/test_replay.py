@@ -62,6 +62,21 @@ def start(ros_env, executable: str, *args: str) -> subprocess.Popen:
                             text=True)
 
 
+def finished(process: subprocess.Popen, timeout: float) -> str:
+    """The output of ``process`` once it exited; a test failure with its output so far if it runs ``timeout`` [s]
+    longer (killed)."""
+    try:
+        return process.communicate(timeout=timeout)[0]
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{Path(process.args[0]).name} still ran after {timeout:g} s: {killed(process)}")
+
+
+def killed(process: subprocess.Popen) -> str:
+    """The output of ``process``, killed."""
+    process.kill()
+    return process.communicate()[0]
+
+
 def spin_until(node, done, timeout: float) -> None:
     deadline = time.monotonic() + timeout
     while not done() and time.monotonic() < deadline:
@@ -113,7 +128,7 @@ def test_replay_keeps_the_recorded_timing_scaled_by_rate_and_publishes_clock(nod
                    "--wait-for-subscribers", "20", "--ros-args", "-r", "/wrench:=/replayed/wrench")
     try:
         spin_until(node, lambda: len(arrivals) == count and player.poll() is not None, 40.0)
-        out, _ = player.communicate(timeout=10)
+        out = finished(player, 10)
     finally:
         player.kill()
     assert player.returncode == 0, out
@@ -169,7 +184,7 @@ def test_a_paused_replay_holds_the_start_time_until_resumed_and_subscribers_repo
             assert arrivals == [] and len(clocks) > 10 and set(clocks) == {BAG_START_NS}
             resume(node)
             spin_until(node, lambda: len(arrivals) == count and player.poll() is not None, 20.0)
-            out, _ = player.communicate(timeout=10)
+            out = finished(player, 10)
         finally:
             player.kill()
     assert player.returncode == 0, out
@@ -221,7 +236,8 @@ def test_the_replay_waits_for_its_reliable_subscribers_to_acknowledge_the_last_m
             try:
                 if subscriber_state != "acknowledging":  # stopped once it took a message: the rest unacked
                     first = read_line(subscriber, 30.0).strip()
-                    assert first.isdigit(), f"the subscriber took no message within 30 s: {first!r}"
+                    assert first.isdigit(), \
+                        f"the subscriber took no message within 30 s: {first!r}; player: {killed(player)}"
                     subscriber.send_signal(signal.SIGSTOP)
                 if subscriber_state.endswith("interrupted"):
                     spin_until(node, lambda: clocks and clocks[-1][1] >= stamps[-1], 20.0)
@@ -231,7 +247,7 @@ def test_the_replay_waits_for_its_reliable_subscribers_to_acknowledge_the_last_m
                     player.send_signal(signal.SIGINT)
                 spin_until(node, lambda: player.poll() is not None, 20.0)
                 exited = time.monotonic()
-                out, _ = player.communicate(timeout=10)
+                out = finished(player, 10)
             finally:
                 player.kill()
     finally:
@@ -291,12 +307,12 @@ def test_replayed_shapes_are_compared_logged_and_the_log_finalized_on_sigterm(no
     try:
         spin_until(node, lambda: node.count_publishers("/shape_error") > 0, 20.0)
         player = start(ros_env, "needle_replay", str(tmp_path / "shapes.mcap"), "--wait-for-subscribers", "20")
-        out, _ = player.communicate(timeout=40)
+        out = finished(player, 40)
         assert player.returncode == 0, out
         # Every measurement but the last is decided by the next model shape (the last waits for one).
         spin_until(node, lambda: len(errors) == count - 1, 10.0)
         comparer.send_signal(signal.SIGTERM)
-        log, _ = comparer.communicate(timeout=20)
+        log = finished(comparer, 20)
     finally:
         comparer.kill()
     assert comparer.returncode == 0, log
@@ -348,7 +364,7 @@ def test_a_replay_waiting_for_named_nodes_plays_once_they_matched_and_loses_noth
         try:
             spin_until(node, lambda: player.poll() is not None, 40.0)
             spin_until(node, lambda: len(arrivals) == count, 2.0)
-            out, _ = player.communicate(timeout=10)
+            out = finished(player, 10)
         finally:
             player.kill()
     assert player.returncode == 0 and "playing after" not in out, out
@@ -365,7 +381,7 @@ def test_a_stopped_replay_exits_cleanly_however_it_waits(ros_env, tmp_path, wait
     time.sleep(3.0)
     assert player.poll() is None
     player.send_signal(stop)
-    out, _ = player.communicate(timeout=20)
+    out = finished(player, 20)
     assert player.returncode == 0 and "Traceback" not in out and "context is invalid" not in out, out
 
 
