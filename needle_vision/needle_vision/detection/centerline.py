@@ -366,8 +366,8 @@ def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
 #: tapered (a bevel seen side-on): over 20 noise seeds a flat end's ratio is 0.85-1.14, a 1 mm bevel's 1.15-1.75.
 #: Both profiles must fall so (:func:`_falls_slowly`): a bright needle's relative contrast follows the background's
-#: texture (+-15 %), its level sagged below 75 % 10-13 px before flat bases (ratios 10-13, read as 0.5-0.7 px half
-#: tapers); on the covered fraction 500 flat bases read 0.80-1.18 (both polarities, 13 shapes at 5 noise seeds, 4 at
+#: texture (+-15 %), its level sagged below 75 % 10-13 px before flat bases (ratio 10-108: half tapers 0.5-0.7
+#: px); on the covered fraction 500 flat bases read 0.80-1.18 (both polarities, 13 shapes at 5 noise seeds, 4 at
 #: 15 more), the 320 1 mm bevels' tips 1.28-2.12. The covered fraction alone would taper bright flat tips turned
 #: towards the cameras (1.15-1.30), which the relative contrast's scatter keeps flat.
 TAPER_FACTOR = 1.15
