@@ -177,6 +177,30 @@ def test_rod_s_image_ends(rig, polarities, polarity):
         assert np.linalg.norm(points[[0, -1]] - ends, axis=1) == pytest.approx([0, 0], abs=0.25), side
 
 
+@pytest.mark.parametrize("seed", [7, 1007, 3007])
+def test_flat_base_on_a_dark_background_is_not_a_taper(rig, polarities, seed):
+    """The bright rod up curl's flat base, on the background at 0.3x its albedo: no taper read in either view, the
+    image bases within 0.1 px of the renderer's projected base along the needle, the 3D base (per point) within
+    0.1 mm. The end's relative contrast follows the background's texture: its level sagged below 75 % 10-13 px
+    before the base, which read as a bevel's taper (half taper 0.48-0.70 px, the image base 0.44-0.68 px beyond, the
+    3D base 0.215, 0.238 and 0.361 mm off at seeds 1007, 7 and 3007); a taper now shows in the covered fraction as
+    well (measured: no taper, along -0.04-0.00 px, base 0.022-0.087 mm)."""
+    scene, backgrounds = polarities["bright"]
+    truth = ROD_EPIPOLAR_SHAPES["rod_curl_up"]
+    images = render_stereo_pair(rig, truth, NEEDLE_RADIUS, np.random.default_rng(seed), scene=scene)
+    centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
+    for side, centerline in zip(("left", "right"), centerlines):
+        base = project_points(rig, truth[:1], side)[0]
+        at_base = int(np.argmin(np.linalg.norm(centerline.points[[0, -1]] - base, axis=1)))
+        assert centerline.end_taper_px[at_base] == 0, side
+        points = centerline.points if at_base == 0 else centerline.points[::-1]
+        outward = (points[0] - points[10]) / np.linalg.norm(points[0] - points[10])
+        assert abs((points[0] - base) @ outward) <= 0.1, side
+    measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
+                                         ReconstructionConfig(), rig.world_from_left)
+    assert np.linalg.norm(measurement.points[0] - truth[0]) <= 0.1e-3
+
+
 @pytest.mark.parametrize("polarity", ["dark", "bright"])
 @pytest.mark.parametrize("name", list(ROD_EPIPOLAR_SHAPES))
 def test_rod_equilibria_per_point(rig, polarities, name, polarity):

@@ -365,6 +365,11 @@ def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
 
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
 #: tapered (a bevel seen side-on): over 20 noise seeds a flat end's ratio is 0.85-1.14, a 1 mm bevel's 1.15-1.75.
+#: Both profiles must fall so (:func:`_falls_slowly`): a bright needle's relative contrast follows the background's
+#: texture (+-15 %), its level sagged below 75 % 10-13 px before flat bases (ratio 10-108: half tapers 0.5-0.7
+#: px); on the covered fraction 500 flat bases read 0.80-1.18 (both polarities, 13 shapes at 5 noise seeds, 4 at
+#: 15 more), the 320 1 mm bevels' tips 1.28-2.12. The covered fraction alone would taper bright flat tips turned
+#: towards the cameras (1.15-1.30), which the relative contrast's scatter keeps flat.
 TAPER_FACTOR = 1.15
 #: ... and by more than this many times the profile's relative scatter along the needle (a weak needle's noisy
 #: profile does not tell a taper: a flat end's ratio scatters ~3x the profile's scatter about 1).
@@ -591,6 +596,15 @@ def _band_centroids(image, background, polarity, points, rows, half_band,
 
 
 @numba.njit(cache=True, nogil=True)
+def _falls_slowly(profile, level, inside, spread, blur):  # pragma: no cover - compiled
+    """Whether an end ``profile`` (median ``level`` over the ``inside`` rows) falls from 75 % to 25 % over
+    ``spread`` > ``TAPER_FACTOR`` times the side edges' ``blur`` and clearly more than the profile's relative scatter
+    (``TAPER_SIGNIFICANCE``): a taper."""
+    scatter = 1.4826 * np.median(np.abs(profile[inside] - level)) / level
+    return not np.isnan(blur) and spread > blur * max(TAPER_FACTOR, 1 + TAPER_SIGNIFICANCE * scatter)
+
+
+@numba.njit(cache=True, nogil=True)
 def _profile_crossings(s, grid, band, inside, start):  # pragma: no cover - compiled
     """The end profile (``grid`` summed over the ``band`` columns, 3-point averaged), its median level over the
     ``inside`` rows and its 75 %, 50 % and 25 % crossings beyond ``start``; whether all three were found."""
@@ -615,10 +629,11 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     significant and the end near) fitted to the 80 before them, evenly
     spaced at the centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls
     (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its
-    noise), a blurred linear taper is fitted to the profile and the end put half its length beyond its middle (least
-    squares over the whole taper: the half-contrast crossing alone moves with the noise of a few samples on a
-    shallow slope). Returns (number of points kept, the new points ending with the end, the taper's half length
-    [px]); kept is -1 where the profile leaves the image or does not fall."""
+    noise), on the relative contrast and on the covered fraction alike, a blurred linear taper is fitted to the
+    profile and the end put half its length beyond its middle (least squares over the whole taper: the
+    half-contrast crossing alone moves with the noise of a few samples on a shallow slope). Returns (number of
+    points kept, the new points ending with the end, the taper's half length [px]); kept is -1 where the profile
+    leaves the image or does not fall."""
     none = (-1, np.zeros((0, 2)), 0.0)
     n = points.shape[0]
     if n < 100:
@@ -666,11 +681,10 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
             return none
     blur = _edge_spread(cross, u)
     spread = last - first
-    scatter = 1.4826 * np.median(np.abs(profile[inside] - level)) / level
-    tapered = not np.isnan(blur) and spread > blur * max(TAPER_FACTOR, 1 + TAPER_SIGNIFICANCE * scatter)
+    tapered = _falls_slowly(profile, level, inside, spread, blur)
     # The relative contrast is the covered fraction times 1 - N / B, modulated by the background's texture. The
     # needle's own intensity N, from the band's fitted contrast over the harmonic mean of B, gives the covered fraction
-    # (B - I) / (B - N) to locate the end (whether it is tapered is decided above, on the relative contrast).
+    # (B - I) / (B - N) to locate the end; the end is tapered where it falls slowly in both profiles (TAPER_FACTOR).
     needle = 0.0
     if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
         inverse = 0.0
@@ -686,6 +700,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
             s, covered, band, inside, along[n - 9])
         if covered_found:
             profile, level, end, spread = covered_profile, covered_level, covered_end, covered_last - covered_first
+            tapered = tapered and _falls_slowly(profile, level, inside, spread, blur)
     half_taper = 0.0
     if tapered and spread > blur:
         # The blur along the profile: the side edges' (the same point spread and pixel area), plus the moving
