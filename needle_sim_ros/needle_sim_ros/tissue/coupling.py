@@ -113,13 +113,14 @@ def point_table(weights, S, S_x, anchors, tangents, stiffness, damping, coulomb,
                 velocity_scale, stick_stiffness):
     """The frozen points' rows of the table ``shaft_generalized_force`` reads (columns above)."""
     points = np.empty((weights.size, POINT_COLUMNS))
-    for k in range(weights.size):
-        row = points[k]
-        row[WEIGHT], row[LATERAL], row[LATERAL + 1] = weights[k], stiffness[k], damping[k]
-        row[LAW], row[LAW + 1], row[LAW + 2], row[LAW + 3] = coulomb[k], viscous[k], offset, sign_gain
-        row[LAW + 4], row[LAW + 5] = velocity_scale, stick_stiffness
-        row[SHAPES:SHAPES + 4], row[GRADIENT_SHAPES:GRADIENT_SHAPES + 4] = S[k], S_x[k]
-        row[ANCHOR:ANCHOR + 3], row[TANGENT:TANGENT + 3] = anchors[k], tangents[k]
+    for k in range(weights.size):  # scalar loops: it runs every step
+        points[k, WEIGHT], points[k, LATERAL], points[k, LATERAL + 1] = weights[k], stiffness[k], damping[k]
+        points[k, LAW], points[k, LAW + 1], points[k, LAW + 2] = coulomb[k], viscous[k], offset
+        points[k, LAW + 3], points[k, LAW + 4], points[k, LAW + 5] = sign_gain, velocity_scale, stick_stiffness
+        for a in range(4):
+            points[k, SHAPES + a], points[k, GRADIENT_SHAPES + a] = S[k, a], S_x[k, a]
+        for i in range(3):
+            points[k, ANCHOR + i], points[k, TANGENT + i] = anchors[k, i], tangents[k, i]
     return points
 
 
