@@ -24,7 +24,7 @@ from needle_sim_ros.model.step import base_tables
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.scenarios.insertion import InsertionMotion, shipped_tissue_config
 from needle_sim_ros.simulation import NeedleSimulation, model_builder_from_parameters
-from needle_sim_ros.tissue.coupling import shaft_contact_points
+from needle_sim_ros.tissue.coupling import ANCHOR, shaft_contact_points
 from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_model, flatten_tissue_config
 from needle_sim_ros.tissue.shaft_force import lateral_part, shaft_acting, shaft_assemble
 from needle_sim_ros.tissue.tip_forces import bevel_assemble
@@ -190,8 +190,10 @@ def tissue_stages() -> None:
     forces, rotation, n = composition.acting(carried), simulation.base.rotation, model.n_dof
     Q, band, no_band = np.zeros(n), np.zeros((n, band_width_columns(KL))), np.zeros((0, 0))
     print(f"\nTissue (shipped Karnopp + lateral + bevel, insertion scenario at 50 mm inserted): {contact.arc.size} "
-          f"track vertices, {shaft.lateral[1].size} lateral and {shaft.axial[1].size} axial shaft points\n")
+          f"track vertices, {shaft.lateral_count} lateral and {shaft.slots.shape[0] - shaft.lateral_count} axial "
+          "shaft points\n")
     shaft_forces = shaft_acting(carried[1])
+    lateral_anchors = np.ascontiguousarray(shaft.points[:shaft.lateral_count, ANCHOR:ANCHOR + 3])
     rows = [("tissue assemble: forces and band matrix (a refactoring correction)",
              per_call(tissue_assemble_loop, composition.assemble, forces, q, qd, rotation, Q, band, KL, -1.0, -1e3)),
             ("tissue assemble: forces only (a chord correction)",
@@ -205,7 +207,7 @@ def tissue_stages() -> None:
             ("of which the lateral part (cut interval, rest points on the track)",
              per_call(lateral_loop, contact, carried[1].constants, q)),
             ("of which its track projection of the lateral points",
-             per_call(projection_loop, contact, np.ascontiguousarray(shaft.lateral[5]))),
+             per_call(projection_loop, contact, lateral_anchors)),
             ("of which the axial points inside the tissue (anchors, offsets)",
              per_call(contact_points_loop, contact, shaft, carried[1].constants, q))]
     print("| tissue stage | us |\n|---|---|")

@@ -6,7 +6,8 @@ from needle_sim_ros.model import BaseMotion, Integrator, NeedleProperties, build
 from needle_sim_ros.model.step import pack
 from needle_sim_ros.tissue.contact import pack_contact
 from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_model
-from needle_sim_ros.tissue.shaft_force import FROZEN_FIELDS, pack_shaft
+from needle_sim_ros.tissue.coupling import ANCHOR, LATERAL, LAW, SHAPES, TANGENT, WEIGHT
+from needle_sim_ros.tissue.shaft_force import pack_shaft
 from needle_sim_ros.tissue.tissue_model import TissueState
 from needle_sim_ros.tissue.track import segment_blocks
 from lugre_record import simulate
@@ -91,13 +92,14 @@ def test_shaft_support_jacobians_match_finite_differences_in_stick_and_slip(mode
     state, base, own = inserted_state(model, tissue, 0.03)
     assert own.shaft.active.sum() >= 10
     contact, shaft = own.records
-    lateral, axial = (dict(zip(FROZEN_FIELDS, part)) for part in (shaft.lateral, shaft.axial))
-    assert axial["weights"].sum() == pytest.approx(0.03)            # weights add up to the inserted length
+    points = shaft.points.copy()
+    lateral, axial = points[:shaft.lateral_count], points[shaft.lateral_count:]
+    assert axial[:, WEIGHT].sum() == pytest.approx(0.03)            # weights add up to the inserted length
     # the lateral springs hold the cut part: all of it but the last track spacing at most
-    assert 0.03 - own.contact.track.spacing <= lateral["weights"].sum() <= 0.03 + 1e-9
+    assert 0.03 - own.contact.track.spacing <= lateral[:, WEIGHT].sum() <= 0.03 + 1e-9
     # push every other anchor beyond the stick band (0.3 mm): those points slip, the others stick
-    axial["anchor_points"][::2] -= 1e-3 * axial["tangents"][::2]
-    moved = shaft._replace(axial=tuple(axial.values()))
+    axial[::2, ANCHOR:ANCHOR + 3] -= 1e-3 * axial[::2, TANGENT:TANGENT + 3]
+    moved = shaft._replace(points=points)
     shaft, = tissue.at(TissueState(tissue, pack([pack_contact(contact), pack_shaft(moved)])))
     q, qd = perturbed(state, np.random.default_rng(4))
     result = finite_difference_check(shaft, model, q, qd, base)
@@ -153,16 +155,15 @@ def test_passive_tissue_never_adds_energy(model):
 def shaft_energy(own, q) -> float:
     """Energy [J] stored in the lateral springs and the sticking axial anchors (stick band |u| <= C/k_a) of the
     shaft's frozen points, from their record."""
-    energy = 0.0
-    for part in own.records[1][3:]:
-        p = dict(zip(FROZEN_FIELDS, part))
-        r = np.einsum("ka,kai->ki", p["S"], q.reshape(-1, 3)[p["slots"]])
-        offset = r - p["anchor_points"]
-        u = np.einsum("ki,ki->k", offset, p["tangents"])
-        lateral = 0.5 * p["lateral_stiffness"] * np.sum((offset - u[:, None] * p["tangents"]) ** 2, axis=1)
-        band = p["coulomb"] / p["stick_stiffness"]
-        energy += float(p["weights"] @ (lateral + 0.5 * p["stick_stiffness"] * np.clip(u, -band, band) ** 2))
-    return energy
+    shaft = own.records[1]
+    p, tangents = shaft.points, shaft.points[:, TANGENT:TANGENT + 3]
+    r = np.einsum("ka,kai->ki", p[:, SHAPES:SHAPES + 4], q.reshape(-1, 3)[shaft.slots])
+    offset = r - p[:, ANCHOR:ANCHOR + 3]
+    u = np.einsum("ki,ki->k", offset, tangents)
+    lateral = 0.5 * p[:, LATERAL] * np.sum((offset - u[:, None] * tangents) ** 2, axis=1)
+    stick_stiffness = p[:, LAW + 5]
+    band = p[:, LAW] / stick_stiffness                                 # coulomb / k_a
+    return float(p[:, WEIGHT] @ (lateral + 0.5 * stick_stiffness * np.clip(u, -band, band) ** 2))
 
 
 def test_friction_work_equals_force_times_distance_in_the_coupled_model(model):

@@ -176,9 +176,10 @@ def add_dense_to_band(matrix: np.ndarray, factor: float, band: np.ndarray, kl: i
 
 @njit(cache=True)
 def band_symmetric(band: np.ndarray, kl: int) -> bool:
-    """Whether the band matrix (row i, column j at band[i, j - i + kl]) is symmetric."""
+    """Whether the band matrix (row i, column j at band[i, j - i + kl]) is symmetric; from the last row up, where a
+    force at the tip (the bevel's, through r_x) makes the external forces' matrix unsymmetric."""
     n = band.shape[0]
-    for i in range(n):
+    for i in range(n - 1, -1, -1):
         for j in range(i + 1, min(n, i + kl + 1)):
             if band[i, j - i + kl] != band[j, i - j + kl]:
                 return False

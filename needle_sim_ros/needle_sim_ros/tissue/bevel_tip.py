@@ -93,29 +93,33 @@ class BevelTip:
 @njit(cache=True)
 def tip_force_kernel(rx, side, p, q):
     """F = -P t + Q n with t = r_x/|r_x|, n = unit part of ``side`` normal to t, and dF/dr_x (runs per Newton
-    iteration in the 1 kHz loop, hence compiled, in scalar loops: no small-matrix products).
+    iteration in the 1 kHz loop, hence compiled, in scalar loops: no small-matrix products or temporaries).
     dF/dr_x = (-P I + Q dn/dm dm/dt) dt/dr_x with dt/dr_x = (I - t t^T)/|r_x|, m = side - (side.t) t,
     dm/dt = -(t side^T + (side.t) I), dn/dm = (I - n n^T)/|m|."""
     rx_norm = np.sqrt(dot3(rx, rx))
-    t = rx / rx_norm
+    frame = np.empty((3, 3))
+    t, m, n = frame[0], frame[1], frame[2]
+    for i in range(3):
+        t[i] = rx[i] / rx_norm
     along = dot3(side, t)
-    m = side - along * t
+    for i in range(3):
+        m[i] = side[i] - along * t[i]
     m_norm = np.sqrt(dot3(m, m))
     force = np.zeros(3)
     jacobian = np.zeros((3, 3))
     if m_norm < 1e-9 * np.sqrt(dot3(side, side)) or m_norm == 0.0:
         return force, jacobian, False
-    n = m / m_norm
+    for i in range(3):
+        n[i] = m[i] / m_norm
     n_t = dot3(n, t)
     for i in range(3):
         force[i] = -p * t[i] + q * n[i]
-    outer = np.empty((3, 3))  # B = -P I + Q dn/dm dm/dt
-    for i in range(3):
+    for i in range(3):  # row i of B = -P I + Q dn/dm dm/dt, then of B dt/dr_x in its place
+        row = jacobian[i]
         for j in range(3):
             dn_dt = -(t[i] * side[j] + (along if i == j else 0.0) - n[i] * n_t * side[j] - along * n[i] * n[j])
-            outer[i, j] = (-p if i == j else 0.0) + q * dn_dt / m_norm
-    for i in range(3):
-        b_t = outer[i, 0] * t[0] + outer[i, 1] * t[1] + outer[i, 2] * t[2]
+            row[j] = (-p if i == j else 0.0) + q * dn_dt / m_norm
+        b_t = row[0] * t[0] + row[1] * t[1] + row[2] * t[2]
         for j in range(3):
-            jacobian[i, j] = (outer[i, j] - b_t * t[j]) / rx_norm
+            row[j] = (row[j] - b_t * t[j]) / rx_norm
     return force, jacobian, True

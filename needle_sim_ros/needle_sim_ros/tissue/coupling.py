@@ -65,16 +65,21 @@ def interpolate_pair(slots, S_a, x_a, S_b, x_b):
     return interpolate(slots, S_a, x_a), interpolate(slots, S_b, x_b)
 
 
+# the columns of a shaft point in the table the assembly reads (``shaft_force.shaft_acting``)
+WEIGHT, SHAPES, GRADIENT_SHAPES, ANCHOR, TANGENT, LATERAL, LAW = 0, 1, 5, 9, 12, 15, 17
+POINT_COLUMNS = 23  # LATERAL: stiffness, damping; LAW: coulomb, viscous, offset, sign_gain, velocity_scale, k_a
+
+
 @njit(cache=True)
-def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, lateral_stiffness, lateral_damping,
-                            stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale, Q, band, kl, c_q,
-                            c_qd):
-    """The force per length of one part's points (ShaftSupport) added to Q and, unless band is (0, 0) (Q alone),
-    c_q dQ/dq + c_qd dQ/dq' to the band matrix, in one pass over the points without per-point temporaries (it runs
-    at every Newton correction): each point's position r and velocity v (eq. 3), lateral springs and dampers
-    perpendicular to the track tangent tau and the axial traction of ``karnopp.axial_traction`` along it, scattered
-    by ``model.forces.scatter_point`` with dF/dr, dF/dv and no dF/dr_x."""
+def shaft_generalized_force(q, qd, slots, points, Q, band, kl, c_q, c_qd):
+    """The force per length of the shaft's points (ShaftSupport; their q slots and their rows of ``points``, whose
+    columns are named above) added to Q and, unless band is (0, 0) (Q alone), c_q dQ/dq + c_qd dQ/dq' to the band
+    matrix, in one pass over the points without per-point temporaries (it runs at every Newton correction): each
+    point's position r and velocity v (eq. 3), lateral springs and dampers perpendicular to the track tangent tau
+    and the axial traction of ``karnopp.axial_traction`` along it, scattered by ``model.forces.scatter_point`` with
+    dF/dr, dF/dv and no dF/dr_x."""
     with_matrix = band.shape[0] > 0
+    S, S_x = points[:, SHAPES:SHAPES + 4], points[:, GRADIENT_SHAPES:GRADIENT_SHAPES + 4]
     r, v, force = np.empty(3), np.empty(3), np.empty(3)
     position = np.empty((3, 3))  # c_q dF/dr + c_qd dF/dv of the point
     for k in range(slots.shape[0]):
@@ -85,36 +90,38 @@ def shaft_generalized_force(q, qd, slots, S, S_x, weights, anchors, tangents, la
             for i in range(3):
                 r[i] += S[k, a] * q[first + i]
                 v[i] += S[k, a] * qd[first + i]
-        tau = tangents[k]
-        u = offset_dot(r, anchors[k], tau)
+        p = points[k]
+        tau = p[TANGENT:TANGENT + 3]
+        u = offset_dot(r, p[ANCHOR:ANCHOR + 3], tau)
         v_axial = dot3(v, tau)
-        t, dt_du, dt_dv = axial_traction(u, v_axial, stick_stiffness, coulomb[k], viscous[k], offset, sign_gain,
-                                         velocity_scale)
+        stiffness, damping, law = p[LATERAL], p[LATERAL + 1], p[LAW:]
+        t, dt_du, dt_dv = axial_traction(u, v_axial, law[5], law[0], law[1], law[2], law[3], law[4])
         for i in range(3):
-            force[i] = (-lateral_stiffness[k] * (r[i] - anchors[k, i] - u * tau[i])
-                        - lateral_damping[k] * (v[i] - v_axial * tau[i]) + t * tau[i])
+            force[i] = (-stiffness * (r[i] - p[ANCHOR + i] - u * tau[i]) - damping * (v[i] - v_axial * tau[i])
+                        + t * tau[i])
             if with_matrix:
                 for j in range(3):
                     tt = tau[i] * tau[j]
                     perpendicular = (1.0 if i == j else 0.0) - tt
-                    position[i, j] = (c_q * (-lateral_stiffness[k] * perpendicular + dt_du * tt)
-                                      + c_qd * (-lateral_damping[k] * perpendicular + dt_dv * tt))
-        scatter_point(slots, S, S_x, k, weights[k], force, position, position, False, Q, band, kl, c_q)
+                    position[i, j] = (c_q * (-stiffness * perpendicular + dt_du * tt)
+                                      + c_qd * (-damping * perpendicular + dt_dv * tt))
+        scatter_point(slots, S, S_x, k, p[WEIGHT], force, position, position, False, Q, band, kl, c_q)
 
 
 @njit(cache=True)
-def shaft_arguments(part):
-    """``shaft_generalized_force``'s arguments slots ... velocity_scale of a frozen part (``advance.FROZEN_FIELDS``)."""
-    return (part[2], part[3], part[4], part[1], part[5], part[6], part[8], part[9], part[15], part[10], part[11],
-            part[12], part[13], part[14])
-
-
-@njit(cache=True)
-def shaft_forces_assembly(q, qd, lateral, axial, Q, band, kl, c_q, c_qd):
-    """``shaft_generalized_force`` of the lateral, then the axial part (each part's arguments
-    slots ... velocity_scale as a tuple) in one compiled call."""
-    shaft_generalized_force(q, qd, *lateral, Q, band, kl, c_q, c_qd)
-    shaft_generalized_force(q, qd, *axial, Q, band, kl, c_q, c_qd)
+def point_table(weights, S, S_x, anchors, tangents, stiffness, damping, coulomb, viscous, offset, sign_gain,
+                velocity_scale, stick_stiffness):
+    """The frozen points' rows of the table ``shaft_generalized_force`` reads (columns above)."""
+    points = np.empty((weights.size, POINT_COLUMNS))
+    for k in range(weights.size):  # scalar loops: it runs every step
+        points[k, WEIGHT], points[k, LATERAL], points[k, LATERAL + 1] = weights[k], stiffness[k], damping[k]
+        points[k, LAW], points[k, LAW + 1], points[k, LAW + 2] = coulomb[k], viscous[k], offset
+        points[k, LAW + 3], points[k, LAW + 4], points[k, LAW + 5] = sign_gain, velocity_scale, stick_stiffness
+        for a in range(4):
+            points[k, SHAPES + a], points[k, GRADIENT_SHAPES + a] = S[k, a], S_x[k, a]
+        for i in range(3):
+            points[k, ANCHOR + i], points[k, TANGENT + i] = anchors[k, i], tangents[k, i]
+    return points
 
 
 @njit(cache=True)

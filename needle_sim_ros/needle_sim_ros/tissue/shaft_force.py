@@ -2,8 +2,9 @@
 stick-slip law on the shaft points (``coupling.ShaftSupport``), with the points' data frozen over each step.
 
 ``ShaftRecord``: the axial law's state, the points' anchors (track coordinates) and active flags, and the next
-step's frozen lateral and axial parts (``FROZEN_FIELDS`` tuples). After each step ``advance_shaft`` reads the
-contact (``contact.ContactRecord``). Kernels: ``SHAFT_KERNELS``.
+step's frozen points, the lateral then the axial ones: their q slots and one table (``coupling.POINT_COLUMNS``),
+what every Newton correction's assembly reads (two arrays: numba counts the references of each array passed).
+After each step ``advance_shaft`` reads the contact (``contact.ContactRecord``). Kernels: ``SHAFT_KERNELS``.
 """
 from __future__ import annotations
 
@@ -12,20 +13,14 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from needle_sim_ros.model.records import (put_all, take_float, take_flag, take_flags, take_index_matrix, take_indices,
-                                          take_int, take_matrix, take_vector, view_matrix, view_vector)
+from needle_sim_ros.model.records import (put_all, take_float, take_flag, take_flags, take_index_matrix, take_int,
+                                          take_matrix, take_vector, view_matrix, view_vector)
 from needle_sim_ros.model.step import Kernels
 
-from .coupling import (first_slot_in, lateral_quadrature, shaft_arguments, shaft_contact_points,
-                       shaft_forces_assembly, slip_anchors)
+from .coupling import (POINT_COLUMNS, first_slot_in, lateral_quadrature, point_table, shaft_contact_points,
+                       shaft_generalized_force, slip_anchors)
 from .geometry import LATERAL_ROWS, layer_rows
 from .shaft_laws import NO_LAW, law_advance, law_coefficients
-
-# the fields of a frozen part: the points' indices, weights, slots, S, S_x, anchor points, tangents, anchor depths,
-# lateral stiffness and damping, then the axial law's coefficients (``shaft_laws.law_coefficients``) and k_a
-FROZEN_FIELDS = ("index", "weights", "slots", "S", "S_x", "anchor_points", "tangents", "anchor_depth",
-                 "lateral_stiffness", "lateral_damping", "coulomb", "viscous", "offset", "sign_gain", "velocity_scale",
-                 "stick_stiffness")
 
 
 class ShaftRecord(NamedTuple):
@@ -34,8 +29,9 @@ class ShaftRecord(NamedTuple):
     law_state: float
     anchor: np.ndarray    # shaft points' anchors (track coordinates)
     active: np.ndarray    # shaft points inside the tissue
-    lateral: tuple        # frozen lateral part of the next step (``FROZEN_FIELDS``)
-    axial: tuple          # frozen axial part
+    lateral_count: int    # frozen points of the next step: the first lateral_count are the lateral ones
+    slots: np.ndarray     # their q slots (m, 4)
+    points: np.ndarray    # their table (m, POINT_COLUMNS)
 
 
 class ShaftStep(NamedTuple):
@@ -46,27 +42,22 @@ class ShaftStep(NamedTuple):
 
 
 @njit(cache=True)
-def inactive_part():
-    """A frozen part without points (``FROZEN_FIELDS``)."""
-    empty = np.zeros(0)
-    return (np.zeros(0, dtype=np.int64), empty, np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4)), np.zeros((0, 4)),
-            np.zeros((0, 3)), np.zeros((0, 3)), empty, empty, empty, empty, empty, 0.0, 0.0, 0.0, 1.0)
+def no_points():
+    """The slots and table of no frozen points."""
+    return np.zeros((0, 4), dtype=np.int64), np.zeros((0, POINT_COLUMNS))
 
 
 @njit(cache=True)
 def lateral_part(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, centres, radii, entry_point,
                  entry_normal, bottoms, table):
     """Frozen lateral Winkler support of the needle's arc interval in cut tissue (``lateral_quadrature``; layer
-    stiffness and damping at the rest points' depths)."""
+    stiffness and damping at the rest points' depths): slots and table."""
     weights, slots, S, S_x, points, tangents, depth = lateral_quadrature(
         q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, centres, radii, entry_point,
         entry_normal)
-    if weights.size == 0:
-        return inactive_part()
     values = layer_rows(bottoms, table, depth, LATERAL_ROWS)
     zero = np.zeros(weights.size)
-    return (np.zeros(0, dtype=np.int64), weights, slots, S, S_x, points, tangents, depth, values[0].copy(),
-            values[1].copy(), zero, zero, 0.0, 0.0, 0.0, 1.0)
+    return slots, point_table(weights, S, S_x, points, tangents, values[0], values[1], zero, zero, 0.0, 0.0, 0.0, 1.0)
 
 
 @njit(cache=True)
@@ -74,45 +65,44 @@ def advance_shaft(q, vertices, arc, end_tangent, centres, radii, tip_depth, tip_
                   was_active, law_state, arc_lengths, point_weights, margin, S, S_x, slots, lateral, law_kind,
                   law_parameters, stick_stiffness, entry_point, entry_normal, bottoms, table, node_arc, element_lengths,
                   xi, w):
-    """The shaft after a step to q (contact advanced): (law state, anchors, active points, frozen lateral part,
-    frozen axial part). The law's state advances first; with a started track the lateral part covers the cut
-    interval and, with an axial law, the points inside the tissue are active (entering ones anchored where they
-    are) and their anchors slip beyond the stick band. A point an arc length a behind the tip is at most a
-    shallower than the tip, so only points closer to the tip than its depth (plus ``margin``, the outer
-    neighbours for the entry coverage) are candidates."""
+    """The shaft after a step to q (contact advanced). The law's state advances first; with a started track the
+    lateral points cover the cut interval and, with an axial law, the points inside the tissue are active (entering
+    ones anchored where they are) and their anchors slip beyond the stick band. A point an arc length a behind the
+    tip is at most a shallower than the tip, so only points closer to the tip than its depth (plus ``margin``, the
+    outer neighbours for the entry coverage) are candidates."""
     law_state = law_advance(law_kind, law_parameters, law_state, tip_depth, tip_speed, step_duration)
     active = np.zeros(arc_lengths.size, dtype=np.bool_)
+    lateral_slots, lateral_points = no_points()
     if arc.size == 0:
-        return ShaftRecord(law_state, anchor, active, inactive_part(), inactive_part())
+        return ShaftRecord(law_state, anchor, active, 0, lateral_slots, lateral_points)
     if lateral:
-        lateral_frozen = lateral_part(q, node_arc, element_lengths, arc_lengths[-1], xi, w, vertices, arc,
-                                      end_tangent, centres, radii, entry_point, entry_normal, bottoms, table)
-    else:
-        lateral_frozen = inactive_part()
+        lateral_slots, lateral_points = lateral_part(q, node_arc, element_lengths, arc_lengths[-1], xi, w, vertices,
+                                                     arc, end_tangent, centres, radii, entry_point, entry_normal,
+                                                     bottoms, table)
+    count = lateral_slots.shape[0]
     if law_kind == NO_LAW:
-        return ShaftRecord(law_state, anchor, active, lateral_frozen, inactive_part())
+        return ShaftRecord(law_state, anchor, active, count, lateral_slots, lateral_points)
     anchor = anchor.copy()
     index, coverage, tangents, points, depth, u = shaft_contact_points(
         q, arc_lengths, arc_lengths[-1] - tip_depth - margin, S, S_x, slots, entry_point, entry_normal, bottoms[-1],
         was_active, active, anchor, vertices, arc, end_tangent, centres, radii)
     if index.size == 0:
-        return ShaftRecord(law_state, anchor, active, lateral_frozen, inactive_part())
+        return ShaftRecord(law_state, anchor, active, count, lateral_slots, lateral_points)
     coulomb, viscous, offset, sign_gain, velocity_scale = law_coefficients(law_kind, law_parameters, law_state,
                                                                            depth, tip_depth, bottoms, table)
     weights, slots_in, S_in, S_x_in = slip_anchors(anchor, index, u, coulomb, stick_stiffness, points, tangents,
                                                    point_weights, coverage, slots, S, S_x)
     zero = np.zeros(index.size)
-    return ShaftRecord(law_state, anchor, active, lateral_frozen,
-                       (index, weights, slots_in, S_in, S_x_in, points, tangents, depth, zero, zero, coulomb, viscous,
-                        offset, sign_gain, velocity_scale, stick_stiffness))
+    axial = point_table(weights, S_in, S_x_in, points, tangents, zero, zero, coulomb, viscous, offset, sign_gain,
+                        velocity_scale, stick_stiffness)
+    return ShaftRecord(law_state, anchor, active, count, np.concatenate((lateral_slots, slots_in)),
+                       np.concatenate((lateral_points, axial)))
 
 
 @njit(cache=True)
 def _write(buffer, record):
     cursor = np.zeros(1, dtype=np.int64)
-    put_all(buffer, cursor, (record.law_state, record.anchor, record.active))
-    put_all(buffer, cursor, record.lateral)
-    put_all(buffer, cursor, record.axial)
+    put_all(buffer, cursor, record)
     return cursor[0]
 
 
@@ -125,21 +115,11 @@ def pack_shaft(record):
 
 
 @njit(cache=True)
-def _take_part(buffer, cursor):
-    return (take_indices(buffer, cursor), take_vector(buffer, cursor), take_index_matrix(buffer, cursor),
-            take_matrix(buffer, cursor), take_matrix(buffer, cursor), take_matrix(buffer, cursor),
-            take_matrix(buffer, cursor), take_vector(buffer, cursor), take_vector(buffer, cursor),
-            take_vector(buffer, cursor), take_vector(buffer, cursor), take_vector(buffer, cursor),
-            take_float(buffer, cursor), take_float(buffer, cursor), take_float(buffer, cursor),
-            take_float(buffer, cursor))
-
-
-@njit(cache=True)
 def unpack_shaft(buffer):
     """The ``ShaftRecord`` of ``pack_shaft``'s array."""
-    cursor = np.zeros(1, dtype=np.int64)
-    return ShaftRecord(take_float(buffer, cursor), take_vector(buffer, cursor), take_flags(buffer, cursor),
-                       _take_part(buffer, cursor), _take_part(buffer, cursor))
+    c = np.zeros(1, dtype=np.int64)
+    return ShaftRecord(take_float(buffer, c), take_vector(buffer, c), take_flags(buffer, c), take_int(buffer, c),
+                       take_index_matrix(buffer, c), take_matrix(buffer, c))
 
 
 @njit(cache=True)
@@ -161,15 +141,14 @@ def shaft_store(carried):
 
 @njit(cache=True)
 def shaft_acting(carried):
-    """Both parts' point-force arguments and whether a point lies on the base element."""
+    """The frozen points' slots and table, and whether a point lies on the base element."""
     r = carried.record
-    return (shaft_arguments(r.lateral), shaft_arguments(r.axial),
-            first_slot_in(r.lateral[2], 0) or first_slot_in(r.axial[2], 0))
+    return r.slots, r.points, first_slot_in(r.slots, 0)
 
 
 @njit(cache=True)
 def shaft_assemble(forces, q, qd, rotation, Q, band, kl, c_q, c_qd):
-    shaft_forces_assembly(q, qd, forces[0], forces[1], Q, band, kl, c_q, c_qd)
+    shaft_generalized_force(q, qd, forces[0], forces[1], Q, band, kl, c_q, c_qd)
     return True
 
 

@@ -62,9 +62,11 @@ def bevel_assemble(forces, q, qd, rotation, Q, band, kl, c_q, c_qd):
     side = np.zeros(3)
     for i in range(3):
         side[i] = rotation[i, 0] * side_base[0] + rotation[i, 1] * side_base[1] + rotation[i, 2] * side_base[2]
-    force, jacobian, ok = tip_force_kernel(q[-3:].copy(), side, axial, transverse)
+    force, jacobian, ok = tip_force_kernel(q[-3:], side, axial, transverse)
     if ok:
-        tip_point_force(scale * force, _NO_DERIVATIVE, scale * jacobian, _NO_DERIVATIVE, Q, band, kl, c_q, c_qd)
+        force *= scale
+        jacobian *= scale
+        tip_point_force(force, _NO_DERIVATIVE, jacobian, _NO_DERIVATIVE, Q, band, kl, c_q, c_qd)
     return ok
 
 

@@ -24,7 +24,7 @@ from .contact import CONTACT_KERNELS, unpack_contact
 from .coupling import ContactState, ShaftState, ShaftSupport, TissueContact, tip_coordinates
 from .geometry import inserted_interval
 from .insertion_profile import InsertionForceProfile
-from .shaft_force import SHAFT_KERNELS, inactive_part, unpack_shaft
+from .shaft_force import SHAFT_KERNELS, no_points, unpack_shaft
 from .tip_forces import BEVEL_KERNELS, RESISTANCE_KERNELS
 from .track import Track
 
@@ -109,8 +109,7 @@ class TissueModel(ForceContribution):
                   packed(False, 0.0, 0.0, 0.0, False, np.nan, *track.kernel_arrays, np.zeros((0, 3)), np.zeros(0)),
                   False),  # the fresh track: empty, so are its segment blocks
                  (SHAFT_KERNELS, packed(*shaft.kernel_arguments),
-                  packed(shaft.initial.law, shaft.initial.anchor, shaft.initial.active, *inactive_part(),
-                         *inactive_part()), False)]
+                  packed(shaft.initial.law, shaft.initial.anchor, shaft.initial.active, 0, *no_points()), False)]
         if bevel is not None:
             unit, side = bevel
             parts.append((BEVEL_KERNELS, packed(unit.axial_force, unit.transverse_force, side, unit.edge_a,
