@@ -1,6 +1,6 @@
 """Benchmark against MuJoCo's 1D flex rod on the same needle; prints Markdown tables.  Not a test.
 
-    cd /work/main && source .venv/needle_env.sh && pip install 'mujoco>=3.17' && python bench/bench_vs_mujoco.py
+    source .venv/needle_env.sh && pip install 'mujoco>=3.17' && python bench/bench_vs_mujoco.py  # repository root
 
 MuJoCo is a benchmark-only dependency (not in requirements.lock): its 1D flex bends since 3.17 (a discrete
 elastic rod, ``<elasticity young=...>``), integrated by its ``discrete`` integrator. Both sides model the seed 000

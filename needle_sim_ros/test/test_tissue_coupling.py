@@ -6,7 +6,7 @@ from needle_sim_ros.model import BaseMotion, Integrator, NeedleProperties, build
 from needle_sim_ros.model.step import pack
 from needle_sim_ros.tissue.contact import pack_contact
 from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_model
-from needle_sim_ros.tissue.coupling import ANCHOR, LATERAL, LAW, SHAPES, TANGENT, WEIGHT
+from needle_sim_ros.tissue.coupling import ANCHOR, COULOMB, SHAPES, STICK_STIFFNESS, STIFFNESS, TANGENT, WEIGHT
 from needle_sim_ros.tissue.shaft_force import pack_shaft
 from needle_sim_ros.tissue.tissue_model import TissueState
 from needle_sim_ros.tissue.track import segment_blocks
@@ -160,9 +160,9 @@ def shaft_energy(own, q) -> float:
     r = np.einsum("ka,kai->ki", p[:, SHAPES:SHAPES + 4], q.reshape(-1, 3)[shaft.slots])
     offset = r - p[:, ANCHOR:ANCHOR + 3]
     u = np.einsum("ki,ki->k", offset, tangents)
-    lateral = 0.5 * p[:, LATERAL] * np.sum((offset - u[:, None] * tangents) ** 2, axis=1)
-    stick_stiffness = p[:, LAW + 5]
-    band = p[:, LAW] / stick_stiffness                                 # coulomb / k_a
+    lateral = 0.5 * p[:, STIFFNESS] * np.sum((offset - u[:, None] * tangents) ** 2, axis=1)
+    stick_stiffness = p[:, STICK_STIFFNESS]
+    band = p[:, COULOMB] / stick_stiffness                                 # coulomb / k_a
     return float(p[:, WEIGHT] @ (lateral + 0.5 * stick_stiffness * np.clip(u, -band, band) ** 2))
 
 

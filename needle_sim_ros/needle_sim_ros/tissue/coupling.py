@@ -66,8 +66,9 @@ def interpolate_pair(slots, S_a, x_a, S_b, x_b):
 
 
 # the columns of a shaft point in the table the assembly reads (``shaft_force.shaft_acting``)
-WEIGHT, SHAPES, GRADIENT_SHAPES, ANCHOR, TANGENT, LATERAL, LAW = 0, 1, 5, 9, 12, 15, 17
-POINT_COLUMNS = 23  # LATERAL: stiffness, damping; LAW: coulomb, viscous, offset, sign_gain, velocity_scale, k_a
+WEIGHT, SHAPES, GRADIENT_SHAPES, ANCHOR, TANGENT = 0, 1, 5, 9, 12  # S and S_x: 4 columns, anchor and tangent: 3
+STIFFNESS, DAMPING, COULOMB, VISCOUS, OFFSET, SIGN_GAIN, VELOCITY_SCALE, STICK_STIFFNESS = range(15, 23)
+POINT_COLUMNS = 23
 
 
 @njit(cache=True)
@@ -94,8 +95,9 @@ def shaft_generalized_force(q, qd, slots, points, Q, band, kl, c_q, c_qd):
         tau = p[TANGENT:TANGENT + 3]
         u = offset_dot(r, p[ANCHOR:ANCHOR + 3], tau)
         v_axial = dot3(v, tau)
-        stiffness, damping, law = p[LATERAL], p[LATERAL + 1], p[LAW:]
-        t, dt_du, dt_dv = axial_traction(u, v_axial, law[5], law[0], law[1], law[2], law[3], law[4])
+        stiffness, damping = p[STIFFNESS], p[DAMPING]
+        t, dt_du, dt_dv = axial_traction(u, v_axial, p[STICK_STIFFNESS], p[COULOMB], p[VISCOUS], p[OFFSET],
+                                         p[SIGN_GAIN], p[VELOCITY_SCALE])
         for i in range(3):
             force[i] = (-stiffness * (r[i] - p[ANCHOR + i] - u * tau[i]) - damping * (v[i] - v_axial * tau[i])
                         + t * tau[i])
@@ -114,9 +116,10 @@ def point_table(weights, S, S_x, anchors, tangents, stiffness, damping, coulomb,
     """The frozen points' rows of the table ``shaft_generalized_force`` reads (columns above)."""
     points = np.empty((weights.size, POINT_COLUMNS))
     for k in range(weights.size):  # scalar loops: it runs every step
-        points[k, WEIGHT], points[k, LATERAL], points[k, LATERAL + 1] = weights[k], stiffness[k], damping[k]
-        points[k, LAW], points[k, LAW + 1], points[k, LAW + 2] = coulomb[k], viscous[k], offset
-        points[k, LAW + 3], points[k, LAW + 4], points[k, LAW + 5] = sign_gain, velocity_scale, stick_stiffness
+        points[k, WEIGHT], points[k, STIFFNESS], points[k, DAMPING] = weights[k], stiffness[k], damping[k]
+        points[k, COULOMB], points[k, VISCOUS], points[k, OFFSET] = coulomb[k], viscous[k], offset
+        points[k, SIGN_GAIN], points[k, VELOCITY_SCALE] = sign_gain, velocity_scale
+        points[k, STICK_STIFFNESS] = stick_stiffness
         for a in range(4):
             points[k, SHAPES + a], points[k, GRADIENT_SHAPES + a] = S[k, a], S_x[k, a]
         for i in range(3):
