@@ -72,14 +72,16 @@ def run_pipeline(spec: TaskSpec) -> tuple[dict[str, Any], PipelineLog, OfflinePi
     return run.summary, run.log, pipeline
 
 
-def _one_line(error: BaseException) -> str:
+def error_line(_: Any, error: BaseException) -> str:
+    """``Type: message`` of a task's error on one line (also of a task whose worker died: ``map_ordered``'s
+    ``on_error``)."""
     text = " ".join(str(error).split()) or type(error).__name__
     return f"{type(error).__name__}: {text}"
 
 
 def failed_row(spec: TaskSpec, error: BaseException, wall_s: float = 0.0) -> dict[str, Any]:
     return {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS), "status": "failed",
-            "error": _one_line(error), "wall_s": wall_s}
+            "error": error_line(spec, error), "wall_s": wall_s}
 
 
 def run_row(spec: TaskSpec) -> dict[str, Any]:
