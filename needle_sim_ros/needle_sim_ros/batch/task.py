@@ -18,7 +18,7 @@ from needle_sim_ros.batch.grid import SPECS, ParameterSet, canonical, split_inde
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
 from needle_sim_ros.parameters.experiment import ExperimentConfig, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
-from needle_sim_ros.offline.results import PipelineLog, wrench_differences
+from needle_sim_ros.offline.results import PipelineLog, wrench_differences, wrench_versus_reference
 
 METRICS = ("rmse_mean_m", "rmse_max_m", "tip_error_mean_m", "wrench_force_rms_n", "wrench_moment_rms_nm",
            "compared")
@@ -93,11 +93,9 @@ def run_row(spec: TaskSpec) -> dict[str, Any]:
         row: dict[str, Any] = {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS)}
         row.update(rmse_mean_m=c["rmse_mean_m"], rmse_max_m=c["rmse_max_m"], tip_error_mean_m=c["tip_error_mean_m"],
                    compared=int(c["compared"]))
-        differences = wrench_differences(log)
-        if differences is not None:
-            row["wrench_force_rms_n"] = float(np.sqrt(np.mean(np.sum(differences[0] ** 2, axis=1))))
-            row["wrench_moment_rms_nm"] = float(np.sqrt(np.mean(np.sum(differences[1] ** 2, axis=1))))
-        row.update(status="ok", error="", wall_s=time.perf_counter() - start)
+        wrench = wrench_versus_reference(log)
+        row.update(wrench_force_rms_n=wrench["wrench_force_rms_n"], wrench_moment_rms_nm=wrench["wrench_torque_rms_nm"],
+                   status="ok", error="", wall_s=time.perf_counter() - start)
         return row
     except Exception as error:  # noqa: BLE001 - any failure of one task becomes its row
         return failed_row(spec, error, time.perf_counter() - start)
