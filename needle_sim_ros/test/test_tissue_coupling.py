@@ -4,10 +4,9 @@ import pytest
 
 from needle_sim_ros.model import BaseMotion, Integrator, NeedleProperties, build_model, elastic_energy, kinetic_energy
 from needle_sim_ros.model.step import pack
-from needle_sim_ros.tissue.contact import pack_contact
+from needle_sim_ros.tissue.contact import pack_record
 from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_model
 from needle_sim_ros.tissue.coupling import ANCHOR, COULOMB, SHAPES, STICK_STIFFNESS, STIFFNESS, TANGENT, WEIGHT
-from needle_sim_ros.tissue.shaft_force import pack_shaft
 from needle_sim_ros.tissue.tissue_model import TissueState
 from needle_sim_ros.tissue.track import segment_blocks
 from lugre_record import simulate
@@ -100,7 +99,7 @@ def test_shaft_support_jacobians_match_finite_differences_in_stick_and_slip(mode
     # push every other anchor beyond the stick band (0.3 mm): those points slip, the others stick
     axial[::2, ANCHOR:ANCHOR + 3] -= 1e-3 * axial[::2, TANGENT:TANGENT + 3]
     moved = shaft._replace(points=points)
-    shaft, = tissue.at(TissueState(tissue, pack([pack_contact(contact), pack_shaft(moved)])))
+    shaft, = tissue.at(TissueState(tissue, pack([pack_record(contact), pack_record(moved)])))
     q, qd = perturbed(state, np.random.default_rng(4))
     result = finite_difference_check(shaft, model, q, qd, base)
     assert np.abs(result.Q).max() > 0

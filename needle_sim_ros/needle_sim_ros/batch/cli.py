@@ -15,7 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from needle_common.cli_types import positive, positive_int
+from needle_common.cli_types import command_status, positive, positive_int
 from needle_common.output_files import check_output_dir
 
 from needle_sim_ros.batch.bags import BagEntry, BagListError, resolve_bags
@@ -142,18 +142,16 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError as error:
         print(f"needle_batch: error: {error.name} is not installed; needle_batch needs: {PIP_LINE}", file=sys.stderr)
         return 2
+    return command_status("needle_batch", run, args, (BagListError, GridError), (OSError,))
+
+
+def run(args: argparse.Namespace) -> int:
+    """The checked inputs' sweep or identification on a cluster."""
     from needle_sim_ros.batch.cluster import open_client
-    try:
-        entries = checked_inputs(args)
-        with open_client(args.workers, args.scheduler) as client:
-            command = run_sweep_command if args.command == "sweep" else run_identify_command
-            return command(args, client, entries)
-    except (BagListError, GridError) as error:
-        print(f"needle_batch: error: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:
-        print(f"needle_batch: error: {error}", file=sys.stderr)
-        return 1
+    entries = checked_inputs(args)
+    with open_client(args.workers, args.scheduler) as client:
+        command = run_sweep_command if args.command == "sweep" else run_identify_command
+        return command(args, client, entries)
 
 
 if __name__ == "__main__":

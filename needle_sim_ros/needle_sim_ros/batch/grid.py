@@ -22,18 +22,11 @@ from typing import Any
 
 import yaml
 
-from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
-from needle_sim_ros.parameters.experiment import NODES
-from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+from needle_sim_ros.parameters.experiment import NODES, node_specs
 from needle_common.parameters import ParameterError, ParamSpec, flatten_tree
-from needle_vision.parameters import SPECS as STEREO_PARAMETERS
 
 ParameterSet = dict[str, dict[str, Any]]  # node -> parameter name -> value
-SPECS: dict[str, dict[str, ParamSpec]] = {
-    "needle_simulator": {s.name: s for s in SIMULATOR_PARAMETERS},
-    "needle_stereo": {s.name: s for s in STEREO_PARAMETERS},
-    "needle_compare": {s.name: s for s in COMPARE_PARAMETERS},
-}
+SPECS: dict[str, dict[str, ParamSpec]] = {node: {s.name: s for s in node_specs(node)} for node in NODES}
 INDEXED = re.compile(r"^(?P<name>[^\[\]]+)\[(?P<index>\d+)\]$")
 
 

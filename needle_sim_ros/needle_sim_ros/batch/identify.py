@@ -18,7 +18,7 @@ from scipy.optimize import least_squares
 
 from needle_sim_ros.batch.cluster import map_ordered
 from needle_sim_ros.batch.grid import GridError, ParameterSet, check_value
-from needle_sim_ros.batch.task import ResidualScales, TaskSpec, run_residuals
+from needle_sim_ros.batch.task import ResidualScales, TaskSpec, error_line, run_residuals
 
 
 class IdentifyError(RuntimeError):
@@ -53,17 +53,12 @@ def parse_fit(text: str) -> FitParameter:
     return FitParameter(node, name, initial)
 
 
-def reason(_: Any, error: BaseException) -> str:
-    """A one-line reason from an error (also for a task whose worker died)."""
-    return f"{type(error).__name__}: {' '.join(str(error).split())}"
-
-
 def residuals_or_error(spec: TaskSpec, scales: ResidualScales) -> np.ndarray | str:
     """On a worker: the bag's residuals, or the one-line reason they could not be computed."""
     try:
         return run_residuals(spec, scales)
     except Exception as error:  # noqa: BLE001 - reported per bag on the client
-        return reason(spec, error)
+        return error_line(spec, error)
 
 
 @dataclass
@@ -119,7 +114,7 @@ class Identification:
         todo = [x for x in dict.fromkeys(tuple(map(float, x)) for x in points) if x not in self.cache]
         specs = [replace(bag, parameters=self.parameter_set(np.array(x))) for x in todo for bag in self.bags]
         results = map_ordered(self.client, residuals_or_error, specs, self.scales, desc=f"identify ({kind})",
-                              quiet=self.quiet, on_error=reason)
+                              quiet=self.quiet, on_error=error_line)
         for k, x in enumerate(todo):
             per_bag = results[k * len(self.bags):(k + 1) * len(self.bags)]
             self._check(per_bag)
@@ -144,7 +139,7 @@ class Identification:
         x0 = np.zeros(len(self.fits))
         specs = [replace(bag, parameters=self.parameter_set(x0)) for bag in self.bags]
         results = map_ordered(self.client, residuals_or_error, specs, self.scales, desc="identify (start)",
-                              quiet=self.quiet, on_error=reason)
+                              quiet=self.quiet, on_error=error_line)
         self.dropped = {b.bag: r for b, r in zip(self.bags, results) if isinstance(r, str)}
         self.bags = [b for b, r in zip(self.bags, results) if not isinstance(r, str)]
         if not self.bags:

@@ -16,9 +16,7 @@ def write_sweep_plots(table: pd.DataFrame, columns: list[str], folder: Path) -> 
     """One PNG per swept parameter (a row of metrics; per bag: lines, averaged over the other parameters' values;
     pooled: mean over bags with min-max band);
     returns the files and notes on parameters that could not be plotted."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from needle_sim_ros.scenarios.common import pyplot, save_figure
     folder.mkdir(parents=True, exist_ok=True)
     ok = table[table["status"] == "ok"]
     files, notes = [], []
@@ -29,7 +27,7 @@ def write_sweep_plots(table: pd.DataFrame, columns: list[str], folder: Path) -> 
         if axis is None or not metrics:
             notes.append(f"'{name}': not plotted (no finished rows, or values are not numbers)")
             continue
-        figure, axes = plt.subplots(2, len(metrics), figsize=(4.5 * len(metrics), 6.5), squeeze=False)
+        figure, axes = pyplot().subplots(2, len(metrics), figsize=(4.5 * len(metrics), 6.5), squeeze=False)
         data = rows.assign(_x=axis)
         for j, metric in enumerate(metrics):
             label, scale = PLOTTED[metric]
@@ -45,9 +43,5 @@ def write_sweep_plots(table: pd.DataFrame, columns: list[str], folder: Path) -> 
                 axes[row, j].grid(True, alpha=0.3)
         axes[0, 0].legend(fontsize=7)
         axes[1, 0].legend(fontsize=7)
-        figure.tight_layout()
-        path = folder / f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', name)}.png"
-        figure.savefig(path, dpi=90)
-        plt.close(figure)
-        files.append(path)
+        files.append(save_figure(figure, folder / f"{re.sub(r'[^A-Za-z0-9_.-]+', '_', name)}.png", dpi=90))
     return files, notes

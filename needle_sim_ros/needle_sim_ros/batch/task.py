@@ -18,7 +18,7 @@ from needle_sim_ros.batch.grid import SPECS, ParameterSet, canonical, split_inde
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
 from needle_sim_ros.parameters.experiment import ExperimentConfig, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
-from needle_sim_ros.offline.results import PipelineLog, wrench_differences
+from needle_sim_ros.offline.results import PipelineLog, wrench_differences, wrench_versus_reference
 
 METRICS = ("rmse_mean_m", "rmse_max_m", "tip_error_mean_m", "wrench_force_rms_n", "wrench_moment_rms_nm",
            "compared")
@@ -72,14 +72,16 @@ def run_pipeline(spec: TaskSpec) -> tuple[dict[str, Any], PipelineLog, OfflinePi
     return run.summary, run.log, pipeline
 
 
-def _one_line(error: BaseException) -> str:
+def error_line(_: Any, error: BaseException) -> str:
+    """``Type: message`` of a task's error on one line (also of a task whose worker died: ``map_ordered``'s
+    ``on_error``)."""
     text = " ".join(str(error).split()) or type(error).__name__
     return f"{type(error).__name__}: {text}"
 
 
 def failed_row(spec: TaskSpec, error: BaseException, wall_s: float = 0.0) -> dict[str, Any]:
     return {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS), "status": "failed",
-            "error": _one_line(error), "wall_s": wall_s}
+            "error": error_line(spec, error), "wall_s": wall_s}
 
 
 def run_row(spec: TaskSpec) -> dict[str, Any]:
@@ -91,11 +93,9 @@ def run_row(spec: TaskSpec) -> dict[str, Any]:
         row: dict[str, Any] = {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS)}
         row.update(rmse_mean_m=c["rmse_mean_m"], rmse_max_m=c["rmse_max_m"], tip_error_mean_m=c["tip_error_mean_m"],
                    compared=int(c["compared"]))
-        differences = wrench_differences(log)
-        if differences is not None:
-            row["wrench_force_rms_n"] = float(np.sqrt(np.mean(np.sum(differences[0] ** 2, axis=1))))
-            row["wrench_moment_rms_nm"] = float(np.sqrt(np.mean(np.sum(differences[1] ** 2, axis=1))))
-        row.update(status="ok", error="", wall_s=time.perf_counter() - start)
+        wrench = wrench_versus_reference(log)
+        row.update(wrench_force_rms_n=wrench["wrench_force_rms_n"], wrench_moment_rms_nm=wrench["wrench_torque_rms_nm"],
+                   status="ok", error="", wall_s=time.perf_counter() - start)
         return row
     except Exception as error:  # noqa: BLE001 - any failure of one task becomes its row
         return failed_row(spec, error, time.perf_counter() - start)

@@ -89,10 +89,7 @@ def fit_insertion_profile(depth, force, n_frequencies: int = 2, exit_depth: floa
         basis, coefficients = linear_coefficients(w)
         return basis @ coefficients - ff
 
-    if m:
-        w = least_squares(residual, w0, x_scale=np.maximum(w0, 1.0)).x
-    else:
-        w = w0
+    w = least_squares(residual, w0, x_scale=np.maximum(w0, 1.0)).x if m else w0
     _, coefficients = linear_coefficients(w)
     cos_coefficients = tuple(float(c) for c in coefficients[: m + 1])
     sin_coefficients = tuple(float(c) for c in coefficients[m + 1:])

@@ -125,7 +125,6 @@ class LuGreEstimator:
             prior = np.eye(indices.size)
             prior[0, 0] = (z_std0 / _Z_SCALE) ** 2
             self._filters.append(_JointEKF(indices, prior, walk_normalised[indices]))
-        self._fixed = [n for n in PARAMETER_NAMES if n not in flat]
         self._samples = 0
 
     def feed(self, depth: float, velocity: float, force: float, dt: float) -> None:
@@ -147,13 +146,10 @@ class LuGreEstimator:
 
     def estimate(self) -> LuGreEstimate:
         """Current estimates with covariance, correlation and identifiability."""
-        covariance = np.zeros((7, 7))
+        covariance = np.zeros((7, 7))  # parameters outside every group (known) keep zero variance
         for ekf in self._filters:
             block = ekf.covariance * np.outer(self._scale[ekf.indices], self._scale[ekf.indices])
             covariance[np.ix_(ekf.indices[1:], ekf.indices[1:])] = block[1:, 1:]
-        for name in self._fixed:
-            i = 1 + PARAMETER_NAMES.index(name)
-            covariance[i, i] = 0.0
         cov = covariance[1:, 1:]
         std = np.sqrt(np.maximum(np.diag(cov), 0.0))
         safe = np.where(std > 0.0, std, 1.0)
@@ -164,7 +160,7 @@ class LuGreEstimator:
         identifiable = {name: joint and bool(std[i] <= self._tolerance * abs(theta[i]))
                         for i, name in enumerate(PARAMETER_NAMES)}
         return LuGreEstimate(LuGreParameters.from_array(theta), float(self._state[0]), cov, std, correlation,
-                             identifiable, self._samples, len(self._filters) == 1)
+                             identifiable, self._samples, joint)
 
 
 def fisher_information(parameters: LuGreParameters, depth, velocity, dt: float, measurement_std: float,

@@ -49,18 +49,16 @@ class _Buffer:
         if padding:
             self._add(b"\x00" * padding)
 
-    def uint32(self, value: int) -> None:
-        self.align(4)
-        self._add(struct.pack("<I", value))
-
     def pack(self, fmt: str, alignment: int, *values) -> None:
         """Primitives of one size (struct format without byte order), aligned to it."""
         self.align(alignment)
         self._add(struct.pack("<" + fmt, *values))
 
+    def uint32(self, value: int) -> None:
+        self.pack("I", 4, value)
+
     def time(self, sec: int, nanosec: int) -> None:
-        self.align(4)
-        self._add(struct.pack("<iI", sec, nanosec))
+        self.pack("iI", 4, sec, nanosec)
 
     def string(self, text: str) -> None:
         data = text.encode() + b"\x00"
@@ -94,10 +92,7 @@ class _Buffer:
 def _wrench_layout(frame_id: str) -> tuple[bytes, bytes, Callable[..., bytes]]:
     """A WrenchStamped of this frame as one struct: the encapsulation, the stamp, the bytes from the frame_id's
     length to the doubles (fixed per frame) and the Wrench; returns those two fixed parts and the struct's pack."""
-    prefix = _Buffer()
-    _header(prefix, 0, 0, frame_id)
-    prefix.align(8)
-    head = ENCAPSULATION + b"".join(prefix.parts)
+    head = ENCAPSULATION + _aligned_header(0, 0, frame_id)
     return head[:4], head[12:], struct.Struct(f"<4siI{len(head) - 12}s6d").pack
 
 
@@ -119,6 +114,14 @@ def _header(buffer: _Buffer, sec: int, nanosec: int, frame_id: str) -> None:
     buffer.string(frame_id)
 
 
+def _aligned_header(sec: int, nanosec: int, frame_id: str) -> bytes:
+    """A header's bytes padded to the 8-byte grid, as they precede a block of doubles at the payload's start."""
+    prefix = _Buffer()
+    _header(prefix, sec, nanosec, frame_id)
+    prefix.align(8)
+    return b"".join(prefix.parts)
+
+
 def pose_array(sec: int, nanosec: int, frame_id: str, points: np.ndarray, quaternions: np.ndarray) -> bytes:
     """geometry_msgs/msg/PoseArray of poses at points (n, 3) with orientations (n, 4) (x, y, z, w)."""
     buffer = _Buffer()
@@ -137,10 +140,7 @@ def path(sec: int, nanosec: int, frame_id: str, points: np.ndarray, quaternions:
         _header(buffer, sec, nanosec, frame_id)
         buffer.doubles(poses[0])
     if len(poses) > 1:  # the same header bytes and padding before every later pose: one block
-        prefix = _Buffer()
-        _header(prefix, sec, nanosec, frame_id)
-        prefix.align(8)
-        head = np.frombuffer(b"".join(prefix.parts), np.uint8)
+        head = np.frombuffer(_aligned_header(sec, nanosec, frame_id), np.uint8)
         block = np.empty((len(poses) - 1, head.size + 56), np.uint8)
         block[:, :head.size] = head
         block[:, head.size:] = poses[1:].view(np.uint8)

@@ -11,6 +11,7 @@ from needle_sim_ros.comparison import ComparedPair
 from needle_sim_ros.messages import cdr
 from needle_common.transforms import quaternions_from_x_axes
 from needle_sim_ros.messages.geometry import polyline_tangents, tube_triangles
+from needle_sim_ros.messages.shape import stamp_ns
 
 DISPLAY_TYPES = {"path": "nav_msgs/msg/Path", "marker": "visualization_msgs/msg/Marker"}
 COLORS = {"model": (0.75, 0.75, 0.8, 1.0), "measured": (1.0, 0.55, 0.1, 0.8)}  # RGBA
@@ -40,7 +41,7 @@ class ComparisonDisplay:
         when the rate leaves it out. The measurement is mapped into the model frame; a point cloud is ordered by
         the arc length of the closest model point."""
         stamp = pair.model_tag.stamp
-        now_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+        now_ns = stamp_ns(stamp)
         if self.rate <= 0.0 or self._next_ns - 2e9 / self.rate <= now_ns < self._next_ns:
             return {}
         self._next_ns = now_ns + int(1e9 / self.rate)

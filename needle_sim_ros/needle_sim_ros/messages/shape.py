@@ -34,6 +34,11 @@ def stamp_of(seconds: float) -> Stamp:
     return Stamp(sec, min(int(round((seconds - sec) * 1e9)), 999_999_999))
 
 
+def stamp_ns(stamp) -> int:
+    """A builtin_interfaces/Time (or :class:`Stamp`) in nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
 def model_shape_cdr(shape: ModelShape, frame_id: str) -> bytes:
     """The simulator's ``needle/shape`` message (NeedleShape, source ``model``) of a shape output, serialized."""
     stamp = stamp_of(shape.t)

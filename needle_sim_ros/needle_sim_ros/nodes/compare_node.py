@@ -29,7 +29,7 @@ from needle_common.parameters import ParameterError
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
-from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg
+from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg, stamp_ns
 from needle_common.ros.input_status import InputStatus
 from needle_common.ros.ros_parameters import declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
@@ -42,10 +42,6 @@ WARN_PERIOD = 5.0  # [s] between repeated warnings about bad input
 LOGGABLE = {"model/shape": NeedleShape, "measured/shape": NeedleShape, "measured/points": PointCloud2,
             "shape_error": ShapeError, "base_pose": PoseStamped, "wrench": WrenchStamped,
             **{topic: Path if topic.endswith("path") else Marker for topic in DISPLAY_TOPICS}}
-
-
-def stamp_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def cloud_points(cloud: PointCloud2) -> np.ndarray:
@@ -149,18 +145,17 @@ class CompareNode(Node):
         self.get_logger().warning(f"ignoring {what}: {reason}", throttle_duration_sec=WARN_PERIOD)
 
     def on_model(self, data: bytes) -> None:
-        self.log("model/shape", data, NeedleShape)
-        msg = deserialize_message(data, NeedleShape)
-        points, arc_length, _ = shape_arrays(msg)
-        self.publish(self.session.add_model(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header, points,
-                                            arc_length))
+        self.on_shape("model/shape", data, self.session.add_model)
 
     def on_measured_shape(self, data: bytes) -> None:
-        self.log("measured/shape", data, NeedleShape)
+        self.on_shape("measured/shape", data, self.session.add_measurement)
+
+    def on_shape(self, topic: str, data: bytes, add) -> None:
+        """A NeedleShape of ``topic``, logged and handed to the session's ``add`` (model or measurement)."""
+        self.log(topic, data, NeedleShape)
         msg = deserialize_message(data, NeedleShape)
         points, arc_length, _ = shape_arrays(msg)
-        self.publish(self.session.add_measurement(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header,
-                                                  points, arc_length))
+        self.publish(add(stamp_ns(msg.header.stamp), msg.header.frame_id, msg.header, points, arc_length))
 
     def on_measured_points(self, data: bytes) -> None:
         self.log("measured/points", data, PointCloud2)

@@ -9,20 +9,7 @@ from typing import Sequence
 import numpy as np
 
 from needle_sim_ros.offline.results import PipelineLog
-
-
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def _saved(plt, fig, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+from needle_sim_ros.scenarios.common import pyplot, save_figure
 
 
 def chosen_measurements(log: PipelineLog, instants: Sequence[float], count: int = 5) -> list[int]:
@@ -39,7 +26,7 @@ def chosen_measurements(log: PipelineLog, instants: Sequence[float], count: int 
 def plot_centerlines(log: PipelineLog, instants: Sequence[float], path: Path, title: str = "") -> Path:
     """Side view (world x-z, z up) of the model centerline (line), the measurement (dots) and, for synthetic bags,
     the ground truth (dashed) at the chosen instants."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(9, 5))
     colours = plt.cm.viridis(np.linspace(0.0, 0.9, max(1, len(instants) or 5)))
     for colour, index in zip(colours, chosen_measurements(log, instants)):
@@ -63,13 +50,12 @@ def plot_centerlines(log: PipelineLog, instants: Sequence[float], path: Path, ti
     ax.set_title(title or "needle centerline: model vs measurement")
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=7, loc="best")
-    return _saved(plt, fig, path)
+    return save_figure(fig, path)
 
 
 def plot_errors(log: PipelineLog, path: Path, title: str = "") -> Path:
     """RMSE, largest sample error and tip error of every comparison over time [mm]."""
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(9, 4))
+    fig, ax = pyplot().subplots(figsize=(9, 4))
     t = log.seconds(log.error_times)
     for values, style, label in ((log.rmse, "o-", "RMSE"), (log.max_error, "s--", "largest sample error"),
                                  (log.tip_error, "^:", "tip error")):
@@ -79,13 +65,12 @@ def plot_errors(log: PipelineLog, path: Path, title: str = "") -> Path:
     ax.set_title(title or "model vs measurement")
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
-    return _saved(plt, fig, path)
+    return save_figure(fig, path)
 
 
 def plot_wrench(log: PipelineLog, path: Path, title: str = "") -> Path:
     """Force and torque of the needle on its holder (base frame) over time; the ground truth dashed if known."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    fig, axes = pyplot().subplots(2, 1, figsize=(9, 6), sharex=True)
     for series, style, prefix in ((log.wrench, "-", "model "), (log.truth_wrench, "--", "ground truth ")):
         if series is None:
             continue
@@ -101,7 +86,7 @@ def plot_wrench(log: PipelineLog, path: Path, title: str = "") -> Path:
     for axis in axes:
         axis.grid(True, alpha=0.4)
         axis.legend(fontsize=7, ncol=2, loc="best")
-    return _saved(plt, fig, path)
+    return save_figure(fig, path)
 
 
 def write_plots(log: PipelineLog, directory: Path, instants: Sequence[float] = (), title: str = "") -> list[Path]:

@@ -41,15 +41,9 @@ from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
-from needle_sim_ros.messages.shape import Tag, shape_arrays, shape_error_cdr, stamp_of
+from needle_sim_ros.messages.shape import Tag, shape_arrays, shape_error_cdr, stamp_ns, stamp_of
 from needle_sim_ros.model import ModelShape
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
-
-NS = 1_000_000_000
-
-
-def stamp_ns(header: Header) -> int:
-    return int(header.stamp.sec) * NS + int(header.stamp.nanosec)
 
 
 class MeasuredShape(NamedTuple):
@@ -245,12 +239,13 @@ class ComparisonStage:
 
     def on_model(self, shape: ModelShape, frame_id: str) -> list[tuple[str, Any]]:
         stamp = stamp_of(shape.t)
-        return self.outputs(self.session.add_model(stamp.sec * NS + stamp.nanosec, frame_id, Tag(stamp, frame_id),
+        return self.outputs(self.session.add_model(stamp_ns(stamp), frame_id, Tag(stamp, frame_id),
                                                    shape.line.points, shape.line.arc_length))
 
     def on_measured(self, shape: MeasuredShape) -> list[tuple[str, Any]]:
-        return self.outputs(self.session.add_measurement(stamp_ns(shape.header), shape.header.frame_id, shape.header,
-                                                         shape.points, shape.arc_length))
+        header = shape.header
+        return self.outputs(self.session.add_measurement(stamp_ns(header.stamp), header.frame_id, header, shape.points,
+                                                         shape.arc_length))
 
     def outputs(self, compared: list[ComparedPair]) -> list[tuple[str, Any]]:
         """As the node publishes them, serialized: ('shape_error', ShapeError) per comparison, then its display

@@ -23,6 +23,7 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
+from needle_common.cli_types import command_status
 from needle_common.output_files import check_output_dir, check_output_file
 
 from needle_sim_ros.recording.bag_metadata import METADATA_RECORD_NAME
@@ -31,7 +32,6 @@ from needle_sim_ros.recording.mcap_writer import PROFILE, McapBagWriter, Recordi
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
-_CORRUPT = CHUNK_ERRORS
 
 
 class RecoveryError(RuntimeError):
@@ -91,7 +91,7 @@ class _DataSection:
             else:
                 try:
                     records = self._parse(opcode, body)
-                except _CORRUPT:
+                except CHUNK_ERRORS:
                     break  # everything from this record on is lost
             if records is None:  # end of the data section: the file was complete
                 return
@@ -172,6 +172,17 @@ def check_output(output: Path, overwrite: bool) -> None:
         check_output_dir(output.parent, "output folder")
 
 
+def run(args: argparse.Namespace) -> int:
+    """Check the output, recover into it and say what was recovered."""
+    check_output(args.output, args.overwrite)
+    report = recover(args.input, args.output, WriterOptions(compression=args.compression, overwrite=args.overwrite))
+    if report.messages == 0:
+        print(f"needle_mcap_recover: warning: no complete message in '{args.input}': '{args.output}' holds no data",
+              file=sys.stderr)
+    print(f"needle_mcap_recover: {report.describe()} -> {args.output}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="needle_mcap_recover",
@@ -185,24 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.input.resolve() == args.output.resolve():
         parser.error("output must differ from input")
-    try:
-        check_output(args.output, args.overwrite)
-    except ValueError as error:
-        print(f"needle_mcap_recover: error: {error}", file=sys.stderr)
-        return 2
-    try:
-        report = recover(args.input, args.output, WriterOptions(compression=args.compression, overwrite=args.overwrite))
-    except (RecoveryError, BagReadError) as error:
-        print(f"needle_mcap_recover: error: {error}", file=sys.stderr)
-        return 2
-    except RecordingError as error:
-        print(f"needle_mcap_recover: error: {error}", file=sys.stderr)
-        return 1
-    if report.messages == 0:
-        print(f"needle_mcap_recover: warning: no complete message in '{args.input}': '{args.output}' holds no data",
-              file=sys.stderr)
-    print(f"needle_mcap_recover: {report.describe()} -> {args.output}")
-    return 0
+    return command_status("needle_mcap_recover", run, args, (ValueError, RecoveryError, BagReadError),
+                          (RecordingError,))
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """Shared pieces of the ``needle_scenario`` sub-commands: needle set-up from a params file and the command line,
-JSON fragments of results, and the matplotlib (Agg) figure helper."""
+JSON fragments of results, and the matplotlib (Agg) figure helpers."""
 from __future__ import annotations
 
 import argparse
@@ -97,22 +97,26 @@ def write_json(path: Path | None, result: dict) -> None:
         write_atomically(path, lambda temporary: temporary.write_text(json.dumps(result, indent=1)))
 
 
-def figure(n_axes: int = 1, size=(7.0, 4.5)):
-    """A matplotlib figure on the Agg backend (no display needed)."""
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (no display needed): the scenarios', offline and batch plots."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    return plt
 
-    fig, axes = plt.subplots(n_axes, 1, figsize=size, squeeze=False)
+
+def figure(n_axes: int = 1, size=(7.0, 4.5)):
+    """A figure of ``n_axes`` axes in a column."""
+    fig, axes = pyplot().subplots(n_axes, 1, figsize=size, squeeze=False)
     return fig, axes[:, 0]
 
 
-def save_figure(fig, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
+def save_figure(fig, path: Path, dpi: int = 120) -> Path:
+    """Write the figure (tight layout) atomically, close it and return ``path``."""
     fig.tight_layout()
-    write_atomically(path, lambda temporary: fig.savefig(temporary, dpi=120))
-    plt.close(fig)
+    write_atomically(path, lambda temporary: fig.savefig(temporary, dpi=dpi))
+    pyplot().close(fig)
+    return path
 
 
 def advance_sampled(simulation: NeedleSimulation, n_steps: int, every: int, record: Callable[[], None]) -> tuple:

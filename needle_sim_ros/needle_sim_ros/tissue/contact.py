@@ -3,7 +3,7 @@ duration, whether the tip is at the cut front, and the track cut so far (``track
 
 It adds no force; the force contributions (``shaft_force``, ``bevel_tip``, ``insertion_profile``) read it after
 each accepted step (``model.step.compose`` with ``shared``). Kernels: ``CONTACT_KERNELS``; its state crosses the
-Python boundary packed (``pack_contact`` / ``unpack_contact``), its constants by ``contact_constants``.
+Python boundary packed (``pack_record`` / ``unpack_contact``), its constants by ``contact_constants``.
 """
 from __future__ import annotations
 
@@ -93,23 +93,23 @@ def advance_contact(c, p, q, qd, t):
 
 
 @njit(cache=True)
-def _write(buffer, r):
+def _put_record(buffer, record):
     cursor = np.zeros(1, dtype=np.int64)
-    put_all(buffer, cursor, r)
+    put_all(buffer, cursor, record)
     return cursor[0]
 
 
 @njit(cache=True)
-def pack_contact(record):
-    """A ``ContactRecord`` as one float64 array."""
-    buffer = np.empty(_write(np.empty(0), record))
-    _write(buffer, record)
+def pack_record(record):
+    """A tissue contribution's record (``ContactRecord``, ``shaft_force.ShaftRecord``) as one float64 array."""
+    buffer = np.empty(_put_record(np.empty(0), record))
+    _put_record(buffer, record)
     return buffer
 
 
 @njit(cache=True)
 def unpack_contact(buffer):
-    """The ``ContactRecord`` of ``pack_contact``'s array."""
+    """The ``ContactRecord`` of ``pack_record``'s array."""
     c = np.zeros(1, dtype=np.int64)
     return ContactRecord(take_flag(buffer, c), take_float(buffer, c), take_float(buffer, c), take_float(buffer, c),
                          take_flag(buffer, c), take_float(buffer, c), take_matrix(buffer, c), take_vector(buffer, c),
@@ -127,7 +127,7 @@ def contact_load(state, constants):
 
 @njit(cache=True)
 def contact_store(carried):
-    return pack_contact(carried.record)
+    return pack_record(carried.record)
 
 
 @njit(cache=True)
