@@ -67,7 +67,7 @@ class CameraInfo(NamedTuple):
     p: np.ndarray
 
 
-def _string(data: bytes | memoryview, offset: int) -> tuple[str, int]:
+def cdr_string(data: bytes | memoryview, offset: int) -> tuple[str, int]:
     """(the CDR string at ``offset``, the offset after it)."""
     (length,) = struct.unpack_from("<I", data, aligned(offset, 4))
     start = aligned(offset, 4) + 4
@@ -89,9 +89,9 @@ def camera_info(data: bytes | memoryview) -> CameraInfo:
         raise ValueError("not a little-endian CDR CameraInfo message")
     try:
         stamp, _ = header(data)
-        frame_id, offset = _string(data, 12)
+        frame_id, offset = cdr_string(data, 12)
         height, width = struct.unpack_from("<II", data, aligned(offset, 4))
-        distortion_model, offset = _string(data, aligned(offset, 4) + 8)
+        distortion_model, offset = cdr_string(data, aligned(offset, 4) + 8)
         (count,) = struct.unpack_from("<I", data, aligned(offset, 4))
         d, offset = _doubles(data, aligned(offset, 4) + 4, count)
         k, offset = _doubles(data, offset, 9)

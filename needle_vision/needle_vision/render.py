@@ -16,6 +16,7 @@ needle from +y.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import cv2
 import numpy as np
@@ -60,13 +61,17 @@ def world_from_camera(rig: StereoRig, side: str) -> RigidTransform:
     return rig.world_from_left if side == "left" else rig.world_from_left.compose(rig.left_from_right)
 
 
-def project_points(rig: StereoRig, points_world: np.ndarray, side: str) -> np.ndarray:
-    """Raw (distorted) pixel coordinates ``(n, 2)`` of world points in camera ``side``."""
-    camera = rig.left if side == "left" else rig.right
-    points_camera = world_from_camera(rig, side).inverse().apply(np.asarray(points_world, dtype=float))
+def _project(camera: CameraCalibration, points_camera: np.ndarray) -> np.ndarray:
+    """Raw (distorted) pixel coordinates ``(n, 2)`` of points in the camera's optical frame."""
     pixels, _ = cv2.projectPoints(points_camera.reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
                                   camera.camera_matrix, camera.distortion)
     return pixels.reshape(-1, 2)
+
+
+def project_points(rig: StereoRig, points_world: np.ndarray, side: str) -> np.ndarray:
+    """Raw (distorted) pixel coordinates ``(n, 2)`` of world points in camera ``side``."""
+    camera = rig.left if side == "left" else rig.right
+    return _project(camera, world_from_camera(rig, side).inverse().apply(np.asarray(points_world, dtype=float)))
 
 
 @dataclass(frozen=True)
@@ -243,12 +248,7 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
     of the silhouette lines (``±radius`` across the viewing ray), which includes perspective and distortion.
     """
     points_camera = np.asarray(points_camera, dtype=float)
-
-    def project(points: np.ndarray) -> np.ndarray:
-        pixels, _ = cv2.projectPoints(points.reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
-                                      camera.camera_matrix, camera.distortion)
-        return pixels.reshape(-1, 2)
-
+    project = partial(_project, camera)
     length_px = np.linalg.norm(np.diff(project(points_camera), axis=0), axis=1).sum()
     points = resample(points_camera, max(2, int(np.ceil(length_px / max_spacing_px)) + 1))
     centres = project(points)

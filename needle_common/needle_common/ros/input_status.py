@@ -94,10 +94,6 @@ class InputReports:
         for status in msg.status:
             self._reports[status.name] = (clock_ns, {kv.key: kv.value for kv in status.values})
 
-    def latest(self, status_name: str) -> tuple[int, dict[str, str]]:
-        """The last input report of that name: its node's clock [ns] and values ((0, {}) if none came)."""
-        return self._reports.get(status_name, (0, {}))
-
     def waiting(self, topics: list[str], now: float, clock_ns: int | None = None) -> list[str]:
         """What a publisher of the (resolved) ``topics`` still waits for at steady time ``now`` [s]: a subscriber at
         all, a subscriber's report, its match, its taking input, and (``clock_ns``: the player's /clock) its clock at

@@ -71,34 +71,44 @@ class ImageCenterline:
 
 
 @numba.njit(cache=True, nogil=True)
-def _components(ys, xs, mask, index, link, label, queue):  # pragma: no cover - compiled
-    """Components of the pixels ``(ys, xs)`` (non-zero in ``mask``, numbered by ``index``) linked up to ``link``
-    pixels apart (Chebyshev), numbered in the raster order of their first pixel: ``label`` per pixel is filled
-    in; returns each component's first pixel and size."""
+def _flood(start, ys, xs, mask, index, link, hops, parent, queue):  # pragma: no cover - compiled
+    """Breadth-first search from pixel ``start`` (``hops[start]`` set, unvisited pixels -1) over the pixels
+    ``(ys, xs)`` (non-zero in ``mask``, numbered by ``index``) linked up to ``link`` pixels apart (Chebyshev):
+    fills ``hops`` and ``parent`` of the pixels reached, ``queue`` in the order reached; returns their count."""
     height, width = mask.shape
-    label[:] = -1
+    head, tail = 0, 1
+    queue[0] = start
+    while head < tail:
+        p = queue[head]
+        head += 1
+        for dy in range(-link, link + 1):
+            for dx in range(-link, link + 1):
+                y, x = ys[p] + dy, xs[p] + dx
+                if 0 <= y < height and 0 <= x < width and mask[y, x]:
+                    q = index[y, x]
+                    if hops[q] < 0:
+                        hops[q] = hops[p] + 1
+                        parent[q] = p
+                        queue[tail] = q
+                        tail += 1
+    return tail
+
+
+@numba.njit(cache=True, nogil=True)
+def _components(ys, xs, mask, index, link, label, hops, parent, queue):  # pragma: no cover - compiled
+    """Components of the pixels ``(ys, xs)`` (:func:`_flood`) numbered in the raster order of their first pixel:
+    ``label`` per pixel is filled in; returns each component's first pixel and size."""
+    hops[:] = -1
     seeds = np.empty(len(ys), np.int32)
     sizes = np.empty(len(ys), np.int32)
     current = 0
     for seed in range(len(ys)):
-        if label[seed] >= 0:
+        if hops[seed] >= 0:
             continue
-        label[seed] = current
-        head, tail = 0, 1
-        queue[0] = seed
-        while head < tail:
-            p = queue[head]
-            head += 1
-            for dy in range(-link, link + 1):
-                for dx in range(-link, link + 1):
-                    y, x = ys[p] + dy, xs[p] + dx
-                    if 0 <= y < height and 0 <= x < width and mask[y, x]:
-                        q = index[y, x]
-                        if label[q] < 0:
-                            label[q] = current
-                            queue[tail] = q
-                            tail += 1
-        seeds[current], sizes[current] = seed, tail
+        hops[seed] = 0
+        size = _flood(seed, ys, xs, mask, index, link, hops, parent, queue)
+        label[queue[:size]] = current
+        seeds[current], sizes[current] = seed, size
         current += 1
     return seeds[:current], sizes[:current]
 
@@ -106,30 +116,14 @@ def _components(ys, xs, mask, index, link, label, queue):  # pragma: no cover - 
 @numba.njit(cache=True, nogil=True)
 def _geodesic(seed, ys, xs, mask, index, link, hops, parent, queue):  # pragma: no cover - compiled
     """Longest BFS geodesic (two sweeps) of the component of pixel ``seed``: the path (k, 2) as (x, y)."""
-    height, width = mask.shape
-    start = far = seed
-    for sweep in range(2):
+    far = seed
+    for _ in range(2):
         hops[:] = -1
-        hops[start] = 0
-        head, tail = 0, 1
-        queue[0] = start
-        far = start
-        while head < tail:
-            p = queue[head]
-            head += 1
-            if hops[p] > hops[far]:
-                far = p
-            for dy in range(-link, link + 1):
-                for dx in range(-link, link + 1):
-                    y, x = ys[p] + dy, xs[p] + dx
-                    if 0 <= y < height and 0 <= x < width and mask[y, x]:
-                        q = index[y, x]
-                        if hops[q] < 0:
-                            hops[q] = hops[p] + 1
-                            parent[q] = p
-                            queue[tail] = q
-                            tail += 1
-        start = far
+        hops[far] = 0
+        k = _flood(far, ys, xs, mask, index, link, hops, parent, queue) - 1
+        while k > 0 and hops[queue[k - 1]] == hops[queue[k]]:  # the first pixel reached at the largest hop count
+            k -= 1
+        far = queue[k]
     length = hops[far] + 1
     path = np.empty((length, 2), np.int32)
     p = far
@@ -160,13 +154,13 @@ def _coarse_path_kernel(mask, index, min_length, count):  # pragma: no cover - c
                 total += 1
     ys, xs = ys[:total], xs[:total]
     queue = np.empty(total, np.int32)
-    label = np.empty(total, np.int32)
-    seeds, sizes = _components(ys, xs, mask, index, 2, label, queue)
-    group = np.empty(total, np.int32)
-    _components(ys, xs, mask, index, 3, group, queue)
-    erased = np.zeros(total, np.bool_)
     hops = np.empty(total, np.int32)
     parent = np.empty(total, np.int32)
+    label = np.empty(total, np.int32)
+    seeds, sizes = _components(ys, xs, mask, index, 2, label, hops, parent, queue)
+    group = np.empty(total, np.int32)
+    _components(ys, xs, mask, index, 3, group, hops, parent, queue)
+    erased = np.zeros(total, np.bool_)
     points = np.empty((count * total, 2), np.int32)
     lengths = np.zeros(count, np.int64)
     used, found = 0, 0
@@ -831,30 +825,19 @@ def _kept_slices(points, keep, full, width_contrast, local, min_profile_fraction
     return np.flatnonzero(keep)
 
 
-@numba.njit(cache=True, nogil=True)
-def _with_ends(points, contrast, cut, first_kept, first_points, last_kept, last_points):  # pragma: no cover
+def _with_ends(points: np.ndarray, contrast: np.ndarray, cut: int, first: tuple, last: tuple
+               ) -> tuple[np.ndarray, np.ndarray, int, int]:
     """The centerline with its last points at each end replaced by the points towards the sub-pixel end
-    (:func:`_end_along_profile` of ``points[:cut][::-1]`` and ``points[cut:]``: kept count, or -1 to keep the end as
-    it is, and new points), with the contrast of the nearest slice kept; and how many points come before and
-    from the slices."""
-    lo = cut - first_kept if first_kept >= 0 else 0
-    hi = cut + last_kept if last_kept >= 0 else points.shape[0]
-    head = first_points.shape[0] if first_kept >= 0 else 0
-    tail = last_points.shape[0] if last_kept >= 0 else 0
-    n = head + hi - lo + tail
-    out = np.empty((n, 2))
-    out_contrast = np.empty(n)
-    for k in range(n):
-        if k < head:
-            out[k] = first_points[head - 1 - k]
-            out_contrast[k] = contrast[lo]
-        elif k < head + hi - lo:
-            out[k] = points[lo + k - head]
-            out_contrast[k] = contrast[lo + k - head]
-        else:
-            out[k] = last_points[k - head - (hi - lo)]
-            out_contrast[k] = contrast[hi - 1]
-    return out, out_contrast, head, hi - lo
+    (``first``, ``last``: :func:`_end_along_profile` of ``points[:cut][::-1]`` and ``points[cut:]``: kept count, or -1
+    to keep the end as it is, and new points), with the contrast of the nearest slice kept; and how many points come
+    before and from the slices."""
+    lo = cut - first[0] if first[0] >= 0 else 0
+    hi = cut + last[0] if last[0] >= 0 else len(points)
+    head = first[1][::-1] if first[0] >= 0 else np.zeros((0, 2))
+    tail = last[1] if last[0] >= 0 else np.zeros((0, 2))
+    return (np.vstack([head, points[lo:hi], tail]),
+            np.concatenate([np.full(len(head), contrast[lo]), contrast[lo:hi], np.full(len(tail), contrast[hi - 1])]),
+            len(head), hi - lo)
 
 
 def _coarse_paths(mask: np.ndarray, scratch: np.ndarray, min_length: int, count: int = 4) -> list[np.ndarray]:
@@ -954,7 +937,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     cut = len(points) // 2
     first, last = (_end_along_profile(image, background.image, polarity, np.ascontiguousarray(part),
                                       config.profile_half_width) for part in (points[:cut][::-1], points[cut:]))
-    points, contrast_kept, head, slices = _with_ends(points, contrast_kept, cut, first[0], first[1], last[0], last[1])
+    points, contrast_kept, head, slices = _with_ends(points, contrast_kept, cut, first, last)
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
     # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).

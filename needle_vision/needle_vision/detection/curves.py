@@ -35,20 +35,36 @@ def step_lengths(points):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def run_bounds(points, split):  # pragma: no cover - compiled
+    """0, the index after each step longer than ``split`` between consecutive ``points``, and their count."""
+    steps = step_lengths(points)
+    bounds = np.empty(steps.shape[0] + 2, np.int64)
+    bounds[0] = 0
+    count = 1
+    for k in range(steps.shape[0]):
+        if steps[k] > split:
+            bounds[count] = k + 1
+            count += 1
+    bounds[count] = points.shape[0]
+    return bounds[:count + 1]
+
+
+@numba.njit(cache=True, nogil=True)
 def median(values):  # pragma: no cover - compiled
     """np.median of ``(n,)`` values, compiled (releases the GIL, none of NumPy's per-call overhead)."""
     return np.median(values)
 
 
-def derivative(values: np.ndarray, parameter: np.ndarray) -> np.ndarray:
-    """d values / d parameter of samples ``(n,)`` or ``(n, d)`` at increasing ``parameter (n,)`` (central
-    differences, one-sided at the ends)."""
-    values = np.asarray(values, dtype=float)
-    step = parameter.reshape((-1,) + (1,) * (values.ndim - 1))
-    out = np.empty_like(values)
-    out[1:-1] = (values[2:] - values[:-2]) / (step[2:] - step[:-2])
-    out[0] = (values[1] - values[0]) / (step[1] - step[0])
-    out[-1] = (values[-1] - values[-2]) / (step[-1] - step[-2])
+@numba.njit(cache=True, nogil=True)
+def derivative(values, parameter):  # pragma: no cover - compiled
+    """d values / d parameter of samples ``(n,)`` at increasing ``parameter (n,)`` (central differences, one-sided
+    at the ends)."""
+    n = values.shape[0]
+    out = np.empty(n)
+    for k in range(1, n - 1):
+        out[k] = (values[k + 1] - values[k - 1]) / (parameter[k + 1] - parameter[k - 1])
+    out[0] = (values[1] - values[0]) / (parameter[1] - parameter[0])
+    out[n - 1] = (values[n - 1] - values[n - 2]) / (parameter[n - 1] - parameter[n - 2])
     return out
 
 

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 
 from needle_vision.detection.centerline import GAP_PX
-from needle_vision.detection.curves import arc_length, interpolate, moving_average
+from needle_vision.detection.curves import arc_length, derivative, interpolate, moving_average, run_bounds
 
 
 class MatchError(ValueError):
@@ -95,11 +95,9 @@ def _coarse_map(s, e_left, t, e_right, spacing, continuity_weight):  # pragma: n
 def _smooth_runs(points, window):  # pragma: no cover - compiled
     """Moving average of each run of points between gaps (steps > GAP_PX): never across a hidden stretch."""
     out = np.empty_like(points)
-    first = 0
-    for k in range(1, points.shape[0] + 1):
-        if k == points.shape[0] or np.sqrt(np.sum((points[k] - points[k - 1]) ** 2)) > GAP_PX:
-            out[first:k] = moving_average(points[first:k], window)
-            first = k
+    bounds = run_bounds(points, GAP_PX)
+    for k in range(bounds.shape[0] - 1):
+        out[bounds[k]:bounds[k + 1]] = moving_average(points[bounds[k]:bounds[k + 1]], window)
     return out
 
 
@@ -116,25 +114,13 @@ def _in_gaps(t, curve_t):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _derivative(values, parameter):  # pragma: no cover - compiled
-    """d values / d parameter of ``(n,)`` samples (central differences, one-sided at the ends)."""
-    n = values.shape[0]
-    out = np.empty(n)
-    for k in range(1, n - 1):
-        out[k] = (values[k + 1] - values[k - 1]) / (parameter[k + 1] - parameter[k - 1])
-    out[0] = (values[1] - values[0]) / (parameter[1] - parameter[0])
-    out[n - 1] = (values[n - 1] - values[n - 2]) / (parameter[n - 1] - parameter[n - 2])
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
 def _match_arcs(s, e_left, t, e_right, t0, min_sin, step_limit, max_error, ends_visible):  # pragma: no cover
     """Steps 2 and 3 of the module docstring on the arc lengths ``s``, ``t`` and epipolar profiles of two
     oriented curves, from the warping's ``t0(s)``. Returns (t_match, anchored, sin_angle, keep); anchored
     has fewer than 2 entries set when there is no anchor pair (then nothing else is meaningful)."""
     n = s.shape[0]
-    slope_right = _derivative(e_right, t)
-    sin_angle = np.minimum(np.abs(_derivative(e_left, s)), np.abs(np.interp(t0, t, slope_right)))
+    slope_right = derivative(e_right, t)
+    sin_angle = np.minimum(np.abs(derivative(e_left, s)), np.abs(np.interp(t0, t, slope_right)))
     anchored = sin_angle >= min_sin
     # Sub-pixel: Newton steps on e_right(t) = e_left(s) at the anchors, staying near the warping's guess.
     t_match = t0.copy()

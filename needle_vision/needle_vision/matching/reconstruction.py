@@ -18,7 +18,8 @@ import numpy as np
 from needle_vision.detection.centerline import ImageCenterline
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
 from needle_vision.matching.curve_fit import fit_curve
-from needle_vision.detection.curves import arc_length, local_polynomial_smooth, median, step_lengths
+from needle_vision.detection.curves import (arc_length, interpolate, local_polynomial_smooth, median, run_bounds,
+                                            step_lengths)
 from needle_vision.calibration.rectification import Rectification
 from needle_common.transforms import RigidTransform
 
@@ -137,24 +138,9 @@ def _rectified(centerline: ImageCenterline, rectification: Rectification, side: 
     return rectified, tapers * scale
 
 
-@numba.njit(cache=True, nogil=True)
-def _run_bounds(points, split):  # pragma: no cover - compiled
-    """0, the index after each step longer than ``split`` between consecutive ``points``, and their count."""
-    steps = step_lengths(points)
-    bounds = np.empty(steps.shape[0] + 2, np.int64)
-    bounds[0] = 0
-    count = 1
-    for k in range(steps.shape[0]):
-        if steps[k] > split:
-            bounds[count] = k + 1
-            count += 1
-    bounds[count] = points.shape[0]
-    return bounds[:count + 1]
-
-
 def _runs(points: np.ndarray, split: float) -> list[slice]:
     """The runs of consecutive points not separated by a step longer than ``split`` (a hidden stretch)."""
-    bounds = _run_bounds(np.ascontiguousarray(points), split).tolist()
+    bounds = run_bounds(np.ascontiguousarray(points), split).tolist()
     return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
@@ -379,8 +365,7 @@ def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray
     if stop - start < 0.5 * arc[-1]:
         return centerline
     new_arc = np.concatenate([[start], arc[(arc > start) & (arc < stop)], [stop]])
-    return replace(centerline, points=np.column_stack([np.interp(new_arc, arc, centerline.points[:, k])
-                                                       for k in range(2)]),
+    return replace(centerline, points=interpolate(arc, centerline.points, new_arc),
                    contrast=np.interp(new_arc, arc, centerline.contrast),
                    local_noise_px=np.interp(new_arc, arc, centerline.local_noise_px))
 

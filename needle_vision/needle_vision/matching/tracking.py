@@ -44,9 +44,6 @@ class CenterlineTracker:
         self.config = config
         self._frames: deque[tuple[float, np.ndarray, np.ndarray]] = deque(maxlen=config.window)
 
-    def reset(self) -> None:
-        self._frames.clear()
-
     def update(self, stamp: float, arc_length: np.ndarray, points: np.ndarray) -> CenterlineMotion | None:
         """Add a measurement (samples ``points (k, 3)`` at ``arc_length (k,)``); None until the window is full.
         An older-or-equal stamp or a gap above ``max_gap`` restarts the window."""

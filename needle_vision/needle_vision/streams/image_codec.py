@@ -21,7 +21,7 @@ from typing import Any, Mapping, NamedTuple
 import cv2
 import numpy as np
 
-from needle_common.cdr import aligned
+from needle_common.cdr import aligned, cdr_string
 
 #: encoding -> (dtype, channels)
 ENCODINGS = {"mono8": (np.uint8, 1), "mono16": (np.uint16, 1), "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3)}
@@ -233,43 +233,27 @@ def deserialize_image(data: bytes, compressed: bool) -> SerializedImage:
     ``sensor_msgs/CompressedImage``; the pixel bytes are not copied."""
     if len(data) < 12 or bytes(data[:2]) != b"\x00\x01":
         raise ImageFormatError("not a little-endian CDR image message")
-    view = memoryview(data)
-    offset = 4
-
-    def take(fmt: str, align: int) -> tuple:
-        nonlocal offset
-        offset = aligned(offset, align)
-        values = struct.unpack_from(fmt, view, offset)
-        offset += struct.calcsize(fmt)
-        return values
-
-    def string() -> str:
-        nonlocal offset
-        (length,) = take("<I", 4)
-        text = bytes(view[offset:offset + max(length - 1, 0)]).decode("utf-8", "replace")
-        offset += length
-        return text
-
-    def blob() -> np.ndarray:
-        nonlocal offset
-        (size,) = take("<I", 4)
-        if offset + size > len(view):
-            raise ImageFormatError(f"image data of {size} bytes runs past the end of the message")
-        array = np.frombuffer(data, np.uint8, size, offset)
-        offset += size
-        return array
-
     try:
-        sec, nanosec = take("<iI", 4)
-        frame_id = string()
+        sec, nanosec = struct.unpack_from("<iI", data, 4)
+        frame_id, offset = cdr_string(data, 12)
         if compressed:
-            image_format = string()
-            return SerializedImage(sec, nanosec, frame_id, {"data": blob()}, image_format or "unknown")
-        height, width = take("<II", 4)
-        encoding = string()
-        (is_bigendian,) = take("<B", 1)
-        (step,) = take("<I", 4)
-        return SerializedImage(sec, nanosec, frame_id, {"height": height, "width": width, "encoding": encoding,
-                                                 "step": step, "data": blob(), "is_bigendian": bool(is_bigendian)})
-    except struct.error as error:
+            image_format, offset = cdr_string(data, offset)
+            fields: dict[str, Any] = {}
+        else:
+            height, width = struct.unpack_from("<II", data, aligned(offset, 4))
+            encoding, offset = cdr_string(data, aligned(offset, 4) + 8)
+            (is_bigendian,) = struct.unpack_from("<B", data, offset)
+            (step,) = struct.unpack_from("<I", data, aligned(offset + 1, 4))
+            offset = aligned(offset + 1, 4) + 4
+            fields = {"height": height, "width": width, "encoding": encoding, "step": step,
+                      "is_bigendian": bool(is_bigendian)}
+        (size,) = struct.unpack_from("<I", data, aligned(offset, 4))
+    except (struct.error, ValueError) as error:
         raise ImageFormatError(f"truncated image message ({error})") from error
+    offset = aligned(offset, 4) + 4
+    if offset + size > len(data):
+        raise ImageFormatError(f"image data of {size} bytes runs past the end of the message")
+    fields["data"] = np.frombuffer(data, np.uint8, size, offset)
+    if compressed:
+        return SerializedImage(sec, nanosec, frame_id, fields, image_format or "unknown")
+    return SerializedImage(sec, nanosec, frame_id, fields)
