@@ -94,6 +94,9 @@ class BaseTrajectory:
         self._correction_blends = np.ones(CORRECTION_CAPACITY)
         self._correction_count = 0
         self._previous: tuple[PoseSample, np.ndarray] | None = None  # newest sample and fit of the previous fit
+        # the first 8 arguments of trajectory_motions: the same arrays (changed in place) and limits for good
+        self.buffers = (self._times, self._positions, self._orientations, self._corrections, self._correction_starts,
+                        self._correction_blends, float(limits.window), float(limits.max_extrapolation))
 
     @property
     def latest(self) -> PoseSample | None:
@@ -178,25 +181,24 @@ class BaseTrajectory:
         """
         times = np.asarray(times, dtype=float)
         out = np.empty((len(times), 19))
-        fit, corrections = trajectory_motions(*self.fit_arguments(), times, out)
+        fit, corrections = trajectory_motions(*self.buffers, *self.fit_state(), times, out)
         self.take_fit(fit, corrections, float(times.max()) if times.size else None)
         return out
 
-    def fit_arguments(self) -> tuple:
-        """The 21 arguments of :func:`trajectory_motions` before the times: the samples, the current fit (or the
-        window ending at the newest sample to fit anew: refit once per new sample, continuing the previously served
-        motion at the last served time) and the corrections. ValueError before the first sample."""
+    def fit_state(self) -> tuple:
+        """The 13 arguments of :func:`trajectory_motions` between :attr:`buffers` and the times: the newest sample,
+        the current fit (or none, to fit the window ending at the newest sample anew: refit once per new sample,
+        continuing the previously served motion at the last served time) and the number of corrections.
+        ValueError before the first sample."""
         newest = self._latest
         if newest is None:
             raise ValueError("no base pose sample yet")
         refit = self._fit is None
         continued = refit and self._served is not None and self._previous is not None
         previous_sample, previous_fit = self._previous if continued else (newest, _NO_FIT)
-        return (self._times, self._positions, self._orientations, self._count, newest.t, newest.position,
-                newest.orientation, self.limits.window, self.limits.max_extrapolation,
-                _NO_FIT if refit else self._fit, refit, continued, self._served if continued else 0.0,
-                previous_sample.t, previous_sample.position, previous_sample.orientation, previous_fit,
-                self._corrections, self._correction_starts, self._correction_blends, self._correction_count)
+        return (self._count, newest.t, newest.position, newest.orientation, _NO_FIT if refit else self._fit, refit,
+                continued, self._served if continued else 0.0, previous_sample.t, previous_sample.position,
+                previous_sample.orientation, previous_fit, self._correction_count)
 
     def take_fit(self, fit: np.ndarray, corrections: int, served: float | None) -> None:
         """Keep what :func:`trajectory_motions` returned after serving the motions at times up to ``served`` (None:
@@ -213,12 +215,12 @@ CORRECTION_CAPACITY = 128  # corrections kept at once (up to ~window / sample in
 
 
 @njit(cache=True)
-def trajectory_motions(sample_times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, count: int,
-                        t_newest: float, p_newest: np.ndarray, q_newest: np.ndarray, window: float,
-                        max_extrapolation: float, fit: np.ndarray, refit: bool, continued: bool, served: float,
-                        t_previous: float, p_previous: np.ndarray, q_previous: np.ndarray, previous_fit: np.ndarray,
-                        deltas: np.ndarray, starts: np.ndarray, blends: np.ndarray, corrections: int,
-                        times: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, int]:
+def trajectory_motions(sample_times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, deltas: np.ndarray,
+                       starts: np.ndarray, blends: np.ndarray, window: float, max_extrapolation: float, count: int,
+                       t_newest: float, p_newest: np.ndarray, q_newest: np.ndarray, fit: np.ndarray, refit: bool,
+                       continued: bool, served: float, t_previous: float, p_previous: np.ndarray,
+                       q_previous: np.ndarray, previous_fit: np.ndarray, corrections: int, times: np.ndarray,
+                       out: np.ndarray) -> tuple[np.ndarray, int]:
     """Packed motions at ``times`` into ``out`` (:meth:`BaseTrajectory.motions_at`) from the fit, fitted anew first
     if ``refit`` (:func:`_refit_window`); returns (fit, number of corrections)."""
     if refit:

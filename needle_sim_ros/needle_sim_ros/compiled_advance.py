@@ -6,15 +6,50 @@ numba call instead of one per stage: the trajectory's fit (refitted once per new
 end times, the fresh twist feed-forward, the flange-to-clamp offset, and the steps themselves
 (:func:`~needle_sim_ros.model.step.integrate_sequence`). Each stage is the same compiled function the staged
 path calls, so both give the same bits.
+
+The arguments that hold from one call to the next travel in one :class:`AdvancePlan` record, made once per plan,
+typed in C by its ``_numba_type_`` (numba 0.59 too: ``test_kernel_dispatch``): 24 arguments, not 51, to unbox per
+call.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numba.core import types
+from numba.experimental import structref
 
 from needle_sim_ros.base_trajectory import trajectory_motions
 from needle_sim_ros.model.kinematics import compose_offsets
 from needle_sim_ros.model.step import integrate_sequence
+
+# The sequence's arguments after the motions and rotations (Integrator.sequence_arguments, then the memory's last
+# motion), the trajectory's buffers (BaseTrajectory.buffers) and the base input's packed offset and twist.
+PLAN_FIELDS = ("history", "coef", "ext_Q", "tol", "max_iterations", "prescribed", "base_nodes", "base_local_r",
+               "base_local_rx", "active", "scale", "tables", "residual", "band", "pivots", "factorization", "kl",
+               "control", "last_motion", "sample_times", "positions", "orientations", "deltas", "starts", "blends",
+               "window", "max_extrapolation", "packed")
+
+
+@structref.register
+class AdvancePlanType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(field)) for name, field in fields)
+
+
+class AdvancePlan(structref.StructRefProxy):
+    """The arguments of :func:`advance_from_trajectory` that hold while the integrator, forces, memory and base
+    input do (:data:`PLAN_FIELDS`), in one typed record (:func:`advance_plan` makes it)."""
+
+
+structref.define_proxy(AdvancePlan, AdvancePlanType, PLAN_FIELDS)
+
+
+@njit(cache=True)
+def advance_plan(*fields):
+    """The :class:`AdvancePlan` of the fields (compiled and cached: the proxy's own constructor compiles anew in
+    every process)."""
+    return AdvancePlan(*fields)
+
 
 @njit(cache=True)
 def apply_twist(flange: np.ndarray, times: np.ndarray, twist: np.ndarray, twist_timeout: float) -> None:
@@ -27,31 +62,31 @@ def apply_twist(flange: np.ndarray, times: np.ndarray, twist: np.ndarray, twist_
 
 
 @njit(cache=True)
-def advance_from_trajectory(sample_times, positions, orientations, count, t_newest, p_newest, q_newest, window,
-                            max_extrapolation, fit, refit, continued, served, t_previous, p_previous, q_previous,
-                            previous_fit, deltas, starts, blends, corrections, times, packed, motions, rotations, q, qd,
-                            qdd, aux, history, coef, ext_Q, tol, max_iterations, prescribed, base_nodes, base_local_r,
-                            base_local_rx, active, scale, tables, residual, band, pivots, factorization, kl, control,
-                            last_motion, states, wrenches, iterations):
-    """Steps at the end times ``times`` from the trajectory's fit (sample_times ... corrections:
-    :meth:`BaseTrajectory.fit_arguments`, the arguments of :func:`trajectory_motions`): the flange motions, the
-    twist within its timeout and the flange-to-clamp offset (``packed``: :attr:`BaseInput.packed`), the clamp
-    motions and rotations into ``motions`` (k, 19) and ``rotations`` (k, 3, 3), then the steps from the start state
-    (q, qd, qdd, aux) by :func:`integrate_sequence` with the factorization kept across steps (history ...
-    iterations: its arguments after the motions and rotations, :meth:`Integrator.sequence_arguments`). Every
-    argument is an array or a number: numba types each in C (0.59 types a tuple in Python on every call); the
-    fewer, the cheaper the call (each array is unboxed on every call). Returns (fit, number of corrections, steps
-    done)."""
+def advance_from_trajectory(plan, count, t_newest, p_newest, q_newest, fit, refit, continued, served, t_previous,
+                            p_previous, q_previous, previous_fit, corrections, times, motions, rotations, q, qd, qdd,
+                            aux, states, wrenches, iterations):
+    """Steps at the end times ``times`` from the trajectory's fit (count ... corrections:
+    :meth:`BaseTrajectory.fit_state`; with the plan's buffers the arguments of :func:`trajectory_motions`): the
+    flange motions, the twist within its timeout and the flange-to-clamp offset (the plan's ``packed``:
+    :attr:`BaseInput.packed`), the clamp motions and rotations into ``motions`` (k, 19) and ``rotations`` (k, 3, 3),
+    then the steps from the start state (q, qd, qdd, aux) by :func:`integrate_sequence` with the factorization kept
+    across steps, into the outputs (states, wrenches, iterations:
+    :func:`~needle_sim_ros.model.integrators.run_outputs`). Every argument is an array, a number or the
+    :class:`AdvancePlan` (numba 0.59 types a tuple in Python on every call). Returns (fit, number of corrections,
+    steps done)."""
+    p = plan
     flange = np.empty((times.size, 19))
-    fit, corrections = trajectory_motions(sample_times, positions, orientations, count, t_newest, p_newest, q_newest,
-                                          window, max_extrapolation, fit, refit, continued, served, t_previous,
-                                          p_previous, q_previous, previous_fit, deltas, starts, blends, corrections,
-                                          times, flange)
+    fit, corrections = trajectory_motions(p.sample_times, p.positions, p.orientations, p.deltas, p.starts, p.blends,
+                                          p.window, p.max_extrapolation, count, t_newest, p_newest, q_newest, fit,
+                                          refit, continued, served, t_previous, p_previous, q_previous, previous_fit,
+                                          corrections, times, flange)
+    packed = p.packed
     apply_twist(flange, times, packed[1:8], packed[0])
     compose_offsets(flange, packed[8:11], packed[11:20].reshape((3, 3)), motions, rotations)
+    history = p.history
     history[0], history[1], history[2], history[3] = q, qd, qdd, aux
-    done = integrate_sequence(history, times, motions, rotations, coef, ext_Q, tol, max_iterations, prescribed,
-                              base_nodes, base_local_r, base_local_rx, active, scale, tables, residual, band, pivots,
-                              factorization, kl, control, True, last_motion, states, wrenches, iterations)
+    done = integrate_sequence(history, times, motions, rotations, p.coef, p.ext_Q, p.tol, p.max_iterations,
+                              p.prescribed, p.base_nodes, p.base_local_r, p.base_local_rx, p.active, p.scale,
+                              p.tables, p.residual, p.band, p.pivots, p.factorization, p.kl, p.control, True,
+                              p.last_motion, states, wrenches, iterations)
     return fit, corrections, done
-

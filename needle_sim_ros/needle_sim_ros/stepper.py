@@ -12,7 +12,7 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from needle_sim_ros.compiled_advance import advance_from_trajectory
+from needle_sim_ros.compiled_advance import advance_from_trajectory, advance_plan
 from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, ModelShape, NeedleData, NeedleModel,
                                   NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed,
                                   acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
@@ -110,9 +110,9 @@ class Stepper:
         self.compiled_sequence = True
         self._sequence_plan: tuple = ((), None)  # (key, forces) of _sequence_forces
         self._run_plan: ContributionRun | None = None  # the composed compiled run of _run_steps
-        # (integrator, forces, memory, arguments) of _advance_from_trajectory's call: the sequence's arguments while
-        # they hold
-        self._advance_plan: tuple = (None, None, None, ())
+        # (integrator, forces, memory, base source, AdvancePlan) of _advance_from_trajectory's call: the plan while
+        # the others hold
+        self._advance_plan: tuple = (None, None, None, None, None)
         self.source = None  # the base source of the current run
 
     def rebuild_model(self, model_builder: ModelBuilder) -> None:
@@ -309,18 +309,17 @@ class Stepper:
         start = time.perf_counter()
         state, source, memory = self.data.state, self.source, self.data.integrator
         integrator = self.integrator
-        work, (plan_integrator, plan_forces, plan_memory, arguments) = integrator.work, self._advance_plan
+        work, (plan_integrator, plan_forces, plan_memory, plan_source, plan) = integrator.work, self._advance_plan
         if not (plan_forces is forces and plan_memory is memory and plan_integrator is integrator
-                and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
+                and plan_source is source and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
             # else: the checks and caches of sequence_arguments
             before = integrator.sequence_arguments(self.dt, forces, float(times[0]), memory)
-            self._advance_plan = (integrator, forces, memory, (*before, memory.last_motion))
-            arguments = self._advance_plan[3]
-        outputs = run_outputs(times.size, self.model.n_dof)
+            plan = advance_plan(*before, memory.last_motion, *source.trajectory.buffers, source.packed)
+            self._advance_plan = (integrator, forces, memory, source, plan)
         trajectory = source.trajectory
-        fit, corrections, done = advance_from_trajectory(
-            *trajectory.fit_arguments(), times, source.packed, motions, rotations, state.q, state.qd, state.qdd,
-            state.aux, *arguments, *outputs)
+        outputs = run_outputs(times.size, state.q.size)
+        fit, corrections, done = advance_from_trajectory(plan, *trajectory.fit_state(), times, motions, rotations,
+                                                         state.q, state.qd, state.qdd, state.aux, *outputs)
         trajectory.take_fit(fit, corrections, float(times[-1]))
         self._record_run(done, outputs, start, times, motions, rotations, records)
         return done

@@ -1,6 +1,8 @@
 """Base kinematics (flange offset, prescribed coordinates q_c), fixtures and the partition (eqs. 18-19), and the
 geometric outputs (centerline, tip pose)."""
+import dataclasses
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -64,6 +66,22 @@ def test_base_motion_rejects_bad_input():
         BaseMotion((0, 0), (0, 0, 0, 1))
     with pytest.raises(ValueError, match="angular_velocity"):
         BaseMotion((0, 0, 0), (0, 0, 0, 1), angular_velocity=(0, math.nan, 0))
+
+
+def test_a_motion_from_packed_fields_reads_them_as_one_built_from_them():
+    """A motion from_packed (one per compiled step, its fields views made when read) has the fields, replace and
+    pickle of the motion its constructor builds from the same values (an independent path: validation, copy)."""
+    packed = BaseMotion((0.1, -0.2, 0.3), (0.5, -0.5, 0.5, 0.5), linear_velocity=(1.0, 2.0, 3.0),
+                        angular_velocity=(-1.0, 0.5, 0.25), linear_acceleration=(4.0, 5.0, 6.0),
+                        angular_acceleration=(0.0, -7.0, 8.0))
+    lazy = BaseMotion.from_packed(packed.packed.copy(), packed.rotation)
+    for name in ("position", "orientation", "linear_velocity", "angular_velocity", "linear_acceleration",
+                 "angular_acceleration"):
+        for motion in (lazy, pickle.loads(pickle.dumps(lazy)), dataclasses.replace(lazy)):
+            assert np.array_equal(getattr(motion, name), getattr(packed, name)), name
+    assert repr(lazy) == repr(packed)
+    with pytest.raises(AttributeError):
+        lazy.velocity  # noqa: B018 (no such field)
 
 
 def test_fixtures_partition_and_validation():

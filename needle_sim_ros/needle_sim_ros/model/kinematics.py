@@ -33,6 +33,7 @@ def _vector(value, name: str, size: int = 3) -> np.ndarray:
 _FIELDS = (("position", slice(0, 3)), ("orientation", slice(3, 7)), ("linear_velocity", slice(7, 10)),
            ("angular_velocity", slice(10, 13)), ("linear_acceleration", slice(13, 16)),
            ("angular_acceleration", slice(16, 19)))
+_SLICES = dict(_FIELDS)
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,13 +77,20 @@ class BaseMotion:
     @classmethod
     def from_packed(cls, values: np.ndarray, rotation: np.ndarray) -> BaseMotion:
         """From already validated packed fields (19,) [position, orientation, v, w, a, alpha] and the matching
-        rotation matrix, without copying or checking (the compiled paths produce these)."""
+        rotation matrix, without copying or checking (the compiled paths produce these, one per step); the six
+        fields are views of ``values`` made when read (:meth:`__getattr__`)."""
         motion = object.__new__(cls)
-        motion.__dict__.update(  # frozen: no setattr
-            position=values[0:3], orientation=values[3:7], linear_velocity=values[7:10],
-            angular_velocity=values[10:13], linear_acceleration=values[13:16], angular_acceleration=values[16:19],
-            rotation=rotation, packed=values)
+        motion.__dict__.update(rotation=rotation, packed=values)  # frozen: no setattr
         return motion
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        """A field of a motion :meth:`from_packed` (only those lack one): its view of ``packed``, made anew at
+        each read (nothing cached: the attributes, and so a pickle, do not depend on what was read)."""
+        part = _SLICES.get(name)
+        packed = self.__dict__.get("packed")
+        if part is None or packed is None:
+            raise AttributeError(f"'{type(self).__name__}' object has no attribute '{name}'")
+        return packed[part]
 
     @classmethod
     def from_flange(cls, flange_position, flange_orientation, offset_position=_ZERO3,
@@ -106,6 +114,10 @@ class BaseMotion:
                               self.linear_acceleration, self.angular_acceleration, local_r, local_rx, nodes, target)
 
 
+# The fields' defaults live in the dataclass's __init__; without them as class attributes, a motion made
+# from_packed reads its views (__getattr__) instead of the class's default
+for _name in ("linear_velocity", "angular_velocity", "linear_acceleration", "angular_acceleration"):
+    delattr(BaseMotion, _name)
 STATIC_WORLD = BaseMotion(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 
 
