@@ -443,3 +443,23 @@ def test_a_copy_of_the_data_replays_an_insertion_exactly():
     assert sim.data.force_states[0].contact.track.length > saved.force_states[0].contact.track.length
     sim.data.restore(saved)
     assert run() == first
+
+
+def test_the_compiled_advance_holds_the_pose_past_its_max_extrapolation(monkeypatch):
+    """Live, with the newest pose older than ``pose_input.max_extrapolation``: the one compiled call per advance
+    extrapolates the fit of a constant-velocity flange up to newest + max_extrapolation and holds it there at rest
+    (the base's closed form p0 + v t; a window of another length than max_extrapolation tells the two apart)."""
+    p = {**PARAMETERS, "pose_input.window": 0.02, "pose_input.max_extrapolation": 0.004}
+    sim = simulation_from_parameters(p)
+    p0, v = np.array([0.4, 0.0, 0.3]), np.array([0.01, -0.004, 0.002])
+    quaternion = np.array([0.0, 0.0, 0.0, 1.0])
+    for k in range(51):
+        sim.offer_pose(k * 1e-3, p0 + v * k * 1e-3, quaternion)
+        sim.advance(k * 1e-3, deterministic=False)
+    monkeypatch.setattr(sim.stepper, "_step_sequence", lambda *args: pytest.fail("the staged sequence ran"))
+    monkeypatch.setattr(sim.stepper, "step", lambda *args, **kwargs: pytest.fail("the general step ran"))
+    for now, held_since in ((0.052, 0.052), (0.070, 0.054)):
+        sim.advance(now, deterministic=False)
+        assert sim.state.t == pytest.approx(now)
+        np.testing.assert_allclose(sim.base.position, p0 + v * held_since, rtol=0.0, atol=1e-9)
+        np.testing.assert_allclose(sim.base.linear_velocity, v if now < 0.054 else np.zeros(3), atol=1e-9)
