@@ -52,13 +52,13 @@ def command_status(prog: str, run: Callable[[argparse.Namespace], int], argument
     try:
         return run(arguments)
     except bad_input as error:
-        print(f"{prog}: error: {_one_line(error)}", file=sys.stderr)
+        print(f"{prog}: error: {one_line(error)}", file=sys.stderr)
         return 2
     except failure as error:
-        print(f"{prog}: {_one_line(error)}", file=sys.stderr)
+        print(f"{prog}: {one_line(error)}", file=sys.stderr)
         return 1
 
 
-def _one_line(error: Exception) -> str:
+def one_line(error: BaseException) -> str:
     """The message of ``error`` on one line (a YAML parser's, e.g., spans several), or its type if it has none."""
     return " ".join(str(error).split()) or type(error).__name__

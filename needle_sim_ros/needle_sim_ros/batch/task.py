@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from needle_common.cli_types import one_line
+
 from needle_sim_ros.batch.grid import SPECS, ParameterSet, canonical, split_index
 from needle_sim_ros.comparison.centerline_distance import closest_points_on_polyline
 from needle_sim_ros.parameters.experiment import ExperimentConfig, load_experiment
@@ -75,8 +77,7 @@ def run_pipeline(spec: TaskSpec) -> tuple[dict[str, Any], PipelineLog, OfflinePi
 def error_line(_: Any, error: BaseException) -> str:
     """``Type: message`` of a task's error on one line (also of a task whose worker died: ``map_ordered``'s
     ``on_error``)."""
-    text = " ".join(str(error).split()) or type(error).__name__
-    return f"{type(error).__name__}: {text}"
+    return f"{type(error).__name__}: {one_line(error)}"
 
 
 def failed_row(spec: TaskSpec, error: BaseException, wall_s: float = 0.0) -> dict[str, Any]:
