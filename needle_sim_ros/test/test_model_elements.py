@@ -7,7 +7,7 @@ from needle_sim_ros.model import (NeedleProperties, axial_strain, build_model, c
                                   elastic_forces, tangent_stiffness)
 from needle_sim_ros.model.banded import ELEMENT_BANDWIDTH, band_to_dense, band_width_columns
 from needle_sim_ros.model.damping import reference_stiffness_slots
-from needle_sim_ros.model.mesh import shape_functions
+from needle_sim_ros.model.mesh import search_right, shape_functions
 from needle_sim_ros.model.newton import assemble_system, model_tables
 
 NEEDLE = NeedleProperties(length=0.27, radius=0.635e-3, youngs_modulus=193e9, density=8000.0)
@@ -180,3 +180,12 @@ def test_iteration_matrix_full_and_lower_against_finite_differences():
     lower = assembled(q, True, True)[1]
     assert np.array_equal(assembled(q, False)[0], residual)
     assert np.array_equal(np.tril(band_to_dense(lower, kl)), np.tril(J))
+
+
+def test_search_right_is_numpys_searchsorted_on_the_right():
+    """The compiled bisection of the tissue's per-point loops against NumPy: ties, both ends, NaN."""
+    rng = np.random.default_rng(3)
+    for size in (0, 1, 2, 7, 500):
+        values = np.sort(rng.choice(np.linspace(0.0, 1.0, 11), size))  # repeated values: ties
+        for value in (*rng.uniform(-0.2, 1.2, 40), *values[:5], 0.0, 1.0, np.nan):
+            assert search_right(values, value) == np.searchsorted(values, value, side="right"), (size, value)

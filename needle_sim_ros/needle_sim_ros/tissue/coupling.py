@@ -16,7 +16,7 @@ from numba import njit
 
 from needle_sim_ros.model.forces import scatter_point
 from needle_sim_ros.model.kinematics import dot3, offset_dot
-from needle_sim_ros.model.mesh import hermite_shapes, interpolate
+from needle_sim_ros.model.mesh import hermite_shapes, interpolate, search_right
 
 from .geometry import TissueBlock
 from .karnopp import axial_traction
@@ -217,7 +217,7 @@ def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_poi
     depths, and the axial offsets u = (r - anchor point) . tangent. The arc lengths increase, so the candidates
     are the points from the first beyond ``candidate_arc`` on (scalar loops: it runs every step); ``centres``,
     ``radii``: the track's ``track.segment_blocks``."""
-    first = np.searchsorted(arc_lengths, candidate_arc, side="right")
+    first = search_right(arc_lengths, candidate_arc)
     r, tangents = needle_points(S[first:], S_x[first:], slots[first:], q)
     m = r.shape[0]
     depth = np.empty(m)

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from needle_sim_ros.model.mesh import search_right
+
 # Per-layer parameter names (all SI), in config and in TissueLayer; in this order the rows of the kernels' table.
 LAYER_PARAMETERS = {
     "thickness": "layer thickness along the entry normal [m] (.inf for the last layer)",
@@ -124,7 +126,7 @@ def layer_rows(bottoms, table, depth, rows):
 @njit(cache=True)
 def layer_row(bottoms, table, depth, row):
     """Row ``row`` of the layer table at one depth (0 outside the block)."""
-    index = np.searchsorted(bottoms, depth, side="right") if depth > 0.0 else bottoms.size
+    index = search_right(bottoms, depth) if depth > 0.0 else bottoms.size
     return table[row, index]
 
 

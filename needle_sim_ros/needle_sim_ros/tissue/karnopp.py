@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # numba 0.59's LLVM keeps a call per point: 2.4x the shaft assembly
 def axial_traction(u, v, stick_stiffness, coulomb, viscous, offset, sign_gain, velocity_scale):
     """Scalar axial traction [N/m] ``t = -(clip(k_a u, -C, C) + b v + A + B sgn_vs(v))`` and dt/du, dt/dv.
 

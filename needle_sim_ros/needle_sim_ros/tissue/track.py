@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros.model.kinematics import dot3, offset_dot
+from needle_sim_ros.model.mesh import search_right
 
 
 END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at the default 0.1 mm spacing)
@@ -222,7 +223,7 @@ def locate_on_polyline(vertices, arc, end_tangent, s):
     end = vertices[count - 1]
     for k in range(n):
         if count >= 2 and s[k] < arc[count - 1]:
-            j = min(max(np.searchsorted(arc, s[k], side="right") - 1, 0), count - 2)
+            j = min(max(search_right(arc, s[k]) - 1, 0), count - 2)
             seg = arc[j + 1] - arc[j]
             fraction = (s[k] - arc[j]) / seg
             for i in range(3):
