@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.model import BaseMotion, Integrator, NeedleProperties, build_model, elastic_energy, kinetic_energy
+from needle_sim_ros.model.records import pack_record
 from needle_sim_ros.model.step import pack
-from needle_sim_ros.tissue.contact import pack_record
 from needle_sim_ros.tissue.factory import TISSUE_PARAMETERS, build_tissue_model
 from needle_sim_ros.tissue.coupling import ANCHOR, COULOMB, SHAPES, STICK_STIFFNESS, STIFFNESS, TANGENT, WEIGHT
 from needle_sim_ros.tissue.tissue_model import TissueState

@@ -5,7 +5,7 @@ types a tuple argument in Python on every call from Python (10-60 us), an array 
 boundary packed into one float64 array. ``put`` appends a field (a scalar: its value; an array: its shape, then
 its values), the ``take_*`` functions read one back in the same order as a fresh array of the field's type;
 ``cursor`` (an int64 array of one element) is the read or write position. A first pass over an empty buffer only
-counts (see ``pack`` in the contributions).
+counts (``pack_record``).
 """
 from __future__ import annotations
 
@@ -124,6 +124,22 @@ def _put_all(buffer, cursor, fields):
     scope = {"put": put}
     exec(source, scope)
     return scope["put_fields"]
+
+
+@njit(cache=True)
+def _put_record(buffer, record):
+    cursor = np.zeros(1, dtype=np.int64)
+    put_all(buffer, cursor, record)
+    return cursor[0]
+
+
+@njit(cache=True)
+def pack_record(record):
+    """A contribution's typed record (a named tuple: the tissue's ``ContactRecord``, ``ShaftRecord``) as one
+    float64 array in ``put``'s layout (compiled: the kernels' own records; :func:`packed` from Python)."""
+    buffer = np.empty(_put_record(np.empty(0), record))
+    _put_record(buffer, record)
+    return buffer
 
 
 def packed(*fields) -> np.ndarray:

@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros.model.kinematics import dot3, offset_dot
-from needle_sim_ros.model.records import put_all, take_flag, take_float, take_matrix, take_vector, view_vector
+from needle_sim_ros.model.records import pack_record, take_flag, take_float, take_matrix, take_vector, view_vector
 from needle_sim_ros.model.step import Kernels, off_base
 
 from .track import cut_polyline, segment_blocks
@@ -90,21 +90,6 @@ def advance_contact(c, p, q, qd, t):
     step_duration = 0.0 if np.isnan(c.time) else max(t - c.time, 0.0)
     return ContactRecord(punctured, tip_depth, tip_speed, step_duration, at_front, t, vertices, arc, direction,
                          previous_tip, end_tangent, centres, radii)
-
-
-@njit(cache=True)
-def _put_record(buffer, record):
-    cursor = np.zeros(1, dtype=np.int64)
-    put_all(buffer, cursor, record)
-    return cursor[0]
-
-
-@njit(cache=True)
-def pack_record(record):
-    """A tissue contribution's record (``ContactRecord``, ``shaft_force.ShaftRecord``) as one float64 array."""
-    buffer = np.empty(_put_record(np.empty(0), record))
-    _put_record(buffer, record)
-    return buffer
 
 
 @njit(cache=True)

@@ -13,11 +13,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from needle_sim_ros.model.records import (take_float, take_flag, take_flags, take_index_matrix, take_int,
+from needle_sim_ros.model.records import (pack_record, take_float, take_flag, take_flags, take_index_matrix, take_int,
                                           take_matrix, take_vector, view_matrix, view_vector)
 from needle_sim_ros.model.step import Kernels
 
-from .contact import pack_record
 from .coupling import (POINT_COLUMNS, first_slot_in, lateral_quadrature, point_table, shaft_contact_points,
                        shaft_generalized_force, slip_anchors)
 from .geometry import LATERAL_ROWS, layer_rows
@@ -102,7 +101,7 @@ def advance_shaft(q, vertices, arc, end_tangent, centres, radii, tip_depth, tip_
 
 @njit(cache=True)
 def unpack_shaft(buffer):
-    """The ``ShaftRecord`` of ``contact.pack_record``'s array."""
+    """The ``ShaftRecord`` of ``records.pack_record``'s array."""
     c = np.zeros(1, dtype=np.int64)
     return ShaftRecord(take_float(buffer, c), take_vector(buffer, c), take_flags(buffer, c), take_int(buffer, c),
                        take_index_matrix(buffer, c), take_matrix(buffer, c))
