@@ -289,8 +289,8 @@ def test_offline_pipeline_reads_compressed_image_topics_as_it_reads_raw_ones(off
     compressed measures and compares exactly as on the raw images (PNG is lossless)."""
     from needle_common.bag_reader import BagReader
     from needle_sim_ros.recording import McapBagWriter, WriterOptions
-    from needle_vision.streams.image_codec import (compress_image, deserialize_image, image_to_array,
-                                                   serialize_compressed_image)
+    from needle_sim_ros.messages.cdr import compressed_image_message
+    from needle_vision.streams.image_codec import compress_image, deserialize_image, image_to_array
     reader, bag = BagReader(DYNAMIC), tmp_path / "compressed.mcap"
     end = reader.start_time_ns + round(DYNAMIC_SLICE * 1e9)
     with McapBagWriter(bag, WriterOptions(overwrite=True)) as writer:
@@ -304,7 +304,7 @@ def test_offline_pipeline_reads_compressed_image_topics_as_it_reads_raw_ones(off
             if message.topic.endswith("/image_raw"):
                 image = deserialize_image(message.data, compressed=False)
                 image_format, data = compress_image(image_to_array(**image.fields), image.fields["encoding"], "png")
-                writer.write(message.topic + "/compressed", serialize_compressed_image(
+                writer.write(message.topic + "/compressed", compressed_image_message(
                     image.sec, image.nanosec, image.frame_id, image_format, data), message.log_time_ns)
             else:
                 writer.write(message.topic, message.data, message.log_time_ns)

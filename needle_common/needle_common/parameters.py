@@ -234,6 +234,21 @@ def flatten_tree(tree: Mapping, where: Callable[[str], str] | None = None, prefi
     return flat
 
 
+def params_file_text(sections: Mapping[str, Mapping[str, Any]]) -> str:
+    """A ROS 2 params file of ``{node: {dotted name: value}}``: each node's ``ros__parameters`` with the dotted
+    names nested (the inverse of :func:`flatten_tree`), tuples written as lists."""
+    document: dict[str, Any] = {}
+    for node, values in sections.items():
+        tree = document.setdefault(node, {"ros__parameters": {}})["ros__parameters"]
+        for name, value in values.items():
+            *groups, leaf = name.split(".")
+            branch = tree
+            for group in groups:
+                branch = branch.setdefault(group, {})
+            branch[leaf] = list(value) if isinstance(value, (list, tuple)) else value
+    return yaml.safe_dump(document, sort_keys=False)
+
+
 def _rcl_value(value: Any, where: str) -> Any:
     """``value`` if rcl takes it as a parameter's value (a scalar or a list of one scalar type), else
     ParameterError starting with ``where``."""

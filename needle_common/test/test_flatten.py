@@ -2,7 +2,9 @@
 checked as rcl checks a params file (the loader), against hand-written expectations."""
 import pytest
 
-from needle_common.parameters import ParameterError, flatten_tree, parameter_tree
+import yaml
+
+from needle_common.parameters import ParameterError, flatten_tree, parameter_tree, params_file_text
 
 NESTED = {"needle": {"length": 0.2, "gravity": [0.0, 0.0, -9.81]}, "tissue": {"layers": {"thickness": [0.01]}},
           "topic": "base_pose"}
@@ -14,6 +16,13 @@ def test_nested_names_become_dotted_names():
     assert flatten_tree(NESTED) == FLAT
     assert flatten_tree(NESTED, lambda name: name) == FLAT  # valid values pass the check unchanged
     assert flatten_tree({"a": {}}) == {}  # loose: an empty group holds nothing
+
+
+def test_a_written_params_file_nests_the_dotted_names_and_reads_back_as_written():
+    text = params_file_text({"needle_compare": {**FLAT, "pair": (1.0, 2.0)}, "needle_stereo": {"a.b": True}})
+    assert yaml.safe_load(text) == {"needle_compare": {"ros__parameters": {**NESTED, "pair": [1.0, 2.0]}},
+                                    "needle_stereo": {"ros__parameters": {"a": {"b": True}}}}
+    assert parameter_tree(yaml.safe_load(text)) == {**FLAT, "pair": [1.0, 2.0], "a.b": True}
 
 
 @pytest.mark.parametrize("tree, message", [

@@ -186,6 +186,16 @@ def test_triangle_list_marker_is_rclpys_full_jazzy_marker(serializers):
     assert_rclpy_bytes(serializers, encoded, messages)
 
 
+def test_compressed_image_message_is_rclpys(serializers):
+    encoded, messages = [], []
+    for frame in FRAMES:
+        for image_format, size in (("png", 0), ("jpeg", 1), ("mono8; png compressed ", 7), ("", 8), ("png", 13)):
+            data = bytes(np.random.default_rng(size).integers(0, 256, size, dtype=np.uint8))
+            encoded.append(cdr.compressed_image_message(SEC, NANOSEC, frame, image_format, data))
+            messages.append(CompressedImage(header=header(frame), format=image_format, data=data))
+    assert_rclpy_bytes(serializers, encoded, messages)
+
+
 def test_needle_state_is_rclpys(serializers):
     encoded, messages = [], []
     for frame in FRAMES:

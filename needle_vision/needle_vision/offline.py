@@ -31,7 +31,7 @@ from tqdm import tqdm
 from needle_vision.detection.background import BackgroundModel
 from needle_common.bag_reader import BagMessage, BagReader, BagReadError
 from needle_vision.streams.base_pose import store_base_pose
-from needle_vision.calibration.rig import CalibrationError, StereoRig, load_camera_calibration, rig_from_camera_infos
+from needle_vision.calibration.rig import CalibrationError, StereoRig, rig_from_calibration_files, rig_from_camera_infos
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
 from needle_common.cdr import CameraInfo, PoseStamped, camera_info, pose_stamped
@@ -410,8 +410,7 @@ def run(arguments: argparse.Namespace) -> int:
     source = open_source(source_path, arguments.fps, arguments.left_topic, arguments.right_topic,
                          values["sync_tolerance"], base_topic, values["sync_queue_size"])
     if values["left_calibration_file"]:
-        rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
-                                                 load_camera_calibration(values["right_calibration_file"]))
+        rig = rig_from_calibration_files(values["left_calibration_file"], values["right_calibration_file"])
     elif source.reader is None:
         raise InputError("an image folder needs calibration files (--left-calibration/--right-calibration)")
     else:

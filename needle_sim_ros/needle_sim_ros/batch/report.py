@@ -8,9 +8,9 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-import yaml
 
 from needle_common.output_files import write_atomically
+from needle_common.parameters import params_file_text
 
 from needle_sim_ros.batch.identify import FitParameter, FitResult
 from needle_sim_ros.batch.task import TaskSpec, resolved_overrides
@@ -21,7 +21,7 @@ def _write(path: Path, text: str) -> None:
     write_atomically(path, lambda temporary: temporary.write_text(text))
 
 
-def params_file_text(fits: list[FitParameter], result: FitResult, reference: TaskSpec) -> str:
+def identified_params_text(fits: list[FitParameter], result: FitResult, reference: TaskSpec) -> str:
     """A ROS 2 params file with the estimate; an element ``name[i]`` is written as the whole array (the other
     elements as the reference bag's experiment has them)."""
     parameter_set: dict[str, dict] = {}
@@ -31,8 +31,7 @@ def params_file_text(fits: list[FitParameter], result: FitResult, reference: Tas
     overrides = resolved_overrides(load_experiment(reference.experiment, config_dir), parameter_set)
     header = "".join(f"# {f.label} = {v:.6g} +- {s:.2g} (1 sigma)\n" for f, v, s in
                      zip(fits, result.estimate, result.std))
-    document = {node: {"ros__parameters": values} for node, values in overrides.items()}
-    return "# Identified by needle_batch identify.\n" + header + yaml.safe_dump(document, sort_keys=False)
+    return "# Identified by needle_batch identify.\n" + header + params_file_text(overrides)
 
 
 def write_identification(output_dir: Path, fits: list[FitParameter], result: FitResult,
@@ -52,5 +51,5 @@ def write_identification(output_dir: Path, fits: list[FitParameter], result: Fit
     for k, e in enumerate(result.history):
         writer.writerow([k, e.kind, *e.parameters, e.cost, *e.bag_rms])
     _write(files["history"], stream.getvalue())
-    _write(files["params"], params_file_text(fits, result, reference))
+    _write(files["params"], identified_params_text(fits, result, reference))
     return files

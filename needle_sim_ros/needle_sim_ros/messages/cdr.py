@@ -175,6 +175,17 @@ def triangle_list_marker(sec: int, nanosec: int, frame_id: str, namespace: str, 
     return buffer.bytes()
 
 
+def compressed_image_message(sec: int, nanosec: int, frame_id: str, image_format: str, data: bytes) -> bytes:
+    """sensor_msgs/msg/CompressedImage of the encoded image ``data`` in ``image_format`` (image_transport's
+    ``png``/``jpeg`` form)."""
+    buffer = _Buffer()
+    _header(buffer, sec, nanosec, frame_id)
+    buffer.string(image_format)
+    buffer.uint32(len(data))
+    buffer._add(bytes(data))
+    return buffer.bytes()
+
+
 def needle_state(sec: int, nanosec: int, frame_id: str, insertion_depth: float, inserted_length: float,
                  tip_force_x: float, tip_force_y: float, tip_force_z: float, axial_force: float,
                  kinetic_energy: float, elastic_energy: float) -> bytes:

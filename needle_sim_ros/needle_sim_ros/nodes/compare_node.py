@@ -15,7 +15,6 @@ import pathlib
 from typing import Any
 
 import numpy as np
-import yaml
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.node import Node
@@ -25,7 +24,7 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
 
-from needle_common.parameters import ParameterError
+from needle_common.parameters import ParameterError, params_file_text
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
@@ -58,18 +57,6 @@ def cloud_points(cloud: PointCloud2) -> np.ndarray:
     rows = np.ascontiguousarray(raw[:, :width * step]).view(dtype).reshape(-1)
     points = np.column_stack([rows[n].astype(float) for n in "xyz"])
     return points[np.all(np.isfinite(points), axis=1)]
-
-
-def parameter_file(values: dict[str, Any]) -> str:
-    """The parameters in force as a ROS 2 parameter file (dotted names nested)."""
-    tree: dict[str, Any] = {}
-    for name, value in values.items():
-        *groups, leaf = name.split(".")
-        node = tree
-        for group in groups:
-            node = node.setdefault(group, {})
-        node[leaf] = list(value) if isinstance(value, (list, tuple)) else value
-    return yaml.safe_dump({NODE_NAME: {"ros__parameters": tree}}, sort_keys=False)
 
 
 class CompareNode(Node):
@@ -119,7 +106,7 @@ class CompareNode(Node):
                                                                                   for k, s in flat.items()})
         except (RecordingError, ValueError) as error:
             raise ParameterError(f"parameter 'log.path' = '{v['log.path']}': {error}") from error
-        recorder.add_parameters(NODE_NAME, flat, parameter_file(v))
+        recorder.add_parameters(NODE_NAME, flat, params_file_text({NODE_NAME: v}))
         self.get_logger().info(f"recording to {v['log.path']}")
         return recorder
 

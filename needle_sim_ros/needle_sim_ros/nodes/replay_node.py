@@ -28,9 +28,9 @@ from needle_common.cli_types import non_negative, positive
 from needle_common.parameters import ParameterError, check_ros_arguments
 from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
 from needle_common.ros.input_status import InputReports
-from needle_vision.streams.image_codec import (ImageFormatError, compress_image, deserialize_image, image_to_array,
-                                               serialize_compressed_image)
+from needle_vision.streams.image_codec import ImageFormatError, compress_image, deserialize_image, image_to_array
 
+from needle_sim_ros.messages import cdr
 from needle_sim_ros.nodes.recording_bridge import message_class, playback_qos
 from needle_common.bag_reader import BagReadError, BagReader
 from needle_sim_ros.recording.playback import EXPECTED_TYPES, PlaybackSchedule
@@ -205,7 +205,7 @@ class ReplayNode(Node):
         except ImageFormatError as error:
             self.get_logger().warning(f"image not compressed: {error}", throttle_duration_sec=2.0)
             image_format, payload = "unreadable", b""
-        return serialize_compressed_image(*stamp, frame_id, image_format, payload)
+        return cdr.compressed_image_message(*stamp, frame_id, image_format, payload)
 
     def play(self) -> bool:
         """Wait as asked, then play (again with --loop); False if interrupted."""

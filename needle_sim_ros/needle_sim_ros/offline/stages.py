@@ -27,7 +27,7 @@ from needle_interfaces.msg import NeedleShape
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, load_camera_calibration
+from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, rig_from_calibration_files
 from needle_vision.streams.image_codec import ImageFormatError, compressed_message_to_gray, image_message_to_gray
 from needle_vision.streams.pairing import StampPairer as FramePairer
 from needle_common.cdr import PoseStamped
@@ -157,8 +157,7 @@ class StereoStage:
         self.image_topics = (f"/left/image_raw{suffix}", f"/right/image_raw{suffix}")
         self._to_gray = compressed_message_to_gray if compressed else image_message_to_gray
         if values["left_calibration_file"]:
-            rig = StereoRig.from_camera_calibrations(load_camera_calibration(values["left_calibration_file"]),
-                                                     load_camera_calibration(values["right_calibration_file"]))
+            rig = rig_from_calibration_files(values["left_calibration_file"], values["right_calibration_file"])
             self.pipeline = self._pipeline(rig)
 
     def _pipeline(self, rig):

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import yaml
 
+from needle_common.message_fields import field_getter
 from needle_common.package_files import resolve_path
 from needle_common.transforms import RigidTransform
 
@@ -138,7 +139,7 @@ def camera_info_fields(calibration: CameraCalibration) -> dict[str, Any]:
 
 def calibration_from_camera_info(info: Mapping[str, Any] | Any, camera_name: str = "camera") -> CameraCalibration:
     """From ``sensor_msgs/CameraInfo`` fields, given as a mapping or any object with those attributes."""
-    get = info.get if isinstance(info, Mapping) else (lambda key, default=None: getattr(info, key, default))
+    get = field_getter(info)
     k = np.asarray(get("k"), dtype=float)
     if k.size != 9 or not np.any(k):
         raise CalibrationError(f"camera '{camera_name}': camera_info has no intrinsics (K is empty or zero): "
@@ -229,6 +230,11 @@ class StereoRig:
 
 # --- the rig from camera_info topics ------------------------------------------------------------------------
 
+def rig_from_calibration_files(left: str | Path, right: str | Path) -> StereoRig:
+    """The rig of the left and right cameras' ``camera_calibration`` YAML files (:func:`load_camera_calibration`)."""
+    return StereoRig.from_camera_calibrations(load_camera_calibration(left), load_camera_calibration(right))
+
+
 def rig_from_camera_infos(left: Mapping[str, Any] | Any, right: Mapping[str, Any] | Any) -> StereoRig:
     """The rig of the two cameras' ``sensor_msgs/CameraInfo`` (message objects or mappings of their fields): the
     calibration of the node, the offline command and the offline pipeline when no calibration files are given.
@@ -255,7 +261,7 @@ class CameraInfoRig:
         CalibrationError when the two do not make a stereo rig (once per change)."""
         if side not in ("left", "right"):
             raise ValueError(f"side must be 'left' or 'right', got {side!r}")
-        get = info.get if isinstance(info, Mapping) else (lambda name: getattr(info, name))
+        get = field_getter(info)
         key = tuple(str(get(name)) if name == "distortion_model" else tuple(np.asarray(get(name), float).ravel())
                     for name in self.FIELDS)
         if self._keys.get(side) == key:

@@ -42,7 +42,7 @@ from needle_common.ros.runner import run_node
 from needle_common.ros.tf_output import TfOutput, transform_stamped
 from needle_common.transforms import quaternions_from_x_axes
 from needle_vision.streams.base_pose import store_base_pose
-from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, load_camera_calibration
+from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, rig_from_calibration_files
 from needle_vision.streams.image_codec import (ImageFormatError, compressed_message_to_gray, image_fields,
                                                image_message_to_gray)
 from needle_vision.streams.outputs import debug_image, pointcloud2_fields
@@ -81,8 +81,8 @@ class NeedleStereoNode(Node):
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         if self.values["left_calibration_file"]:
             try:
-                rig = StereoRig.from_camera_calibrations(load_camera_calibration(self.values["left_calibration_file"]),
-                                                         load_camera_calibration(self.values["right_calibration_file"]))
+                rig = rig_from_calibration_files(self.values["left_calibration_file"],
+                                                 self.values["right_calibration_file"])
             except CalibrationError as error:
                 raise ParameterError(f"parameter 'left_calibration_file'/'right_calibration_file': {error}") from error
             self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left, self.base_poses)

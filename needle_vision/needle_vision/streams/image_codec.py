@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from needle_common.cdr import aligned, cdr_string
+from needle_common.message_fields import field_getter
 
 #: encoding -> (dtype, channels)
 ENCODINGS = {"mono8": (np.uint8, 1), "mono16": (np.uint16, 1), "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3)}
@@ -63,7 +64,7 @@ def image_to_gray(height: int, width: int, encoding: str, step: int, data: Any,
 
 def image_message_to_gray(message: Mapping[str, Any] | Any) -> np.ndarray:
     """:func:`image_to_gray` of a message object (rclpy or decoded from a bag) or a mapping of its fields."""
-    get = message.get if isinstance(message, Mapping) else (lambda key: getattr(message, key))
+    get = field_getter(message)
     return image_to_gray(int(get("height")), int(get("width")), str(get("encoding")), int(get("step")),
                          get("data"), bool(get("is_bigendian")))
 
@@ -183,7 +184,7 @@ def compressed_to_gray(data: Any, image_format: str) -> np.ndarray:
 
 def compressed_message_to_gray(message: Mapping[str, Any] | Any) -> np.ndarray:
     """:func:`compressed_to_gray` of a ``CompressedImage`` message object or a mapping of its fields."""
-    get = message.get if isinstance(message, Mapping) else (lambda key: getattr(message, key))
+    get = field_getter(message)
     return compressed_to_gray(get("data"), str(get("format")))
 
 
@@ -205,27 +206,6 @@ def compress_image(array: np.ndarray, encoding: str, codec: str = "png", quality
     if not ok:
         raise ImageFormatError(f"OpenCV could not encode a {encoding} image as {codec}")
     return f"{encoding}; {codec} compressed {target}", data.tobytes()
-
-
-def serialize_compressed_image(sec: int, nanosec: int, frame_id: str, image_format: str, data: bytes) -> bytes:
-    """A ``sensor_msgs/CompressedImage`` as CDR bytes (little-endian XCDR1, as rclpy serializes it)."""
-    out = bytearray(b"\x00\x01\x00\x00")
-
-    def pad() -> None:
-        out.extend(bytes(-(len(out) - 4) % 4))
-
-    def string(text: str) -> None:
-        raw = text.encode()
-        pad()
-        out.extend(struct.pack("<I", len(raw) + 1) + raw + b"\x00")
-
-    out.extend(struct.pack("<iI", sec, nanosec))
-    string(frame_id)
-    string(image_format)
-    pad()
-    out.extend(struct.pack("<I", len(data)))
-    out.extend(data)
-    return bytes(out)
 
 
 def deserialize_image(data: bytes, compressed: bool) -> SerializedImage:
