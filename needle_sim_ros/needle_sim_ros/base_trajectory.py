@@ -50,8 +50,7 @@ class PoseVerdict(Enum):
 
 
 class PoseSample(NamedTuple):
-    """One measured base pose: time [s], position [m] and unit quaternion (x, y, z, w), world frame (a tuple: one
-    is made per pose, at up to 1 kHz)."""
+    """One measured base pose: time [s], position [m] and unit quaternion (x, y, z, w), world frame."""
 
     t: float
     position: np.ndarray
@@ -83,13 +82,11 @@ class BaseTrajectory:
         self._served = np.array([-np.inf])  # latest time whose motion was served (the integrator's history)
         self._checks = np.array([limits.max_position, limits.quaternion_tolerance, limits.max_position_jump,
                                  limits.max_orientation_jump])
-        # The arguments of trajectory_motions before the times: the same arrays (changed in place) and limits for
-        # good. The newest samples (at least ``capacity``, at most twice that), oldest first, for the fit; the C2
-        # corrections still fading out (module docstring), oldest first: the differences (previous minus current
-        # served motion) of [position, velocity, acceleration, rotation vector (world), angular velocity, angular
-        # acceleration] at their start times, (k, 6, 3), the start times and blend lengths [s]; the fit (quadratic
-        # coefficients, recomputed only when a sample arrived); the counts; the served time, the motion served then
-        # and a scratch motion.
+        # The arguments of trajectory_motions before the times, the same arrays (changed in place) for good: the
+        # newest samples (at least ``capacity``, at most twice that), oldest first; the C2 corrections still fading
+        # out (module docstring), oldest first: previous minus current served [position, velocity, acceleration,
+        # rotation vector (world), angular velocity, angular acceleration] (k, 6, 3), start times, blend lengths [s];
+        # the fit (refitted once a sample arrived); the counts; the served time, the motion then, a scratch motion.
         self.buffers = (np.empty(2 * capacity), np.empty((2 * capacity, 3)), np.empty((2 * capacity, 4)),
                         np.zeros((CORRECTION_CAPACITY, 6, 3)), np.zeros(CORRECTION_CAPACITY),
                         np.ones(CORRECTION_CAPACITY), np.zeros((3, 6)), self._counts, self._served,
@@ -127,13 +124,10 @@ class BaseTrajectory:
             self.latest_time = t
         return verdict
 
-    def _within_limits(self, distance: float, angle: float) -> bool:
-        return distance <= self.limits.max_position_jump and angle <= self.limits.max_orientation_jump
-
     def _handle_jump(self, sample: PoseSample) -> PoseVerdict:
         rejected = self._rejected
-        if rejected and not self._within_limits(*_pose_deviation(rejected[-1].position, rejected[-1].orientation,
-                                                                 sample.position, sample.orientation)):
+        if rejected and not _within_jump_limits(*_pose_deviation(rejected[-1].position, rejected[-1].orientation,
+                                                                 sample.position, sample.orientation), self._checks):
             rejected.clear()
         rejected.append(sample)
         if len(rejected) < self.limits.reanchor_after:
@@ -215,13 +209,18 @@ def _offer_sample(sample_times: np.ndarray, positions: np.ndarray, orientations:
         if t <= t_latest:
             return 4  # OUT_OF_ORDER
         # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
-        if not (distance <= checks[2] and angle <= checks[3]):
+        if not _within_jump_limits(distance, angle, checks):
             return 5  # JUMP
         if t - t_latest > gap and distance > resume_tolerance:
             _forget(counts, served)
             verdict = 8  # RESTARTED
     _append_sample(sample_times, positions, orientations, counts, t, position, orientation)
     return verdict
+
+
+@njit(cache=True)
+def _within_jump_limits(distance: float, angle: float, checks: np.ndarray) -> bool:
+    return distance <= checks[2] and angle <= checks[3]
 
 
 @njit(cache=True)
@@ -243,11 +242,8 @@ def trajectory_motions(sample_times: np.ndarray, positions: np.ndarray, orientat
     coeffs = fit[:counts[FIT_ROWS]]
     _evaluate_motions(coeffs, t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends,
                       counts[CORRECTIONS], times, out)
-    latest = -1
-    for i in range(times.size):
-        if times[i] > served[0] and (latest < 0 or times[i] > times[latest]):
-            latest = i
-    if latest >= 0:
+    latest = np.argmax(times) if times.size else 0
+    if times.size and times[latest] > served[0]:
         served[0] = times[latest]
         served_motion[0] = out[latest]
     elif refit and served[0] > -np.inf:  # the new fit's motion at the time served
