@@ -43,7 +43,8 @@ class BaseInput:
                  flange_offset: tuple = (np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])), twist_timeout: float = 0.05,
                  limits: InputLimits = InputLimits(), base_at: Callable[[float], BaseMotion] | None = None,
                  motions_at: MotionsAt | None = None) -> None:
-        self.trajectory = BaseTrajectory() if trajectory is None else trajectory
+        # never replaced: a compiled plan (the stepper's AdvancePlan) holds its buffers
+        self._trajectory = BaseTrajectory() if trajectory is None else trajectory
         # [twist timeout, twist [t, v, w] (NaN t: none), offset position, offset rotation (row-major)]: what the
         # compiled advance reads, in one array (one argument)
         self.packed = np.full(PACKED_SIZE, np.nan)
@@ -54,6 +55,10 @@ class BaseInput:
         self.limits = limits
         self.base_at = base_at
         self.motions_at = motions_at
+
+    @property
+    def trajectory(self) -> BaseTrajectory:
+        return self._trajectory
 
     @property
     def twist_timeout(self) -> float:
@@ -84,15 +89,7 @@ class BaseInput:
     def offer_pose(self, t: float, position, orientation, gap: float) -> PoseVerdict:
         """Offer a flange pose to the trajectory; a pose more than ``gap`` [s] after the previous one and farther
         than ``limits.resume_tolerance`` from it starts the trajectory anew there (RESTARTED)."""
-        trajectory = self.trajectory
-        latest = trajectory.latest
-        verdict = trajectory.offer(t, position, orientation)
-        if (latest is not None and t - latest.t > gap and verdict in (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED)
-                and magnitude(np.asarray(position, dtype=float) - latest.position) > self.limits.resume_tolerance):
-            trajectory.clear()
-            trajectory.offer(t, position, orientation)
-            return PoseVerdict.RESTARTED
-        return verdict
+        return self.trajectory.offer(t, position, orientation, gap, self.limits.resume_tolerance)
 
     def set_twist(self, t: float, linear_velocity: np.ndarray, angular_velocity: np.ndarray) -> None:
         """Velocity feed-forward of the flange (world frame); used instead of the estimate while fresh.
@@ -134,5 +131,5 @@ class BaseInput:
         return [self.base_at(float(t)) for t in times]
 
     def pose_age(self, now: float) -> float:
-        latest = self.trajectory.latest
-        return now - latest.t if latest is not None else float("inf")
+        latest = self._trajectory.latest_time
+        return now - latest if latest is not None else float("inf")

@@ -50,8 +50,7 @@ class PoseVerdict(Enum):
 
 
 class PoseSample(NamedTuple):
-    """One measured base pose: time [s], position [m] and unit quaternion (x, y, z, w), world frame (a tuple: one
-    is made per pose, at up to 1 kHz)."""
+    """One measured base pose: time [s], position [m] and unit quaternion (x, y, z, w), world frame."""
 
     t: float
     position: np.ndarray
@@ -76,99 +75,68 @@ class BaseTrajectory:
 
     def __init__(self, limits: TrajectoryLimits = TrajectoryLimits(), capacity: int = 256) -> None:
         self.limits = limits
-        # The newest samples (at least ``capacity``, at most twice that) as arrays, oldest first, for the fit.
-        self._capacity = capacity
-        self._times = np.empty(2 * capacity)
-        self._positions = np.empty((2 * capacity, 3))
-        self._orientations = np.empty((2 * capacity, 4))
-        self._count = 0
-        self._latest: PoseSample | None = None
         self._rejected: list[PoseSample] = []
-        self._fit: np.ndarray | None = None  # quadratic coefficients, recomputed only when a sample arrives
-        self._served: float | None = None  # latest time whose motion was served (the integrator's history)
-        # The C2 corrections still fading out (module docstring), oldest first: the differences (previous minus
-        # current served motion) of [position, velocity, acceleration, rotation vector (world), angular velocity,
-        # angular acceleration] at their start times, (k, 6, 3), the start times and blend lengths [s]
-        self._corrections = np.zeros((CORRECTION_CAPACITY, 6, 3))
-        self._correction_starts = np.zeros(CORRECTION_CAPACITY)
-        self._correction_blends = np.ones(CORRECTION_CAPACITY)
-        self._correction_count = 0
-        self._previous: tuple[PoseSample, np.ndarray] | None = None  # newest sample and fit of the previous fit
-        # the first 8 arguments of trajectory_motions: the same arrays (changed in place) and limits for good
-        self.buffers = (self._times, self._positions, self._orientations, self._corrections, self._correction_starts,
-                        self._correction_blends, float(limits.window), float(limits.max_extrapolation))
+        self.latest_time: float | None = None  # stamp [s] of the newest sample
+        # [samples, corrections, fit rows (3, 0 with fewer than 3 samples in the window, -1: refit due)]
+        self._counts = np.array([0, 0, -1], dtype=np.int64)
+        self._served = np.array([-np.inf])  # latest time whose motion was served (the integrator's history)
+        self._checks = np.array([limits.max_position, limits.quaternion_tolerance, limits.max_position_jump,
+                                 limits.max_orientation_jump])
+        # The arguments of trajectory_motions before the times, the same arrays (changed in place) for good: the
+        # newest samples (at least ``capacity``, at most twice that), oldest first; the C2 corrections still fading
+        # out (module docstring), oldest first: previous minus current served [position, velocity, acceleration,
+        # rotation vector (world), angular velocity, angular acceleration] (k, 6, 3), start times, blend lengths [s];
+        # the fit (refitted once a sample arrived); the counts; the served time, the motion then, a scratch motion.
+        self.buffers = (np.empty(2 * capacity), np.empty((2 * capacity, 3)), np.empty((2 * capacity, 4)),
+                        np.zeros((CORRECTION_CAPACITY, 6, 3)), np.zeros(CORRECTION_CAPACITY),
+                        np.ones(CORRECTION_CAPACITY), np.zeros((3, 6)), self._counts, self._served,
+                        np.empty((1, 19)), np.empty((1, 19)), float(limits.window), float(limits.max_extrapolation))
 
     @property
     def latest(self) -> PoseSample | None:
-        return self._latest
+        """The newest sample (a copy), None before the first."""
+        count = self._counts[SAMPLES]
+        if not count:
+            return None
+        times, positions, orientations = self.buffers[:3]
+        return PoseSample(float(times[count - 1]), positions[count - 1].copy(), orientations[count - 1].copy())
 
     def clear(self) -> None:
-        self._count = 0
-        self._latest = None
+        _forget(self._counts, self._served)
         self._rejected.clear()
-        self._fit = None
-        self._served = None
-        self._correction_count = 0
-        self._previous = None
+        self.latest_time = None
 
-    def _append(self, sample: PoseSample) -> None:
-        if self._count == self._times.size:  # full: keep the newest half
-            keep = slice(self._count - self._capacity, self._count)
-            for array in (self._times, self._positions, self._orientations):
-                array[:self._capacity] = array[keep]
-            self._count = self._capacity
-        i = self._count
-        self._times[i], self._positions[i], self._orientations[i] = sample.t, sample.position, sample.orientation
-        self._count += 1
-        self._latest = sample
-        self._fit = None
-
-    def offer(self, t: float, position, orientation) -> PoseVerdict:
-        """Validate a pose sample and add it to the buffer; the verdict says what happened and why."""
+    def offer(self, t: float, position, orientation, gap: float = np.inf, resume_tolerance: float = 0.0) -> PoseVerdict:
+        """Validate a pose sample and add it to the buffer; the verdict says what happened and why. A pose more
+        than ``gap`` [s] after the newest and farther than ``resume_tolerance`` [m] from it starts the trajectory
+        anew there (RESTARTED)."""
         # Own, writable, contiguous copies: a view of a message buffer (read-only) would make numba compile every
         # kernel that takes a sample a second time, at the node's first pose.
         position = np.array(position, dtype=float)
         orientation = np.array(orientation, dtype=float)
         t = float(t)
-        latest, limits = self._latest, self.limits
-        reference = latest if latest is not None else _ORIGIN
-        norm, rescaled, largest, distance, angle = _checked_pose(
-            t, position, orientation, reference.position, reference.orientation, latest is not None)
-        if not norm >= 0.0:
-            return PoseVerdict.NOT_FINITE
-        if norm < 1e-9:
-            return PoseVerdict.ZERO_QUATERNION
-        if largest > limits.max_position:  # per axis: no overflow for huge finite values
-            return PoseVerdict.OUT_OF_RANGE
-        verdict = PoseVerdict.ACCEPTED if abs(norm - 1.0) <= limits.quaternion_tolerance and not rescaled \
-            else PoseVerdict.NORMALIZED
-        sample = PoseSample(t, position, orientation)  # the unit quaternion now
-        if latest is not None:
-            if t <= latest.t:
-                return PoseVerdict.OUT_OF_ORDER
-            # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
-            if not self._within_limits(distance, angle):
-                return self._handle_jump(sample)
-        self._rejected.clear()
-        self._append(sample)
+        verdict = VERDICTS[_offer_sample(*self.buffers[:3], self._counts, self._served, self._checks, t, position,
+                                         orientation, gap, resume_tolerance)]
+        if verdict is PoseVerdict.JUMP:
+            return self._handle_jump(PoseSample(t, position, orientation))  # the unit quaternion now
+        if verdict in ADDED:
+            self._rejected.clear()
+            self.latest_time = t
         return verdict
 
-    def _deviation(self, reference: PoseSample, sample: PoseSample) -> tuple[float, float]:
-        return _pose_deviation(reference.position, reference.orientation, sample.position, sample.orientation)
-
-    def _within_limits(self, distance: float, angle: float) -> bool:
-        return distance <= self.limits.max_position_jump and angle <= self.limits.max_orientation_jump
-
     def _handle_jump(self, sample: PoseSample) -> PoseVerdict:
-        if self._rejected and not self._within_limits(*self._deviation(self._rejected[-1], sample)):
-            self._rejected.clear()
-        self._rejected.append(sample)
-        if len(self._rejected) < self.limits.reanchor_after:
+        rejected = self._rejected
+        if rejected and not _within_jump_limits(*_pose_deviation(rejected[-1].position, rejected[-1].orientation,
+                                                                 sample.position, sample.orientation), self._checks):
+            rejected.clear()
+        rejected.append(sample)
+        if len(rejected) < self.limits.reanchor_after:
             return PoseVerdict.JUMP
-        rejected = list(self._rejected)
+        kept = list(rejected)
         self.clear()
-        for kept in rejected:
-            self._append(kept)
+        for pose in kept:
+            _append_sample(*self.buffers[:3], self._counts, pose.t, pose.position, pose.orientation)
+        self.latest_time = sample.t
         return PoseVerdict.REANCHORED
 
     def motions_at(self, times: np.ndarray) -> np.ndarray:
@@ -177,59 +145,110 @@ class BaseTrajectory:
 
         Within the window the quadratic least-squares fit is evaluated (interpolation). Beyond the newest sample
         the fit is extrapolated for at most ``max_extrapolation``; after that the pose is held with zero velocity
-        and acceleration. With fewer than 3 samples in the window: the newest pose, at rest.
+        and acceleration. With fewer than 3 samples in the window: the newest pose, at rest. ValueError before the
+        first sample.
         """
         times = np.asarray(times, dtype=float)
         out = np.empty((len(times), 19))
-        fit, corrections = trajectory_motions(*self.buffers, *self.fit_state(), times, out)
-        self.take_fit(fit, corrections, float(times.max()) if times.size else None)
+        trajectory_motions(*self.buffers, times, out)
         return out
 
-    def fit_state(self) -> tuple:
-        """The 13 arguments of :func:`trajectory_motions` between :attr:`buffers` and the times: the newest sample,
-        the current fit (or none, to fit the window ending at the newest sample anew: refit once per new sample,
-        continuing the previously served motion at the last served time) and the number of corrections.
-        ValueError before the first sample."""
-        newest = self._latest
-        if newest is None:
-            raise ValueError("no base pose sample yet")
-        refit = self._fit is None
-        continued = refit and self._served is not None and self._previous is not None
-        previous_sample, previous_fit = self._previous if continued else (newest, _NO_FIT)
-        return (self._count, newest.t, newest.position, newest.orientation, _NO_FIT if refit else self._fit, refit,
-                continued, self._served if continued else 0.0, previous_sample.t, previous_sample.position,
-                previous_sample.orientation, previous_fit, self._correction_count)
 
-    def take_fit(self, fit: np.ndarray, corrections: int, served: float | None) -> None:
-        """Keep what :func:`trajectory_motions` returned after serving the motions at times up to ``served`` (None:
-        at no time)."""
-        if self._fit is None:
-            self._previous = (self._latest, fit)
-        self._fit, self._correction_count = fit, corrections
-        if served is not None and (self._served is None or served > self._served):
-            self._served = served
-
-
-_NO_FIT = np.zeros((0, 6))
+SAMPLES, CORRECTIONS, FIT_ROWS = 0, 1, 2  # BaseTrajectory's counts
 CORRECTION_CAPACITY = 128  # corrections kept at once (up to ~window / sample interval); beyond, the oldest is dropped
+VERDICTS = tuple(PoseVerdict)  # by the code _offer_sample returns
+ADDED = (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED, PoseVerdict.RESTARTED)  # the verdicts of an added sample
+
+
+@njit(cache=True)
+def _forget(counts: np.ndarray, served: np.ndarray) -> None:
+    """No sample, no fit, no correction, nothing served."""
+    counts[SAMPLES], counts[CORRECTIONS], counts[FIT_ROWS] = 0, 0, -1
+    served[0] = -np.inf
+
+
+@njit(cache=True)
+def _append_sample(sample_times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, counts: np.ndarray,
+                   t: float, position: np.ndarray, orientation: np.ndarray) -> None:
+    """Add the newest sample (a full buffer keeps its newest half first); its fit is due."""
+    count = counts[SAMPLES]
+    if count == sample_times.size:
+        capacity = count // 2
+        sample_times[:capacity] = sample_times[capacity:count]
+        positions[:capacity] = positions[capacity:count]
+        orientations[:capacity] = orientations[capacity:count]
+        count = capacity
+    sample_times[count] = t
+    positions[count] = position
+    orientations[count] = orientation
+    counts[SAMPLES], counts[FIT_ROWS] = count + 1, -1
+
+
+@njit(cache=True)
+def _offer_sample(sample_times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, counts: np.ndarray,
+                  served: np.ndarray, checks: np.ndarray, t: float, position: np.ndarray, orientation: np.ndarray,
+                  gap: float, resume_tolerance: float) -> int:
+    """The code (index in :data:`VERDICTS`) of a pose sample offered to the trajectory, added if accepted
+    (:meth:`BaseTrajectory.offer`; ``checks``: max_position, quaternion_tolerance, max_position_jump,
+    max_orientation_jump); JUMP: beyond the jump limits, for the caller to keep. ``orientation`` (the caller's own
+    copy) becomes the unit quaternion in place."""
+    count = counts[SAMPLES]
+    latest = max(count - 1, 0)  # (row 0 unread without a sample)
+    has_latest = count > 0
+    norm, rescaled, largest, distance, angle = _checked_pose(t, position, orientation, positions[latest],
+                                                             orientations[latest], has_latest)
+    if not norm >= 0.0:
+        return 2  # NOT_FINITE
+    if norm < 1e-9:
+        return 3  # ZERO_QUATERNION
+    if largest > checks[0]:  # per axis: no overflow for huge finite values
+        return 7  # OUT_OF_RANGE
+    verdict = 0 if abs(norm - 1.0) <= checks[1] and not rescaled else 1  # ACCEPTED, NORMALIZED
+    if has_latest:
+        t_latest = sample_times[latest]
+        if t <= t_latest:
+            return 4  # OUT_OF_ORDER
+        # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
+        if not _within_jump_limits(distance, angle, checks):
+            return 5  # JUMP
+        if t - t_latest > gap and distance > resume_tolerance:
+            _forget(counts, served)
+            verdict = 8  # RESTARTED
+    _append_sample(sample_times, positions, orientations, counts, t, position, orientation)
+    return verdict
+
+
+@njit(cache=True)
+def _within_jump_limits(distance: float, angle: float, checks: np.ndarray) -> bool:
+    return distance <= checks[2] and angle <= checks[3]
 
 
 @njit(cache=True)
 def trajectory_motions(sample_times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, deltas: np.ndarray,
-                       starts: np.ndarray, blends: np.ndarray, window: float, max_extrapolation: float, count: int,
-                       t_newest: float, p_newest: np.ndarray, q_newest: np.ndarray, fit: np.ndarray, refit: bool,
-                       continued: bool, served: float, t_previous: float, p_previous: np.ndarray,
-                       q_previous: np.ndarray, previous_fit: np.ndarray, corrections: int, times: np.ndarray,
-                       out: np.ndarray) -> tuple[np.ndarray, int]:
-    """Packed motions at ``times`` into ``out`` (:meth:`BaseTrajectory.motions_at`) from the fit, fitted anew first
-    if ``refit`` (:func:`_refit_window`); returns (fit, number of corrections)."""
+                       starts: np.ndarray, blends: np.ndarray, fit: np.ndarray, counts: np.ndarray,
+                       served: np.ndarray, served_motion: np.ndarray, scratch: np.ndarray, window: float,
+                       max_extrapolation: float, times: np.ndarray, out: np.ndarray) -> None:
+    """Packed motions at ``times`` into ``out`` (:meth:`BaseTrajectory.motions_at`; the arguments before the times:
+    :attr:`BaseTrajectory.buffers`) from the fit, fitted anew first if a sample arrived since
+    (:func:`_refit_window`); the latest time served and the motion then are kept (``served``, ``served_motion``)."""
+    count = counts[SAMPLES]
+    if count == 0:
+        raise ValueError("no base pose sample yet")
+    t_newest, p_newest, q_newest = sample_times[count - 1], positions[count - 1], orientations[count - 1]
+    refit = counts[FIT_ROWS] < 0
     if refit:
-        fit, corrections = _refit_window(sample_times, positions, orientations, count, t_newest, p_newest, q_newest,
-                                         window, max_extrapolation, continued, served, t_previous, p_previous,
-                                         q_previous, previous_fit, deltas, starts, blends, corrections)
-    _evaluate_motions(fit, t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends, corrections,
-                      times, out)
-    return fit, corrections
+        _refit_window(sample_times, positions, orientations, count, window, max_extrapolation, deltas, starts,
+                      blends, fit, counts, served, served_motion, scratch)
+    coeffs = fit[:counts[FIT_ROWS]]
+    _evaluate_motions(coeffs, t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends,
+                      counts[CORRECTIONS], times, out)
+    latest = np.argmax(times) if times.size else 0
+    if times.size and times[latest] > served[0]:
+        served[0] = times[latest]
+        served_motion[0] = out[latest]
+    elif refit and served[0] > -np.inf:  # the new fit's motion at the time served
+        _evaluate_motions(coeffs, t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends,
+                          counts[CORRECTIONS], served, served_motion)
 
 
 @njit(cache=True)
@@ -244,41 +263,39 @@ def _evaluate_motions(coeffs: np.ndarray, t_newest: float, p_newest: np.ndarray,
 
 
 @njit(cache=True)
-def _refit_window(times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, count: int, t_newest: float,
-                  p_newest: np.ndarray, q_newest: np.ndarray, window: float, max_extrapolation: float,
-                  continued: bool, served: float, t_previous: float, p_previous: np.ndarray, q_previous: np.ndarray,
-                  previous_fit: np.ndarray, deltas: np.ndarray, starts: np.ndarray, blends: np.ndarray,
-                  corrections: int) -> tuple[np.ndarray, int]:
-    """(fit, number of corrections) of the window ending at the newest sample (one call per new sample).
+def _refit_window(sample_times: np.ndarray, positions: np.ndarray, orientations: np.ndarray, count: int,
+                  window: float, max_extrapolation: float, deltas: np.ndarray, starts: np.ndarray,
+                  blends: np.ndarray, fit: np.ndarray, counts: np.ndarray, served: np.ndarray,
+                  served_motion: np.ndarray, scratch: np.ndarray) -> None:
+    """The fit and corrections of the window ending at the newest sample (one call per new sample), in place.
 
-    Fit: quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest, (0, 6)
-    with fewer than 3 samples in the window. If ``continued``, the corrections (``deltas``, ``starts``, ``blends``,
-    changed in place) lose those that have ended by ``served`` and gain the difference at ``served``
-    between the previous served motion (previous newest sample and fit, with the corrections) and the new one (the
-    new fit, with the same corrections); otherwise there are none."""
-    first = np.searchsorted(times[:count], t_newest - window)
-    if count - first < 3:
-        fit = np.zeros((0, 6))
-    else:
-        fit = _fit_samples(times[first:count] - t_newest, positions[first:count], orientations[first:count],
-                           q_newest, max(window, 1e-9))
-    if not continued:
-        return fit, 0
-    at = np.array([served])
-    previous, current = np.empty((1, 19)), np.empty((1, 19))
-    _evaluate_motions(previous_fit, t_previous, p_previous, q_previous, max_extrapolation, deltas, starts, blends,
-                      corrections, at, previous)
-    _evaluate_motions(fit, t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends, corrections,
-                      at, current)
+    Fit: quadratic least-squares coefficients (3, 6) of [position, rotation vector] in tau = t - t_newest, no rows
+    with fewer than 3 samples in the window. Once a motion was served, the corrections (``deltas``, ``starts``,
+    ``blends``) lose those that have ended by the served time and gain the difference then between the served
+    motion and the new one (the new fit, with the same corrections); otherwise there are none."""
+    t_newest, p_newest, q_newest = sample_times[count - 1], positions[count - 1], orientations[count - 1]
+    first = np.searchsorted(sample_times[:count], t_newest - window)
+    rows = 0 if count - first < 3 else 3
+    if rows:
+        _fit_samples(sample_times[first:count], t_newest, positions[first:count], orientations[first:count],
+                     q_newest, max(window, 1e-9), fit)
+    counts[FIT_ROWS] = rows
+    at = served[0]
+    if at == -np.inf:
+        counts[CORRECTIONS] = 0
+        return
+    corrections = counts[CORRECTIONS]
+    _evaluate_motions(fit[:rows], t_newest, p_newest, q_newest, max_extrapolation, deltas, starts, blends,
+                      corrections, served, scratch)
     kept = 0
     for k in range(corrections):  # the steps still to come end after served; a full list drops its oldest
-        if starts[k] + blends[k] > served and not (k == 0 and corrections == deltas.shape[0]):
+        if starts[k] + blends[k] > at and not (k == 0 and corrections == deltas.shape[0]):
             deltas[kept], starts[kept], blends[kept] = deltas[k], starts[k], blends[k]
             kept += 1
-    interval = (t_newest - times[first]) / max(count - 1 - first, 1)
-    deltas[kept] = _motion_difference(previous[0], current[0])
-    starts[kept], blends[kept] = served, min(max(t_newest - served, interval), window)
-    return fit, kept + 1
+    interval = (t_newest - sample_times[first]) / max(count - 1 - first, 1)
+    _motion_difference(served_motion[0], scratch[0], deltas[kept])
+    starts[kept], blends[kept] = at, min(max(t_newest - at, interval), window)
+    counts[CORRECTIONS] = kept + 1
 
 
 @njit(cache=True)
@@ -286,9 +303,6 @@ def _quaternion_norm(t: float, position: np.ndarray, orientation: np.ndarray) ->
     """|orientation|, or NaN if any of t, position, orientation is not finite."""
     nan_if_not_finite = (t + np.sum(position) + np.sum(orientation)) * 0.0  # inf * 0 and NaN * 0 are NaN
     return np.sqrt(np.sum(orientation ** 2)) + nan_if_not_finite
-
-
-_ORIGIN = PoseSample(0.0, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))  # reference before the first sample
 
 
 @njit(cache=True)
@@ -320,15 +334,25 @@ def _pose_deviation(p_ref: np.ndarray, q_ref: np.ndarray, p: np.ndarray, q: np.n
 
 
 @njit(cache=True)
-def _fit_samples(tau: np.ndarray, positions: np.ndarray, orientations: np.ndarray, reference: np.ndarray,
-                 scale: float) -> np.ndarray:
-    """Fit of [position, rotation vector relative to ``reference``] at times tau (see :func:`_quadratic_fit`)."""
-    values = np.empty((tau.size, 6))
+def _fit_samples(times: np.ndarray, t_newest: float, positions: np.ndarray, orientations: np.ndarray,
+                 reference: np.ndarray, scale: float, coeffs: np.ndarray) -> None:
+    """Fit of [position, rotation vector relative to ``reference``] at tau = times - t_newest into ``coeffs``
+    (see :func:`_quadratic_fit`)."""
     inverse = conjugate(reference)
-    for k in range(tau.size):
-        values[k, :3] = positions[k]
-        values[k, 3:] = to_rotation_vector(multiply(inverse, orientations[k]))
-    return _quadratic_fit(tau, values, scale)
+    coeffs[:, :] = 0.0  # the right-hand sides first
+    s0 = s1 = s2 = s3 = s4 = 0.0
+    for k in range(times.size):
+        x = (times[k] - t_newest) / scale
+        x2 = x * x
+        x3 = x2 * x
+        s0, s1, s2, s3, s4 = s0 + 1.0, s1 + x, s2 + x2, s3 + x3, s4 + x3 * x
+        rotation = to_rotation_vector(multiply(inverse, orientations[k]))
+        for column in range(6):  # no temporary array per sample and power
+            value = positions[k, column] if column < 3 else rotation[column - 3]
+            coeffs[0, column] += value
+            coeffs[1, column] += x * value
+            coeffs[2, column] += x2 * value
+    _quadratic_fit(s0, s1, s2, s3, s4, scale, coeffs)
 
 
 @njit(cache=True)
@@ -361,17 +385,16 @@ def _evaluate_fit(coeffs: np.ndarray, t_newest: float, p_newest: np.ndarray, q_n
 
 
 @njit(cache=True)
-def _motion_difference(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
-    """Packed motion ``previous`` minus ``current`` as the (6, 3) correction rows of :func:`_apply_correction`; the
-    rotation as the world-frame rotation vector from the current to the previous orientation."""
-    delta = np.empty((6, 3))
+def _motion_difference(previous: np.ndarray, current: np.ndarray, delta: np.ndarray) -> None:
+    """Packed motion ``previous`` minus ``current`` as the (6, 3) correction rows ``delta`` of
+    :func:`_apply_correction`; the rotation as the world-frame rotation vector from the current to the previous
+    orientation."""
     delta[0] = previous[0:3] - current[0:3]
     delta[1] = previous[7:10] - current[7:10]
     delta[2] = previous[13:16] - current[13:16]
     delta[3] = to_rotation_vector(multiply(previous[3:7], conjugate(current[3:7])))
     delta[4] = previous[10:13] - current[10:13]
     delta[5] = previous[16:19] - current[16:19]
-    return delta
 
 
 @njit(cache=True)
@@ -406,33 +429,18 @@ def _apply_correction(delta: np.ndarray, start: float, blend: float, hold_time: 
 
 
 @njit(cache=True)
-def _quadratic_fit(times: np.ndarray, values: np.ndarray, scale: float) -> np.ndarray:
-    """Coefficients c (3, m) of the least-squares quadratic values ~ c0 + c1 tau + c2 tau^2.
-
-    Normal equations in tau / scale (scale = window length), so the 3 x 3 system is well conditioned.
-    """
-    # normal matrix [[s0, s1, s2], [s1, s2, s3], [s2, s3, s4]] (s_k = sum x^k) and right-hand sides
-    x = times / scale
-    s = np.zeros(5)
-    rhs = np.zeros((3, values.shape[1]))
-    for k in range(x.size):
-        power = 1.0
-        for p in range(5):
-            s[p] += power
-            if p < 3:
-                for column in range(values.shape[1]):  # no temporary array per sample and power
-                    rhs[p, column] += power * values[k, column]
-            power *= x[k]
+def _quadratic_fit(a: float, b: float, c: float, d: float, e: float, scale: float, coeffs: np.ndarray) -> None:
+    """Coefficients c (3, m) of the least-squares quadratic values ~ c0 + c1 tau + c2 tau^2, in place of the
+    right-hand sides ``coeffs`` (sum x^p values, p = 0, 1, 2) of the normal equations in x = tau / scale (scale =
+    window length: the 3 x 3 system is well conditioned) with the normal matrix [[a, b, c], [b, c, d], [c, d, e]]
+    (sums of x^0 ... x^4)."""
     # symmetric 3 x 3 inverse by cofactors (the normal matrix of >= 3 distinct times is positive definite)
-    a, b, c, d, e = s[0], s[1], s[2], s[3], s[4]
-    inverse = np.array([[c * e - d * d, c * d - b * e, b * d - c * c],
-                        [c * d - b * e, a * e - c * c, b * c - a * d],
-                        [b * d - c * c, b * c - a * d, a * c - b * b]])
-    determinant = a * inverse[0, 0] + b * inverse[1, 0] + c * inverse[2, 0]
-    coeffs = np.empty((3, values.shape[1]))
-    for row in range(3):  # scalar: a 3 x m product through BLAS costs more than the whole fit
-        unscale = 1.0 / (determinant * scale ** row)
-        for column in range(values.shape[1]):
-            coeffs[row, column] = unscale * (inverse[row, 0] * rhs[0, column] + inverse[row, 1] * rhs[1, column]
-                                             + inverse[row, 2] * rhs[2, column])
-    return coeffs
+    i00, i01, i02 = c * e - d * d, c * d - b * e, b * d - c * c
+    i11, i12, i22 = a * e - c * c, b * c - a * d, a * c - b * b
+    determinant = a * i00 + b * i01 + c * i02
+    u0, u1, u2 = 1.0 / (determinant * scale ** 0), 1.0 / (determinant * scale ** 1), 1.0 / (determinant * scale ** 2)
+    for column in range(coeffs.shape[1]):  # scalar: a 3 x m product through BLAS costs more than the whole fit
+        r0, r1, r2 = coeffs[0, column], coeffs[1, column], coeffs[2, column]
+        coeffs[0, column] = u0 * (i00 * r0 + i01 * r1 + i02 * r2)
+        coeffs[1, column] = u1 * (i01 * r0 + i11 * r1 + i12 * r2)
+        coeffs[2, column] = u2 * (i02 * r0 + i12 * r1 + i22 * r2)

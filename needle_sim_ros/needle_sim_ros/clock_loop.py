@@ -27,7 +27,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from needle_sim_ros.base_trajectory import PoseSample
 from needle_sim_ros.stepper import Stepper, StepRecord
 
 # Phase lock of the step grid to the pose stream (live, ahead to the pose): the running mean of the poses' phase
@@ -65,14 +64,15 @@ class ClockLoop:
         x = (float(t) - data.grid_origin) / self.dt
         data.pose_phase += PHASE_SMOOTHING * (cmath.exp(2j * math.pi * (x - math.floor(x))) - data.pose_phase)
 
-    def target_time(self, now: float, deterministic: bool, ahead_to_pose: bool, latest: PoseSample | None) -> float:
-        """Time the model should reach at clock time ``now`` with the newest pose ``latest`` (module docstring)."""
-        if deterministic and latest is not None and now - latest.t <= self.pose_timeout:
-            return min(now, latest.t)
-        if ahead_to_pose and latest is not None and latest.t > now - self.dt:
+    def target_time(self, now: float, deterministic: bool, ahead_to_pose: bool, latest: float | None) -> float:
+        """Time the model should reach at clock time ``now`` with the newest pose stamped ``latest`` (None: no
+        pose; module docstring)."""
+        if deterministic and latest is not None and now - latest <= self.pose_timeout:
+            return min(now, latest)
+        if ahead_to_pose and latest is not None and latest > now - self.dt:
             # grid indices (a pose within 1 us after a step's end time counts as at it: epoch-time resolution)
             data, dt = self.data, self.dt
-            to_pose = math.ceil((latest.t - data.grid_origin) / dt - 1e-3)
+            to_pose = math.ceil((latest - data.grid_origin) / dt - 1e-3)
             after_now = math.floor((now - data.grid_origin) / dt + 1e-3) + 1
             return max(now, self.grid_time(min(to_pose, after_now)))
         return now

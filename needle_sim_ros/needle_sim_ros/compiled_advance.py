@@ -8,7 +8,7 @@ end times, the fresh twist feed-forward, the flange-to-clamp offset, and the ste
 path calls, so both give the same bits.
 
 The arguments that hold from one call to the next travel in one :class:`AdvancePlan` record, made once per plan,
-typed in C by its ``_numba_type_`` (numba 0.59 too: ``test_kernel_dispatch``): 24 arguments, not 51, to unbox per
+typed in C by its ``_numba_type_`` (numba 0.59 too: ``test_kernel_dispatch``): 11 arguments, not 51, to unbox per
 call.
 """
 from __future__ import annotations
@@ -27,7 +27,7 @@ from needle_sim_ros.model.step import integrate_sequence
 PLAN_FIELDS = ("history", "coef", "ext_Q", "tol", "max_iterations", "prescribed", "base_nodes", "base_local_r",
                "base_local_rx", "active", "scale", "tables", "residual", "band", "pivots", "factorization", "kl",
                "control", "last_motion", "sample_times", "positions", "orientations", "deltas", "starts", "blends",
-               "window", "max_extrapolation", "packed")
+               "fit", "counts", "served", "served_motion", "scratch", "window", "max_extrapolation", "packed")
 
 
 @structref.register
@@ -62,24 +62,20 @@ def apply_twist(flange: np.ndarray, times: np.ndarray, twist: np.ndarray, twist_
 
 
 @njit(cache=True)
-def advance_from_trajectory(plan, count, t_newest, p_newest, q_newest, fit, refit, continued, served, t_previous,
-                            p_previous, q_previous, previous_fit, corrections, times, motions, rotations, q, qd, qdd,
-                            aux, states, wrenches, iterations):
-    """Steps at the end times ``times`` from the trajectory's fit (count ... corrections:
-    :meth:`BaseTrajectory.fit_state`; with the plan's buffers the arguments of :func:`trajectory_motions`): the
-    flange motions, the twist within its timeout and the flange-to-clamp offset (the plan's ``packed``:
-    :attr:`BaseInput.packed`), the clamp motions and rotations into ``motions`` (k, 19) and ``rotations`` (k, 3, 3),
+def advance_from_trajectory(plan, times, motions, rotations, q, qd, qdd, aux, states, wrenches,
+                            iterations):
+    """Steps at the end times ``times`` from the trajectory's fit (the plan's buffers: the arguments of
+    :func:`trajectory_motions`, :attr:`BaseTrajectory.buffers`, with the fit and its state): the flange motions,
+    the twist within its timeout and the flange-to-clamp offset (the plan's ``packed``: :attr:`BaseInput.packed`),
+    the clamp motions and rotations into ``motions`` (k, 19) and ``rotations`` (k, 3, 3),
     then the steps from the start state (q, qd, qdd, aux) by :func:`integrate_sequence` with the factorization kept
     across steps, into the outputs (states, wrenches, iterations:
     :func:`~needle_sim_ros.model.integrators.run_outputs`). Every argument is an array, a number or the
-    :class:`AdvancePlan` (numba 0.59 types a tuple in Python on every call). Returns (fit, number of corrections,
-    steps done)."""
+    :class:`AdvancePlan` (numba 0.59 types a tuple in Python on every call). Returns the number of steps done."""
     p = plan
     flange = np.empty((times.size, 19))
-    fit, corrections = trajectory_motions(p.sample_times, p.positions, p.orientations, p.deltas, p.starts, p.blends,
-                                          p.window, p.max_extrapolation, count, t_newest, p_newest, q_newest, fit,
-                                          refit, continued, served, t_previous, p_previous, q_previous, previous_fit,
-                                          corrections, times, flange)
+    trajectory_motions(p.sample_times, p.positions, p.orientations, p.deltas, p.starts, p.blends, p.fit, p.counts,
+                       p.served, p.served_motion, p.scratch, p.window, p.max_extrapolation, times, flange)
     packed = p.packed
     apply_twist(flange, times, packed[1:8], packed[0])
     compose_offsets(flange, packed[8:11], packed[11:20].reshape((3, 3)), motions, rotations)
@@ -89,4 +85,4 @@ def advance_from_trajectory(plan, count, t_newest, p_newest, q_newest, fit, refi
                               p.prescribed, p.base_nodes, p.base_local_r, p.base_local_rx, p.active, p.scale,
                               p.tables, p.residual, p.band, p.pivots, p.factorization, p.kl, p.control, True,
                               p.last_motion, states, wrenches, iterations)
-    return fit, corrections, done
+    return done

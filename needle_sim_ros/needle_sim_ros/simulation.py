@@ -64,8 +64,9 @@ class NeedleSimulation:
      compiled_sequence, after_step, set_point_load, clear_point_loads, tissue_readout, shape, energies) = _via(
         "stepper", "model integrator dt data state base statistics extra_forces point_loads forces model_forces "
                    "compiled_sequence after_step set_point_load clear_point_loads tissue_readout shape energies")
-    trajectory, twist, set_twist, pose_age, base_motions, base_motion_at = _via(
-        "source", "trajectory twist set_twist pose_age motions motion_at")
+    twist, set_twist, pose_age, base_motions, base_motion_at = _via(
+        "source", "twist set_twist pose_age motions motion_at")
+    trajectory = property(attrgetter("source.trajectory"))  # read only: a compiled plan holds its buffers
     max_catch_up, next_step_end = _via("clock", "max_catch_up next_step_end")
 
     def __init__(self, stepper: Stepper, source: BaseInput, max_catch_up: float = 0.05,
@@ -130,7 +131,7 @@ class NeedleSimulation:
             self.clock.lock_phase()
         source = self.source
         return self.clock.advance_to(self.clock.target_time(now, deterministic, ahead_to_pose,
-                                                            source.trajectory.latest), source)
+                                                            source.trajectory.latest_time), source)
 
     def advance_to(self, t_target: float) -> list[StepRecord]:
         """Integrate with fixed steps of dt until the next step would pass t_target (:meth:`ClockLoop.advance_to`)."""

@@ -316,11 +316,9 @@ class Stepper:
             before = integrator.sequence_arguments(self.dt, forces, float(times[0]), memory)
             plan = advance_plan(*before, memory.last_motion, *source.trajectory.buffers, source.packed)
             self._advance_plan = (integrator, forces, memory, source, plan)
-        trajectory = source.trajectory
         outputs = run_outputs(times.size, state.q.size)
-        fit, corrections, done = advance_from_trajectory(plan, *trajectory.fit_state(), times, motions, rotations,
-                                                         state.q, state.qd, state.qdd, state.aux, *outputs)
-        trajectory.take_fit(fit, corrections, float(times[-1]))
+        done = advance_from_trajectory(plan, times, motions, rotations, state.q, state.qd, state.qdd, state.aux,
+                                       *outputs)
         self._record_run(done, outputs, start, times, motions, rotations, records)
         return done
 

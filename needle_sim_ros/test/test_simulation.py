@@ -12,6 +12,7 @@ from needle_sim_ros.model import BaseMotion, GeneralizedForce, Gravity, Integrat
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_common.parameters import ParameterError
 from needle_sim_ros import clock_loop
+from needle_sim_ros.base_trajectory import BaseTrajectory
 from needle_sim_ros.simulation import simulation_from_parameters
 from needle_sim_ros.tissue import tissue_model
 
@@ -124,6 +125,23 @@ def test_the_advance_in_one_compiled_call_agrees_with_the_general_path(monkeypat
         np.testing.assert_array_equal(sims[0].base.rotation, served.rotation)
         np.testing.assert_array_equal(sims[0].base.angular_velocity, served.angular_velocity)
     assert len(calls) > 20 and max(calls) > 1 and sims[0].statistics.steps == sims[1].statistics.steps
+
+
+def test_the_trajectory_under_the_compiled_advance_cannot_be_replaced():
+    """The one-call advance's plan holds the trajectory's buffers: a trajectory swapped in behind it (through the
+    facade or the base input) would be fed poses the steps never see. Neither can be assigned; the poses offered
+    after a run of compiled calls still move the base."""
+    sim = simulation_from_parameters(PARAMETERS)
+    for k in range(5):
+        sim.offer_pose(k * 1e-3, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+        sim.advance(k * 1e-3, deterministic=True)
+    for owner in (sim, sim.source):
+        with pytest.raises(AttributeError):
+            owner.trajectory = BaseTrajectory()
+    for k in range(5, 10):
+        sim.offer_pose(k * 1e-3, [0.4 + 1e-4 * (k - 4), 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
+        sim.advance(k * 1e-3, deterministic=True)
+    assert sim.base.position[0] > 0.4 + 1e-4
 
 
 def test_base_motions_of_a_sequence_equal_the_single_evaluations():
