@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, distance_to_curve
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, check_not_invented, distance_to_curve
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.detection.centerline import extract_centerline
@@ -199,6 +199,39 @@ def test_flat_base_on_a_dark_background_is_not_a_taper(rig, polarities, seed):
     measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
                                          ReconstructionConfig(), rig.world_from_left)
     assert np.linalg.norm(measurement.points[0] - truth[0]) <= 0.1e-3
+
+
+@pytest.mark.parametrize("seed", [7, 1007, 2007, 3007, 4007, 9007])
+@pytest.mark.parametrize("name", ["straight", "hook"])
+def test_bright_1_mm_bevel_read_as_a_taper(rig, polarities, name, seed):
+    """A bright 1 mm bevel (the straight needle's, the hook's): its relative contrast's scatter (the background's
+    texture) lifts the taper threshold above its ratio in one view or both (1.20-1.50 against 1.56-1.95), which took
+    it for a flat end: the tip 0.20-0.30 mm off (0.49-0.51 mm where both views did, the hook at 9007 and 15007). Its
+    covered fraction falls more slowly than any flat end's (``centerline.CANDIDATE_TAPER_FACTOR``): a taper candidate,
+    taken where the other view reads a taper or a candidate at the same end (``reconstruction._shared_bevels``). Tip
+    within 0.2 mm, nothing invented (measured at seeds 7 + 1000 k, k = 0..19: 0.008-0.121 mm)."""
+    scene, backgrounds = polarities["bright"]
+    truth = SHAPES[name]
+    images = render_stereo_pair(rig, truth, NEEDLE_RADIUS, np.random.default_rng(seed), scene=scene,
+                                bevel_length=1e-3)
+    centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
+    measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
+                                         ReconstructionConfig(), rig.world_from_left)
+    check_not_invented(measurement, truth)
+    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.2e-3
+
+
+@pytest.mark.parametrize("polarity, seed", [("bright", 7007), ("bright", 10007), ("bright", 17007), ("dark", 3007)])
+def test_flat_tip_turned_towards_the_cameras_is_no_taper_candidate(rig, polarities, polarity, seed):
+    """The up curl's flat tip, turned towards the cameras, at the seeds where one view read it as a taper (half taper
+    0.30-0.74 px) and the other's covered fraction fell over 1.15-1.24 times the blur: a candidate at
+    ``TAPER_FACTOR``, which the other view's taper would have made a taper too (the tip 0.058 -> 0.164 mm at dark
+    3007, 0.135-0.224 -> 0.241-0.274 mm bright). No end of either view is a candidate."""
+    scene, backgrounds = polarities[polarity]
+    images = render_stereo_pair(rig, EPIPOLAR_SHAPES["curl_up"], NEEDLE_RADIUS, np.random.default_rng(seed),
+                                scene=scene)
+    for image, background in zip(images, backgrounds):
+        assert extract_centerline(image, background).taper_candidates == (None, None)
 
 
 @pytest.mark.parametrize("polarity", ["dark", "bright"])

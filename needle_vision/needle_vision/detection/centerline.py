@@ -17,7 +17,7 @@ extract the background, find the needle points).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numba
 import numpy as np
@@ -61,13 +61,52 @@ class ImageCenterline:
     points across the curve, and that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW``
     points: the noise grows where the needle's contrast is lower, e.g. in front of a darker background);
     ``end_taper_px``: how far [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen
-    side-on: half its length; 0 for a flat end)."""
+    side-on: half its length; 0 for a flat end); ``taper_candidates``: per end, the tapered end of an end placed flat
+    whose taper only the covered fraction shows (:class:`TaperCandidate`; None where there is none)."""
 
     points: np.ndarray
     contrast: np.ndarray
     noise_px: float
     local_noise_px: np.ndarray
     end_taper_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    taper_candidates: tuple[TaperCandidate | None, TaperCandidate | None] = (None, None)
+
+
+@dataclass(frozen=True)
+class TaperCandidate:
+    """An end placed flat whose profile of covered fraction falls slowly (over ``CANDIDATE_TAPER_FACTOR`` times the
+    blur) while its relative contrast's does not stand out of that profile's scatter: a bright needle's relative
+    contrast follows the background's texture (+-15 %), whose scatter hides 1 mm bevels in one view (their ratio
+    1.20-1.50 against thresholds 1.56-1.95); bright flat tips turned towards the cameras read 1.15-1.30 on the
+    covered fraction. The tapered end replaces the centerline's last ``drop`` points at that end by ``points``
+    (ordered outward, ending with the end), ``half_taper_px`` beyond the middle of its fitted taper."""
+
+    drop: int
+    points: np.ndarray
+    half_taper_px: float
+
+
+def with_tapered_end(centerline: ImageCenterline, end: int) -> ImageCenterline:
+    """``centerline`` with its ``end`` (0: first, 1: last) replaced by its taper candidate (the new points get the
+    contrast and local noise of the last point kept)."""
+    candidate = centerline.taper_candidates[end]
+    keep = len(centerline.points) - candidate.drop
+    count = len(candidate.points)
+    if end == 0:
+        points, contrast, noise = (values[::-1] for values in (centerline.points, centerline.contrast,
+                                                               centerline.local_noise_px))
+    else:
+        points, contrast, noise = centerline.points, centerline.contrast, centerline.local_noise_px
+    points = np.vstack([points[:keep], candidate.points])
+    contrast = np.concatenate([contrast[:keep], np.full(count, contrast[keep - 1])])
+    noise = np.concatenate([noise[:keep], np.full(count, noise[keep - 1])])
+    if end == 0:
+        points, contrast, noise = points[::-1], contrast[::-1], noise[::-1]
+    tapers = centerline.end_taper_px.copy()
+    tapers[end] = candidate.half_taper_px
+    candidates = tuple(None if k == end else other for k, other in enumerate(centerline.taper_candidates))
+    return replace(centerline, points=points, contrast=contrast, local_noise_px=noise, end_taper_px=tapers,
+                   taper_candidates=candidates)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -368,6 +407,12 @@ TAPER_FACTOR = 1.15
 #: ... and by more than this many times the profile's relative scatter along the needle (a weak needle's noisy
 #: profile does not tell a taper: a flat end's ratio scatters ~3x the profile's scatter about 1).
 TAPER_SIGNIFICANCE = 5.0
+#: An end placed flat whose covered fraction alone falls slowly is a taper candidate (:class:`TaperCandidate`) where
+#: its spread exceeds this many times the blur: over noise seeds 7 + 1000 k, k = 0..19, both polarities, the flat
+#: ends (bases included) that would be candidates at ``TAPER_FACTOR`` read 1.15-1.30 (mostly the tips turned towards
+#: the cameras, the up curl's and the turning plane's; 8 up curl tips where the other view read a taper), the bright
+#: 1 mm bevels' (straight, hook) 1.38-1.66.
+CANDIDATE_TAPER_FACTOR = 1.34
 #: The end's lateral extrapolation takes a cubic term (the curvature changing along the 80 slices before the end)
 #: when its coefficient exceeds this many white-noise standard errors and the end lies within ``CUBIC_REACH`` of the
 #: fitted span beyond it. The centroids' errors are correlated over ~20 slices, so noise alone reaches ~5; over 208
@@ -625,10 +670,13 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its
     noise), on the relative contrast and on the covered fraction alike, a blurred linear taper is fitted to the
     profile and the end put half its length beyond its middle (least squares over the whole taper: the
-    half-contrast crossing alone moves with the noise of a few samples on a shallow slope). Returns (number of
-    points kept, the new points ending with the end, the taper's half length [px]); kept is -1 where the profile
-    leaves the image or does not fall."""
-    none = (-1, np.zeros((0, 2)), 0.0)
+    half-contrast crossing alone moves with the noise of a few samples on a shallow slope). Where only the covered
+    fraction falls slowly (a bright needle's relative contrast, modulated by the background's texture, may hide a
+    1 mm bevel in its scatter) the end is placed flat and the tapered end returned as a candidate, for the other
+    view to decide (``reconstruction._shared_bevels``). Returns (number of points kept, the new points ending with
+    the end, the taper's half length [px]) of the end and of the candidate; kept is -1 where the profile leaves the
+    image or does not fall (the candidate's where there is none)."""
+    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0)
     n = points.shape[0]
     if n < 100:
         return none
@@ -678,8 +726,10 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     tapered = _falls_slowly(profile, level, inside, spread, blur)
     # The relative contrast is the covered fraction times 1 - N / B, modulated by the background's texture. The
     # needle's own intensity N, from the band's fitted contrast over the harmonic mean of B, gives the covered fraction
-    # (B - I) / (B - N) to locate the end; the end is tapered where it falls slowly in both profiles (TAPER_FACTOR).
+    # (B - I) / (B - N) to locate the end; the end is tapered where it falls slowly in both profiles (TAPER_FACTOR), a
+    # candidate taper where it does in the covered fraction only.
     needle = 0.0
+    candidate = False
     if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
         inverse = 0.0
         for i in range(s.shape[0]):
@@ -694,22 +744,45 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
             s, covered, band, inside, along[n - 9])
         if covered_found:
             profile, level, end, spread = covered_profile, covered_level, covered_end, covered_last - covered_first
-            tapered = tapered and _falls_slowly(profile, level, inside, spread, blur)
+            covered_tapered = _falls_slowly(profile, level, inside, spread, blur)
+            candidate = covered_tapered and not tapered and spread > CANDIDATE_TAPER_FACTOR * blur
+            tapered = tapered and covered_tapered
+    # The blur along the profile: the side edges' (the same point spread and pixel area), plus the moving average's.
+    sigma = np.sqrt(side_sigma ** 2 + 2 * step ** 2 / 3)
     half_taper = 0.0
-    if tapered and spread > blur:
-        # The blur along the profile: the side edges' (the same point spread and pixel area), plus the moving
-        # average's.
-        sigma = np.sqrt(side_sigma ** 2 + 2 * step ** 2 / 3)
+    candidate_end, candidate_half_taper = end, 0.0
+    if (tapered or candidate) and spread > blur:
         window = (s >= end - 2 * (spread + blur)) & (s <= end + 2 * (spread + blur))
         middle, taper = _taper_fit(s[window], profile[window] / level, end, 2 * np.sqrt(spread ** 2 - blur ** 2),
                                    sigma)
-        half_taper = 0.5 * taper
-        end = middle + half_taper
+        candidate_half_taper = 0.5 * taper
+        candidate_end = middle + candidate_half_taper
+        if tapered:
+            end, half_taper = candidate_end, candidate_half_taper
+    kept, out = _placed_end(image, background, polarity, points, along, centre, direction, normal, end, half_taper,
+                            half_width, band_half_width, side_sigma, needle)
+    if kept < 0:
+        return none
+    if candidate_half_taper > 0.0 and not tapered:
+        candidate_kept, candidate_out = _placed_end(image, background, polarity, points, along, centre, direction,
+                                                    normal, candidate_end, candidate_half_taper, half_width,
+                                                    band_half_width, side_sigma, needle)
+        if 0 <= candidate_kept <= kept:
+            return kept, out, half_taper, candidate_kept, candidate_out, candidate_half_taper
+    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _placed_end(image, background, polarity, points, along, centre, direction, normal, end, half_taper, half_width,
+                band_half_width, side_sigma, needle):  # pragma: no cover - compiled
+    """The points towards the ``end`` (:func:`_end_along_profile`: ``along`` the line through ``centre`` in
+    ``direction``, ``half_taper`` beyond the middle of its taper): (number of ``points`` kept, the new points
+    ending with the end); kept is -1 where too few points are left before the taper."""
     # The slices within the taper (a bevel: the band narrows from one side, its centroids move towards the other) and
     # within half_width + 1 of the end are replaced. (along increases towards the end)
     kept = int(np.searchsorted(along, end - 2 * half_taper - half_width - 1))
     if kept < 80 or end <= along[kept - 1]:
-        return none
+        return -1, np.zeros((0, 2))
     # Quadratic lateral offset against the distance along the line (least squares, centred abscissa), fitted to the
     # slices' centroids over the needle's blurred band only (the margins' noise has the largest lever arm), weighted
     # by the covered fraction where N is known.
@@ -745,7 +818,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         shift = ((coefficients[0] * t + coefficients[1]) * t + coefficients[2]) * t + coefficients[3]
         out[k, 0] = centre[0] + steps[k] * direction[0] + shift * normal[0]
         out[k, 1] = centre[1] + steps[k] * direction[1] + shift * normal[1]
-    return kept, out, half_taper
+    return kept, out
 
 
 @numba.njit(cache=True, nogil=True)
@@ -942,4 +1015,8 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
         raise NoNeedleError("too few centerline points with enough contrast")
     # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
     noise, local = _scatter(points, head, slices)
-    return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]))
+    # A candidate keeps fewer of the slices (its taper reaches further in): it drops the end's new points and the
+    # slices it does not keep.
+    candidates = tuple(None if end[3] < 0 else TaperCandidate(len(end[1]) + end[0] - end[3], end[4], end[5])
+                       for end in (first, last))
+    return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]), candidates)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
-from needle_vision.detection.centerline import ImageCenterline
+from needle_vision.detection.centerline import ImageCenterline, with_tapered_end
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
 from needle_vision.matching.curve_fit import fit_curve
 from needle_vision.detection.curves import (arc_length, interpolate, local_polynomial_smooth, median, run_bounds,
@@ -275,6 +275,7 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
                            output_from_left: RigidTransform) -> Triangulation:
     """Rectify, correspond, triangulate and reject outliers (the part that does not depend on earlier frames);
     raises MatchError when too few points remain."""
+    left, right = _shared_bevels(left, right, rectification, 2 * matching.max_epipolar_error_px)
     if config.needle_radius > 0:
         first = triangulate_centerline(left, right, rectification, matching,
                                        replace(config, needle_radius=0.0, curve_fit=False), RigidTransform())
@@ -333,6 +334,35 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     return Triangulation(output_from_left.apply(points), point_sigma, per_disparity * _slide(slope),
                          anchored, spacing, left, right,
                          None if fit is None else (output_from_left.apply(fit[0]), fit[1], fit[2]))
+
+
+def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
+                   tolerance: float) -> tuple[ImageCenterline, ImageCenterline]:
+    """Both views with each taper candidate (``ImageCenterline.taper_candidates``) taken where the other view reads a
+    taper or a candidate at the same end, the rest flat. A bevel is one feature of the needle, seen by both cameras:
+    where one view's relative contrast stands out of its scatter, the other's need not, and a candidate's covered
+    fraction falls more slowly than any flat end's (``CANDIDATE_TAPER_FACTOR``). The same end: the two (tapered)
+    ends lie within ``tolerance`` [px] of one epipolar line, the other view's other end does not."""
+    views = (left, right)
+    if all(candidate is None for view in views for candidate in view.taper_candidates):
+        return left, right
+    e = rectification.epipolar_axis
+    ends = [rectification.rectify(np.array([view.points[-1 if end else 0] if candidate is None else candidate.points[-1]
+                                            for end, candidate in enumerate(view.taper_candidates)]), side)[:, e]
+            for view, side in zip(views, ("left", "right"))]
+    out = []
+    for k, view in enumerate(views):
+        other = views[1 - k]
+        for end, candidate in enumerate(view.taper_candidates):
+            if candidate is None:
+                continue
+            apart = np.abs(ends[1 - k] - ends[k][end])
+            partner = int(np.argmin(apart))
+            if apart[partner] <= tolerance < apart[1 - partner] and (
+                    other.end_taper_px[partner] > 0 or other.taper_candidates[partner] is not None):
+                view = with_tapered_end(view, end)
+        out.append(replace(view, taper_candidates=(None, None)))
+    return out[0], out[1]
 
 
 def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray, rectification: Rectification,
