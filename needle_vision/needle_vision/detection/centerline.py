@@ -62,51 +62,55 @@ class ImageCenterline:
     points: the noise grows where the needle's contrast is lower, e.g. in front of a darker background);
     ``end_taper_px``: how far [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen
     side-on: half its length; 0 for a flat end); ``taper_candidates``: per end, the tapered end of an end placed flat
-    whose taper only the covered fraction shows (:class:`TaperCandidate`; None where there is none)."""
+    whose taper only the covered fraction shows (an :class:`EndReading`; None where there is none); ``flat_ends``:
+    per tapered end, that end placed flat (None where the end is flat); ``covered_tapers``: per end, whether its
+    covered fraction falls slowly (over ``TAPER_FACTOR`` times the blur: :func:`_falls_slowly`)."""
 
     points: np.ndarray
     contrast: np.ndarray
     noise_px: float
     local_noise_px: np.ndarray
     end_taper_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
-    taper_candidates: tuple[TaperCandidate | None, TaperCandidate | None] = (None, None)
+    taper_candidates: tuple[EndReading | None, EndReading | None] = (None, None)
+    flat_ends: tuple[EndReading | None, EndReading | None] = (None, None)
+    covered_tapers: tuple[bool, bool] = (False, False)
 
 
 @dataclass(frozen=True)
-class TaperCandidate:
-    """An end placed flat whose profile of covered fraction falls slowly (over ``CANDIDATE_TAPER_FACTOR`` times the
-    blur) while its relative contrast's does not stand out of that profile's scatter: a bright needle's relative
-    contrast follows the background's texture (+-15 %), whose scatter hides 1 mm bevels in one view (their ratio
-    1.20-1.50 against thresholds 1.56-1.95); bright flat tips turned towards the cameras read 1.15-1.30 on the
-    covered fraction. The tapered end replaces the centerline's last ``drop`` points at that end by ``points``
-    (ordered outward, ending with the end), ``half_taper_px`` beyond the middle of its fitted taper."""
+class EndReading:
+    """The other reading of an end, for the other view to decide (``reconstruction._shared_bevels``): a taper
+    candidate (an end placed flat whose covered fraction alone falls slowly, over ``CANDIDATE_TAPER_FACTOR`` times
+    the blur: a bright needle's relative contrast follows the background's texture, +-15 %, whose scatter hides 1 mm
+    bevels in one view, their ratio 1.20-1.50 against thresholds 1.56-1.95) or a tapered end placed flat. It replaces
+    the centerline's last ``drop`` points at that end by ``points`` (ordered outward, ending with the end),
+    ``half_taper_px`` beyond the middle of its fitted taper (0: flat)."""
 
     drop: int
     points: np.ndarray
     half_taper_px: float
 
 
-def with_tapered_end(centerline: ImageCenterline, end: int) -> ImageCenterline:
-    """``centerline`` with its ``end`` (0: first, 1: last) replaced by its taper candidate (the new points get the
-    contrast and local noise of the last point kept)."""
-    candidate = centerline.taper_candidates[end]
-    keep = len(centerline.points) - candidate.drop
-    count = len(candidate.points)
+def with_end_reading(centerline: ImageCenterline, end: int, reading: EndReading) -> ImageCenterline:
+    """``centerline`` with its ``end`` (0: first, 1: last) replaced by ``reading`` (its taper candidate or flat end;
+    the new points get the contrast and local noise of the last point kept); that end has no other reading left."""
+    keep = len(centerline.points) - reading.drop
+    count = len(reading.points)
     if end == 0:
         points, contrast, noise = (values[::-1] for values in (centerline.points, centerline.contrast,
                                                                centerline.local_noise_px))
     else:
         points, contrast, noise = centerline.points, centerline.contrast, centerline.local_noise_px
-    points = np.vstack([points[:keep], candidate.points])
+    points = np.vstack([points[:keep], reading.points])
     contrast = np.concatenate([contrast[:keep], np.full(count, contrast[keep - 1])])
     noise = np.concatenate([noise[:keep], np.full(count, noise[keep - 1])])
     if end == 0:
         points, contrast, noise = points[::-1], contrast[::-1], noise[::-1]
     tapers = centerline.end_taper_px.copy()
-    tapers[end] = candidate.half_taper_px
-    candidates = tuple(None if k == end else other for k, other in enumerate(centerline.taper_candidates))
+    tapers[end] = reading.half_taper_px
+    candidates, flat = (tuple(None if k == end else other for k, other in enumerate(readings))
+                        for readings in (centerline.taper_candidates, centerline.flat_ends))
     return replace(centerline, points=points, contrast=contrast, local_noise_px=noise, end_taper_px=tapers,
-                   taper_candidates=candidates)
+                   taper_candidates=candidates, flat_ends=flat)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -407,7 +411,7 @@ TAPER_FACTOR = 1.15
 #: ... and by more than this many times the profile's relative scatter along the needle (a weak needle's noisy
 #: profile does not tell a taper: a flat end's ratio scatters ~3x the profile's scatter about 1).
 TAPER_SIGNIFICANCE = 5.0
-#: An end placed flat whose covered fraction alone falls slowly is a taper candidate (:class:`TaperCandidate`) where
+#: An end placed flat whose covered fraction alone falls slowly is a taper candidate (:class:`EndReading`) where
 #: its spread exceeds this many times the blur: over noise seeds 7 + 1000 k, k = 0..19, both polarities, the flat
 #: ends (bases included) that would be candidates at ``TAPER_FACTOR`` read 1.15-1.30 (mostly the tips turned towards
 #: the cameras, the up curl's and the turning plane's; 8 up curl tips where the other view read a taper), the bright
@@ -673,10 +677,11 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     half-contrast crossing alone moves with the noise of a few samples on a shallow slope). Where only the covered
     fraction falls slowly (a bright needle's relative contrast, modulated by the background's texture, may hide a
     1 mm bevel in its scatter) the end is placed flat and the tapered end returned as a candidate, for the other
-    view to decide (``reconstruction._shared_bevels``). Returns (number of points kept, the new points ending with
-    the end, the taper's half length [px]) of the end and of the candidate; kept is -1 where the profile leaves the
-    image or does not fall (the candidate's where there is none)."""
-    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0)
+    view to decide (``reconstruction._shared_bevels``); so is a tapered end placed flat. Returns (number of points
+    kept, the new points ending with the end, the taper's half length [px]) of the end, (number of those points the
+    other reading drops, its points, its half taper) and whether the covered fraction falls slowly; kept is -1 where
+    the profile leaves the image or does not fall (the other reading's drop where there is none)."""
+    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, False)
     n = points.shape[0]
     if n < 100:
         return none
@@ -729,7 +734,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     # (B - I) / (B - N) to locate the end; the end is tapered where it falls slowly in both profiles (TAPER_FACTOR), a
     # candidate taper where it does in the covered fraction only.
     needle = 0.0
-    candidate = False
+    candidate = covered_tapered = False
     if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
         inverse = 0.0
         for i in range(s.shape[0]):
@@ -750,7 +755,8 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     # The blur along the profile: the side edges' (the same point spread and pixel area), plus the moving average's.
     sigma = np.sqrt(side_sigma ** 2 + 2 * step ** 2 / 3)
     half_taper = 0.0
-    candidate_end, candidate_half_taper = end, 0.0
+    flat_end = candidate_end = end
+    candidate_half_taper = 0.0
     if (tapered or candidate) and spread > blur:
         window = (s >= end - 2 * (spread + blur)) & (s <= end + 2 * (spread + blur))
         middle, taper = _taper_fit(s[window], profile[window] / level, end, 2 * np.sqrt(spread ** 2 - blur ** 2),
@@ -763,13 +769,17 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
                             half_width, band_half_width, side_sigma, needle)
     if kept < 0:
         return none
-    if candidate_half_taper > 0.0 and not tapered:
-        candidate_kept, candidate_out = _placed_end(image, background, polarity, points, along, centre, direction,
-                                                    normal, candidate_end, candidate_half_taper, half_width,
-                                                    band_half_width, side_sigma, needle)
-        if 0 <= candidate_kept <= kept:
-            return kept, out, half_taper, candidate_kept, candidate_out, candidate_half_taper
-    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0
+    # The other reading: a tapered end placed flat, or a candidate's taper.
+    other_end, other_half_taper = (flat_end, 0.0) if tapered else (candidate_end, candidate_half_taper)
+    if tapered or candidate_half_taper > 0.0:
+        other_kept, other_out = _placed_end(image, background, polarity, points, along, centre, direction, normal,
+                                            other_end, other_half_taper, half_width, band_half_width, side_sigma,
+                                            needle)
+        if other_kept >= 0 and (tapered or other_kept <= kept):
+            # It drops the end's new points and the slices it does not keep, and takes back those it keeps beyond.
+            return (kept, out, half_taper, len(out) + kept - min(kept, other_kept),
+                    np.vstack((points[kept:other_kept], other_out)), other_half_taper, covered_tapered)
+    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0, covered_tapered
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1015,8 +1025,8 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
         raise NoNeedleError("too few centerline points with enough contrast")
     # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
     noise, local = _scatter(points, head, slices)
-    # A candidate keeps fewer of the slices (its taper reaches further in): it drops the end's new points and the
-    # slices it does not keep.
-    candidates = tuple(None if end[3] < 0 else TaperCandidate(len(end[1]) + end[0] - end[3], end[4], end[5])
-                       for end in (first, last))
-    return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]), candidates)
+    # Each end's other reading: a taper candidate (tapered) or the flat placement of a tapered end (flat).
+    candidates, flat = (tuple(None if end[3] < 0 or (end[5] == 0.0) != placed_flat else EndReading(*end[3:6])
+                              for end in (first, last)) for placed_flat in (False, True))
+    return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]), candidates, flat,
+                           (first[6], last[6]))

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
-from needle_vision.detection.centerline import ImageCenterline, with_tapered_end
+from needle_vision.detection.centerline import ImageCenterline, with_end_reading
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
 from needle_vision.matching.curve_fit import fit_curve
 from needle_vision.detection.curves import (arc_length, interpolate, local_polynomial_smooth, median, run_bounds,
@@ -339,12 +339,15 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
 def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
                    tolerance: float) -> tuple[ImageCenterline, ImageCenterline]:
     """Both views with each taper candidate (``ImageCenterline.taper_candidates``) taken where the other view reads a
-    taper or a candidate at the same end, the rest flat. A bevel is one feature of the needle, seen by both cameras:
-    where one view's relative contrast stands out of its scatter, the other's need not, and a candidate's covered
-    fraction falls more slowly than any flat end's (``CANDIDATE_TAPER_FACTOR``). The same end: the two (tapered)
-    ends lie within ``tolerance`` [px] of one epipolar line, the other view's other end does not."""
+    taper or a candidate at the same end, the rest flat, and each tapered end placed flat (``flat_ends``) where the
+    other view reads neither there and its covered fraction does not fall slowly (``covered_tapers``). A bevel is one
+    feature of the needle, seen by both cameras: where one view's relative contrast stands out of its scatter, the
+    other's need not, and a candidate's covered fraction falls more slowly than any flat end's
+    (``CANDIDATE_TAPER_FACTOR``); a dark flat tip may read as a short taper in one view (half taper 0.2-0.8 px) while
+    the other's covered fraction stays below ``TAPER_FACTOR``. The same end: the two ends (a candidate's tapered)
+    lie within ``tolerance`` [px] of one epipolar line, the other view's other end does not."""
     views = (left, right)
-    if all(candidate is None for view in views for candidate in view.taper_candidates):
+    if all(reading is None for view in views for reading in view.taper_candidates + view.flat_ends):
         return left, right
     e = rectification.epipolar_axis
     ends = [rectification.rectify(np.array([view.points[-1 if end else 0] if candidate is None else candidate.points[-1]
@@ -353,15 +356,19 @@ def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification:
     out = []
     for k, view in enumerate(views):
         other = views[1 - k]
-        for end, candidate in enumerate(view.taper_candidates):
-            if candidate is None:
+        for end, (candidate, flat) in enumerate(zip(view.taper_candidates, view.flat_ends)):
+            if candidate is None and flat is None:
                 continue
             apart = np.abs(ends[1 - k] - ends[k][end])
             partner = int(np.argmin(apart))
-            if apart[partner] <= tolerance < apart[1 - partner] and (
-                    other.end_taper_px[partner] > 0 or other.taper_candidates[partner] is not None):
-                view = with_tapered_end(view, end)
-        out.append(replace(view, taper_candidates=(None, None)))
+            if not apart[partner] <= tolerance < apart[1 - partner]:
+                continue
+            tapered = other.end_taper_px[partner] > 0 or other.taper_candidates[partner] is not None
+            if candidate is not None and tapered:
+                view = with_end_reading(view, end, candidate)
+            elif flat is not None and not tapered and not other.covered_tapers[partner]:
+                view = with_end_reading(view, end, flat)
+        out.append(replace(view, taper_candidates=(None, None), flat_ends=(None, None)))
     return out[0], out[1]
 
 
