@@ -157,6 +157,10 @@ class BaseTrajectory:
 SAMPLES, CORRECTIONS, FIT_ROWS = 0, 1, 2  # BaseTrajectory's counts
 CORRECTION_CAPACITY = 128  # corrections kept at once (up to ~window / sample interval); beyond, the oldest is dropped
 VERDICTS = tuple(PoseVerdict)  # by the code _offer_sample returns
+# the codes of _offer_sample's verdicts: their indices in VERDICTS (numba reads the globals as constants)
+_ACCEPTED, _NORMALIZED, _NOT_FINITE, _ZERO_QUATERNION, _OUT_OF_ORDER, _JUMP, _OUT_OF_RANGE, _RESTARTED = (
+    VERDICTS.index(PoseVerdict[name]) for name in ("ACCEPTED", "NORMALIZED", "NOT_FINITE", "ZERO_QUATERNION",
+                                                   "OUT_OF_ORDER", "JUMP", "OUT_OF_RANGE", "RESTARTED"))
 ADDED = (PoseVerdict.ACCEPTED, PoseVerdict.NORMALIZED, PoseVerdict.RESTARTED)  # the verdicts of an added sample
 
 
@@ -198,22 +202,22 @@ def _offer_sample(sample_times: np.ndarray, positions: np.ndarray, orientations:
     norm, rescaled, largest, distance, angle = _checked_pose(t, position, orientation, positions[latest],
                                                              orientations[latest], has_latest)
     if not norm >= 0.0:
-        return 2  # NOT_FINITE
+        return _NOT_FINITE
     if norm < 1e-9:
-        return 3  # ZERO_QUATERNION
+        return _ZERO_QUATERNION
     if largest > checks[0]:  # per axis: no overflow for huge finite values
-        return 7  # OUT_OF_RANGE
-    verdict = 0 if abs(norm - 1.0) <= checks[1] and not rescaled else 1  # ACCEPTED, NORMALIZED
+        return _OUT_OF_RANGE
+    verdict = _ACCEPTED if abs(norm - 1.0) <= checks[1] and not rescaled else _NORMALIZED
     if has_latest:
         t_latest = sample_times[latest]
         if t <= t_latest:
-            return 4  # OUT_OF_ORDER
+            return _OUT_OF_ORDER
         # Compare with the last sample rather than an extrapolation: a long gap must not turn into a jump.
         if not _within_jump_limits(distance, angle, checks):
-            return 5  # JUMP
+            return _JUMP
         if t - t_latest > gap and distance > resume_tolerance:
             _forget(counts, served)
-            verdict = 8  # RESTARTED
+            verdict = _RESTARTED
     _append_sample(sample_times, positions, orientations, counts, t, position, orientation)
     return verdict
 

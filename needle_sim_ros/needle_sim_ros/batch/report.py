@@ -8,7 +8,6 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-
 from needle_common.output_files import write_atomically
 from needle_common.parameters import params_file_text
 
