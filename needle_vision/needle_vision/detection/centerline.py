@@ -63,8 +63,7 @@ class ImageCenterline:
     ``end_taper_px``: how far [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen
     side-on: half its length; 0 for a flat end); ``taper_candidates``: per end, the tapered end of an end placed flat
     whose taper only the covered fraction shows (an :class:`EndReading`; None where there is none); ``flat_ends``:
-    per tapered end, that end placed flat (None where the end is flat); ``covered_tapers``: per end, whether its
-    covered fraction falls slowly (over ``TAPER_FACTOR`` times the blur: :func:`_falls_slowly`)."""
+    per tapered end, that end placed flat (None where the end is flat)."""
 
     points: np.ndarray
     contrast: np.ndarray
@@ -73,7 +72,6 @@ class ImageCenterline:
     end_taper_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
     taper_candidates: tuple[EndReading | None, EndReading | None] = (None, None)
     flat_ends: tuple[EndReading | None, EndReading | None] = (None, None)
-    covered_tapers: tuple[bool, bool] = (False, False)
 
 
 @dataclass(frozen=True)
@@ -679,9 +677,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     1 mm bevel in its scatter) the end is placed flat and the tapered end returned as a candidate, for the other
     view to decide (``reconstruction._shared_bevels``); so is a tapered end placed flat. Returns (number of points
     kept, the new points ending with the end, the taper's half length [px]) of the end, (number of those points the
-    other reading drops, its points, its half taper) and whether the covered fraction falls slowly; kept is -1 where
-    the profile leaves the image or does not fall (the other reading's drop where there is none)."""
-    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, False)
+    other reading drops, its points, its half taper); kept is -1 where the profile leaves the image or does not
+    fall (the other reading's drop where there is none)."""
+    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0)
     n = points.shape[0]
     if n < 100:
         return none
@@ -734,7 +732,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     # (B - I) / (B - N) to locate the end; the end is tapered where it falls slowly in both profiles (TAPER_FACTOR), a
     # candidate taper where it does in the covered fraction only.
     needle = 0.0
-    candidate = covered_tapered = False
+    candidate = False
     if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
         inverse = 0.0
         for i in range(s.shape[0]):
@@ -778,8 +776,8 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         if other_kept >= 0 and (tapered or other_kept <= kept):
             # It drops the end's new points and the slices it does not keep, and takes back those it keeps beyond.
             return (kept, out, half_taper, len(out) + kept - min(kept, other_kept),
-                    np.vstack((points[kept:other_kept], other_out)), other_half_taper, covered_tapered)
-    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0, covered_tapered
+                    np.vstack((points[kept:other_kept], other_out)), other_half_taper)
+    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1028,5 +1026,4 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     # Each end's other reading: a taper candidate (tapered) or the flat placement of a tapered end (flat).
     candidates, flat = (tuple(None if end[3] < 0 or (end[5] == 0.0) != placed_flat else EndReading(*end[3:6])
                               for end in (first, last)) for placed_flat in (False, True))
-    return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]), candidates, flat,
-                           (first[6], last[6]))
+    return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]), candidates, flat)

@@ -38,6 +38,10 @@ CURVATURE_SPAN = 20e-3
 #: How far beyond a flat end each view puts it, over the half axis of its end disc's projection along the needle: the
 #: band-integrated profile of that half ellipse falls to half its level at sqrt(3)/2 of it (its chord's half width).
 END_CAP_CROSSING = math.sqrt(3.0) / 2
+#: Longest half taper [px] of an end one view reads tapered that is placed flat where the other view reads no taper
+#: (``_shared_bevels``): flat tips read so 0.18-0.85 px (dark ones; bright ones turned towards the cameras), 1 mm bevels
+#: the other view reads flat 1.20-1.57 px (the curls and rod S along the epipolar lines, 20 seeds).
+FLAT_TIP_HALF_TAPER_PX = 1.0
 #: ``uncertainty`` of a sample in a gap (no triangulated point within ``max_gap``): interpolated, not measured.
 UNMEASURED = -1.0
 
@@ -339,13 +343,12 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
 def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
                    tolerance: float) -> tuple[ImageCenterline, ImageCenterline]:
     """Both views with each taper candidate (``ImageCenterline.taper_candidates``) taken where the other view reads a
-    taper or a candidate at the same end, the rest flat, and each tapered end placed flat (``flat_ends``) where the
-    other view reads neither there and its covered fraction does not fall slowly (``covered_tapers``). A bevel is one
-    feature of the needle, seen by both cameras: where one view's relative contrast stands out of its scatter, the
+    taper or a candidate at the same end, the rest flat, and each end tapered by less than
+    :data:`FLAT_TIP_HALF_TAPER_PX` placed flat (``flat_ends``) where the other view reads neither there. A bevel is
+    one feature of the needle, seen by both cameras: where one view's relative contrast stands out of its scatter, the
     other's need not, and a candidate's covered fraction falls more slowly than any flat end's
-    (``CANDIDATE_TAPER_FACTOR``); a dark flat tip may read as a short taper in one view (half taper 0.2-0.8 px) while
-    the other's covered fraction stays below ``TAPER_FACTOR``. The same end: the two ends (a candidate's tapered)
-    lie within ``tolerance`` [px] of one epipolar line, the other view's other end does not."""
+    (``CANDIDATE_TAPER_FACTOR``); a flat tip may read as a short taper in one view. The same end: the two ends (a
+    candidate's tapered) lie within ``tolerance`` [px] of one epipolar line, the other view's other end does not."""
     views = (left, right)
     if all(reading is None for view in views for reading in view.taper_candidates + view.flat_ends):
         return left, right
@@ -366,7 +369,7 @@ def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification:
             tapered = other.end_taper_px[partner] > 0 or other.taper_candidates[partner] is not None
             if candidate is not None and tapered:
                 view = with_end_reading(view, end, candidate)
-            elif flat is not None and not tapered and not other.covered_tapers[partner]:
+            elif flat is not None and not tapered and view.end_taper_px[end] < FLAT_TIP_HALF_TAPER_PX:
                 view = with_end_reading(view, end, flat)
         out.append(replace(view, taper_candidates=(None, None), flat_ends=(None, None)))
     return out[0], out[1]
