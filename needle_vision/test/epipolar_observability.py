@@ -23,15 +23,24 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import brentq
 from scipy.stats import norm
 
 from needle_vision.calibration.rig import StereoRig
-from needle_vision.render import Imaging, noise_sigma, world_from_camera
+from needle_vision.render import NEEDLE_RADIUS, Imaging, Scene, default_rig, make_scene, noise_sigma, render_signal, \
+    world_from_camera
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, distance_to_curve
 
 #: The stretch displaced: the longest run of the curve whose tangent is within this angle of its epipolar plane.
 MAX_PLANE_ANGLE_DEG = 1.0
 #: Each ramp of the displacement's window, as a fraction of the stretch.
 RAMP_FRACTION = 0.25
+
+
+def bright_scene(scene: Scene) -> Scene:
+    """The bright polarity of the tests and benches: a needle of albedo 0.9 on ``scene``'s background at 0.3x its
+    albedo."""
+    return Scene(scene.illumination, tuple(0.3 * albedo for albedo in scene.background_albedo), 0.9)
 
 
 def camera_centres(rig: StereoRig) -> tuple[np.ndarray, np.ndarray]:
@@ -62,6 +71,7 @@ def plane_angle(points: np.ndarray, rig: StereoRig) -> np.ndarray:
 
 
 def arc_length(points: np.ndarray) -> np.ndarray:
+    """Arc length [m] of each point along the polyline, from the first."""
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
@@ -75,7 +85,7 @@ def in_plane_direction(points: np.ndarray, rig: StereoRig) -> np.ndarray:
 
 
 def depth_direction(points: np.ndarray, rig: StereoRig) -> np.ndarray:
-    """Unit vectors along the viewing ray from the rigs's midpoint, made square to the tangent: the direction a
+    """Unit vectors along the viewing ray from the rig's midpoint, made square to the tangent: the direction a
     stereo rig sees least, for a stretch across the epipolar lines (where it lies in the epipolar plane)."""
     depth = unit(points - 0.5 * np.add(*camera_centres(rig)))
     along = tangents(points)
@@ -157,7 +167,6 @@ def decision_error_bound(distance: Distance) -> tuple[float, float]:
     return float(shift), float(exact)
 
 
-
 def epipolar_alternative(points: np.ndarray, rig: StereoRig, rms: float,
                          max_angle_deg: float = MAX_PLANE_ANGLE_DEG) -> Displacement:
     """The alternative centerline: displaced within the epipolar planes, across the tangent, over the longest
@@ -170,14 +179,9 @@ def report() -> None:
     """The numbers of docs/stereo_history.md's section on this: per kind along the lines and polarity, the
     displaced stretch, D at 0.2 mm RMS and the RMS at D = 1; the same bump across the epipolar planes; D with the
     needle's radius doubled (where the information is); the control across the lines."""
-    from scipy.optimize import brentq
-
-    from needle_vision.render import NEEDLE_RADIUS, Scene, default_rig, make_scene, render_signal
-    from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES
-
     rig = default_rig()
     dark = make_scene(rig, np.random.default_rng(0))
-    scenes = {"dark": dark, "bright": Scene(dark.illumination, tuple(0.3 * a for a in dark.background_albedo), 0.9)}
+    scenes = {"dark": dark, "bright": bright_scene(dark)}
 
     def distance(truth: np.ndarray, other: np.ndarray, scene: Scene, radius: float = NEEDLE_RADIUS) -> Distance:
         return image_distance(*(render_signal(rig, points, radius, scene=scene) for points in (truth, other)))
@@ -260,16 +264,13 @@ def reconstruction_report(seeds: tuple[int, ...] = (7, 1007)) -> None:
     from needle_vision.detection.centerline import extract_centerline
     from needle_vision.matching.correspondence import MatchingConfig
     from needle_vision.matching.reconstruction import ReconstructionConfig, reconstruct_centerline
-    from needle_vision.render import NEEDLE_RADIUS, Scene, default_rig, make_scene, render_background_pair, \
-        render_stereo_pair
-    from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, distance_to_curve
+    from needle_vision.render import render_background_pair, render_stereo_pair
 
     rig = default_rig()
     rectification = Rectification.from_rig(rig)
     dark = make_scene(rig, np.random.default_rng(0))
-    bright = Scene(dark.illumination, tuple(0.3 * a for a in dark.background_albedo), 0.9)
     polarities = {}
-    for name, scene, polarity in (("dark", dark, 1), ("bright", bright, -1)):
+    for name, scene, polarity in (("dark", dark, 1), ("bright", bright_scene(dark), -1)):
         frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=scene) for k in range(8)]
         polarities[name] = (scene, tuple(BackgroundModel.from_frames([pair[k] for pair in frames],
                                                                      ContrastThreshold(polarity=polarity))

@@ -8,12 +8,12 @@ the renderer's forward model (``render_signal``) and its Gaussian noise model; n
 import numpy as np
 import pytest
 
-from epipolar_observability import arc_length, decision_error_bound, depth_direction, displaced, \
+from epipolar_observability import arc_length, bright_scene, decision_error_bound, depth_direction, displaced, \
     epipolar_alternative, epipolar_normals, epipolar_stretch, image_distance, in_plane_direction, plane_angle, \
     tangents
 from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES
 from needle_vision.calibration.rectification import Rectification
-from needle_vision.render import NEEDLE_RADIUS, Scene, project_points, render_signal
+from needle_vision.render import NEEDLE_RADIUS, project_points, render_signal
 
 RMS = 0.2e-3  # twice issue 39's 0.1 mm target
 SHAPES_ALONG = {**EPIPOLAR_SHAPES, **ROD_EPIPOLAR_SHAPES}
@@ -22,7 +22,7 @@ SHAPES_ALONG = {**EPIPOLAR_SHAPES, **ROD_EPIPOLAR_SHAPES}
 @pytest.fixture(scope="module")
 def scenes(scene):
     """The default dark needle, and a bright one (albedo 0.9) on the background at 0.3x its albedo."""
-    return {"dark": scene, "bright": Scene(scene.illumination, tuple(0.3 * a for a in scene.background_albedo), 0.9)}
+    return {"dark": scene, "bright": bright_scene(scene)}
 
 
 def _distance(rig, scene, first: np.ndarray, second: np.ndarray):
