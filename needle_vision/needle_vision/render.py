@@ -329,9 +329,13 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
     return rows[keep] + lo[1], cols[keep] + lo[0], coverage[keep]
 
 
+def noise_sigma(signal: np.ndarray, imaging: Imaging) -> np.ndarray:
+    """Per-pixel standard deviation [DN] of the sensor noise on a noise-free ``signal`` (before quantisation)."""
+    return np.sqrt(imaging.read_noise ** 2 + imaging.shot_gain * np.maximum(signal, 0))
+
+
 def _expose(signal: np.ndarray, rng: np.random.Generator, imaging: Imaging, encoding: str) -> np.ndarray:
-    sigma = np.sqrt(imaging.read_noise ** 2 + imaging.shot_gain * np.maximum(signal, 0))
-    noisy = signal + sigma * rng.standard_normal(signal.shape, dtype=np.float32)
+    noisy = signal + noise_sigma(signal, imaging) * rng.standard_normal(signal.shape, dtype=np.float32)
     return gray_to_encoding(noisy, encoding)
 
 
@@ -344,6 +348,30 @@ def render_background_pair(rig: StereoRig, rng: np.random.Generator, *, scene: S
                  for k in range(2))
 
 
+def render_signal(rig: StereoRig, centerline_points_world: np.ndarray, radius: float, *, scene: Scene | None = None,
+                  imaging: Imaging = Imaging(), bevel_length: float = 0.0, end_caps: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The noise-free left and right images [DN, float32] of :func:`render_stereo_pair` (the signal its sensor
+    noise and quantisation are applied to); the arguments are its."""
+    points = np.asarray(centerline_points_world, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2 or not np.all(np.isfinite(points)):
+        raise ValueError("centerline_points_world must be a finite (n >= 2, 3) array")
+    if not radius > 0:
+        raise ValueError(f"radius must be positive, got {radius}")
+    scene = scene or make_scene(rig, np.random.default_rng(0))
+    signals = []
+    for k, (side, camera) in enumerate((("left", rig.left), ("right", rig.right))):
+        albedo = scene.background_albedo[k].copy()
+        points_camera = world_from_camera(rig, side).inverse().apply(points)
+        if np.any(points_camera[:, 2] <= radius):
+            raise ValueError(f"part of the needle is behind the {side} camera")
+        rows, cols, coverage = needle_coverage(camera, points_camera, radius, imaging.blur_sigma_px,
+                                               bevel_length=bevel_length, end_caps=end_caps)
+        albedo[rows, cols] = (1 - coverage) * albedo[rows, cols] + coverage * scene.needle_albedo
+        signals.append(scene.illumination[k] * albedo)
+    return signals[0], signals[1]
+
+
 def render_stereo_pair(rig: StereoRig, centerline_points_world: np.ndarray, radius: float,
                        rng: np.random.Generator, *, scene: Scene | None = None,
                        imaging: Imaging = Imaging(), encoding: str = "mono8", bevel_length: float = 0.0,
@@ -354,22 +382,8 @@ def render_stereo_pair(rig: StereoRig, centerline_points_world: np.ndarray, radi
     ``encoding``: mono8, mono16, bgr8 or rgb8. ``scene`` defaults to ``make_scene(rig, rng(0))`` (make it once
     and pass it when rendering many frames: it costs ~0.1 s). ``bevel_length`` [m]: the last point's end
     bevelled over that length (see :func:`needle_coverage`; 0: cut flat); ``end_caps``: the flat ends show their end
-    discs (see there).
+    discs (see there). The noise-free images: :func:`render_signal`.
     """
-    points = np.asarray(centerline_points_world, dtype=float)
-    if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2 or not np.all(np.isfinite(points)):
-        raise ValueError("centerline_points_world must be a finite (n >= 2, 3) array")
-    if not radius > 0:
-        raise ValueError(f"radius must be positive, got {radius}")
-    scene = scene or make_scene(rig, np.random.default_rng(0))
-    images = []
-    for k, (side, camera) in enumerate((("left", rig.left), ("right", rig.right))):
-        albedo = scene.background_albedo[k].copy()
-        points_camera = world_from_camera(rig, side).inverse().apply(points)
-        if np.any(points_camera[:, 2] <= radius):
-            raise ValueError(f"part of the needle is behind the {side} camera")
-        rows, cols, coverage = needle_coverage(camera, points_camera, radius, imaging.blur_sigma_px,
-                                               bevel_length=bevel_length, end_caps=end_caps)
-        albedo[rows, cols] = (1 - coverage) * albedo[rows, cols] + coverage * scene.needle_albedo
-        images.append(_expose(scene.illumination[k] * albedo, rng, imaging, encoding))
-    return images[0], images[1]
+    signals = render_signal(rig, centerline_points_world, radius, scene=scene, imaging=imaging,
+                            bevel_length=bevel_length, end_caps=end_caps)
+    return _expose(signals[0], rng, imaging, encoding), _expose(signals[1], rng, imaging, encoding)
