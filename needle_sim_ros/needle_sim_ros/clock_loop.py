@@ -59,7 +59,7 @@ class ClockLoop:
     def pose_arrived(self, t: float) -> None:
         """Count a pose stamped ``t`` that its step was integrated before, and add it to the poses' phase."""
         data = self.data
-        if t <= data.state.t:
+        if t <= data.time:
             self.stepper.statistics.late_poses += 1
         x = (float(t) - data.grid_origin) / self.dt
         data.pose_phase += PHASE_SMOOTHING * (cmath.exp(2j * math.pi * (x - math.floor(x))) - data.pose_phase)
@@ -97,9 +97,9 @@ class ClockLoop:
         state jumps forward in time (shape and velocities kept) and the skipped time is counted.
         """
         data, dt = self.data, self.dt
-        if data.state is None:
+        if not data.started:
             return []
-        lag = t_target - data.state.t
+        lag = t_target - data.time
         if lag > self.max_catch_up:
             skip = math.floor((lag - self.max_catch_up) / dt)
             data.step_index += skip

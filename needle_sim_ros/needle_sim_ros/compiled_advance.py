@@ -8,7 +8,7 @@ end times, the fresh twist feed-forward, the flange-to-clamp offset, and the ste
 path calls, so both give the same bits.
 
 The arguments that hold from one call to the next travel in one :class:`AdvancePlan` record, made once per plan,
-typed in C by its ``_numba_type_`` (numba 0.59 too: ``test_kernel_dispatch``): 11 arguments, not 51, to unbox per
+typed in C by its ``_numba_type_`` (numba 0.59 too: ``test_kernel_dispatch``): 8 arguments, not 51, to unbox per
 call.
 """
 from __future__ import annotations
@@ -62,13 +62,12 @@ def apply_twist(flange: np.ndarray, times: np.ndarray, twist: np.ndarray, twist_
 
 
 @njit(cache=True)
-def advance_from_trajectory(plan, times, motions, rotations, q, qd, qdd, aux, states, wrenches,
-                            iterations):
+def advance_from_trajectory(plan, times, motions, rotations, start, states, wrenches, iterations):
     """Steps at the end times ``times`` from the trajectory's fit (the plan's buffers: the arguments of
     :func:`trajectory_motions`, :attr:`BaseTrajectory.buffers`, with the fit and its state): the flange motions,
     the twist within its timeout and the flange-to-clamp offset (the plan's ``packed``: :attr:`BaseInput.packed`),
-    the clamp motions and rotations into ``motions`` (k, 19) and ``rotations`` (k, 3, 3),
-    then the steps from the start state (q, qd, qdd, aux) by :func:`integrate_sequence` with the factorization kept
+    the clamp motions and rotations into ``motions`` (k, 19) and ``rotations`` (k, 3, 3), then the steps from the
+    start state ``start`` (4, n_dof) [q, q', q'', a] by :func:`integrate_sequence` with the factorization kept
     across steps, into the outputs (states, wrenches, iterations:
     :func:`~needle_sim_ros.model.integrators.run_outputs`). Every argument is an array, a number or the
     :class:`AdvancePlan` (numba 0.59 types a tuple in Python on every call). Returns the number of steps done."""
@@ -80,7 +79,7 @@ def advance_from_trajectory(plan, times, motions, rotations, q, qd, qdd, aux, st
     apply_twist(flange, times, packed[1:8], packed[0])
     compose_offsets(flange, packed[8:11], packed[11:20].reshape((3, 3)), motions, rotations)
     history = p.history
-    history[0], history[1], history[2], history[3] = q, qd, qdd, aux
+    history[0], history[1], history[2], history[3] = start[0], start[1], start[2], start[3]
     done = integrate_sequence(history, times, motions, rotations, p.coef, p.ext_Q, p.tol, p.max_iterations,
                               p.prescribed, p.base_nodes, p.base_local_r, p.base_local_rx, p.active, p.scale,
                               p.tables, p.residual, p.band, p.pivots, p.factorization, p.kl, p.control, True,

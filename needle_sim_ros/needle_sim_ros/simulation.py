@@ -90,12 +90,12 @@ class NeedleSimulation:
 
     @property
     def started(self) -> bool:
-        return self.stepper.data.state is not None
+        return self.stepper.data.started
 
     def offer_pose(self, t: float, position, orientation) -> PoseVerdict:
         """Offer a flange pose; the first valid pose (and a re-anchoring or a restart after a gap) starts the
         needle straight there."""
-        started = self.stepper.data.state is not None
+        started = self.stepper.data.started
         verdict = self.source.offer_pose(t, position, orientation, self.clock.pose_timeout if started else math.inf)
         if started and (verdict is PoseVerdict.ACCEPTED or verdict is PoseVerdict.NORMALIZED):
             self.clock.pose_arrived(t)
@@ -123,11 +123,12 @@ class NeedleSimulation:
     def advance(self, now: float, deterministic: bool, ahead_to_pose: bool = False) -> list[StepRecord]:
         """Integrate up to :meth:`ClockLoop.target_time`; a clock that jumped back (looping bag) discards the
         state and the received poses."""
-        state = self.stepper.data.state
-        if state is not None and now < state.t - self.clock.pose_timeout:
+        data = self.stepper.data
+        started = data.started
+        if started and now < data.time - self.clock.pose_timeout:
             self.source.trajectory.clear()
             self.discard_state()
-        elif ahead_to_pose and not deterministic and state is not None:
+        elif ahead_to_pose and not deterministic and started:
             self.clock.lock_phase()
         source = self.source
         return self.clock.advance_to(self.clock.target_time(now, deterministic, ahead_to_pose,

@@ -223,7 +223,7 @@ class Stepper:
             runs = [force for force in self.extra_forces if force.compiled_run]
             sequence = sequence and not stateful and not runs
             run = runs if self.compiled_sequence and runs and all(f.compiled_run for f in stateful) else None
-        first_dt = float(times[0]) - data.state.t
+        first_dt = float(times[0]) - data.time
         regular = abs(first_dt - dt) <= 0.05 * dt + 4.0 * math.ulp(abs(t_target))  # not after a grid shift
         # the base from the received poses: a compiled run evaluates its motions and takes its steps in one call
         from_poses = source.from_poses
@@ -255,7 +255,7 @@ class Stepper:
                     run_sequence(forces, times, motions, rotations, records)
                 data.step_index += done
                 i += done
-            elif run is not None and data.state.aux is not None:
+            elif run is not None and data.with_history:
                 general = True
                 stop = i + 1 if self.after_step is not None else count
                 done = self._run_steps(run, times[i:stop], motions[i:stop], rotations[i:stop], records)
@@ -280,7 +280,7 @@ class Stepper:
         Without stateful contributions they are the same objects while the integrator, the model's contributions
         and the point loads are: then the same list as before."""
         data = self.data
-        if not (sequence and data.state.aux is not None):
+        if not (sequence and data.with_history):
             return None
         key = (self.integrator, *self.extra_forces, *data.point_loads.values())
         cached_key, forces = self._sequence_plan
@@ -307,7 +307,8 @@ class Stepper:
         ``motions`` and ``rotations`` first (a run that stops early leaves them for the general step); returns how
         many steps were done (as :meth:`_step_sequence`)."""
         start = time.perf_counter()
-        state, source, memory = self.data.state, self.source, self.data.integrator
+        data, source = self.data, self.source
+        memory = data.integrator
         integrator = self.integrator
         work, (plan_integrator, plan_forces, plan_memory, plan_source, plan) = integrator.work, self._advance_plan
         if not (plan_forces is forces and plan_memory is memory and plan_integrator is integrator
@@ -316,9 +317,9 @@ class Stepper:
             before = integrator.sequence_arguments(self.dt, forces, float(times[0]), memory)
             plan = advance_plan(*before, memory.last_motion, *source.trajectory.buffers, source.packed)
             self._advance_plan = (integrator, forces, memory, source, plan)
-        outputs = run_outputs(times.size, state.q.size)
-        done = advance_from_trajectory(plan, times, motions, rotations, state.q, state.qd, state.qdd, state.aux,
-                                       *outputs)
+        start_rows = data.start_rows()
+        outputs = run_outputs(times.size, start_rows.shape[1])
+        done = advance_from_trajectory(plan, times, motions, rotations, start_rows, *outputs)
         self._record_run(done, outputs, start, times, motions, rotations, records)
         return done
 
@@ -337,7 +338,7 @@ class Stepper:
             w, n = wrenches[0], int(iterations[0])
             t = float(times[0])
             records.append(StepRecord(t, BaseWrench(w), n, 1, wall))
-            self._set_state(states[0], t, motions[0], rotations[0])
+            self.data.end_run(states[0], t, motions[0], rotations[0])
             stats.steps += 1
             stats.step_wall_times.append(wall)
             if n > stats.max_newton_iterations:
@@ -346,12 +347,12 @@ class Stepper:
         end_times, counts = times[:done].tolist(), iterations[:done].tolist()
         if hook is None:  # the records, then the last step's state
             records += map(StepRecord, end_times, map(BaseWrench, wrenches), counts, repeat(1), repeat(wall))
-            self._set_state(states[done - 1], end_times[-1], motions[done - 1], rotations[done - 1])
+            self.data.end_run(states[done - 1], end_times[-1], motions[done - 1], rotations[done - 1])
         else:  # the hook reads the state of its step
             for i, (t, w) in enumerate(zip(end_times, wrenches)):
                 record = StepRecord(t, BaseWrench(w), counts[i], 1, wall)
                 records.append(record)
-                self._set_state(states[i], t, motions[i], rotations[i])
+                self.data.end_run(states[i], t, motions[i], rotations[i])
                 hook(record)
         stats.steps += done
         stats.step_wall_times.extend([wall] * done)
@@ -376,9 +377,6 @@ class Stepper:
         data.force_states = tuple(own for force, own in zip(runs, owns) if force.stateful)
         self._record_run(result.done, result[1:], start, times, motions, rotations, records)
         return result.done
-
-    def _set_state(self, rows: np.ndarray, t: float, motion: np.ndarray, rotation: np.ndarray) -> None:
-        self.data.state = State(rows[0], rows[1], rows[2], float(t), rows[3], BaseMotion.from_packed(motion, rotation))
 
     def step(self, base_next: BaseMotion, t_next: float, dt: float | None = None) -> StepRecord:
         """One step of ``dt`` (default: the simulation's) to t_next on the general integrator path (sub-stepping,

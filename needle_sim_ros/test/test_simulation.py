@@ -358,7 +358,8 @@ def _simulation_state(sim, with_input: bool = True) -> dict[str, bytes]:
     contact, puncture, track, anchors, bevel and cutting phases, LuGre z and frozen forces), the model's force
     contributions (immutable) and the pose input (``with_input``; its spare buffer rows are uninitialised, so only
     comparable with itself)."""
-    parts = {name: getattr(sim.data, name) for name in sim.data.__dataclass_fields__}
+    parts = {name: getattr(sim.data, name.lstrip("_")) for name in sim.data.__dataclass_fields__
+             if name != "_run_end"}  # the state, made from a compiled run's end where it left one
     parts.update({"trajectory": sim.trajectory} if with_input else {})
     parts.update({f"force {i} ({type(force).__name__})": force for i, force in enumerate(sim.model_forces)})
     return {name: pickle.dumps(value) for name, value in parts.items()}
@@ -461,6 +462,37 @@ def test_a_copy_of_the_data_replays_an_insertion_exactly():
     assert sim.data.force_states[0].contact.track.length > saved.force_states[0].contact.track.length
     sim.data.restore(saved)
     assert run() == first
+
+
+def test_the_state_of_a_compiled_run_is_made_when_read():
+    """The node path's compiled run leaves its last step's rows in the data and the State is made when first read:
+    a run that reads the state after every pose and one that never does give the same wrenches and final state bit
+    for bit, and a copy of the data taken between poses (its state not yet made) restores that pose's state."""
+    quaternion = np.array([0.0, 0.0, 0.0, 1.0])
+
+    def run(read_each: bool) -> tuple:
+        sim = simulation_from_parameters({**PARAMETERS, "loads.tip_force": [0.0, 0.1, -0.2]})
+        wrenches, states, saved = [], [], None
+        for k in range(60):
+            t = k * 1e-3
+            sim.offer_pose(t, np.array([0.4 + 0.02 * t, 0.0, 0.3 - 0.5 * t * t]), quaternion)
+            wrenches += [record.wrench.values for record in sim.advance(t, deterministic=True)]
+            states += [sim.state] if read_each else []
+            saved = sim.data.copy() if k == 40 else saved
+        return sim, np.array(wrenches), states, saved
+
+    eager, eager_wrenches, states, _ = run(True)
+    lazy, lazy_wrenches, _, saved = run(False)
+    assert len(lazy_wrenches) == 59
+    np.testing.assert_array_equal(lazy_wrenches, eager_wrenches)
+    for part in ("q", "qd", "qdd", "aux", "t"):
+        np.testing.assert_array_equal(getattr(lazy.state, part), getattr(eager.state, part))
+    np.testing.assert_array_equal(lazy.base.packed, eager.base.packed)
+    lazy.data.restore(saved)
+    assert lazy.state.t == states[40].t == pytest.approx(0.04)
+    for part in ("q", "qd", "qdd", "aux"):
+        np.testing.assert_array_equal(getattr(lazy.state, part), getattr(states[40], part))
+    np.testing.assert_array_equal(lazy.base.packed, states[40].base.packed)
 
 
 def test_the_compiled_advance_holds_the_pose_past_its_max_extrapolation(monkeypatch):

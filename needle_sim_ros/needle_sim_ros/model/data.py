@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
 from .forces import PointLoad, check_forces
 from .integrators import Integrator, IntegratorMemory, StepResult
 from .kinematics import BaseMotion
@@ -20,7 +22,9 @@ class NeedleData:
     """Everything a step changes, in one place:
 
     * ``state``: t, q, q', q'', the integrator's history a of the last accepted step and the base motion (clamp
-      point A) at t (None: not started; :attr:`base` is the state's);
+      point A) at t (None: not started; :attr:`base` is the state's). A compiled run leaves its last step's rows
+      [q, q', q'', a], end time and packed base motion (:meth:`end_run`); its :class:`State` is made when first read
+      (the live loop's next step reads only the rows and the time: :meth:`start_rows`, :attr:`time`);
     * ``grid_origin`` [s], ``step_index``: steps end at grid_origin + step_index dt (set at each (re)start; the
       live time loop may shift the origin by less than a step to keep the grid half a step from the poses);
     * ``pose_phase``: the poses' phase on the step grid, a running mean of exp(2 pi i x) over the accepted poses,
@@ -38,12 +42,54 @@ class NeedleData:
     """
 
     integrator: IntegratorMemory
-    state: State | None = None
     grid_origin: float = 0.0
     step_index: int = 0
     pose_phase: complex = 0j
     point_loads: dict[str, PointLoad] = field(default_factory=dict)
     force_states: tuple = ()
+    _state: State | None = None
+    _run_end: tuple | None = None  # (rows (4, n_dof), t, packed motion (19,), rotation) of end_run, until read
+
+    @property
+    def state(self) -> State | None:
+        end = self._run_end
+        if end is not None:
+            rows, t, motion, rotation = end
+            self._state = State(rows[0], rows[1], rows[2], t, rows[3], BaseMotion.from_packed(motion, rotation))
+            self._run_end = None
+        return self._state
+
+    @state.setter
+    def state(self, state: State | None) -> None:
+        self._state, self._run_end = state, None
+
+    def end_run(self, rows: np.ndarray, t: float, motion: np.ndarray, rotation: np.ndarray) -> None:
+        """The state a compiled run ended at: its rows [q, q', q'', a] (4, n_dof) at time t, the base motion
+        packed (19,) with its rotation (:meth:`BaseMotion.from_packed`), all never changed after."""
+        self._state, self._run_end = None, (rows, t, motion, rotation)
+
+    @property
+    def started(self) -> bool:
+        return self._run_end is not None or self._state is not None
+
+    @property
+    def time(self) -> float:
+        """The state's time t (started)."""
+        end = self._run_end
+        return end[1] if end is not None else self._state.t
+
+    @property
+    def with_history(self) -> bool:
+        """Whether the (started) state has the integrator's history a (aux), as a compiled run needs."""
+        return self._run_end is not None or self._state.aux is not None
+
+    def start_rows(self) -> np.ndarray:
+        """[q, q', q'', a] (4, n_dof) of the state (started, :attr:`with_history`): a compiled run's start."""
+        end = self._run_end
+        if end is not None:
+            return end[0]
+        state = self._state
+        return np.stack((state.q, state.qd, state.qdd, state.aux))
 
     @property
     def base(self) -> BaseMotion | None:
@@ -55,8 +101,8 @@ class NeedleData:
 
     def restore(self, saved: NeedleData) -> None:
         """Put back the values of ``saved`` (a :meth:`copy`)."""
-        self.state, self.grid_origin, self.step_index, self.pose_phase = (
-            saved.state, saved.grid_origin, saved.step_index, saved.pose_phase)
+        self._state, self._run_end, self.grid_origin, self.step_index, self.pose_phase = (
+            saved._state, saved._run_end, saved.grid_origin, saved.step_index, saved.pose_phase)
         self.integrator, self.point_loads, self.force_states = (saved.integrator.copy(), dict(saved.point_loads),
                                                                 saved.force_states)
 
