@@ -32,9 +32,10 @@ def polarities(scene, backgrounds, rig):
 
 
 def _measure(rig, polarities, name: str, polarity: str, config: ReconstructionConfig,
-             shapes: dict = EPIPOLAR_SHAPES) -> NeedleMeasurement:
+             shapes: dict = EPIPOLAR_SHAPES, seed: int = 7, bevel: float = 0.0) -> NeedleMeasurement:
     scene, backgrounds = polarities[polarity]
-    images = render_stereo_pair(rig, shapes[name], NEEDLE_RADIUS, np.random.default_rng(7), scene=scene)
+    images = render_stereo_pair(rig, shapes[name], NEEDLE_RADIUS, np.random.default_rng(seed), scene=scene,
+                                bevel_length=bevel)
     centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
     return reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(), config,
                                   rig.world_from_left)
@@ -210,15 +211,9 @@ def test_bright_1_mm_bevel_read_as_a_taper(rig, polarities, name, seed):
     covered fraction falls more slowly than any flat end's (``centerline.CANDIDATE_TAPER_FACTOR``): a taper candidate,
     taken where the other view reads a taper or a candidate at the same end (``reconstruction._shared_bevels``). Tip
     within 0.2 mm, nothing invented (measured at seeds 7 + 1000 k, k = 0..19: 0.008-0.121 mm)."""
-    scene, backgrounds = polarities["bright"]
-    truth = SHAPES[name]
-    images = render_stereo_pair(rig, truth, NEEDLE_RADIUS, np.random.default_rng(seed), scene=scene,
-                                bevel_length=1e-3)
-    centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
-    measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
-                                         ReconstructionConfig(), rig.world_from_left)
-    check_not_invented(measurement, truth)
-    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.2e-3
+    measurement = _measure(rig, polarities, name, "bright", ReconstructionConfig(), SHAPES, seed, 1e-3)
+    check_not_invented(measurement, SHAPES[name])
+    assert np.linalg.norm(measurement.points[-1] - SHAPES[name][-1]) <= 0.2e-3
 
 
 @pytest.mark.parametrize("polarity, seed", [("bright", 7007), ("bright", 10007), ("bright", 17007), ("dark", 3007)])
@@ -234,43 +229,25 @@ def test_flat_tip_turned_towards_the_cameras_is_no_taper_candidate(rig, polariti
         assert extract_centerline(image, background).taper_candidates == (None, None)
 
 
-@pytest.mark.parametrize("name, seed", [("s_epipolar", 7), ("s_epipolar", 1007), ("s_epipolar", 2007),
-                                        ("s_epipolar", 3007), ("s_epipolar", 4007), ("turning_plane", 1007),
-                                        ("turning_plane", 3007), ("turning_plane", 4007), ("curl_up", 1007),
-                                        ("curl_up", 4007)])
-def test_dark_flat_tip_read_as_a_taper_in_one_view_is_flat(rig, polarities, name, seed):
-    """A dark flat tip read as a short taper in one view (half taper 0.18-0.84 px: the S along the lines' right tip,
-    the turning plane's and the up curl's left) while the other view reads no taper: placed flat
-    (``reconstruction._shared_bevels``), a bevel being one feature seen by both cameras. Measured (seeds 7-4007,
-    dark; before: the taper kept), per-point tip [mm]: S 0.098-0.143 -> 0.016-0.051; turning plane 0.097-0.178 ->
-    0.014-0.123 (2007: 0.178 -> 0.123, 7: 0.097 -> 0.090); up curl 0.058-0.131 -> 0.020-0.099 (7: 0.091 -> 0.099).
-    Here: tip within 0.07 mm, nothing invented."""
-    scene, backgrounds = polarities["dark"]
-    truth = EPIPOLAR_SHAPES[name]
-    images = render_stereo_pair(rig, truth, NEEDLE_RADIUS, np.random.default_rng(seed), scene=scene)
-    centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
-    measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
-                                         ReconstructionConfig(), rig.world_from_left)
-    check_not_invented(measurement, truth)
-    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.07e-3
-
-
-@pytest.mark.parametrize("seed", [10007, 12007, 17007])
-def test_bright_flat_tip_read_as_a_taper_in_one_view_is_flat(rig, polarities, seed):
-    """The bright up curl's flat tip, turned towards the cameras, read as a short taper in one view (half taper
-    ~0.7 px) while the other view's covered fraction falls over 1.15-1.34 times the blur (no taper, no candidate):
-    placed flat as a dark one is. Before, a flat placement needed the other view's covered fraction below
-    ``TAPER_FACTOR`` too; now its half taper below ``FLAT_TIP_HALF_TAPER_PX`` (13 shapes x flat, 1, 2 mm x both
-    polarities x 20 seeds: only flat up curls move). Per-point tip [mm] here 0.174 / 0.244 / 0.224 -> 0.092 / 0.149 /
-    0.133. Tip within 0.16 mm, nothing invented."""
-    scene, backgrounds = polarities["bright"]
-    truth = EPIPOLAR_SHAPES["curl_up"]
-    images = render_stereo_pair(rig, truth, NEEDLE_RADIUS, np.random.default_rng(seed), scene=scene)
-    centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
-    measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
-                                         ReconstructionConfig(), rig.world_from_left)
-    check_not_invented(measurement, truth)
-    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.16e-3
+@pytest.mark.parametrize("name, polarity, seed, bound", [
+    *((name, "dark", seed, 0.07e-3) for name, seed in [
+        ("s_epipolar", 7), ("s_epipolar", 1007), ("s_epipolar", 2007), ("s_epipolar", 3007), ("s_epipolar", 4007),
+        ("turning_plane", 1007), ("turning_plane", 3007), ("turning_plane", 4007), ("curl_up", 1007),
+        ("curl_up", 4007)]),
+    *(("curl_up", "bright", seed, 0.16e-3) for seed in (10007, 12007, 17007))])
+def test_flat_tip_read_as_a_taper_in_one_view_is_flat(rig, polarities, name, polarity, seed, bound):
+    """A flat tip read as a short taper in one view (half taper 0.18-0.85 px: dark, the S along the lines' right tip,
+    the turning plane's and the up curl's left; bright, the up curl's tip turned towards the cameras) while the other
+    view reads no taper: placed flat (``reconstruction._shared_bevels``), a bevel being one feature seen by both
+    cameras. Measured (before: the taper kept), per-point tip [mm]: dark (seeds 7-4007) S 0.098-0.143 ->
+    0.016-0.051, turning plane 0.097-0.178 -> 0.014-0.123 (2007: 0.178 -> 0.123, 7: 0.097 -> 0.090), up curl
+    0.058-0.131 -> 0.020-0.099 (7: 0.091 -> 0.099); the bright up curl here 0.174 / 0.244 / 0.224 -> 0.092 / 0.149 /
+    0.133, kept tapered while a flat placement also needed the other view's covered fraction below ``TAPER_FACTOR``
+    (now: the half taper below ``FLAT_TIP_HALF_TAPER_PX``; 13 shapes x flat, 1, 2 mm x both polarities x 20 seeds:
+    only flat up curls move). Tip within 0.07 mm (dark) or 0.16 mm (bright), nothing invented."""
+    measurement = _measure(rig, polarities, name, polarity, ReconstructionConfig(), seed=seed)
+    check_not_invented(measurement, EPIPOLAR_SHAPES[name])
+    assert np.linalg.norm(measurement.points[-1] - EPIPOLAR_SHAPES[name][-1]) <= bound
 
 
 @pytest.mark.parametrize("seed", [2007, 10007])
@@ -278,14 +255,8 @@ def test_bevel_one_view_reads_flat_stays_tapered(rig, polarities, seed):
     """The dark up curl's 1 mm bevel: the left view reads its taper (half taper 1.53-1.57 px), the right view a flat
     end (no candidate). A taper that long is a bevel, not a flat tip misread (0.18-0.85 px): it is not placed flat
     (``FLAT_TIP_HALF_TAPER_PX``; placed flat, the tip 0.255 / 0.238 -> 0.482 / 0.464 mm). Tip within 0.3 mm."""
-    scene, backgrounds = polarities["dark"]
-    truth = EPIPOLAR_SHAPES["curl_up"]
-    images = render_stereo_pair(rig, truth, NEEDLE_RADIUS, np.random.default_rng(seed), scene=scene,
-                                bevel_length=1e-3)
-    centerlines = [extract_centerline(image, background) for image, background in zip(images, backgrounds)]
-    measurement = reconstruct_centerline(*centerlines, Rectification.from_rig(rig), MatchingConfig(),
-                                         ReconstructionConfig(), rig.world_from_left)
-    assert np.linalg.norm(measurement.points[-1] - truth[-1]) <= 0.3e-3
+    measurement = _measure(rig, polarities, "curl_up", "dark", ReconstructionConfig(), seed=seed, bevel=1e-3)
+    assert np.linalg.norm(measurement.points[-1] - EPIPOLAR_SHAPES["curl_up"][-1]) <= 0.3e-3
 
 
 @pytest.mark.parametrize("polarity", ["dark", "bright"])
