@@ -77,15 +77,17 @@ class ImageCenterline:
 @dataclass(frozen=True)
 class EndReading:
     """The other reading of an end, for the other view to decide (``reconstruction._shared_bevels``): a taper
-    candidate (an end placed flat whose covered fraction alone falls slowly, over ``CANDIDATE_TAPER_FACTOR`` times
-    the blur: a bright needle's relative contrast follows the background's texture, +-15 %, whose scatter hides 1 mm
-    bevels in one view, their ratio 1.20-1.50 against thresholds 1.56-1.95) or a tapered end placed flat. It replaces
-    the centerline's last ``drop`` points at that end by ``points`` (ordered outward, ending with the end),
-    ``half_taper_px`` beyond the middle of its fitted taper (0: flat)."""
+    candidate (an end placed flat whose covered fraction alone falls slowly, over ``TAPER_FACTOR`` times the blur: a
+    bright needle's relative contrast follows the background's texture, +-15 %, whose scatter hides 1 mm bevels in
+    one view, their ratio 1.20-1.50 against thresholds 1.56-1.95) or a tapered end placed flat. It replaces the
+    centerline's last ``drop`` points at that end by ``points`` (ordered outward, ending with the end),
+    ``half_taper_px`` beyond the middle of its fitted taper (0: flat). ``fall_ratio``: a candidate's covered-fraction
+    fall over the side edges' blur (strong over ``CANDIDATE_TAPER_FACTOR``; 0 for a flat placement)."""
 
     drop: int
     points: np.ndarray
     half_taper_px: float
+    fall_ratio: float
 
 
 def with_end_reading(centerline: ImageCenterline, end: int, reading: EndReading) -> ImageCenterline:
@@ -409,11 +411,12 @@ TAPER_FACTOR = 1.15
 #: ... and by more than this many times the profile's relative scatter along the needle (a weak needle's noisy
 #: profile does not tell a taper: a flat end's ratio scatters ~3x the profile's scatter about 1).
 TAPER_SIGNIFICANCE = 5.0
-#: An end placed flat whose covered fraction alone falls slowly is a taper candidate (:class:`EndReading`) where
-#: its spread exceeds this many times the blur: over noise seeds 7 + 1000 k, k = 0..19, both polarities, the flat
-#: ends (bases included) that would be candidates at ``TAPER_FACTOR`` read 1.15-1.30 (mostly the tips turned towards
-#: the cameras, the up curl's and the turning plane's; 8 up curl tips where the other view read a taper), the bright
-#: 1 mm bevels' (straight, hook) 1.38-1.66.
+#: An end placed flat whose covered fraction alone falls slowly is a taper candidate (:class:`EndReading`), a strong
+#: one where its spread exceeds this many times the blur: over noise seeds 7 + 1000 k, k = 0..19, both polarities, the
+#: flat ends (bases included) that are candidates read 1.15-1.30 (mostly the tips turned towards the cameras, the up
+#: curl's and the turning plane's; 8 up curl tips where the other view read a short taper), the bright 1 mm bevels'
+#: (straight, hook) 1.38-1.66; the 1 mm bevels along the epipolar lines that one view reads flat 1.20-1.41
+#: (``reconstruction._shared_bevels`` takes a weak candidate only where the other view reads a bevel's taper).
 CANDIDATE_TAPER_FACTOR = 1.34
 #: The end's lateral extrapolation takes a cubic term (the curvature changing along the 80 slices before the end)
 #: when its coefficient exceeds this many white-noise standard errors and the end lies within ``CUBIC_REACH`` of the
@@ -679,7 +682,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     kept, the new points ending with the end, the taper's half length [px]) of the end, (number of those points the
     other reading drops, its points, its half taper); kept is -1 where the profile leaves the image or does not
     fall (the other reading's drop where there is none)."""
-    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0)
+    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, 0.0)
     n = points.shape[0]
     if n < 100:
         return none
@@ -748,7 +751,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         if covered_found:
             profile, level, end, spread = covered_profile, covered_level, covered_end, covered_last - covered_first
             covered_tapered = _falls_slowly(profile, level, inside, spread, blur)
-            candidate = covered_tapered and not tapered and spread > CANDIDATE_TAPER_FACTOR * blur
+            candidate = covered_tapered and not tapered
             tapered = tapered and covered_tapered
     # The blur along the profile: the side edges' (the same point spread and pixel area), plus the moving average's.
     sigma = np.sqrt(side_sigma ** 2 + 2 * step ** 2 / 3)
@@ -776,8 +779,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         if other_kept >= 0 and (tapered or other_kept <= kept):
             # It drops the end's new points and the slices it does not keep, and takes back those it keeps beyond.
             return (kept, out, half_taper, len(out) + kept - min(kept, other_kept),
-                    np.vstack((points[kept:other_kept], other_out)), other_half_taper)
-    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0
+                    np.vstack((points[kept:other_kept], other_out)), other_half_taper,
+                    0.0 if tapered else spread / blur)
+    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0, 0.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1024,6 +1028,6 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
     noise, local = _scatter(points, head, slices)
     # Each end's other reading: a taper candidate (tapered) or the flat placement of a tapered end (flat).
-    candidates, flat = (tuple(None if end[3] < 0 or (end[5] == 0.0) != placed_flat else EndReading(*end[3:6])
+    candidates, flat = (tuple(None if end[3] < 0 or (end[5] == 0.0) != placed_flat else EndReading(*end[3:7])
                               for end in (first, last)) for placed_flat in (False, True))
     return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]), candidates, flat)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
-from needle_vision.detection.centerline import ImageCenterline, with_end_reading
+from needle_vision.detection.centerline import CANDIDATE_TAPER_FACTOR, ImageCenterline, with_end_reading
 from needle_vision.matching.correspondence import MatchError, MatchingConfig, match_centerlines
 from needle_vision.matching.curve_fit import fit_curve
 from needle_vision.detection.curves import (arc_length, interpolate, local_polynomial_smooth, median, run_bounds,
@@ -342,13 +342,15 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
 
 def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification: Rectification,
                    tolerance: float) -> tuple[ImageCenterline, ImageCenterline]:
-    """Both views with each taper candidate (``ImageCenterline.taper_candidates``) taken where the other view reads a
-    taper or a candidate at the same end, the rest flat, and each end tapered by less than
-    :data:`FLAT_TIP_HALF_TAPER_PX` placed flat (``flat_ends``) where the other view reads neither there. A bevel is
-    one feature of the needle, seen by both cameras: where one view's relative contrast stands out of its scatter, the
-    other's need not, and a candidate's covered fraction falls more slowly than any flat end's
-    (``CANDIDATE_TAPER_FACTOR``); a flat tip may read as a short taper in one view. The same end: the two ends (a
-    candidate's tapered) lie within ``tolerance`` [px] of one epipolar line, the other view's other end does not."""
+    """Both views with each taper candidate (``ImageCenterline.taper_candidates``) taken where the other view reads at
+    the same end a strong candidate, a taper of at least :data:`FLAT_TIP_HALF_TAPER_PX`, or, for a strong candidate,
+    any taper or candidate; the rest flat; and each end tapered by less than :data:`FLAT_TIP_HALF_TAPER_PX` placed
+    flat (``flat_ends``) where the other view reads neither a taper nor a strong candidate there. A bevel is one
+    feature of the needle, seen by both cameras: where one view's relative contrast stands out of its scatter, the
+    other's need not; a strong candidate's covered fraction falls more slowly than any flat end's
+    (``CANDIDATE_TAPER_FACTOR``), a weak one's as slowly as a flat tip's turned towards the cameras, and a flat tip
+    may read as a short taper in one view. The same end: the two ends (a candidate's tapered) lie within
+    ``tolerance`` [px] of one epipolar line, the other view's other end does not."""
     views = (left, right)
     if all(reading is None for view in views for reading in view.taper_candidates + view.flat_ends):
         return left, right
@@ -366,10 +368,14 @@ def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification:
             partner = int(np.argmin(apart))
             if not apart[partner] <= tolerance < apart[1 - partner]:
                 continue
-            tapered = other.end_taper_px[partner] > 0 or other.taper_candidates[partner] is not None
-            if candidate is not None and tapered:
+            other_taper, other_candidate = other.end_taper_px[partner], other.taper_candidates[partner]
+            other_strong = other_candidate is not None and other_candidate.fall_ratio > CANDIDATE_TAPER_FACTOR
+            other_reads = other_taper > 0 or other_candidate is not None
+            if candidate is not None and (other_strong or other_taper >= FLAT_TIP_HALF_TAPER_PX
+                                          or (candidate.fall_ratio > CANDIDATE_TAPER_FACTOR and other_reads)):
                 view = with_end_reading(view, end, candidate)
-            elif flat is not None and not tapered and view.end_taper_px[end] < FLAT_TIP_HALF_TAPER_PX:
+            elif flat is not None and not (other_taper > 0 or other_strong) \
+                    and view.end_taper_px[end] < FLAT_TIP_HALF_TAPER_PX:
                 view = with_end_reading(view, end, flat)
         out.append(replace(view, taper_candidates=(None, None), flat_ends=(None, None)))
     return out[0], out[1]
