@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "needle_vision" / "test"))
-from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, distance_to_curve  # noqa: E402  (tests' shapes)
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, bright_scene, distance_to_curve  # noqa: E402
 
 from needle_vision.calibration.rectification import Rectification  # noqa: E402
 from needle_vision.calibration.rig import camera_calibration_yaml  # noqa: E402
@@ -41,7 +41,7 @@ from needle_vision.pipeline import FrameStatus, StereoConfig, StereoNeedlePipeli
 from needle_vision.matching.correspondence import MatchingConfig  # noqa: E402
 from needle_vision.matching.reconstruction import (ReconstructionConfig, order_and_resample,  # noqa: E402
                                                    reconstruct_centerline, triangulate_centerline)
-from needle_vision.render import (NEEDLE_RADIUS, Imaging, Scene, default_rig, make_scene,  # noqa: E402
+from needle_vision.render import (NEEDLE_RADIUS, Imaging, default_rig, make_scene,  # noqa: E402
                                   render_background_pair, render_stereo_pair)
 from board_render import simulate_checkerboard_calibration  # noqa: E402  (the calibration tests' boards)
 
@@ -225,7 +225,7 @@ def epipolar_cases(rig, scene, seeds: tuple[int, ...]) -> None:
     per-point triangulation (default) against the curve fitted to both views (max_uncertainty 0.3 mm); then the fit
     at the default max_uncertainty, on the stretches the per-point path flags and over the whole needle."""
     rectification = Rectification.from_rig(rig)
-    bright = Scene(scene.illumination, tuple(0.3 * albedo for albedo in scene.background_albedo), 0.9)
+    bright = bright_scene(scene)
     polarities = {}
     for name, polarity_scene, polarity in (("dark", scene, 1), ("bright", bright, -1)):
         frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=polarity_scene) for k in range(8)]

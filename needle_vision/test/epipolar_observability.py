@@ -27,20 +27,15 @@ from scipy.optimize import brentq
 from scipy.stats import norm
 
 from needle_vision.calibration.rig import StereoRig
+from needle_vision.detection.curves import arc_length
 from needle_vision.render import NEEDLE_RADIUS, Imaging, Scene, default_rig, make_scene, noise_sigma, render_signal, \
     world_from_camera
-from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, distance_to_curve
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, bright_scene, distance_to_curve
 
 #: The stretch displaced: the longest run of the curve whose tangent is within this angle of its epipolar plane.
 MAX_PLANE_ANGLE_DEG = 1.0
 #: Each ramp of the displacement's window, as a fraction of the stretch.
 RAMP_FRACTION = 0.25
-
-
-def bright_scene(scene: Scene) -> Scene:
-    """The bright polarity of the tests and benches: a needle of albedo 0.9 on ``scene``'s background at 0.3x its
-    albedo."""
-    return Scene(scene.illumination, tuple(0.3 * albedo for albedo in scene.background_albedo), 0.9)
 
 
 def camera_centres(rig: StereoRig) -> tuple[np.ndarray, np.ndarray]:
@@ -68,11 +63,6 @@ def plane_angle(points: np.ndarray, rig: StereoRig) -> np.ndarray:
     """Angle [rad] between the tangent and the epipolar plane at each point: 0 where the curve runs in its
     epipolar plane (its image along the epipolar lines in both views)."""
     return np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", tangents(points), epipolar_normals(points, rig))), 0, 1))
-
-
-def arc_length(points: np.ndarray) -> np.ndarray:
-    """Arc length [m] of each point along the polyline, from the first."""
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
 def in_plane_direction(points: np.ndarray, rig: StereoRig) -> np.ndarray:

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from vision_shapes import EPIPOLAR_SHAPES, SHAPES
+from vision_shapes import EPIPOLAR_SHAPES, SHAPES, bright_scene
 from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.detection.centerline import CenterlineConfig, NoNeedleError, extract_centerline
 from needle_vision.detection.curves import resample
-from needle_vision.render import NEEDLE_RADIUS, Imaging, Scene, make_scene, project_points, render_background_pair, \
+from needle_vision.render import NEEDLE_RADIUS, Imaging, make_scene, project_points, render_background_pair, \
     render_stereo_pair
 
 
@@ -84,7 +84,7 @@ def test_centerline_error_is_not_correlated_with_the_background_texture(rig, sce
     0.019-0.027 / 0.045-0.084 px; after, with the covered fraction (B - I) / (B - N), N the needle's own level along
     it: noise-free <= 0.003 / 0.008 px, noisy 0.005-0.014 / 0.013-0.036 px (the white noise's)."""
     if polarity == "bright":
-        scene = Scene(scene.illumination, tuple(0.3 * albedo for albedo in scene.background_albedo), 0.9)
+        scene = bright_scene(scene)
     imaging = Imaging() if noise == "noisy" else Imaging(read_noise=0.0, shot_gain=0.0)
     threshold = ContrastThreshold(polarity=1 if polarity == "dark" else -1)
     frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=scene, imaging=imaging)

@@ -8,11 +8,11 @@ the renderer's forward model (``render_signal``) and its Gaussian noise model; n
 import numpy as np
 import pytest
 
-from epipolar_observability import arc_length, bright_scene, decision_error_bound, depth_direction, displaced, \
-    epipolar_alternative, epipolar_normals, epipolar_stretch, image_distance, in_plane_direction, plane_angle, \
-    tangents
-from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES
+from epipolar_observability import decision_error_bound, depth_direction, displaced, epipolar_alternative, \
+    epipolar_normals, epipolar_stretch, image_distance, in_plane_direction, plane_angle, tangents
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, bright_scene
 from needle_vision.calibration.rectification import Rectification
+from needle_vision.detection.curves import arc_length
 from needle_vision.render import NEEDLE_RADIUS, project_points, render_signal
 
 RMS = 0.2e-3  # twice issue 39's 0.1 mm target

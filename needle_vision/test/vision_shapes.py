@@ -9,9 +9,15 @@ from scipy.optimize import brentq
 
 from needle_vision.calibration.rig import StereoRig
 from needle_vision.matching.reconstruction import UNMEASURED, NeedleMeasurement
-from needle_vision.render import NEEDLE_LENGTH, project_points
+from needle_vision.render import NEEDLE_LENGTH, Scene, project_points
 
 SAMPLES = 1081  # 0.25 mm along the needle: the polyline is the true curve to ~1e-8 m for these curvatures
+
+
+def bright_scene(scene: Scene) -> Scene:
+    """The bright polarity of the tests and benches: a needle of albedo 0.9 on ``scene``'s background at 0.3x its
+    albedo."""
+    return Scene(scene.illumination, tuple(0.3 * albedo for albedo in scene.background_albedo), 0.9)
 
 
 def centerline_from_angles(pitch, yaw=lambda xi: 0.0 * xi, length: float = NEEDLE_LENGTH) -> np.ndarray:

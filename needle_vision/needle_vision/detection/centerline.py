@@ -680,8 +680,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     1 mm bevel in its scatter) the end is placed flat and the tapered end returned as a candidate, for the other
     view to decide (``reconstruction._shared_bevels``); so is a tapered end placed flat. Returns (number of points
     kept, the new points ending with the end, the taper's half length [px]) of the end, (number of those points the
-    other reading drops, its points, its half taper); kept is -1 where the profile leaves the image or does not
-    fall (the other reading's drop where there is none)."""
+    other reading drops, its points, its half taper, a candidate's covered-fraction fall over the blur, 0 for a flat
+    placement); kept is -1 where the profile leaves the image or does not fall (the other reading's drop where there
+    is none)."""
     none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, 0.0)
     n = points.shape[0]
     if n < 100:
