@@ -92,12 +92,15 @@ def test_csv_header_names_the_selected_frame_on_a_bag(tmp_path, rig, background_
     assert np.sqrt(np.mean(distance_to_curve(rows[:, 4:7], SHAPES["planar"])[0] ** 2)) < 1e-4
 
 
-def test_needle_free_frames_measure_nothing(tmp_path, rig, background_frames):
+def test_needle_free_frames_measure_nothing(tmp_path, rig, background_frames, capsys):
     """Pairs without a needle: nothing measured, exit status 1, no CSV (uniform noise frames are the detection's
-    business: they are not rejected yet)."""
+    business: they are not rejected yet); the one-line error names background.frames, the usual cause when a
+    needle is there (a bag whose needle-free start is shorter than the default's pairs)."""
     folder = write_folder(tmp_path / "blank", background_frames[:6])
     code, output = measure(tmp_path, rig, folder)
     assert code == 1 and not output.exists()
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "first 3 pairs were taken as the needle-free background, background.frames" in error[0]
 
 
 @pytest.mark.parametrize("topics_from", ["arguments", "image_transport"])
