@@ -17,6 +17,10 @@ The variances differ slightly (shot noise): :func:`decision_error_bound` also gi
 that approximation, from the Bhattacharyya distance (TV <= sqrt(1 - exp(-2 D_B))). Quantisation and clipping are
 left out: they are functions of the noisy image, so they can only make the two hypotheses harder to tell apart (data
 processing) and the bounds hold for the quantised images too.
+
+The tip is another matter (:func:`tip_alternative`): moved within its epipolar plane it slides along the line by a
+different amount in each view, so its end shows where it is. D for one parameter of displacement is a lower bound
+only in that family: an estimator that must also find nuisance parameters (the bevel's length and turn) can do worse.
 """
 from __future__ import annotations
 
@@ -36,6 +40,10 @@ from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, bright_s
 MAX_PLANE_ANGLE_DEG = 1.0
 #: Each ramp of the displacement's window, as a fraction of the stretch.
 RAMP_FRACTION = 0.25
+#: The stretch before the tip over which :func:`tip_alternative` moves it [m].
+TIP_STRETCH = 10e-3
+#: The kinds whose end runs along the epipolar lines (its tangent within 0.3° of its plane).
+TIP_ALONG = ("curl_down", "curl_up", "turning_plane", "rod_curl_down", "rod_curl_up")
 
 
 def camera_centres(rig: StereoRig) -> tuple[np.ndarray, np.ndarray]:
@@ -165,6 +173,15 @@ def epipolar_alternative(points: np.ndarray, rig: StereoRig, rms: float,
     return displaced(points, in_plane_direction(points, rig), start, stop, rms)
 
 
+def tip_alternative(points: np.ndarray, rig: StereoRig, delta: float, length: float = TIP_STRETCH) -> np.ndarray:
+    """The centerline with its tip moved ``delta`` [m] within its epipolar plane, across the tangent (in depth where
+    the end runs along the lines), by a smootherstep ramp over the last ``length`` [m]: 0 and flat before it, 1 at
+    the tip."""
+    arc = arc_length(points)
+    return points + (delta * window(arc, arc[-1] - length, arc[-1] + length, length))[:, None] * \
+        in_plane_direction(points, rig)
+
+
 def report() -> None:
     """The numbers of docs/stereo_history.md's section on this: per kind along the lines and polarity, the
     displaced stretch, D at 0.2 mm RMS and the RMS at D = 1; the same bump across the epipolar planes; D with the
@@ -230,6 +247,22 @@ def report() -> None:
                 change = max(np.abs(np.asarray(a, float) - b).max() for a, b in zip(signal, moved))
                 print(f"| {name} | {1e3 * exact[0]:.0f}–{1e3 * exact[-1]:.0f} | {direction} | {1e3 * rms:.1f} | "
                       f"{seen.mahalanobis:.3f} | {seen.changed_pixels} | {change:.3f} |", flush=True)
+    print("\nThe tip of the kinds whose end runs along the lines, moved 0.2 mm in depth within its epipolar plane over "
+          "the last 10 mm (tip_alternative), per bevel length.\n")
+    print("| case | bevel [mm] | polarity | D | tip moved at D = 1 [mm] |")
+    print("|---|---|---|---|---|")
+    for name in TIP_ALONG:
+        truth = {**EPIPOLAR_SHAPES, **ROD_EPIPOLAR_SHAPES}[name]
+        for bevel in (0.0, 1e-3, 2e-3):
+            for polarity, scene in scenes.items():
+                signal = render_signal(rig, truth, NEEDLE_RADIUS, scene=scene, bevel_length=bevel)
+
+                def tip_seen(delta: float) -> Distance:
+                    return image_distance(signal, render_signal(rig, tip_alternative(truth, rig, delta),
+                                                                 NEEDLE_RADIUS, scene=scene, bevel_length=bevel))
+                at_one = brentq(lambda delta: tip_seen(delta).mahalanobis - 1, 1e-6, 5e-3, xtol=1e-7)
+                print(f"| {name} | {1e3 * bevel:.0f} | {polarity} | {tip_seen(0.2e-3).mahalanobis:.1f} | "
+                      f"{1e3 * at_one:.3f} |", flush=True)
     print("\nControl: the same bump (0.2 mm RMS) in depth, square to the tangent, on a stretch across the lines.\n")
     print("| case | stretch [mm] | angle to the plane [°] | polarity | D | RMS at D = 1 [µm] |")
     print("|---|---|---|---|---|---|")
