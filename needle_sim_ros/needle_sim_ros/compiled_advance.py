@@ -9,8 +9,7 @@ path calls, so both give the same bits.
 
 The arguments that hold from one call to the next travel in one :class:`AdvancePlan` record, made once per plan,
 typed in C by its ``_numba_type_`` (numba 0.59 too: ``test_kernel_dispatch``): 8 arguments, not 51, to unbox per
-call. The stepper calls the compiled function for the plan's argument types directly (:func:`compiled_entry`):
-typing the record costs the dispatcher ~0.6 us a call (it has no C fingerprint, numba raises and clears an error).
+call; the stepper calls it for their types directly (:func:`compiled_entry`: the dispatcher types a record at ~0.6 us).
 """
 from __future__ import annotations
 
@@ -53,9 +52,8 @@ def advance_plan(*fields):
 
 
 def compiled_entry(dispatcher, *arguments):
-    """The compiled function of the numba ``dispatcher`` for the types of ``arguments`` (compiled or loaded from the
-    cache now if new), callable without the dispatcher's typing of every argument: only with values of those types
-    (its wrapper unboxes them as such, unchecked)."""
+    """The compiled function of the numba ``dispatcher`` for the types of ``arguments`` (compiled or loaded now if
+    new): no typing per call, so only for values of these types (its wrapper unboxes them as such, unchecked)."""
     return dispatcher.compile(tuple(map(dispatcher.typeof_pyval, arguments)))
 
 

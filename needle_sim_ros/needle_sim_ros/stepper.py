@@ -308,12 +308,10 @@ class Stepper:
         many steps were done (as :meth:`_step_sequence`)."""
         start = time.perf_counter()
         data, source = self.data, self.source
-        memory = data.integrator
-        integrator = self.integrator
+        memory, integrator, work = data.integrator, self.integrator, self.integrator.work
         start_rows = data.start_rows()
         outputs = run_outputs(times.size, start_rows.shape[1])
-        work, (plan_integrator, plan_forces, plan_memory, plan_source, plan, advance) = (integrator.work,
-                                                                                        self._advance_plan)
+        plan_integrator, plan_forces, plan_memory, plan_source, plan, advance = self._advance_plan
         if not (plan_forces is forces and plan_memory is memory and plan_integrator is integrator
                 and plan_source is source and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
             # else: the checks and caches of sequence_arguments

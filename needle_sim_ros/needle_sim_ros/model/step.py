@@ -129,8 +129,7 @@ def run_steps(history, times, motions, rotations, constant_Q, held_Q, solver, ba
         axis = impose_base(motion, rotation, base_local_r, base_local_rx, base_nodes, prescribed)  # 1. predict
         moved = False
         if keep_matrix:
-            for j in range(19):  # scalar: no temporary array
-                moved = moved or motion[j] != last_motion[j]
+            moved = np.any(motion != last_motion)
             last_motion[:] = motion
         status, total, _ = solve_step(values, current, prescribed, axis, rotation, constant_Q, ext_Q, solver, work,
                                       control, keep_matrix, moved, forces, assemble)  # 2.-3.
