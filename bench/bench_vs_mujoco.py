@@ -149,18 +149,22 @@ def compiled_call_time(gravity: bool, kept_load: float, at_mid: bool, seconds: f
     the argument unboxing, the base motion from the pose fit and the step with its wrench), in a run as the node
     drives it (:func:`simulator_step_time`), without the Python around it."""
     spent = [0.0]
-    inner = stepper_module.advance_from_trajectory
+    inner = stepper_module.compiled_entry
 
-    def timed(*arguments):
-        start = CLOCK()
-        result = inner(*arguments)
-        spent[0] += CLOCK() - start
-        return result
-    stepper_module.advance_from_trajectory = timed
+    def timed_entry(*arguments):
+        call = inner(*arguments)
+
+        def timed(*arguments):
+            start = CLOCK()
+            result = call(*arguments)
+            spent[0] += CLOCK() - start
+            return result
+        return timed
+    stepper_module.compiled_entry = timed_entry
     try:
         simulator_step_time(gravity, kept_load, at_mid, seconds, False)
     finally:
-        stepper_module.advance_from_trajectory = inner
+        stepper_module.compiled_entry = inner
     return spent[0] / round(seconds / DT)
 
 

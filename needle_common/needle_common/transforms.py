@@ -57,9 +57,9 @@ def from_rotation_vector(r) -> tuple[float, float, float, float]:
 def quaternion_matrix(quaternion: np.ndarray) -> np.ndarray:
     """Rotation matrix of a unit quaternion (x, y, z, w)."""
     x, y, z, w = quaternion[0], quaternion[1], quaternion[2], quaternion[3]
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),  # flat: compiled, one
+                     2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),  # allocation (nested
+                     2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))).reshape(3, 3)  # lists: 9)
 
 
 @njit(cache=True)

@@ -393,12 +393,11 @@ def _motion_difference(previous: np.ndarray, current: np.ndarray, delta: np.ndar
     """Packed motion ``previous`` minus ``current`` as the (6, 3) correction rows ``delta`` of
     :func:`_apply_correction`; the rotation as the world-frame rotation vector from the current to the previous
     orientation."""
-    delta[0] = previous[0:3] - current[0:3]
-    delta[1] = previous[7:10] - current[7:10]
-    delta[2] = previous[13:16] - current[13:16]
-    delta[3] = to_rotation_vector(multiply(previous[3:7], conjugate(current[3:7])))
-    delta[4] = previous[10:13] - current[10:13]
-    delta[5] = previous[16:19] - current[16:19]
+    rotation = to_rotation_vector(multiply(previous[3:7], conjugate(current[3:7])))
+    for j in range(3):  # scalar: no temporary arrays
+        for row, at in ((0, 0), (1, 7), (2, 13), (4, 10), (5, 16)):
+            delta[row, j] = previous[at + j] - current[at + j]
+        delta[3, j] = rotation[j]
 
 
 @njit(cache=True)
@@ -411,7 +410,7 @@ def _apply_correction(delta: np.ndarray, start: float, blend: float, hold_time: 
         tau = times[i] - start
         if tau < 0.0 or tau >= blend or times[i] > hold_time:
             continue
-        c, c1, c2 = np.empty(3), np.empty(3), np.empty(3)  # only here: most corrections have faded at most times
+        c, c1, c2 = np.empty((3, 3))  # only here: most corrections have faded at most times
         x = tau / blend
         g = 1.0 - x * x * x * (10.0 - 15.0 * x + 6.0 * x * x)
         g1 = -30.0 * x * x * (1.0 - x) * (1.0 - x) / blend

@@ -12,7 +12,7 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from needle_sim_ros.compiled_advance import advance_from_trajectory, advance_plan
+from needle_sim_ros.compiled_advance import advance_from_trajectory, advance_plan, compiled_entry
 from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, ModelShape, NeedleData, NeedleModel,
                                   NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed,
                                   acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
@@ -110,9 +110,9 @@ class Stepper:
         self.compiled_sequence = True
         self._sequence_plan: tuple = ((), None)  # (key, forces) of _sequence_forces
         self._run_plan: ContributionRun | None = None  # the composed compiled run of _run_steps
-        # (integrator, forces, memory, base source, AdvancePlan) of _advance_from_trajectory's call: the plan while
-        # the others hold
-        self._advance_plan: tuple = (None, None, None, None, None)
+        # (integrator, forces, memory, base source, AdvancePlan, compiled entry) of _advance_from_trajectory's call:
+        # the plan while the others hold
+        self._advance_plan: tuple = (None,) * 6
         self.source = None  # the base source of the current run
 
     def rebuild_model(self, model_builder: ModelBuilder) -> None:
@@ -308,18 +308,19 @@ class Stepper:
         many steps were done (as :meth:`_step_sequence`)."""
         start = time.perf_counter()
         data, source = self.data, self.source
-        memory = data.integrator
-        integrator = self.integrator
-        work, (plan_integrator, plan_forces, plan_memory, plan_source, plan) = integrator.work, self._advance_plan
+        memory, integrator, work = data.integrator, self.integrator, self.integrator.work
+        start_rows = data.start_rows()
+        outputs = run_outputs(times.size, start_rows.shape[1])
+        plan_integrator, plan_forces, plan_memory, plan_source, plan, advance = self._advance_plan
         if not (plan_forces is forces and plan_memory is memory and plan_integrator is integrator
                 and plan_source is source and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
             # else: the checks and caches of sequence_arguments
             before = integrator.sequence_arguments(self.dt, forces, float(times[0]), memory)
             plan = advance_plan(*before, memory.last_motion, *source.trajectory.buffers, source.packed)
-            self._advance_plan = (integrator, forces, memory, source, plan)
-        start_rows = data.start_rows()
-        outputs = run_outputs(times.size, start_rows.shape[1])
-        done = advance_from_trajectory(plan, times, motions, rotations, start_rows, *outputs)
+            # the arguments' types hold with the plan: times (k,) of the clock loop, the rows and arrays made here
+            advance = compiled_entry(advance_from_trajectory, plan, times, motions, rotations, start_rows, *outputs)
+            self._advance_plan = (integrator, forces, memory, source, plan, advance)
+        done = advance(plan, times, motions, rotations, start_rows, *outputs)
         self._record_run(done, outputs, start, times, motions, rotations, records)
         return done
 

@@ -9,6 +9,7 @@ import math
 import pytest
 from numba.core.dispatcher import Dispatcher
 
+from needle_sim_ros.compiled_advance import AdvancePlan
 from needle_sim_ros.model import BaseMotion, Gravity, build_model, needle_properties
 from needle_sim_ros.model.newton import model_tables, unpack_tables
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
@@ -49,22 +50,42 @@ def test_the_general_step_and_the_compiled_run_type_no_argument_in_python(compil
     assert len(records) == 40 and not typed, sorted(set(typed))
 
 
+def pose_and_advance(simulation: NeedleSimulation, k: int) -> list:
+    """The node's pose k (1 kHz, a pitching flange) and its advance."""
+    angle = math.radians(5.0) * math.sin(math.pi * k * 1e-3)
+    simulation.offer_pose(k * 1e-3, [0.0, 0.0, 0.0], [0.0, math.sin(0.5 * angle), 0.0, math.cos(0.5 * angle)])
+    return simulation.advance(k * 1e-3, deterministic=True)
+
+
 def test_the_node_path_from_the_poses_types_no_argument_in_python(monkeypatch):
     """The live loop's one compiled call per pose (``compiled_advance``: the trajectory's fit, the twist, the
     offset and the steps), as the node drives it at 1 kHz."""
     simulation = simulation_from_parameters(PARAMETERS)
-
-    def offer(k: int) -> list:
-        angle = math.radians(5.0) * math.sin(math.pi * k * 1e-3)
-        simulation.offer_pose(k * 1e-3, [0.0, 0.0, 0.0], [0.0, math.sin(0.5 * angle), 0.0, math.cos(0.5 * angle)])
-        return simulation.advance(k * 1e-3, deterministic=True)
     for k in range(20):
-        offer(k)
+        pose_and_advance(simulation, k)
     typed = typed_in_python(monkeypatch)
     records = []
     for k in range(20, 60):
-        records += offer(k)
+        records += pose_and_advance(simulation, k)
     assert len(records) == 40 and not typed, sorted(set(typed))
+
+
+def test_the_node_paths_compiled_call_types_its_plan_once(monkeypatch):
+    """The node path calls the compiled advance for its plan's types (``compiled_entry``): the dispatcher, which
+    reads the plan record's ``_numba_type_`` on every call (~0.6 us: no C fingerprint for a record), types it once
+    per plan, not per pose."""
+    simulation = simulation_from_parameters(PARAMETERS)
+    for k in range(20):
+        pose_and_advance(simulation, k)
+    reads = []
+    numba_type = AdvancePlan._numba_type_
+    monkeypatch.setattr(AdvancePlan, "_numba_type_", property(lambda plan: reads.append(1) or numba_type.fget(plan)))
+    records = []
+    for k in range(20, 60):
+        records += pose_and_advance(simulation, k)
+    assert len(records) == 40 and not reads
+    simulation.set_point_load("new plan", 0.2, [0.0, 0.0, -0.01])
+    assert pose_and_advance(simulation, 60) and reads  # a new plan is typed (once)
 
 
 def test_the_tissue_run_types_no_argument_in_python(monkeypatch):
