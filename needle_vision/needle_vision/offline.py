@@ -224,9 +224,8 @@ def open_source(path: Path, fps: float, left_topic: str, right_topic: str, toler
 
 def decoded(jobs: Iterator[PairJob], workers: int, depth: int
             ) -> Iterator[tuple[int, float, Future, list[PoseStamped]]]:
-    """The jobs with their loaders running on ``workers`` threads up to ``depth`` pairs ahead; the jobs
-    themselves (reading a bag: parsing, with chunks decompressed on threads of the reader) are iterated on one
-    more thread."""
+    """The jobs with their loaders running on ``workers`` threads up to ``depth`` pairs ahead; the jobs themselves
+    (reading a bag: parsing, with chunks decompressed on threads of the reader) are iterated on one more thread."""
     ahead: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
     end = object()

@@ -664,25 +664,23 @@ def _profile_crossings(s, grid, band, inside, start):  # pragma: no cover - comp
 def _end_along_profile(image, background, polarity, points, half_width, step=0.25):  # pragma: no cover - compiled
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
-    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely) gives
-    the direction of the profile (its grid bent along the needle's curvature) of the covered fraction
-    (B - I) / (B - N) integrated across the needle's band (its blurred edges included; N the needle's own
-    intensity); the end is where that profile falls to half its level (a flat end is a step blurred
-    symmetrically). The points within ``half_width + 1`` px of the end (centroids biased
-    by the oblique cut) are replaced by a quadratic (the needle's curvature; a cubic where its change along them is
-    significant and the end near) fitted to the 80 before them, evenly
-    spaced at the centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls
-    (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its
-    noise), on the relative contrast and on the covered fraction alike, a blurred linear taper is fitted to the
-    profile and the end put half its length beyond its middle (least squares over the whole taper: the
-    half-contrast crossing alone moves with the noise of a few samples on a shallow slope). Where only the covered
-    fraction falls slowly (a bright needle's relative contrast, modulated by the background's texture, may hide a
-    1 mm bevel in its scatter) the end is placed flat and the tapered end returned as a candidate, for the other
-    view to decide (``reconstruction._shared_bevels``); so is a tapered end placed flat. Returns (number of points
-    kept, the new points ending with the end, the taper's half length [px]) of the end, (number of those points the
-    other reading drops, its points, its half taper, a candidate's covered-fraction fall over the blur, 0 for a flat
-    placement); kept is -1 where the profile leaves the image or does not fall (the other reading's drop where there
-    is none)."""
+    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely) gives the
+    direction of the profile (its grid bent along the needle's curvature) of the covered fraction (B - I) / (B - N)
+    integrated across the needle's band (its blurred edges included; N the needle's own intensity); the end is where
+    that profile falls to half its level (a flat end is a step blurred symmetrically). The points within ``half_width +
+    1`` px of the end (centroids biased by the oblique cut) are replaced by a quadratic (the needle's curvature; a cubic
+    where its change along them is significant and the end near) fitted to the 80 before them, evenly spaced at the
+    centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls (25-75 %) over more
+    than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its noise), on the relative
+    contrast and on the covered fraction alike, a blurred linear taper is fitted to the profile and the end put half its
+    length beyond its middle (least squares over the whole taper: the half-contrast crossing alone moves with the noise
+    of a few samples on a shallow slope). Where only the covered fraction falls slowly (a bright needle's relative
+    contrast, modulated by the background's texture, may hide a 1 mm bevel in its scatter) the end is placed flat and
+    the tapered end returned as a candidate, for the other view to decide (``reconstruction._shared_bevels``); so is a
+    tapered end placed flat. Returns (number of points kept, the new points ending with the end, the taper's half length
+    [px]) of the end, (number of those points the other reading drops, its points, its half taper, a candidate's
+    covered-fraction fall over the blur, 0 for a flat placement); kept is -1 where the profile leaves the image or does
+    not fall (the other reading's drop where there is none)."""
     none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, 0.0)
     n = points.shape[0]
     if n < 100:
@@ -896,10 +894,9 @@ def _slice_points(image, background, polarity, path, half_width, wide, min_contr
 @numba.njit(cache=True, nogil=True)
 def _kept_slices(points, keep, full, width_contrast, local, min_profile_fraction,
                  half_width):  # pragma: no cover - compiled
-    """Indices of the slices kept (:func:`_slice_points`' ``keep`` that are ``full`` or have
-    ``min_profile_fraction`` of the ``local`` median width contrast), less those within ``half_width`` (+1 after)
-    of a hidden stretch (kept points more than GAP_PX apart): there the slices may be cut by the occluder's edge
-    (centroid biased)."""
+    """Indices of the slices kept (:func:`_slice_points`' ``keep`` that are ``full`` or have ``min_profile_fraction`` of
+    the ``local`` median width contrast), less those within ``half_width`` (+1 after) of a hidden stretch (kept points
+    more than GAP_PX apart): there the slices may be cut by the occluder's edge (centroid biased)."""
     selected = np.flatnonzero(keep)
     for j in range(selected.shape[0]):
         k = selected[j]

@@ -6,14 +6,13 @@ rectified camera frame minimises
     sum_i (n_i . (q_i - P_v(C(u_i))))^2 / sigma_i^2  +  sum_ends (t_end . (q_end - P_v(C(u_end))))^2 / sigma_end^2
     +  bending_weight * integral |C''(u)|^2 du
 
-over every detected centerline point ``q_i`` of both rectified views ``v`` (``u_i`` its foot on the projected
-curve, ``n_i`` the projected curve's normal there, ``sigma_i`` its local image noise), the four image ends and a
-bending-energy prior (Gauss-Newton, the feet re-projected each iteration, Huber weights against stray points).
-Where the needle runs along the epipolar lines the images say nothing about depth; the curve's continuity carries
-it across from the stretches around, and the fit's covariance (the normal matrix's inverse: image noise through
-the Jacobian, with the prior; the image noise's correlated part widens the image terms only) says how well: each
-sample's sigma is the standard deviation along the worst direction across the needle.
-The per-point triangulation is the initial guess.
+over every detected centerline point ``q_i`` of both rectified views ``v`` (``u_i`` its foot on the projected curve,
+``n_i`` the projected curve's normal there, ``sigma_i`` its local image noise), the four image ends and a bending-energy
+prior (Gauss-Newton, the feet re-projected each iteration, Huber weights against stray points). Where the needle runs
+along the epipolar lines the images say nothing about depth; the curve's continuity carries it across from the stretches
+around, and the fit's covariance (the normal matrix's inverse: image noise through the Jacobian, with the prior; the
+image noise's correlated part widens the image terms only) says how well: each sample's sigma is the standard deviation
+along the worst direction across the needle. The per-point triangulation is the initial guess.
 """
 from __future__ import annotations
 

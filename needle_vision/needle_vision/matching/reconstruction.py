@@ -75,10 +75,9 @@ class ReconstructionConfig:
 
 @dataclass(frozen=True)
 class NeedleMeasurement:
-    """The measured centerline in the output frame, base to tip: samples ``points (k, 3)`` [m], unit
-    ``tangents``, ``arc_length`` [m], 1-sigma ``uncertainty`` [m] (UNMEASURED in gaps, see ``measured``),
-    total ``length`` [m]; the inlier
-    ``triangulated`` points ``(n, 3)`` before smoothing; and the raw image centerlines (for the debug image)."""
+    """The measured centerline in the output frame, base to tip: samples ``points (k, 3)`` [m], unit ``tangents``,
+    ``arc_length`` [m], 1-sigma ``uncertainty`` [m] (UNMEASURED in gaps, see ``measured``), total ``length`` [m]; the
+    inlier ``triangulated`` points ``(n, 3)`` before smoothing; and the raw image centerlines (for the debug image)."""
 
     points: np.ndarray
     tangents: np.ndarray
@@ -248,10 +247,9 @@ def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: in
 
 @dataclass(frozen=True)
 class Triangulation:
-    """The inlier triangulated points of a pair in the output frame, in left-curve order (base and tip not told
-    yet), their 1-sigma uncertainty [m] (white: the smoothing averages it) and whether each was anchored;
-    their mean spacing [m]; the image centerlines. What :func:`order_and_resample` needs: independent of the
-    previous frames."""
+    """The inlier triangulated points of a pair in the output frame, in left-curve order (base and tip not told yet),
+    their 1-sigma uncertainty [m] (white: the smoothing averages it) and whether each was anchored; their mean spacing
+    [m]; the image centerlines. What :func:`order_and_resample` needs: independent of the previous frames."""
 
     points: np.ndarray
     sigma: np.ndarray
@@ -383,11 +381,10 @@ def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification:
 
 def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray, rectification: Rectification,
                       radius: float) -> ImageCenterline:
-    """``centerline`` of camera ``side`` shortened at each end by what the end's disc (``radius``, square to the
-    needle) adds beyond the flat cut: a half ellipse of half axis a = f radius |cos theta| / Z along the needle
-    (theta between the end's tangent and the viewing ray, Z the end's distance; from the first triangulation
-    ``points``, raw left frame), whose half-contrast point lies END_CAP_CROSSING a beyond the end (tapered ends:
-    not moved)."""
+    """``centerline`` of camera ``side`` shortened at each end by what the end's disc (``radius``, square to the needle)
+    adds beyond the flat cut: a half ellipse of half axis a = f radius |cos theta| / Z along the needle (theta between
+    the end's tangent and the viewing ray, Z the end's distance; from the first triangulation ``points``, raw left
+    frame), whose half-contrast point lies END_CAP_CROSSING a beyond the end (tapered ends: not moved)."""
     rig = rectification.rig
     camera, centre = (rig.left, np.zeros(3)) if side == "left" else (rig.right, rig.left_from_right.translation)
     ends = points[[0, -1]]
