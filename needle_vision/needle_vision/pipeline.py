@@ -214,12 +214,9 @@ class StereoNeedlePipeline:
             return PairMeasurement(centerlines, triangulate_centerline(*centerlines, self.rectification,
                                                                        config.matching, config.reconstruction,
                                                                        self.output_from_left))
-        except NoNeedleError as error:
-            return PairMeasurement(rejection=("no needle", str(error)))
-        except ImplausibleError as error:
-            return PairMeasurement(rejection=("implausible", str(error)))
-        except MatchError as error:
-            return PairMeasurement(rejection=("no stereo match", str(error)))
+        except (NoNeedleError, MatchError) as error:  # ImplausibleError is a MatchError
+            kind = {NoNeedleError: "no needle", ImplausibleError: "implausible"}.get(type(error), "no stereo match")
+            return PairMeasurement(rejection=(kind, str(error)))
 
     def _complete(self, stamp: float, left: np.ndarray, right: np.ndarray, pair: PairMeasurement,
                   threshold: ContrastThreshold, backgrounds: tuple[BackgroundModel, BackgroundModel]) -> FrameResult:

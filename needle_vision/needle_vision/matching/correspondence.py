@@ -191,10 +191,7 @@ def _moved_end(curve, tangent, shift):  # pragma: no cover - compiled
     kept = curve[:-1][inside]
     end = curve[-1] + shift * tangent
     if kept.shape[0] < 16:
-        out = np.empty((kept.shape[0] + 1, 2))
-        out[:-1] = kept
-        out[-1] = end
-        return out
+        return np.vstack((kept, end.reshape(1, 2)))
     step = np.sqrt(np.sum((kept[-1] - kept[-11]) ** 2)) / 10
     anchor = kept[-4]
     gap = np.sqrt(np.sum((end - anchor) ** 2))
