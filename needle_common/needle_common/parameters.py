@@ -116,24 +116,23 @@ def _set_by_ros(name: str) -> bool:
     return name in ROS_BUILTIN or name.startswith("qos_overrides.")
 
 
-def nearest_name(name: str, known: Iterable[str]) -> str | None:
-    """The known name ``name`` is probably a misspelling of (difflib, ratio >= 0.6), if any."""
+def _did_you_mean(name: str, known: Iterable[str]) -> str:
+    """The hint " (did you mean 'Y'?)" naming the known name Y that ``name`` is probably a misspelling of (difflib,
+    ratio >= 0.6); "" when there is none."""
     close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
-    return close[0] if close else None
+    return f" (did you mean '{close[0]}'?)" if close else ""
 
 
 def unknown_name_error(name: str, known: Iterable[str], where: str = "") -> ParameterError:
     """'unknown parameter X (did you mean Y?)' with the nearest known name (difflib)."""
-    close = nearest_name(name, known)
-    hint = f" (did you mean '{close}'?)" if close else ""
-    return ParameterError(f"{where}unknown parameter '{name}'{hint}")
+    return ParameterError(f"{where}unknown parameter '{name}'{_did_you_mean(name, known)}")
 
 
 def _foreign(name: str, known: Iterable[str], where: str, warn: Callable[[str], None]) -> bool:
     """A name given to every node (a ``-p`` or a wildcard section) that resembles none of this node's: another
     package's (e.g. a parent launch's global ``robot_name``), ignored as rclpy ignores it, with a warning naming it.
     False for a probable misspelling (the caller refuses it with the suggestion)."""
-    if nearest_name(name, known) is not None:
+    if _did_you_mean(name, known):
         return False
     _warn_once(warn, f"{where}parameter '{name}' is not one of this node's (nor close to one): ignored")
     return True
@@ -315,9 +314,8 @@ def load_params_file(path: str | Path, node_name: str, specs: Sequence[ParamSpec
         section = "/" + "/".join(pattern)
         flat = flatten_tree(tree, lambda name: f"params file '{path}', section '{section}': parameter '{name}'")
         if not any(_pattern_matches(pattern, (node,)) or _pattern_matches(pattern, fq_tokens) for node in KNOWN_NODES):
-            close = difflib.get_close_matches(pattern[-1], KNOWN_NODES, n=1, cutoff=0.6)
-            hint = f" (did you mean '{close[0]}'?)" if close else ""
-            _warn_once(warn, f"params file '{path}': section '{section}' is for no node of needle_sim{hint}; ignored")
+            _warn_once(warn, f"params file '{path}': section '{section}' is for no node of needle_sim"
+                             f"{_did_you_mean(pattern[-1], KNOWN_NODES)}; ignored")
         if not _pattern_matches(pattern, fq_tokens):
             continue
         applied = True
