@@ -91,7 +91,8 @@ class BagMessage(NamedTuple):
     data: memoryview | bytes
 
 
-def _topic(name: str) -> str:
+def absolute_topic(name: str) -> str:
+    """``name`` with one leading '/' (how the bag names its topics)."""
     return "/" + name.lstrip("/")
 
 
@@ -157,7 +158,7 @@ class BagReader:
             except ValueError:
                 qos = ()
             count = statistics.channel_message_counts.get(channel_id, 0)
-            name = _topic(channel.topic)
+            name = absolute_topic(channel.topic)
             known = self.topics.get(name)
             self.topics[name] = RecordedTopic(name, schema.name if schema else "",
                                               qos or (known.offered_qos if known else ()),
@@ -172,7 +173,7 @@ class BagReader:
         """Messages of ``topics`` (with or without a leading '/'; all if None) logged at or after
         ``start_time_ns``, in log-time order within each file, files in order. Raises BagReadError naming the
         file for a file that cannot be read (and, with ``stop_on_corrupt``, for a corrupt chunk)."""
-        wanted = None if topics is None else {_topic(topic) for topic in topics}
+        wanted = None if topics is None else {absolute_topic(topic) for topic in topics}
         for file in self.files:
             try:
                 yield from self._file_messages(file, wanted, start_time_ns or 0)
@@ -187,8 +188,8 @@ class BagReader:
             if summary is None or not summary.chunk_indexes:
                 yield from _library_messages(stream, summary, wanted, start)
                 return
-            channels = {cid: (_topic(c.topic), summary.schemas[c.schema_id].name if c.schema_id else "")
-                        for cid, c in summary.channels.items() if wanted is None or _topic(c.topic) in wanted}
+            channels = {cid: (absolute_topic(c.topic), summary.schemas[c.schema_id].name if c.schema_id else "")
+                        for cid, c in summary.channels.items() if wanted is None or absolute_topic(c.topic) in wanted}
             indexed = all(index.message_index_offsets for index in summary.chunk_indexes)
             chunks = sorted((index for index in summary.chunk_indexes if index.message_end_time >= start
                              and (not indexed or channels.keys() & index.message_index_offsets.keys())),
@@ -250,8 +251,9 @@ def _library_messages(stream, summary, wanted: set[str] | None, start: int) -> I
     stream.seek(0)
     reader = SeekingReader(stream) if summary is not None else NonSeekingReader(stream)
     for schema, channel, message in reader.iter_messages(start_time=start or None, log_time_order=True):
-        if wanted is None or _topic(channel.topic) in wanted:
-            yield BagMessage(_topic(channel.topic), schema.name if schema else "", message.log_time, message.data)
+        topic = absolute_topic(channel.topic)
+        if wanted is None or topic in wanted:
+            yield BagMessage(topic, schema.name if schema else "", message.log_time, message.data)
 
 
 def _decompress(compression: str, data: memoryview, size: int) -> memoryview | bytes:

@@ -116,24 +116,23 @@ def _set_by_ros(name: str) -> bool:
     return name in ROS_BUILTIN or name.startswith("qos_overrides.")
 
 
-def nearest_name(name: str, known: Iterable[str]) -> str | None:
-    """The known name ``name`` is probably a misspelling of (difflib, ratio >= 0.6), if any."""
+def _did_you_mean(name: str, known: Iterable[str]) -> str:
+    """The hint " (did you mean 'Y'?)" naming the known name Y that ``name`` is probably a misspelling of (difflib,
+    ratio >= 0.6); "" when there is none."""
     close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
-    return close[0] if close else None
+    return f" (did you mean '{close[0]}'?)" if close else ""
 
 
 def unknown_name_error(name: str, known: Iterable[str], where: str = "") -> ParameterError:
     """'unknown parameter X (did you mean Y?)' with the nearest known name (difflib)."""
-    close = nearest_name(name, known)
-    hint = f" (did you mean '{close}'?)" if close else ""
-    return ParameterError(f"{where}unknown parameter '{name}'{hint}")
+    return ParameterError(f"{where}unknown parameter '{name}'{_did_you_mean(name, known)}")
 
 
 def _foreign(name: str, known: Iterable[str], where: str, warn: Callable[[str], None]) -> bool:
     """A name given to every node (a ``-p`` or a wildcard section) that resembles none of this node's: another
     package's (e.g. a parent launch's global ``robot_name``), ignored as rclpy ignores it, with a warning naming it.
     False for a probable misspelling (the caller refuses it with the suggestion)."""
-    if nearest_name(name, known) is not None:
+    if _did_you_mean(name, known):
         return False
     _warn_once(warn, f"{where}parameter '{name}' is not one of this node's (nor close to one): ignored")
     return True
@@ -315,9 +314,8 @@ def load_params_file(path: str | Path, node_name: str, specs: Sequence[ParamSpec
         section = "/" + "/".join(pattern)
         flat = flatten_tree(tree, lambda name: f"params file '{path}', section '{section}': parameter '{name}'")
         if not any(_pattern_matches(pattern, (node,)) or _pattern_matches(pattern, fq_tokens) for node in KNOWN_NODES):
-            close = difflib.get_close_matches(pattern[-1], KNOWN_NODES, n=1, cutoff=0.6)
-            hint = f" (did you mean '{close[0]}'?)" if close else ""
-            _warn_once(warn, f"params file '{path}': section '{section}' is for no node of needle_sim{hint}; ignored")
+            _warn_once(warn, f"params file '{path}': section '{section}' is for no node of needle_sim"
+                             f"{_did_you_mean(pattern[-1], KNOWN_NODES)}; ignored")
         if not _pattern_matches(pattern, fq_tokens):
             continue
         applied = True
@@ -375,12 +373,11 @@ def ros_arguments(argv: Sequence[str]) -> RosArguments:
 
 def check_ros_arguments(argv: Sequence[str], node_name: str, specs: Sequence[ParamSpec] | None,
                         warn: Callable[[str], None] = _print_warning, known_elsewhere: Iterable[str] = ()) -> None:
-    """Check every ``--params-file`` of a node's command line with :func:`load_params_file` before rclpy reads
-    it (rcl's own parser would fail with a traceback), and the names of its ``-p name:=value`` overrides (rclpy
-    would ignore an undeclared one silently); raises ParameterError. A ``-p`` rule without a node prefix reaches
-    every node started with the command line: names in ``known_elsewhere`` belong to the others. A ``-p`` name
-    (and a wildcard section's) that resembles none of the node's is warned about and ignored; a misspelling of one
-    is refused with the suggestion."""
+    """Check every ``--params-file`` of a node's command line with :func:`load_params_file` before rclpy reads it (rcl's
+    own parser would fail with a traceback), and the names of its ``-p name:=value`` overrides (rclpy would ignore an
+    undeclared one silently); raises ParameterError. A ``-p`` rule without a node prefix reaches every node started with
+    the command line: names in ``known_elsewhere`` belong to the others. A ``-p`` name (and a wildcard section's) that
+    resembles none of the node's is warned about and ignored; a misspelling of one is refused with the suggestion."""
     parsed = ros_arguments(argv)
     node = parsed.node_name or node_name
     for path in parsed.params_files:

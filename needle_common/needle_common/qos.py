@@ -7,7 +7,7 @@ as ``{sec, nsec}``; versions <= 8 used the rmw enum integers, which :func:`parse
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Sequence
 
 import yaml
@@ -19,6 +19,7 @@ HISTORY = ("system_default", "keep_last", "keep_all", "unknown")
 RELIABILITY = ("system_default", "reliable", "best_effort", "unknown", "best_available")
 DURABILITY = ("system_default", "transient_local", "volatile", "unknown", "best_available")
 LIVELINESS = ("system_default", "automatic", "manual_by_node", "manual_by_topic", "unknown", "best_available")
+POLICIES = {"history": HISTORY, "reliability": RELIABILITY, "durability": DURABILITY, "liveliness": LIVELINESS}
 
 # Infinity as reported by Foxy-era RMW implementations, read as infinite (as rosbag2 does).
 _LEGACY_INFINITE = {(0x7FFFFFFF, 0xFFFFFFFF), (0x7FFFFFFF, 0x7FFFFFFF), divmod(0x7FFFFFFFFFFFFFFF, 10**9)}
@@ -42,51 +43,39 @@ class OfferedQos:
     avoid_ros_namespace_conventions: bool = False
 
     def __post_init__(self) -> None:
-        for name, allowed in (("history", HISTORY), ("reliability", RELIABILITY), ("durability", DURABILITY),
-                              ("liveliness", LIVELINESS)):
+        for name, allowed in POLICIES.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"QoS {name} '{getattr(self, name)}' is not one of {', '.join(allowed)}")
         if self.depth < 0:
             raise ValueError(f"QoS depth must be >= 0, got {self.depth}")
 
     def as_dict(self) -> dict[str, Any]:
-        """rosbag2 version-9 mapping of this profile (key order as rosbag2 writes it)."""
-        def duration(ns: int) -> dict[str, int]:
-            sec, nsec = divmod(int(ns), 10**9)
-            return {"sec": sec, "nsec": nsec}
-
-        return {
-            "history": self.history,
-            "depth": int(self.depth),
-            "reliability": self.reliability,
-            "durability": self.durability,
-            "deadline": duration(self.deadline_ns),
-            "lifespan": duration(self.lifespan_ns),
-            "liveliness": self.liveliness,
-            "liveliness_lease_duration": duration(self.liveliness_lease_duration_ns),
-            "avoid_ros_namespace_conventions": bool(self.avoid_ros_namespace_conventions),
-        }
+        """rosbag2 version-9 mapping of this profile (rosbag2's key order: the fields'; durations as sec, nsec)."""
+        mapping: dict[str, Any] = {}
+        for spec in fields(self):
+            value = type(spec.default)(getattr(self, spec.name))
+            mapping[spec.name.removesuffix("_ns")] = (dict(zip(("sec", "nsec"), divmod(value, 10**9)))
+                                                      if spec.name.endswith("_ns") else value)
+        return mapping
 
     @classmethod
     def from_dict(cls, item: dict[str, Any]) -> "OfferedQos":
         """Read a profile written by any rosbag2 version (policy strings or rmw enum integers)."""
-        def policy(key: str, names: Sequence[str]) -> str:
-            value = item[key]
-            if isinstance(value, int):
-                return names[value] if 0 <= value < len(names) else "unknown"
-            return value if value in names else "unknown"
-
-        def duration(key: str) -> int:
-            sec, nsec = int(item[key]["sec"]), int(item[key]["nsec"])
-            return DURATION_INFINITE_NS if (sec, nsec) in _LEGACY_INFINITE else min(sec * 10**9 + nsec,
-                                                                                     DURATION_INFINITE_NS)
-
-        return cls(history=policy("history", HISTORY), depth=int(item["depth"]),
-                   reliability=policy("reliability", RELIABILITY), durability=policy("durability", DURABILITY),
-                   deadline_ns=duration("deadline"), lifespan_ns=duration("lifespan"),
-                   liveliness=policy("liveliness", LIVELINESS),
-                   liveliness_lease_duration_ns=duration("liveliness_lease_duration"),
-                   avoid_ros_namespace_conventions=bool(item["avoid_ros_namespace_conventions"]))
+        values: dict[str, Any] = {}
+        for spec in fields(cls):
+            value = item[spec.name.removesuffix("_ns")]
+            if spec.name in POLICIES:
+                names = POLICIES[spec.name]
+                if isinstance(value, int):
+                    value = names[value] if 0 <= value < len(names) else None
+                values[spec.name] = value if value in names else "unknown"
+            elif spec.name.endswith("_ns"):
+                sec, nsec = int(value["sec"]), int(value["nsec"])
+                values[spec.name] = DURATION_INFINITE_NS if (sec, nsec) in _LEGACY_INFINITE else min(
+                    sec * 10**9 + nsec, DURATION_INFINITE_NS)
+            else:
+                values[spec.name] = type(spec.default)(value)
+        return cls(**values)
 
 
 def offered_qos_profiles_yaml(profiles: Sequence[OfferedQos]) -> str:

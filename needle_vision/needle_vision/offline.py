@@ -29,7 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from needle_vision.detection.background import BackgroundModel
-from needle_common.bag_reader import BagMessage, BagReader, BagReadError
+from needle_common.bag_reader import BagMessage, BagReader, BagReadError, absolute_topic
 from needle_vision.streams.base_pose import store_base_pose
 from needle_vision.calibration.rig import CalibrationError, StereoRig, rig_from_calibration_files, rig_from_camera_infos
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
@@ -119,19 +119,17 @@ def _bag_records(reader: BagReader, topics: list[str]) -> Iterator[BagMessage]:
         raise InputError(str(error)) from error
 
 
-def _bag_topic(reader: BagReader, topic: str) -> tuple[int, set[str]] | None:
-    """Message count and schema names of ``topic`` in the bag's summaries (None: a file has no summary)."""
-    recorded = reader.topics.get("/" + topic.lstrip("/"))
+def _bag_topic(reader: BagReader, topic: str) -> tuple[int, str] | None:
+    """Message count and schema name of ``topic`` in the bag's summaries ((0, ""): none; None: a file lacks one)."""
+    recorded = reader.topics.get(absolute_topic(topic))
     if not reader.summarized:
         return None
-    if recorded is None or not recorded.message_count:
-        return 0, set()
-    return recorded.message_count, {recorded.type_name}
+    return (recorded.message_count, recorded.type_name) if recorded and recorded.message_count else (0, "")
 
 
 def bag_rig(reader: BagReader, left_info_topic: str, right_info_topic: str) -> StereoRig:
     """The rig from the first camera_info message of each camera in the bag."""
-    topics = {"/" + t.lstrip("/"): side for t, side in ((left_info_topic, "left"), (right_info_topic, "right"))}
+    topics = {absolute_topic(t): side for t, side in ((left_info_topic, "left"), (right_info_topic, "right"))}
     infos: dict[str, CameraInfo] = {}
     with closing(_bag_records(reader, sorted(topics))) as records:
         for topic, schema, _, data in records:
@@ -153,8 +151,7 @@ def bag_source(reader: BagReader, left_topic: str, right_topic: str, tolerance: 
     """Synchronised pairs of the bag's image topics (raw or compressed) with the ``base_topic`` poses read
     before each (paired as the node pairs them: ``tolerance``, ``queue_size`` frames per camera waiting); images of
     an unusable encoding and frames without a partner are counted in ``skipped``."""
-    left = "/" + left_topic.lstrip("/")
-    base = "/" + base_topic.lstrip("/") if base_topic else ""
+    left, base = absolute_topic(left_topic), absolute_topic(base_topic) if base_topic else ""
     path = reader.path
     recorded = _bag_topic(reader, left_topic)
     source = PairSource(recorded and recorded[0], lambda: iter(()), reader)
@@ -213,20 +210,17 @@ def open_source(path: Path, fps: float, left_topic: str, right_topic: str, toler
         return folder_source(path, fps)
     reader = _bag_reader(path)
     recorded = _bag_topic(reader, base_topic) if base_topic else None
-    types = recorded and recorded[1]
-    if types is not None and not types:
+    if recorded is not None and not recorded[0]:
         raise InputError(f"'{path}' has no messages on the base pose topic '{base_topic}'")
-    if types and types != {POSE_TYPE}:
-        raise InputError(f"base pose topic '{base_topic}' of '{path}' has type '{', '.join(sorted(types))}', "
-                         f"not {POSE_TYPE}")
+    if recorded and recorded[1] != POSE_TYPE:
+        raise InputError(f"base pose topic '{base_topic}' of '{path}' has type '{recorded[1]}', not {POSE_TYPE}")
     return bag_source(reader, left_topic, right_topic, tolerance, base_topic, queue_size)
 
 
 def decoded(jobs: Iterator[PairJob], workers: int, depth: int
             ) -> Iterator[tuple[int, float, Future, list[PoseStamped]]]:
-    """The jobs with their loaders running on ``workers`` threads up to ``depth`` pairs ahead; the jobs
-    themselves (reading a bag: parsing, with chunks decompressed on threads of the reader) are iterated on one
-    more thread."""
+    """The jobs with their loaders running on ``workers`` threads up to ``depth`` pairs ahead; the jobs themselves
+    (reading a bag: parsing, with chunks decompressed on threads of the reader) are iterated on one more thread."""
     ahead: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
     end = object()
@@ -404,8 +398,8 @@ def run(arguments: argparse.Namespace) -> int:
     base_topic = arguments.base_pose_topic or ""
     if arguments.base_pose_topic is not None and not valid_topic_name(base_topic):
         raise InputError(f"--base-pose-topic '{base_topic}' is not a valid ROS 2 topic name")
-    if base_topic and "/" + base_topic.lstrip("/") in {"/" + t.lstrip("/") for t in (arguments.left_topic,
-                                                                                      arguments.right_topic)}:
+    if base_topic and absolute_topic(base_topic) in {absolute_topic(arguments.left_topic),
+                                                     absolute_topic(arguments.right_topic)}:
         raise InputError(f"--base-pose-topic '{base_topic}' is also an image topic")
     source = open_source(source_path, arguments.fps, arguments.left_topic, arguments.right_topic,
                          values["sync_tolerance"], base_topic, values["sync_queue_size"])

@@ -21,10 +21,8 @@ from needle_common.transforms import RigidTransform
 
 
 def _readable_file_or_empty(path: str) -> bool:
-    if path == "":
-        return True
     try:
-        return resolve_path(path).is_file()
+        return path == "" or resolve_path(path).is_file()
     except FileNotFoundError:
         return False
 

@@ -214,12 +214,9 @@ class StereoNeedlePipeline:
             return PairMeasurement(centerlines, triangulate_centerline(*centerlines, self.rectification,
                                                                        config.matching, config.reconstruction,
                                                                        self.output_from_left))
-        except NoNeedleError as error:
-            return PairMeasurement(rejection=("no needle", str(error)))
-        except ImplausibleError as error:
-            return PairMeasurement(rejection=("implausible", str(error)))
-        except MatchError as error:
-            return PairMeasurement(rejection=("no stereo match", str(error)))
+        except (NoNeedleError, MatchError) as error:  # ImplausibleError is a MatchError
+            kind = {NoNeedleError: "no needle", ImplausibleError: "implausible"}.get(type(error), "no stereo match")
+            return PairMeasurement(rejection=(kind, str(error)))
 
     def _complete(self, stamp: float, left: np.ndarray, right: np.ndarray, pair: PairMeasurement,
                   threshold: ContrastThreshold, backgrounds: tuple[BackgroundModel, BackgroundModel]) -> FrameResult:
@@ -245,11 +242,10 @@ class StereoNeedlePipeline:
 
 
 def compile_kernels() -> float:
-    """Compile, or load from numba's cache, the measurement's kernels by measuring one rendered pair of a bent
-    needle with the synthetic rig (:mod:`needle_vision.render`), uint8 and uint16, writable and read-only, ordered
-    either way, and once with the curve fit; returns the seconds it took.
-    The stereo node runs it before it subscribes, and the package's install step runs it once, so that the first
-    real pairs do not wait for compilation (which drops them)."""
+    """Compile, or load from numba's cache, the measurement's kernels by measuring one rendered pair of a bent needle
+    with the synthetic rig (:mod:`needle_vision.render`), uint8 and uint16, writable and read-only, ordered either way,
+    and once with the curve fit; returns the seconds it took. The stereo node runs it before it subscribes, and the
+    package's install step runs it once, so that the first real pairs do not wait for compilation (which drops them)."""
     import time
 
     from needle_vision.render import NEEDLE_RADIUS, default_rig, make_scene, render_background_pair, render_stereo_pair

@@ -272,8 +272,7 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
 
     # Extend the band straight by a few pixels beyond both ends and measure the distance to it; a flat end then
     # multiplies by the covered fraction along the axis, a bevel subtracts the band beyond its wedge.
-    end_tangents = [centres[0] - centres[1], centres[-1] - centres[-2]]
-    end_tangents = [t / np.linalg.norm(t) for t in end_tangents]
+    end_tangents = [t / np.linalg.norm(t) for t in (centres[0] - centres[1], centres[-1] - centres[-2])]
     extended = np.vstack([centres[0] + 3 * end_tangents[0], centres, centres[-1] + 3 * end_tangents[1]])
     extended_half_width = np.concatenate([half_width[:1], half_width, half_width[-1:]])
 
@@ -295,8 +294,7 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
                                         + t * extended_half_width[first + 1],
                                         np.einsum("ij,ij->i", offset, normal)])[better]
     coverage = _band_coverage(best[:, 3], best[:, :2], best[:, 2], blur_sigma_px)
-    ends = ((centres[0], end_tangents[0]),) if bevel_length > 0 else ((centres[0], end_tangents[0]),
-                                                                       (centres[-1], end_tangents[1]))
+    ends = list(zip(centres[[0, -1]], end_tangents))[:1 if bevel_length > 0 else 2]  # a bevel: the last end below
     for (end, outward), point, inward in zip(ends, points[[0, -1]], (points[1] - points[0], points[-2] - points[-1])):
         near = np.linalg.norm(pixels - end, axis=1) < half_width.max() + 5 + 4 * blur_sigma_px  # + extension
         coverage[near] *= _end_fraction(-(pixels[near] - end) @ outward, outward, blur_sigma_px)

@@ -40,9 +40,8 @@ def _without_params_files(argv: Sequence[str]) -> list[str]:
 
 
 def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool) -> list[str] | None:
-    """``argv`` without its ROS arguments (``argv[0]`` first), or None after logging one fatal line: the ROS
-    arguments do not parse (params files aside), or there are others and the node takes none (``takes_others``
-    False)."""
+    """``argv`` without its ROS arguments (``argv[0]`` first), or None after logging one fatal line: the ROS arguments
+    do not parse (params files aside), or there are others and the node takes none (``takes_others`` False)."""
     try:
         others = remove_ros_args(_without_params_files(argv))
     except (UnknownROSArgsError, RCLError) as error:

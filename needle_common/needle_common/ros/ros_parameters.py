@@ -18,8 +18,7 @@ from needle_common.parameters import ParameterError, ParamSpec
 
 
 def descriptor(spec: ParamSpec, read_only: bool | None = None) -> ParameterDescriptor:
-    """The ROS descriptor of a spec: description (with choices), read-only (default: unless dynamic), scalar
-    range."""
+    """The ROS descriptor of a spec: description (with choices), read-only (default: unless dynamic), scalar range."""
     text = spec.description + (f" Choices: {', '.join(map(str, spec.choices))}." if spec.choices else "")
     result = ParameterDescriptor(name=spec.name, description=text,
                                  read_only=not spec.dynamic if read_only is None else read_only)

@@ -64,9 +64,8 @@ class Rectification:
                                    R=rotation, P=projection).reshape(-1, 2)
 
     def triangulate(self, left: np.ndarray, right_disparity_coordinate: np.ndarray) -> np.ndarray:
-        """3D points [m] in the raw left optical frame from rectified left points ``(n, 2)`` and the matching
-        right coordinate along the disparity axis ``(n,)``; points at or behind infinity become NaN (callers
-        reject them)."""
+        """3D points [m] in the raw left optical frame from rectified left points ``(n, 2)`` and the matching right
+        coordinate along the disparity axis ``(n,)``; points at or behind infinity become NaN (callers reject them)."""
         a = self.disparity_axis
         p1, p2 = self.projection_left, self.projection_right
         disparity = (left[:, a] - p1[a, 2]) - (right_disparity_coordinate - p2[a, 2])
@@ -78,8 +77,7 @@ class Rectification:
             return rectified @ self.rotation_left  # = (R_leftᵀ x_rect)ᵀ
 
     def project_rectified(self, points_left: np.ndarray, side: str) -> np.ndarray:
-        """Rectified pixel coordinates of 3D points given in the raw left optical frame (for uncertainty and
-        tests)."""
+        """Rectified pixel coordinates of 3D points given in the raw left optical frame (for uncertainty and tests)."""
         rectified = points_left @ self.rotation_left.T
         projection = self.projection_left if side == "left" else self.projection_right
         homogeneous = np.hstack([rectified, np.ones((len(rectified), 1))]) @ projection.T

@@ -29,8 +29,7 @@ from needle_vision.detection.curves import arc_length, moving_average, step_leng
 
 #: [points] window of the running median that gives each centerline point's local scatter.
 NOISE_WINDOW = 61
-#: [px] consecutive centerline points farther apart are separated by a hidden stretch (shorter runs of weak
-#: slices are bridged as before).
+#: [px] consecutive centerline points farther apart are separated by a hidden stretch (shorter gaps are bridged).
 GAP_PX = 40.0
 #: [slices] running median of the needle's own intensity along the needle (the covered fraction's denominator).
 NEEDLE_LEVEL_WINDOW = 41
@@ -45,12 +44,10 @@ class CenterlineConfig:
     """Sub-pixel extraction settings (names match the node's ``detection.*`` parameters)."""
 
     profile_half_width: int = 4      # [px] half-length of a slice after re-centering (covers the needle's blur)
-    min_profile_fraction: float = 0.75  # slices with less contrast (per needle width) than this fraction of the
-    #                                     median are dropped: gaps, and the partly covered slices at the tips
+    min_profile_fraction: float = 0.75  # [-] the parameter detection.min_profile_fraction (described there)
     min_length_px: float = 40.0      # [px] shorter detections are "no needle"
     local_window: int = 41           # [slices] the contrast reference is the median over this many neighbours
-    min_contrast_fraction: float = 0.2  # slices with less than this fraction of the whole needle's median are
-    #                                     dropped whatever their neighbours
+    min_contrast_fraction: float = 0.2  # dropped below this fraction of the needle's median, whatever the neighbours
     max_link_angle_deg: float = 15.0  # components whose facing ends differ less in direction are one needle
 
 
@@ -95,16 +92,12 @@ def with_end_reading(centerline: ImageCenterline, end: int, reading: EndReading)
     the new points get the contrast and local noise of the last point kept); that end has no other reading left."""
     keep = len(centerline.points) - reading.drop
     count = len(reading.points)
-    if end == 0:
-        points, contrast, noise = (values[::-1] for values in (centerline.points, centerline.contrast,
-                                                               centerline.local_noise_px))
-    else:
-        points, contrast, noise = centerline.points, centerline.contrast, centerline.local_noise_px
-    points = np.vstack([points[:keep], reading.points])
-    contrast = np.concatenate([contrast[:keep], np.full(count, contrast[keep - 1])])
-    noise = np.concatenate([noise[:keep], np.full(count, noise[keep - 1])])
-    if end == 0:
-        points, contrast, noise = points[::-1], contrast[::-1], noise[::-1]
+    step = -1 if end == 0 else 1  # ordered towards the end
+    points, contrast, noise = (values[::step] for values in (centerline.points, centerline.contrast,
+                                                              centerline.local_noise_px))
+    points = np.vstack([points[:keep], reading.points])[::step]
+    contrast = np.concatenate([contrast[:keep], np.full(count, contrast[keep - 1])])[::step]
+    noise = np.concatenate([noise[:keep], np.full(count, noise[keep - 1])])[::step]
     tapers = centerline.end_taper_px.copy()
     tapers[end] = reading.half_taper_px
     candidates, flat = (tuple(None if k == end else other for k, other in enumerate(readings))
@@ -238,9 +231,7 @@ def _refine_path(image, background, polarity, path):  # pragma: no cover - compi
                 if 0 <= y < height and 0 <= x < width:
                     w = polarity * (background[y, x] - image[y, x])
                     if w > 0:
-                        sw += w
-                        sx += w * x
-                        sy += w * y
+                        sw, sx, sy = sw + w, sx + w * x, sy + w * y
         if sw > 0:
             out[k, 0], out[k, 1] = sx / sw, sy / sw
         else:
@@ -272,13 +263,9 @@ def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, 
         covered = needle.shape[0] > 0
         sw, sc = 0.0, 0.0
         for c in range(centre - half_width, centre + half_width + 1):
-            if along_rows[k]:
-                b, v = background[f, c], image[f, c]
-            else:
-                b, v = background[c, f], image[c, f]
+            b, v = (background[f, c], image[f, c]) if along_rows[k] else (background[c, f], image[c, f])
             w = polarity * (b - v) / max(polarity * (b - needle[k]) if covered else b, 1.0)
-            sw += w
-            sc += w * c
+            sw, sc = sw + w, sc + w * c
         contrast[k] = sw
         centroid[k] = sc / sw if sw > 0 else predicted[k]
     return centroid, contrast
@@ -450,11 +437,8 @@ def _edge_spread(cross, u):  # pragma: no cover - compiled
     if cross[peak] <= 0 or peak == 0 or peak == len(u) - 1:
         return np.nan
     total = 0.0
-    for side in range(2):  # right edge, left edge (outwards from the peak)
-        if side == 0:
-            distance, values = np.abs(u[peak:] - u[peak]), cross[peak:]
-        else:
-            distance, values = np.abs(u[peak::-1] - u[peak]), cross[peak::-1]
+    for step in (1, -1):  # right edge, left edge (outwards from the peak)
+        distance, values = np.abs(u[peak::step] - u[peak]), cross[peak::step]
         inner = _crossing(distance, values, 0.75 * cross[peak], -1.0)
         outer = _crossing(distance, values, 0.25 * cross[peak], -1.0)
         if np.isnan(inner) or np.isnan(outer):
@@ -547,9 +531,7 @@ def _principal_direction(points):  # pragma: no cover - compiled
     a, b, c = 0.0, 0.0, 0.0
     for k in range(points.shape[0]):
         dx, dy = points[k, 0] - centre[0], points[k, 1] - centre[1]
-        a += dx * dx
-        b += dx * dy
-        c += dy * dy
+        a, b, c = a + dx * dx, b + dx * dy, c + dy * dy
     major = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
     direction = np.array([b, major - a]) if a >= c else np.array([major - c, b])
     norm = np.sqrt(direction[0] ** 2 + direction[1] ** 2)
@@ -623,14 +605,10 @@ def _band_centroids(image, background, polarity, points, rows, half_band,
             sw, sc = 0.0, 0.0
             for c in range(int(np.floor(centre - half_band - 0.5)), int(np.ceil(centre + half_band + 0.5)) + 1):
                 window = min(max(half_band + 0.5 - abs(c - centre), 0.0), 1.0)
-                if rows:
-                    b, v = background[f, c], image[f, c]
-                else:
-                    b, v = background[c, f], image[c, f]
+                b, v = (background[f, c], image[f, c]) if rows else (background[c, f], image[c, f])
                 scale = _contrast_scale(b, polarity, needle)
                 w = window * polarity * (b - v) / scale
-                sw += w
-                sc += w * c
+                sw, sc = sw + w, sc + w * c
             if sw <= 0:
                 break
             centre = sc / sw
@@ -665,24 +643,16 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
     A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely) gives
-    the direction of the profile (its grid bent along the needle's curvature) of the covered fraction
-    (B - I) / (B - N) integrated across the needle's band (its blurred edges included; N the needle's own
-    intensity); the end is where that profile falls to half its level (a flat end is a step blurred
-    symmetrically). The points within ``half_width + 1`` px of the end (centroids biased
-    by the oblique cut) are replaced by a quadratic (the needle's curvature; a cubic where its change along them is
-    significant and the end near) fitted to the 80 before them, evenly
-    spaced at the centerline's step up to the end. A bevel seen side-on tapers the end: where the profile falls
-    (25-75 %) over more than ``TAPER_FACTOR`` times the blur of the needle's side edges (and clearly more than its
-    noise), on the relative contrast and on the covered fraction alike, a blurred linear taper is fitted to the
-    profile and the end put half its length beyond its middle (least squares over the whole taper: the
-    half-contrast crossing alone moves with the noise of a few samples on a shallow slope). Where only the covered
-    fraction falls slowly (a bright needle's relative contrast, modulated by the background's texture, may hide a
-    1 mm bevel in its scatter) the end is placed flat and the tapered end returned as a candidate, for the other
-    view to decide (``reconstruction._shared_bevels``); so is a tapered end placed flat. Returns (number of points
-    kept, the new points ending with the end, the taper's half length [px]) of the end, (number of those points the
-    other reading drops, its points, its half taper, a candidate's covered-fraction fall over the blur, 0 for a flat
-    placement); kept is -1 where the profile leaves the image or does not fall (the other reading's drop where there
-    is none)."""
+    the direction of the end profile: the covered fraction (B - I) / (B - N) integrated across the needle's band (its
+    blurred edges included), on a grid bent along the needle's curvature. The end is where the profile falls to half
+    its level (a flat end is a step blurred symmetrically); :func:`_placed_end` replaces the points near it. A bevel
+    seen side-on tapers the end (:data:`TAPER_FACTOR`): a blurred linear taper is fitted to the profile and the end
+    put half its length beyond its middle (least squares over the whole taper: the half-contrast crossing alone moves
+    with the noise of a few samples on a shallow slope). The other reading (:class:`EndReading`) is a taper candidate
+    or the tapered end placed flat. Returns (number of points kept, the new points ending with the end, the taper's
+    half length [px]) of the end, (number of those points the other reading drops, its points, its half taper, a
+    candidate's covered-fraction fall over the blur, 0 for a flat placement); kept is -1 where the profile leaves the
+    image or does not fall (the other reading's drop where there is none)."""
     none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, 0.0)
     n = points.shape[0]
     if n < 100:
@@ -731,10 +701,9 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     blur = _edge_spread(cross, u)
     spread = last - first
     tapered = _falls_slowly(profile, level, inside, spread, blur)
-    # The relative contrast is the covered fraction times 1 - N / B, modulated by the background's texture. The
-    # needle's own intensity N, from the band's fitted contrast over the harmonic mean of B, gives the covered fraction
-    # (B - I) / (B - N) to locate the end; the end is tapered where it falls slowly in both profiles (TAPER_FACTOR), a
-    # candidate taper where it does in the covered fraction only.
+    # The needle's own intensity N, from the band's fitted contrast over the harmonic mean of B, gives the covered
+    # fraction (B - I) / (B - N) (:func:`_slice_centroids`) to locate the end; the end is tapered where it falls slowly
+    # in both profiles (TAPER_FACTOR), a candidate taper where it does in the covered fraction only.
     needle = 0.0
     candidate = False
     if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
@@ -792,7 +761,7 @@ def _placed_end(image, background, polarity, points, along, centre, direction, n
     ``direction``, ``half_taper`` beyond the middle of its taper): (number of ``points`` kept, the new points
     ending with the end); kept is -1 where too few points are left before the taper."""
     # The slices within the taper (a bevel: the band narrows from one side, its centroids move towards the other) and
-    # within half_width + 1 of the end are replaced. (along increases towards the end)
+    # within half_width + 1 of the end (cut obliquely: centroids biased) are replaced. (along increases towards the end)
     kept = int(np.searchsorted(along, end - 2 * half_taper - half_width - 1))
     if kept < 80 or end <= along[kept - 1]:
         return -1, np.zeros((0, 2))
@@ -896,10 +865,9 @@ def _slice_points(image, background, polarity, path, half_width, wide, min_contr
 @numba.njit(cache=True, nogil=True)
 def _kept_slices(points, keep, full, width_contrast, local, min_profile_fraction,
                  half_width):  # pragma: no cover - compiled
-    """Indices of the slices kept (:func:`_slice_points`' ``keep`` that are ``full`` or have
-    ``min_profile_fraction`` of the ``local`` median width contrast), less those within ``half_width`` (+1 after)
-    of a hidden stretch (kept points more than GAP_PX apart): there the slices may be cut by the occluder's edge
-    (centroid biased)."""
+    """Indices of the slices kept (:func:`_slice_points`' ``keep`` that are ``full`` or have ``min_profile_fraction`` of
+    the ``local`` median width contrast), less those within ``half_width`` (+1 after) of a hidden stretch (kept points
+    more than GAP_PX apart): there the slices may be cut by the occluder's edge (centroid biased)."""
     selected = np.flatnonzero(keep)
     for j in range(selected.shape[0]):
         k = selected[j]

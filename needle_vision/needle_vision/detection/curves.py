@@ -9,19 +9,6 @@ from scipy.ndimage import correlate1d
 
 
 @numba.njit(cache=True, nogil=True)
-def arc_length(points):  # pragma: no cover - compiled
-    """Cumulative chord length from the first point of ``(n, d)`` points: ``(n,)``."""
-    n, d = points.shape
-    out = np.zeros(n)
-    for k in range(1, n):
-        step = 0.0
-        for j in range(d):
-            step += (points[k, j] - points[k - 1, j]) ** 2
-        out[k] = out[k - 1] + np.sqrt(step)
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
 def step_lengths(points):  # pragma: no cover - compiled
     """Distances between consecutive points of ``(n, d)`` points: ``(n - 1,)``."""
     n, d = points.shape
@@ -31,6 +18,14 @@ def step_lengths(points):  # pragma: no cover - compiled
         for j in range(d):
             step += (points[k, j] - points[k - 1, j]) * (points[k, j] - points[k - 1, j])
         out[k - 1] = np.sqrt(step)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def arc_length(points):  # pragma: no cover - compiled
+    """Cumulative chord length from the first point of ``(n, d)`` points: ``(n,)``."""
+    out = np.zeros(points.shape[0])
+    out[1:] = np.cumsum(step_lengths(points))
     return out
 
 

@@ -1,11 +1,10 @@
 """Corresponding points of the left and right needle centerlines (seed 000, Sec. III-A: "using principles
 from photogrammetry and projective geometry, the corresponding points between the two images are found").
 
-After rectification a 3D point has the same epipolar coordinate ``e`` in both images, so along the needle
-``e_left(s) = e_right(t(s))`` for a monotone map ``t(s)`` between the two curves' arc lengths. Matching each
-left point to "the right point on the same epipolar line" fails where the needle runs nearly parallel to the
-epipolar lines (``e`` barely changes) or crosses one line several times. So the map comes from the curves as
-ordered wholes:
+After rectification a 3D point has the same epipolar coordinate ``e`` in both images, so along the needle ``e_left(s) =
+e_right(t(s))`` for a monotone map ``t(s)`` between the two curves' arc lengths. Matching each left point to "the right
+point on the same epipolar line" fails where the needle runs nearly parallel to the epipolar lines (``e`` barely
+changes) or crosses one line several times. So the map comes from the curves as ordered wholes:
 
 1. dynamic time warping of the two ``e``-profiles (coarsely resampled) gives a globally consistent monotone
    ``t(s)`` and also decides whether the right curve runs in the same direction as the left one;
@@ -192,10 +191,7 @@ def _moved_end(curve, tangent, shift):  # pragma: no cover - compiled
     kept = curve[:-1][inside]
     end = curve[-1] + shift * tangent
     if kept.shape[0] < 16:
-        out = np.empty((kept.shape[0] + 1, 2))
-        out[:-1] = kept
-        out[-1] = end
-        return out
+        return np.vstack((kept, end.reshape(1, 2)))
     step = np.sqrt(np.sum((kept[-1] - kept[-11]) ** 2)) / 10
     anchor = kept[-4]
     gap = np.sqrt(np.sum((end - anchor) ** 2))
@@ -230,11 +226,10 @@ def _common_ends(left, right, e, min_sin, tolerance):  # pragma: no cover - comp
 
 @numba.njit(cache=True, nogil=True)
 def _shared_tapers(left, right, tapers_left, tapers_right, e, min_sin):  # pragma: no cover - compiled
-    """Both curves (same direction) with each pair of ends that run within asin(min_sin) of the epipolar lines
-    put the same taper beyond their half-contrast points. There the end's depth is the two ends' disparity alone,
-    so each view's noise in its taper (a bevel's length; ``tapers_*``: first and last end [px]) went into it
-    whole; a bevel is one length on the needle: both views get their mean (the right one's scaled by the ratio
-    of the curves' lengths)."""
+    """Both curves (same direction) with each pair of ends that run within asin(min_sin) of the epipolar lines put the
+    same taper beyond their half-contrast points. There the end's depth is the two ends' disparity alone, so each view's
+    noise in its taper (a bevel's length; ``tapers_*``: first and last end [px]) went into it whole; a bevel is one
+    length on the needle: both views get their mean (the right one's scaled by the ratio of the curves' lengths)."""
     ratio = -1.0
     for end in range(2):
         curves = (_end_last(left, end), _end_last(right, end))
@@ -254,12 +249,11 @@ def match_centerlines(left: np.ndarray, right: np.ndarray, epipolar_axis: int,
                       tapers: tuple[np.ndarray, np.ndarray] | None = None) -> Correspondence:
     """Correspond two ordered rectified centerlines ``(n, 2)``, ``(m, 2)`` (either direction for the right).
 
-    ``ends_visible``: both curves end at the needle's real ends (not cut by an image border). Then each pair
-    of ends within ``2 max_epipolar_error_px`` of one epipolar line are corresponding points: moved onto their
-    mean epipolar line where they cross the lines (:func:`_common_ends`), taken as they are where the end
-    stretch runs along the lines (no anchor there); there the two views' ``tapers`` (how far [px] each curve's
-    first and last end lies beyond its half-contrast point, see ``ImageCenterline.end_taper_px``) are shared
-    (:func:`_shared_tapers`)."""
+    ``ends_visible``: both curves end at the needle's real ends (not cut by an image border). Then each pair of ends
+    within ``2 max_epipolar_error_px`` of one epipolar line are corresponding points: moved onto their mean epipolar
+    line where they cross the lines (:func:`_common_ends`), taken as they are where the end stretch runs along the lines
+    (no anchor there); there the two views' ``tapers`` (how far [px] each curve's first and last end lies beyond its
+    half-contrast point, see ``ImageCenterline.end_taper_px``) are shared (:func:`_shared_tapers`)."""
     if len(left) < 5 or len(right) < 5:
         raise MatchError("a centerline has fewer than 5 points")
     left = _smooth_runs(np.ascontiguousarray(left, dtype=float), 5)

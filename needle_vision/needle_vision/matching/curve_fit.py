@@ -6,14 +6,13 @@ rectified camera frame minimises
     sum_i (n_i . (q_i - P_v(C(u_i))))^2 / sigma_i^2  +  sum_ends (t_end . (q_end - P_v(C(u_end))))^2 / sigma_end^2
     +  bending_weight * integral |C''(u)|^2 du
 
-over every detected centerline point ``q_i`` of both rectified views ``v`` (``u_i`` its foot on the projected
-curve, ``n_i`` the projected curve's normal there, ``sigma_i`` its local image noise), the four image ends and a
-bending-energy prior (Gauss-Newton, the feet re-projected each iteration, Huber weights against stray points).
-Where the needle runs along the epipolar lines the images say nothing about depth; the curve's continuity carries
-it across from the stretches around, and the fit's covariance (the normal matrix's inverse: image noise through
-the Jacobian, with the prior; the image noise's correlated part widens the image terms only) says how well: each
-sample's sigma is the standard deviation along the worst direction across the needle.
-The per-point triangulation is the initial guess.
+over every detected centerline point ``q_i`` of both rectified views ``v`` (``u_i`` its foot on the projected curve,
+``n_i`` the projected curve's normal there, ``sigma_i`` its local image noise), the four image ends and a bending-energy
+prior (Gauss-Newton, the feet re-projected each iteration, Huber weights against stray points). Where the needle runs
+along the epipolar lines the images say nothing about depth; the curve's continuity carries it across from the stretches
+around, and the fit's covariance (the normal matrix's inverse: image noise through the Jacobian, with the prior; the
+image noise's correlated part widens the image terms only) says how well: each sample's sigma is the standard deviation
+along the worst direction across the needle. The per-point triangulation is the initial guess.
 """
 from __future__ import annotations
 
@@ -81,22 +80,13 @@ def _project(projection, point, derivative, pixel, jacobian, tangent):  # pragma
 def _accumulate(normal, rhs, s, b, row, weight, residual):  # pragma: no cover - compiled
     """One weighted scalar residual of segment ``s`` into the normal equations: its row ``row`` (d residual / d point,
     (3,)) spread over the segment's four control points by the basis ``b`` (lower triangle of ``normal``)."""
-    r0, r1, r2 = row[0], row[1], row[2]
     for a in range(4):
         wa = weight * b[a]
         for c in range(a, 4):
             w = wa * b[c]
-            first, second = 3 * (s + c), 3 * (s + a)
-            w0, w1, w2 = w * r0, w * r1, w * r2
-            normal[first, second] += w0 * r0
-            normal[first, second + 1] += w1 * r0
-            normal[first, second + 2] += w2 * r0
-            normal[first + 1, second] += w0 * r1
-            normal[first + 1, second + 1] += w1 * r1
-            normal[first + 1, second + 2] += w2 * r1
-            normal[first + 2, second] += w0 * r2
-            normal[first + 2, second + 1] += w1 * r2
-            normal[first + 2, second + 2] += w2 * r2
+            for i in range(3):
+                for j in range(3):
+                    normal[3 * (s + c) + i, 3 * (s + a) + j] += w * row[j] * row[i]
         for k in range(3):
             rhs[3 * (s + a) + k] += wa * row[k] * residual
 
@@ -354,9 +344,7 @@ def _sample(control, h, length, factor, spacing):  # pragma: no cover - compiled
         parameters[p] = u
         s = _basis(u, h, segments, b, d1)
         _evaluate(control, s, b, d1, points[p], t)
-        norm = max(np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2]), 1e-300)
-        for k in range(3):
-            t[k] /= norm
+        t /= max(np.sqrt(np.sum(t * t)), 1e-300)
         block[:] = 0.0
         for a in range(4):
             for c in range(4):
@@ -370,9 +358,7 @@ def _sample(control, h, length, factor, spacing):  # pragma: no cover - compiled
         axis = 0 if abs(t[0]) < 0.9 else 1
         for k in range(3):
             e1[k] = (1.0 if k == axis else 0.0) - t[axis] * t[k]
-        norm = np.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
-        for k in range(3):
-            e1[k] /= norm
+        e1 /= np.sqrt(np.sum(e1 * e1))
         e2[0], e2[1], e2[2] = t[1] * e1[2] - t[2] * e1[1], t[2] * e1[0] - t[0] * e1[2], t[0] * e1[1] - t[1] * e1[0]
         a11 = a22 = a12 = 0.0
         for k in range(3):
@@ -452,14 +438,12 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
               knot_spacing: float, bending_weight: float, end_noise_px: float, max_gap: float,
               sample_spacing: float, noise_inflation: float, iterations: int = 2, huber: float = 3.0,
               stride: int = 2) -> CurveFit | None:
-    """Fit the curve (module docstring) to the rectified image centerlines ``views`` (left, right; ``(n, 2)``
-    each, ordered along the needle, either direction) with per-point ``noise`` [px], from the ordered
-    triangulated points ``initial (k, 3)`` [m] in the left rectified frame (weights: their inverse variance) whose
-    first and last points the two views see at ``ends (2, 2, 2)`` (view, end, pixel);
-    ``projections``: the rectified 3x4 projections; the means of ``stride`` consecutive image points are fitted.
-    The sigma's covariance takes the image terms' variance ``noise_inflation`` times larger (and by the residuals'
-    reduced chi-square when above 1), the prior's as it is: where the prior carries the curve (along the epipolar
-    lines) inflating it too overstated sigma 2-4x. None when the fit fails (singular or non-finite)."""
+    """Fit the curve (module docstring) to the rectified image centerlines ``views`` (left, right; ``(n, 2)`` each,
+    ordered along the needle, either direction) with per-point ``noise`` [px], from the ordered triangulated points
+    ``initial (k, 3)`` [m] in the left rectified frame (weights: their inverse variance) whose first and last points
+    the two views see at ``ends (2, 2, 2)`` (view, end, pixel); ``projections``: the rectified 3x4 projections; the
+    means of ``stride`` consecutive image points are fitted; ``noise_inflation``: the image terms' variance factor in
+    the covariance (:func:`_gauss_newton`). None when the fit fails (singular or non-finite)."""
     array = partial(np.ascontiguousarray, dtype=float)
     success, points, sigma, supported = _fit(
         array(initial), array(initial_weights), array(ends), *map(array, views), *map(array, noise),

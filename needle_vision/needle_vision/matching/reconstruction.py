@@ -75,10 +75,9 @@ class ReconstructionConfig:
 
 @dataclass(frozen=True)
 class NeedleMeasurement:
-    """The measured centerline in the output frame, base to tip: samples ``points (k, 3)`` [m], unit
-    ``tangents``, ``arc_length`` [m], 1-sigma ``uncertainty`` [m] (UNMEASURED in gaps, see ``measured``),
-    total ``length`` [m]; the inlier
-    ``triangulated`` points ``(n, 3)`` before smoothing; and the raw image centerlines (for the debug image)."""
+    """The measured centerline in the output frame, base to tip: samples ``points (k, 3)`` [m], unit ``tangents``,
+    ``arc_length`` [m], 1-sigma ``uncertainty`` [m] (UNMEASURED in gaps, see ``measured``), total ``length`` [m]; the
+    inlier ``triangulated`` points ``(n, 3)`` before smoothing; and the raw image centerlines (for the debug image)."""
 
     points: np.ndarray
     tangents: np.ndarray
@@ -168,25 +167,11 @@ def _smooth_along(points, abscissa, window):  # pragma: no cover - compiled
             t = (abscissa[j] - abscissa[k]) * inverse_scale
             t2 = t * t
             t3 = t2 * t
-            m1 += t
-            m2 += t2
-            m3 += t3
-            m4 += t2 * t2
-            m5 += t2 * t3
-            m6 += t3 * t3
+            m1, m2, m3, m4, m5, m6 = m1 + t, m2 + t2, m3 + t3, m4 + t2 * t2, m5 + t2 * t3, m6 + t3 * t3
             x, y, z = points[j, 0], points[j, 1], points[j, 2]
-            x0 += x
-            x1 += t * x
-            x2 += t2 * x
-            x3 += t3 * x
-            y0 += y
-            y1 += t * y
-            y2 += t2 * y
-            y3 += t3 * y
-            z0 += z
-            z1 += t * z
-            z2 += t2 * z
-            z3 += t3 * z
+            x0, x1, x2, x3 = x0 + x, x1 + t * x, x2 + t2 * x, x3 + t3 * x
+            y0, y1, y2, y3 = y0 + y, y1 + t * y, y2 + t2 * y, y3 + t3 * y
+            z0, z1, z2, z3 = z0 + z, z1 + t * z, z2 + t2 * z, z3 + t3 * z
         m0 = float(window)
         moments[0], moments[1], moments[2], moments[3], moments[4], moments[5], moments[6] = m0, m1, m2, m3, m4, m5, m6
         # The fit's value at t = 0 is c . (the sums of t^a times the points) with c = solve(normal, e0) (Cholesky of
@@ -248,10 +233,9 @@ def _robust_inliers(points: np.ndarray, config: ReconstructionConfig, window: in
 
 @dataclass(frozen=True)
 class Triangulation:
-    """The inlier triangulated points of a pair in the output frame, in left-curve order (base and tip not told
-    yet), their 1-sigma uncertainty [m] (white: the smoothing averages it) and whether each was anchored;
-    their mean spacing [m]; the image centerlines. What :func:`order_and_resample` needs: independent of the
-    previous frames."""
+    """The inlier triangulated points of a pair in the output frame, in left-curve order (base and tip not told yet),
+    their 1-sigma uncertainty [m] (white: the smoothing averages it) and whether each was anchored; their mean spacing
+    [m]; the image centerlines. What :func:`order_and_resample` needs: independent of the previous frames."""
 
     points: np.ndarray
     sigma: np.ndarray
@@ -383,11 +367,10 @@ def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification:
 
 def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray, rectification: Rectification,
                       radius: float) -> ImageCenterline:
-    """``centerline`` of camera ``side`` shortened at each end by what the end's disc (``radius``, square to the
-    needle) adds beyond the flat cut: a half ellipse of half axis a = f radius |cos theta| / Z along the needle
-    (theta between the end's tangent and the viewing ray, Z the end's distance; from the first triangulation
-    ``points``, raw left frame), whose half-contrast point lies END_CAP_CROSSING a beyond the end (tapered ends:
-    not moved)."""
+    """``centerline`` of camera ``side`` shortened at each end by what the end's disc (``radius``, square to the needle)
+    adds beyond the flat cut: a half ellipse of half axis a = f radius |cos theta| / Z along the needle (theta between
+    the end's tangent and the viewing ray, Z the end's distance; from the first triangulation ``points``, raw left
+    frame), whose half-contrast point lies END_CAP_CROSSING a beyond the end (tapered ends: not moved)."""
     rig = rectification.rig
     camera, centre = (rig.left, np.zeros(3)) if side == "left" else (rig.right, rig.left_from_right.translation)
     ends = points[[0, -1]]
@@ -530,10 +513,7 @@ def _resampled(smooth, point_sigma, supported, sample_spacing, max_gap, max_unce
         before, after = max(k - 1, 0), min(k + 1, count - 1)  # central differences, one-sided at the ends
         for j in range(3):
             tangents[k, j] = (resampled[after, j] - resampled[before, j]) / (samples[after] - samples[before])
-        norm = max(np.sqrt(tangents[k, 0] * tangents[k, 0] + tangents[k, 1] * tangents[k, 1]
-                           + tangents[k, 2] * tangents[k, 2]), 1e-12)
-        for j in range(3):
-            tangents[k, j] /= norm
+        tangents[k] /= max(np.sqrt(np.sum(tangents[k] * tangents[k])), 1e-12)
     uncertainty = np.interp(samples, arc, point_sigma)
     if end_localization:
         for k in (0, count - 1):

@@ -3,15 +3,14 @@
 Subscribes ``left/image_raw``, ``right/image_raw`` (``sensor_msgs/Image``; with ``image_transport: compressed``
 ``sensor_msgs/CompressedImage`` on image_transport's ``left/image_raw/compressed``, ``right/image_raw/compressed``,
 decoded with OpenCV), and ``left/camera_info``, ``right/camera_info`` when no calibration files are given
-(stereo_image_proc naming; remap as needed); pairs frames by approximate time (``sync_tolerance``, a bounded queue
-of ``sync_queue_size`` frames per camera); publishes ``needle/measured_points`` (sensor_msgs/PointCloud2:
-the centerline samples, x y z float32, plus vx..vz, ax..az when tracking), ``needle/measured_shape``
-(needle_interfaces/NeedleShape with per-sample uncertainty), ``needle/debug_image`` (bgr8, centerlines
-drawn) and, twice a second, its input report and what became of the pairs on ``/diagnostics``
-(:mod:`needle_common.ros.input_status`, :mod:`needle_vision.ros.measurement_status`). Base and tip are told apart
-by the needle's base pose: ``base_pose`` (geometry_msgs/PoseStamped, read raw) and, where tf2_ros is installed,
-the TF frame ``base_pose.frame``. Everything else happens in the ROS-free
-:class:`needle_vision.pipeline.StereoNeedlePipeline`.
+(stereo_image_proc naming; remap as needed); pairs frames by approximate time (``sync_tolerance``, a bounded queue of
+``sync_queue_size`` frames per camera); publishes ``needle/measured_points`` (sensor_msgs/PointCloud2: the centerline
+samples, x y z float32, plus vx..vz, ax..az when tracking), ``needle/measured_shape`` (needle_interfaces/NeedleShape
+with per-sample uncertainty), ``needle/debug_image`` (bgr8, centerlines drawn) and, twice a second, its input report and
+what became of the pairs on ``/diagnostics`` (:mod:`needle_common.ros.input_status`,
+:mod:`needle_vision.ros.measurement_status`). Base and tip are told apart by the needle's base pose: ``base_pose``
+(geometry_msgs/PoseStamped, read raw) and, where tf2_ros is installed, the TF frame ``base_pose.frame``. Everything else
+happens in the ROS-free :class:`needle_vision.pipeline.StereoNeedlePipeline`.
 """
 from __future__ import annotations
 

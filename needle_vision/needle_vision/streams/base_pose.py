@@ -40,10 +40,9 @@ class BasePoseStore:
 
     def add(self, stamp: float, position: Sequence[float], orientation: Sequence[float],
             output_from_pose: RigidTransform | None = None) -> None:
-        """Store the base point of a pose given in a frame whose pose in the output frame is
-        ``output_from_pose`` (None: the output frame itself). ValueError for non-finite values or a zero
-        quaternion (nothing stored). The point is computed when :meth:`base_at` asks for it (poses come at 1 kHz,
-        pairs at tens of Hz)."""
+        """Store the base point of a pose given in a frame whose pose in the output frame is ``output_from_pose`` (None:
+        the output frame itself). ValueError for non-finite values or a zero quaternion (nothing stored). The point is
+        computed when :meth:`base_at` asks for it (poses come at 1 kHz, pairs at tens of Hz)."""
         position, orientation = _floats(position), _floats(orientation)
         values = (stamp, *position, *orientation)
         if len(values) != 8 or not all(map(math.isfinite, values)):
