@@ -168,8 +168,7 @@ def versus_ground_truth(log: PipelineLog) -> dict[str, float | int | None]:
 
 def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None:
     """Model minus reference force [N] and moment [N m] at the reference stamps inside the model's time span (the
-    model's wrench interpolated linearly between its steps); None when either series is missing or nothing
-    overlaps."""
+    model's wrench interpolated linearly between its steps); None when either series is missing or nothing overlaps."""
     model, reference = log.wrench, log.truth_wrench
     if model is None or reference is None or model.times.size < 2:
         return None
