@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit
 
 import needle_sim_ros.stepper as stepper_module
-from needle_sim_ros.experiments.elastica import elastica_tip
+from needle_sim_ros.experiments.elastica import elastica
 from needle_sim_ros.model import BaseMotion, Gravity, PointLoad, solve_static, tip_pose
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import NeedleSimulation, compile_kernels, simulation_from_parameters
@@ -204,7 +204,7 @@ def static_errors(mujoco) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(exact elastica tip (x, z), our tip error (dx, dz), MuJoCo's tip error (dx, dz)) [m] at the 80 g case."""
     sim = simulation_from_parameters(PARAMETERS)
     props = sim.model.props
-    exact = elastica_tip(props.EI, LENGTH, props.mass_per_length * G, STATIC_MASS * G)
+    exact = elastica(props.EI, LENGTH, props.mass_per_length * G, STATIC_MASS * G)[0]
     base = BaseMotion(np.zeros(3), IDENTITY)
     ours = solve_static(sim.model, base, [Gravity(), PointLoad(LENGTH, (0.0, 0.0, -STATIC_MASS * G))]).state
     ours_tip = tip_pose(sim.model, ours.q)[0]

@@ -34,7 +34,7 @@ def test_params_file_format_and_overrides(tmp_path):
     (fixture,) = build["fixtures"]
     assert isinstance(fixture, Fixture) and fixture.interval == (0.18, 0.27) and fixture.frame == "base"
     # the default mesh for a clamp: one element over it, so the base node and the nodes at 0.18 and 0.27 m
-    assert build_model(props, **build).constrained_dofs.size == 6 * 3
+    assert build_model(props, **build).partition.constrained_dofs.size == 6 * 3
     # a plain nested or flat dict works as well
     assert load_needle_config({"needle": {"elements": 3}})[1]["n_elements"] == 3
     assert load_needle_config({"needle.elements": 4})[1]["n_elements"] == 4

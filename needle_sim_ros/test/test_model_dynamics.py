@@ -29,7 +29,7 @@ def cantilever_beta_l(n_modes: int) -> list[float]:
 def linearized_modes(model):
     """Eigenfrequencies [Hz] and modes (full coordinates) of K(q0), M about the straight state."""
     q0 = model.straight_state(BASE).q
-    active = model.active_dofs
+    active = model.partition.active_dofs
     K = tangent_stiffness(model, q0)[np.ix_(active, active)]
     omega2, vectors = scipy.linalg.eigh(K, model.mass_matrix[np.ix_(active, active)])
     modes = np.zeros((model.n_dof, active.size))

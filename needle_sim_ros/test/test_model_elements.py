@@ -22,7 +22,7 @@ def rotation(axis, angle):
 def straight(model, axis=(1.0, 0.0, 0.0), origin=(0.0, 0.0, 0.0)):
     t = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
     nodes = np.zeros((model.n_nodes, 2, 3))
-    nodes[:, 0] = np.asarray(origin) + model.node_arc_length[:, None] * t
+    nodes[:, 0] = np.asarray(origin) + model.mesh.node_arc_length[:, None] * t
     nodes[:, 1] = t
     return nodes.ravel()
 
@@ -56,7 +56,7 @@ def test_consistent_mass_matrix():
     assert np.allclose(M, M.T) and np.linalg.eigvalsh(M).min() > 0
     xi, w = np.polynomial.legendre.leggauss(12)
     reference = np.zeros_like(model.mass_slots)
-    for j, l in enumerate(model.element_lengths):
+    for j, l in enumerate(model.mesh.element_lengths):
         S = shape_functions(xi, l)[0]
         reference[2 * j:2 * j + 4, 2 * j:2 * j + 4] += NEEDLE.mass_per_length * l / 2 * (S.T * w) @ S
     assert np.allclose(model.mass_slots, reference, rtol=1e-13, atol=0)
@@ -130,7 +130,7 @@ def test_exact_curvature_and_strain_of_a_circular_arc():
     error, bending energy EI L / (2 rho^2); the |r_xx| shortcut would be off by the stretch."""
     model = build_model(NEEDLE, 16)
     rho = 0.2
-    phi = model.node_arc_length / rho
+    phi = model.mesh.node_arc_length / rho
     nodes = np.zeros((model.n_nodes, 2, 3))
     nodes[:, 0] = np.column_stack([rho * np.sin(phi), np.zeros_like(phi), rho * (1 - np.cos(phi))])
     nodes[:, 1] = np.column_stack([np.cos(phi), np.zeros_like(phi), np.sin(phi)])

@@ -129,7 +129,7 @@ class TipTether(ForceContribution):
         n = model.n_dof
         tip, near = slice(n - 6, n - 3), slice(6, 9)
         Q = np.zeros(n)
-        Q[tip] = -self.stiffness * (q[tip] - q[near] - np.array([NEEDLE.length - model.node_arc_length[1], 0, 0]))
+        Q[tip] = -self.stiffness * (q[tip] - q[near] - np.array([NEEDLE.length - model.mesh.node_arc_length[1], 0, 0]))
         Q[near] = -Q[tip]
         K = np.zeros((n, n))
         for a, sign_a in ((tip, 1.0), (near, -1.0)):
@@ -234,7 +234,7 @@ def test_element_local_blocks_and_the_base_wrench():
         np.testing.assert_array_equal(Q, dense.Q)
         np.testing.assert_allclose(band_to_dense(band, ELEMENT_BANDWIDTH), -2.0 * dense.dQ_dq + 0.5 * dense.dQ_dqd,
                                    rtol=0, atol=1e-12 * np.abs(dense.dQ_dq).max())
-        assert force.touches_element(model, 0) == (start < model.node_arc_length[1])
+        assert force.touches_element(model, 0) == (start < model.mesh.node_arc_length[1])
         state = model.straight_state(BASE)
         state.q, state.qd = q, qd
         full = base_constraint_kernel(q[:12].copy(), qd[:12].copy(), np.zeros(12), *base_rows(model),

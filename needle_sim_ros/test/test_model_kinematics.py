@@ -88,9 +88,9 @@ def test_fixtures_partition_and_validation():
     equal = [0.027] * 10
     model = build_model(NEEDLE, 10, element_lengths=equal,
                         fixtures=[Fixture(interval=(0.162, 0.27)), Fixture(nodes=(2,), frame="base")])
-    clamped_nodes = sorted(set(model.constrained_dofs // 6))
+    clamped_nodes = sorted(set(model.partition.constrained_dofs // 6))
     assert clamped_nodes == [0, 2, 6, 7, 8, 9, 10]
-    assert model.active_dofs.size == model.n_dof - 6 * 7
+    assert model.partition.active_dofs.size == model.n_dof - 6 * 7
     with pytest.raises(ValueError, match="not a mesh node"):
         build_model(NEEDLE, 10, element_lengths=equal, fixtures=[Fixture(interval=(0.15, 0.27))])
     with pytest.raises(ValueError, match="clamped twice"):

@@ -209,7 +209,7 @@ def test_a_non_uniform_mesh_from_needle_element_lengths_sags_as_the_euler_bernou
     assert PARAMETERS["needle.element_lengths"] == [0.0]  # the default: needle.elements uniform elements
     lengths = [0.1, 0.1, 0.04, 0.03]
     sim = simulation_from_parameters({**PARAMETERS, "needle.element_lengths": lengths})
-    np.testing.assert_array_equal(sim.model.element_lengths, lengths)
+    np.testing.assert_array_equal(sim.model.mesh.element_lengths, lengths)
     props = sim.model.props
     w, L, EI = props.mass_per_length * 9.81, props.length, props.youngs_modulus * props.second_moment
     sim.offer_pose(0.0, [0.0, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])

@@ -8,7 +8,8 @@ import pickle
 import numpy as np
 import pytest
 
-from needle_sim_ros.experiments import EXPERIMENTS, TruthModel, run_ground_truth
+from needle_sim_ros.experiments.ground_truth import TruthModel, run_ground_truth
+from needle_sim_ros.experiments.protocols import EXPERIMENTS
 from failing_forces import PoisonedAfter
 from needle_sim_ros.base_input import BaseInput
 from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, Integrator, PointLoad, StepFailed, build_model,
@@ -64,7 +65,7 @@ def test_the_node_path_builds_the_mesh_of_element_lengths():
     lengths = [0.03, 0.03, 0.05, 0.05, 0.06, 0.05]  # a node at 0.16 m: the clamp below starts there
     p = {**PARAMETERS, "needle.element_lengths": lengths, "fixtures.clamp_interval": [0.16, 0.27]}
     model, _ = model_builder_from_parameters(p)(())
-    np.testing.assert_allclose(model.element_lengths, lengths)
+    np.testing.assert_allclose(model.mesh.element_lengths, lengths)
     assert model_builder_from_parameters({**PARAMETERS, "needle.element_lengths": []})(())[0].n_elements == \
         PARAMETERS["needle.elements"]
     simulation = simulation_from_parameters(p)
@@ -72,7 +73,7 @@ def test_the_node_path_builds_the_mesh_of_element_lengths():
         simulation.offer_pose(k * DT, [0.4, 0.0, 0.3], [0.0, 0.0, 0.0, 1.0])
     simulation.advance(20 * DT, deterministic=True)
     assert simulation.statistics.failed_steps == 0 and simulation.statistics.steps == 20
-    np.testing.assert_allclose(simulation.model.element_lengths, lengths)
+    np.testing.assert_allclose(simulation.model.mesh.element_lengths, lengths)
     assert simulation.model.fixtures[0].interval == (0.16, 0.27)
 
 

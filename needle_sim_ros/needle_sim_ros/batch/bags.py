@@ -47,23 +47,19 @@ def resolve_bags(spec: str) -> list[BagEntry]:
     """Folder (its ``*.mcap`` files and rosbag2 folders, sorted), glob (sorted matches) or manifest file."""
     path = Path(spec)
     if any(c in spec for c in "*?["):
-        entries = [BagEntry(str(Path(p))) for p in sorted(glob.glob(spec))]
-        if not entries:
-            raise BagListError(f"--bags '{spec}': the pattern matches no file")
-        return entries
-    if path.is_dir() and not _is_bag(path):
+        entries, empty = [BagEntry(str(Path(p))) for p in sorted(glob.glob(spec))], "the pattern matches no file"
+    elif path.is_dir() and not _is_bag(path):
         entries = [BagEntry(str(p)) for p in sorted(path.iterdir()) if _is_bag(p)]
-        if not entries:
-            raise BagListError(f"--bags '{spec}': the folder holds no .mcap bag")
-        return entries
-    if path.is_file() and path.suffix != ".mcap":
-        entries = read_manifest(path)
-        if not entries:
-            raise BagListError(f"--bags '{spec}': the manifest lists no bag")
-        return entries
-    if _is_bag(path) and path.exists():  # a missing bag is a failed row only in a manifest (module docstring)
+        empty = "the folder holds no .mcap bag"
+    elif path.is_file() and path.suffix != ".mcap":
+        entries, empty = read_manifest(path), "the manifest lists no bag"
+    elif _is_bag(path) and path.exists():  # a missing bag is a failed row only in a manifest (module docstring)
         return [BagEntry(str(path))]
-    raise BagListError(f"--bags '{spec}': no such folder, bag or manifest")
+    else:
+        raise BagListError(f"--bags '{spec}': no such folder, bag or manifest")
+    if not entries:
+        raise BagListError(f"--bags '{spec}': {empty}")
+    return entries
 
 
 def content_hash(path: str) -> str:

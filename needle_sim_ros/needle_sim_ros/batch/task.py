@@ -90,14 +90,11 @@ def run_row(spec: TaskSpec) -> dict[str, Any]:
     start = time.perf_counter()
     try:
         summary, log, _ = run_pipeline(spec)
-        c = summary["comparison"]
-        row: dict[str, Any] = {"bag": spec.bag, "key": spec.key, **dict.fromkeys(METRICS)}
-        row.update(rmse_mean_m=c["rmse_mean_m"], rmse_max_m=c["rmse_max_m"], tip_error_mean_m=c["tip_error_mean_m"],
-                   compared=int(c["compared"]))
-        wrench = wrench_versus_reference(log)
-        row.update(wrench_force_rms_n=wrench["wrench_force_rms_n"], wrench_moment_rms_nm=wrench["wrench_torque_rms_nm"],
-                   status="ok", error="", wall_s=time.perf_counter() - start)
-        return row
+        c, wrench = summary["comparison"], wrench_versus_reference(log)
+        return {"bag": spec.bag, "key": spec.key, "rmse_mean_m": c["rmse_mean_m"], "rmse_max_m": c["rmse_max_m"],
+                "tip_error_mean_m": c["tip_error_mean_m"], "wrench_force_rms_n": wrench["wrench_force_rms_n"],
+                "wrench_moment_rms_nm": wrench["wrench_torque_rms_nm"], "compared": int(c["compared"]),
+                "status": "ok", "error": "", "wall_s": time.perf_counter() - start}
     except Exception as error:  # noqa: BLE001 - any failure of one task becomes its row
         return failed_row(spec, error, time.perf_counter() - start)
 

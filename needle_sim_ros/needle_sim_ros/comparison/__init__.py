@@ -8,6 +8,5 @@ from needle_sim_ros.comparison.shape_error import (CenterlineSamples, Comparison
                                                    compare_centerlines)
 
 __all__ = ["CenterlineSamples", "ClosestPoints", "ComparedPair", "ComparisonError", "ComparisonSession", "ErrorSummary",
-           "ExtrinsicCalibration", "ShapeComparison",
-           "ShapePairer", "StampedPair", "calibrate_extrinsic", "chord_arc_length", "closest_points_on_polyline",
-           "compare_centerlines", "kabsch"]
+           "ExtrinsicCalibration", "ShapeComparison", "ShapePairer", "StampedPair", "calibrate_extrinsic",
+           "chord_arc_length", "closest_points_on_polyline", "compare_centerlines", "kabsch"]

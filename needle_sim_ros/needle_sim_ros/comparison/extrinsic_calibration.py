@@ -63,8 +63,7 @@ def calibrate_extrinsic(frames: Sequence[tuple[CenterlineSamples, CenterlineSamp
                         step_tolerance: float = 1e-10) -> ExtrinsicCalibration:
     """Estimate the camera -> model extrinsic from (model centerline, measured centerline) pairs of static frames.
 
-    Iterates until no measured sample moves by more than ``step_tolerance`` [m] in an iteration, or
-    ``max_iterations``.
+    Iterates until no measured sample moves by more than ``step_tolerance`` [m] in an iteration, or ``max_iterations``.
     """
     if not frames:
         raise ComparisonError("calibration needs at least one frame")

@@ -97,14 +97,9 @@ def compare_centerlines(model: CenterlineSamples, measured: CenterlineSamples,
     else:
         candidates = np.flatnonzero(matched)
         measured_tip = points[candidates[np.argmax(closest.arc_length[candidates])]]
-    return ShapeComparison(
-        rmse=float(np.sqrt(np.mean(errors**2))),
-        max_error=float(np.max(errors)),
-        tip_error=float(np.linalg.norm(model.points[-1] - measured_tip)),
-        errors=errors,
-        arc_length=closest.arc_length[matched],
-        matched=matched,
-    )
+    return ShapeComparison(rmse=float(np.sqrt(np.mean(errors**2))), max_error=float(np.max(errors)),
+                           tip_error=float(np.linalg.norm(model.points[-1] - measured_tip)), errors=errors,
+                           arc_length=closest.arc_length[matched], matched=matched)
 
 
 @dataclass
@@ -134,13 +129,8 @@ class ErrorSummary:
     def as_dict(self) -> dict:
         """JSON-ready summary; means are null when nothing was compared."""
         mean = (lambda total: total / self.count) if self.count else (lambda total: None)
-        return {
-            "compared": self.count,
-            "rmse_mean_m": mean(self.rmse_sum),
-            "rmse_max_m": self.rmse_max if self.count else None,
-            "tip_error_mean_m": mean(self.tip_error_sum),
-            "tip_error_max_m": self.tip_error_max if self.count else None,
-            "max_error_m": self.max_error if self.count else None,
-            "unpaired_measurements": self.unpaired_measurements,
-            "rejected_inputs": dict(self.rejected_inputs),
-        }
+        return {"compared": self.count, "rmse_mean_m": mean(self.rmse_sum),
+                "rmse_max_m": self.rmse_max if self.count else None, "tip_error_mean_m": mean(self.tip_error_sum),
+                "tip_error_max_m": self.tip_error_max if self.count else None,
+                "max_error_m": self.max_error if self.count else None,
+                "unpaired_measurements": self.unpaired_measurements, "rejected_inputs": dict(self.rejected_inputs)}

@@ -13,11 +13,6 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 
-def elastica_tip(EI: float, length: float, w: float, P: float) -> np.ndarray:
-    """Tip position (x, z) [m] of the exact elastica."""
-    return elastica(EI, length, w, P)[0]
-
-
 def elastica(EI: float, length: float, w: float, P: float) -> tuple[np.ndarray, float]:
     """Tip position (x, z) [m] and root bending moment EI theta'(0) [N m] of the exact elastica."""
     def rhs(s, y):

@@ -2,13 +2,12 @@
 
 The "real needle" of the synthetic experiments is the ANCF model discretized far beyond the simulator's settings
 (:class:`TruthModel`: 8x the elements, a 10x smaller step), checked against the exact elastica at rest
-(:func:`static_check`), with its own damping, driven by the exact base motion of the protocol (analytic pose,
-velocity and acceleration, not the recorded poses) and, for the insertions, by the tissue models with their default
-parameters.
-It is advanced by :class:`needle_sim_ros.simulation.NeedleSimulation` (the simulator's one time loop, the base
-from the protocol's ``base(t)``, the general step throughout), like the simulator node, so fixtures and the tissue
-models' per-step hooks behave the same. Unlike the node, it starts from static equilibrium (the real needle
-hangs at rest when the recording starts) when the protocol says so.
+(:func:`static_check`), with its own damping, driven by the exact base motion of the protocol (analytic pose, velocity
+and acceleration, not the recorded poses) and, for the insertions, by the tissue models with their default parameters.
+It is advanced by :class:`needle_sim_ros.simulation.NeedleSimulation` (the simulator's one time loop, the base from the
+protocol's ``base(t)``, the general step throughout), like the simulator node, so fixtures and the tissue models'
+per-step hooks behave the same. Unlike the node, it starts from static equilibrium (the real needle hangs at rest when
+the recording starts) when the protocol says so.
 """
 from __future__ import annotations
 
@@ -20,7 +19,7 @@ import numpy as np
 
 from needle_sim_ros.base_input import BaseInput
 from needle_sim_ros.experiments.protocols import Experiment
-from needle_sim_ros.experiments.elastica import elastica_tip
+from needle_sim_ros.experiments.elastica import elastica
 from needle_sim_ros.model import (BaseMotion, Centerline, Fixture, Gravity, Integrator, ModelShape, NeedleProperties,
                                   PointLoad, StepFailed, build_model, solve_static)
 from needle_sim_ros.simulation import NeedleSimulation
@@ -54,7 +53,7 @@ def static_check(truth: TruthModel, tip_masses=(0.0, 0.04, 0.08)) -> dict[str, f
     for mass in tip_masses:
         forces = [Gravity(), PointLoad(props.length, (0.0, 0.0, -g * mass))]
         previous = solve_static(model, base, forces, initial=previous).state
-        exact = elastica_tip(props.EI, props.length, props.mass_per_length * g, g * mass)
+        exact = elastica(props.EI, props.length, props.mass_per_length * g, g * mass)[0]
         errors.append(float(np.linalg.norm(previous.q[[-6, -4]] - exact)))
     return {"tip_masses_kg": list(tip_masses), "tip_error_m": errors}
 
@@ -104,13 +103,9 @@ def run_ground_truth(experiment: Experiment, truth: TruthModel, shape_times, wre
     shape_steps = {int(round(t / dt)): i for i, t in enumerate(shape_times)}
     wrench_every = max(1, int(round(1.0 / (wrench_rate * dt))))
     simulation = truth_simulation(experiment, truth)
-    samples = TruthSamples(np.asarray(shape_times, dtype=float))
     shapes: dict[int, ModelShape] = {}
     wrench_times, forces, torques = [], [], []
     loaded = np.any([np.any(experiment.tip_force(t)) for t in np.linspace(0.0, experiment.duration, 50)])
-
-    def sample_shape(index: int) -> None:
-        shapes[index] = simulation.shape(shape_samples)
 
     progress_every = max(1, int(round(0.1 / dt)))
     if loaded:  # the tip load changes every step: set it before each step
@@ -120,7 +115,7 @@ def run_ground_truth(experiment: Experiment, truth: TruthModel, shape_times, wre
                          *range(wrench_every, n_steps + 1, wrench_every),
                          *range(progress_every, n_steps + 1, progress_every)})
     if 0 in shape_steps:
-        sample_shape(shape_steps[0])
+        shapes[shape_steps[0]] = simulation.shape(shape_samples)
     for k in events:
         t = k * dt
         if loaded:
@@ -136,11 +131,10 @@ def run_ground_truth(experiment: Experiment, truth: TruthModel, shape_times, wre
                 forces.append(record.wrench.force_base)
                 torques.append(record.wrench.torque_base)
         if k in shape_steps:
-            sample_shape(shape_steps[k])
+            shapes[shape_steps[k]] = simulation.shape(shape_samples)
         if progress is not None and k % progress_every == 0:
             progress(t)
-    samples.shapes = [shapes[i].line for i in range(len(shape_times))]
-    samples.tips = [(shapes[i].tip_position, shapes[i].tip_orientation) for i in range(len(shape_times))]
-    samples.wrench_times = np.array(wrench_times)
-    samples.force_base, samples.torque_base = np.array(forces).reshape(-1, 3), np.array(torques).reshape(-1, 3)
-    return samples
+    ordered = [shapes[i] for i in range(len(shape_times))]
+    return TruthSamples(np.asarray(shape_times, dtype=float), [shape.line for shape in ordered],
+                        [(shape.tip_position, shape.tip_orientation) for shape in ordered], np.array(wrench_times),
+                        np.array(forces).reshape(-1, 3), np.array(torques).reshape(-1, 3))

@@ -14,18 +14,14 @@ from .model import NeedleModel, State, build_model
 from .outputs import (Centerline, ModelShape, axial_strain, centerline, curvature, gravitational_energy,
                       kinetic_energy, model_shape, tip_pose)
 from .properties import NeedleProperties
-from .reaction import BaseWrench, base_constraint_force, reaction_wrench
+from .reaction import BaseWrench, reaction_wrench
 from .statics import StaticResult, StaticSolveFailed, solve_static
 
-__all__ = [
-    "NeedleProperties", "build_model", "NeedleModel", "State", "Interpolation", "BaseMotion", "Fixture",
-    "ForceContribution", "ElementLocalForce", "check_forces", "GeneralizedForce", "Gravity", "PointLoad", "NodalLoad",
-    "LineLoad",
-    "MaterialPointForce", "PointForces", "Integrator", "StepResult", "StepFailed", "solve_static", "StaticResult",
-    "StaticSolveFailed",
-    "reaction_wrench", "base_constraint_force", "BaseWrench", "centerline", "Centerline", "tip_pose",
-    "ModelShape", "model_shape",
-    "axial_strain", "curvature", "kinetic_energy", "elastic_energy", "gravitational_energy", "elastic_forces",
-    "tangent_stiffness", "load_needle_config", "needle_parameters", "needle_properties", "NeedleData",
-    "acting_forces", "initial_force_states", "stateful_forces", "step",
-]
+__all__ = ["NeedleProperties", "build_model", "NeedleModel", "State", "Interpolation", "BaseMotion", "Fixture",
+           "ForceContribution", "ElementLocalForce", "check_forces", "GeneralizedForce", "Gravity", "PointLoad",
+           "NodalLoad", "LineLoad", "MaterialPointForce", "PointForces", "Integrator", "StepResult", "StepFailed",
+           "solve_static", "StaticResult", "StaticSolveFailed", "reaction_wrench", "BaseWrench", "centerline",
+           "Centerline", "tip_pose", "ModelShape", "model_shape", "axial_strain", "curvature", "kinetic_energy",
+           "elastic_energy", "gravitational_energy", "elastic_forces", "tangent_stiffness", "load_needle_config",
+           "needle_parameters", "needle_properties", "NeedleData", "acting_forces", "initial_force_states",
+           "stateful_forces", "step"]

@@ -237,7 +237,7 @@ class LineLoad(_ConstantVectorLoad):
             raise ValueError(f"LineLoad: s_start {s_start!r} must not exceed s_end {s_end!r}")
 
     def distribution(self, model) -> np.ndarray:
-        nodes = model.node_arc_length
+        nodes = model.mesh.node_arc_length
         if self.s_start < -1e-9 * nodes[-1] or self.s_end > nodes[-1] * (1 + 1e-9):
             raise ValueError(f"LineLoad interval [{self.s_start}, {self.s_end}] m outside the needle "
                              f"[0, {nodes[-1]}] m")

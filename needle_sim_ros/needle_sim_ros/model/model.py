@@ -63,26 +63,9 @@ class NeedleModel:
         return 6 * self.n_nodes
 
     @property
-    def node_arc_length(self) -> np.ndarray:
-        """Reference arc length of each node [m]."""
-        return self.mesh.node_arc_length
-
-    @property
-    def element_lengths(self) -> np.ndarray:
-        return self.mesh.element_lengths
-
-    @property
     def mass_matrix(self) -> np.ndarray:
         """Consistent mass matrix M (eqs. 7, 16), dense (n_dof, n_dof)."""
         return np.kron(self.mass_slots, np.eye(3))
-
-    @property
-    def constrained_dofs(self) -> np.ndarray:
-        return self.partition.constrained_dofs
-
-    @property
-    def active_dofs(self) -> np.ndarray:
-        return self.partition.active_dofs
 
     def interpolation(self, arc_lengths) -> Interpolation:
         """Element index and S, S_x, S_xx tables (eq. 4) at reference arc lengths in [0, L]."""
@@ -92,7 +75,7 @@ class NeedleModel:
         """Undeformed needle along the holder axis, moving rigidly with the base; clamped nodes as prescribed (those
         held where the needle started at ``clamp``, default: here, now)."""
         nodes = np.arange(self.n_nodes)
-        local_r = self.node_arc_length[:, None] * np.array([[1.0, 0.0, 0.0]])
+        local_r = self.mesh.node_arc_length[:, None] * np.array([[1.0, 0.0, 0.0]])
         local_rx = np.tile([1.0, 0.0, 0.0], (self.n_nodes, 1))
         values = np.zeros((3, self.n_dof))
         base.impose_nodes(local_r, local_rx, nodes, values)

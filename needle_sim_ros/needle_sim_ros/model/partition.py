@@ -68,8 +68,7 @@ class Partition:
     @classmethod
     def build(cls, mesh: Mesh, fixtures: tuple[Fixture, ...]) -> Partition:
         """Base node 0 (attached to the base frame at rho = 0, tau = e_x) plus the fixtures' nodes."""
-        per_frame: dict[int, list] = {}
-        frames: dict[int, FixtureFrame] = {}
+        per_frame: dict[int, tuple[FixtureFrame, list]] = {}  # the frame and its (nodes, rho, tau) parts
         entries = [("base", np.array([0]), np.zeros((1, 3)), np.array([[1.0, 0.0, 0.0]]))]
         for fixture in fixtures:
             if not isinstance(fixture, Fixture):
@@ -82,15 +81,12 @@ class Partition:
                 raise ValueError(f"node(s) {sorted(overlap)} clamped twice (node 0 is the base node A)")
             seen.update(nodes.tolist())
             key = hash(frame) if isinstance(frame, str) else id(frame)
-            frames[key] = frame
-            per_frame.setdefault(key, []).append((nodes, rho, tau))
+            per_frame.setdefault(key, (frame, []))[1].append((nodes, rho, tau))
         groups = []
-        for key, parts in per_frame.items():
-            nodes = np.concatenate([p[0] for p in parts])
-            rho = np.concatenate([p[1] for p in parts])
-            tau = np.concatenate([p[2] for p in parts])
-            fixed = _world_values(nodes, rho, tau) if frames[key] == "world" else None
-            groups.append(ConstraintGroup(frames[key], nodes, _dofs(nodes), rho, tau, fixed))
+        for frame, parts in per_frame.values():
+            nodes, rho, tau = (np.concatenate(column) for column in zip(*parts))
+            fixed = _world_values(nodes, rho, tau) if frame == "world" else None
+            groups.append(ConstraintGroup(frame, nodes, _dofs(nodes), rho, tau, fixed))
         n_dof = 6 * (mesh.n_elements + 1)
         active = np.ones(n_dof, dtype=bool)
         constrained = np.concatenate([g.dofs for g in groups])

@@ -28,6 +28,7 @@ class NeedleProperties:
             value = getattr(self, name)
             if not (isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"NeedleProperties.{name} must be a finite number > 0, got {value!r}")
+            object.__setattr__(self, name, float(value))
         gravity = np.asarray(self.gravity, dtype=float)
         if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
             raise ValueError(f"NeedleProperties.gravity must be 3 finite numbers [m/s^2], got {self.gravity!r}")
@@ -37,8 +38,6 @@ class NeedleProperties:
             raise ValueError(f"NeedleProperties.inner_radius must be >= 0 and < radius ({self.radius!r} m), "
                              f"got {inner!r}")
         object.__setattr__(self, "inner_radius", float(inner))
-        for name in ("length", "radius", "youngs_modulus", "density"):
-            object.__setattr__(self, name, float(getattr(self, name)))
 
     @property
     def area(self) -> float:

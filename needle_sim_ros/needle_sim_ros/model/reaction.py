@@ -77,13 +77,6 @@ def _base_external(model: NeedleModel, state: State, base: BaseMotion, forces) -
     return external
 
 
-def base_constraint_force(model: NeedleModel, state: State, base: BaseMotion, forces=()) -> np.ndarray:
-    """Q_cc on the base node [r_A, r_xA] (6,), eq. 20: the generalized force of the holder on the needle."""
-    return base_constraint_kernel(np.ascontiguousarray(state.q[:12]), np.ascontiguousarray(state.qd[:12]),
-                                  np.ascontiguousarray(state.qdd[:12]), *base_rows(model),
-                                  np.ascontiguousarray(base.axis), _base_external(model, state, base, forces))
-
-
 @njit(cache=True)
 def holder_wrench(r_xA: np.ndarray, constraint: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """[force, torque about A] of the needle on its holder in the world frame, then in the base frame (12,), from

@@ -1,11 +1,10 @@
 """Typed records across the Python -> numba boundary as one float64 array.
 
-Inside the kernels a contribution's state is a named tuple of arrays and scalars. numba 0.59 (Ubuntu 24.04's)
-types a tuple argument in Python on every call from Python (10-60 us), an array in C: so a state crosses the
-boundary packed into one float64 array. ``put`` appends a field (a scalar: its value; an array: its shape, then
-its values), the ``take_*`` functions read one back in the same order as a fresh array of the field's type;
-``cursor`` (an int64 array of one element) is the read or write position. A first pass over an empty buffer only
-counts (``pack_record``).
+Inside the kernels a contribution's state is a named tuple of arrays and scalars. numba 0.59 (Ubuntu 24.04's) types a
+tuple argument in Python on every call from Python (10-60 us), an array in C: so a state crosses the boundary packed
+into one float64 array. ``put`` appends a field (a scalar: its value; an array: its shape, then its values), the
+``take_*`` functions read one back in the same order as a fresh array of the field's type; ``cursor`` (an int64 array of
+one element) is the read or write position. A first pass over an empty buffer only counts (``pack_record``).
 """
 from __future__ import annotations
 
@@ -92,11 +91,6 @@ def take_vector(buffer, cursor):
 @njit(cache=True)
 def take_matrix(buffer, cursor):
     return view_matrix(buffer, cursor).copy()
-
-
-@njit(cache=True)
-def take_indices(buffer, cursor):
-    return take_vector(buffer, cursor).astype(np.int64)
 
 
 @njit(cache=True)

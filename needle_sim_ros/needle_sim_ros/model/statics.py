@@ -32,7 +32,7 @@ def static_initial_guess(model: NeedleModel, base: BaseMotion, t: float = 0.0) -
     joining them (the shape of one cable element, eq. 4, across the free span)."""
     q = model.straight_state(base, t).q
     nodes = q.reshape(-1, 2, 3)
-    s = model.node_arc_length
+    s = model.mesh.node_arc_length
     clamped = np.flatnonzero(~model.partition.active[::6])
     for i0, i1 in zip(clamped[:-1], clamped[1:]):
         if i1 - i0 < 2:

@@ -48,9 +48,8 @@ class HealthMonitor:
             causes.append((WARN, "waiting for the first base pose"))
         elif pose_age > pose_timeout:
             causes.append((WARN, f"no base pose for {pose_age:.2f} s: holding the last pose"))
-        rejected = {key[len("rejected_"):]: self.increase(counters, key)
-                    for key in sorted(counters) if key.startswith("rejected_")}
-        rejected = {name: count for name, count in rejected.items() if count > 0}
+        rejected = {key[len("rejected_"):]: count for key in sorted(counters)
+                    if key.startswith("rejected_") and (count := self.increase(counters, key)) > 0}
         if rejected:
             causes.append((WARN, "rejected input: " + ", ".join(f"{n:.0f} {name.replace('_', ' ')}"
                                                                   for name, n in rejected.items())))

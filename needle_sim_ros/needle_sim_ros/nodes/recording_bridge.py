@@ -75,7 +75,8 @@ class TopicRecorder:
         self._registered: set[str] = set()
         self.failure: str | None = None  # why the recording stopped early (then close() cannot finalize it)
         self._stopped_files: list = []
-        node.create_timer(max(options.chunk_interval, 0.1) if options.chunk_interval > 0 else 1.0, self._flush_due)
+        node.create_timer(max(options.chunk_interval, 0.1) if options.chunk_interval > 0 else 1.0,
+                          lambda: self._guard(lambda w: w.flush_due(self._now())))
 
     def add_parameters(self, node_name: str, values: dict[str, Any], parameter_file: str) -> None:
         """Parameters in force: a metadata record (Foxglove) and a ROS 2 parameter file attachment."""
@@ -109,9 +110,6 @@ class TopicRecorder:
 
     def _now(self) -> int:
         return self._node.get_clock().now().nanoseconds
-
-    def _flush_due(self) -> None:
-        self._guard(lambda w: w.flush_due(self._now()))
 
     def _guard(self, action) -> None:
         if self._writer is None:

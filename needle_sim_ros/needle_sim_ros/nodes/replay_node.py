@@ -194,8 +194,7 @@ class ReplayNode(Node):
 
     def compressed(self, data: bytes) -> bytes:
         """A serialized Image as a serialized CompressedImage (--compress-images); one that cannot be read or encoded
-        becomes an empty CompressedImage of format 'unreadable' (its receiver counts a decode error), with a
-        warning."""
+        becomes an empty CompressedImage of format 'unreadable' (its receiver counts a decode error), with a warning."""
         stamp, frame_id = (0, 0), ""
         try:
             image = deserialize_image(data, compressed=False)

@@ -10,10 +10,8 @@ With ``haptics.enable`` each step also yields the force the operator should feel
 (:mod:`needle_sim_ros.haptics`: frame, limits, a wall-clock pose watchdog with a resume ramp), and every stop
 (deactivate, cleanup, shutdown, SIGINT/SIGTERM, an exception on the way out) publishes a zero wrench there first.
 
-Time: with ``use_sim_time`` the node follows ``/clock`` and integrates deterministically up to
-min(clock, newest pose stamp) — poses are interpolated, never extrapolated — unless the pose input timed out.
-In wall-clock mode it integrates up to now, extrapolating the newest pose for at most
-``pose_input.max_extrapolation``.
+Time (:mod:`needle_sim_ros.clock_loop`): with ``use_sim_time`` the node follows ``/clock`` and integrates
+deterministically; in wall-clock mode up to now, extrapolating the newest pose up to ``pose_input.max_extrapolation``.
 """
 from __future__ import annotations
 
@@ -339,13 +337,12 @@ class NeedleSimulatorNode(LifecycleNode):
             if "loads.tip_force" in changed and self.sim is not None:
                 self._apply_tip_force(changed["loads.tip_force"])  # first: a load the model cannot carry refuses all
             self.p.update(changed)
-            if self.sim is not None:
-                self.inputs = self.simulator_inputs()
             if self.haptics is not None:
                 self.haptics.max_force = self.p["haptics.max_force"]
                 self.haptics.max_torque = self.p["haptics.max_torque"]
             if self.sim is None:  # unconfigured: configure builds with the new values
                 return
+            self.inputs = self.simulator_inputs()
             if {"damping.rayleigh_alpha", "damping.rayleigh_beta"} & changed.keys():
                 self.sim.stepper.rebuild_model(model_builder_from_parameters(self.p))
 
@@ -376,9 +373,8 @@ class NeedleSimulatorNode(LifecycleNode):
         self.zero_haptics(wait=ZERO_ACK_WAIT)
 
     def zero_haptics(self, wait: float = 0.0) -> None:
-        """Stop the haptic output: the loop publishes no more haptic wrenches until the next activation, and one
-        zero wrench goes out now; ``wait`` > 0: wait up to that long [s] until every reliable subscriber
-        acknowledged it."""
+        """Stop the haptic output: the loop publishes no more haptic wrenches until the next activation, and one zero
+        wrench goes out now; ``wait`` > 0: wait up to that long [s] until every reliable subscriber acknowledged it."""
         if self.haptic_pub is None or not self.context.ok():  # a context shut down can publish nothing
             return
         with self._haptic_lock:
@@ -393,8 +389,7 @@ class NeedleSimulatorNode(LifecycleNode):
 
     def run_outputs(self) -> None:
         """Shapes, visualization and diagnostics at their rates, off the integration thread. Between outputs the
-        thread sleeps until the next is due (2-20 ms of this process's clock), so that it takes the GIL from the
-        integration thread only when it has work (it polled every 2 ms before: 500 wake-ups per second)."""
+        thread sleeps until the next is due (2-20 ms) and takes the GIL from the integration thread only with work."""
         wait = 0.002
         while not self._stop.wait(wait) and rclpy.ok():
             try:
@@ -416,10 +411,8 @@ class NeedleSimulatorNode(LifecycleNode):
     def run_loop(self) -> None:
         """Ticks until shutdown. In wall-clock time each tick is timed to the moment the next step's end time
         passes, so a tick integrates exactly one step and publishes its wrench at once (a step integrated more than
-        a period after its end time is a deadline miss); between ticks a pose wakes the loop at once, which then
-        integrates the step that ends at or after its stamp (``loop.ahead_to_pose``; the tick then waits
-        ``LATE_POSE_WAIT`` of a period more for a late pose, so that the pose, not an extrapolation, drives its step:
-        the grid is half a step from the poses, ``ClockLoop.lock_phase``). In
+        a period after its end time is a deadline miss); with ``loop.ahead_to_pose`` a pose wakes the loop between
+        ticks (the tick waits ``LATE_POSE_WAIT`` of a period more for a late pose: ``ClockLoop.lock_phase``). In
         simulated time (no relation to this process's clock) ticks come every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
@@ -557,11 +550,6 @@ class NeedleSimulatorNode(LifecycleNode):
         return (self.shape_pub.get_subscription_count() > 0 or self.state_pub.get_subscription_count() > 0
                 or self.tf.has_subscribers())
 
-    def visualization_subscribed(self) -> bool:
-        """Whether anything subscribes to the path, the pose array or the marker tube."""
-        return any(publisher.get_subscription_count() > 0
-                   for publisher in (self.path_pub, self.pose_array_pub, self.marker_pub))
-
     def take_state(self) -> tuple:
         """(model, a copy of the state, tissue readout): all the outputs need, taken with the lock held."""
         state = self.sim.state
@@ -594,7 +582,8 @@ class NeedleSimulatorNode(LifecycleNode):
         shape_due = (not self.use_sim_time and self.due("shape", now, self.p["rates.shape_hz"])
                      and self.shape_subscribed())
         visualization_due = (self.due("visualization", now, self.p["rates.visualization_hz"])
-                             and self.visualization_subscribed())
+                             and any(publisher.get_subscription_count() > 0
+                                     for publisher in (self.path_pub, self.pose_array_pub, self.marker_pub)))
         if not (shape_due or visualization_due):
             return
         with self._lock:
@@ -632,15 +621,12 @@ class NeedleSimulatorNode(LifecycleNode):
                     "steps": stats.steps,
                     "step_time_mean_ms": float(step_times.mean() * 1e3) if step_times.size else 0.0,
                     "step_time_max_ms": float(step_times.max() * 1e3) if step_times.size else 0.0,
-                    "max_newton_iterations": stats.max_newton_iterations,
-                    "failed_steps": stats.failed_steps,
+                    "max_newton_iterations": stats.max_newton_iterations, "failed_steps": stats.failed_steps,
                     "poses_late_for_their_step": stats.late_poses,
                     "started_at_s": f"{self.started_at:.6f}",  # an epoch time in full, not .6g
                     "activated_at_s": f"{self.activated_at:.6f}",
-                    "start_received_at_s": f"{self.start_received_at:.6f}",
-                    "skipped_time_s": stats.skipped_time,
-                    "pose_age_s": sim.pose_age(self.now_seconds()),
-                    "point_loads": len(sim.point_loads)})
+                    "start_received_at_s": f"{self.start_received_at:.6f}", "skipped_time_s": stats.skipped_time,
+                    "pose_age_s": sim.pose_age(self.now_seconds()), "point_loads": len(sim.point_loads)})
                 stats.max_newton_iterations = 0
             started = sim is not None and sim.started
         rejected = {"rejected_poses": rejected_poses(self.counters) + self.counters_other["wrong_frame"],

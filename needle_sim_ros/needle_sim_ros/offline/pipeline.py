@@ -196,16 +196,14 @@ class OfflinePipeline:
         stages["simulator_core_s"] = self.simulator.core_seconds  # of simulator_s: NeedleSimulation.advance
         summary = {
             "bag": str(bag), "experiment": str(self.experiment.path), "start_offset_s": start_offset,
-            "duration_s": simulated, "comparison": self.comparison.finish(),
-            "simulator": self.simulator.statistics(),
+            "duration_s": simulated, "comparison": self.comparison.finish(), "simulator": self.simulator.statistics(),
             "stereo": self.stereo.statistics() if self.stereo is not None else None,
             "timing": {"wall_s": wall, "simulated_s": simulated,
                        "real_time_factor": simulated / wall if wall > 0 else None,
                        **stages, "messages_and_io_s": wall - sum(self.seconds.values())},
             "warnings": self.warnings + [f"skipped {n} {what} of the bag" for n, what in (
                 (reader.corrupt_chunks, "corrupt chunk(s)"), (undecodable, "undecodable message(s)")) if n],
-            "corrupt_chunks": reader.corrupt_chunks, "undecodable_messages": undecodable,
-        }
+            "corrupt_chunks": reader.corrupt_chunks, "undecodable_messages": undecodable}
         return OfflineRun(summary, self.collector.log(reader.start_time_ns))
 
     def _timed(self, stage: str, function: Callable, *arguments) -> Any:

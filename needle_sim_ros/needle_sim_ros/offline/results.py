@@ -88,11 +88,7 @@ class LogCollector:
     """The log's series, message by message (serialized messages of the topics above, others ignored)."""
 
     def __init__(self) -> None:
-        self.model_shapes: dict[int, np.ndarray] = {}
-        self.measured_shapes: dict[int, np.ndarray] = {}
-        self.truth_shapes: dict[int, np.ndarray] = {}
-        self.shapes = {MODEL_TOPIC: self.model_shapes, MEASURED_TOPIC: self.measured_shapes,
-                       TRUTH_SHAPE_TOPIC: self.truth_shapes}
+        self.shapes: dict[str, dict[int, np.ndarray]] = {MODEL_TOPIC: {}, MEASURED_TOPIC: {}, TRUTH_SHAPE_TOPIC: {}}
         self.wrenches: dict[str, list[bytes]] = {WRENCH_TOPIC: [], TRUTH_WRENCH_TOPIC: []}
         self.errors: list[tuple] = []
 
@@ -113,8 +109,8 @@ class LogCollector:
         errors = sorted(self.errors, key=lambda error: error[0])
         times = np.array([error[1:3] for error in errors], dtype=np.int64).reshape(-1, 2)
         values = np.array([error[3:] for error in errors], dtype=float).reshape(-1, 3)
-        return PipelineLog(start_ns, self.model_shapes, self.measured_shapes, self.truth_shapes, times[:, 0],
-                           times[:, 1], values[:, 0], values[:, 1], values[:, 2],
+        return PipelineLog(start_ns, *(self.shapes[t] for t in (MODEL_TOPIC, MEASURED_TOPIC, TRUTH_SHAPE_TOPIC)),
+                           times[:, 0], times[:, 1], values[:, 0], values[:, 1], values[:, 2],
                            *(_series(self.wrenches[t]) for t in (WRENCH_TOPIC, TRUTH_WRENCH_TOPIC)))
 
 
@@ -138,7 +134,7 @@ def read_pipeline_log(log: str | Path, bag: str | Path | None = None) -> Pipelin
     for message in BagReader(log).messages([MODEL_TOPIC, MEASURED_TOPIC, ERROR_TOPIC, WRENCH_TOPIC]):
         collector.add(message.topic, message.data)
     if bag is None:
-        return collector.log(min([*collector.model_shapes, *collector.measured_shapes], default=0))
+        return collector.log(min([*collector.shapes[MODEL_TOPIC], *collector.shapes[MEASURED_TOPIC]], default=0))
     truth = BagReader(bag)
     for message in truth.messages(TRUTH_TOPICS):
         collector.add(message.topic, message.data)
@@ -168,8 +164,7 @@ def versus_ground_truth(log: PipelineLog) -> dict[str, float | int | None]:
 
 def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None:
     """Model minus reference force [N] and moment [N m] at the reference stamps inside the model's time span (the
-    model's wrench interpolated linearly between its steps); None when either series is missing or nothing
-    overlaps."""
+    model's wrench interpolated linearly between its steps); None when either series is missing or nothing overlaps."""
     model, reference = log.wrench, log.truth_wrench
     if model is None or reference is None or model.times.size < 2:
         return None

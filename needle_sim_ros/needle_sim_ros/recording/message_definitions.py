@@ -51,12 +51,8 @@ def _interface_file(type_name: str, suffix: str) -> Path:
 
 
 def _dependencies(text: str, package: str) -> list[str]:
-    found = set()
-    for field_type in _FIELD_TYPE.findall(text):
-        if field_type in _PRIMITIVES:
-            continue
-        found.add(field_type if "/" in field_type else f"{package}/{field_type}")
-    return sorted(found)
+    return sorted({field_type if "/" in field_type else f"{package}/{field_type}"
+                   for field_type in _FIELD_TYPE.findall(text) if field_type not in _PRIMITIVES})
 
 
 @functools.lru_cache(maxsize=None)

@@ -92,9 +92,12 @@ def shape_json(model: NeedleModel, q: np.ndarray, base: BaseMotion, n_samples: i
             "centerline_m": in_base_frame(base, line.points).tolist()}
 
 
-def write_json(path: Path | None, result: dict) -> None:
-    if path is not None:
-        write_atomically(path, lambda temporary: temporary.write_text(json.dumps(result, indent=1)))
+def write_outputs(args: argparse.Namespace, result: dict, plot: Callable[[dict, Path], None]) -> None:
+    """The result as JSON (``--json``) and ``plot(result, path)`` (``--plot``), where asked."""
+    if args.json is not None:
+        write_atomically(args.json, lambda temporary: temporary.write_text(json.dumps(result, indent=1)))
+    if args.plot is not None:
+        plot(result, args.plot)
 
 
 def pyplot():

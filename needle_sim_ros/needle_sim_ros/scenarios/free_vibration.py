@@ -20,7 +20,7 @@ from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, PointLoad, bu
 from needle_sim_ros.simulation import NeedleSimulation
 
 from .common import (IDENTITY, add_needle_arguments, advance_sampled, figure, needle_configuration, run_summary,
-                     save_figure, shape_json, wrench_json, write_json)
+                     save_figure, shape_json, wrench_json, write_outputs)
 
 
 def simulate_release(props, build: dict, integrator_kwargs: dict, tip_mass: float, dt: float, duration: float,
@@ -105,9 +105,7 @@ def run(args: argparse.Namespace) -> int:
             target[key] = option
     result = simulate_release(props, build, integrator_kwargs, args.tip_mass, dt, args.duration,
                               args.sample_interval, args.centerline_samples)
-    write_json(args.json, result)
-    if args.plot is not None:
-        plot_release(result, args.plot)
+    write_outputs(args, result, plot_release)
     energy = [s["total_energy_j"] for s in result["samples"]]
     print(f"free_vibration: {result['steps']} steps, real-time factor {result['real_time_factor']:.1f}, total energy "
           f"{energy[0] * 1e3:.4f} -> {energy[-1] * 1e3:.4f} mJ")

@@ -1,13 +1,12 @@
 """Scenario ``insertion``: insert the needle into a configured tissue (ROS-free).
 
-The base (clamp point A) starts at the world origin with the needle along world x, in static equilibrium under
-gravity, its tip ``gap`` in front of the entry surface (the configured entry point is moved along its normal to
-x = L + gap; the normal must be world +x).  It then follows an ``InsertionMotion``: tip depths reached in turn at a
-constant speed (insert, retract, re-insert), a roll that turns the bevel, duty-cycled spinning.  Written (SI):
-time, insertion depth, the tip's lateral deflection (distance from the entry axis, perpendicular to it), tip
-position, its offset (y, z) from the axis and unit tangent, base roll, base force and torque (eq. 20, the needle
-on its holder, base frame), the tissue readout, the parameters used, and a seed 001 Fig. 4 style plot of the
-deflection versus depth.
+The base (clamp point A) starts at the world origin with the needle along world x, in static equilibrium under gravity,
+its tip ``gap`` in front of the entry surface (the configured entry point is moved along its normal to x = L + gap; the
+normal must be world +x).  It then follows an ``InsertionMotion``: tip depths reached in turn at a constant speed
+(insert, retract, re-insert), a roll that turns the bevel, duty-cycled spinning.  Written (SI): time, insertion depth,
+the tip's lateral deflection (distance from the entry axis, perpendicular to it), tip position, its offset (y, z) from
+the axis and unit tangent, base roll, base force and torque (eq. 20, the needle on its holder, base frame), the tissue
+readout, the parameters used, and a seed 001 Fig. 4 style plot of the deflection versus depth.
 """
 from __future__ import annotations
 
@@ -26,7 +25,7 @@ from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_model
 from needle_sim_ros.simulation import NeedleSimulation
 
 from .common import (add_needle_arguments, advance_sampled, checked_params_file, figure, material,
-                     needle_configuration, run_summary, save_figure, shape_json, write_json)
+                     needle_configuration, run_summary, save_figure, shape_json, write_outputs)
 from .insertion_motion import InsertionMotion
 
 
@@ -98,19 +97,15 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
     wall = time.perf_counter() - start
     winkler = np.asarray(config["tissue.layers.lateral_stiffness"], dtype=float)
     return {
-        "scenario": "insertion",
-        **run_summary(model, integrator_kwargs, dt, n_steps, integration_wall, iterations),
+        "scenario": "insertion", **run_summary(model, integrator_kwargs, dt, n_steps, integration_wall, iterations),
         "wall_time_s": wall,
         "motion": {"depths_m": list(motion.waypoints), "speed_m_s": motion.speed, "gap_m": motion.gap,
                    "roll_rad": motion.roll, "spin_rate_rad_s": motion.spin_rate, "duty_cycle": motion.duty_cycle},
         "parameters": {"needle": {**material(props), "elements": model.n_elements,
-                                  "axial_gauss_points": model.axial_gauss,
-                                  "bending_gauss_points": model.bending_gauss},
+                                  "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss},
                        "tissue": {k: _json_value(v) for k, v in config.items()},
                        "winkler_modulus_n_m2": _json_value(winkler)},
-        **series,
-        "final": shape_json(model, state.q, motion.base_at(state.t), centerline_samples),
-    }
+        **series, "final": shape_json(model, state.q, motion.base_at(state.t), centerline_samples)}
 
 
 def bevel_side_world(result: dict, t: float) -> np.ndarray:
@@ -177,9 +172,7 @@ def run(args: argparse.Namespace) -> int:
     result = simulate_insertion(props, tissue, motion, dt, args.sample_every, build, integrator_kwargs,
                                 args.centerline_samples)
     result["params_files"] = [str(path.resolve()) for path in files]
-    write_json(args.json, result)
-    if args.plot is not None:
-        plot_deflection(result, args.plot)
+    write_outputs(args, result, plot_deflection)
     print(f"insertion: {result['steps']} steps of {dt * 1e3:g} ms, depth {result['insertion_depth_m'][-1] * 1e3:.1f} "
           f"mm, tip lateral deflection {result['tip_lateral_deflection_m'][-1] * 1e3:.3f} mm (y, z: "
           f"{result['tip_offset_m'][-1][0] * 1e3:.3f}, {result['tip_offset_m'][-1][1] * 1e3:.3f} mm), "

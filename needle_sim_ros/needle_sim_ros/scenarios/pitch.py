@@ -20,7 +20,7 @@ from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, Integrator, buil
 from needle_sim_ros.simulation import NeedleSimulation
 
 from .common import (add_needle_arguments, advance_sampled, figure, needle_configuration, run_summary, save_figure,
-                     shape_json, wrench_json, write_json)
+                     shape_json, wrench_json, write_outputs)
 
 
 def pitch_motion(amplitude: float, frequency: float):
@@ -118,9 +118,7 @@ def run(args: argparse.Namespace) -> int:
     props, build, integrator_kwargs, dt = needle_configuration(args)
     result = simulate_pitch(props, build, integrator_kwargs, dt, math.radians(args.amplitude_deg), args.frequency,
                             args.periods, args.clamp_fraction, args.sample_interval, args.centerline_samples)
-    write_json(args.json, result)
-    if args.plot is not None:
-        plot_instants(result, args.plot)
+    write_outputs(args, result, plot_instants)
     print(f"pitch: {result['steps']} steps of {dt * 1e3:g} ms, real-time factor {result['real_time_factor']:.1f}, "
           f"{result['mean_newton_iterations']:.2f} Newton iterations per step")
     return 0

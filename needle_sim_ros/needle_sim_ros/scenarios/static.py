@@ -14,7 +14,7 @@ import numpy as np
 from needle_sim_ros.model import BaseMotion, Gravity, PointLoad, build_model, reaction_wrench, solve_static
 
 from .common import (IDENTITY, add_needle_arguments, figure, material, needle_configuration, save_figure, shape_json,
-                     wrench_json, write_json)
+                     wrench_json, write_outputs)
 
 
 def solve_tip_masses(model, masses, n_samples: int) -> list[dict]:
@@ -74,9 +74,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         output = {"scenario": "static", "elements": model.n_elements, "material": results[0]["material"],
                   "results": results, "wall_time_s": time.perf_counter() - start}
-    write_json(args.json, output)
-    if args.plot is not None:
-        plot_deflections(results, args.plot)
+    write_outputs(args, output, lambda _, path: plot_deflections(results, path))
     for result in results:
         tip = result["tip_position_m"]
         print(f"static: tip mass {result['tip_mass_kg'] * 1e3:6.1f} g -> tip (x, z) = ({tip[0] * 1e3:.3f}, "

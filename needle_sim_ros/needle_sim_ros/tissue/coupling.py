@@ -132,8 +132,7 @@ def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
     r, tangents = interpolate_pair(slots, S, q, S_x, q)
     for p in range(slots.shape[0]):
-        norm = np.sqrt(tangents[p, 0] * tangents[p, 0] + tangents[p, 1] * tangents[p, 1]
-                       + tangents[p, 2] * tangents[p, 2])
+        norm = np.sqrt(dot3(tangents[p], tangents[p]))
         for i in range(3):
             tangents[p, i] /= norm
     return r, tangents
@@ -190,10 +189,9 @@ def entry_coverage(arc_lengths, depth, inside):
 @njit(cache=True)
 def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, centres, radii,
                        entry_point, entry_normal):
-    """Gauss points of the needle's arc interval in cut tissue (``advance.lateral_part``): weights,
-    slots, S, S_x (``cut_quadrature``), the rest points on the track (each needle point's projection), the needle
-    tangents and the rest points' depths; none if the interval is empty. ``centres``, ``radii``: the track's
-    ``track.segment_blocks``."""
+    """Gauss points of the needle's arc interval in cut tissue (``advance.lateral_part``): weights, slots, S, S_x
+    (``cut_quadrature``), the rest points on the track (each needle point's projection), the needle tangents and the
+    rest points' depths; none if the interval is empty. ``centres``, ``radii``: the track's ``track.segment_blocks``."""
     tip_coordinate = project_on_blocks(vertices, arc, end_tangent, q[-6:-3].reshape(1, 3), centres, radii)[0][0]
     upper = s_tip - max(tip_coordinate - arc[-1], 0.0)
     lower = max(s_tip - tip_coordinate, 0.0)
@@ -203,8 +201,7 @@ def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc
     points = locate_on_polyline(vertices, arc, end_tangent, coordinate)[0]
     depth = np.empty(weights.size)
     for k in range(weights.size):
-        depth[k] = ((points[k, 0] - entry_point[0]) * entry_normal[0] + (points[k, 1] - entry_point[1])
-                    * entry_normal[1] + (points[k, 2] - entry_point[2]) * entry_normal[2])
+        depth[k] = offset_dot(points[k], entry_point, entry_normal)
     return weights, slots, S, S_x, points, tangents, depth
 
 
@@ -224,8 +221,7 @@ def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_poi
     inside = np.empty(m, dtype=np.bool_)
     count = 0
     for k in range(m):
-        depth[k] = ((r[k, 0] - entry_point[0]) * entry_normal[0] + (r[k, 1] - entry_point[1]) * entry_normal[1]
-                    + (r[k, 2] - entry_point[2]) * entry_normal[2])
+        depth[k] = offset_dot(r[k], entry_point, entry_normal)
         inside[k] = depth[k] > 0.0 and depth[k] < thickness
         count += inside[k]
     covered = entry_coverage(arc_lengths[first:], depth, inside)
@@ -260,10 +256,8 @@ def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_poi
     point_depth = np.empty(count)
     u = np.empty(count)
     for k in range(count):
-        point_depth[k] = ((points[k, 0] - entry_point[0]) * entry_normal[0] + (points[k, 1] - entry_point[1])
-                          * entry_normal[1] + (points[k, 2] - entry_point[2]) * entry_normal[2])
-        u[k] = ((r[k, 0] - points[k, 0]) * tangents[k, 0] + (r[k, 1] - points[k, 1]) * tangents[k, 1]
-                + (r[k, 2] - points[k, 2]) * tangents[k, 2])
+        point_depth[k] = offset_dot(points[k], entry_point, entry_normal)
+        u[k] = offset_dot(r[k], points[k], tangents[k])
     return index, coverage, tangents[:count], points, point_depth, u
 
 

@@ -1,10 +1,9 @@
 """Karnopp shaft friction of seed 001, eq. 2, as a distributed elasto-plastic traction law.
 
-Seed 001 eq. 2 gives the friction on the inserted shaft while inserting (velocity v > 0) as
-``F_f = (C_n + b_n v) d`` with d the insertion depth, i.e. a Coulomb part C_n and a viscous part b_n per unit
-inserted length.  The seed prints the units garbled ("C_n = 6 Nm, b_n = 120 N/m^2"); the dimensionally
-consistent reading, used here, is C_n in N/m and b_n in N s/m^2 (force per unit inserted length, and per unit
-length per unit velocity).
+Seed 001 eq. 2 gives the friction on the inserted shaft while inserting (velocity v > 0) as ``F_f = (C_n + b_n v) d``
+with d the insertion depth, i.e. a Coulomb part C_n and a viscous part b_n per unit inserted length.  The seed prints
+the units garbled ("C_n = 6 Nm, b_n = 120 N/m^2"); the dimensionally consistent reading, used here, is C_n in N/m and
+b_n in N s/m^2 (force per unit inserted length, and per unit length per unit velocity).
 
 Definitions this module adds to the seed (issue #5 asks for them):
 

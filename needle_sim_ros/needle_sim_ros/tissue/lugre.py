@@ -72,14 +72,6 @@ def regularised_sign(velocity, velocity_scale: float):
     return np.tanh(velocity / velocity_scale)
 
 
-def regularised_sign_slope(velocity, velocity_scale: float):
-    """d sgn_vs(v)/dv (0 for the exact sign)."""
-    velocity = np.asarray(velocity, dtype=float)
-    if velocity_scale <= 0.0:
-        return np.zeros_like(velocity)
-    return (1.0 - np.tanh(velocity / velocity_scale) ** 2) / velocity_scale
-
-
 def stribeck(theta: np.ndarray, depth):
     """g(l) of eq. 2 [N/m] and dg/dtheta (..., 6)."""
     f1, f2, _, _, _, alpha = theta
@@ -176,14 +168,6 @@ def bracket(z, theta, depth, sign):
 bracket_kernel = njit(cache=True)(bracket)  # the simulator's per-step coefficients (``shaft_laws``)
 
 
-def force_per_length(z, theta, depth, velocity, velocity_scale):
-    """The bracket of eq. 1b, the force per inserted length [N/m] (vectorised over velocity), and its derivative
-    with respect to the velocity."""
-    sigma1, sigma2, alpha = theta[3], theta[4], theta[5]
-    per_length = bracket(z, theta, depth, regularised_sign(velocity, velocity_scale))
-    return per_length, (sigma1 * np.exp(-alpha * depth) + sigma2) * regularised_sign_slope(velocity, velocity_scale)
-
-
 def axial_force(z, theta, depth, velocity, velocity_scale):
     """f of eq. 1b (reading above) [N] and df/d(z, theta) (7,) for a scalar depth (0 for depth <= 0)."""
     f1, f2, sigma0, sigma1, sigma2, alpha = theta
@@ -192,7 +176,7 @@ def axial_force(z, theta, depth, velocity, velocity_scale):
     g, dg = stribeck(theta, depth)
     decay = np.exp(-alpha * depth)
     cut = s - sigma0 * z / g                                   # sgn(l') (1 - sigma0 sgn(l') z / g)
-    per_length = force_per_length(z, theta, depth, velocity, velocity_scale)[0]
+    per_length = bracket(z, theta, depth, s)                   # the force per inserted length [N/m]
     d_cut = sigma0 * z / g**2 * dg
     d_cut[2] -= z / g
     d_per_length = sigma1 * decay * d_cut

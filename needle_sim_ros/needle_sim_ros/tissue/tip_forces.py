@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from needle_sim_ros.model.forces import assemble_point_forces
-from needle_sim_ros.model.kinematics import dot3, offset_dot
+from needle_sim_ros.model.kinematics import dot3, offset_dot, rotate
 from needle_sim_ros.model.records import take_float, view_matrix, view_vector
 from needle_sim_ros.model.step import Kernels, itself, off_base
 
@@ -59,10 +59,7 @@ def bevel_assemble(forces, q, qd, rotation, Q, band, kl, c_q, c_qd):
     scale, axial, transverse, side_base = forces[0], forces[1], forces[2], forces[3]
     if scale == 0.0:
         return True
-    side = np.zeros(3)
-    for i in range(3):
-        side[i] = rotation[i, 0] * side_base[0] + rotation[i, 1] * side_base[1] + rotation[i, 2] * side_base[2]
-    force, jacobian, ok = tip_force_kernel(q[-3:], side, axial, transverse)
+    force, jacobian, ok = tip_force_kernel(q[-3:], np.array(rotate(rotation, side_base)), axial, transverse)
     if ok:
         force *= scale
         jacobian *= scale

@@ -170,8 +170,7 @@ def project_on_blocks(vertices, arc, end_tangent, points, centres, radii):
     centre_distance2 = np.empty(blocks)
     for k in range(n):
         p = points[k]
-        beyond = max((p[0] - end[0]) * end_tangent[0] + (p[1] - end[1]) * end_tangent[1]
-                     + (p[2] - end[2]) * end_tangent[2], 0.0)
+        beyond = max(offset_dot(p, end, end_tangent), 0.0)
         best, best_coordinate = 0.0, arc[count - 1] + beyond
         for i in range(3):
             d = p[i] - end[i] - beyond * end_tangent[i]
