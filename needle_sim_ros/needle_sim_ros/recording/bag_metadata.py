@@ -48,17 +48,34 @@ def bag_metadata(topics: Sequence[TopicSummary], files: Sequence[FileSummary],
     counted = [f for f in files if f.message_count]
     start = min((f.starting_time_ns for f in counted), default=0)
     end = max((f.starting_time_ns + f.duration_ns for f in counted), default=0)
-    return {"version": METADATA_VERSION, "storage_identifier": "mcap", "duration": {"nanoseconds": end - start},
-            "starting_time": {"nanoseconds_since_epoch": start}, "message_count": sum(f.message_count for f in files),
-            "topics_with_message_count": [{"topic_metadata": {
-                "name": t.name, "type": t.type_name, "serialization_format": t.serialization_format,
+    return {
+        "version": METADATA_VERSION,
+        "storage_identifier": "mcap",
+        "duration": {"nanoseconds": end - start},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": sum(f.message_count for f in files),
+        "topics_with_message_count": [{
+            "topic_metadata": {
+                "name": t.name,
+                "type": t.type_name,
+                "serialization_format": t.serialization_format,
                 "offered_qos_profiles": yaml.load(t.offered_qos_profiles, _LOADER) or [],
-                "type_description_hash": t.type_description_hash}, "message_count": t.message_count} for t in topics],
-            "compression_format": "", "compression_mode": "", "relative_file_paths": [f.path for f in files],
-            "files": [{"path": f.path, "starting_time": {"nanoseconds_since_epoch": f.starting_time_ns},
-                       "duration": {"nanoseconds": f.duration_ns}, "message_count": f.message_count} for f in files],
-            "custom_data": dict(custom_data) if custom_data else None,
-            "ros_distro": os.environ.get("ROS_DISTRO", "jazzy")}
+                "type_description_hash": t.type_description_hash,
+            },
+            "message_count": t.message_count,
+        } for t in topics],
+        "compression_format": "",
+        "compression_mode": "",
+        "relative_file_paths": [f.path for f in files],
+        "files": [{
+            "path": f.path,
+            "starting_time": {"nanoseconds_since_epoch": f.starting_time_ns},
+            "duration": {"nanoseconds": f.duration_ns},
+            "message_count": f.message_count,
+        } for f in files],
+        "custom_data": dict(custom_data) if custom_data else None,
+        "ros_distro": os.environ.get("ROS_DISTRO", "jazzy"),
+    }
 
 
 def metadata_record_text(metadata: dict[str, Any]) -> str:
