@@ -502,10 +502,13 @@ def run(arguments: argparse.Namespace) -> int:
             for note, count in source.poses_skipped.most_common():
                 print(f"  {count:6d}  {note}")
         if not measured:
-            why = (" (the input has no pair in --frames)" if not sum(outcomes.values()) else
-                   f" (its first {background_pairs} pairs were taken as the needle-free background, background.frames:"
-                   " set it in a --params file, such as a shipped bag's experiment file, or use --background median)"
-                   if background_pairs else "")
+            why = ""
+            if not sum(outcomes.values()):
+                why = " (the input has no pair in --frames)"
+            elif background_pairs:
+                why = (f" (its first {background_pairs} pairs were taken as the needle-free background, "
+                       "background.frames: set it in a --params file, such as a shipped bag's experiment file, or use "
+                       "--background median)")
             raise NothingMeasured(f"no pair was measured{why}; no CSV written")
         partial.replace(output)
     finally:
