@@ -33,7 +33,7 @@ def measure(workers: int, duration: float) -> dict[str, float]:
     entries = resolve_bags("bags")
     sets = [{"needle_simulator": {"damping.rayleigh_beta": beta}} for beta in BETAS]
     with open_client(workers) as client:
-        tasks = plan(client, entries, sets, None, None, duration)
+        tasks = plan(client, entries, sets, None, duration)
         client.run(run_row, tasks[len(BETAS)])  # warm-up on every worker (imports, compiled-code caches)
         start = time.perf_counter()
         rows = map_ordered(client, run_row, tasks, quiet=True)

@@ -66,10 +66,10 @@ def test_bag_lists_and_content_keys(tmp_path):
     with pytest.raises(BagListError, match="no such"):
         resolve_bags(str(tmp_path / "nothing"))
     # same content, same key; other content or parameters, another key
-    same = TaskSpec("x", content_hash(str(tmp_path / "a.mcap")), "e", "c", {"n": {"p": 1}})
-    assert same.key == TaskSpec("y", content_hash(str(tmp_path / "a.mcap")), "e", "c", {"n": {"p": 1}}).key
-    assert same.key != TaskSpec("x", content_hash(str(tmp_path / "b.mcap")), "e", "c", {"n": {"p": 1}}).key
-    assert same.key != TaskSpec("x", same.bag_hash, "e", "c", {"n": {"p": 2}}).key
+    same = TaskSpec("x", content_hash(str(tmp_path / "a.mcap")), "e", {"n": {"p": 1}})
+    assert same.key == TaskSpec("y", content_hash(str(tmp_path / "a.mcap")), "e", {"n": {"p": 1}}).key
+    assert same.key != TaskSpec("x", content_hash(str(tmp_path / "b.mcap")), "e", {"n": {"p": 1}}).key
+    assert same.key != TaskSpec("x", same.bag_hash, "e", {"n": {"p": 2}}).key
     assert content_hash(str(tmp_path / "missing.mcap")) == "missing"
 
 

@@ -22,7 +22,7 @@ import pytest
 from builtin_interfaces.msg import Duration, Time
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion, Vector3, WrenchStamped
 from nav_msgs.msg import Path
-from needle_interfaces.msg import NeedleShape, NeedleState
+from needle_interfaces.msg import NeedleShape, NeedleState, ShapeError
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import ColorRGBA, Header
@@ -33,7 +33,8 @@ from needle_sim_ros.messages.centerline_display import COLORS, centerline_displa
 from needle_common.transforms import quaternions_from_x_axes
 from needle_sim_ros.messages.geometry import polyline_tangents, tube_triangles
 from needle_common.ros.needle_shape import needle_shape_msg
-from needle_sim_ros.messages.shape import shape_error_cdr, shape_error_msg, time_msg
+from needle_vision.streams.image_codec import deserialize_image
+from needle_sim_ros.messages.shape import shape_error_cdr, time_msg
 
 FRAMES = ("", "w", "ab", "abc", "world", "abcdefg", "needle_base")  # with the NUL: 1, 2, 3, 4, 6, 8, 12 bytes
 COUNTS = (0, 1, 3, 50)
@@ -239,7 +240,10 @@ def test_shape_error_is_rclpys(serializers):
                                      matched_samples=count, errors=rng.random(count), arc_length=rng.random(count))
             model, measured = header(frame), Header(stamp=Time(sec=SEC + 1, nanosec=7), frame_id="camera")
             encoded.append(shape_error_cdr(result, model, measured))
-            messages.append(shape_error_msg(result, model, measured))
+            messages.append(ShapeError(header=Header(stamp=measured.stamp, frame_id=frame), model_stamp=model.stamp,
+                                       measurement_stamp=measured.stamp, rmse=result.rmse, max_error=result.max_error,
+                                       tip_error=result.tip_error, matched_samples=count,
+                                       errors=result.errors.tolist(), arc_length=result.arc_length.tolist()))
     assert_rclpy_bytes(serializers, encoded, messages)
 
 
@@ -270,8 +274,9 @@ def test_image_decoder_reads_rclpys_image(encoding, shape, step):
     for frame in FRAMES:
         message = Image(header=header(frame), height=height, width=width, encoding=encoding, is_bigendian=0,
                         step=step, data=data)
-        decoded = cdr.image(serialize_message(message))
-        assert decoded.header == message.header
-        assert (decoded.height, decoded.width, decoded.encoding, decoded.is_bigendian, decoded.step) == (
-            height, width, encoding, 0, step)
-        assert decoded.data.tobytes() == data and not decoded.data.flags.owndata
+        decoded = deserialize_image(serialize_message(message), compressed=False)
+        assert (decoded.sec, decoded.nanosec, decoded.frame_id) == (SEC, NANOSEC, frame)
+        fields = decoded.fields
+        assert (fields["height"], fields["width"], fields["encoding"], fields["is_bigendian"], fields["step"]) == (
+            height, width, encoding, False, step)
+        assert fields["data"].tobytes() == data and not fields["data"].flags.owndata

@@ -62,7 +62,7 @@ def run_sweep_command(args: argparse.Namespace, client, entries) -> int:
     from needle_sim_ros.batch.plots import write_sweep_plots
     from needle_sim_ros.batch.sweep import plan, run_sweep
     grid = load_grid(args.grid)
-    tasks = plan(client, entries, grid.parameter_sets, None, args.experiment, args.duration)
+    tasks = plan(client, entries, grid.parameter_sets, args.experiment, args.duration)
     result = run_sweep(client, tasks, grid, args.output_dir, args.resume, args.quiet)
     failed = result.table[result.table["status"] != "ok"]
     print(f"[needle_batch] {len(result.table)} row(s): ran {result.ran}, reused {result.reused}, failed {len(failed)}")
@@ -87,7 +87,7 @@ def run_identify_command(args: argparse.Namespace, client, entries) -> int:
     from needle_sim_ros.batch.sweep import plan
     from needle_sim_ros.batch.task import ResidualScales
     fits = args.fits
-    bags = plan(client, entries, [{}], None, args.experiment, args.duration)
+    bags = plan(client, entries, [{}], args.experiment, args.duration)
     try:
         result = identify(client, bags, fits, ResidualScales(args.shape_scale, args.force_scale, args.moment_scale),
                           args.step, args.max_evaluations, args.quiet)
@@ -119,7 +119,7 @@ def checked_inputs(args: argparse.Namespace) -> list[BagEntry]:
     if args.experiment is not None and not args.experiment.is_file():
         raise BagListError(f"--experiment '{args.experiment}': no such file")
     from needle_sim_ros.batch.sweep import experiment_path
-    experiments = [(e.path, experiment_path(e, args.experiment, None)) for e in entries if Path(e.path).exists()]
+    experiments = [(e.path, experiment_path(e, args.experiment)) for e in entries if Path(e.path).exists()]
     missing = [(bag, path) for bag, path in experiments if not Path(path).is_file()]
     if missing:  # a configuration error, not a bag's (a missing bag is a failed row: batch.bags)
         (bag, path), others = missing[0], len(missing) - 1

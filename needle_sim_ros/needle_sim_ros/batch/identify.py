@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -51,6 +51,14 @@ def parse_fit(text: str) -> FitParameter:
         raise GridError(f"--fit '{text}': expected [NODE:]PARAMETER=INITIAL with a positive initial value")
     check_value(node, name, initial)
     return FitParameter(node, name, initial)
+
+
+def fitted_set(fits: list[FitParameter], values: Sequence[float]) -> ParameterSet:
+    """The fitted parameters at ``values`` as per-node overrides."""
+    result: ParameterSet = {}
+    for fit, value in zip(fits, values):
+        result.setdefault(fit.node, {})[fit.name] = float(value)
+    return result
 
 
 def residuals_or_error(spec: TaskSpec, scales: ResidualScales) -> np.ndarray | str:
@@ -103,16 +111,10 @@ class Identification:
     def parameters(self, x: np.ndarray) -> list[float]:
         return [f.initial * math.exp(v) for f, v in zip(self.fits, x)]
 
-    def parameter_set(self, x: np.ndarray) -> ParameterSet:
-        result: ParameterSet = {}
-        for fit, value in zip(self.fits, self.parameters(x)):
-            result.setdefault(fit.node, {})[fit.name] = float(value)
-        return result
-
     def evaluate(self, points: list[np.ndarray], kind: str) -> list[list[np.ndarray]]:
         """Per point, the residual vectors of the bags; every (point, bag) run not cached goes out at once."""
         todo = [x for x in dict.fromkeys(tuple(map(float, x)) for x in points) if x not in self.cache]
-        specs = [replace(bag, parameters=self.parameter_set(np.array(x))) for x in todo for bag in self.bags]
+        specs = [replace(bag, parameters=fitted_set(self.fits, self.parameters(x))) for x in todo for bag in self.bags]
         results = map_ordered(self.client, residuals_or_error, specs, self.scales, desc=f"identify ({kind})",
                               quiet=self.quiet, on_error=error_line)
         for k, x in enumerate(todo):
@@ -137,7 +139,7 @@ class Identification:
     def start(self) -> None:
         """Evaluate the initial point; bags that fail there are dropped (reported), the rest must succeed."""
         x0 = np.zeros(len(self.fits))
-        specs = [replace(bag, parameters=self.parameter_set(x0)) for bag in self.bags]
+        specs = [replace(bag, parameters=fitted_set(self.fits, self.parameters(x0))) for bag in self.bags]
         results = map_ordered(self.client, residuals_or_error, specs, self.scales, desc="identify (start)",
                               quiet=self.quiet, on_error=error_line)
         self.dropped = {b.bag: r for b, r in zip(self.bags, results) if isinstance(r, str)}

@@ -14,8 +14,7 @@ PLOTTED = {"rmse_mean_m": ("shape RMSE mean [mm]", 1e3), "tip_error_mean_m": ("t
 
 def write_sweep_plots(table: pd.DataFrame, columns: list[str], folder: Path) -> tuple[list[Path], list[str]]:
     """One PNG per swept parameter (a row of metrics; per bag: lines, averaged over the other parameters' values;
-    pooled: mean over bags with min-max band);
-    returns the files and notes on parameters that could not be plotted."""
+    pooled: mean over bags with min-max band); returns the files and notes on parameters that could not be plotted."""
     from needle_sim_ros.scenarios.common import pyplot, save_figure
     folder.mkdir(parents=True, exist_ok=True)
     ok = table[table["status"] == "ok"]

@@ -11,7 +11,7 @@ from pathlib import Path
 from needle_common.output_files import write_atomically
 from needle_common.parameters import params_file_text
 
-from needle_sim_ros.batch.identify import FitParameter, FitResult
+from needle_sim_ros.batch.identify import FitParameter, FitResult, fitted_set
 from needle_sim_ros.batch.task import TaskSpec, resolved_overrides
 from needle_sim_ros.parameters.experiment import load_experiment
 
@@ -23,11 +23,7 @@ def _write(path: Path, text: str) -> None:
 def identified_params_text(fits: list[FitParameter], result: FitResult, reference: TaskSpec) -> str:
     """A ROS 2 params file with the estimate; an element ``name[i]`` is written as the whole array (the other
     elements as the reference bag's experiment has them)."""
-    parameter_set: dict[str, dict] = {}
-    for fit, value in zip(fits, result.estimate):
-        parameter_set.setdefault(fit.node, {})[fit.name] = float(value)
-    config_dir = Path(reference.config_dir) if reference.config_dir else None
-    overrides = resolved_overrides(load_experiment(reference.experiment, config_dir), parameter_set)
+    overrides = resolved_overrides(load_experiment(reference.experiment), fitted_set(fits, result.estimate))
     header = "".join(f"# {f.label} = {v:.6g} +- {s:.2g} (1 sigma)\n" for f, v, s in
                      zip(fits, result.estimate, result.std))
     return "# Identified by needle_batch identify.\n" + header + params_file_text(overrides)

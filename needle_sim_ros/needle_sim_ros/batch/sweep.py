@@ -18,21 +18,20 @@ from needle_sim_ros.parameters.experiment import experiments_dir
 SAVE_EVERY_S = 10.0  # the partial table is rewritten at most this often while tasks finish (for --resume)
 
 
-def experiment_path(entry: BagEntry, experiment: Path | None, config_dir: Path | None) -> str:
-    """The bag's experiment file: the manifest's, else ``--experiment``, else ``<stem>.yaml`` of
-    :func:`experiments_dir` (the installed experiments unless ``config_dir`` is given)."""
+def experiment_path(entry: BagEntry, experiment: Path | None) -> str:
+    """The bag's experiment file: the manifest's, else ``--experiment``, else ``<stem>.yaml`` of the installed
+    experiments (:func:`experiments_dir`)."""
     if entry.experiment:
         return str(Path(entry.experiment).resolve())
-    return str((experiment or experiments_dir(config_dir) / f"{Path(entry.path).stem}.yaml").resolve())
+    return str((experiment or experiments_dir() / f"{Path(entry.path).stem}.yaml").resolve())
 
 
-def plan(client: Any, entries: list[BagEntry], parameter_sets: list[ParameterSet], config_dir: Path | None,
-         experiment: Path | None, duration: float | None, quiet: bool = True) -> list[TaskSpec]:
+def plan(client: Any, entries: list[BagEntry], parameter_sets: list[ParameterSet], experiment: Path | None,
+         duration: float | None, quiet: bool = True) -> list[TaskSpec]:
     """Task specs, bag-major; the bags' content hashes are computed on the workers (they read the bags)."""
     hashes = map_ordered(client, content_hash, [e.path for e in entries], desc="hashing bags", quiet=quiet)
     return [TaskSpec(str(Path(e.path).resolve()) if Path(e.path).exists() else e.path, h,
-                     experiment_path(e, experiment, config_dir), str(config_dir.resolve()) if config_dir else "", p,
-                     duration, i)
+                     experiment_path(e, experiment), p, duration, i)
             for e, h in zip(entries, hashes) for i, p in enumerate(parameter_sets)]
 
 

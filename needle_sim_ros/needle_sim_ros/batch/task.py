@@ -28,12 +28,11 @@ METRICS = ("rmse_mean_m", "rmse_max_m", "tip_error_mean_m", "wrench_force_rms_n"
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """What a worker needs: the bag and experiment paths, the config folder, the overrides and the bag slice."""
+    """What a worker needs: the bag and experiment paths, the overrides and the bag slice."""
 
     bag: str
     bag_hash: str
     experiment: str
-    config_dir: str
     parameters: ParameterSet
     duration: float | None = None
     parameter_set: int = 0  # index in the grid (a table column, not part of the key)
@@ -68,7 +67,7 @@ def run_pipeline(spec: TaskSpec) -> tuple[dict[str, Any], PipelineLog, OfflinePi
     """The offline pipeline over the task's bag (no MCAP written); returns its summary, its log and the pipeline."""
     if not Path(spec.bag).exists():
         raise FileNotFoundError(f"bag '{spec.bag}' does not exist")
-    experiment = load_experiment(spec.experiment, Path(spec.config_dir) if spec.config_dir else None)
+    experiment = load_experiment(spec.experiment)
     pipeline = OfflinePipeline(experiment, resolved_overrides(experiment, spec.parameters))
     run = pipeline.run(Path(spec.bag), None, 0.0, spec.duration)
     return run.summary, run.log, pipeline

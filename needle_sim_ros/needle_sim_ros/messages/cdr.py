@@ -1,5 +1,5 @@
-"""CDR encoding of the simulator's outputs straight from numpy arrays, and decoding of the offline pipeline's
-camera images without building rclpy message objects (poses: :mod:`needle_common.cdr`).
+"""CDR encoding of the simulator's outputs straight from numpy arrays, without building rclpy message objects
+(decoding: :mod:`needle_common.cdr`, images :func:`needle_vision.streams.image_codec.deserialize_image`).
 
 The simulator publishes a WrenchStamped per 1 ms step, shapes at 100 Hz and a Marker tube of thousands of
 vertices. Building rclpy messages (a Python object per point) and serializing them costs ~1 ms per shape, ~50 us
@@ -17,14 +17,11 @@ from __future__ import annotations
 import math
 import struct
 from functools import lru_cache
-from typing import Callable, NamedTuple
+from typing import Callable
 
 import numpy as np
-from builtin_interfaces.msg import Time
-from std_msgs.msg import Header
 
 from needle_common.cdr import ENCAPSULATION
-from needle_vision.streams.image_codec import deserialize_image
 
 
 _STAMP = struct.Struct("<iI")  # a header's stamp
@@ -262,42 +259,3 @@ def shape_error(sec: int, nanosec: int, frame_id: str, model_stamp: tuple[int, i
     buffer.float64_sequence(errors)
     buffer.float64_sequence(arc_length)
     return buffer.bytes()
-
-
-class DecodedImage(NamedTuple):
-    """The fields of a ``sensor_msgs/msg/Image``; ``data`` is a read-only view into the serialized bytes."""
-
-    header: Header
-    height: int
-    width: int
-    encoding: str
-    is_bigendian: int
-    step: int
-    data: np.ndarray
-
-
-def image(data: bytes) -> DecodedImage:
-    """Decode a serialized ``sensor_msgs/msg/Image`` (XCDR1 little endian; rclpy's deserialize copies the
-    megabytes of pixels into a Python array first): :func:`needle_vision.streams.image_codec.deserialize_image`."""
-    decoded = deserialize_image(data, compressed=False)
-    fields = decoded.fields
-    return DecodedImage(Header(stamp=Time(sec=decoded.sec, nanosec=decoded.nanosec), frame_id=decoded.frame_id),
-                        fields["height"], fields["width"], fields["encoding"], int(fields["is_bigendian"]),
-                        fields["step"], fields["data"])
-
-
-class DecodedCompressedImage(NamedTuple):
-    """The fields of a ``sensor_msgs/msg/CompressedImage``; ``data`` is a read-only view into the serialized bytes."""
-
-    header: Header
-    format: str
-    data: np.ndarray
-
-
-def compressed_image(data: bytes) -> DecodedCompressedImage:
-    """Decode a serialized ``sensor_msgs/msg/CompressedImage`` (not its pixels: those are decoded when the pair is
-    measured, :func:`needle_vision.streams.image_codec.compressed_message_to_gray`)."""
-    decoded = deserialize_image(data, compressed=True)
-    return DecodedCompressedImage(Header(stamp=Time(sec=decoded.sec, nanosec=decoded.nanosec),
-                                         frame_id=decoded.frame_id), decoded.compressed_format, decoded.fields["data"])
-

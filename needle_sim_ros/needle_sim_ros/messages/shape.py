@@ -1,5 +1,5 @@
-"""Needle centerline <-> ROS message objects (NeedleShape, ShapeError, Time); :mod:`needle_sim_ros.messages.cdr`
-encodes the simulator's high-rate outputs directly."""
+"""Needle centerline <-> ROS messages (NeedleShape, ShapeError, Time), serialized ones by
+:mod:`needle_sim_ros.messages.cdr`."""
 from __future__ import annotations
 
 import math
@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from needle_interfaces.msg import NeedleShape, ShapeError
+from needle_interfaces.msg import NeedleShape
 from std_msgs.msg import Header
 
 from needle_sim_ros.messages import cdr
@@ -57,17 +57,9 @@ def time_msg(seconds: float) -> Time:
     return Time(sec=sec, nanosec=nanosec)
 
 
-def shape_error_msg(result, model_header: Header, measured_header: Header) -> ShapeError:
-    """ShapeError of one comparison (needle_sim_ros.comparison.ShapeComparison), stamped with the measurement."""
-    return ShapeError(header=Header(stamp=measured_header.stamp, frame_id=model_header.frame_id),
-                      model_stamp=model_header.stamp, measurement_stamp=measured_header.stamp,
-                      rmse=result.rmse, max_error=result.max_error, tip_error=result.tip_error,
-                      matched_samples=result.matched_samples, errors=result.errors.tolist(),
-                      arc_length=result.arc_length.tolist())
-
-
-def shape_error_cdr(result, model_header: Header, measured_header: Header) -> bytes:
-    """:func:`shape_error_msg`, serialized (zero padding: the same bytes in every run)."""
+def shape_error_cdr(result, model_header: Header | Tag, measured_header: Header | Tag) -> bytes:
+    """The serialized ShapeError of one comparison (:class:`needle_sim_ros.comparison.ShapeComparison`) in the model
+    frame, stamped with the measurement (zero padding: the same bytes in every run)."""
     stamp, model = measured_header.stamp, model_header.stamp
     return cdr.shape_error(stamp.sec, stamp.nanosec, model_header.frame_id, (model.sec, model.nanosec),
                            (stamp.sec, stamp.nanosec), result.rmse, result.max_error, result.tip_error,

@@ -28,7 +28,7 @@ from needle_common.parameters import ParameterError, params_file_text
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
-from needle_sim_ros.messages.shape import shape_arrays, shape_error_msg, stamp_ns
+from needle_sim_ros.messages.shape import shape_arrays, shape_error_cdr, stamp_ns
 from needle_common.ros.input_status import InputStatus
 from needle_common.ros.ros_parameters import declare_all
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
@@ -97,9 +97,8 @@ class CompareNode(Node):
 
     def _open_recording(self) -> TopicRecorder:
         v = self.values
-        options = WriterOptions(compression=v["log.compression"], chunk_size=v["log.chunk_size"],
-                                chunk_interval=v["log.chunk_interval"], max_file_size=v["log.max_file_size"],
-                                max_file_duration=v["log.max_file_duration"], overwrite=v["log.overwrite"])
+        options = WriterOptions(**{name: v[f"log.{name}"] for name in (  # log.<name>: the writer option <name>
+            "compression", "chunk_size", "chunk_interval", "max_file_size", "max_file_duration", "overwrite")})
         flat = {name: str(value) for name, value in v.items()}
         try:
             recorder = TopicRecorder(self, v["log.path"], options, custom_data={f"{NODE_NAME}.{k}": s
@@ -158,9 +157,9 @@ class CompareNode(Node):
     # --- output -----------------------------------------------------------------------------------------------
     def publish(self, compared: list[ComparedPair]) -> None:
         for pair in compared:
-            msg = shape_error_msg(pair.result, pair.model_tag, pair.measured_tag)
-            self.error_publisher.publish(msg)
-            self.log("shape_error", msg, ShapeError, self.error_qos)
+            data = shape_error_cdr(pair.result, pair.model_tag, pair.measured_tag)
+            self.error_publisher.publish(data)
+            self.log("shape_error", data, ShapeError, self.error_qos)
             self.display(pair)
 
     def display(self, pair: ComparedPair) -> None:

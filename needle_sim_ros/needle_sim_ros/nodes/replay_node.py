@@ -21,6 +21,7 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
@@ -159,11 +160,8 @@ class ReplayNode(Node):
             self.get_logger().warning(f"playing after {timeout} s without: {'; '.join(missing)}")
 
     def publish_clock(self, bag_time_ns: int) -> None:
-        sec, nanosec = divmod(bag_time_ns, 1_000_000_000)
-        msg = Clock()
-        msg.clock.sec, msg.clock.nanosec = int(sec), int(nanosec)
         self.clock_ns = bag_time_ns
-        self.clock_publisher.publish(msg)
+        self.clock_publisher.publish(Clock(clock=Time(nanoseconds=bag_time_ns).to_msg()))
 
     def play_once(self) -> bool:
         """Publish every selected message at its due time; False if interrupted."""

@@ -30,8 +30,8 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo
 
 from needle_common.cdr import pose_stamped
+from needle_vision.streams.image_codec import deserialize_image
 
-from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import DISPLAY_TYPES
 from needle_sim_ros.messages.shape import model_shape_cdr
 from needle_sim_ros.parameters.compare import DISPLAY_TOPICS
@@ -44,13 +44,11 @@ from needle_sim_ros.recording import McapBagWriter, WriterOptions
 from needle_sim_ros.recording.playback import EXPECTED_TYPES
 
 NS = 1_000_000_000
-# Output topics (as the live pipeline names them) -> (type, offered QoS of the live publisher).
+# Output topics (as the live pipeline names them) -> (type, offered QoS of the live publisher; /wrench's is set per
+# run, as the simulator's qos.wrench).
 OUTPUT_TOPICS = {
-    "/needle/shape": ("needle_interfaces/msg/NeedleShape", OfferedQos(depth=10)),
-    "/needle/measured_shape": ("needle_interfaces/msg/NeedleShape", OfferedQos(depth=10)),
-    "/shape_error": ("needle_interfaces/msg/ShapeError", OfferedQos(depth=10)),
-    "/base_pose": ("geometry_msgs/msg/PoseStamped", OfferedQos(depth=10)),
-    "/wrench": ("geometry_msgs/msg/WrenchStamped", OfferedQos(depth=100)),  # QoS: as the simulator's qos.wrench
+    **{topic: (EXPECTED_TYPES[topic], OfferedQos(depth=10)) for topic in (
+        "/needle/shape", "/needle/measured_shape", "/shape_error", "/base_pose", "/wrench")},
     **{f"/{topic}": (DISPLAY_TYPES[topic.rsplit("/", 1)[1]], OfferedQos(depth=10)) for topic in DISPLAY_TOPICS},
 }
 INPUT_TYPES = {"/tip_load": WrenchStamped, "/base_twist": TwistStamped, "/left/camera_info": CameraInfo,
@@ -63,14 +61,12 @@ DECODE_ERRORS = (ValueError, RuntimeError, IndexError, struct.error, UnicodeDeco
 
 
 def decode(topic: str, data: bytes, pose_topics: tuple[str, ...] = ("/base_pose",)) -> Any:
-    """An input message from its serialized bytes (images and the ``pose_topics``' poses decoded directly:
-    :mod:`needle_sim_ros.messages.cdr`, :mod:`needle_common.cdr`)."""
+    """An input message from its serialized bytes (images and the ``pose_topics``' poses decoded directly, pixels
+    uncopied: :func:`needle_vision.streams.image_codec.deserialize_image`, :mod:`needle_common.cdr`)."""
     if topic in pose_topics:  # the most frequent: first
         return pose_stamped(data)
-    if topic.endswith("image_raw"):
-        return cdr.image(data)
-    if topic.endswith("image_raw/compressed"):
-        return cdr.compressed_image(data)
+    if topic.endswith(("image_raw", "image_raw/compressed")):
+        return deserialize_image(data, compressed=topic.endswith("compressed"))
     return deserialize_message(bytes(data), INPUT_TYPES[topic])
 
 
@@ -196,8 +192,8 @@ class OfflinePipeline:
         stages["simulator_core_s"] = self.simulator.core_seconds  # of simulator_s: NeedleSimulation.advance
         summary = {
             "bag": str(bag), "experiment": str(self.experiment.path), "start_offset_s": start_offset,
-            "duration_s": simulated, "comparison": self.comparison.finish(), "simulator": self.simulator.statistics(),
-            "stereo": self.stereo.statistics() if self.stereo is not None else None,
+            "duration_s": simulated, "comparison": self.comparison.session.finish(),
+            "simulator": self.simulator.statistics(), "stereo": self.stereo.statistics() if self.stereo else None,
             "timing": {"wall_s": wall, "simulated_s": simulated,
                        "real_time_factor": simulated / wall if wall > 0 else None,
                        **stages, "messages_and_io_s": wall - sum(self.seconds.values())},

@@ -162,9 +162,10 @@ def versus_ground_truth(log: PipelineLog) -> dict[str, float | int | None]:
             **wrench_versus_reference(log)}
 
 
-def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None:
+def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Model minus reference force [N] and moment [N m] at the reference stamps inside the model's time span (the
-    model's wrench interpolated linearly between its steps); None when either series is missing or nothing overlaps."""
+    model's wrench interpolated linearly between its steps), and the reference force there; None when either series
+    is missing or nothing overlaps."""
     model, reference = log.wrench, log.truth_wrench
     if model is None or reference is None or model.times.size < 2:
         return None
@@ -178,7 +179,8 @@ def wrench_differences(log: PipelineLog) -> tuple[np.ndarray, np.ndarray] | None
     def interpolated(values: np.ndarray) -> np.ndarray:
         return np.column_stack([np.interp(at, times, values[order, i]) for i in range(3)])
 
-    return interpolated(model.force) - reference.force[inside], interpolated(model.torque) - reference.torque[inside]
+    force = reference.force[inside]
+    return interpolated(model.force) - force, interpolated(model.torque) - reference.torque[inside], force
 
 
 def wrench_versus_reference(log: PipelineLog) -> dict[str, float | int | None]:
@@ -190,11 +192,9 @@ def wrench_versus_reference(log: PipelineLog) -> dict[str, float | int | None]:
     differences = wrench_differences(log)
     if differences is None:
         return {"wrench_samples": 0, **dict.fromkeys(keys)}
-    force, torque = (np.linalg.norm(values, axis=1) for values in differences)
-    reference = log.truth_wrench
-    inside = (reference.times >= log.wrench.times.min()) & (reference.times <= log.wrench.times.max())
+    force, torque, reference = (np.linalg.norm(values, axis=1) for values in differences)
     rms = (lambda values: float(np.sqrt(np.mean(values**2))))
     return {"wrench_samples": int(force.size), "wrench_force_rms_n": rms(force),
             "wrench_force_max_n": float(force.max()), "wrench_torque_rms_nm": rms(torque),
             "wrench_torque_max_nm": float(torque.max()),
-            "wrench_reference_rms_n": rms(np.linalg.norm(reference.force[inside], axis=1))}
+            "wrench_reference_rms_n": rms(reference)}

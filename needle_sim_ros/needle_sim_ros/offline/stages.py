@@ -9,8 +9,8 @@ Each stage holds the same ROS-free core as its node and translates messages exac
   shape of the very same instant. The two high-rate outputs are serialized straight from arrays
   (:mod:`needle_sim_ros.messages.cdr`).
 * :class:`StereoStage` — ``needle_stereo``: its images (raw, or image_transport's compressed topics), left/right
-  pairing by approximate time and
-  :class:`needle_vision.pipeline.StereoNeedlePipeline`, publishing ``needle/measured_shape``.
+  pairing by approximate time and :class:`needle_vision.pipeline.StereoNeedlePipeline`, publishing
+  ``needle/measured_shape``.
 * :class:`ComparisonStage` — ``needle_compare``: stamp pairing, extrinsic and centerline distances
   (:mod:`needle_sim_ros.comparison`), publishing ``shape_error``.
 """
@@ -18,18 +18,20 @@ from __future__ import annotations
 
 import math
 import time
+from collections import Counter
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
 from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, rig_from_calibration_files
-from needle_vision.streams.image_codec import ImageFormatError, compressed_message_to_gray, image_message_to_gray
+from needle_vision.streams.image_codec import ImageFormatError, SerializedImage
 from needle_vision.streams.pairing import StampPairer as FramePairer
+from needle_common.bag_reader import absolute_topic
 from needle_common.cdr import PoseStamped
 from needle_common.transforms import quaternions_from_x_axes
 from needle_common.parameters import ParameterError
@@ -41,7 +43,7 @@ from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
-from needle_sim_ros.messages.shape import Tag, shape_arrays, shape_error_cdr, stamp_ns, stamp_of
+from needle_sim_ros.messages.shape import Stamp, Tag, shape_arrays, shape_error_cdr, stamp_ns, stamp_of
 from needle_sim_ros.model import ModelShape
 from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
 
@@ -49,7 +51,7 @@ from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters
 class MeasuredShape(NamedTuple):
     """A ``needle/measured_shape``: its header, centerline and serialized NeedleShape."""
 
-    header: Header
+    header: Header | Tag
     points: np.ndarray
     arc_length: np.ndarray
     data: bytes
@@ -149,13 +151,11 @@ class StereoStage:
         self.base_poses = base_pose_store(values)
         self.image_frame = ""  # frame_id of the left images (the raw left optical frame), as the node keeps it
         self.camera_infos = CameraInfoRig()
-        self.outcomes: dict[str, int] = {}
+        self.outcomes: Counter[str] = Counter()
         self.pipeline = None
-        compressed = values["image_transport"] == "compressed"
         #: the bag's image topics the node subscribes to (image_transport's names)
-        suffix = "/compressed" if compressed else ""
+        suffix = "/compressed" if values["image_transport"] == "compressed" else ""
         self.image_topics = (f"/left/image_raw{suffix}", f"/right/image_raw{suffix}")
-        self._to_gray = compressed_message_to_gray if compressed else image_message_to_gray
         if values["left_calibration_file"]:
             rig = rig_from_calibration_files(values["left_calibration_file"], values["right_calibration_file"])
             self.pipeline = self._pipeline(rig)
@@ -166,8 +166,7 @@ class StereoStage:
     @property
     def base_pose_topic(self) -> str:
         """The absolute topic of the node's ``base_pose.topic`` subscription (a bag's root namespace), or ''."""
-        topic = self.values["base_pose.topic"]
-        return "/" + topic.lstrip("/") if topic else ""
+        return absolute_topic(self.values["base_pose.topic"]) if self.values["base_pose.topic"] else ""
 
     def on_base_pose(self, pose: PoseStamped) -> None:
         """As the node: the base pose stored in the output frame; an unusable one is counted."""
@@ -175,14 +174,11 @@ class StereoStage:
             store_base_pose(self.base_poses, pose, self.values["output_frame"],
                             (self.values["left_optical_frame"], self.image_frame), self.output_from_left)
         except ValueError as error:
-            self._count(f"base pose ignored: {error}")
+            self.outcomes[f"base pose ignored: {error}"] += 1
 
     @property
     def has_background(self) -> bool:
         return self.pipeline is not None and self.pipeline.backgrounds is not None
-
-    def _count(self, outcome: str) -> None:
-        self.outcomes[outcome] = self.outcomes.get(outcome, 0) + 1
 
     def on_camera_info(self, side: str, msg: CameraInfo) -> None:
         """As the node: (re)build the pipeline when both cameras' calibrations are known and one changed."""
@@ -192,33 +188,35 @@ class StereoStage:
             rig = self.camera_infos.offer(side, msg)
         except CalibrationError:
             self.pipeline = None
-            self._count("camera_info unusable")
+            self.outcomes["camera_info unusable"] += 1
             return
         if rig is not None:
             self.pipeline = self._pipeline(rig)
 
-    def on_image(self, side: str, msg: Image | cdr.DecodedImage | cdr.DecodedCompressedImage) -> list[MeasuredShape]:
-        pair = self.pairer.push(side, msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, msg)
+    def on_image(self, side: str, image: SerializedImage) -> list[MeasuredShape]:
+        pair = self.pairer.push(side, image.stamp, image)
         if pair is None:
             return []
         if self.pipeline is None:
-            self._count("skipped: no calibration yet")
+            self.outcomes["skipped: no calibration yet"] += 1
             return []
-        self.image_frame = pair.left.header.frame_id
+        left = pair.left
+        self.image_frame = left.frame_id
         try:
-            images = [self._to_gray(pair.left), self._to_gray(pair.right)]
+            images = [left.gray(), pair.right.gray()]
         except ImageFormatError:
-            self._count("skipped: decode error")
+            self.outcomes["skipped: decode error"] += 1
             return []
         result = self.pipeline.process(pair.stamp, *images)
-        self._count(result.status.value if result.status is not FrameStatus.REJECTED else f"rejected: {result.reason}")
+        rejected = result.status is FrameStatus.REJECTED
+        self.outcomes[f"rejected: {result.reason}" if rejected else result.status.value] += 1
         if result.status is not FrameStatus.MEASURED:
             return []
         m = result.measurement
-        stamp, frame = pair.left.header.stamp, self.values["output_frame"] or pair.left.header.frame_id
-        data = cdr.needle_shape(stamp.sec, stamp.nanosec, frame, NeedleShape.SOURCE_STEREO, m.points, m.tangents,
+        frame = self.values["output_frame"] or left.frame_id
+        data = cdr.needle_shape(left.sec, left.nanosec, frame, NeedleShape.SOURCE_STEREO, m.points, m.tangents,
                                 m.arc_length, m.points[-1], quaternions_from_x_axes(m.tangents[-1]), m.uncertainty)
-        return [MeasuredShape(Header(stamp=stamp, frame_id=frame), m.points, m.arc_length, data)]
+        return [MeasuredShape(Tag(Stamp(left.sec, left.nanosec), frame), m.points, m.arc_length, data)]
 
     def statistics(self) -> dict[str, Any]:
         return {"pairs": dict(self.outcomes), "unpaired_frames": self.pairer.dropped}
@@ -254,9 +252,6 @@ class ComparisonStage:
             result.append(("shape_error", shape_error_cdr(pair.result, pair.model_tag, pair.measured_tag)))
             result.extend(self.display.outputs(pair).items())
         return result
-
-    def finish(self) -> dict[str, Any]:
-        return self.session.finish()
 
 
 def stereo_values(values: dict[str, Any]) -> dict[str, Any]:

@@ -12,69 +12,62 @@ def _unit_quaternion(q) -> bool:
     return abs(float(np.linalg.norm(q)) - 1.0) < 1e-6
 
 
+def _model(name: str, *arguments, **options) -> ParamSpec:
+    """A parameter of the needle model with the model's default (:data:`needle_sim_ros.model.config.DEFAULTS`)."""
+    return ParamSpec(name, MODEL_DEFAULTS[name], *arguments, **options)
+
+
 QOS_CHOICES = ("sensor_data", "reliable")
+NAMED = (bool, "must not be empty")  # a frame
 
 SIMULATOR_PARAMETERS = [
     # Needle (seed 000, Sec. III: stainless steel, r = 0.635 mm, L = 0.27 m).
-    ParamSpec("needle.length", MODEL_DEFAULTS["needle.length"],
-              "Needle length L [m] from the clamp point A to the tip.", 1e-3, 10.0),
-    ParamSpec("needle.radius", MODEL_DEFAULTS["needle.radius"], "Outer radius of the circular cross-section [m].", 1e-6,
-              0.05),
-    ParamSpec("needle.inner_radius", MODEL_DEFAULTS["needle.inner_radius"],
-              "Inner radius of a hollow needle [m] (0 = solid; must be < needle.radius).", 0.0, 0.05),
-    ParamSpec("needle.youngs_modulus", MODEL_DEFAULTS["needle.youngs_modulus"], "Young's modulus E [Pa].", 1e6, 1e12),
-    ParamSpec("needle.density", MODEL_DEFAULTS["needle.density"], "Density rho [kg/m^3].", 1.0, 1e5),
-    ParamSpec("needle.elements", MODEL_DEFAULTS["needle.elements"], "Number of ANCF cable elements.", 1, 200),
-    ParamSpec("needle.element_lengths", MODEL_DEFAULTS["needle.element_lengths"],
-              "Element lengths [m] from the clamp point A to the tip, for a non-uniform mesh (e.g. finer where the "
-              "tissue acts); they must sum to needle.length and then set the number of elements. [0.0]: "
-              "needle.elements elements of equal length (with fixtures.clamp_interval: nodes at the clamp).", 0.0, 10.0,
-              check=(lambda v: list(v) in ([], [0.0]) or all(length > 0 for length in v),
-                     "must be [0.0] (uniform) or lengths > 0 [m] summing to needle.length")),
-    ParamSpec("needle.gravity", MODEL_DEFAULTS["needle.gravity"],
-              "Gravitational acceleration in the world frame [m/s^2].", -100.0, 100.0, length=3),
-    ParamSpec("needle.axial_gauss_points", MODEL_DEFAULTS["needle.axial_gauss_points"],
-              "Gauss points per element for the axial strain integral (eq. 12); 2 = reduced, locking-free (default), "
-              "5 = the paper's.", 1, 10),
-    ParamSpec("needle.bending_gauss_points", MODEL_DEFAULTS["needle.bending_gauss_points"],
-              "Gauss points per element for the bending integral (eq. 13).", 1, 10),
-    ParamSpec("needle.start_in_equilibrium", MODEL_DEFAULTS["needle.start_in_equilibrium"],
-              "Start (and restart) the needle at rest in static equilibrium under gravity and the loads; false: "
-              "straight (it then drops and swings)."),
+    _model("needle.length", "Needle length L [m] from the clamp point A to the tip.", 1e-3, 10.0),
+    _model("needle.radius", "Outer radius of the circular cross-section [m].", 1e-6, 0.05),
+    _model("needle.inner_radius", "Inner radius of a hollow needle [m] (0 = solid; must be < needle.radius).", 0.0,
+           0.05),
+    _model("needle.youngs_modulus", "Young's modulus E [Pa].", 1e6, 1e12),
+    _model("needle.density", "Density rho [kg/m^3].", 1.0, 1e5),
+    _model("needle.elements", "Number of ANCF cable elements.", 1, 200),
+    _model("needle.element_lengths",
+           "Element lengths [m] from the clamp point A to the tip, for a non-uniform mesh (e.g. finer where the tissue "
+           "acts); they must sum to needle.length and then set the number of elements. [0.0]: needle.elements "
+           "elements of equal length (with fixtures.clamp_interval: nodes at the clamp).", 0.0, 10.0,
+           check=(lambda v: list(v) in ([], [0.0]) or all(length > 0 for length in v),
+                  "must be [0.0] (uniform) or lengths > 0 [m] summing to needle.length")),
+    _model("needle.gravity", "Gravitational acceleration in the world frame [m/s^2].", -100.0, 100.0, length=3),
+    _model("needle.axial_gauss_points", "Gauss points per element for the axial strain integral (eq. 12); 2 = "
+           "reduced, locking-free (default), 5 = the paper's.", 1, 10),
+    _model("needle.bending_gauss_points", "Gauss points per element for the bending integral (eq. 13).", 1, 10),
+    _model("needle.start_in_equilibrium", "Start (and restart) the needle at rest in static equilibrium under "
+           "gravity and the loads; false: straight (it then drops and swings)."),
     # alpha M damps absolute velocities (a drag alpha m v on a rigidly moving needle, felt at the holder), so it is
     # zero by default; beta K_0 acts on strain rates in a rotation-safe form (needle_sim_ros.model.damping).
-    ParamSpec("damping.rayleigh_alpha", MODEL_DEFAULTS["damping.rayleigh_alpha"],
-              "Mass-proportional Rayleigh damping alpha [1/s] (C = alpha M + beta K).", 0.0, 1e4, dynamic=True),
-    ParamSpec("damping.rayleigh_beta", MODEL_DEFAULTS["damping.rayleigh_beta"],
-              "Stiffness-proportional Rayleigh damping beta [s] (C = alpha M + beta K).", 0.0, 1.0, dynamic=True),
-    ParamSpec("integrator.method", MODEL_DEFAULTS["integrator.method"], "Implicit integrator.",
-              choices=("generalized_alpha", "hht", "backward_euler")),
-    ParamSpec("integrator.rho_inf", MODEL_DEFAULTS["integrator.rho_inf"],
-              "Spectral radius at infinite frequency (numerical damping; 1 = none).", 0.0, 1.0),
-    ParamSpec("integrator.dt", MODEL_DEFAULTS["integrator.dt"],
-              "Integration step [s]; the real-time loop runs at 1/dt.", 1e-5, 0.1),
-    ParamSpec("integrator.newton_tolerance", MODEL_DEFAULTS["integrator.newton_tolerance"],
-              "Newton convergence bound on the last correction (|dr| / L and |dr_x|).", 1e-14, 1e-2),
-    ParamSpec("integrator.max_substep_halvings", MODEL_DEFAULTS["integrator.max_substep_halvings"],
-              "A failed step is retried as 2, 4, ... 2^n sub-steps before it is reported.", 0, 12),
-    ParamSpec("integrator.max_newton_iterations", MODEL_DEFAULTS["integrator.max_newton_iterations"],
-              "Newton iterations per step before sub-stepping.", 1, 100),
-    ParamSpec("fixtures.clamp_interval", MODEL_DEFAULTS["fixtures.clamp_interval"],
-              "Arc-length interval [s_start, s_end] [m] clamped to the world where it lies when the needle starts "
-              "(seed 000 Fig. 8: [0.6 L, L]). With needle.element_lengths the ends must be mesh nodes; without, the "
-              "mesh puts nodes there (one element clamped, the free span's nodes clustered at the holds). "
-              "[] or [0.0]: none.",
-              0.0, 10.0,
-              check=(lambda v: len(v) in (0, 1, 2) and (len(v) < 2 or v[0] < v[1]) and (len(v) != 1 or v[0] == 0.0),
-                                "must be [] / [0.0] (none) or [s_start, s_end] with s_start < s_end")),
+    _model("damping.rayleigh_alpha", "Mass-proportional Rayleigh damping alpha [1/s] (C = alpha M + beta K).", 0.0,
+           1e4, dynamic=True),
+    _model("damping.rayleigh_beta", "Stiffness-proportional Rayleigh damping beta [s] (C = alpha M + beta K).", 0.0,
+           1.0, dynamic=True),
+    _model("integrator.method", "Implicit integrator.", choices=("generalized_alpha", "hht", "backward_euler")),
+    _model("integrator.rho_inf", "Spectral radius at infinite frequency (numerical damping; 1 = none).", 0.0, 1.0),
+    _model("integrator.dt", "Integration step [s]; the real-time loop runs at 1/dt.", 1e-5, 0.1),
+    _model("integrator.newton_tolerance", "Newton convergence bound on the last correction (|dr| / L and |dr_x|).",
+           1e-14, 1e-2),
+    _model("integrator.max_substep_halvings", "A failed step is retried as 2, 4, ... 2^n sub-steps before it is "
+           "reported.", 0, 12),
+    _model("integrator.max_newton_iterations", "Newton iterations per step before sub-stepping.", 1, 100),
+    _model("fixtures.clamp_interval",
+           "Arc-length interval [s_start, s_end] [m] clamped to the world where it lies when the needle starts (seed "
+           "000 Fig. 8: [0.6 L, L]). With needle.element_lengths the ends must be mesh nodes; without, the mesh puts "
+           "nodes there (one element clamped, the free span's nodes clustered at the holds). [] or [0.0]: none.",
+           0.0, 10.0,
+           check=(lambda v: len(v) in (0, 1, 2) and (len(v) < 2 or v[0] < v[1]) and (len(v) != 1 or v[0] == 0.0),
+                  "must be [] / [0.0] (none) or [s_start, s_end] with s_start < s_end")),
     # Frames (REP 103/105).
-    ParamSpec("frames.world", "world", "Fixed frame of base poses, wrench (world copy) and shapes.",
-              check=(bool, "must not be empty")),
+    ParamSpec("frames.world", "world", "Fixed frame of base poses, wrench (world copy) and shapes.", check=NAMED),
     ParamSpec("frames.base", "needle_base", "Frame of the needle base at the clamp point A, x along the needle.",
-              check=(bool, "must not be empty")),
-    ParamSpec("frames.tip", "needle_tip",
-              "Frame of the needle tip on TF (child of frames.base), x along the tip tangent.",
-              check=(bool, "must not be empty")),
+              check=NAMED),
+    ParamSpec("frames.tip", "needle_tip", "Frame of the needle tip on TF (child of frames.base), x along the tip "
+              "tangent.", check=NAMED),
     ParamSpec("flange_offset.position", [0.0, 0.0, 0.0], "Clamp point A in the flange frame of the incoming pose [m].",
               -10.0, 10.0, length=3),
     ParamSpec("flange_offset.orientation", [0.0, 0.0, 0.0, 1.0],

@@ -125,9 +125,10 @@ class _McapFile:
         self.counts: dict[int, int] = defaultdict(int)
         self.first_log_time_ns: int | None = None
         self.last_log_time_ns = 0
-        self._summary: dict[int, list] = {op: [] for op in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.CHUNK_INDEX,
-                                                            Opcode.ATTACHMENT_INDEX, Opcode.METADATA_INDEX)}
         self._statistics = Statistics(0, 0, self.counts, 0, 0, 0, 0, 0, 0)
+        self._summary: dict[int, list] = {  # the summary section's groups in mcap.Writer's order
+            Opcode.SCHEMA: [], Opcode.CHANNEL: [], Opcode.STATISTICS: [self._statistics], Opcode.CHUNK_INDEX: [],
+            Opcode.ATTACHMENT_INDEX: [], Opcode.METADATA_INDEX: []}
         self._chunk: list[bytes] = []
         self._chunk_size = 0
         self._chunk_times = (0, 0)
@@ -160,18 +161,19 @@ class _McapFile:
         self.stream.write(builder.end())
         return offset
 
-    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
-        schema = Schema(id=len(self._summary[Opcode.SCHEMA]) + 1, name=name, encoding=encoding, data=data)
-        self._summary[Opcode.SCHEMA].append(schema)
-        self._write(schema)
-        return schema.id
-
-    def add_channel(self, topic: str, message_encoding: str, schema_id: int, metadata: dict[str, str]) -> int:
-        channel = Channel(id=len(self._summary[Opcode.CHANNEL]) + 1, topic=topic, message_encoding=message_encoding,
-                          schema_id=schema_id, metadata=metadata)
-        self._summary[Opcode.CHANNEL].append(channel)
-        self._write(channel)
-        return channel.id
+    def add_channel(self, channel: _Channel) -> None:
+        """Write the channel, after its schema unless the file has that schema already."""
+        key = (channel.schema_name, channel.schema_encoding, channel.schema_data)
+        if key not in self.schema_ids:
+            schema = Schema(id=len(self.schema_ids) + 1, name=key[0], encoding=key[1], data=key[2])
+            self.schema_ids[key] = schema.id
+            self._summary[Opcode.SCHEMA].append(schema)
+            self._write(schema)
+        record = Channel(id=len(self.channel_ids) + 1, topic=channel.topic, message_encoding=channel.message_encoding,
+                         schema_id=self.schema_ids[key], metadata=channel.metadata)
+        self.channel_ids[channel.topic] = record.id
+        self._summary[Opcode.CHANNEL].append(record)
+        self._write(record)
 
     def add_static(self, record: Metadata | Attachment) -> None:
         """A metadata record or an attachment, indexed in the summary."""
@@ -265,9 +267,7 @@ class _McapFile:
         stats.chunk_count, stats.metadata_count, stats.attachment_count = (
             len(summary[op]) for op in (Opcode.CHUNK_INDEX, Opcode.METADATA_INDEX, Opcode.ATTACHMENT_INDEX))
         start, builder, groups = self.stream.position, RecordBuilder(), []
-        for opcode, records in ((Opcode.SCHEMA, summary[Opcode.SCHEMA]), (Opcode.CHANNEL, summary[Opcode.CHANNEL]),
-                                (Opcode.STATISTICS, [stats]), *((op, summary[op]) for op in (
-                                    Opcode.CHUNK_INDEX, Opcode.ATTACHMENT_INDEX, Opcode.METADATA_INDEX))):
+        for opcode, records in summary.items():
             group = builder.count
             for record in records:
                 record.write(builder)
@@ -350,7 +350,7 @@ class McapBagWriter:
                 raise ValueError(f"topic '{topic}' is already recorded with type '{known.schema_name}'")
             return
         self._channels[topic] = channel
-        self._guarded(self._register, channel)
+        self._guarded(self._file.add_channel, channel)
 
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None,
               sequence: int = 0) -> None:
@@ -437,7 +437,7 @@ class McapBagWriter:
         for record in self._static:
             self._file.add_static(record)
         for channel in self._channels.values():
-            self._register(channel)
+            self._file.add_channel(channel)
 
     def _summary(self, file: _McapFile) -> FileSummary:
         count = sum(file.counts.values())
@@ -480,14 +480,6 @@ class McapBagWriter:
         except OSError as error:
             self._failure = _describe(error, self._file.stream.path if self._file else self.path)
             raise RecordingError(self._failure) from error
-
-    def _register(self, channel: _Channel) -> None:
-        file = self._file
-        key = (channel.schema_name, channel.schema_encoding, channel.schema_data)
-        if key not in file.schema_ids:
-            file.schema_ids[key] = file.add_schema(channel.schema_name, channel.schema_encoding, channel.schema_data)
-        file.channel_ids[channel.topic] = file.add_channel(
-            channel.topic, channel.message_encoding, file.schema_ids[key], channel.metadata)
 
     def _split_due(self, file: _McapFile, log_time_ns: int) -> bool:
         if file.first_log_time_ns is None:

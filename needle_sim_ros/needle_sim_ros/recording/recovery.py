@@ -57,67 +57,51 @@ class RecoveryReport:
                 f"{self.metadata} metadata records and {self.attachments} attachments; {tail}")
 
 
-class _DataSection:
-    """Complete records of one MCAP file, chunks broken up into their records."""
-
-    def __init__(self, path: Path, report: RecoveryReport) -> None:
-        self.path = path
-        self.report = report
-
-    def records(self) -> Iterator[object]:
-        try:
-            with open(self.path, "rb") as source:
-                size = source.seek(0, io.SEEK_END)
-                source.seek(0)
-                if source.read(len(MAGIC)) != MAGIC:
-                    raise RecoveryError(f"'{self.path}' is not an MCAP file (bad magic)")
-                yield from self._scan(source, size)
-        except OSError as error:
-            raise RecoveryError(f"cannot read '{self.path}': {error.strerror or error}") from error
-
-    def _scan(self, source, size: int) -> Iterator[object]:
-        good_end = source.tell()
-        while True:
-            head = source.read(_RECORD_HEAD.size)
-            if len(head) < _RECORD_HEAD.size:
-                break
-            opcode, length = _RECORD_HEAD.unpack(head)
-            if length > size - source.tell():
-                break
-            body = source.read(length)
-            if opcode == Opcode.HEADER:
-                self._check_profile(body)
-                records = []
-            else:
+def _records(path: Path, report: RecoveryReport) -> Iterator[object]:
+    """The complete records of one MCAP file, chunks broken up into their records."""
+    try:
+        with open(path, "rb") as source:
+            size = source.seek(0, io.SEEK_END)
+            source.seek(0)
+            if source.read(len(MAGIC)) != MAGIC:
+                raise RecoveryError(f"'{path}' is not an MCAP file (bad magic)")
+            good_end = source.tell()
+            while len(head := source.read(_RECORD_HEAD.size)) == _RECORD_HEAD.size:
+                opcode, length = _RECORD_HEAD.unpack(head)
+                if length > size - source.tell():
+                    break
+                body = source.read(length)
+                profile = Header.read(ReadDataStream(io.BytesIO(body))).profile if opcode == Opcode.HEADER else PROFILE
+                if profile != PROFILE:
+                    raise RecoveryError(f"'{path}' has MCAP profile '{profile}', not '{PROFILE}'")
                 try:
-                    records = self._parse(opcode, body)
+                    records = _parse(opcode, body, report)
                 except CHUNK_ERRORS:
                     break  # everything from this record on is lost
-            if records is None:  # end of the data section: the file was complete
-                return
-            good_end = source.tell()
-            yield from records
-        self.report.complete_input = False
-        self.report.discarded_bytes += size - good_end
+                if records is None:  # end of the data section: the file was complete
+                    return
+                good_end = source.tell()
+                yield from records
+    except OSError as error:
+        raise RecoveryError(f"cannot read '{path}': {error.strerror or error}") from error
+    report.complete_input = False
+    report.discarded_bytes += size - good_end
 
-    def _check_profile(self, body: bytes) -> None:
-        header = Header.read(ReadDataStream(io.BytesIO(body)))
-        if header.profile != PROFILE:
-            raise RecoveryError(f"'{self.path}' has MCAP profile '{header.profile}', not '{PROFILE}'")
 
-    def _parse(self, opcode: int, body: bytes) -> list[object] | None:
-        stream = ReadDataStream(io.BytesIO(body))
-        if opcode in (Opcode.DATA_END, Opcode.FOOTER):
-            return None
-        if opcode == Opcode.CHUNK:
-            records = breakup_chunk(Chunk.read(stream), validate_crc=True)
-            self.report.chunks += 1
-            return records
-        if opcode == Opcode.MESSAGE:
-            return [Message.read(stream, len(body))]
-        readers = {Opcode.SCHEMA: Schema.read, Opcode.CHANNEL: Channel.read, Opcode.METADATA: Metadata.read,
-                   Opcode.ATTACHMENT: Attachment.read}
-        return [readers[opcode](stream)] if opcode in readers else []  # indexes are rebuilt by the writer
+def _parse(opcode: int, body: bytes, report: RecoveryReport) -> list[object] | None:
+    """The records kept of one record's ``body``; None at the end of the data section."""
+    stream = ReadDataStream(io.BytesIO(body))
+    if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+        return None
+    if opcode == Opcode.CHUNK:
+        records = breakup_chunk(Chunk.read(stream), validate_crc=True)
+        report.chunks += 1
+        return records
+    if opcode == Opcode.MESSAGE:
+        return [Message.read(stream, len(body))]
+    readers = {Opcode.SCHEMA: Schema.read, Opcode.CHANNEL: Channel.read, Opcode.METADATA: Metadata.read,
+               Opcode.ATTACHMENT: Attachment.read}
+    return [readers[opcode](stream)] if opcode in readers else []  # indexes are rebuilt by the writer
 
 
 def recover(source: str | Path, destination: str | Path, options: WriterOptions = WriterOptions()) -> RecoveryReport:
@@ -133,7 +117,7 @@ def recover(source: str | Path, destination: str | Path, options: WriterOptions 
         for path in sources:
             schemas: dict[int, Schema] = {}
             topics: dict[int, str] = {}
-            for record in _DataSection(path, report).records():
+            for record in _records(path, report):
                 if isinstance(record, Schema):
                     schemas[record.id] = record
                 elif isinstance(record, Channel) and record.schema_id in schemas:
