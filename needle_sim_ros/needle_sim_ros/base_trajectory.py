@@ -73,6 +73,8 @@ class TrajectoryLimits:
 class BaseTrajectory:
     """Buffer of recent base poses with smooth evaluation at any time."""
 
+    _offer = None  # _offer_sample compiled for its arguments' types (every trajectory's), made at the first offer
+
     def __init__(self, limits: TrajectoryLimits = TrajectoryLimits(), capacity: int = 256) -> None:
         self.limits = limits
         self._rejected: list[PoseSample] = []
@@ -91,6 +93,7 @@ class BaseTrajectory:
                         np.zeros((CORRECTION_CAPACITY, 6, 3)), np.zeros(CORRECTION_CAPACITY),
                         np.ones(CORRECTION_CAPACITY), np.zeros((3, 6)), self._counts, self._served,
                         np.empty((1, 19)), np.empty((1, 19)), float(limits.window), float(limits.max_extrapolation))
+        self._held = (*self.buffers[:3], self._counts, self._served, self._checks)  # _offer_sample's, for good
 
     @property
     def latest(self) -> PoseSample | None:
@@ -115,8 +118,10 @@ class BaseTrajectory:
         position = np.array(position, dtype=float)
         orientation = np.array(orientation, dtype=float)
         t = float(t)
-        verdict = VERDICTS[_offer_sample(*self.buffers[:3], self._counts, self._served, self._checks, t, position,
-                                         orientation, gap, resume_tolerance)]
+        arguments = (*self._held, t, position, orientation, float(gap), float(resume_tolerance))
+        if BaseTrajectory._offer is None:  # the types hold: the arrays made in __init__ and here, floats
+            BaseTrajectory._offer = compiled_entry(_offer_sample, *arguments)
+        verdict = VERDICTS[BaseTrajectory._offer(*arguments)]
         if verdict is PoseVerdict.JUMP:
             return self._handle_jump(PoseSample(t, position, orientation))  # the unit quaternion now
         if verdict in ADDED:
@@ -186,6 +191,12 @@ def _append_sample(sample_times: np.ndarray, positions: np.ndarray, orientations
     positions[count] = position
     orientations[count] = orientation
     counts[SAMPLES], counts[FIT_ROWS] = count + 1, -1
+
+
+def compiled_entry(dispatcher, *arguments):
+    """The compiled function of the numba ``dispatcher`` for the types of ``arguments`` (compiled or loaded now if
+    new): no typing per call, so only for values of these types (its wrapper unboxes them as such, unchecked)."""
+    return dispatcher.compile(tuple(map(dispatcher.typeof_pyval, arguments)))
 
 
 @njit(cache=True)
@@ -306,7 +317,8 @@ def _refit_window(sample_times: np.ndarray, positions: np.ndarray, orientations:
 def _quaternion_norm(t: float, position: np.ndarray, orientation: np.ndarray) -> float:
     """|orientation|, or NaN if any of t, position, orientation is not finite."""
     nan_if_not_finite = (t + np.sum(position) + np.sum(orientation)) * 0.0  # inf * 0 and NaN * 0 are NaN
-    return np.sqrt(np.sum(orientation ** 2)) + nan_if_not_finite
+    x, y, z, w = orientation[0], orientation[1], orientation[2], orientation[3]
+    return np.sqrt(x * x + y * y + z * z + w * w) + nan_if_not_finite  # no temporary array
 
 
 @njit(cache=True)
@@ -324,7 +336,8 @@ def _checked_pose(t: float, position: np.ndarray, orientation: np.ndarray, p_lat
     largest = np.max(np.abs(position))
     if not norm >= 1e-9:
         return norm, rescaled, largest, 0.0, 0.0
-    orientation[:] = orientation / norm
+    for i in range(4):  # no temporary array
+        orientation[i] /= norm
     distance, angle = _pose_deviation(p_latest, q_latest, position, orientation) if has_latest else (0.0, 0.0)
     return norm, rescaled, largest, distance, angle
 

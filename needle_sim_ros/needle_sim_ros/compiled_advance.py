@@ -9,7 +9,8 @@ path calls, so both give the same bits.
 
 The arguments that hold from one call to the next travel in one :class:`AdvancePlan` record, made once per plan,
 typed in C by its ``_numba_type_`` (numba 0.59 too: ``test_kernel_dispatch``): 8 arguments, not 51, to unbox per
-call; the stepper calls it for their types directly (:func:`compiled_entry`: the dispatcher types a record at ~0.6 us).
+call; the stepper calls it for their types directly (:func:`~needle_sim_ros.base_trajectory.compiled_entry`: the
+dispatcher types a record at ~0.6 us).
 """
 from __future__ import annotations
 
@@ -22,9 +23,9 @@ from needle_sim_ros.base_trajectory import trajectory_motions
 from needle_sim_ros.model.kinematics import compose_offsets
 from needle_sim_ros.model.step import integrate_sequence
 
-# The sequence's arguments after the motions and rotations (Integrator.sequence_arguments, then the memory's last
-# motion), the trajectory's buffers (BaseTrajectory.buffers) and the base input's packed offset and twist.
-PLAN_FIELDS = ("history", "coef", "ext_Q", "tol", "max_iterations", "prescribed", "base_nodes", "base_local_r",
+# The sequence's arguments after the start rows, motions and rotations (Integrator.sequence_arguments after its
+# history, the memory's last motion), the trajectory's buffers (BaseTrajectory.buffers), the packed offset and twist.
+PLAN_FIELDS = ("coef", "ext_Q", "tol", "max_iterations", "prescribed", "base_nodes", "base_local_r",
                "base_local_rx", "active", "scale", "tables", "residual", "band", "pivots", "factorization", "kl",
                "control", "last_motion", "sample_times", "positions", "orientations", "deltas", "starts", "blends",
                "fit", "counts", "served", "served_motion", "scratch", "window", "max_extrapolation", "packed")
@@ -49,12 +50,6 @@ def advance_plan(*fields):
     """The :class:`AdvancePlan` of the fields (compiled and cached: the proxy's own constructor compiles anew in
     every process)."""
     return AdvancePlan(*fields)
-
-
-def compiled_entry(dispatcher, *arguments):
-    """The compiled function of the numba ``dispatcher`` for the types of ``arguments`` (compiled or loaded now if
-    new): no typing per call, so only for values of these types (its wrapper unboxes them as such, unchecked)."""
-    return dispatcher.compile(tuple(map(dispatcher.typeof_pyval, arguments)))
 
 
 @njit(cache=True)
@@ -84,10 +79,7 @@ def advance_from_trajectory(plan, times, motions, rotations, start, states, wren
     packed = p.packed
     apply_twist(flange, times, packed[1:8], packed[0])
     compose_offsets(flange, packed[8:11], packed[11:20].reshape((3, 3)), motions, rotations)
-    history = p.history
-    history[0], history[1], history[2], history[3] = start[0], start[1], start[2], start[3]
-    done = integrate_sequence(history, times, motions, rotations, p.coef, p.ext_Q, p.tol, p.max_iterations,
+    return integrate_sequence(start, times, motions, rotations, p.coef, p.ext_Q, p.tol, p.max_iterations,
                               p.prescribed, p.base_nodes, p.base_local_r, p.base_local_rx, p.active, p.scale,
                               p.tables, p.residual, p.band, p.pivots, p.factorization, p.kl, p.control, True,
                               p.last_motion, states, wrenches, iterations)
-    return done

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from needle_sim_ros.base_trajectory import PoseVerdict
-from needle_sim_ros.simulation import USED_POSES, NeedleSimulation
+from needle_sim_ros.simulation import TIP_LOAD_TOPIC, USED_POSES, NeedleSimulation
 
 __all__ = ["USED_POSES", "InputRejected", "OfferedPose", "SimulatorInputs", "rejected_poses"]
 
@@ -76,6 +76,17 @@ class SimulatorInputs:
             self.sim.set_twist(received, linear, angular)
         except ValueError as error:
             raise InputRejected("twist_rejected", f"base twist: {error}") from error
+
+    def on_twist(self, msg, received: float) -> None:
+        """:meth:`set_twist` of a ``geometry_msgs/TwistStamped`` (the node's message or the offline decoder's)."""
+        v, w = msg.twist.linear, msg.twist.angular
+        self.set_twist(msg.header.frame_id, (v.x, v.y, v.z), (w.x, w.y, w.z), received)
+
+    def on_tip_load(self, msg) -> None:
+        """The ``tip_load`` topic's force (``geometry_msgs/WrenchStamped``) on the tip, replacing the previous one."""
+        f = msg.wrench.force
+        self.set_point_load(TIP_LOAD_TOPIC, self.sim.model.props.length, msg.header.frame_id, (f.x, f.y, f.z),
+                            "tip_load_rejected")
 
     def world_force(self, frame_id: str, force, kind: str) -> np.ndarray:
         """A force [N] given in ``frame_id`` (world, base or empty: world) in the world frame."""

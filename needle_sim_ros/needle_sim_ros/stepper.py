@@ -12,7 +12,8 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from needle_sim_ros.compiled_advance import advance_from_trajectory, advance_plan, compiled_entry
+from needle_sim_ros.base_trajectory import compiled_entry
+from needle_sim_ros.compiled_advance import advance_from_trajectory, advance_plan
 from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, ModelShape, NeedleData, NeedleModel,
                                   NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed,
                                   acting_forces, check_forces, elastic_energy, initial_force_states, kinetic_energy,
@@ -212,9 +213,7 @@ class Stepper:
         :class:`~needle_sim_ros.base_input.BaseInput`). Runs of steps go through the integrator's compiled sequence
         where it applies (:meth:`Integrator.supports_sequence`)."""
         records: list[StepRecord] = []
-        data = self.data
-        dt = self.dt
-        count = times.size
+        data, dt, count = self.data, self.dt, times.size
         # the compiled sequence takes time-invariant forces only; contributions that run compiled (the tissue,
         # CompiledContributions) take a run composing them all, a step at a time if a hook reads each step's state
         sequence, run = self.compiled_sequence, None
@@ -316,7 +315,7 @@ class Stepper:
                 and plan_source is source and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
             # else: the checks and caches of sequence_arguments
             before = integrator.sequence_arguments(self.dt, forces, float(times[0]), memory)
-            plan = advance_plan(*before, memory.last_motion, *source.trajectory.buffers, source.packed)
+            plan = advance_plan(*before[1:], memory.last_motion, *source.trajectory.buffers, source.packed)
             # the arguments' types hold with the plan: times (k,) of the clock loop, the rows and arrays made here
             advance = compiled_entry(advance_from_trajectory, plan, times, motions, rotations, start_rows, *outputs)
             self._advance_plan = (integrator, forces, memory, source, plan, advance)
@@ -332,12 +331,10 @@ class Stepper:
         if not done:
             return
         wall = (time.perf_counter() - start) / done
-        hook = self.after_step
+        hook, stats = self.after_step, self.statistics
         states, wrenches, iterations = outputs
-        stats = self.statistics
         if done == 1 and hook is None:  # the live loop's run: one step per pose
-            w, n = wrenches[0], int(iterations[0])
-            t = float(times[0])
+            w, n, t = wrenches[0], int(iterations[0]), float(times[0])
             records.append(StepRecord(t, BaseWrench(w), n, 1, wall))
             self.data.end_run(states[0], t, motions[0], rotations[0])
             stats.steps += 1

@@ -86,3 +86,21 @@ def test_every_rejecting_verdict_counts_as_a_rejected_pose():
     assert PoseVerdict.OUT_OF_RANGE in rejecting
     assert rejected_poses(counts) == len(rejecting)
     assert rejected_poses({PoseVerdict.OUT_OF_RANGE: 3, PoseVerdict.ACCEPTED: 5}) == 3
+
+
+def test_a_tip_load_message_sets_the_topic_s_load_on_the_tip_in_the_world_frame():
+    from geometry_msgs.msg import WrenchStamped
+
+    from needle_sim_ros.simulation import TIP_LOAD_TOPIC
+
+    rules = inputs()
+    rules.offer_pose("world", 1.0, (0.0, 0.0, 0.0), QUARTER_TURN_Z, received=1.0)
+    message = WrenchStamped()
+    message.header.frame_id, message.wrench.force.x = "needle_base", 0.1
+    rules.on_tip_load(message)
+    load = rules.sim.point_loads[TIP_LOAD_TOPIC]  # replaced, not added, by the next message
+    assert load.arc_length == rules.sim.model.props.length and np.allclose(load.vector, [0.0, 0.1, 0.0], atol=1e-15)
+    message.header.frame_id, message.wrench.force.z = "world", -100.0
+    with pytest.raises(InputRejected, match="exceeds") as error:
+        rules.on_tip_load(message)
+    assert error.value.kind == "tip_load_rejected" and list(rules.sim.point_loads) == [TIP_LOAD_TOPIC]

@@ -282,7 +282,7 @@ def newton(values, history, prescribed, coef, dynamic, predictor, active, scale,
     if dynamic:
         predict(values, history, prescribed, coef, active, predictor)
     c_qd = rate_coefficients(coef, dynamic)[1]
-    no_band = np.zeros((0, 0))
+    no_band = ext_band[:0]  # (0, ...): no matrix
     refactor, previous, norm, symmetric = fresh_matrix, np.inf, np.inf, True
     for iteration in range(max_iterations):
         q, qd = values[0], values[1]

@@ -58,15 +58,6 @@ EXTRAPOLATE, FACTORED = 0, 1  # entries of the control flags
 
 
 @njit(cache=True)
-def impose_base(motion, rotation, base_local_r, base_local_rx, base_nodes, prescribed):
-    """The base nodes' prescribed rows (q, q', q'') from a packed base motion (19,) and its rotation (eqs. 18-19);
-    returns the base axis (the rotation's first column)."""
-    rigid_node_kinematics(motion[0:3], rotation, motion[7:10], motion[10:13], motion[13:16], motion[16:19],
-                          base_local_r, base_local_rx, base_nodes, prescribed)
-    return rotation[:, 0].copy()
-
-
-@njit(cache=True)
 def base_tables(tables):
     """``reaction.base_rows`` from the model tables: element 0's quadrature tables and the base slots' rows."""
     (axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
@@ -117,20 +108,23 @@ def run_steps(history, times, motions, rotations, constant_Q, held_Q, solver, ba
     contribution's state after them)."""
     prescribed, base_nodes, base_local_r, base_local_rx = base
     states, wrenches, iterations = outputs
-    values = np.empty_like(history)
-    current = history.copy()
     n = history.shape[1]
-    ext_Q = np.empty(n)
-    no_band = np.zeros((0, 0))
+    scratch = np.empty((10, n))  # the run's one allocation: the step's rows, the accepted ones, Q and the base axis
+    values, current, ext_Q, axis = scratch[:4], scratch[4:8], scratch[8], scratch[9, :3]
+    current[:, :] = history
+    no_band = work[2][:0]  # (0, ...): no matrix
     rows = base_tables(solver[5])
     forces = acting(state)
     for i in range(times.size):
         motion, rotation = motions[i], rotations[i]
-        axis = impose_base(motion, rotation, base_local_r, base_local_rx, base_nodes, prescribed)  # 1. predict
+        # 1. predict: the base nodes' prescribed rows (q, q', q'') from the base motion (eqs. 18-19), the base axis
+        rigid_node_kinematics(motion[0:3], rotation, motion[7:10], motion[10:13], motion[13:16], motion[16:19],
+                              base_local_r, base_local_rx, base_nodes, prescribed)
+        axis[:] = rotation[:, 0]
         moved = False
-        if keep_matrix:
-            moved = np.any(motion != last_motion)
-            last_motion[:] = motion
+        for j in range(19 if keep_matrix else 0):
+            moved = moved or motion[j] != last_motion[j]
+            last_motion[j] = motion[j]
         status, total, _ = solve_step(values, current, prescribed, axis, rotation, constant_Q, ext_Q, solver, work,
                                       control, keep_matrix, moved, forces, assemble)  # 2.-3.
         if status != CONVERGED:
@@ -149,7 +143,7 @@ def run_steps(history, times, motions, rotations, constant_Q, held_Q, solver, ba
             assemble(forces, q, qd, rotation, ext_Q, no_band, 0, 0.0, 0.0)
         else:
             ext_Q[:] = held_Q
-        wrenches[i] = base_wrench_kernel(q, qd, values[2], *rows, rotation, ext_Q[:6].copy())
+        wrenches[i] = base_wrench_kernel(q, qd, values[2], *rows, rotation, ext_Q[:6])
     return times.size, state
 
 
@@ -159,8 +153,7 @@ def general_step(values, current, prescribed, constant_Q, axis, rotation, coef, 
     """:func:`solve_step` on a fresh matrix under constant forces only: the general path's (sub-)step."""
     return solve_step(values, current, prescribed, axis, rotation, constant_Q, np.empty(constant_Q.size),
                       (coef, tol, max_iterations, active, scale, tables, kl),
-                      (residual, band, np.zeros((0, 0)), pivots, factorization), control, False, False, 0.0,
-                      no_forces)
+                      (residual, band, band[:0], pivots, factorization), control, False, False, 0.0, no_forces)
 
 
 @njit(cache=True)

@@ -56,7 +56,7 @@ from needle_common.ros.runner import run_node
 from needle_common.ros.tf_output import TfOutput, transform_stamped
 from needle_sim_ros.parameters.simulator import FIXED_AT_CONSTRUCTION, SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
-    LATE_POSE_WAIT, TIP_FORCE_PARAMETER, TIP_LOAD_TOPIC, compile_kernels, model_builder_from_parameters,
+    LATE_POSE_WAIT, TIP_FORCE_PARAMETER, compile_kernels, model_builder_from_parameters,
     simulation_from_parameters, step_wrenches)
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
@@ -281,23 +281,20 @@ class NeedleSimulatorNode(LifecycleNode):
     def on_twist(self, msg: TwistStamped) -> None:
         if not self.active:
             return
-        v, w = msg.twist.linear, msg.twist.angular
         try:
             with self._lock:
-                self.inputs.set_twist(msg.header.frame_id, (v.x, v.y, v.z), (w.x, w.y, w.z), self.now_seconds())
+                self.inputs.on_twist(msg, self.now_seconds())
         except InputRejected as error:
             self.counters_other[error.kind] += 1
             self.warn_throttled(error.kind, f"ignoring {error}")
 
     def on_tip_load(self, msg: WrenchStamped) -> None:
         """A force on the tip from a topic (a recorded experiment's tip mass); replaces the previous one."""
-        f = msg.wrench.force
         try:
             with self._lock:
                 if self.sim is None:
                     return
-                self.inputs.set_point_load(TIP_LOAD_TOPIC, self.props.length, msg.header.frame_id, (f.x, f.y, f.z),
-                                           "tip_load_rejected")
+                self.inputs.on_tip_load(msg)
         except InputRejected as error:
             self.counters_other[error.kind] += 1
             self.warn_throttled(error.kind, f"ignoring tip load: {error}")

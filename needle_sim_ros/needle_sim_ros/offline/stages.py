@@ -45,7 +45,7 @@ from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
 from needle_sim_ros.messages.shape import Stamp, Tag, shape_arrays, shape_error_cdr, stamp_ns, stamp_of
 from needle_sim_ros.model import ModelShape
-from needle_sim_ros.simulation import TIP_LOAD_TOPIC, simulation_from_parameters, step_wrenches
+from needle_sim_ros.simulation import simulation_from_parameters, step_wrenches
 
 
 class MeasuredShape(NamedTuple):
@@ -99,17 +99,14 @@ class SimulatorStage:
             self._reject(f"base pose {verdict.value}")
 
     def on_twist(self, msg: TwistStamped, now_ns: int) -> None:
-        v, w = msg.twist.linear, msg.twist.angular
         try:
-            self.inputs.set_twist(msg.header.frame_id, (v.x, v.y, v.z), (w.x, w.y, w.z), now_ns * 1e-9)
+            self.inputs.on_twist(msg, now_ns * 1e-9)
         except InputRejected as error:
             self._reject(error.kind)
 
     def on_tip_load(self, msg: WrenchStamped, now_ns: int) -> None:
-        f = msg.wrench.force
         try:
-            self.inputs.set_point_load(TIP_LOAD_TOPIC, self.props.length, msg.header.frame_id, (f.x, f.y, f.z),
-                                       "tip_load_rejected")
+            self.inputs.on_tip_load(msg)
         except InputRejected as error:
             self._reject(error.kind)
 
