@@ -75,7 +75,6 @@ class SimulatorStage:
         self.sim = simulation_from_parameters(p)
         self.sim.max_catch_up = math.inf
         self.inputs = SimulatorInputs(self.sim, p["frames.world"], p["frames.base"])  # simulated time: stamps kept
-        self.props = self.sim.model.props
         self.shape_every = max(1, int(round(1.0 / (p["rates.shape_hz"] * p["integrator.dt"]))))
         self.rejected: dict[str, int] = {}
         self.core_seconds = 0.0  # wall time in NeedleSimulation.advance (base trajectory, steps, reaction wrench)
