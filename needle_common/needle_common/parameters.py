@@ -335,27 +335,31 @@ def load_params_file(path: str | Path, node_name: str, specs: Sequence[ParamSpec
 
 
 class RosArguments(NamedTuple):
-    """The parts of a command line's ``--ros-args`` that set a node's parameters."""
+    """The parts of a command line's ``--ros-args`` that set a node's parameters, and the command line less its
+    ``--params-file FILE`` pairs (``rcl_arguments``: rcl would parse the files' contents, which
+    :func:`check_ros_arguments` checks with messages that name the problem)."""
 
     params_files: list[str]
     node_name: str | None                   # the __node remap, if any
     namespace: str
     overrides: list[tuple[str | None, str]]  # (node the rule is for, or None for every node; name) of -p/--param
+    rcl_arguments: list[str]
 
 
 def ros_arguments(argv: Sequence[str]) -> RosArguments:
     """Params files, node name remap, namespace and parameter overrides from the ``--ros-args`` parts of argv."""
-    parsed = RosArguments([], None, "/", [])
+    parsed = RosArguments([], None, "/", [], [])
     inside, k = False, 0
     while k < len(argv):
-        arg = argv[k]
+        arg, start = argv[k], k
         if arg == "--ros-args":
             inside = True
         elif arg == "--":
             inside = False
         elif inside and arg == "--params-file" and k + 1 < len(argv):
             parsed.params_files.append(argv[k + 1])
-            k += 1
+            k += 2
+            continue
         elif inside and arg in ("-p", "--param") and k + 1 < len(argv):
             target, _, name = argv[k + 1].partition(":=")[0].rpartition(":")
             parsed.overrides.append((target or None, name))
@@ -368,6 +372,7 @@ def ros_arguments(argv: Sequence[str]) -> RosArguments:
                 parsed = parsed._replace(namespace=rule.split(":=", 1)[1])
             k += 1
         k += 1
+        parsed.rcl_arguments.extend(argv[start:k])
     return parsed
 
 

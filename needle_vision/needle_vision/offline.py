@@ -29,7 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from needle_vision.detection.background import BackgroundModel
-from needle_common.bag_reader import BagMessage, BagReader, BagReadError, absolute_topic
+from needle_common.bag_reader import BagReader, BagReadError, absolute_topic
 from needle_vision.streams.base_pose import store_base_pose
 from needle_vision.calibration.rig import CalibrationError, StereoRig, rig_from_calibration_files, rig_from_camera_infos
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
@@ -100,25 +100,6 @@ def folder_source(folder: Path, fps: float) -> PairSource:
     return PairSource(len(common), jobs, None, "left_optical")
 
 
-def _bag_reader(path: Path) -> BagReader:
-    """The bag at ``path`` (files without a summary are read too: their counts stay unknown); InputError naming the
-    problem."""
-    if path.is_dir() and not any(path.glob("*.mcap")) and not (path / "metadata.yaml").is_file():
-        raise InputError(f"'{path}' is neither an .mcap file, a rosbag2 folder nor a folder with left/ and right/")
-    try:
-        return BagReader(path, require_summary=False)
-    except BagReadError as error:
-        raise InputError(str(error)) from error
-
-
-def _bag_records(reader: BagReader, topics: list[str]) -> Iterator[BagMessage]:
-    """The messages of ``topics`` in log-time order (payloads are views); unreadable files -> InputError."""
-    try:
-        yield from reader.messages(topics)
-    except BagReadError as error:
-        raise InputError(str(error)) from error
-
-
 def _bag_topic(reader: BagReader, topic: str) -> tuple[int, str] | None:
     """Message count and schema name of ``topic`` in the bag's summaries ((0, ""): none; None: a file lacks one)."""
     recorded = reader.topics.get(absolute_topic(topic))
@@ -131,7 +112,7 @@ def bag_rig(reader: BagReader, left_info_topic: str, right_info_topic: str) -> S
     """The rig from the first camera_info message of each camera in the bag."""
     topics = {absolute_topic(t): side for t, side in ((left_info_topic, "left"), (right_info_topic, "right"))}
     infos: dict[str, CameraInfo] = {}
-    with closing(_bag_records(reader, sorted(topics))) as records:
+    with closing(reader.messages(sorted(topics))) as records:
         for topic, schema, _, data in records:
             if schema != CAMERA_INFO_TYPE:
                 raise InputError(f"topic {topic} of '{reader.path}' has type '{schema}', not {CAMERA_INFO_TYPE}")
@@ -167,7 +148,7 @@ def bag_source(reader: BagReader, left_topic: str, right_topic: str, tolerance: 
         source.poses_skipped.clear()
         pairer = StampPairer(tolerance, queue_size)
         index, poses = 0, []
-        for topic, schema, _, data in _bag_records(reader, [left_topic, right_topic] + ([base] if base else [])):
+        for topic, schema, _, data in reader.messages([left_topic, right_topic] + ([base] if base else [])):
             if topic == base:
                 if schema != POSE_TYPE:
                     raise InputError(f"base pose topic {topic} of '{path}' has type '{schema}', not {POSE_TYPE}")
@@ -208,7 +189,9 @@ def open_source(path: Path, fps: float, left_topic: str, right_topic: str, toler
         if base_topic:
             raise InputError(f"--base-pose-topic needs an MCAP input; '{path}' is an image folder")
         return folder_source(path, fps)
-    reader = _bag_reader(path)
+    if path.is_dir() and not any(path.glob("*.mcap")) and not (path / "metadata.yaml").is_file():
+        raise InputError(f"'{path}' is neither an .mcap file, a rosbag2 folder nor a folder with left/ and right/")
+    reader = BagReader(path, require_summary=False)  # files without a summary too: their counts stay unknown
     recorded = _bag_topic(reader, base_topic) if base_topic else None
     if recorded is not None and not recorded[0]:
         raise InputError(f"'{path}' has no messages on the base pose topic '{base_topic}'")
@@ -552,7 +535,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     arguments = parser.parse_args(argv)
     return command_status("needle_stereo_offline", run, arguments, (ParameterError, CalibrationError, InputError,
-                                                                    OSError), (NothingMeasured,))
+                                                                    BagReadError, OSError), (NothingMeasured,))
 
 
 if __name__ == "__main__":

@@ -10,6 +10,8 @@ from rclpy._rclpy_pybind11 import RCLError, UnknownROSArgsError
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from needle_common.parameters import ros_arguments
+
 EXIT_BAD_ARGUMENTS = 2
 ROS_ARGUMENTS_USAGE = "--ros-args -p NAME:=VALUE --params-file FILE -r FROM:=TO"
 
@@ -22,28 +24,12 @@ def _rcl_message(error: Exception) -> str:
     return message.removeprefix("Failed to parse ROS arguments: ").removeprefix("failed to initialize rcl: ")
 
 
-def _without_params_files(argv: Sequence[str]) -> list[str]:
-    """argv without the ``--params-file FILE`` pairs of its ``--ros-args`` parts: rcl would parse the files' contents,
-    which :func:`needle_common.parameters.check_ros_arguments` checks with messages that name the problem."""
-    kept, inside, k = [], False, 0
-    while k < len(argv):
-        if argv[k] == "--ros-args":
-            inside = True
-        elif argv[k] == "--":
-            inside = False
-        elif inside and argv[k] == "--params-file" and k + 1 < len(argv):
-            k += 2
-            continue
-        kept.append(argv[k])
-        k += 1
-    return kept
-
-
 def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool) -> list[str] | None:
     """``argv`` without its ROS arguments (``argv[0]`` first), or None after logging one fatal line: the ROS arguments
-    do not parse (params files aside), or there are others and the node takes none (``takes_others`` False)."""
+    do not parse (params files aside: :class:`needle_common.parameters.RosArguments`), or there are others and the
+    node takes none (``takes_others`` False)."""
     try:
-        others = remove_ros_args(_without_params_files(argv))
+        others = remove_ros_args(ros_arguments(argv).rcl_arguments)
     except (UnknownROSArgsError, RCLError) as error:
         usage = f"{name} --help" if takes_others else f"{name} {ROS_ARGUMENTS_USAGE}"
         logger.fatal(f"invalid ROS arguments: {_rcl_message(error)} (usage: {usage})")

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 import yaml
 
+from needle_common.bag_reader import BagReadError
 from needle_common.cli_types import command_status, non_negative, positive, positive_int
 from needle_common.output_files import write_atomically
 from needle_vision.calibration.rig import CalibrationError, CameraCalibration, StereoRig, camera_calibration_yaml
@@ -191,8 +192,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="largest stamp difference of a pair [s]")
     parser.add_argument("--workers", type=positive_int, default=min(4, os.cpu_count() or 1), help="detection threads")
     arguments = parser.parse_args(argv)
-    return command_status("needle_stereo_calibrate", run, arguments, (InputError, CalibrationError, OSError),
-                          (CalibrationFailed,))
+    return command_status("needle_stereo_calibrate", run, arguments,
+                          (InputError, BagReadError, CalibrationError, OSError), (CalibrationFailed,))
 
 
 if __name__ == "__main__":

@@ -379,14 +379,6 @@ def _running_median(values, size, mirror):  # pragma: no cover - compiled
     return out
 
 
-def _median_filter(values: np.ndarray, size: int, mode: str) -> np.ndarray:
-    """scipy.ndimage.median_filter of 1D ``values`` (mode 'mirror' or 'nearest'), compiled where the window
-    reflects at most once (the usual case; scipy's repeated reflection otherwise)."""
-    if size > len(values):
-        return median_filter(values, size=size, mode=mode)
-    return _running_median(np.ascontiguousarray(values, dtype=float), size, mode == "mirror")
-
-
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
 #: tapered (a bevel seen side-on): over 20 noise seeds a flat end's ratio is 0.85-1.14, a 1 mm bevel's 1.15-1.75.
 #: Both profiles must fall so (:func:`_falls_slowly`): a bright needle's relative contrast follows the background's
@@ -980,8 +972,11 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     if len(keep) == 0:
         raise NoNeedleError("the needle's slices have no contrast")
     # Between the first and last full slice a slice is compared with the median of its neighbours above a floor
-    # (adaptive along the curve: a faded stretch is followed; the floor keeps gaps and background texture out).
-    local = _median_filter(width_contrast[keep], config.local_window, "mirror")
+    # (adaptive along the curve: a faded stretch is followed; the floor keeps gaps and background texture out),
+    # compiled where the window reflects at most once (the usual case; scipy's repeated reflection otherwise).
+    window, widths = config.local_window, width_contrast[keep]
+    local = median_filter(widths, size=window, mode="mirror") if window > len(widths) else _running_median(
+        np.ascontiguousarray(widths, dtype=float), window, True)
     kept = _kept_slices(points, keep, full, width_contrast, local, config.min_profile_fraction,
                         config.profile_half_width)
     if len(kept) < 3:
