@@ -104,17 +104,6 @@ def interpolate(slots: np.ndarray, S: np.ndarray, x: np.ndarray) -> np.ndarray:
     return values
 
 
-@njit(cache=True)
-def unit_tangents(S_x: np.ndarray, slots: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """r_x / |r_x| at each point of an interpolation table, (k, 3): the needle's unit tangents."""
-    tangents = interpolate(slots, S_x, q)
-    for k in range(tangents.shape[0]):
-        norm = np.sqrt(tangents[k, 0] ** 2 + tangents[k, 1] ** 2 + tangents[k, 2] ** 2)
-        for i in range(3):
-            tangents[k, i] /= norm
-    return tangents
-
-
 @njit(cache=True, inline="always")
 def search_right(sorted_values: np.ndarray, value: float) -> int:
     """``np.searchsorted(sorted_values, value, side="right")`` of one value by bisection (NaN last, as NumPy sorts

@@ -13,7 +13,7 @@ from numba import njit
 
 from needle_sim_ros.model.forces import scatter_point
 from needle_sim_ros.model.kinematics import dot3, offset_dot
-from needle_sim_ros.model.mesh import hermite_shapes, interpolate, search_right, unit_tangents
+from needle_sim_ros.model.mesh import hermite_shapes, interpolate, search_right
 
 from .geometry import TissueBlock
 from .karnopp import axial_traction
@@ -103,7 +103,12 @@ def point_table(weights, S, S_x, anchors, tangents, stiffness, damping, coulomb,
 @njit(cache=True)
 def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
-    return interpolate(slots, S, q), unit_tangents(S_x, slots, q)
+    r, tangents = interpolate(slots, S, q), interpolate(slots, S_x, q)
+    for p in range(slots.shape[0]):
+        norm = np.sqrt(dot3(tangents[p], tangents[p]))
+        for i in range(3):
+            tangents[p, i] /= norm
+    return r, tangents
 
 
 @njit(cache=True)
