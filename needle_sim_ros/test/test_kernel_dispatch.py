@@ -106,7 +106,7 @@ def test_the_tissue_run_types_no_argument_in_python(monkeypatch):
     for k in range(950):
         records += simulation.advance_to(0.051 + 1e-3 * k)
     assert len(records) == 950 and not typed, sorted(set(typed))
-    assert simulation.data.force_states[0].contact.punctured  # the run went through the tissue (a first view)
+    assert simulation.data.force_states[0].records[0].punctured  # the run went through the tissue
 
 
 @pytest.mark.parametrize("n_elements", [1, 3, 10])

@@ -325,7 +325,7 @@ def _inserted(overrides: dict | None = None, seconds: float = 0.7):
     for k in range(int(round(seconds * 1e3))):
         sim.offer_pose(k * 1e-3, *inserting(k * 1e-3))
         sim.advance(k * 1e-3, deterministic=True)
-    assert sim.extra_forces and sim.data.force_states[0].contact.track.started
+    assert sim.extra_forces and sim.data.force_states[0].records[0].arc.size  # the track started
     return sim
 
 
@@ -459,7 +459,7 @@ def test_a_copy_of_the_data_replays_an_insertion_exactly():
         return pickle.dumps(wrenches), _simulation_state(sim, False)
 
     first = run()
-    assert sim.data.force_states[0].contact.track.length > saved.force_states[0].contact.track.length
+    assert sim.data.force_states[0].records[0].arc[-1] > saved.force_states[0].records[0].arc[-1]  # the track grew
     sim.data.restore(saved)
     assert run() == first
 

@@ -76,8 +76,8 @@ def relative_difference(a, b) -> float:
 def test_the_compiled_run_is_the_general_step(law, monkeypatch):
     general, general_records, general_advances = insert(False, LAWS[law], monkeypatch)
     compiled, compiled_records, compiled_advances = insert(True, LAWS[law], monkeypatch)
-    contact = general.data.force_states[0].contact
-    assert contact.punctured and contact.track.length > 4e-3 and contact.at_front  # it cut its way in
+    contact = general.data.force_states[0].records[0]
+    assert contact.punctured and contact.arc[-1] > 4e-3 and contact.at_front  # it cut its way in
     assert general_advances == len(general_records) > 1000 and compiled_advances <= 2  # the paths taken
     for a, b in zip(general_records, compiled_records, strict=True):
         assert a.t == b.t
@@ -104,7 +104,7 @@ def test_a_hook_on_every_step_keeps_the_tissue_steps_compiled(monkeypatch):
     for k in range(0, 600, 10):
         sim.offer_pose(k * 1e-3, *pose(k * 1e-3))
         records += sim.advance(k * 1e-3, deterministic=True)
-    assert len(records) == 590 and sim.data.force_states[0].contact.punctured
+    assert len(records) == 590 and sim.data.force_states[0].records[0].punctured
     assert len(calls) <= 2  # the first step (no consistent accelerations yet) and nothing else
     assert seen == [(record.t, record.t) for record in records]
 

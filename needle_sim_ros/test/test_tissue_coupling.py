@@ -89,13 +89,13 @@ def test_contact_keeps_the_segment_blocks_of_its_track(model):
 def test_shaft_support_jacobians_match_finite_differences_in_stick_and_slip(model):
     tissue = build_tissue_model(config(bevel_tip__enable=False), model)
     state, base, own = inserted_state(model, tissue, 0.03)
-    assert own.shaft.active.sum() >= 10
     contact, shaft = own.records
+    assert shaft.active.sum() >= 10
     points = shaft.points.copy()
     lateral, axial = points[:shaft.lateral_count], points[shaft.lateral_count:]
     assert axial[:, WEIGHT].sum() == pytest.approx(0.03)            # weights add up to the inserted length
     # the lateral springs hold the cut part: all of it but the last track spacing at most
-    assert 0.03 - own.contact.track.spacing <= lateral[:, WEIGHT].sum() <= 0.03 + 1e-9
+    assert 0.03 - tissue.contact.spacing <= lateral[:, WEIGHT].sum() <= 0.03 + 1e-9
     # push every other anchor beyond the stick band (0.3 mm): those points slip, the others stick
     axial[::2, ANCHOR:ANCHOR + 3] -= 1e-3 * axial[::2, TANGENT:TANGENT + 3]
     moved = shaft._replace(points=points)
@@ -113,12 +113,12 @@ def test_bevel_and_tip_resistance_jacobians_match_finite_differences(model, beve
                                       shaft__lateral_support=False, shaft__axial_model="none"), model)
     # before puncture: capsule stiffness along the entry normal
     state, base, own = inserted_state(model, tissue, 0.003)
-    assert not own.contact.punctured
+    assert not own.records[0].punctured
     q, qd = perturbed(state, np.random.default_rng(5))
     assert np.abs(finite_difference_check(tissue.at(own)[0], model, q, qd, base).Q).max() > 0
     # after puncture, cutting at 6 mm/s (inside the 10 mm/s ramp of F_c): tip force depends on r_x and v
     state, base, own = inserted_state(model, tissue, 0.02, velocity=0.006, t=1.0, own=own)
-    assert own.contact.punctured and own.contact.at_front
+    assert own.records[0].punctured and own.records[0].at_front
     punctured, cutting = own.records[-1]
     assert punctured and cutting and (not bevel or own.records[2][0] > 0)   # the bevel's scale
     q, qd = perturbed(state, np.random.default_rng(6))

@@ -3,17 +3,28 @@ import numpy as np
 import pytest
 
 from needle_sim_ros.tissue.geometry import LATERAL_ROWS, TissueBlock, TissueLayer, inserted_interval, layer_rows
-from needle_sim_ros.tissue.track import Track, locate_on_polyline, project_on_polyline
+from needle_sim_ros.tissue.track import cut_polyline, locate_on_polyline, project_on_polyline
 
 
-def locate(track: Track, coordinate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def started(entry: np.ndarray, direction: np.ndarray) -> tuple:
+    """A track (vertices, arc lengths, end tangent) of the entry point alone, heading along ``direction``."""
+    return entry.reshape(1, 3).astype(float), np.zeros(1), direction / np.linalg.norm(direction)
+
+
+def ahead(track: tuple, point: np.ndarray) -> float:
+    """Track coordinate of a point near the end, measured along the end tangent (beyond the length: uncut)."""
+    vertices, arc, end_tangent = track
+    return arc[-1] + (point - vertices[-1]) @ end_tangent
+
+
+def locate(track: tuple, coordinate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Points and unit tangents of the track at coordinates (compiled kernel)."""
-    return locate_on_polyline(track.vertices, track.arc_lengths, track.end_tangent(), coordinate)
+    return locate_on_polyline(*track, coordinate)
 
 
-def project(track: Track, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def project(track: tuple, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closest track coordinates and distances of points (compiled kernel)."""
-    return project_on_polyline(track.vertices, track.arc_lengths, track.end_tangent(), np.ascontiguousarray(points))
+    return project_on_polyline(*track, np.ascontiguousarray(points))
 
 
 def layer(thickness, stiffness=1.0):
@@ -44,37 +55,35 @@ def test_inserted_interval_of_a_tilted_straight_needle():
 
 
 def test_track_cuts_locates_and_projects():
-    fresh = Track(spacing=0.001)
-    track = fresh.start(np.array([0.1, 0, 0]), np.array([2.0, 0, 0]))
-    assert not fresh.started and track.started and track.length == 0.0
+    spacing = 0.001
+    track = started(np.array([0.1, 0, 0]), np.array([2.0, 0, 0]))
     points, tangents = locate(track, np.array([0.003]))                 # straight continuation before any cut
     np.testing.assert_allclose(points[0], [0.103, 0, 0])
-    tips = [track.vertices[0]]
+    tips = [track[0][0]]
     for x in np.arange(0.1007, 0.12, 0.0007):                       # tip advancing 0.7 mm a step on a parabola
         tips.append(np.array([x, 0.5 * (x - 0.1) ** 2 / 0.05, 0]))
-        track = track.cut(tips[-1])
-    tip = tips[-1]
+        track = cut_polyline(*track, tips[-2], tips[-1], spacing)
+    tip, (vertices, arc, end_tangent) = tips[-1], track
     # path memory: every vertex after the entry point lies on the tip's path (the chords between its positions),
     # exactly one spacing ahead of the previous vertex along its end tangent
-    for vertex in track.vertices[1:]:
+    for vertex in vertices[1:]:
         chords = [np.linalg.norm(np.cross(vertex - a, b - a)) / np.linalg.norm(b - a)
                   + max(np.dot(vertex - b, b - a), np.dot(vertex - a, a - b), 0.0) for a, b in zip(tips, tips[1:])]
         assert min(chords) < 1e-12
-    segments = np.linalg.norm(np.diff(track.vertices, axis=0), axis=1)
-    assert np.all((segments >= track.spacing * (1 - 1e-9)) & (segments < track.spacing * 1.01))
-    assert 0.0 <= track.coordinate_ahead(tip) - track.length < track.spacing           # the tip is at the front
+    segments = np.linalg.norm(np.diff(vertices, axis=0), axis=1)
+    assert np.all((segments >= spacing * (1 - 1e-9)) & (segments < spacing * 1.01))
+    assert 0.0 <= ahead(track, tip) - arc[-1] < spacing           # the tip is at the front
     # the polyline through the tip's positions stays on the parabola to within its chord sag kappa s^2 / 8
     assert project(track, tip[None])[1][0] < 1e-5
-    short = track.cut(track.vertices[-1] + 0.5 * track.spacing * track.end_tangent())
-    assert short.vertices is track.vertices                            # half a spacing ahead: nothing cut
-    np.testing.assert_array_equal(short.previous_tip, track.vertices[-1] + 0.5 * track.spacing * track.end_tangent())
-    points, tangents = locate(track, np.array([0.0, 0.01, track.length + 0.002]))
+    short = cut_polyline(*track, tip, vertices[-1] + 0.5 * spacing * end_tangent, spacing)
+    assert short[0] is vertices                                     # half a spacing ahead: nothing cut
+    points, tangents = locate(track, np.array([0.0, 0.01, arc[-1] + 0.002]))
     np.testing.assert_allclose(points[0], [0.1, 0, 0])
-    np.testing.assert_allclose(points[2], track.vertices[-1] + 0.002 * track.end_tangent())
+    np.testing.assert_allclose(points[2], vertices[-1] + 0.002 * end_tangent)
     np.testing.assert_allclose(np.linalg.norm(tangents, axis=1), 1.0)
     normal = np.cross(tangents, [0, 0, 1.0])                        # offsets perpendicular to the track
     coordinate, distance = project(track, points + 1e-4 * normal)
-    np.testing.assert_allclose(coordinate, [0.0, 0.01, track.length + 0.002], atol=1e-7)
+    np.testing.assert_allclose(coordinate, [0.0, 0.01, arc[-1] + 0.002], atol=1e-7)
     np.testing.assert_allclose(distance, 1e-4, rtol=1e-3)
 
 
@@ -91,10 +100,10 @@ def test_track_keeps_up_with_a_tip_jittering_sideways():
     0.1 mm segment, which the jitter tilted by up to ~30 deg (the front then receded from the tip and the track
     stopped growing: 62 vertices instead of 80 over 8 mm in an insertion)."""
     rng = np.random.default_rng(3)
-    track = Track(spacing=1e-4).start(np.zeros(3), np.array([1.0, 0, 0]))
+    spacing, track, previous = 1e-4, started(np.zeros(3), np.array([1.0, 0, 0])), np.zeros(3)
     for k in range(1, 401):
         tip = np.array([2e-5 * k, *rng.uniform(-3e-5, 3e-5, 2)])
-        track = track.cut(tip)
-        assert -track.spacing <= track.coordinate_ahead(tip) - track.length < track.spacing
-    assert 7.85e-3 < track.length < 9e-3  # the polyline through the jitter is a little longer than the advance
-    assert abs(len(track.vertices) - 1 - 80) <= 2
+        track, previous = cut_polyline(*track, previous, tip, spacing), tip
+        assert -spacing <= ahead(track, tip) - track[1][-1] < spacing
+    assert 7.85e-3 < track[1][-1] < 9e-3  # the polyline through the jitter is a little longer than the advance
+    assert abs(len(track[0]) - 1 - 80) <= 2

@@ -21,7 +21,10 @@ from needle_sim_ros.simulation import NeedleSimulation
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 
 
-def add_needle_arguments(parser: argparse.ArgumentParser) -> None:
+def scenario_parser(subparsers, name: str, doc: str, summary: str, dt: bool = True) -> argparse.ArgumentParser:
+    """The sub-command ``name`` (``doc``: its description) with the needle set-up options, and ``--dt`` if ``dt``."""
+    parser = subparsers.add_parser(name, help=summary, description=doc,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--params", type=Path, action="append", default=[], metavar="FILE",
                         help="ROS 2 params file (e.g. the simulator's) with needle.*, damping.*, integrator.* "
                              "(repeatable, applied in order; default: built-in defaults, the seed 000 needle)")
@@ -31,6 +34,9 @@ def add_needle_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--centerline-samples", type=int, default=41, help="centerline points written to JSON")
     parser.add_argument("--json", type=Path, default=None, help="write the result JSON here")
     parser.add_argument("--plot", type=Path, default=None, help="write a PNG figure here")
+    if dt:
+        parser.add_argument("--dt", type=float, default=None, help="time step [s] (default: integrator.dt of config)")
+    return parser
 
 
 # Model keys the node does not declare (a scenario's mesh and fixtures); empty lists stand for "none".
@@ -122,30 +128,25 @@ def save_figure(fig, path: Path, dpi: int = 120) -> Path:
     return path
 
 
-def advance_sampled(simulation: NeedleSimulation, n_steps: int, every: int, record: Callable[[], None]) -> tuple:
+def run_sampled(simulation: NeedleSimulation, integrator_kwargs: dict, n_steps: int, every: int,
+                sample: Callable[[], dict]) -> tuple[dict, list[dict]]:
     """Advance the simulation (:meth:`NeedleSimulation.advance_to`, the simulator's one time loop) by n_steps
-    steps of its dt, calling ``record()`` at the start, every ``every`` steps and at the end. Returns (integration
-    wall time [s] excluding recording, Newton iterations in all)."""
-    record()
-    origin, dt = simulation.state.t, simulation.dt
+    steps of its dt, taking ``sample()`` at the start, every ``every`` steps and at the end. Returns the fields every
+    scenario result has (mesh, material, integrator, damping and the integration's effort: its wall time [s]
+    without the sampling, Newton iterations) and the samples."""
+    samples = [sample()]
+    origin, dt, model = simulation.state.t, simulation.dt, simulation.model
     integration_wall, iterations = 0.0, 0
     for k in [*range(every, n_steps, every), n_steps] if n_steps > 0 else []:
         tick = time.perf_counter()
         records = simulation.advance_to(origin + k * dt)
         integration_wall += time.perf_counter() - tick
         iterations += sum(step.newton_iterations for step in records)
-        record()
-    return integration_wall, iterations
-
-
-def run_summary(model: NeedleModel, integrator_kwargs: dict, dt: float, n_steps: int, integration_wall: float,
-                iterations: int) -> dict:
-    """The fields every scenario result has: mesh, material, integrator, damping and the integration's effort
-    (``integration_wall`` [s] and ``iterations`` as :func:`advance_sampled` returns them)."""
+        samples.append(sample())
     return {"elements": model.n_elements, "material": material(model.props),
             "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss,
             "integrator": {**integrator_kwargs},
             "rayleigh": {"alpha": model.rayleigh_alpha, "beta": model.rayleigh_beta},
             "dt_s": dt, "steps": n_steps, "simulated_time_s": n_steps * dt,
             "integration_wall_time_s": integration_wall, "real_time_factor": n_steps * dt / integration_wall,
-            "mean_newton_iterations": iterations / max(n_steps, 1)}
+            "mean_newton_iterations": iterations / max(n_steps, 1)}, samples

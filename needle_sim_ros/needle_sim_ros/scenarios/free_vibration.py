@@ -19,8 +19,8 @@ from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, PointLoad, bu
 
 from needle_sim_ros.simulation import NeedleSimulation
 
-from .common import (IDENTITY, add_needle_arguments, advance_sampled, figure, needle_configuration, run_summary,
-                     save_figure, shape_json, wrench_json, write_outputs)
+from .common import (IDENTITY, figure, needle_configuration, run_sampled, save_figure, scenario_parser, shape_json,
+                     wrench_json, write_outputs)
 
 
 def simulate_release(props, build: dict, integrator_kwargs: dict, tip_mass: float, dt: float, duration: float,
@@ -40,24 +40,20 @@ def simulate_release(props, build: dict, integrator_kwargs: dict, tip_mass: floa
     simulation = NeedleSimulation.prescribed(model, integrator, dt, lambda t: base, state)
     n_steps = int(round(duration / dt))
     every = max(1, int(round(sample_interval / dt)))
-    samples = []
 
-    def record() -> None:
+    def sample() -> dict:
         state = simulation.state
         energies = {"kinetic_energy_j": kinetic_energy(model, state.qd),
                     "elastic_energy_j": elastic_energy(model, state.q),
                     "gravitational_energy_j": gravitational_energy(model, state.q)}
-        samples.append({"t_s": state.t, "tip_position_m": state.q[-6:-3].tolist(), **energies,
-                        "total_energy_j": sum(energies.values()),
-                        "base_wrench": wrench_json(reaction_wrench(model, state, base, simulation.forces))})
+        return {"t_s": state.t, "tip_position_m": state.q[-6:-3].tolist(), **energies,
+                "total_energy_j": sum(energies.values()),
+                "base_wrench": wrench_json(reaction_wrench(model, state, base, simulation.forces))}
 
-    integration_wall, iterations = advance_sampled(simulation, n_steps, every, record)
-    state = simulation.state
-    final = samples[-1]
-    return {"scenario": "free_vibration", **run_summary(model, integrator_kwargs, dt, n_steps, integration_wall,
-                                                         iterations),
-            "tip_mass_kg": tip_mass, **shape_json(model, state.q, base, n_samples),
-            "base_wrench": final["base_wrench"], "wall_time_s": time.perf_counter() - start, "samples": samples}
+    summary, samples = run_sampled(simulation, integrator_kwargs, n_steps, every, sample)
+    return {"scenario": "free_vibration", **summary, "tip_mass_kg": tip_mass,
+            **shape_json(model, simulation.state.q, base, n_samples), "base_wrench": samples[-1]["base_wrench"],
+            "wall_time_s": time.perf_counter() - start, "samples": samples}
 
 
 def plot_release(result: dict, path) -> None:
@@ -81,18 +77,15 @@ def plot_release(result: dict, path) -> None:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser("free_vibration", help="release of a tip mass, energy over time",
-                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = scenario_parser(subparsers, "free_vibration", __doc__, "release of a tip mass, energy over time")
     parser.add_argument("--tip-mass", type=float, default=0.02, help="released tip mass [kg]")
     parser.add_argument("--duration", type=float, default=1.0, help="simulated time [s]")
-    parser.add_argument("--dt", type=float, default=None, help="time step [s] (default: integrator.dt of config)")
     parser.add_argument("--method", choices=("generalized_alpha", "hht", "backward_euler"), default=None,
                         help="integrator (overrides config)")
     parser.add_argument("--rho-inf", type=float, default=None, help="spectral radius at infinity (overrides config)")
     parser.add_argument("--alpha", type=float, default=None, help="Rayleigh alpha [1/s] (overrides config)")
     parser.add_argument("--beta", type=float, default=None, help="Rayleigh beta [s] (overrides config)")
     parser.add_argument("--sample-interval", type=float, default=0.002, help="time between JSON samples [s]")
-    add_needle_arguments(parser)
     return parser
 
 

@@ -24,8 +24,8 @@ from needle_sim_ros.tissue.factory import TissueConfig, build_tissue_model
 
 from needle_sim_ros.simulation import NeedleSimulation
 
-from .common import (add_needle_arguments, advance_sampled, checked_params_file, figure, material,
-                     needle_configuration, run_summary, save_figure, shape_json, write_outputs)
+from .common import (checked_params_file, figure, material, needle_configuration, run_sampled, save_figure,
+                     scenario_parser, shape_json, write_outputs)
 from .insertion_motion import InsertionMotion
 
 
@@ -73,31 +73,32 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
     simulation = NeedleSimulation.prescribed(model, integrator, dt, motion.base_at, state,
                                              [build_tissue_model(config, model)], motion.motions_at)
     n_steps = int(np.ceil(motion.duration / dt))
-    series: dict[str, list] = {key: [] for key in (
-        "time_s", "insertion_depth_m", "tip_lateral_deflection_m", "tip_position_m", "tip_offset_m", "tip_tangent",
-        "roll_rad",
-        "inserted_length_m", "base_force_n", "base_torque_nm", "tissue_tip_force_n", "tissue_axial_force_n")}
 
-    def record() -> None:
+    def sample() -> dict:
         state, base = simulation.state, simulation.base
         tip, tip_gradient = state.q[-6:-3], state.q[-3:]
         wrench = reaction_wrench(model, state, base, simulation.forces)
         readout = simulation.tissue_readout()
-        values = (state.t, readout.insertion_depth, float(np.hypot(tip[1], tip[2])), tip.tolist(),
-                  [float(tip[1]), float(tip[2])], (tip_gradient / np.linalg.norm(tip_gradient)).tolist(),
-                  float(motion.roll_at(state.t)[0]), readout.inserted_length,
-                  wrench.force_base.tolist(), wrench.torque_base.tolist(), readout.tip_force.tolist(),
-                  readout.axial_force)
-        for key, value in zip(series, values):
-            series[key].append(value)
+        return {"time_s": state.t,
+                "insertion_depth_m": readout.insertion_depth,
+                "tip_lateral_deflection_m": float(np.hypot(tip[1], tip[2])),
+                "tip_position_m": tip.tolist(),
+                "tip_offset_m": [float(tip[1]), float(tip[2])],
+                "tip_tangent": (tip_gradient / np.linalg.norm(tip_gradient)).tolist(),
+                "roll_rad": float(motion.roll_at(state.t)[0]),
+                "inserted_length_m": readout.inserted_length,
+                "base_force_n": wrench.force_base.tolist(),
+                "base_torque_nm": wrench.torque_base.tolist(),
+                "tissue_tip_force_n": readout.tip_force.tolist(),
+                "tissue_axial_force_n": readout.axial_force}
 
     start = time.perf_counter()
-    integration_wall, iterations = advance_sampled(simulation, n_steps, sample_every, record)
+    summary, samples = run_sampled(simulation, integrator_kwargs, n_steps, sample_every, sample)
     state = simulation.state
     wall = time.perf_counter() - start
     winkler = np.asarray(config["tissue.layers.lateral_stiffness"], dtype=float)
     return {
-        "scenario": "insertion", **run_summary(model, integrator_kwargs, dt, n_steps, integration_wall, iterations),
+        "scenario": "insertion", **summary,
         "wall_time_s": wall,
         "motion": {"depths_m": list(motion.waypoints), "speed_m_s": motion.speed, "gap_m": motion.gap,
                    "roll_rad": motion.roll, "spin_rate_rad_s": motion.spin_rate, "duty_cycle": motion.duty_cycle},
@@ -105,7 +106,8 @@ def simulate_insertion(props: NeedleProperties, tissue_config, motion: Insertion
                                   "axial_gauss_points": model.axial_gauss, "bending_gauss_points": model.bending_gauss},
                        "tissue": {k: _json_value(v) for k, v in config.items()},
                        "winkler_modulus_n_m2": _json_value(winkler)},
-        **series, "final": shape_json(model, state.q, motion.base_at(state.t), centerline_samples)}
+        **{key: [s[key] for s in samples] for key in samples[0]},  # one series per sampled quantity
+        "final": shape_json(model, state.q, motion.base_at(state.t), centerline_samples)}
 
 
 def bevel_side_world(result: dict, t: float) -> np.ndarray:
@@ -143,9 +145,7 @@ def plot_deflection(result: dict, path: Path, reference: tuple[np.ndarray, np.nd
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser("insertion", help="insert the needle into a configured tissue",
-                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_needle_arguments(parser)
+    parser = scenario_parser(subparsers, "insertion", __doc__, "insert the needle into a configured tissue")
     parser.add_argument("--speed", type=float, default=0.006, help="insertion speed [m/s] (seed 001: 6 mm/s)")
     parser.add_argument("--depth", type=float, default=0.09, help="final insertion depth [m] (seed 001: 90 mm)")
     parser.add_argument("--retract-to", type=float, default=None,
@@ -155,7 +155,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--spin-rate", type=float, default=0.0, help="duty-cycled spinning rate [rad/s]")
     parser.add_argument("--duty-cycle", type=float, default=0.0,
                         help="fraction of each period spent spinning one turn at --spin-rate [0, 1]")
-    parser.add_argument("--dt", type=float, default=None, help="time step [s] (default: integrator.dt of config)")
     parser.add_argument("--sample-every", type=int, default=10, help="record every n-th step")
     return parser
 

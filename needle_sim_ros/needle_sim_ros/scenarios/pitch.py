@@ -19,8 +19,8 @@ from needle_sim_ros.model import (BaseMotion, Fixture, Gravity, Integrator, buil
 
 from needle_sim_ros.simulation import NeedleSimulation
 
-from .common import (add_needle_arguments, advance_sampled, figure, needle_configuration, run_summary, save_figure,
-                     shape_json, wrench_json, write_outputs)
+from .common import (figure, needle_configuration, run_sampled, save_figure, scenario_parser, shape_json, wrench_json,
+                     write_outputs)
 
 
 def pitch_motion(amplitude: float, frequency: float):
@@ -61,20 +61,19 @@ def simulate_pitch(props, build: dict, integrator_kwargs: dict, dt: float, ampli
     simulation = NeedleSimulation.prescribed(model, integrator, dt, motion, state)
     n_steps = int(round(periods / frequency / dt))
     every = max(1, int(round(sample_interval / dt)))
-    samples = []
 
-    def record() -> None:
+    def sample() -> dict:
         state, base = simulation.state, simulation.base
         angle = amplitude * math.sin(2.0 * math.pi * frequency * state.t)
-        samples.append({"t_s": state.t, "base_pitch_rad": angle, **shape_json(model, state.q, base, n_samples),
-                        "centerline_world_m": centerline(model, state.q, n_samples).points.tolist(),
-                        "base_wrench": wrench_json(reaction_wrench(model, state, base, simulation.forces))})
+        return {"t_s": state.t, "base_pitch_rad": angle, **shape_json(model, state.q, base, n_samples),
+                "centerline_world_m": centerline(model, state.q, n_samples).points.tolist(),
+                "base_wrench": wrench_json(reaction_wrench(model, state, base, simulation.forces))}
 
-    integration_wall, iterations = advance_sampled(simulation, n_steps, every, record)
+    summary, samples = run_sampled(simulation, integrator_kwargs, n_steps, every, sample)
     final = samples[-1]
-    return {"scenario": "pitch", **run_summary(model, integrator_kwargs, dt, n_steps, integration_wall, iterations),
-            "tip_mass_kg": 0.0, "tip_position_m": final["tip_position_m"], "base_wrench": final["base_wrench"],
-            "centerline_m": final["centerline_m"], "amplitude_rad": amplitude, "frequency_hz": frequency,
+    return {"scenario": "pitch", **summary, "tip_mass_kg": 0.0, "tip_position_m": final["tip_position_m"],
+            "base_wrench": final["base_wrench"], "centerline_m": final["centerline_m"], "amplitude_rad": amplitude,
+            "frequency_hz": frequency,
             "clamp_fraction": clamp_fraction, "wall_time_s": time.perf_counter() - start, "samples": samples}
 
 
@@ -102,15 +101,12 @@ def plot_instants(result: dict, path) -> None:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser("pitch", help="base pitch with the distal part clamped, seed 000 Fig. 8",
-                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = scenario_parser(subparsers, "pitch", __doc__, "base pitch with the distal part clamped, seed 000 Fig. 8")
     parser.add_argument("--amplitude-deg", type=float, default=5.0, help="pitch amplitude [deg] (range = 2 x)")
     parser.add_argument("--frequency", type=float, default=0.2, help="pitch frequency [Hz]")
     parser.add_argument("--periods", type=float, default=1.0, help="simulated periods")
     parser.add_argument("--clamp-fraction", type=float, default=0.4, help="clamped distal fraction of the needle")
-    parser.add_argument("--dt", type=float, default=None, help="time step [s] (default: integrator.dt of config)")
     parser.add_argument("--sample-interval", type=float, default=0.05, help="time between JSON samples [s]")
-    add_needle_arguments(parser)
     return parser
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from needle_sim_ros.model import BaseMotion, Gravity, PointLoad, build_model, reaction_wrench, solve_static
 
-from .common import (IDENTITY, add_needle_arguments, figure, material, needle_configuration, save_figure, shape_json,
+from .common import (IDENTITY, figure, material, needle_configuration, save_figure, scenario_parser, shape_json,
                      wrench_json, write_outputs)
 
 
@@ -56,11 +56,9 @@ def plot_deflections(results: list[dict], path) -> None:
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    parser = subparsers.add_parser("static", help="cantilever with tip mass(es), seed 000 Fig. 7",
-                                   description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = scenario_parser(subparsers, "static", __doc__, "cantilever with tip mass(es), seed 000 Fig. 7", dt=False)
     parser.add_argument("--tip-mass", type=float, nargs="+", default=[0.08],
                         help="tip mass(es) [kg]; several values make a sweep (seed 000: 0 ... 0.08)")
-    add_needle_arguments(parser)
     return parser
 
 

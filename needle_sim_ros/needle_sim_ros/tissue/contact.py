@@ -1,5 +1,5 @@
 """The tissue contact as the shared record of the tissue's contributions: puncture, tip depth and speed, the step's
-duration, whether the tip is at the cut front, and the track cut so far (``track.Track``).
+duration, whether the tip is at the cut front, and the track cut so far (``track``).
 
 It adds no force; the force contributions (``shaft_force``, ``bevel_tip``, ``insertion_profile``) read it after
 each accepted step (``model.step.compose`` with ``shared``). Kernels: ``CONTACT_KERNELS``; its state crosses the
@@ -28,11 +28,11 @@ class ContactRecord(NamedTuple):
     step_duration: float  # [s] since the previous update
     at_front: bool        # the tip at the cut front
     time: float
-    vertices: np.ndarray  # the track (``track.Track``)
+    vertices: np.ndarray  # the track (``track``) [m]: vertices (count, 3) and their arc lengths (count,)
     arc: np.ndarray
-    direction: np.ndarray
-    previous_tip: np.ndarray
-    end_tangent: np.ndarray
+    direction: np.ndarray    # the unit direction at the entry
+    previous_tip: np.ndarray  # the tip at the previous update (the entry point at the start)
+    end_tangent: np.ndarray   # the direction of the cut at the end (``track.chord_tangent``)
     centres: np.ndarray   # the track's ``track.segment_blocks``, made again only when it grows
     radii: np.ndarray
 

@@ -2,14 +2,11 @@
 compiled point-force and contact-point kernels (the contributions themselves: ``contact``, ``shaft_force``,
 ``tip_forces``).
 
-* ``TissueContact``: the block, the capsule puncture and the track cut by the tip; ``ContactState``: the contact
-  after a step, a view of its record.
+* ``TissueContact``: the block, the capsule puncture and the spacing of the track cut by the tip;
 * ``ShaftSupport``: the Winkler lateral support over the cut tissue and an axial stick-slip law (``shaft_laws``) on
-  shaft points; their state ``ShaftState`` (a view).
+  shaft points.
 """
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -21,48 +18,24 @@ from needle_sim_ros.model.mesh import hermite_shapes, interpolate, search_right
 from .geometry import TissueBlock
 from .karnopp import axial_traction
 from .shaft_laws import ShaftLaw
-from .track import Track, locate_on_polyline, project_on_blocks
-
-
-def tip_coordinates(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tip position r and gradient r_x: the last node's coordinates [r, r_x] (model API layout)."""
-    return q[-6:-3], q[-3:]
-
-
-class ContactState(NamedTuple):
-    """The needle-tissue contact after a step (part of the tissue state): capsule punctured, tip depth [m] and
-    axial speed [m/s], the step's duration [s], whether the tip is at the cut front, the state time it was updated
-    at (None: never) and the track cut so far."""
-
-    punctured: bool
-    tip_depth: float
-    tip_axial_speed: float
-    step_duration: float
-    at_front: bool
-    time: float | None
-    track: Track
+from .track import locate_on_polyline, project_on_blocks
 
 
 class TissueContact:
-    """How the needle meets the tissue (immutable): the block, the track spacing, and ``puncture_depth``: the depth
-    [m] the tip must reach before the capsule tears and the track starts (seed 002 d1; None: the tissue is cut from
-    first contact). ``contact.advance_contact`` advances a ``ContactState``."""
+    """How the needle meets the tissue (immutable): the block, the track spacing [m], and ``puncture_depth``: the
+    depth [m] the tip must reach before the capsule tears and the track starts (seed 002 d1; None: the tissue is cut
+    from first contact). ``contact.advance_contact`` advances its record (``contact.ContactRecord``)."""
 
     def __init__(self, block: TissueBlock, spacing: float, puncture_depth: float | None = None) -> None:
+        if not spacing > 0.0:
+            raise ValueError(f"tissue.track.spacing must be > 0, got {spacing!r}")
         self.block = block
+        self.spacing = spacing
         self.puncture_depth = puncture_depth
-        self.initial = ContactState(False, 0.0, 0.0, 0.0, False, None, Track(spacing))
 
 
 LATERAL_GAUSS_POINTS = 3
 _GAUSS_XI, _GAUSS_W = np.polynomial.legendre.leggauss(LATERAL_GAUSS_POINTS)
-
-
-@njit(cache=True)
-def interpolate_pair(slots, S_a, x_a, S_b, x_b):
-    """Two interpolations (k, 3) at interpolation points (model.interpolation): shape functions S_a of
-    coordinates x_a (e.g. S of q: positions) and S_b of x_b (e.g. S of q': velocities, S_x of q: gradients)."""
-    return interpolate(slots, S_a, x_a), interpolate(slots, S_b, x_b)
 
 
 # the columns of a shaft point in the table the assembly reads (``shaft_force.shaft_acting``)
@@ -130,7 +103,7 @@ def point_table(weights, S, S_x, anchors, tangents, stiffness, damping, coulomb,
 @njit(cache=True)
 def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
-    r, tangents = interpolate_pair(slots, S, q, S_x, q)
+    r, tangents = interpolate(slots, S, q), interpolate(slots, S_x, q)
     for p in range(slots.shape[0]):
         norm = np.sqrt(dot3(tangents[p], tangents[p]))
         for i in range(3):
@@ -189,7 +162,7 @@ def entry_coverage(arc_lengths, depth, inside):
 @njit(cache=True)
 def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc, end_tangent, centres, radii,
                        entry_point, entry_normal):
-    """Gauss points of the needle's arc interval in cut tissue (``advance.lateral_part``): weights, slots, S, S_x
+    """Gauss points of the needle's arc interval in cut tissue (``shaft_force.lateral_part``): weights, slots, S, S_x
     (``cut_quadrature``), the rest points on the track (each needle point's projection), the needle tangents and the
     rest points' depths; none if the interval is empty. ``centres``, ``radii``: the track's ``track.segment_blocks``."""
     tip_coordinate = project_on_blocks(vertices, arc, end_tangent, q[-6:-3].reshape(1, 3), centres, radii)[0][0]
@@ -287,18 +260,9 @@ def first_slot_in(slots, slot):
     return False
 
 
-class ShaftState(NamedTuple):
-    """The shaft points' state (part of the tissue state): the track coordinate of each point's stick anchor (k,),
-    which points are inside the tissue (k,) and the axial law's own state (LuGre z [m]; None)."""
-
-    anchor: np.ndarray
-    active: np.ndarray
-    law: object
-
-
 class ShaftSupport:
     """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle
-    (immutable; the points' state is a :class:`ShaftState`).
+    (immutable; the points' state is a ``shaft_force.ShaftRecord``).
 
     Lateral (``lateral``: per-layer ``lateral_stiffness``, ``lateral_damping`` per unit length): springs and
     dampers perpendicular to the track on the needle's arc interval lying in tissue the tip has already cut (path
@@ -308,7 +272,7 @@ class ShaftSupport:
     ``arc_lengths`` (k,), base to tip, with length shares ``weights`` (k,) [m], each anchored to the track once
     inside the tissue (stick-slip); without a law the needle slides freely.  Both are assembled with the model's
     point-force kernel over the points inside the tissue only, so the cost grows with the inserted length.
-    ``shaft_force.advance_shaft`` advances a ``ShaftState`` with ``kernel_arguments``.
+    ``shaft_force.advance_shaft`` advances the record with ``kernel_arguments``.
     """
 
     def __init__(self, model, block: TissueBlock, arc_lengths: np.ndarray, weights: np.ndarray, lateral: bool,
@@ -320,8 +284,6 @@ class ShaftSupport:
             raise ValueError("ShaftSupport: arc_lengths must increase and match weights")
         self.lateral = lateral
         self.axial_law = axial_law or ShaftLaw()
-        k = self.arc_lengths.size
-        self.initial = ShaftState(np.zeros(k), np.zeros(k, dtype=bool), self.axial_law.initial_state)
         margin = 2.0 * float(np.max(np.diff(self.arc_lengths), initial=0.0))
         table = model.interpolation(self.arc_lengths)
         law = self.axial_law

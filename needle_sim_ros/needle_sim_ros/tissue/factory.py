@@ -15,8 +15,8 @@ from .bevel_tip import BevelTip
 from .coupling import ShaftSupport, TissueContact
 from .geometry import LAYER_PARAMETERS, TissueBlock, TissueLayer
 from .insertion_profile import InsertionForceProfile
-from .lugre import LuGreParameters, ModifiedLuGre
-from .shaft_laws import KarnoppShaftFriction, LuGreShaftForce, ProfileShaftFriction
+from .lugre import PARAMETER_NAMES, LuGreParameters, ModifiedLuGre
+from .shaft_laws import KARNOPP, LUGRE, PROFILE, ShaftLaw
 from .tissue_model import TissueModel
 
 AXIAL_MODELS = ("karnopp", "insertion_profile", "lugre", "none")
@@ -113,10 +113,11 @@ class TissueConfig:
             tuple(frequencies[keep]), (cos_coefficients[0], *cos_coefficients[1:][keep]),
             tuple(sin_coefficients[keep]), float(self[p + "cutting_force"]))
 
-    def lugre(self) -> ModifiedLuGre:
-        parameters = LuGreParameters(*(float(self[f"tissue.lugre.{n}"])
-                                       for n in ("f1", "f2", "sigma0", "sigma1", "sigma2", "alpha")))
-        return ModifiedLuGre(parameters, float(self["tissue.lugre.velocity_scale"]))
+    def lugre_parameters(self) -> np.ndarray:
+        """Seed 003's six parameters and v_s (checked by ``ModifiedLuGre``) as ``shaft_laws.LUGRE`` reads them."""
+        lugre = ModifiedLuGre(LuGreParameters(*(float(self[f"tissue.lugre.{n}"]) for n in PARAMETER_NAMES)),
+                              float(self["tissue.lugre.velocity_scale"]))
+        return np.append(lugre.parameters.as_array(), lugre.velocity_scale)
 
 
 def shaft_points(length: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -142,9 +143,11 @@ def build_tissue_model(config, model) -> TissueModel:
     contact = TissueContact(block, float(cfg["tissue.track.spacing"]),
                             profile.puncture_depth if profile_enabled else None)
     stick_stiffness = float(cfg["tissue.shaft.stick_stiffness"])
-    axial_law = {"karnopp": lambda: KarnoppShaftFriction(stick_stiffness),
-                 "insertion_profile": lambda: ProfileShaftFriction(profile, stick_stiffness),
-                 "lugre": lambda: LuGreShaftForce(cfg.lugre()),
+    if axial_model in ("karnopp", "insertion_profile") and not stick_stiffness > 0.0:  # LuGre: the bristle sticks
+        raise ValueError(f"tissue.shaft.stick_stiffness must be > 0, got {stick_stiffness!r}")
+    axial_law = {"karnopp": lambda: ShaftLaw(KARNOPP, np.zeros(0), stick_stiffness),
+                 "insertion_profile": lambda: ShaftLaw(PROFILE, profile.series_parameters, stick_stiffness),
+                 "lugre": lambda: ShaftLaw(LUGRE, cfg.lugre_parameters()),
                  "none": lambda: None}[axial_model]()
     arc_lengths, weights = shaft_points(float(model.props.length), float(cfg["tissue.shaft.point_spacing"]))
     shaft = ShaftSupport(model, block, arc_lengths, weights, bool(cfg["tissue.shaft.lateral_support"]), axial_law)

@@ -30,7 +30,7 @@ def axial_traction(u, v, stick_stiffness, coulomb, viscous, offset, sign_gain, v
 
     The first two terms are the elasto-plastic Karnopp law above (C = C_n, b = b_n); A and B sgn_vs(v), with
     sgn_vs(v) = tanh(v / v_s) (exact sign for v_s = 0), carry a velocity-sign force per length such as the seed
-    003 bracket (``shaft_laws.LuGreShaftForce``).  One implementation for the reference law and the 1 kHz loop.
+    003 bracket (``shaft_laws.LUGRE``).  One implementation for the reference law and the 1 kHz loop.
     """
     holding = stick_stiffness * u
     if holding > coulomb:

@@ -64,24 +64,6 @@ class LuGreParameters:
         return cls(*(float(v) for v in theta))
 
 
-def regularised_sign(velocity, velocity_scale: float):
-    """sgn(v) regularised as tanh(v / v_s); the exact sign for v_s = 0."""
-    velocity = np.asarray(velocity, dtype=float)
-    if velocity_scale <= 0.0:
-        return np.sign(velocity)
-    return np.tanh(velocity / velocity_scale)
-
-
-def stribeck(theta: np.ndarray, depth):
-    """g(l) of eq. 2 [N/m] and dg/dtheta (..., 6)."""
-    f1, f2, _, _, _, alpha = theta
-    decay = np.exp(-alpha * np.asarray(depth, dtype=float))
-    g = np.maximum(f1 + f2 * decay, _G_FLOOR)
-    zeros = np.zeros_like(decay)
-    dg = np.stack([np.ones_like(decay), decay, zeros, zeros, zeros, -f2 * depth * decay], axis=-1)
-    return g, dg
-
-
 @njit(cache=True)
 def stribeck_value(theta: np.ndarray, depth: float) -> float:
     """g(l) of eq. 2 [N/m] alone, for a scalar depth (per step: no derivatives)."""
@@ -172,9 +154,10 @@ def axial_force(z, theta, depth, velocity, velocity_scale):
     """f of eq. 1b (reading above) [N] and df/d(z, theta) (7,) for a scalar depth (0 for depth <= 0)."""
     f1, f2, sigma0, sigma1, sigma2, alpha = theta
     depth = max(depth, 0.0)                                    # no force out of the tissue
-    s = regularised_sign(velocity, velocity_scale)
-    g, dg = stribeck(theta, depth)
+    s = np.tanh(velocity / velocity_scale) if velocity_scale > 0.0 else np.sign(velocity)  # sgn_vs(l')
     decay = np.exp(-alpha * depth)
+    g = max(f1 + f2 * decay, _G_FLOOR)                         # eq. 2 and dg/dtheta
+    dg = np.array([1.0, decay, 0.0, 0.0, 0.0, -f2 * depth * decay])
     cut = s - sigma0 * z / g                                   # sgn(l') (1 - sigma0 sgn(l') z / g)
     per_length = bracket(z, theta, depth, s)                   # the force per inserted length [N/m]
     d_cut = sigma0 * z / g**2 * dg

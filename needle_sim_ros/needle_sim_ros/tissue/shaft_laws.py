@@ -9,22 +9,24 @@ anchor stiffness; C: Coulomb limit (the anchors slip to keep |k_a u| <= C after 
 coefficient; A, B: velocity-independent and velocity-sign parts.  ``anchor_depth`` is the depth of each point's
 anchor (layer lookup), ``insertion_depth`` the depth of the tip.
 
-* ``KarnoppShaftFriction``: seed 001 eq. 2, C = C_n and b = b_n of each point's layer.
-* ``ProfileShaftFriction``: seed 002 eq. 2, the Fourier friction F_f(x) of the insertion depth x spread evenly
+* ``KARNOPP``: seed 001 eq. 2, C = C_n and b = b_n of each point's layer (the block's layer tables).
+* ``PROFILE``: seed 002 eq. 2, the Fourier friction F_f(x) of the insertion depth x spread evenly
   over the inserted length: C = max(F_f(x), 0) / x, b = 0, with the same stick band.
-* ``LuGreShaftForce``: seed 003 eqs. 1-2; the bracket of eq. 1b is a force per inserted length,
+* ``LUGRE``: seed 003 eqs. 1-2 (reading in ``lugre``); the bracket of eq. 1b is a force per inserted length,
   A + B sgn_vs(v) with A = sigma0 z (1 - sigma1 exp(-alpha l)/g(l)) and B = sigma1 exp(-alpha l) + sigma2, each
   point using its own axial velocity; the bristle state z is advanced by RK3 once per step from the insertion depth
   and the tip's axial speed.  The bristle provides the stick, so C = 0 and the anchors follow the shaft.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from .geometry import FRICTION_ROWS, layer_rows
-from .insertion_profile import InsertionForceProfile, fourier_series
-from .lugre import ModifiedLuGre, bracket_kernel, bristle_step
+from .insertion_profile import fourier_series
+from .lugre import bracket_kernel, bristle_step
 
 NO_LAW, KARNOPP, PROFILE, LUGRE = 0, 1, 2, 3  # ``kind`` of each law: how the compiled kernels below read it
 
@@ -62,47 +64,10 @@ def law_advance(kind, parameters, law_state, insertion_depth, insertion_speed, d
     return law_state
 
 
-class ShaftLaw:
-    """An axial law: its ``kind``, ``parameters`` (array), ``stick_stiffness`` k_a [N/m^2] and initial state, read by
-    the compiled kernels ``law_coefficients`` and ``law_advance``."""
+class ShaftLaw(NamedTuple):
+    """An axial law as the compiled kernels ``law_coefficients`` and ``law_advance`` read it (module docstring): its
+    ``kind``, ``parameters`` (array) and stick anchor stiffness k_a [N/m^2]; its state (LuGre: z [m]) starts at 0."""
 
-    kind = NO_LAW
-    initial_state = 0.0
-    stick_stiffness = 1.0
-    parameters = np.zeros(0)
-
-
-def _stick_stiffness(value: float) -> float:
-    if not value > 0.0:
-        raise ValueError(f"tissue.shaft.stick_stiffness must be > 0, got {value!r}")
-    return float(value)
-
-
-class KarnoppShaftFriction(ShaftLaw):
-    """Seed 001 eq. 2 with the stick band of ``karnopp``; C_n, b_n per layer (the block's layer tables, read by the
-    compiled kernels)."""
-
-    kind = KARNOPP
-
-    def __init__(self, stick_stiffness: float) -> None:
-        self.stick_stiffness = _stick_stiffness(stick_stiffness)
-
-
-class ProfileShaftFriction(ShaftLaw):
-    """Seed 002 eq. 2 friction F_f(x) spread over the inserted length x, with a stick band of stiffness k_a."""
-
-    kind = PROFILE
-
-    def __init__(self, profile: InsertionForceProfile, stick_stiffness: float) -> None:
-        self.parameters = profile.series_parameters
-        self.stick_stiffness = _stick_stiffness(stick_stiffness)
-
-
-class LuGreShaftForce(ShaftLaw):
-    """Seed 003 eqs. 1-2 as a traction per inserted length (reading in ``lugre``); its state is the bristle
-    state z [m]; k_a is unused (C = 0, the bristle state carries the stick)."""
-
-    kind = LUGRE
-
-    def __init__(self, model: ModifiedLuGre) -> None:
-        self.parameters = np.append(model.parameters.as_array(), model.velocity_scale)
+    kind: int = NO_LAW
+    parameters: np.ndarray = np.zeros(0)
+    stick_stiffness: float = 1.0

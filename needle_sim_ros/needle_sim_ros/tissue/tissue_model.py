@@ -8,7 +8,6 @@ step by :meth:`TissueModel.advance`, so a failed step leaves it as it was.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -21,25 +20,22 @@ from needle_sim_ros.model.step import compose, pack, unpack
 
 from .bevel_tip import BevelTip
 from .contact import CONTACT_KERNELS, unpack_contact
-from .coupling import ContactState, ShaftState, ShaftSupport, TissueContact, tip_coordinates
+from .coupling import ShaftSupport, TissueContact
 from .geometry import inserted_interval
 from .insertion_profile import InsertionForceProfile
 from .shaft_force import SHAFT_KERNELS, no_points, unpack_shaft
 from .tip_forces import BEVEL_KERNELS, RESISTANCE_KERNELS
-from .track import Track
 
 
 class TissueState:
     """The tissue's state after a step: its parts' records packed into one array (``record``, ``step.pack``), as
-    the compiled advance returns it and the next compiled run takes it. ``contact`` and ``shaft`` (the views the
-    readout and tools use) are built from it on first use. A value: never changed in place."""
+    the compiled advance returns it and the next compiled run takes it. A value: never changed in place."""
 
-    __slots__ = ("tissue", "record", "_views")
+    __slots__ = ("tissue", "record")
 
     def __init__(self, tissue: TissueModel, record: np.ndarray) -> None:
         self.tissue = tissue
         self.record = record
-        self._views: tuple | None = None
 
     def __reduce__(self):
         return TissueState, (self.tissue, self.record)
@@ -50,19 +46,6 @@ class TissueState:
         forces' packed arrays."""
         states = unpack(self.record, len(self.tissue.at_tip))
         return (unpack_contact(states[0]), unpack_shaft(states[1]), *(state.copy() for state in states[2:]))
-
-    @property
-    def contact(self) -> ContactState:
-        return self._built()[0]
-
-    @property
-    def shaft(self) -> ShaftState:
-        return self._built()[1]
-
-    def _built(self) -> tuple:
-        if self._views is None:
-            self._views = self.tissue.views(self.record)
-        return self._views
 
 
 @dataclass(frozen=True)
@@ -102,14 +85,16 @@ class TissueModel(ForceContribution):
         self.shaft = shaft
         self.bevel = bevel
         self.tip_resistance = tip_resistance
-        block, track = contact.block, contact.initial.track
+        block, along_x, k = contact.block, np.array([1.0, 0.0, 0.0]), shaft.arc_lengths.size
         # each part: kernels, constants, initial state, whether it acts at the tip (the readout's tip force)
         parts = [(CONTACT_KERNELS, packed(block.entry_point, block.entry_normal, float(contact.puncture_depth or 0.0),
-                                          track.spacing),
-                  packed(False, 0.0, 0.0, 0.0, False, np.nan, *track.kernel_arrays, np.zeros((0, 3)), np.zeros(0)),
-                  False),  # the fresh track: empty, so are its segment blocks
+                                          contact.spacing),
+                  packed(False, 0.0, 0.0, 0.0, False, np.nan, np.zeros((0, 3)), np.zeros(0), along_x, np.zeros(3),
+                         along_x, np.zeros((0, 3)), np.zeros(0)),
+                  False),  # the fresh track (vertices, arc, direction, previous tip, end tangent): empty, so are its
+                 # segment blocks; the shaft: its law's state 0, no point anchored or inside the tissue
                  (SHAFT_KERNELS, packed(*shaft.kernel_arguments),
-                  packed(shaft.initial.law, shaft.initial.anchor, shaft.initial.active, 0, *no_points()), False)]
+                  packed(0.0, np.zeros(k), np.zeros(k), 0, *no_points()), False)]
         if bevel is not None:
             unit, side = bevel
             parts.append((BEVEL_KERNELS, packed(unit.axial_force, unit.transverse_force, side, unit.edge_a,
@@ -146,16 +131,6 @@ class TissueModel(ForceContribution):
         """The state of the record a compiled run returns."""
         return TissueState(self, record)
 
-    def views(self, record: np.ndarray) -> tuple[ContactState, ShaftState]:
-        """The contact and the shaft state of a :class:`TissueState`'s record."""
-        states = unpack(record, len(self.at_tip))
-        c, shaft = unpack_contact(states[0]), unpack_shaft(states[1])
-        track = Track(self.contact.initial.track.spacing, c.vertices, c.arc, c.direction, c.previous_tip,
-                      c.end_tangent)
-        contact = ContactState(bool(c.punctured), float(c.tip_depth), float(c.tip_speed), float(c.step_duration),
-                               bool(c.at_front), None if math.isnan(c.time) else float(c.time), track)
-        return contact, ShaftState(shaft.anchor, shaft.active, shaft.law_state)
-
     def at(self, tissue: TissueState) -> tuple:
         """The forces acting over the step that starts from ``tissue``: the composition's, at its state."""
         return (ComposedForces(self.composition, tissue.record, self.constants),)
@@ -165,8 +140,7 @@ class TissueModel(ForceContribution):
         tip forces' generalized forces on the tip's position rows, the total that of every part's on all nodes'
         position rows (the Hermite position shape functions sum to one)."""
         block = self.contact.block
-        r_tip, _ = tip_coordinates(state.q)
-        depth = max(float(block.depth(r_tip)), 0.0)
+        depth = max(float(block.depth(state.q[-6:-3])), 0.0)
         line = centerline(model, state.q, max(4 * model.n_nodes, 16))
         s_entry, s_tip = inserted_interval(block, line.points, line.arc_length)
         parts = self.at(tissue)[0].parts(state.q, state.qd, base.rotation)

@@ -22,71 +22,6 @@ from needle_sim_ros.model.mesh import search_right
 END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at the default 0.1 mm spacing)
 
 
-class Track:
-    """Immutable polyline from the entry point (a value of the tissue state in ``NeedleData``: :meth:`start` and
-    :meth:`cut` return a new track, the arrays of one are never changed); ``length`` is its arc length [m] (0 right
-    after the entry, none before it has started).
-
-    Coordinates beyond its end are measured along its end tangent (the initial direction while it has one vertex);
-    they lie in uncut tissue.
-    """
-
-    __slots__ = ("spacing", "vertices", "arc_lengths", "direction", "previous_tip", "_end_tangent")
-
-    def __init__(self, spacing: float, vertices: np.ndarray = np.zeros((0, 3)), arc_lengths: np.ndarray = np.zeros(0),
-                 direction: np.ndarray = np.array([1.0, 0.0, 0.0]), previous_tip: np.ndarray = np.zeros(3),
-                 end_tangent: np.ndarray | None = None) -> None:
-        if not spacing > 0.0:
-            raise ValueError(f"tissue.track.spacing must be > 0, got {spacing!r}")
-        self.spacing = spacing
-        self.vertices = vertices          # (count, 3) [m]
-        self.arc_lengths = arc_lengths    # (count,) cumulative arc length [m] at each vertex
-        self.direction = direction        # the unit direction at the entry
-        self.previous_tip = previous_tip  # the tip position of the previous cut() (the entry point at the start)
-        self._end_tangent = end_tangent if end_tangent is not None else chord_tangent(vertices, direction)
-
-    def __reduce__(self):
-        return Track, (self.spacing, self.vertices, self.arc_lengths, self.direction, self.previous_tip,
-                       self._end_tangent)
-
-    @property
-    def started(self) -> bool:
-        return self.arc_lengths.size >= 1
-
-    @property
-    def length(self) -> float:
-        return float(self.arc_lengths[-1]) if self.arc_lengths.size else 0.0
-
-    def start(self, entry_point: np.ndarray, direction: np.ndarray) -> Track:
-        """A track beginning at ``entry_point`` heading along ``direction``."""
-        norm = np.linalg.norm(direction)
-        if not norm > 0.0:
-            raise ValueError("track start: direction must be non-zero")
-        entry = np.array(entry_point, dtype=float)
-        return Track(self.spacing, entry.reshape(1, 3), np.zeros(1), np.asarray(direction, dtype=float) / norm,
-                     entry)
-
-    def end_tangent(self) -> np.ndarray:
-        return self._end_tangent
-
-    @property
-    def kernel_arrays(self) -> tuple:
-        """(vertices, arc_lengths, direction, previous_tip, end tangent): the track in the compiled advance."""
-        return self.vertices, self.arc_lengths, self.direction, self.previous_tip, self._end_tangent
-
-    def coordinate_ahead(self, point: np.ndarray) -> float:
-        """Track coordinate of a point near the end, measured along the end tangent (may exceed ``length``)."""
-        return self.length + float((point - self.vertices[-1]) @ self._end_tangent)
-
-    def cut(self, tip_position: np.ndarray) -> Track:
-        """The track extended while the tip is ``spacing`` or more beyond its end, each vertex where the straight
-        path from the previous tip position crosses ``spacing`` ahead of the end (``cut_polyline``)."""
-        tip = np.array(tip_position, dtype=float)
-        vertices, arc_lengths, end_tangent = cut_polyline(self.vertices, self.arc_lengths, self._end_tangent,
-                                                          self.previous_tip, tip, self.spacing)
-        return Track(self.spacing, vertices, arc_lengths, self.direction, tip, end_tangent)
-
-
 @njit(cache=True)
 def chord_tangent(vertices, direction):
     """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (``direction``
@@ -101,9 +36,10 @@ def chord_tangent(vertices, direction):
 
 @njit(cache=True)
 def cut_polyline(vertices, arc, end_tangent, previous, tip, spacing):
-    """``Track.cut`` on the track's arrays (compiled: it runs every step): vertices, arc lengths and end tangent
-    of the track grown from the previous tip position toward ``tip``. Coordinates beyond the end as in
-    ``Track.coordinate_ahead``."""
+    """The track (vertices, arc lengths, end tangent) grown from the previous tip position toward ``tip`` while the tip
+    is ``spacing`` or more beyond its end, each vertex where that straight path crosses ``spacing`` ahead of the end
+    (compiled: it runs every step). Coordinates beyond the end are measured along the end tangent: length +
+    (point - end) . end_tangent, in uncut tissue."""
     while True:
         count = arc.size
         length = arc[count - 1]
