@@ -5,13 +5,13 @@ points (measured samples within max(3 sigma, 0.1 mm) of the truth, the others fl
 import numpy as np
 import pytest
 
-from vision_shapes import SHAPES, check_not_invented, faded
+from vision_shapes import SHAPES, check_not_invented, distance_to_curve, faded
 from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.detection.centerline import extract_centerline
 from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.matching.reconstruction import NeedleMeasurement, ReconstructionConfig, reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
-from needle_vision.render import NEEDLE_RADIUS, Imaging, make_scene, project_points, render_background_pair, \
+from needle_vision.render import NEEDLE_RADIUS, Imaging, Scene, make_scene, project_points, render_background_pair, \
     render_stereo_pair
 
 
@@ -81,6 +81,37 @@ def test_needle_in_front_of_a_brightness_ramp(rig, edge_scene, name):
     measurement = _measure(rig, backgrounds, images)
     _check(measurement, name, 0.99)
     assert np.linalg.norm(measurement.points[0] - SHAPES[name][0]) <= 0.15e-3
+
+
+def _dark_band(scene: Scene, level: float, width: float, edge: float) -> Scene:
+    """``scene`` with its background's albedo scaled towards ``level`` (absolute, at the band's centre) inside a
+    vertical band ``width`` px wide across the image centre, with soft (tanh) edges of ``edge`` px."""
+    albedo = []
+    for a in scene.background_albedo:
+        x = np.arange(a.shape[1], dtype=np.float32) - a.shape[1] / 2
+        inside = 0.5 * (np.tanh((width / 2 - np.abs(x)) / edge) + 1)
+        albedo.append(((1 - inside) * a + inside * level * a / a.mean()).astype(np.float32))
+    return Scene(scene.illumination, tuple(albedo), scene.needle_albedo)
+
+
+@pytest.mark.parametrize("name, seed", [("3d", 7), ("s_curve", 9)])
+def test_dark_needle_across_a_soft_dark_band(rig, scene, name, seed):
+    """Issue 39: the dark needle (albedo 0.12) in front of a 200 px band fading over 60 px to a background of albedo
+    0.08: its contrast fades to nothing and reverses, and the centroids there are pulled 4-7 px. Their uncertainty
+    says so (image noise over the slice's contrast): >= 98 % of the measured samples within 3 sigma, none beyond 5
+    sigma (before: the 3D shape 95.5 %, one sample 5.45 mm off at 5.9 sigma; the S 97.2 %; now 100 %, at most 1.4
+    and 2.7 sigma)."""
+    band = _dark_band(scene, 0.08, 200.0, 60.0)
+    frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=band) for k in range(8)]
+    backgrounds = tuple(BackgroundModel.from_frames([pair[k] for pair in frames], ContrastThreshold())
+                        for k in range(2))
+    images = render_stereo_pair(rig, SHAPES[name], NEEDLE_RADIUS, np.random.default_rng(seed), scene=band)
+    measurement = _measure(rig, backgrounds, images)
+    distance, _ = distance_to_curve(measurement.points, SHAPES[name])
+    measured = measurement.measured
+    z = distance[measured] / measurement.uncertainty[measured]
+    assert np.mean(z <= 3) >= 0.98
+    assert np.max(z) <= 5
 
 
 @pytest.mark.parametrize("name, start, stop", [("3d", 0.3, 0.4), ("planar", 0.6, 0.7)])

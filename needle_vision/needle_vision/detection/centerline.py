@@ -56,7 +56,8 @@ class ImageCenterline:
     """Centerline points ``(n, 2)`` (x, y raw pixels) ordered from one end to the other, their slice contrast
     (sum of the covered fraction across the slice: the needle's width along it), the robust scatter [px] of the
     points across the curve, and that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW``
-    points: the noise grows where the needle's contrast is lower, e.g. in front of a darker background);
+    points: the noise grows where the needle's contrast is lower, e.g. in front of a darker background; at least the
+    slice's own centroid noise, image noise over its contrast, scaled so that the median slice's is that scatter);
     ``end_taper_px``: how far [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen
     side-on: half its length; 0 for a flat end); ``taper_candidates``: per end, the tapered end of an end placed flat
     whose taper only the covered fraction shows (an :class:`EndReading`; None where there is none); ``flat_ends``:
@@ -240,18 +241,22 @@ def _refine_path(image, background, polarity, path):  # pragma: no cover - compi
 
 
 @numba.njit(cache=True, nogil=True)
-def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, half_width,
-                     needle):  # pragma: no cover - compiled
+def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, half_width, needle,
+                     with_noise):  # pragma: no cover - compiled
     """Centroid across each one-pixel slice: slice k is row ``fixed[k]`` (along_rows) or column ``fixed[k]``,
     spanning ``round(predicted[k]) ± half_width``. The weights are the relative contrast (B - I) / B, or where the
     needle's own intensity ``needle[k]`` (N) is given (non-empty), the covered fraction (B - I) / (B - N): the
     relative contrast is the covered fraction times 1 - N / B, which the background's albedo texture modulates
     across the slice (a bright needle on a dark background: ~+-15 %, a centroid error correlated over ~4 px of
-    texture). Returns (centroid, contrast sum: of the weights); contrast 0 when the slice leaves the image."""
+    texture). Returns (centroid, contrast sum: of the weights, the centroid's noise per unit of image noise [px/DN],
+    inf unless ``with_noise``); contrast 0 when the slice leaves the image. A pixel's weight carries the image noise
+    over its denominator d, so the centroid's variance is sum((c - centroid)^2 / d^2) / contrast^2 times the image
+    noise's: it grows as the needle's contrast against the background (B - N) fades."""
     height, width = image.shape
     n = fixed.shape[0]
     centroid = np.empty(n)
     contrast = np.zeros(n)
+    noise = np.full(n, np.inf)
     for k in range(n):
         centre = int(np.floor(predicted[k] + 0.5))
         f = fixed[k]
@@ -261,14 +266,21 @@ def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, 
             centroid[k] = predicted[k]
             continue
         covered = needle.shape[0] > 0
-        sw, sc = 0.0, 0.0
+        sw, sc, s0, s1, s2 = 0.0, 0.0, 0.0, 0.0, 0.0
         for c in range(centre - half_width, centre + half_width + 1):
             b, v = (background[f, c], image[f, c]) if along_rows[k] else (background[c, f], image[c, f])
-            w = polarity * (b - v) / max(polarity * (b - needle[k]) if covered else b, 1.0)
+            d = max(polarity * (b - needle[k]) if covered else b, 1.0)
+            w = polarity * (b - v) / d
             sw, sc = sw + w, sc + w * c
+            if with_noise:
+                q = 1.0 / (d * d)
+                s0, s1, s2 = s0 + q, s1 + q * c, s2 + q * c * c
         contrast[k] = sw
         centroid[k] = sc / sw if sw > 0 else predicted[k]
-    return centroid, contrast
+        if with_noise and sw > 0:
+            m = centroid[k]
+            noise[k] = np.sqrt(max(s2 - 2.0 * m * s1 + m * m * s0, 0.0)) / sw
+    return centroid, contrast, noise
 
 
 @numba.njit(cache=True, nogil=True)
@@ -819,21 +831,22 @@ def _scatter(points, first, count):  # pragma: no cover - compiled
 def _slice_points(image, background, polarity, path, half_width, wide, min_contrast_fraction,
                   min_profile_fraction):  # pragma: no cover - compiled
     """The centerline points of the one-pixel slices across ``path`` (:func:`_slices_along`; centroids of a first
-    pass ``wide`` slices, then ``half_width`` ones around them), in path order, with their contrast, their contrast
-    per unit of needle width (independent of the slice's obliquity: low at gaps and partial tips) and two
-    selections: ``keep``, slices with at least ``min_contrast_fraction`` of the needle's median width contrast whose
-    centroid stayed within the first pass, cut to the first and last of the ``full`` ones (also with
-    ``min_profile_fraction`` of it; beyond them, the partly covered slices at the tips are dropped); ``keep`` is
-    empty when fewer than 3 slices have contrast or are full."""
+    pass ``wide`` slices, then ``half_width`` ones around them), in path order, with their contrast, their centroid's
+    noise per unit of image noise, their contrast per unit of needle width (independent of the slice's obliquity: low
+    at gaps and partial tips) and two selections: ``keep``, slices with at least ``min_contrast_fraction`` of the
+    needle's median width contrast whose centroid stayed within the first pass, cut to the first and last of the
+    ``full`` ones (also with ``min_profile_fraction`` of it; beyond them, the partly covered slices at the tips are
+    dropped); ``keep`` is empty when fewer than 3 slices have contrast or are full."""
     along_rows, fixed, predicted, obliquity = _slices_along(path)
     relative = np.zeros(0)
-    centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, predicted, wide, relative)
-    centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width,
-                                          relative)
+    centroid, contrast, noise = _slice_centroids(image, background, polarity, along_rows, fixed, predicted, wide,
+                                                 relative, False)
+    centroid, contrast, noise = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width,
+                                                 relative, True)
     needle = _needle_levels(image, polarity, along_rows, fixed, centroid, contrast, NEEDLE_LEVEL_WINDOW)
     if needle.shape[0] > 0:
-        centroid, contrast = _slice_centroids(image, background, polarity, along_rows, fixed, centroid, half_width,
-                                              needle)
+        centroid, contrast, noise = _slice_centroids(image, background, polarity, along_rows, fixed, centroid,
+                                                     half_width, needle, True)
     n = contrast.shape[0]
     points = np.empty((n, 2))
     for k in range(n):
@@ -842,16 +855,16 @@ def _slice_points(image, background, polarity, path, half_width, wide, min_contr
     none = np.zeros(0, np.bool_)
     strong = contrast > 0
     if np.count_nonzero(strong) < 3:
-        return points, contrast, width_contrast, none, none
+        return points, contrast, noise, width_contrast, none, none
     level = np.median(width_contrast[strong])
     keep = (width_contrast >= min_contrast_fraction * level) & (np.abs(centroid - predicted) <= wide)
     full = keep & (width_contrast >= min_profile_fraction * level)
     ends = np.flatnonzero(full)
     if len(ends) < 3:
-        return points, contrast, width_contrast, none, none
+        return points, contrast, noise, width_contrast, none, none
     keep[:ends[0]] = False
     keep[ends[-1] + 1:] = False
-    return points, contrast, width_contrast, keep, full
+    return points, contrast, noise, width_contrast, keep, full
 
 
 @numba.njit(cache=True, nogil=True)
@@ -871,18 +884,19 @@ def _kept_slices(points, keep, full, width_contrast, local, min_profile_fraction
     return np.flatnonzero(keep)
 
 
-def _with_ends(points: np.ndarray, contrast: np.ndarray, cut: int, first: tuple, last: tuple
+def _with_ends(points: np.ndarray, per_slice: np.ndarray, cut: int, first: tuple, last: tuple
                ) -> tuple[np.ndarray, np.ndarray, int, int]:
     """The centerline with its last points at each end replaced by the points towards the sub-pixel end
     (``first``, ``last``: :func:`_end_along_profile` of ``points[:cut][::-1]`` and ``points[cut:]``: kept count, or -1
-    to keep the end as it is, and new points), with the contrast of the nearest slice kept; and how many points come
-    before and from the slices."""
+    to keep the end as it is, and new points), with the ``per_slice`` values (rows) of the nearest slice kept; and
+    how many points come before and from the slices."""
     lo = cut - first[0] if first[0] >= 0 else 0
     hi = cut + last[0] if last[0] >= 0 else len(points)
     head = first[1][::-1] if first[0] >= 0 else np.zeros((0, 2))
     tail = last[1] if last[0] >= 0 else np.zeros((0, 2))
     return (np.vstack([head, points[lo:hi], tail]),
-            np.concatenate([np.full(len(head), contrast[lo]), contrast[lo:hi], np.full(len(tail), contrast[hi - 1])]),
+            np.concatenate([np.repeat(per_slice[lo:lo + 1], len(head), axis=0), per_slice[lo:hi],
+                            np.repeat(per_slice[hi - 1:hi], len(tail), axis=0)]),
             len(head), hi - lo)
 
 
@@ -966,7 +980,7 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     path = np.vstack([ends[0], path, ends[1][::-1]])
 
     wide = config.profile_half_width + factor // 2  # first pass: the coarse path is good to ~factor/2 px
-    points, contrast, width_contrast, keep, full = _slice_points(
+    points, contrast, slice_noise, width_contrast, keep, full = _slice_points(
         image, background.image, polarity, path, config.profile_half_width, wide, config.min_contrast_fraction,
         config.min_profile_fraction)
     if len(keep) == 0:
@@ -981,16 +995,21 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
                         config.profile_half_width)
     if len(kept) < 3:
         raise NoNeedleError("too few centerline points with enough contrast")
-    contrast_kept = contrast[kept]
     points = points[kept]
     cut = len(points) // 2
     first, last = (_end_along_profile(image, background.image, polarity, np.ascontiguousarray(part),
                                       config.profile_half_width) for part in (points[:cut][::-1], points[cut:]))
-    points, contrast_kept, head, slices = _with_ends(points, contrast_kept, cut, first, last)
+    points, per_slice, head, slices = _with_ends(points, np.column_stack([contrast[kept], slice_noise[kept]]), cut,
+                                                 first, last)
+    contrast_kept, slice_noise = per_slice[:, 0], per_slice[:, 1]
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
-    # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's).
+    # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's), at
+    # least the slice's own centroid noise (image noise over its contrast, :func:`_slice_centroids`) scaled so that
+    # the median slice's is the measured scatter: where the needle's contrast against the background fades, a slice
+    # errs more than its neighbours' running median shows.
     noise, local = _scatter(points, head, slices)
+    local = np.maximum(local, noise * slice_noise / np.median(slice_noise[head:head + slices]))
     # Each end's other reading: a taper candidate (tapered) or the flat placement of a tapered end (flat).
     candidates, flat = (tuple(None if end[3] < 0 or (end[5] == 0.0) != placed_flat else EndReading(*end[3:7])
                               for end in (first, last)) for placed_flat in (False, True))
