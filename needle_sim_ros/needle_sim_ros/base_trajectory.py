@@ -33,6 +33,7 @@ from numba import njit
 
 from needle_common.transforms import conjugate, from_rotation_vector, multiply, quaternion_matrix, to_rotation_vector
 from needle_sim_ros.model.kinematics import dot3
+from needle_sim_ros.model.records import compiled_entry
 
 
 class PoseVerdict(Enum):
@@ -191,12 +192,6 @@ def _append_sample(sample_times: np.ndarray, positions: np.ndarray, orientations
     positions[count] = position
     orientations[count] = orientation
     counts[SAMPLES], counts[FIT_ROWS] = count + 1, -1
-
-
-def compiled_entry(dispatcher, *arguments):
-    """The compiled function of the numba ``dispatcher`` for the types of ``arguments`` (compiled or loaded now if
-    new): no typing per call, so only for values of these types (its wrapper unboxes them as such, unchecked)."""
-    return dispatcher.compile(tuple(map(dispatcher.typeof_pyval, arguments)))
 
 
 @njit(cache=True)

@@ -9,7 +9,7 @@ path calls, so both give the same bits.
 
 The arguments that hold from one call to the next travel in one :class:`AdvancePlan` record, made once per plan,
 typed in C by its ``_numba_type_`` (numba 0.59 too: ``test_kernel_dispatch``): 8 arguments, not 51, to unbox per
-call; the stepper calls it for their types directly (:func:`~needle_sim_ros.base_trajectory.compiled_entry`: the
+call; the stepper calls it for their types directly (:func:`~needle_sim_ros.model.records.compiled_entry`: the
 dispatcher types a record at ~0.6 us).
 """
 from __future__ import annotations

@@ -12,7 +12,6 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from needle_sim_ros.base_trajectory import compiled_entry
 from needle_sim_ros.compiled_advance import advance_from_trajectory, advance_plan
 from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, ModelShape, NeedleData, NeedleModel,
                                   NeedleProperties, PointLoad, State, StaticSolveFailed, StepFailed,
@@ -21,6 +20,7 @@ from needle_sim_ros.model import (BaseMotion, BaseWrench, Gravity, Integrator, M
 from needle_sim_ros.model.contribution import ContributionRun
 from needle_sim_ros.model.integrators import IntegratorMemory, run_outputs, same_objects
 from needle_sim_ros.model.partition import held_at
+from needle_sim_ros.model.records import compiled_entry
 
 # Largest sum of point-load magnitudes, as a multiple of the needle's bending load scale E I / L^2. Found by
 # experiment (README, reliability): with the default discretisation (10 elements, 2 axial Gauss points, dt = 1 ms,

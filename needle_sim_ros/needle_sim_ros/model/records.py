@@ -13,6 +13,12 @@ from numba import njit, types
 from numba.extending import overload
 
 
+def compiled_entry(dispatcher, *arguments):
+    """The compiled function of the numba ``dispatcher`` for the types of ``arguments`` (compiled or loaded now if
+    new): no typing per call, so only for values of these types (its wrapper unboxes them as such, unchecked)."""
+    return dispatcher.compile(tuple(map(dispatcher.typeof_pyval, arguments)))
+
+
 def put(buffer, cursor, value):
     """Append ``value`` (scalar, 1-d or 2-d array) at cursor[0] (only counted if ``buffer`` is empty)."""
     raise NotImplementedError("put runs compiled only")
