@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from vision_shapes import SHAPES, distance_to_curve
-from needle_vision.detection.centerline import extract_centerline
+from needle_vision.detection.centerline import ImageCenterline, extract_centerline
 from needle_vision.matching.correspondence import MatchingConfig
-from needle_vision.matching.reconstruction import UNMEASURED, ReconstructionConfig, _continuity_sigma, _smooth_along, \
-    reconstruct_centerline
+from needle_vision.matching.reconstruction import UNMEASURED, ReconstructionConfig, _continuity_sigma, _local_noise, \
+    _smooth_along, reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import world_from_camera
 from needle_common.transforms import RigidTransform
@@ -125,6 +125,18 @@ def test_local_cubic_along_an_uneven_abscissa():
         first = min(max(k - window // 2, 0), len(points) - window)
         vandermonde = np.vander(abscissa[first:first + window] - abscissa[k], 4, increasing=True)
         assert gain[k] == pytest.approx(np.linalg.norm(np.linalg.pinv(vandermonde)[0]), rel=1e-9)
+
+
+@pytest.mark.parametrize("spike", [0, 3, 4, 37, 99])
+def test_a_single_points_noise_reaches_the_matched_point_beside_it(spike):
+    """Each centerline point's noise may be its own (a slice's centroid noise where the contrast fades): the noise at
+    a matched point is that of the centerline point it lies on, wherever that point is among every 8th."""
+    points = np.column_stack([np.arange(100.0), np.zeros(100)])
+    noise = np.full(100, 0.1)
+    noise[spike] = 0.7
+    centerline = ImageCenterline(points, np.ones(100), 0.1, noise)
+    matched = points[[spike, 50]] + [0.3, 0.2]
+    assert _local_noise(centerline, points, matched) == pytest.approx([0.7, 0.1])
 
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 60.0])

@@ -108,23 +108,32 @@ def _ends_inside(points: np.ndarray, width: int, height: int, margin: float = 5.
 
 
 @numba.njit(cache=True, nogil=True)
-def _nearest(reference, queries):  # pragma: no cover - compiled
-    """Index of the nearest of the ``reference`` points ``(n, 2)`` to each of the ``queries`` ``(m, 2)``."""
+def _nearest_of(reference, query, first, last, step):  # pragma: no cover - compiled
+    """Index of the nearest to ``query`` of the ``reference`` points ``first:last:step``."""
+    best, nearest = np.inf, first
+    for k in range(first, last, step):
+        distance = (reference[k, 0] - query[0]) ** 2 + (reference[k, 1] - query[1]) ** 2
+        if distance < best:
+            best, nearest = distance, k
+    return nearest
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest(reference, queries, stride):  # pragma: no cover - compiled
+    """Index of the nearest of the ``reference`` points ``(n, 2)``, ordered along a curve, to each of the ``queries``
+    ``(m, 2)``: the nearest of every ``stride``-th point, then of the points within ``stride`` of it."""
     out = np.empty(queries.shape[0], np.int64)
+    n = reference.shape[0]
     for i in range(queries.shape[0]):
-        best, nearest = np.inf, 0
-        for k in range(reference.shape[0]):
-            distance = (reference[k, 0] - queries[i, 0]) ** 2 + (reference[k, 1] - queries[i, 1]) ** 2
-            if distance < best:
-                best, nearest = distance, k
-        out[i] = nearest
+        coarse = _nearest_of(reference, queries[i], 0, n, stride)
+        out[i] = _nearest_of(reference, queries[i], max(coarse - stride, 0), min(coarse + stride + 1, n), 1)
     return out
 
 
 def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
     """The local image noise [px] of ``centerline`` (rectified points ``rectified``) at the matched points: that of
-    the nearest of every 8th point (it varies over NOISE_WINDOW points)."""
-    return centerline.local_noise_px[::8][_nearest(np.ascontiguousarray(rectified[::8]), matched)]
+    the nearest point (its own: a slice's centroid noise where the contrast fades)."""
+    return centerline.local_noise_px[_nearest(np.ascontiguousarray(rectified), matched, 8)]
 
 
 def _rectified(centerline: ImageCenterline, rectification: Rectification, side: str) -> tuple[np.ndarray,
