@@ -122,13 +122,18 @@ def _nearest(reference, queries):  # pragma: no cover - compiled
     return out
 
 
-def _at_matches(values: np.ndarray, rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
-    """A centerline's per-point ``values`` (e.g. its local noise [px]; its points rectified: ``rectified``) at the
-    matched points: the nearest of every 8th point stands for the 8 around it, with their largest value (the running
-    scatter varies over NOISE_WINDOW points, a slice's own centroid noise from one slice to the next: where the
-    background passes through the needle's level, single slices err by a pixel, which every 8th point alone may not
-    read)."""
-    return maximum_filter1d(values, 9, mode="nearest")[::8][_nearest(np.ascontiguousarray(rectified[::8]), matched)]
+def _matched_cells(rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
+    """For each of the ``matched`` points, the nearest of every 8th point of a centerline (``rectified``: its points
+    rectified), which stands for it in :func:`_at_cells`."""
+    return _nearest(np.ascontiguousarray(rectified[::8]), matched)
+
+
+def _at_cells(values: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """A centerline's per-point ``values`` (its local noise [px], ...) at the matched points of :func:`_matched_cells`:
+    each 8th point stands for the 9 around it with their largest value (the running scatter varies over NOISE_WINDOW
+    points, a slice's own centroid noise from one slice to the next: where the background passes through the needle's
+    level, single slices err by a pixel, which every 8th point alone may not read)."""
+    return maximum_filter1d(values, 9, mode="nearest")[::8][cells]
 
 
 def _rectified(centerline: ImageCenterline, rectification: Rectification, side: str) -> tuple[np.ndarray,
@@ -310,13 +315,13 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     # Per-point noise (the images' local scatter where above their median): lateral from the image noise, depth
     # through the disparity (worse where the needle is close to parallel to the epipolar lines: there the match
     # slides along the curve).
-    noise_px = np.maximum.reduce([_at_matches(left.local_noise_px, left_rect, match.left),
-                                  _at_matches(right.local_noise_px, right_rect, match.right),
+    cells = _matched_cells(left_rect, match.left), _matched_cells(right_rect, match.right)
+    noise_px = np.maximum.reduce([_at_cells(left.local_noise_px, cells[0]), _at_cells(right.local_noise_px, cells[1]),
                                   np.full(len(match.left), max(left.noise_px, right.noise_px,
                                                                MIN_IMAGE_NOISE_PX))])[valid]
     noise_px = noise_px[inliers]
-    extrapolation_px = np.hypot(_at_matches(left.extrapolation_px, left_rect, match.left),
-                                _at_matches(right.extrapolation_px, right_rect, match.right))[valid][inliers]
+    extrapolation_px = np.hypot(_at_cells(left.extrapolation_px, cells[0]),
+                                _at_cells(right.extrapolation_px, cells[1]))[valid][inliers]
     min_sin = np.sin(np.radians(matching.min_epipolar_angle_deg))
     slope = np.where(anchored, np.maximum(sin_angle, min_sin), 0.5 * min_sin)
     per_disparity = rectification.depth_per_disparity(points)
