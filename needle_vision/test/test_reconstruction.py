@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from vision_shapes import SHAPES, distance_to_curve
-from needle_vision.detection.centerline import ImageCenterline, extract_centerline
+from needle_vision.detection.centerline import extract_centerline
 from needle_vision.matching.correspondence import MatchingConfig
-from needle_vision.matching.reconstruction import UNMEASURED, ReconstructionConfig, _continuity_sigma, _local_noise, \
-    _smooth_along, reconstruct_centerline
+from needle_vision.matching.reconstruction import UNMEASURED, ReconstructionConfig, _continuity_sigma, \
+    _nearest_points, _smooth_along, reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import world_from_camera
 from needle_common.transforms import RigidTransform
@@ -134,9 +134,8 @@ def test_a_single_points_noise_reaches_the_matched_point_beside_it(spike):
     points = np.column_stack([np.arange(100.0), np.zeros(100)])
     noise = np.full(100, 0.1)
     noise[spike] = 0.7
-    centerline = ImageCenterline(points, np.ones(100), 0.1, noise)
     matched = points[[spike, 50]] + [0.3, 0.2]
-    assert _local_noise(centerline, points, matched) == pytest.approx([0.7, 0.1])
+    assert noise[_nearest_points(points, matched)] == pytest.approx([0.7, 0.1])
 
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 60.0])

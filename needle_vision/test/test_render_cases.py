@@ -5,7 +5,7 @@ points (measured samples within max(3 sigma, 0.1 mm) of the truth, the others fl
 import numpy as np
 import pytest
 
-from vision_shapes import SHAPES, check_not_invented, distance_to_curve, faded
+from vision_shapes import SHAPES, bright_scene, check_not_invented, distance_to_curve, faded
 from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.detection.centerline import extract_centerline
 from needle_vision.matching.correspondence import MatchingConfig
@@ -83,12 +83,14 @@ def test_needle_in_front_of_a_brightness_ramp(rig, edge_scene, name):
     assert np.linalg.norm(measurement.points[0] - SHAPES[name][0]) <= 0.15e-3
 
 
-def _dark_band(scene: Scene, level: float, width: float, edge: float) -> Scene:
+def _band(scene: Scene, level: float, width: float, edge: float, across_rows: bool = False) -> Scene:
     """``scene`` with its background's albedo scaled towards ``level`` (absolute, at the band's centre) inside a
-    vertical band ``width`` px wide across the image centre, with soft (tanh) edges of ``edge`` px."""
+    vertical band (horizontal: ``across_rows``) ``width`` px wide across the image centre, with soft (tanh) edges of
+    ``edge`` px."""
     albedo = []
     for a in scene.background_albedo:
-        x = np.arange(a.shape[1], dtype=np.float32) - a.shape[1] / 2
+        axis = 0 if across_rows else 1
+        x = (np.arange(a.shape[axis], dtype=np.float32) - a.shape[axis] / 2).reshape((-1, 1) if across_rows else -1)
         inside = 0.5 * (np.tanh((width / 2 - np.abs(x)) / edge) + 1)
         albedo.append(((1 - inside) * a + inside * level * a / a.mean()).astype(np.float32))
     return Scene(scene.illumination, tuple(albedo), scene.needle_albedo)
@@ -101,13 +103,36 @@ def test_dark_needle_across_a_soft_dark_band(rig, scene, name, seed):
     says so (image noise over the slice's contrast): >= 98 % of the measured samples within 3 sigma, none beyond 5
     sigma (before: the 3D shape 95.5 %, one sample 5.45 mm off at 5.9 sigma; the S 97.2 %; now 100 %, at most 1.4
     and 2.7 sigma)."""
-    band = _dark_band(scene, 0.08, 200.0, 60.0)
+    band = _band(scene, 0.08, 200.0, 60.0)
     frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=band) for k in range(8)]
     backgrounds = tuple(BackgroundModel.from_frames([pair[k] for pair in frames], ContrastThreshold())
                         for k in range(2))
     images = render_stereo_pair(rig, SHAPES[name], NEEDLE_RADIUS, np.random.default_rng(seed), scene=band)
     measurement = _measure(rig, backgrounds, images)
     distance, _ = distance_to_curve(measurement.points, SHAPES[name])
+    measured = measurement.measured
+    z = distance[measured] / measurement.uncertainty[measured]
+    assert np.mean(z <= 3) >= 0.98
+    assert np.max(z) <= 5
+
+
+@pytest.mark.parametrize("level, width, edge, across_rows, seed", [(1.2, 60.0, 6.0, False, 9),
+                                                                    (1.1, 200.0, 60.0, True, 7)])
+def test_bright_needle_across_a_brighter_band(rig, scene, level, width, edge, across_rows, seed):
+    """Issue 39: the bright needle (albedo 0.9) bent in a plane, in front of a band brighter than itself: 60 px at 1.2
+    with 6 px edges across the columns, or 200 px fading over 60 px to 1.1 across the rows. Where the band passes
+    through the needle's level single slices err by a pixel and say so (noise 0.3-1.0 px; every 8th point, which the
+    3D points read, 0.04-0.07 px), and the needle fades into the band as into a long taper: its end is extrapolated 60
+    px beyond the last slice, 0.6 px off, an error the whole stretch shares (its uncertainty: how far a cubic and a
+    quadratic extrapolation disagree, 0.5 px). >= 98 % of the measured samples within 3 sigma, none beyond 5 sigma
+    (before: 98.6 % at 12.3 sigma, 92.9 % at 7.1 sigma; now 100 %, at most 2.7 and 1.2 sigma)."""
+    band = _band(bright_scene(scene), level, width, edge, across_rows)
+    frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=band) for k in range(8)]
+    backgrounds = tuple(BackgroundModel.from_frames([pair[k] for pair in frames], ContrastThreshold(polarity=-1))
+                        for k in range(2))
+    images = render_stereo_pair(rig, SHAPES["planar"], NEEDLE_RADIUS, np.random.default_rng(seed), scene=band)
+    measurement = _measure(rig, backgrounds, images)
+    distance, _ = distance_to_curve(measurement.points, SHAPES["planar"])
     measured = measurement.measured
     z = distance[measured] / measurement.uncertainty[measured]
     assert np.mean(z <= 3) >= 0.98

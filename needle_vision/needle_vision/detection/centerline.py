@@ -58,6 +58,8 @@ class ImageCenterline:
     points across the curve, and that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW``
     points: the noise grows where the needle's contrast is lower, e.g. in front of a darker background; at least the
     slice's own centroid noise, image noise over its contrast, scaled so that the median slice's is that scatter);
+    ``extrapolation_px``: per point, the lateral uncertainty [px] of the points extrapolated towards the ends (0 for the
+    slices' points; :func:`_placed_end`), one error shared by the stretch, which smoothing along it does not average;
     ``end_taper_px``: how far [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen
     side-on: half its length; 0 for a flat end); ``taper_candidates``: per end, the tapered end of an end placed flat
     whose taper only the covered fraction shows (an :class:`EndReading`; None where there is none); ``flat_ends``:
@@ -67,6 +69,7 @@ class ImageCenterline:
     contrast: np.ndarray
     noise_px: float
     local_noise_px: np.ndarray
+    extrapolation_px: np.ndarray
     end_taper_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
     taper_candidates: tuple[EndReading | None, EndReading | None] = (None, None)
     flat_ends: tuple[EndReading | None, EndReading | None] = (None, None)
@@ -80,12 +83,14 @@ class EndReading:
     one view, their ratio 1.20-1.50 against thresholds 1.56-1.95) or a tapered end placed flat. It replaces the
     centerline's last ``drop`` points at that end by ``points`` (ordered outward, ending with the end),
     ``half_taper_px`` beyond the middle of its fitted taper (0: flat). ``fall_ratio``: a candidate's covered-fraction
-    fall over the side edges' blur (strong over ``CANDIDATE_TAPER_FACTOR``; 0 for a flat placement)."""
+    fall over the side edges' blur (strong over ``CANDIDATE_TAPER_FACTOR``; 0 for a flat placement);
+    ``extrapolation_px``: per point, as ``ImageCenterline.extrapolation_px`` (0 for the slices it takes back)."""
 
     drop: int
     points: np.ndarray
     half_taper_px: float
     fall_ratio: float
+    extrapolation_px: np.ndarray
 
 
 def with_end_reading(centerline: ImageCenterline, end: int, reading: EndReading) -> ImageCenterline:
@@ -94,17 +99,18 @@ def with_end_reading(centerline: ImageCenterline, end: int, reading: EndReading)
     keep = len(centerline.points) - reading.drop
     count = len(reading.points)
     step = -1 if end == 0 else 1  # ordered towards the end
-    points, contrast, noise = (values[::step] for values in (centerline.points, centerline.contrast,
-                                                              centerline.local_noise_px))
+    points, contrast, noise, extrapolation = (values[::step] for values in (
+        centerline.points, centerline.contrast, centerline.local_noise_px, centerline.extrapolation_px))
     points = np.vstack([points[:keep], reading.points])[::step]
     contrast = np.concatenate([contrast[:keep], np.full(count, contrast[keep - 1])])[::step]
     noise = np.concatenate([noise[:keep], np.full(count, noise[keep - 1])])[::step]
+    extrapolation = np.concatenate([extrapolation[:keep], reading.extrapolation_px])[::step]
     tapers = centerline.end_taper_px.copy()
     tapers[end] = reading.half_taper_px
     candidates, flat = (tuple(None if k == end else other for k, other in enumerate(readings))
                         for readings in (centerline.taper_candidates, centerline.flat_ends))
-    return replace(centerline, points=points, contrast=contrast, local_noise_px=noise, end_taper_px=tapers,
-                   taper_candidates=candidates, flat_ends=flat)
+    return replace(centerline, points=points, contrast=contrast, local_noise_px=noise, extrapolation_px=extrapolation,
+                   end_taper_px=tapers, taper_candidates=candidates, flat_ends=flat)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -655,9 +661,10 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     with the noise of a few samples on a shallow slope). The other reading (:class:`EndReading`) is a taper candidate
     or the tapered end placed flat. Returns (number of points kept, the new points ending with the end, the taper's
     half length [px]) of the end, (number of those points the other reading drops, its points, its half taper, a
-    candidate's covered-fraction fall over the blur, 0 for a flat placement); kept is -1 where the profile leaves the
-    image or does not fall (the other reading's drop where there is none)."""
-    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, 0.0)
+    candidate's covered-fraction fall over the blur, 0 for a flat placement), and the lateral uncertainty [px] of the
+    new points of each (:func:`_placed_end`; 0 for the slices the other reading takes back); kept is -1 where the
+    profile leaves the image or does not fall (the other reading's drop where there is none)."""
+    none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, 0.0, np.zeros(0), np.zeros(0))
     n = points.shape[0]
     if n < 100:
         return none
@@ -740,22 +747,23 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         candidate_end = middle + candidate_half_taper
         if tapered:
             end, half_taper = candidate_end, candidate_half_taper
-    kept, out = _placed_end(image, background, polarity, points, along, centre, direction, normal, end, half_taper,
-                            half_width, band_half_width, side_sigma, needle)
+    kept, out, uncertainty = _placed_end(image, background, polarity, points, along, centre, direction, normal, end,
+                                         half_taper, half_width, band_half_width, side_sigma, needle)
     if kept < 0:
         return none
     # The other reading: a tapered end placed flat, or a candidate's taper.
     other_end, other_half_taper = (flat_end, 0.0) if tapered else (candidate_end, candidate_half_taper)
     if tapered or candidate_half_taper > 0.0:
-        other_kept, other_out = _placed_end(image, background, polarity, points, along, centre, direction, normal,
-                                            other_end, other_half_taper, half_width, band_half_width, side_sigma,
-                                            needle)
+        other_kept, other_out, other_uncertainty = _placed_end(image, background, polarity, points, along, centre,
+                                                               direction, normal, other_end, other_half_taper,
+                                                               half_width, band_half_width, side_sigma, needle)
         if other_kept >= 0 and (tapered or other_kept <= kept):
             # It drops the end's new points and the slices it does not keep, and takes back those it keeps beyond.
             return (kept, out, half_taper, len(out) + kept - min(kept, other_kept),
                     np.vstack((points[kept:other_kept], other_out)), other_half_taper,
-                    0.0 if tapered else spread / blur)
-    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0, 0.0
+                    0.0 if tapered else spread / blur, uncertainty,
+                    np.concatenate((np.zeros(max(other_kept - kept, 0)), other_uncertainty)))
+    return kept, out, half_taper, -1, np.zeros((0, 2)), 0.0, 0.0, uncertainty, np.zeros(0)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -763,12 +771,16 @@ def _placed_end(image, background, polarity, points, along, centre, direction, n
                 band_half_width, side_sigma, needle):  # pragma: no cover - compiled
     """The points towards the ``end`` (:func:`_end_along_profile`: ``along`` the line through ``centre`` in
     ``direction``, ``half_taper`` beyond the middle of its taper): (number of ``points`` kept, the new points
-    ending with the end); kept is -1 where too few points are left before the taper."""
+    ending with the end, their lateral uncertainty [px]); kept is -1 where too few points are left before the taper.
+    The new points are extrapolated: how the curvature changes beyond the slices fitted is not seen there, so each
+    point is known no better than the quadratic and the cubic fit to those slices agree on it (their difference at the
+    end: up to 0.12 px at flat ends 5-8 px beyond, 0.25-0.5 px where the needle fades into a background at its own
+    level and a long taper is read 48-60 px beyond, the extrapolation's error there 0.4-0.6 px)."""
     # The slices within the taper (a bevel: the band narrows from one side, its centroids move towards the other) and
     # within half_width + 1 of the end (cut obliquely: centroids biased) are replaced. (along increases towards the end)
     kept = int(np.searchsorted(along, end - 2 * half_taper - half_width - 1))
     if kept < 80 or end <= along[kept - 1]:
-        return -1, np.zeros((0, 2))
+        return -1, np.zeros((0, 2)), np.zeros(0)
     # Quadratic lateral offset against the distance along the line (least squares, centred abscissa), fitted to the
     # slices' centroids over the needle's blurred band only (the margins' noise has the largest lever arm), weighted
     # by the covered fraction where N is known.
@@ -786,25 +798,28 @@ def _placed_end(image, background, polarity, points, along, centre, direction, n
     for k in range(80):
         t = abscissa[k] - offset
         design[k, 0], design[k, 1], design[k, 2], design[k, 3] = t * t * t, t * t, t, 1.0
-    coefficients = np.linalg.lstsq(design, lateral)[0]
-    residual = lateral - design @ coefficients
+    cubic = np.linalg.lstsq(design, lateral)[0]
+    residual = lateral - design @ cubic
     variance = (residual @ residual) / 76.0 * np.linalg.inv(design.T @ design)[0, 0]
-    if end - along[kept - 1] > CUBIC_REACH * (along[kept - 1] - along[kept - 80]) \
-            or coefficients[0] * coefficients[0] <= CURVATURE_RAMP_SIGNIFICANCE ** 2 * variance:
-        coefficients[0] = 0.0
-        coefficients[1:] = np.linalg.lstsq(np.ascontiguousarray(design[:, 1:]), lateral)[0]
+    quadratic = np.zeros(4)
+    quadratic[1:] = np.linalg.lstsq(np.ascontiguousarray(design[:, 1:]), lateral)[0]
+    coefficients = quadratic if end - along[kept - 1] > CUBIC_REACH * (along[kept - 1] - along[kept - 80]) \
+        or cubic[0] * cubic[0] <= CURVATURE_RAMP_SIGNIFICANCE ** 2 * variance else cubic
     # As many points as the centerline's own spacing (the slices' step along the needle) puts up to the end, evenly
     # spaced: the 3D smoothing's first pass fits by point index, so a short last step pushed the end outward.
     spacing = (along[kept - 1] - along[kept - 21]) / 20
     count = max(int(round((end - along[kept - 1]) / max(spacing, 0.5))), 1)
     steps = along[kept - 1] + (end - along[kept - 1]) * np.arange(1, count + 1) / count
     out = np.empty((steps.shape[0], 2))
+    uncertainty = np.empty(steps.shape[0])
     for k in range(steps.shape[0]):
         t = steps[k] - offset
         shift = ((coefficients[0] * t + coefficients[1]) * t + coefficients[2]) * t + coefficients[3]
         out[k, 0] = centre[0] + steps[k] * direction[0] + shift * normal[0]
         out[k, 1] = centre[1] + steps[k] * direction[1] + shift * normal[1]
-    return kept, out
+        uncertainty[k] = abs((((cubic[0] - quadratic[0]) * t + cubic[1] - quadratic[1]) * t + cubic[2] - quadratic[2])
+                             * t + cubic[3] - quadratic[3])
+    return kept, out, uncertainty
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1010,7 +1025,9 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     # errs more than its neighbours' running median shows.
     noise, local = _scatter(points, head, slices)
     local = np.maximum(local, noise * slice_noise / np.median(slice_noise[head:head + slices]))
+    extrapolation = np.concatenate([first[7][::-1], np.zeros(slices), last[7]])  # empty where an end is kept as it is
     # Each end's other reading: a taper candidate (tapered) or the flat placement of a tapered end (flat).
-    candidates, flat = (tuple(None if end[3] < 0 or (end[5] == 0.0) != placed_flat else EndReading(*end[3:7])
+    candidates, flat = (tuple(None if end[3] < 0 or (end[5] == 0.0) != placed_flat else EndReading(*end[3:7], end[8])
                               for end in (first, last)) for placed_flat in (False, True))
-    return ImageCenterline(points, contrast_kept, noise, local, np.array([first[2], last[2]]), candidates, flat)
+    return ImageCenterline(points, contrast_kept, noise, local, extrapolation, np.array([first[2], last[2]]),
+                           candidates, flat)

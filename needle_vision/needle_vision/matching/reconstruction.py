@@ -130,10 +130,11 @@ def _nearest(reference, queries, stride):  # pragma: no cover - compiled
     return out
 
 
-def _local_noise(centerline: ImageCenterline, rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
-    """The local image noise [px] of ``centerline`` (rectified points ``rectified``) at the matched points: that of
-    the nearest point (its own: a slice's centroid noise where the contrast fades)."""
-    return centerline.local_noise_px[_nearest(np.ascontiguousarray(rectified), matched, 8)]
+def _nearest_points(rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
+    """For each of the ``matched`` points, the index of the nearest point of a centerline (``rectified``: its points
+    rectified), whose own per-point values (local noise, extrapolation error) are the matched point's: where the
+    background passes through the needle's level a single slice errs by a pixel and its own noise says so."""
+    return _nearest(np.ascontiguousarray(rectified), matched, 8)
 
 
 def _rectified(centerline: ImageCenterline, rectification: Rectification, side: str) -> tuple[np.ndarray,
@@ -315,20 +316,23 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     # Per-point noise (the images' local scatter where above their median): lateral from the image noise, depth
     # through the disparity (worse where the needle is close to parallel to the epipolar lines: there the match
     # slides along the curve).
-    noise_px = np.maximum.reduce([_local_noise(left, left_rect, match.left),
-                                  _local_noise(right, right_rect, match.right),
+    nearest = _nearest_points(left_rect, match.left), _nearest_points(right_rect, match.right)
+    noise_px = np.maximum.reduce([left.local_noise_px[nearest[0]], right.local_noise_px[nearest[1]],
                                   np.full(len(match.left), max(left.noise_px, right.noise_px,
                                                                MIN_IMAGE_NOISE_PX))])[valid]
     noise_px = noise_px[inliers]
+    extrapolation_px = np.hypot(left.extrapolation_px[nearest[0]], right.extrapolation_px[nearest[1]])[valid][inliers]
     min_sin = np.sin(np.radians(matching.min_epipolar_angle_deg))
     slope = np.where(anchored, np.maximum(sin_angle, min_sin), 0.5 * min_sin)
     per_disparity = rectification.depth_per_disparity(points)
     depth_noise = per_disparity * noise_px * np.sqrt(2 + 1 / slope ** 2)
-    lateral_noise = np.linalg.norm(points, axis=1) / rectification.focal_length * noise_px
-    point_sigma = np.sqrt(depth_noise ** 2 + 2 * lateral_noise ** 2)
+    lateral_scale = np.linalg.norm(points, axis=1) / rectification.focal_length  # [m/px]
+    point_sigma = np.sqrt(depth_noise ** 2 + 2 * (lateral_scale * noise_px) ** 2)
+    # Not averaged by the smoothing: the correlated error's slide and the extrapolated ends' shared error.
+    unaveraged = np.hypot(per_disparity * _slide(slope, extrapolation_px), lateral_scale * extrapolation_px)
 
     fit = _fitted_curve(points, point_sigma, spacing, (left, right), (left_rect, right_rect), rectification, config)
-    return Triangulation(output_from_left.apply(points), point_sigma, per_disparity * _slide(slope),
+    return Triangulation(output_from_left.apply(points), point_sigma, unaveraged,
                          anchored, spacing, left, right,
                          None if fit is None else (output_from_left.apply(fit[0]), fit[1], fit[2]))
 
@@ -405,19 +409,22 @@ def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray
     new_arc = np.concatenate([[start], arc[(arc > start) & (arc < stop)], [stop]])
     return replace(centerline, points=interpolate(arc, centerline.points, new_arc),
                    contrast=np.interp(new_arc, arc, centerline.contrast),
-                   local_noise_px=np.interp(new_arc, arc, centerline.local_noise_px))
+                   local_noise_px=np.interp(new_arc, arc, centerline.local_noise_px),
+                   extrapolation_px=np.interp(new_arc, arc, centerline.extrapolation_px))
 
 
-def _slide(sin_angle: np.ndarray) -> np.ndarray:
+def _slide(sin_angle: np.ndarray, extrapolation_px: np.ndarray) -> np.ndarray:
     """Disparity error [px] of a match that the smoothing along the curve does not average, where the image
-    tangent makes an angle theta (``sin_angle``, floored like the anchors) with the epipolar lines.
+    tangent makes an angle theta (``sin_angle``, floored like the anchors) with the epipolar lines; at the points
+    extrapolated towards an image's ends, their shared lateral error too (``extrapolation_px``, both views').
 
     A lateral image error e moves the curve's crossing of its epipolar line, hence the match, by e / sin(theta)
     along the line. The white part of e is in ``point_sigma`` (averaged by the local cubic); the correlated part
     c = CORRELATED_NOISE_PX spans ~20 points, shifts all their matches alike and is not averaged. Both views
     independent: sqrt(2) c / sin(theta); the floor of sin(theta) (min_epipolar_angle, half of it where the match is
-    interpolated) caps it at ~6 (~12) times sqrt(2) c."""
-    return np.sqrt(2.0) * CORRELATED_NOISE_PX / sin_angle
+    interpolated) caps it at ~6 (~12) times sqrt(2) c. An extrapolated stretch's error is one for the whole stretch: it
+    adds in quadrature (its lateral part is added in ``triangulate_centerline``)."""
+    return np.sqrt(2.0 * CORRELATED_NOISE_PX ** 2 + extrapolation_px ** 2) / sin_angle
 
 
 def _depth_curvature(curve: np.ndarray, arc: np.ndarray, anchored: np.ndarray, start: float, stop: float,
@@ -481,7 +488,8 @@ def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, spacing: float,
     split = 0.5 * config.smoothing_length
     smooth, gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
     rotation = rectification.rotation_left
-    noise = tuple(np.maximum(np.maximum(c.local_noise_px, c.noise_px), MIN_IMAGE_NOISE_PX) for c in centerlines)
+    noise = tuple(np.maximum.reduce([c.local_noise_px, c.extrapolation_px, np.full(len(c.points), max(
+        c.noise_px, MIN_IMAGE_NOISE_PX))]) for c in centerlines)
     # Each run of CORRELATED_NOISE_POINTS points carries the correlated error once: its variance over the white
     # noise's variance of their mean scales the image terms' variance in the covariance (not the prior's).
     white = float(np.median(np.concatenate(noise)))
