@@ -64,9 +64,6 @@ class CompareNode(Node):
         super().__init__(NODE_NAME)
         self.values = declare_all(self, COMPARE_PARAMETERS)
         v = self.values
-        if v["log.path"].endswith(".mcap") and (v["log.max_file_size"] or v["log.max_file_duration"]):
-            raise ParameterError("parameters 'log.max_file_size'/'log.max_file_duration' split a recording and need "
-                                 f"'log.path' to be a bag directory (no .mcap suffix), got '{v['log.path']}'")
         self.session = ComparisonSession(v, self.warn_rejected)
         self.error_qos = QoSProfile(depth=10)
         self.error_publisher = self.create_publisher(ShapeError, "shape_error", self.error_qos)
