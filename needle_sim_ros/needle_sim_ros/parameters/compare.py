@@ -8,6 +8,8 @@ import numpy as np
 
 from needle_common.parameters import ParamSpec
 
+from needle_sim_ros.recording.mcap_writer import COMPRESSION
+
 #: The compared centerlines as nav_msgs/Path and visualization_msgs/Marker (model frame).
 DISPLAY_TOPICS = ("compare/model/path", "compare/model/marker", "compare/measured/path", "compare/measured/marker")
 #: The topics the node can record (relative to its namespace).
@@ -50,7 +52,7 @@ COMPARE_PARAMETERS = [
               "split). Empty: no recording."),
     ParamSpec("log.topics", list(LOGGABLE_TOPICS), "Topics recorded (relative to the node namespace), a subset of "
               + ", ".join(LOGGABLE_TOPICS) + ".", check=(lambda v: set(v) <= set(LOGGABLE_TOPICS), "unknown topic")),
-    ParamSpec("log.compression", "zstd", "Chunk compression of the recording.", choices=("zstd", "lz4", "none")),
+    ParamSpec("log.compression", "zstd", "Chunk compression of the recording.", choices=COMPRESSION),
     ParamSpec("log.chunk_size", 1 << 20, "Uncompressed chunk size [bytes] at which a chunk is written to disk.",
               low=1024, high=1 << 30),
     ParamSpec("log.chunk_interval", 1.0, "Longest time [s] a chunk stays in memory (data lost on a crash).",
