@@ -118,3 +118,14 @@ def test_the_compare_node_records_exactly_the_declared_topics():
     from needle_sim_ros.nodes.compare_node import LOGGABLE
     from needle_sim_ros.parameters.compare import LOGGABLE_TOPICS
     assert tuple(LOGGABLE) == LOGGABLE_TOPICS
+
+
+def test_the_integrator_methods_offered_are_the_integrators(capsys):
+    """needle_simulator's integrator.method and needle_scenario free_vibration --method offer model.integrators'."""
+    from needle_sim_ros.model.integrators import METHODS
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+    from needle_sim_ros.scenarios.cli import main
+    assert next(s for s in SIMULATOR_PARAMETERS if s.name == "integrator.method").choices == METHODS
+    with pytest.raises(SystemExit):
+        main(["free_vibration", "--help"])
+    assert f"--method {{{','.join(METHODS)}}}" in capsys.readouterr().out
