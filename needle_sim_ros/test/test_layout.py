@@ -129,3 +129,18 @@ def test_the_integrator_methods_offered_are_the_integrators(capsys):
     with pytest.raises(SystemExit):
         main(["free_vibration", "--help"])
     assert f"--method {{{','.join(METHODS)}}}" in capsys.readouterr().out
+
+
+def test_every_qos_parameter_offers_the_profiles_of_the_one_mapping():
+    """The QoS parameters of the three nodes offer needle_common's QOS_CHOICES, which qos_profile maps."""
+    from rclpy.qos import ReliabilityPolicy
+
+    from needle_common.parameters import QOS_CHOICES
+    from needle_common.ros.ros_parameters import qos_profile
+    from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+    from needle_vision.parameters import SPECS
+    qos = [spec for spec in (*SIMULATOR_PARAMETERS, *COMPARE_PARAMETERS, *SPECS) if "qos" in spec.name]
+    assert len(qos) == 5 and all(spec.choices == QOS_CHOICES for spec in qos), qos
+    assert [qos_profile(name, 100).reliability for name in QOS_CHOICES] == [ReliabilityPolicy.BEST_EFFORT,
+                                                                            ReliabilityPolicy.RELIABLE]

@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 
 from needle_common.package_files import resolve_path
-from needle_common.parameters import TOPIC_CHECK, ParameterError, ParamSpec, unknown_name_error, valid_topic_name
+from needle_common.parameters import (QOS_CHOICES, TOPIC_CHECK, ParameterError, ParamSpec, unknown_name_error,
+                                      valid_topic_name)
 from needle_vision.detection.background import ContrastThreshold
 from needle_vision.streams.base_pose import BasePoseStore
 from needle_vision.detection.centerline import CenterlineConfig
@@ -62,7 +63,7 @@ SPECS: tuple[ParamSpec, ...] = (
               "(e.g. the simulator's flange_offset.position for its base_pose topic)", -10.0, 10.0, length=3),
     ParamSpec("image_qos", "sensor_data", "QoS of the image and camera_info subscriptions: sensor_data (best "
               "effort, also matches reliable publishers) or reliable (large images arrive whole or not at all)",
-              choices=("sensor_data", "reliable")),
+              choices=QOS_CHOICES),
     ParamSpec("image_transport", "raw", "how the cameras publish their images, as image_transport names it: raw "
               "(sensor_msgs/Image on left|right/image_raw) or compressed (sensor_msgs/CompressedImage, JPEG or PNG "
               "as compressed_image_transport writes them, on left|right/image_raw/compressed)",

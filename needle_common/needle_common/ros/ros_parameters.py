@@ -13,8 +13,18 @@ from typing import Any, Callable, Collection, Sequence
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from needle_common.parameters import ParameterError, ParamSpec
+
+
+def qos_profile(name: str, depth: int = 10) -> QoSProfile:
+    """A QoS parameter's profile (:data:`needle_common.parameters.QOS_CHOICES`): ``sensor_data`` (best effort,
+    volatile) or ``reliable``, keeping the last ``depth`` messages."""
+    if name == "sensor_data":
+        return QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
+                          durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def descriptor(spec: ParamSpec, read_only: bool | None = None) -> ParameterDescriptor:

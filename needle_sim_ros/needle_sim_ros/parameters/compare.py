@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from needle_common.parameters import ParamSpec
+from needle_common.parameters import QOS_CHOICES, ParamSpec
 
 from needle_sim_ros.recording.mcap_writer import COMPRESSION
 
@@ -41,7 +41,7 @@ COMPARE_PARAMETERS = [
     ParamSpec("qos.inputs", "sensor_data", "QoS of the recorded base_pose and wrench subscriptions: sensor_data "
               "(best effort: matches the simulator's default best-effort wrench and reliable publishers) or "
               "reliable (every message of a reliable publisher, e.g. qos.wrench: reliable in a replay).",
-              choices=("reliable", "sensor_data")),
+              choices=QOS_CHOICES),
     ParamSpec("summary_path", "", "JSON file written at shutdown with mean/max RMSE and counts. Empty: none."),
     ParamSpec("display.rate", 10.0, "Largest rate [Hz of measurement time] of the compared centerlines as "
               "nav_msgs/Path and Marker tubes on compare/{model,measured}/{path,marker} (model frame); 0: none.",

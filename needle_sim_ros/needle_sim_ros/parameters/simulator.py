@@ -5,7 +5,7 @@ import numpy as np
 
 from needle_sim_ros.model.config import DEFAULTS as MODEL_DEFAULTS
 from needle_sim_ros.model.integrators import METHODS
-from needle_common.parameters import TOPIC_CHECK, ParamSpec
+from needle_common.parameters import QOS_CHOICES, TOPIC_CHECK, ParamSpec
 from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
 
@@ -18,7 +18,6 @@ def _model(name: str, *arguments, **options) -> ParamSpec:
     return ParamSpec(name, MODEL_DEFAULTS[name], *arguments, **options)
 
 
-QOS_CHOICES = ("sensor_data", "reliable")
 NAMED = (bool, "must not be empty")  # a frame
 
 SIMULATOR_PARAMETERS = [
