@@ -3,7 +3,6 @@ one parameter system (``needle_common.parameters``), and the pipeline settings b
 """
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -18,7 +17,7 @@ from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.pipeline import StereoConfig
 from needle_vision.matching.reconstruction import ReconstructionConfig
 from needle_vision.matching.tracking import TrackingConfig
-from needle_common.transforms import RigidTransform
+from needle_common.transforms import RigidTransform, nonzero_quaternion
 
 
 def _readable_file_or_empty(path: str) -> bool:
@@ -26,10 +25,6 @@ def _readable_file_or_empty(path: str) -> bool:
         return path == "" or resolve_path(path).is_file()
     except FileNotFoundError:
         return False
-
-
-def _nonzero_quaternion(pose: list[float]) -> bool:
-    return len(pose) == 7 and math.hypot(*pose[3:]) > 1e-9
 
 
 SPECS: tuple[ParamSpec, ...] = (
@@ -43,7 +38,7 @@ SPECS: tuple[ParamSpec, ...] = (
               "(raw left optical frame)"),
     ParamSpec("output_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "fixed pose of the raw left optical "
               "frame in output_frame (unused when output_frame is empty): x, y, z [m], qx, qy, qz, qw", length=7,
-              check=(_nonzero_quaternion, "quaternion must be non-zero")),
+              check=(lambda pose: nonzero_quaternion(pose[3:]), "quaternion must be non-zero")),
     ParamSpec("left_optical_frame", "stereo_left_optical_frame", "TF frame of the raw left optical frame (z forward, "
               "x right, y down; REP 103): child of output_frame on /tf_static, with output_transform"),
     ParamSpec("right_optical_frame", "stereo_right_optical_frame", "TF frame of the raw right optical frame: child "

@@ -2,11 +2,10 @@
 node, validated at start by both)."""
 from __future__ import annotations
 
-import math
 
-import numpy as np
 
 from needle_common.parameters import QOS_CHOICES, ParamSpec
+from needle_common.transforms import nonzero_quaternion
 
 from needle_sim_ros.recording.mcap_writer import COMPRESSION
 
@@ -17,10 +16,6 @@ LOGGABLE_TOPICS = ("model/shape", "measured/shape", "measured/points", "shape_er
                    *DISPLAY_TOPICS)
 
 
-def _unit_quaternion(q) -> bool:
-    return math.isfinite(sum(q)) and np.linalg.norm(q) > 1e-6
-
-
 COMPARE_PARAMETERS = [
     ParamSpec("tolerance", 0.005, "Largest stamp difference [s] between a measured and a model shape that are "
               "compared.", low=0.0, high=10.0),
@@ -28,7 +23,7 @@ COMPARE_PARAMETERS = [
               "p_model = R p_camera + t.", length=3),
     ParamSpec("extrinsic.rotation", [0.0, 0.0, 0.0, 1.0], "Camera orientation R in the model frame as a "
               "quaternion (x, y, z, w); normalized here.", length=4,
-              check=(_unit_quaternion, "must be a finite, non-zero quaternion")),
+              check=(nonzero_quaternion, "must be a finite, non-zero quaternion")),
     ParamSpec("model_frame", "", "Expected header.frame_id of model shapes; errors are expressed in it. "
               "Empty: accept any."),
     ParamSpec("measured_frame", "", "Expected header.frame_id of measurements (the camera frame). Empty: accept any."),
