@@ -19,8 +19,7 @@ from needle_common.parameters import ParameterError, ParamSpec
 
 
 def qos_profile(name: str, depth: int = 10) -> QoSProfile:
-    """A QoS parameter's profile (:data:`needle_common.parameters.QOS_CHOICES`): ``sensor_data`` (best effort,
-    volatile) or ``reliable``, keeping the last ``depth`` messages."""
+    """A QOS_CHOICES parameter's profile: ``sensor_data`` (best effort, volatile) or ``reliable``; keeps ``depth``."""
     if name == "sensor_data":
         return QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
                           durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
