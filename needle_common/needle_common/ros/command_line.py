@@ -43,9 +43,8 @@ def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool
 
 def checked_command_line(argv: Sequence[str], logger, name: str, check: Callable[[list[str]], Checked],
                          takes_others: bool = True) -> Checked | None:
-    """``check(others)``: what the node starts with, from its non-ROS arguments (:func:`non_ros_arguments`) and its
-    ROS arguments checked (:func:`needle_common.parameters.check_ros_arguments`); None after one fatal log line where
-    the ROS arguments are malformed or ``check`` raises a ValueError (a ParameterError is one)."""
+    """``check(others)``, which parses the non-ROS arguments and checks the params files; None after one fatal log
+    line where the ROS arguments are malformed or ``check`` raises a ValueError (a ParameterError is one)."""
     others = non_ros_arguments(argv, logger, name, takes_others)
     if others is None:
         return None

@@ -118,15 +118,13 @@ STATIC_WORLD = BaseMotion(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 
 
 def clamp_offset(position, orientation, prefix: str = "offset_") -> tuple[np.ndarray, np.ndarray]:
-    """The flange-to-clamp offset: position of A (3,) [m] and rotation (3, 3) of frame f from its quaternion (x, y,
-    z, w), both in the flange frame; a ValueError names ``<prefix>position`` or ``<prefix>orientation``."""
+    """Position of A (3,) [m] and rotation of frame f (3, 3) in the flange frame; ValueError names ``<prefix>...``."""
     offset = _vector(position, f"{prefix}position")
     return offset, quaternion_matrix(unit_quaternion(orientation, f"{prefix}orientation"))
 
 
 def clamp_motions(flange: np.ndarray, offset: np.ndarray, offset_rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Motions (k, 19) of the clamp frame and their rotations (k, 3, 3) from the flange motions packed (k, 19) and
-    the :func:`clamp_offset` (:func:`compose_offsets`, compiled)."""
+    """Clamp-frame motions (k, 19) and rotations (k, 3, 3) from flange motions (k, 19) and a :func:`clamp_offset`."""
     values, rotations = np.empty_like(flange), np.empty((len(flange), 3, 3))
     compose_offsets(flange, offset, offset_rotation, values, rotations)
     return values, rotations
