@@ -106,7 +106,7 @@ def pose_path_cost(elements: int, poses: int = 3000) -> None:
 
 def serve_echo() -> None:
     """The ``--echo`` process: each base pose answered at once with a wrench carrying the pose's stamp."""
-    from needle_sim_ros.nodes.simulator_node import qos_profile
+    from needle_common.ros.ros_parameters import qos_profile
     from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 
     defaults = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}

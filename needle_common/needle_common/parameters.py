@@ -26,6 +26,7 @@ import yaml
 # Parameters every rclpy node has (accepted in any node's section).
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
 # Nodes of the suite (a section for another name is probably a typo: warned) and the pipeline tools' section.
+QOS_CHOICES = ("sensor_data", "reliable")  # the nodes' qos parameters (needle_common.ros.ros_parameters.qos_profile)
 KNOWN_NODES = ("needle_simulator", "needle_stereo", "needle_compare", "needle_replay", "needle_pipeline")
 _TOPIC_TOKEN = re.compile(r"^(~|[A-Za-z_][A-Za-z0-9_]*|\{[A-Za-z_][A-Za-z0-9_]*\})$")
 
@@ -377,12 +378,14 @@ def ros_arguments(argv: Sequence[str]) -> RosArguments:
 
 
 def check_ros_arguments(argv: Sequence[str], node_name: str, specs: Sequence[ParamSpec] | None,
-                        warn: Callable[[str], None] = _print_warning, known_elsewhere: Iterable[str] = ()) -> None:
+                        warn: Callable[[str], None] = _print_warning,
+                        known_elsewhere: Iterable[str] = ()) -> RosArguments:
     """Check every ``--params-file`` of a node's command line with :func:`load_params_file` before rclpy reads it (rcl's
     own parser would fail with a traceback), and the names of its ``-p name:=value`` overrides (rclpy would ignore an
-    undeclared one silently); raises ParameterError. A ``-p`` rule without a node prefix reaches every node started with
-    the command line: names in ``known_elsewhere`` belong to the others. A ``-p`` name (and a wildcard section's) that
-    resembles none of the node's is warned about and ignored; a misspelling of one is refused with the suggestion."""
+    undeclared one silently); the parsed command line, or ParameterError. A ``-p`` rule without a node prefix reaches
+    every node started with the command line: names in ``known_elsewhere`` belong to the others. A ``-p`` name (and a
+    wildcard section's) that resembles none of the node's is warned about and ignored; a misspelling of one is refused
+    with the suggestion."""
     parsed = ros_arguments(argv)
     node = parsed.node_name or node_name
     for path in parsed.params_files:
@@ -396,3 +399,4 @@ def check_ros_arguments(argv: Sequence[str], node_name: str, specs: Sequence[Par
         where = f"parameter override '-p {name}:=...' for node '{node}': "
         if not _foreign(name, names, where, warn):
             raise unknown_name_error(name, names, where)
+    return parsed

@@ -108,6 +108,12 @@ def normalized_unit_quaternion(quaternion: np.ndarray, name: str) -> np.ndarray:
     return quaternion / norm
 
 
+def nonzero_quaternion(quaternion: Sequence[float]) -> bool:
+    """Whether a quaternion (x, y, z, w) is finite and non-zero (norm >= 1e-9): one a transform normalizes."""
+    norm = float(np.linalg.norm(quaternion))
+    return math.isfinite(norm) and norm >= 1e-9
+
+
 def quaternions_from_x_axes(directions: np.ndarray) -> np.ndarray:
     """Unit quaternions (..., 4) of the least rotations taking the x axis onto each of ``directions`` (..., 3)."""
     unit = np.asarray(directions, dtype=float)
@@ -148,11 +154,9 @@ class RigidTransform:
     def from_xyz_quaternion(cls, xyz_quaternion: Sequence[float]) -> "RigidTransform":
         """From ``[x, y, z, qx, qy, qz, qw]`` (metres, quaternion normalized here; zero quaternion rejected)."""
         values = np.asarray(xyz_quaternion, dtype=float).reshape(7)
-        quaternion = values[3:]
-        norm = np.linalg.norm(quaternion)
-        if not np.isfinite(norm) or norm < 1e-9:
+        if not nonzero_quaternion(values[3:]):
             raise ValueError("quaternion must be finite and non-zero")
-        return cls(quaternion_matrix(quaternion / norm), values[:3])
+        return cls(quaternion_matrix(values[3:] / np.linalg.norm(values[3:])), values[:3])
 
     def as_xyz_quaternion(self) -> list[float]:
         """``[x, y, z, qx, qy, qz, qw]`` (qw >= 0)."""

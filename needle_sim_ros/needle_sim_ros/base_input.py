@@ -11,12 +11,10 @@ from typing import Callable
 
 import numpy as np
 
-from needle_common.transforms import quaternion_matrix, unit_quaternion
-
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict
 from needle_sim_ros.compiled_advance import apply_twist
 from needle_sim_ros.model import BaseMotion
-from needle_sim_ros.model.kinematics import compose_offsets
+from needle_sim_ros.model.kinematics import clamp_motions, clamp_offset
 from needle_sim_ros.stepper import magnitude
 
 PACKED_SIZE = 20  # BaseInput.packed
@@ -49,8 +47,8 @@ class BaseInput:
         # compiled advance reads, in one array (one argument)
         self.packed = np.full(PACKED_SIZE, np.nan)
         self.packed[0] = twist_timeout
-        self.packed[8:11] = flange_offset[0]
-        self.packed[11:20] = quaternion_matrix(unit_quaternion(flange_offset[1], "flange_offset.orientation")).ravel()
+        self.packed[8:11], offset_rotation = clamp_offset(*flange_offset, prefix="flange_offset.")
+        self.packed[11:20] = offset_rotation.ravel()
         self._parts = (self.packed[1:8], self.packed[8:11], self.packed[11:20].reshape(3, 3))  # views, made once
         self.limits = limits
         self.base_at = base_at
@@ -63,14 +61,6 @@ class BaseInput:
     @property
     def twist_timeout(self) -> float:
         return float(self.packed[0])
-
-    @property
-    def offset_position(self) -> np.ndarray:
-        return self._parts[1]
-
-    @property
-    def offset_rotation(self) -> np.ndarray:
-        return self._parts[2]
 
     @property
     def twist(self) -> np.ndarray | None:
@@ -119,9 +109,7 @@ class BaseInput:
         flange = self.trajectory.motions_at(times)
         twist, offset, offset_rotation = self._parts
         apply_twist(flange, times, twist, self.twist_timeout)
-        values, rotations = np.empty_like(flange), np.empty((len(times), 3, 3))
-        compose_offsets(flange, offset, offset_rotation, values, rotations)
-        return values, rotations
+        return clamp_motions(flange, offset, offset_rotation)
 
     def prescribed_motions(self, times: np.ndarray) -> list[BaseMotion] | None:
         """A prescribed base's own motions at ``times`` (``base_at``), for steps that take them one at a time;

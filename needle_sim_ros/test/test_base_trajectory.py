@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from needle_sim_ros.base_input import BaseInput
 from needle_sim_ros.base_trajectory import BaseTrajectory, PoseVerdict, TrajectoryLimits
+from needle_sim_ros.model import BaseMotion
 
 ACCEL = np.array([0.3, -0.2, 0.1])
 VEL0 = np.array([0.05, 0.02, -0.01])
@@ -195,3 +197,16 @@ def test_served_motion_stays_exact_when_samples_come_ahead_of_the_served_time(cl
     # the quadratic fit of the 20 ms before the newest sample, evaluated up to 25 ms behind it (40 Hz): 0.45 rad/s^2
     # of the 1.7 rad/s^2 amplitude; 0.05 at 100-200 Hz
     assert np.abs(m[:, 17] - angular_acceleration).max() < (0.6 if clock_hz < 100 else 0.08)
+
+
+def test_the_received_poses_reach_the_clamp_by_the_one_flange_offset_composition():
+    """The node's base input and BaseMotion.from_flange (checked against finite differences in
+    test_model_kinematics) compose the flange-to-clamp offset alike."""
+    offset = (np.array([0.02, -0.01, 0.15]), Rotation.from_euler("zyx", [0.3, -0.2, 0.5]).as_quat())
+    source = BaseInput(filled(), offset)
+    clamp = source.motion_at(0.037)
+    flange = motion_at(source.trajectory, 0.037)
+    expected = BaseMotion.from_flange(flange.position, flange.orientation, *offset, flange.linear_velocity,
+                                      flange.angular_velocity, flange.linear_acceleration, flange.angular_acceleration)
+    np.testing.assert_allclose(clamp.packed, expected.packed, rtol=0.0, atol=1e-14)
+    np.testing.assert_allclose(clamp.rotation, expected.rotation, rtol=0.0, atol=1e-14)

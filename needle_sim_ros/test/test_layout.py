@@ -118,3 +118,51 @@ def test_the_compare_node_records_exactly_the_declared_topics():
     from needle_sim_ros.nodes.compare_node import LOGGABLE
     from needle_sim_ros.parameters.compare import LOGGABLE_TOPICS
     assert tuple(LOGGABLE) == LOGGABLE_TOPICS
+
+
+def test_the_integrator_methods_offered_are_the_integrators(capsys):
+    """needle_simulator's integrator.method and needle_scenario free_vibration --method offer model.integrators'."""
+    from needle_sim_ros.model.integrators import METHODS
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+    from needle_sim_ros.scenarios.cli import main
+    assert next(s for s in SIMULATOR_PARAMETERS if s.name == "integrator.method").choices == METHODS
+    with pytest.raises(SystemExit):
+        main(["free_vibration", "--help"])
+    assert f"--method {{{','.join(METHODS)}}}" in capsys.readouterr().out
+
+
+def test_every_qos_parameter_offers_the_profiles_of_the_one_mapping():
+    """The QoS parameters of the three nodes offer needle_common's QOS_CHOICES, which qos_profile maps."""
+    from rclpy.qos import ReliabilityPolicy
+
+    from needle_common.parameters import QOS_CHOICES
+    from needle_common.ros.ros_parameters import qos_profile
+    from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+    from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
+    from needle_vision.parameters import SPECS
+    qos = [spec for spec in (*SIMULATOR_PARAMETERS, *COMPARE_PARAMETERS, *SPECS) if "qos" in spec.name]
+    assert len(qos) == 5 and all(spec.choices == QOS_CHOICES for spec in qos), qos
+    assert [qos_profile(name, 100).reliability for name in QOS_CHOICES] == [ReliabilityPolicy.BEST_EFFORT,
+                                                                            ReliabilityPolicy.RELIABLE]
+
+
+@pytest.mark.parametrize("quaternion", [[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 2e-9], [0.0, 0.0, 0.0, 5e-10],
+                                        [0.0, 0.0, 0.0, 0.0], [float("nan"), 0.0, 0.0, 1.0], [float("inf"), 0, 0, 1]])
+def test_the_quaternion_parameters_accept_what_the_transform_takes(quaternion):
+    """needle_compare's extrinsic.rotation and needle_stereo's output_transform: the quaternions that
+    RigidTransform.from_xyz_quaternion (which both build) takes, no more, no less."""
+    from needle_common.parameters import ParameterError
+    from needle_common.transforms import RigidTransform
+    from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+    from needle_vision.parameters import SPECS
+
+    def accepted(call) -> bool:
+        try:
+            call()
+        except (ValueError, ParameterError):
+            return False
+        return True
+    takes = accepted(lambda: RigidTransform.from_xyz_quaternion([0.0, 0.0, 0.0, *quaternion]))
+    specs = {spec.name: spec for spec in (*COMPARE_PARAMETERS, *SPECS)}
+    assert accepted(lambda: specs["extrinsic.rotation"].validate(quaternion)) == takes
+    assert accepted(lambda: specs["output_transform"].validate([0.0, 0.0, 0.0, *quaternion])) == takes

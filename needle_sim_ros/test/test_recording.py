@@ -362,6 +362,19 @@ def test_recover_cli_reports_bad_input(tmp_path, capsys):
     assert recovery.main([str(good), str(taken), "--overwrite"]) == 0
 
 
+def test_the_compression_choices_offered_are_the_writers(capsys):
+    """needle_mcap_recover --compression and needle_compare's log.compression offer what WriterOptions accepts."""
+    from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS
+    with pytest.raises(SystemExit):
+        recovery.main(["--help"])
+    assert f"--compression {{{','.join(mcap_writer.COMPRESSION)}}}" in capsys.readouterr().out
+    assert next(s for s in COMPARE_PARAMETERS if s.name == "log.compression").choices == mcap_writer.COMPRESSION
+    for compression in mcap_writer.COMPRESSION:
+        WriterOptions(compression=compression)
+    with pytest.raises(ValueError, match="is not one of zstd, lz4, none"):
+        WriterOptions(compression="gzip")
+
+
 def test_a_bag_written_atomically_records_its_final_file_name(tmp_path):
     from needle_common.output_files import write_atomically
 

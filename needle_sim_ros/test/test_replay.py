@@ -388,6 +388,8 @@ def test_a_stopped_replay_exits_cleanly_however_it_waits(ros_env, tmp_path, wait
 @pytest.mark.parametrize("module, args, message", [
     ("compare_node", ["--ros-args", "-p", "extrinsic.rotation:=[0.0, 0.0, 0.0, 0.0]"], "extrinsic.rotation"),
     ("compare_node", ["--ros-args", "-p", "measured_input:=cloud"], "measured_input"),
+    ("compare_node", ["--ros-args", "-p", "log.path:=/nonexistent/log.mcap", "-p", "log.max_file_duration:=60.0"],
+     "'log.path' = '/nonexistent/log.mcap': splitting by max_file_size/max_file_duration needs a bag directory"),
     ("replay_node", ["/nonexistent/bag.mcap"], "/nonexistent/bag.mcap"),
     ("replay_node", ["x.mcap", "--rate", "0"], "--rate"),
     ("replay_node", ["x.mcap", "--linger", "abc"], "--linger: not a number: 'abc'"),

@@ -3,13 +3,13 @@ one parameter system (``needle_common.parameters``), and the pipeline settings b
 """
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
 from needle_common.package_files import resolve_path
-from needle_common.parameters import TOPIC_CHECK, ParameterError, ParamSpec, unknown_name_error, valid_topic_name
+from needle_common.parameters import (QOS_CHOICES, TOPIC_CHECK, ParameterError, ParamSpec, unknown_name_error,
+                                      valid_topic_name)
 from needle_vision.detection.background import ContrastThreshold
 from needle_vision.streams.base_pose import BasePoseStore
 from needle_vision.detection.centerline import CenterlineConfig
@@ -17,7 +17,7 @@ from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.pipeline import StereoConfig
 from needle_vision.matching.reconstruction import ReconstructionConfig
 from needle_vision.matching.tracking import TrackingConfig
-from needle_common.transforms import RigidTransform
+from needle_common.transforms import RigidTransform, nonzero_quaternion
 
 
 def _readable_file_or_empty(path: str) -> bool:
@@ -25,10 +25,6 @@ def _readable_file_or_empty(path: str) -> bool:
         return path == "" or resolve_path(path).is_file()
     except FileNotFoundError:
         return False
-
-
-def _nonzero_quaternion(pose: list[float]) -> bool:
-    return len(pose) == 7 and math.hypot(*pose[3:]) > 1e-9
 
 
 SPECS: tuple[ParamSpec, ...] = (
@@ -42,7 +38,7 @@ SPECS: tuple[ParamSpec, ...] = (
               "(raw left optical frame)"),
     ParamSpec("output_transform", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], "fixed pose of the raw left optical "
               "frame in output_frame (unused when output_frame is empty): x, y, z [m], qx, qy, qz, qw", length=7,
-              check=(_nonzero_quaternion, "quaternion must be non-zero")),
+              check=(lambda pose: nonzero_quaternion(pose[3:]), "quaternion must be non-zero")),
     ParamSpec("left_optical_frame", "stereo_left_optical_frame", "TF frame of the raw left optical frame (z forward, "
               "x right, y down; REP 103): child of output_frame on /tf_static, with output_transform"),
     ParamSpec("right_optical_frame", "stereo_right_optical_frame", "TF frame of the raw right optical frame: child "
@@ -62,7 +58,7 @@ SPECS: tuple[ParamSpec, ...] = (
               "(e.g. the simulator's flange_offset.position for its base_pose topic)", -10.0, 10.0, length=3),
     ParamSpec("image_qos", "sensor_data", "QoS of the image and camera_info subscriptions: sensor_data (best "
               "effort, also matches reliable publishers) or reliable (large images arrive whole or not at all)",
-              choices=("sensor_data", "reliable")),
+              choices=QOS_CHOICES),
     ParamSpec("image_transport", "raw", "how the cameras publish their images, as image_transport names it: raw "
               "(sensor_msgs/Image on left|right/image_raw) or compressed (sensor_msgs/CompressedImage, JPEG or PNG "
               "as compressed_image_transport writes them, on left|right/image_raw/compressed)",

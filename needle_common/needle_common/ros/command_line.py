@@ -3,7 +3,7 @@ arguments a node does not take become one fatal log line; the caller exits with 
 from __future__ import annotations
 
 import re
-from typing import Sequence
+from typing import Callable, Sequence, TypeVar
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError, UnknownROSArgsError
@@ -14,6 +14,7 @@ from needle_common.parameters import ros_arguments
 
 EXIT_BAD_ARGUMENTS = 2
 ROS_ARGUMENTS_USAGE = "--ros-args -p NAME:=VALUE --params-file FILE -r FROM:=TO"
+Checked = TypeVar("Checked")
 
 
 def _rcl_message(error: Exception) -> str:
@@ -38,6 +39,20 @@ def non_ros_arguments(argv: Sequence[str], logger, name: str, takes_others: bool
         logger.fatal(f"unexpected argument '{others[1]}': {name} takes ROS arguments only ({ROS_ARGUMENTS_USAGE})")
         return None
     return others
+
+
+def checked_command_line(argv: Sequence[str], logger, name: str, check: Callable[[list[str]], Checked],
+                         takes_others: bool = True) -> Checked | None:
+    """``check(others)``, which parses the non-ROS arguments and checks the params files; None after one fatal log
+    line where the ROS arguments are malformed or ``check`` raises a ValueError (a ParameterError is one)."""
+    others = non_ros_arguments(argv, logger, name, takes_others)
+    if others is None:
+        return None
+    try:
+        return check(others)
+    except ValueError as error:
+        logger.fatal(str(error))
+        return None
 
 
 def init_rclpy(args: Sequence[str] | None, logger, name: str, own_signals: bool = False) -> bool:

@@ -13,8 +13,17 @@ from typing import Any, Callable, Collection, Sequence
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 from needle_common.parameters import ParameterError, ParamSpec
+
+
+def qos_profile(name: str, depth: int = 10) -> QoSProfile:
+    """A QOS_CHOICES parameter's profile: ``sensor_data`` (best effort, volatile) or ``reliable``; keeps ``depth``."""
+    if name == "sensor_data":
+        return QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
+                          durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def descriptor(spec: ParamSpec, read_only: bool | None = None) -> ParameterDescriptor:

@@ -18,7 +18,7 @@ from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedEx
 from rclpy.node import Node
 
 from needle_common.parameters import ParameterError, ParamSpec, check_ros_arguments
-from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
+from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, checked_command_line, init_rclpy
 
 
 def run_node(make_node: Callable[[], Node], name: str, args=None,
@@ -31,12 +31,8 @@ def run_node(make_node: Callable[[], Node], name: str, args=None,
     (e.g. stop that thread, finalize a log file).
     """
     argv, logger = sys.argv if args is None else args, rclpy.logging.get_logger(name)
-    if non_ros_arguments(argv, logger, name, takes_others=False) is None:
-        return EXIT_BAD_ARGUMENTS
-    try:
-        check_ros_arguments(argv, name, specs, logger.warning)
-    except ParameterError as error:
-        logger.fatal(str(error))
+    if checked_command_line(argv, logger, name, lambda _: check_ros_arguments(argv, name, specs, logger.warning),
+                            takes_others=False) is None:
         return EXIT_BAD_ARGUMENTS
     return run_nodes([make_node], args, logger, name)
 

@@ -100,11 +100,7 @@ class BaseMotion:
         offset (position of A and rotation of frame f, both in the flange frame)."""
         flange = cls(flange_position, flange_orientation, linear_velocity, angular_velocity, linear_acceleration,
                      angular_acceleration)
-        offset = _vector(offset_position, "offset_position")
-        offset_rotation = quaternion_matrix(unit_quaternion(offset_orientation, "offset_orientation"))
-        packed = flange.packed[None, :]
-        values, rotations = np.empty((1, 19)), np.empty((1, 3, 3))
-        compose_offsets(packed, offset, offset_rotation, values, rotations)
+        values, rotations = clamp_motions(flange.packed[None, :], *clamp_offset(offset_position, offset_orientation))
         return cls.from_packed(values[0], rotations[0])
 
     def impose_nodes(self, local_r: np.ndarray, local_rx: np.ndarray, nodes: np.ndarray, target: np.ndarray) -> None:
@@ -119,6 +115,19 @@ class BaseMotion:
 for _name in ("linear_velocity", "angular_velocity", "linear_acceleration", "angular_acceleration"):
     delattr(BaseMotion, _name)
 STATIC_WORLD = BaseMotion(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+
+
+def clamp_offset(position, orientation, prefix: str = "offset_") -> tuple[np.ndarray, np.ndarray]:
+    """Position of A (3,) [m] and rotation of frame f (3, 3) in the flange frame; ValueError names ``<prefix>...``."""
+    offset = _vector(position, f"{prefix}position")
+    return offset, quaternion_matrix(unit_quaternion(orientation, f"{prefix}orientation"))
+
+
+def clamp_motions(flange: np.ndarray, offset: np.ndarray, offset_rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Clamp-frame motions (k, 19) and rotations (k, 3, 3) from flange motions (k, 19) and a :func:`clamp_offset`."""
+    values, rotations = np.empty_like(flange), np.empty((len(flange), 3, 3))
+    compose_offsets(flange, offset, offset_rotation, values, rotations)
+    return values, rotations
 
 
 @njit(cache=True)

@@ -20,7 +20,7 @@ from pathlib import Path
 import rclpy
 
 from needle_common.parameters import check_ros_arguments
-from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, non_ros_arguments
+from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, checked_command_line
 from needle_common.ros.runner import run_nodes
 
 from needle_sim_ros.parameters.experiment import NODES, load_experiment, node_specs
@@ -65,16 +65,15 @@ def check_node_arguments(rcl_args: list[str], stereo: bool, logger) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv if argv is None else argv)
     logger = rclpy.logging.get_logger(NAME)
-    others = non_ros_arguments(argv, logger, NAME, takes_others=True)
-    if others is None:
-        return EXIT_BAD_ARGUMENTS
-    args = parse_arguments(others[1:])
-    try:
-        rcl_args, stereo = rcl_arguments(argv, args)
+
+    def arguments(others: list[str]) -> tuple[list[str], bool]:
+        rcl_args, stereo = rcl_arguments(argv, parse_arguments(others[1:]))
         check_node_arguments(rcl_args, stereo, logger)
-    except ValueError as error:
-        logger.fatal(str(error))
+        return rcl_args, stereo
+    checked = checked_command_line(argv, logger, NAME, arguments)
+    if checked is None:
         return EXIT_BAD_ARGUMENTS
+    rcl_args, stereo = checked
     from needle_vision.ros.stereo_node import NeedleStereoNode
 
     from needle_sim_ros.nodes.compare_node import CompareNode

@@ -19,7 +19,7 @@ from geometry_msgs.msg import PoseStamped, WrenchStamped
 from needle_interfaces.msg import NeedleShape, ShapeError
 from rclpy.node import Node
 from nav_msgs.msg import Path
-from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
@@ -30,7 +30,7 @@ from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.messages.centerline_display import ComparisonDisplay
 from needle_sim_ros.messages.shape import shape_arrays, shape_error_cdr, stamp_ns
 from needle_common.ros.input_status import InputStatus
-from needle_common.ros.ros_parameters import declare_all
+from needle_common.ros.ros_parameters import declare_all, qos_profile
 from needle_sim_ros.nodes.recording_bridge import TopicRecorder
 from needle_common.ros.runner import run_node
 from needle_sim_ros.parameters.compare import COMPARE_PARAMETERS, DISPLAY_TOPICS
@@ -64,9 +64,6 @@ class CompareNode(Node):
         super().__init__(NODE_NAME)
         self.values = declare_all(self, COMPARE_PARAMETERS)
         v = self.values
-        if v["log.path"].endswith(".mcap") and (v["log.max_file_size"] or v["log.max_file_duration"]):
-            raise ParameterError("parameters 'log.max_file_size'/'log.max_file_duration' split a recording and need "
-                                 f"'log.path' to be a bag directory (no .mcap suffix), got '{v['log.path']}'")
         self.session = ComparisonSession(v, self.warn_rejected)
         self.error_qos = QoSProfile(depth=10)
         self.error_publisher = self.create_publisher(ShapeError, "shape_error", self.error_qos)
@@ -87,8 +84,7 @@ class CompareNode(Node):
         else:
             inputs.track(self.create_subscription(PointCloud2, "measured/points", self.on_measured_points,
                                                   QoSProfile(depth=10), raw=True))
-        input_qos = QoSProfile(depth=100) if v["qos.inputs"] == "reliable" else QoSProfile(
-            depth=100, reliability=qos_profile_sensor_data.reliability)
+        input_qos = qos_profile(v["qos.inputs"], 100)
         for topic, message_type in (("base_pose", PoseStamped), ("wrench", WrenchStamped)):
             if self.resolve_topic_name(topic) in self.logged:
                 inputs.track(self.create_subscription(message_type, topic,

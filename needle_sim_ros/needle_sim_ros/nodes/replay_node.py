@@ -26,8 +26,8 @@ from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
 from needle_common.cli_types import non_negative, positive
-from needle_common.parameters import ParameterError, check_ros_arguments
-from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, init_rclpy, non_ros_arguments
+from needle_common.parameters import check_ros_arguments
+from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, checked_command_line, init_rclpy
 from needle_common.ros.input_status import InputReports
 from needle_vision.streams.image_codec import ImageFormatError, compress_image, deserialize_image, image_to_array
 
@@ -232,14 +232,14 @@ class ReplayNode(Node):
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     logger = rclpy.logging.get_logger(NODE_NAME)
-    others = non_ros_arguments(argv, logger, NODE_NAME, takes_others=True)
-    if others is None:
-        return EXIT_BAD_ARGUMENTS
-    args = parse_arguments(others[1:])
-    try:  # its params files (e.g. use_sim_time) read as rcl will, with messages that name the problem
+
+    def arguments(others: list[str]) -> argparse.Namespace:
+        args = parse_arguments(others[1:])
+        # its params files (e.g. use_sim_time) read as rcl will, with messages that name the problem
         check_ros_arguments(argv, NODE_NAME, None, logger.warning)
-    except ParameterError as error:
-        logger.fatal(str(error))
+        return args
+    args = checked_command_line(argv, logger, NODE_NAME, arguments)
+    if args is None:
         return EXIT_BAD_ARGUMENTS
     try:
         reader = BagReader(args.bag, stop_on_corrupt=args.stop_on_corrupt)

@@ -31,7 +31,6 @@ from needle_interfaces.msg import NeedleShape, NeedleState
 from needle_interfaces.srv import ApplyPointLoad, ClearPointLoads
 from rclpy.duration import Duration
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker
@@ -50,7 +49,7 @@ from needle_sim_ros.model import BaseMotion, State, elastic_energy, kinetic_ener
 from needle_sim_ros.nodes.diagnostics import ERROR, OK, WARN, HealthMonitor
 from needle_sim_ros.nodes.lifecycle import autostart, when_configured
 from needle_common.ros.input_status import InputStatus
-from needle_common.ros.ros_parameters import declare_all, guard_dynamic_updates
+from needle_common.ros.ros_parameters import declare_all, guard_dynamic_updates, qos_profile
 from needle_sim_ros.nodes.polling import MessageWaiter, PolledCallbackGroup, drain
 from needle_common.ros.runner import run_node
 from needle_common.ros.tf_output import TfOutput, transform_stamped
@@ -62,14 +61,6 @@ from needle_sim_ros.simulation import (
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
 ZERO_ACK_WAIT = 0.5  # [s] longest wait for the haptic subscribers to acknowledge the zero sent at exit
 TUBE_COLOR = (0.75, 0.75, 0.8, 1.0)  # RGBA of the needle's Marker tube
-
-
-def qos_profile(name: str, depth: int = 10) -> QoSProfile:
-    """``sensor_data`` (best effort, volatile) or ``reliable``, keeping the last ``depth`` messages."""
-    if name == "sensor_data":
-        return QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
-                          durability=qos_profile_sensor_data.durability, history=qos_profile_sensor_data.history)
-    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class NeedleSimulatorNode(LifecycleNode):

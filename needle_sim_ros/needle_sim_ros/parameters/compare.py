@@ -2,21 +2,18 @@
 node, validated at start by both)."""
 from __future__ import annotations
 
-import math
 
-import numpy as np
 
-from needle_common.parameters import ParamSpec
+from needle_common.parameters import QOS_CHOICES, ParamSpec
+from needle_common.transforms import nonzero_quaternion
+
+from needle_sim_ros.recording.mcap_writer import COMPRESSION
 
 #: The compared centerlines as nav_msgs/Path and visualization_msgs/Marker (model frame).
 DISPLAY_TOPICS = ("compare/model/path", "compare/model/marker", "compare/measured/path", "compare/measured/marker")
 #: The topics the node can record (relative to its namespace).
 LOGGABLE_TOPICS = ("model/shape", "measured/shape", "measured/points", "shape_error", "base_pose", "wrench",
                    *DISPLAY_TOPICS)
-
-
-def _unit_quaternion(q) -> bool:
-    return math.isfinite(sum(q)) and np.linalg.norm(q) > 1e-6
 
 
 COMPARE_PARAMETERS = [
@@ -26,7 +23,7 @@ COMPARE_PARAMETERS = [
               "p_model = R p_camera + t.", length=3),
     ParamSpec("extrinsic.rotation", [0.0, 0.0, 0.0, 1.0], "Camera orientation R in the model frame as a "
               "quaternion (x, y, z, w); normalized here.", length=4,
-              check=(_unit_quaternion, "must be a finite, non-zero quaternion")),
+              check=(nonzero_quaternion, "must be a finite, non-zero quaternion")),
     ParamSpec("model_frame", "", "Expected header.frame_id of model shapes; errors are expressed in it. "
               "Empty: accept any."),
     ParamSpec("measured_frame", "", "Expected header.frame_id of measurements (the camera frame). Empty: accept any."),
@@ -39,7 +36,7 @@ COMPARE_PARAMETERS = [
     ParamSpec("qos.inputs", "sensor_data", "QoS of the recorded base_pose and wrench subscriptions: sensor_data "
               "(best effort: matches the simulator's default best-effort wrench and reliable publishers) or "
               "reliable (every message of a reliable publisher, e.g. qos.wrench: reliable in a replay).",
-              choices=("reliable", "sensor_data")),
+              choices=QOS_CHOICES),
     ParamSpec("summary_path", "", "JSON file written at shutdown with mean/max RMSE and counts. Empty: none."),
     ParamSpec("display.rate", 10.0, "Largest rate [Hz of measurement time] of the compared centerlines as "
               "nav_msgs/Path and Marker tubes on compare/{model,measured}/{path,marker} (model frame); 0: none.",
@@ -50,7 +47,7 @@ COMPARE_PARAMETERS = [
               "split). Empty: no recording."),
     ParamSpec("log.topics", list(LOGGABLE_TOPICS), "Topics recorded (relative to the node namespace), a subset of "
               + ", ".join(LOGGABLE_TOPICS) + ".", check=(lambda v: set(v) <= set(LOGGABLE_TOPICS), "unknown topic")),
-    ParamSpec("log.compression", "zstd", "Chunk compression of the recording.", choices=("zstd", "lz4", "none")),
+    ParamSpec("log.compression", "zstd", "Chunk compression of the recording.", choices=COMPRESSION),
     ParamSpec("log.chunk_size", 1 << 20, "Uncompressed chunk size [bytes] at which a chunk is written to disk.",
               low=1024, high=1 << 30),
     ParamSpec("log.chunk_interval", 1.0, "Longest time [s] a chunk stays in memory (data lost on a crash).",

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from needle_sim_ros.model.config import DEFAULTS as MODEL_DEFAULTS
-from needle_common.parameters import TOPIC_CHECK, ParamSpec
+from needle_sim_ros.model.integrators import METHODS
+from needle_common.parameters import QOS_CHOICES, TOPIC_CHECK, ParamSpec
 from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
 
@@ -17,7 +18,6 @@ def _model(name: str, *arguments, **options) -> ParamSpec:
     return ParamSpec(name, MODEL_DEFAULTS[name], *arguments, **options)
 
 
-QOS_CHOICES = ("sensor_data", "reliable")
 NAMED = (bool, "must not be empty")  # a frame
 
 SIMULATOR_PARAMETERS = [
@@ -47,7 +47,7 @@ SIMULATOR_PARAMETERS = [
            1e4, dynamic=True),
     _model("damping.rayleigh_beta", "Stiffness-proportional Rayleigh damping beta [s] (C = alpha M + beta K).", 0.0,
            1.0, dynamic=True),
-    _model("integrator.method", "Implicit integrator.", choices=("generalized_alpha", "hht", "backward_euler")),
+    _model("integrator.method", "Implicit integrator.", choices=METHODS),
     _model("integrator.rho_inf", "Spectral radius at infinite frequency (numerical damping; 1 = none).", 0.0, 1.0),
     _model("integrator.dt", "Integration step [s]; the real-time loop runs at 1/dt.", 1e-5, 0.1),
     _model("integrator.newton_tolerance", "Newton convergence bound on the last correction (|dr| / L and |dr_x|).",

@@ -39,7 +39,7 @@ from needle_common.qos import OfferedQos, offered_qos_profiles_yaml
 
 PROFILE = "ros2"
 LIBRARY = f"needle_sim_ros recorder; {LIBRARY_IDENTIFIER}"
-_COMPRESSION = ("zstd", "lz4", "none")
+COMPRESSION = ("zstd", "lz4", "none")  # WriterOptions.compression
 _MESSAGE = struct.Struct("<BQHIQQ")  # a Message record: opcode, length, channel id, sequence, log and publish time
 _INDEX_HEAD = struct.Struct("<BQHI")  # a MessageIndex record: opcode, length, channel id, entries' byte length
 
@@ -72,8 +72,8 @@ class WriterOptions:
     background: bool = False
 
     def __post_init__(self) -> None:
-        if self.compression not in _COMPRESSION:
-            raise ValueError(f"compression '{self.compression}' is not one of {', '.join(_COMPRESSION)}")
+        if self.compression not in COMPRESSION:
+            raise ValueError(f"compression '{self.compression}' is not one of {', '.join(COMPRESSION)}")
         for name in ("chunk_size", "chunk_interval", "max_file_size", "max_file_duration"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")

@@ -28,7 +28,7 @@ from needle_common.output_files import check_output_dir, check_output_file
 
 from needle_sim_ros.recording.bag_metadata import METADATA_RECORD_NAME
 from needle_common.bag_reader import CHUNK_ERRORS, BagReadError, bag_files
-from needle_sim_ros.recording.mcap_writer import PROFILE, McapBagWriter, RecordingError, WriterOptions
+from needle_sim_ros.recording.mcap_writer import COMPRESSION, PROFILE, McapBagWriter, RecordingError, WriterOptions
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
                     "message of every complete chunk is kept.")
     parser.add_argument("input", type=Path, help="truncated .mcap file, or a bag directory of .mcap files")
     parser.add_argument("output", type=Path, help="recovered .mcap file (or bag directory without .mcap suffix)")
-    parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+    parser.add_argument("--compression", choices=COMPRESSION, default="zstd",
                         help="chunk compression of the output (default: zstd)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output")
     args = parser.parse_args(argv)

@@ -16,6 +16,7 @@ import numpy as np
 
 from needle_sim_ros.model import (BaseMotion, Gravity, Integrator, PointLoad, build_model, elastic_energy,
                                   gravitational_energy, kinetic_energy, reaction_wrench, solve_static)
+from needle_sim_ros.model.integrators import METHODS
 
 from needle_sim_ros.simulation import NeedleSimulation
 
@@ -80,7 +81,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = scenario_parser(subparsers, "free_vibration", __doc__, "release of a tip mass, energy over time")
     parser.add_argument("--tip-mass", type=float, default=0.02, help="released tip mass [kg]")
     parser.add_argument("--duration", type=float, default=1.0, help="simulated time [s]")
-    parser.add_argument("--method", choices=("generalized_alpha", "hht", "backward_euler"), default=None,
+    parser.add_argument("--method", choices=METHODS, default=None,
                         help="integrator (overrides config)")
     parser.add_argument("--rho-inf", type=float, default=None, help="spectral radius at infinity (overrides config)")
     parser.add_argument("--alpha", type=float, default=None, help="Rayleigh alpha [1/s] (overrides config)")
