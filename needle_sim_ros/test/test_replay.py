@@ -375,11 +375,16 @@ def test_a_replay_waiting_for_named_nodes_plays_once_they_matched_and_loses_noth
 @pytest.mark.parametrize("waiting", [["--start-paused"], ["--wait-for-subscribers", "60"], []])
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
 def test_a_stopped_replay_exits_cleanly_however_it_waits(ros_env, tmp_path, waiting, stop):
-    """SIGINT/SIGTERM while paused, while waiting for subscribers or while playing: exit 0, no traceback."""
+    """SIGINT/SIGTERM while paused, while waiting for subscribers or while playing: exit 0, no traceback. The signal
+    goes once the player is in that state: publishing /clock (a fixed delay met a player still starting under load)."""
     wrench_bag(tmp_path / "wrench.mcap", 1000, 10_000_000)  # 10 s
-    player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--clock", *waiting)
-    time.sleep(3.0)
-    assert player.poll() is None
+    clocks = []
+    with own_node("stop_test") as node:
+        node.create_subscription(Clock, "/clock", clocks.append, QoSProfile(depth=10))
+        player = start(ros_env, "needle_replay", str(tmp_path / "wrench.mcap"), "--clock", *waiting)
+        spin_until(node, lambda: clocks or player.poll() is not None, 60.0)
+        spin_until(node, lambda: False, 0.5)
+    assert clocks and player.poll() is None, killed(player)
     player.send_signal(stop)
     out = finished(player, 20)
     assert player.returncode == 0 and "Traceback" not in out and "context is invalid" not in out, out
