@@ -220,6 +220,7 @@ def test_element_local_blocks_and_the_base_wrench():
     against finite differences above) for any factors; the base wrench skips an element-local force only where it
     has no point in the first element, so it equals the wrench from the full Q of every force either way."""
     from needle_sim_ros.model.banded import ELEMENT_BANDWIDTH, band_to_dense, band_width_columns
+    from needle_sim_ros.model.elastic import ELEMENT_WORK
     from needle_sim_ros.model.reaction import base_constraint_kernel, base_rows
 
     model = build_model(NEEDLE, 5)
@@ -237,7 +238,8 @@ def test_element_local_blocks_and_the_base_wrench():
         assert force.touches_element(model, 0) == (start < model.mesh.node_arc_length[1])
         state = model.straight_state(BASE)
         state.q, state.qd = q, qd
-        full = base_constraint_kernel(q[:12].copy(), qd[:12].copy(), np.zeros(12), *base_rows(model),
-                                      np.ascontiguousarray(BASE.axis), dense.Q[:6].copy())
+        full = np.empty(12)
+        base_constraint_kernel(q[:12].copy(), qd[:12].copy(), np.zeros(12), *base_rows(model), BASE.rotation,
+                               dense.Q[:6].copy(), np.empty(ELEMENT_WORK), full)
         wrench = reaction_wrench(model, state, BASE, [force])
-        np.testing.assert_array_equal(wrench.force_world, -full[:3])
+        np.testing.assert_array_equal(wrench.force_world, -full[6:9])

@@ -11,6 +11,12 @@ import numpy as np
 from numba import njit
 
 ELEMENT_BANDWIDTH = 11
+# reassociation lets LLVM vectorize the dot products; no finite-math flags, so NaN still propagates and is caught
+FAST = {"reassoc", "contract"}
+# The step's kernels (these, assembly, elastic forces, reaction) without numba's reference counts (NRT): an atomic
+# increment and decrement for every array argument and view (22 % of a step, ~190 pairs). Such a kernel, and every
+# kernel it calls, allocates nothing and returns no new array (its work areas come from the caller).
+NO_REFCOUNTS = {"_nrt": False}
 
 
 def band_width_columns(kl: int) -> int:
@@ -20,7 +26,7 @@ def band_width_columns(kl: int) -> int:
 
 # Band indices are non-negative: as unsigned integers numba indexes without its negative-index branch, which keeps
 # LLVM from vectorizing the short row loops (Cholesky and solves 1.7x faster)
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def band_factor(band: np.ndarray, pivots: np.ndarray, kl: int) -> bool:
     """In-place LU factorization with partial pivoting (row interchanges within the band). False if singular."""
     n = band.shape[0]
@@ -57,7 +63,7 @@ def band_factor(band: np.ndarray, pivots: np.ndarray, kl: int) -> bool:
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def band_solve(band: np.ndarray, pivots: np.ndarray, kl: int, rhs: np.ndarray) -> None:
     """Solve A x = rhs in place with the factors of ``band_factor``."""
     n = band.shape[0]
@@ -80,19 +86,16 @@ def band_solve(band: np.ndarray, pivots: np.ndarray, kl: int, rhs: np.ndarray) -
         rhs[k] = total / row[kl]
 
 
-# reassociation lets LLVM vectorize the dot products; no finite-math flags, so NaN still propagates and is caught
-FAST = {"reassoc", "contract"}
 
 
-@njit(cache=True, fastmath=FAST)
+@njit(cache=True, fastmath=FAST, **NO_REFCOUNTS)
 def band_cholesky(band: np.ndarray, kl: int) -> bool:
     """In-place Cholesky factor L (lower band) of a symmetric matrix, column by column: each column is scaled by its
     pivot and its outer product subtracted from the kl x kl block below, row stretch by row stretch (independent
     updates that LLVM vectorizes; a row-by-row dot-product order is a chain of dependent short sums, 2.8x slower at
-    66 dof, kl = 11).  Reads and writes the lower band and the diagonal only.  False if the matrix is not positive
-    definite."""
+    66 dof, kl = 11).  Reads the lower band and the diagonal, and writes L there and, as its work area, L^T into the
+    upper band.  False if the matrix is not positive definite."""
     n = band.shape[0]
-    column = np.empty(kl + 1)  # L[j + r, j], r = 1 .. kl
     for j in range(n):
         total = band[j, kl]
         if not total > 0.0:  # also catches NaN
@@ -101,6 +104,7 @@ def band_cholesky(band: np.ndarray, kl: int) -> bool:
         band[j, kl] = diagonal
         inverse = 1.0 / diagonal
         last = min(kl, n - 1 - j)
+        column = band[j, kl:]  # L[j + r, j] also at column[r], r = 1 .. kl: L^T's row j, in the upper band
         for r in range(1, last + 1):
             value = band[j + r, kl - r] * inverse
             band[j + r, kl - r] = value
@@ -120,7 +124,7 @@ def band_cholesky(band: np.ndarray, kl: int) -> bool:
     return True
 
 
-@njit(cache=True, fastmath=FAST)
+@njit(cache=True, fastmath=FAST, **NO_REFCOUNTS)
 def cholesky_solve(band: np.ndarray, kl: int, rhs: np.ndarray) -> None:
     """Solve L L^T x = rhs in place with the factor of ``band_cholesky`` (both sweeps read L by rows; rows with a
     full window of the needle's bandwidth with constant bounds, unrolled: 1.4x faster)."""
@@ -174,7 +178,7 @@ def add_dense_to_band(matrix: np.ndarray, factor: float, band: np.ndarray, kl: i
             band[i, j - i + kl] += factor * matrix[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def band_symmetric(band: np.ndarray, kl: int) -> bool:
     """Whether the band matrix (row i, column j at band[i, j - i + kl]) is symmetric; from the last row up, where a
     force at the tip (the bevel's, through r_x) makes the external forces' matrix unsymmetric."""

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .banded import ELEMENT_BANDWIDTH, FAST, band_to_dense, band_width_columns
+from .banded import ELEMENT_BANDWIDTH, FAST, NO_REFCOUNTS, band_to_dense, band_width_columns
 from .mesh import Mesh, gauss_table
 from .properties import NeedleProperties
 
@@ -39,12 +39,16 @@ def elastic_tables(mesh: Mesh, props: NeedleProperties, axial_gauss: int, bendin
     return ElasticTables(axial.S_x, props.EA * axial.weights, bending.S_x, bending.S_xx, props.EI * bending.weights)
 
 
-@njit(cache=True, fastmath=FAST)
+ELEMENT_WORK = 12 + 144 + 36  # the work area of add_elastic: an element's force, its 3 x 3 blocks, a point's f
+
+
+@njit(cache=True, fastmath=FAST, **NO_REFCOUNTS)
 def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
-                forces, band, kl, stiffness_factor, with_stiffness, rate_weights=None, rate_factor=0.0, qd=None,
+                forces, band, kl, stiffness_factor, with_stiffness, work, rate_weights=None, rate_factor=0.0, qd=None,
                 lower=False):
     """Add Q_el(q) to ``forces`` and, if with_stiffness, stiffness_factor * K (K = -dQ_el/dq) to ``band``
-    (bandwidth kl >= 11; ``lower``: its lower triangle and diagonal only). Returns the elastic energy Pi (eq. 9).
+    (bandwidth kl >= 11; ``lower``: its lower triangle and diagonal only), with ``work`` (ELEMENT_WORK,) as its work
+    area. Returns the elastic energy Pi (eq. 9).
 
     Given the axial strain-rate weights of ``damping`` (beta EA w at the axial points), the matrix of that damping,
     rate_factor * int beta EA S_x^T S_x (x) r_x r_x^T (-dQ_d,a/dq'), is added too: it has the blocks of the axial
@@ -58,7 +62,6 @@ def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_
     (``bench/bench_step_stages.py``)."""
     n_elements = axial_S_x.shape[0]
     energy = 0.0
-    work = np.empty(12 + 144 + 36)
     element_force = work[:12]
     blocks = work[12:156]  # block (a, b), entry (c, c2) at 9 (4 a + b) + 3 c + c2
     f = work[156:]  # the bending point's f11, f12, f12^T, f22 (times the weight), row-major, 9 each
@@ -212,7 +215,7 @@ def evaluate_elastic(tables: ElasticTables, q: np.ndarray, with_stiffness: bool 
     q = np.ascontiguousarray(q, dtype=float)
     forces = np.zeros(q.size)
     band = np.zeros((q.size, band_width_columns(ELEMENT_BANDWIDTH)) if with_stiffness else (1, 1))
-    energy = add_elastic(q, *tables, forces, band, ELEMENT_BANDWIDTH, 1.0, with_stiffness)
+    energy = add_elastic(q, *tables, forces, band, ELEMENT_BANDWIDTH, 1.0, with_stiffness, np.empty(ELEMENT_WORK))
     return forces, (band if with_stiffness else None), energy
 
 

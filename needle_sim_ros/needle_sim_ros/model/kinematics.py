@@ -18,6 +18,8 @@ from numba import njit
 
 from needle_common.transforms import matrix_quaternion, normalized_unit_quaternion, quaternion_matrix, unit_quaternion
 
+from .banded import NO_REFCOUNTS
+
 _ZERO3 = (0.0, 0.0, 0.0)
 
 
@@ -166,7 +168,7 @@ def rotate_back(rotation, x):
             rotation[0, 2] * x[0] + rotation[1, 2] * x[1] + rotation[2, 2] * x[2])
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def rigid_node_kinematics(p, rotation, v, w, a, alpha, local_r, local_rx, nodes, target):
     """[q, qd, qdd] of rigidly carried nodes (module docstring) into target (3, n_dof) at the nodes' coordinates."""
     for k in range(nodes.size):

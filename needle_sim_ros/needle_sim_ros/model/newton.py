@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .banded import FAST, band_cholesky, band_factor, band_solve, band_symmetric, cholesky_solve
-from .elastic import add_elastic
+from .banded import FAST, NO_REFCOUNTS, band_cholesky, band_factor, band_solve, band_symmetric, cholesky_solve
+from .elastic import ELEMENT_WORK, add_elastic
 
 CONVERGED, CHORD, REFACTOR, FAILED = 0, 1, 2, -1
 DIVERGED_CORRECTION = 100.0  # a correction of 100 needle lengths (or 100 in a gradient) means divergence
@@ -28,7 +28,8 @@ TABLES_HEADER = 4  # n_elements, axial points, bending points, slots
 
 def model_tables(model) -> np.ndarray:
     """The model's constant arrays the kernels read (elastic quadrature tables, mass and damping slot matrices) in
-    one float64 array: a header of their sizes, then each array's values (:func:`unpack_tables` gives them back).
+    one float64 array: a header of their sizes, each array's values (:func:`unpack_tables` gives them back), then
+    the element kernels' work area (``elastic.ELEMENT_WORK``; written by every assembly: one integrator per thread).
 
     One array, not a tuple of nine: numba 0.59 (Ubuntu 24.04's) types a tuple argument in Python on every call from
     Python, ~10-60 us per call of a kernel (newer numba in C); an array is typed in C by both."""
@@ -37,10 +38,10 @@ def model_tables(model) -> np.ndarray:
     sizes = [n_elements, axial, elastic.bending_S_x.shape[1], model.mass_slots.shape[0]]
     arrays = (*elastic, model.mass_slots, *damping)
     return np.concatenate([np.array(sizes, dtype=float), *(np.ascontiguousarray(a, dtype=float).ravel()
-                                                           for a in arrays)])
+                                                           for a in arrays), np.zeros(ELEMENT_WORK)])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # inlined: the views need no reference counts in the kernels below (NO_REFCOUNTS)
 def unpack_tables(tables):
     """(axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, mass_slots, damping_isotropic,
     damping_transverse, strain_rate_weights): views into ``model_tables``' array."""
@@ -67,7 +68,7 @@ def unpack_tables(tables):
             damping_transverse, strain_rate_weights)
 
 
-@njit(cache=True, fastmath=FAST)
+@njit(cache=True, fastmath=FAST, **NO_REFCOUNTS)
 def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, active, residual, band, kl,
                     with_matrix, lower=False):
     """residual <- R (zero on constrained rows); if with_matrix, band <- J (identity on constrained rows/cols), with
@@ -80,8 +81,8 @@ def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, ac
     residual[:] = 0.0
     if with_matrix:
         band[:, :kl + 1 if lower else band.shape[1]] = 0.0
-    add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, residual, band, kl,
-                c_K, with_matrix, strain_rate_weights, c_C, qd, lower)  # with the axial damping's force and matrix
+    add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, residual, band, kl, c_K,
+                with_matrix, tables[tables.size - ELEMENT_WORK:], strain_rate_weights, c_C, qd, lower)  # axial damping
     for i in range(n):
         residual[i] = -residual[i] - ext_Q[i]
     n_slots = mass_slots.shape[0]
@@ -135,7 +136,7 @@ def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, ac
                 band[i, kl] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def update_rates(values, history, coef, active):
     """q', q'' and a of the active coordinates from q (generalized-alpha, Arnold-Bruels form):
     q = q_n + h q'_n + h^2 (b0 a_n + b1 a),  q' = q'_n + h (g0 a_n + g1 a),
@@ -180,7 +181,7 @@ def keeps_extrapolating(predictor, iterations):
     return predictor == PREDICT_ACCELERATION or iterations <= 2
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def predict(values, history, prescribed, coef, active, predictor):
     """Start of a step: constrained coordinates from ``prescribed`` (rows q, q', q''); active ones from the
     predictor q''_{n+1} = q''_n (PREDICT_ACCELERATION: accurate for smooth motion) or q_{n+1} = q_n
@@ -213,7 +214,7 @@ def rate_coefficients(coef, dynamic):
 CHOLESKY, LU = 0, 1
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def iterate(values, history, coef, dynamic, active, scale, tables, axis, ext_Q, ext_band, residual, band, pivots,
             factorization, kl, refactor, symmetric):
     """One Newton (refactor) or chord correction; updates values (rows q, q', q'', a).

@@ -18,14 +18,15 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .elastic import ElasticTables, add_elastic
+from .banded import NO_REFCOUNTS
+from .elastic import ELEMENT_WORK, ElasticTables, add_elastic
 from .kinematics import BaseMotion, cross, rotate_back
 from .model import NeedleModel, State
 
 
 class BaseWrench(NamedTuple):
     """Force [N] and moment about A [N m] of the needle on its holder, in the world and in the base frame: the
-    (12,) ``values`` [force_world, torque_world, force_base, torque_base] as :func:`holder_wrench` writes them
+    (12,) ``values`` [force_world, torque_world, force_base, torque_base] as :func:`base_wrench_kernel` writes them
     (a step's record holds them as they come; the parts are views made when read)."""
 
     values: np.ndarray
@@ -47,24 +48,23 @@ def base_rows(model: NeedleModel) -> tuple:
     return (*first, np.ascontiguousarray(model.damping.strain_rate_weights[:1]), *rows)
 
 
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
-                           strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, axis, external):
-    """Q_cc = M_c. q'' - Q_el,c - Q_d,c - Q_f,c for the base node from element 0's coordinates (12,)."""
-    internal = np.zeros(12)
-    no_band = np.zeros((1, 1))
-    add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, internal, no_band, 0,
-                0.0, False, strain_rate_weights, 0.0, qd)
-    result = np.empty(6)
+                           strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, rotation, external, work,
+                           out):
+    """Q_cc = M_c. q'' - Q_el,c - Q_d,c - Q_f,c for the base node from element 0's coordinates (12,) into out[6:12]
+    (out (12,) holds element 0's internal forces first; ``work``: the elastic kernel's, ``elastic.ELEMENT_WORK``)."""
+    out[:] = 0.0
+    add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, out, rotation[:0], 0, 0.0,
+                False, work, strain_rate_weights, 0.0, qd)
     for s in range(2):
         for c in range(3):
-            total = -internal[3 * s + c] - external[3 * s + c]
+            total = -out[3 * s + c] - external[3 * s + c]
             for s2 in range(4):
-                along = axis[0] * qd[3 * s2] + axis[1] * qd[3 * s2 + 1] + axis[2] * qd[3 * s2 + 2]
+                along = rotation[0, 0] * qd[3 * s2] + rotation[1, 0] * qd[3 * s2 + 1] + rotation[2, 0] * qd[3 * s2 + 2]
                 total += (mass_rows[s, s2] * qdd[3 * s2 + c] + isotropic_rows[s, s2] * qd[3 * s2 + c]
-                          + transverse_rows[s, s2] * axis[c] * along)
-            result[3 * s + c] = total
-    return result
+                          + transverse_rows[s, s2] * rotation[c, 0] * along)
+            out[6 + 3 * s + c] = total
 
 
 def _base_external(model: NeedleModel, state: State, base: BaseMotion, forces) -> np.ndarray:
@@ -77,31 +77,21 @@ def _base_external(model: NeedleModel, state: State, base: BaseMotion, forces) -
     return external
 
 
-@njit(cache=True)
-def holder_wrench(r_xA: np.ndarray, constraint: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """[force, torque about A] of the needle on its holder in the world frame, then in the base frame (12,), from
-    the constraint force Q_cc (6,) on [r_A, r_xA]: F = -Q_r, M = -r_xA x Q_rx (module docstring)."""
-    result = np.empty(12)
-    moment = cross(r_xA, constraint[3:6])
-    for c in range(3):
-        result[c] = -constraint[c]
-        result[3 + c] = -moment[c]
-    force_base, torque_base = rotate_back(rotation, result[0:3]), rotate_back(rotation, result[3:6])
-    for c in range(3):
-        result[6 + c] = force_base[c]
-        result[9 + c] = torque_base[c]
-    return result
-
-
-@njit(cache=True)
+@njit(cache=True, **NO_REFCOUNTS)
 def base_wrench_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
-                       strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, rotation, external):
-    """``holder_wrench`` of ``base_constraint_kernel`` in one compiled call from the whole q, q', q'' (which are
-    read on the base element's 12 coordinates only) and the base rotation (its first column is the axis)."""
-    constraint = base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, bending_S_xx,
-                                        bending_weights, strain_rate_weights, mass_rows, isotropic_rows,
-                                        transverse_rows, rotation[:, 0], external)
-    return holder_wrench(q[3:6], constraint, rotation)
+                       strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, rotation, external, work, out):
+    """[force, torque about A] of the needle on its holder in the world frame, then in the base frame, into out (12,)
+    from ``base_constraint_kernel``'s Q_cc on [r_A, r_xA] (module docstring: F = -Q_r, M = -r_xA x Q_rx) in one
+    compiled call, from the whole q, q', q'' (read on the base element's 12 coordinates only), the base rotation (its
+    first column is the axis) and ``work``, the elastic kernel's work area (``elastic.ELEMENT_WORK``)."""
+    base_constraint_kernel(q, qd, qdd, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights,
+                           strain_rate_weights, mass_rows, isotropic_rows, transverse_rows, rotation, external, work,
+                           out)
+    moment = cross(q[3:6], out[9:12])
+    force, torque = (-out[6], -out[7], -out[8]), (-moment[0], -moment[1], -moment[2])
+    force_base, torque_base = rotate_back(rotation, force), rotate_back(rotation, torque)
+    for c in range(3):
+        out[c], out[3 + c], out[6 + c], out[9 + c] = force[c], torque[c], force_base[c], torque_base[c]
 
 
 def reaction_wrench(model: NeedleModel, state: State, base: BaseMotion | None = None, forces=()) -> BaseWrench:
@@ -109,6 +99,7 @@ def reaction_wrench(model: NeedleModel, state: State, base: BaseMotion | None = 
     base = base or state.base
     if base is None:
         raise ValueError("reaction_wrench needs the base motion (argument base or state.base)")
-    w = base_wrench_kernel(state.q, state.qd, state.qdd, *base_rows(model), base.rotation,
-                           _base_external(model, state, base, forces))
-    return BaseWrench(w)
+    wrench = np.empty(12)
+    base_wrench_kernel(state.q, state.qd, state.qdd, *base_rows(model), base.rotation,
+                       _base_external(model, state, base, forces), np.empty(ELEMENT_WORK), wrench)
+    return BaseWrench(wrench)

@@ -28,11 +28,9 @@ With no state-dependent contribution (``keep_matrix``) the iteration matrix is k
 holds still and the steps converge in a single correction: then no matrix is assembled or factored at all (a
 needle held still under a load: 22 instead of 40 us per step). Otherwise a step starts with a fresh matrix: chord
 corrections on an older matrix converge slowly (released from a 10 g tip load: 4.2 corrections per step instead
-of 2.1; pitching base: 3.0 instead of 1.1). Released from a 10 g tip load a step takes 1.99 corrections, ~1.12 of
-them on a fresh matrix (the second is mostly a chord correction on the step's own factorization): 12.2-12.6 us per
-step in a run, of which a fresh assembly (the Cholesky's lower triangle) 4.2 us, its Cholesky 1.6-1.9 us, a solve
-0.95 us, a chord correction's residual 1.6 us and the reaction wrench 0.8-1.0 us (``bench/bench_step_stages.py``,
-2026-11-29; 15.8-16.2 us per step before the elastic blocks in scalar arithmetic).
+of 2.1; pitching base: 3.0 instead of 1.1). Released from a 10 g tip load a step takes 1.99 corrections, 1.04 on a
+fresh matrix: 10.6-10.9 us in a run (12.0-12.1 with numba's reference counts), of which the fresh ones 5.5 (assembly
+3.5, Cholesky 1.9), the solves 1.8, the chord ones' residuals 1.2, the wrench 0.3 (``bench/bench_step_stages.py``).
 """
 from __future__ import annotations
 
@@ -50,6 +48,7 @@ import numpy as np
 from numba import njit
 
 from .kinematics import rigid_node_kinematics
+from .elastic import ELEMENT_WORK
 from .newton import (CONVERGED, keeps_extrapolating, newton, no_forces, predictor_budget, predictor_for_attempt,
                      unpack_tables)
 from .reaction import base_wrench_kernel
@@ -113,7 +112,7 @@ def run_steps(history, times, motions, rotations, constant_Q, held_Q, solver, ba
     values, current, ext_Q, axis = scratch[:4], scratch[4:8], scratch[8], scratch[9, :3]
     current[:, :] = history
     no_band = work[2][:0]  # (0, ...): no matrix
-    rows = base_tables(solver[5])
+    rows, elements = base_tables(solver[5]), solver[5][solver[5].size - ELEMENT_WORK:]  # model_tables' work area
     forces = acting(state)
     for i in range(times.size):
         motion, rotation = motions[i], rotations[i]
@@ -143,7 +142,7 @@ def run_steps(history, times, motions, rotations, constant_Q, held_Q, solver, ba
             assemble(forces, q, qd, rotation, ext_Q, no_band, 0, 0.0, 0.0)
         else:
             ext_Q[:] = held_Q
-        wrenches[i] = base_wrench_kernel(q, qd, values[2], *rows, rotation, ext_Q[:6])
+        base_wrench_kernel(q, qd, values[2], *rows, rotation, ext_Q[:6], elements, wrenches[i])
     return times.size, state
 
 
