@@ -17,8 +17,8 @@ from numba import njit
 
 from needle_sim_ros.model import BaseMotion, Gravity, PointLoad, State, solve_static
 from needle_sim_ros.model.banded import ELEMENT_BANDWIDTH, band_cholesky, band_width_columns, cholesky_solve
-from needle_sim_ros.model.elastic import ELEMENT_WORK, add_elastic
-from needle_sim_ros.model.newton import assemble_system, model_tables, rate_coefficients, unpack_tables
+from needle_sim_ros.model.elastic import add_elastic
+from needle_sim_ros.model.newton import assemble_system, element_work, model_tables, rate_coefficients, unpack_tables
 from needle_sim_ros.model.reaction import base_wrench_kernel
 from needle_sim_ros.model.step import base_tables
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
@@ -48,7 +48,7 @@ def elastic_loop(count, q, qd, tables, residual, band, with_matrix):
      strain_rate_weights) = unpack_tables(tables)
     for _ in range(count):
         add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, residual, band,
-                    ELEMENT_BANDWIDTH, 1.0, with_matrix, tables[-ELEMENT_WORK:], strain_rate_weights, 1.0, qd)
+                    ELEMENT_BANDWIDTH, 1.0, with_matrix, element_work(tables), strain_rate_weights, 1.0, qd)
 
 
 @njit
@@ -165,7 +165,7 @@ def main() -> None:
     band_cholesky(factor, KL)
     rows.append(("Cholesky solve", per_call(solve_loop, factor, rhs, residual)))
     rows.append(("reaction wrench", per_call(wrench_loop, q, qd, qdd, base_tables(tables), np.eye(3), np.zeros(6),
-                                                     tables[tables.size - ELEMENT_WORK:], np.empty(12))))
+                                                     element_work(tables), np.empty(12))))
     print("| stage | us |\n|---|---|")
     for name, us in rows:
         print(f"| {name} | {us:.2f} |")

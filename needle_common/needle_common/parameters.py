@@ -25,8 +25,8 @@ import yaml
 
 # Parameters every rclpy node has (accepted in any node's section).
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")
-# Nodes of the suite (a section for another name is probably a typo: warned) and the pipeline tools' section.
 QOS_CHOICES = ("sensor_data", "reliable")  # the nodes' qos parameters (needle_common.ros.ros_parameters.qos_profile)
+# Nodes of the suite (a section for another name is probably a typo: warned) and the pipeline tools' section.
 KNOWN_NODES = ("needle_simulator", "needle_stereo", "needle_compare", "needle_replay", "needle_pipeline")
 _TOPIC_TOKEN = re.compile(r"^(~|[A-Za-z_][A-Za-z0-9_]*|\{[A-Za-z_][A-Za-z0-9_]*\})$")
 

@@ -68,6 +68,12 @@ def unpack_tables(tables):
             damping_transverse, strain_rate_weights)
 
 
+@njit(cache=True, inline="always")  # inlined like unpack_tables: a view without reference counts
+def element_work(tables):
+    """The element kernels' work area at the end of ``model_tables``' array (``elastic.ELEMENT_WORK``)."""
+    return tables[tables.size - ELEMENT_WORK:]
+
+
 @njit(cache=True, fastmath=FAST, **NO_REFCOUNTS)
 def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, active, residual, band, kl,
                     with_matrix, lower=False):
@@ -82,7 +88,7 @@ def assemble_system(q, qd, qdd, tables, axis, ext_Q, ext_band, c_K, c_M, c_C, ac
     if with_matrix:
         band[:, :kl + 1 if lower else band.shape[1]] = 0.0
     add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_weights, residual, band, kl, c_K,
-                with_matrix, tables[tables.size - ELEMENT_WORK:], strain_rate_weights, c_C, qd, lower)  # axial damping
+                with_matrix, element_work(tables), strain_rate_weights, c_C, qd, lower)  # with the axial damping
     for i in range(n):
         residual[i] = -residual[i] - ext_Q[i]
     n_slots = mass_slots.shape[0]

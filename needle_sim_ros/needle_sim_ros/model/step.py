@@ -48,9 +48,8 @@ import numpy as np
 from numba import njit
 
 from .kinematics import rigid_node_kinematics
-from .elastic import ELEMENT_WORK
-from .newton import (CONVERGED, keeps_extrapolating, newton, no_forces, predictor_budget, predictor_for_attempt,
-                     unpack_tables)
+from .newton import (CONVERGED, element_work, keeps_extrapolating, newton, no_forces, predictor_budget,
+                     predictor_for_attempt, unpack_tables)
 from .reaction import base_wrench_kernel
 
 EXTRAPOLATE, FACTORED = 0, 1  # entries of the control flags
@@ -112,7 +111,7 @@ def run_steps(history, times, motions, rotations, constant_Q, held_Q, solver, ba
     values, current, ext_Q, axis = scratch[:4], scratch[4:8], scratch[8], scratch[9, :3]
     current[:, :] = history
     no_band = work[2][:0]  # (0, ...): no matrix
-    rows, elements = base_tables(solver[5]), solver[5][solver[5].size - ELEMENT_WORK:]  # model_tables' work area
+    rows, elements = base_tables(solver[5]), element_work(solver[5])
     forces = acting(state)
     for i in range(times.size):
         motion, rotation = motions[i], rotations[i]

@@ -2,8 +2,6 @@
 node, validated at start by both)."""
 from __future__ import annotations
 
-
-
 from needle_common.parameters import QOS_CHOICES, ParamSpec
 from needle_common.transforms import nonzero_quaternion
 
