@@ -30,15 +30,14 @@ from tqdm import tqdm
 
 from needle_vision.detection.background import BackgroundModel
 from needle_common.bag_reader import BagReader, BagReadError, absolute_topic
-from needle_vision.streams.base_pose import store_base_pose
-from needle_vision.calibration.rig import CalibrationError, StereoRig, rig_from_calibration_files, rig_from_camera_infos
+from needle_vision.calibration.rig import CalibrationError, StereoRig, rig_from_camera_infos
 from needle_vision.streams.image_codec import ImageFormatError, decoded_to_gray, deserialize_image, read_gray_bmp
 from needle_vision.streams.pairing import StampPairer
 from needle_common.cdr import CameraInfo, PoseStamped, camera_info, pose_stamped
 from needle_common.cli_types import command_status, positive, positive_int
 from needle_common.output_files import check_output_file
 from needle_common.parameters import ParameterError, load_params_file, valid_topic_name
-from needle_vision.parameters import SPECS, base_pose_store, output_from_left, stereo_config, validate_all
+from needle_vision.parameters import SPECS, StereoFrontEnd, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, PairMeasurement, StereoNeedlePipeline
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}
@@ -336,13 +335,12 @@ def write_rows(stream: TextIO, frame: int, stamp: float, result: FrameResult, tr
     stream.write((row * len(m.points)) % tuple(np.column_stack(columns).ravel().tolist()))
 
 
-def add_base_poses(pipeline: StereoNeedlePipeline, poses: list[PoseStamped], values: dict,
-                   source: PairSource) -> None:
+def add_base_poses(front: StereoFrontEnd, poses: list[PoseStamped], source: PairSource) -> None:
     """Store the base poses read with a pair (in the output frame); unusable ones are counted in the source."""
+    front.image_frame = source.frame_id
     for pose in poses:
         try:
-            store_base_pose(pipeline.base_poses, pose, values["output_frame"],
-                            (values["left_optical_frame"], source.frame_id), pipeline.output_from_left)
+            front.add_base_pose(pose)
         except ValueError as error:
             source.poses_skipped[f"base pose ignored: {error}"] += 1
 
@@ -386,13 +384,12 @@ def run(arguments: argparse.Namespace) -> int:
         raise InputError(f"--base-pose-topic '{base_topic}' is also an image topic")
     source = open_source(source_path, arguments.fps, arguments.left_topic, arguments.right_topic,
                          values["sync_tolerance"], base_topic, values["sync_queue_size"])
-    if values["left_calibration_file"]:
-        rig = rig_from_calibration_files(values["left_calibration_file"], values["right_calibration_file"])
-    elif source.reader is None:
+    front = StereoFrontEnd(values)
+    if front.pipeline is None and source.reader is None:
         raise InputError("an image folder needs calibration files (--left-calibration/--right-calibration)")
-    else:
-        rig = bag_rig(source.reader, arguments.left_info_topic, arguments.right_info_topic)
-    pipeline = StereoNeedlePipeline(rig, stereo_config(values), output_from_left(values), base_pose_store(values))
+    if front.pipeline is None:
+        front.use_rig(bag_rig(source.reader, arguments.left_info_topic, arguments.right_info_topic))
+    pipeline = front.pipeline
     mode = arguments.background or "first"
     frames = arguments.frames
     background_pairs = build_backgrounds(mode, source, pipeline, frames, arguments, values["sync_tolerance"])
@@ -424,7 +421,7 @@ def run(arguments: argparse.Namespace) -> int:
             def complete(frame: int, stamp: float, images: Future, measurement: Future | None,
                          poses: list[PoseStamped]) -> None:
                 nonlocal measured
-                add_base_poses(pipeline, poses, values, source)
+                add_base_poses(front, poses, source)
                 try:
                     left, right = images.result()
                 except SkippedPair as error:

@@ -1,10 +1,13 @@
 """Parameter table: validation with the parameter named, the sample params file, the pipeline settings."""
+import cv2
 import numpy as np
 import pytest
 
 from needle_common.package_files import share_file
 from needle_common.parameters import ParameterError, check_ros_arguments, load_params_file
-from needle_vision.parameters import SPECS, stereo_config, validate_all
+from needle_vision.calibration.rectification import Rectification
+from needle_vision.calibration.rig import CalibrationError, camera_info_fields
+from needle_vision.parameters import SPECS, StereoFrontEnd, stereo_config, validate_all
 
 CONFIG = share_file("needle_vision", "config/needle_stereo.yaml")  # as installed
 
@@ -96,3 +99,27 @@ def test_a_shared_section_may_hold_other_packages_names_but_not_misspellings_of_
     path.write_text("needle_stereo:\n  ros__parameters:\n    robot_name: psm1\n")
     with pytest.raises(ParameterError, match="unknown parameter 'robot_name'"):
         load_params_file(path, "needle_stereo", SPECS, warn=warnings.append)
+
+
+def test_the_front_end_builds_the_pipeline_of_node_and_offline_tools_and_refuses_an_unusable_rig(rig, monkeypatch,
+                                                                                                  tmp_path):
+    """Calibration files (a missing one: ParameterError naming the parameters), else both camera_infos (rebuilt only
+    on a change); a rig that OpenCV cannot rectify: CalibrationError and no pipeline, one line for every caller."""
+    monkeypatch.chdir(tmp_path)
+    values = validate_all(load_params_file(CONFIG, "needle_stereo", SPECS))
+    assert StereoFrontEnd(values).pipeline.rig.left.width == 1440
+    with pytest.raises(ParameterError, match="'left_calibration_file'/'right_calibration_file': .*missing.yaml"):
+        StereoFrontEnd(dict(values, left_calibration_file=str(tmp_path / "missing.yaml")))
+    front = StereoFrontEnd(validate_all({"base_pose.max_age": 0.5}))
+    ros = rig.with_ros_rectification()
+    assert front.pipeline is None and front.on_camera_info("left", camera_info_fields(ros.left)) is None
+    assert front.on_camera_info("right", camera_info_fields(ros.right)) is not None
+    assert front.pipeline.base_poses is front.base_poses and front.base_poses.max_age == 0.5
+
+    def fails(rig):
+        raise cv2.error("stereoRectify: bad input")
+    monkeypatch.setattr(Rectification, "from_rig", fails)
+    moved = dict(camera_info_fields(ros.right), width=1441)
+    with pytest.raises(CalibrationError, match="cannot be rectified: .*stereoRectify"):
+        front.on_camera_info("right", moved)
+    assert front.pipeline is None

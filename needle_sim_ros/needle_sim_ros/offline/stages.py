@@ -28,16 +28,15 @@ from needle_interfaces.msg import NeedleShape
 from sensor_msgs.msg import CameraInfo
 from std_msgs.msg import Header
 
-from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, rig_from_calibration_files
+from needle_vision.calibration.rig import CalibrationError
 from needle_vision.streams.image_codec import ImageFormatError, SerializedImage
 from needle_vision.streams.pairing import StampPairer as FramePairer
 from needle_common.bag_reader import absolute_topic
 from needle_common.cdr import PoseStamped
 from needle_common.transforms import quaternions_from_x_axes
 from needle_common.parameters import ParameterError
-from needle_vision.parameters import base_pose_store, output_from_left, stereo_config, validate_all
-from needle_vision.pipeline import FrameStatus, StereoNeedlePipeline
-from needle_vision.streams.base_pose import store_base_pose
+from needle_vision.parameters import StereoFrontEnd, validate_all
+from needle_vision.pipeline import FrameStatus
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs
@@ -141,23 +140,12 @@ class StereoStage:
 
     def __init__(self, values: dict[str, Any]) -> None:
         self.values = values
-        self.config = stereo_config(values)
-        self.output_from_left = output_from_left(values)
+        self.front = StereoFrontEnd(values)
         self.pairer = FramePairer(values["sync_tolerance"], values["sync_queue_size"])
-        self.base_poses = base_pose_store(values)
-        self.image_frame = ""  # frame_id of the left images (the raw left optical frame), as the node keeps it
-        self.camera_infos = CameraInfoRig()
         self.outcomes: Counter[str] = Counter()
-        self.pipeline = None
         #: the bag's image topics the node subscribes to (image_transport's names)
         suffix = "/compressed" if values["image_transport"] == "compressed" else ""
         self.image_topics = (f"/left/image_raw{suffix}", f"/right/image_raw{suffix}")
-        if values["left_calibration_file"]:
-            rig = rig_from_calibration_files(values["left_calibration_file"], values["right_calibration_file"])
-            self.pipeline = self._pipeline(rig)
-
-    def _pipeline(self, rig):
-        return StereoNeedlePipeline(rig, self.config, self.output_from_left, self.base_poses)
 
     @property
     def base_pose_topic(self) -> str:
@@ -167,43 +155,37 @@ class StereoStage:
     def on_base_pose(self, pose: PoseStamped) -> None:
         """As the node: the base pose stored in the output frame; an unusable one is counted."""
         try:
-            store_base_pose(self.base_poses, pose, self.values["output_frame"],
-                            (self.values["left_optical_frame"], self.image_frame), self.output_from_left)
+            self.front.add_base_pose(pose)
         except ValueError as error:
             self.outcomes[f"base pose ignored: {error}"] += 1
 
     @property
     def has_background(self) -> bool:
-        return self.pipeline is not None and self.pipeline.backgrounds is not None
+        return self.front.pipeline is not None and self.front.pipeline.backgrounds is not None
 
     def on_camera_info(self, side: str, msg: CameraInfo) -> None:
         """As the node: (re)build the pipeline when both cameras' calibrations are known and one changed."""
-        if self.values["left_calibration_file"]:
-            return  # the node does not subscribe camera_info when calibration files are given
         try:
-            rig = self.camera_infos.offer(side, msg)
+            self.front.on_camera_info(side, msg)
         except CalibrationError:
-            self.pipeline = None
             self.outcomes["camera_info unusable"] += 1
-            return
-        if rig is not None:
-            self.pipeline = self._pipeline(rig)
 
     def on_image(self, side: str, image: SerializedImage) -> list[MeasuredShape]:
         pair = self.pairer.push(side, image.stamp, image)
         if pair is None:
             return []
-        if self.pipeline is None:
+        pipeline = self.front.pipeline
+        if pipeline is None:
             self.outcomes["skipped: no calibration yet"] += 1
             return []
         left = pair.left
-        self.image_frame = left.frame_id
+        self.front.image_frame = left.frame_id
         try:
             images = [left.gray(), pair.right.gray()]
         except ImageFormatError:
             self.outcomes["skipped: decode error"] += 1
             return []
-        result = self.pipeline.process(pair.stamp, *images)
+        result = pipeline.process(pair.stamp, *images)
         rejected = result.status is FrameStatus.REJECTED
         self.outcomes[f"rejected: {result.reason}" if rejected else result.status.value] += 1
         if result.status is not FrameStatus.MEASURED:

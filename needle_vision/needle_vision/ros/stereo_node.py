@@ -20,72 +20,52 @@ from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-import cv2
 import numpy as np
 import rclpy
 import rclpy.executors
 import rclpy.time
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from needle_interfaces.msg import NeedleShape
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from needle_common.cdr import pose_stamped
-from needle_common.parameters import ParameterError
 from needle_common.ros.input_status import InputStatus
 from needle_common.ros.needle_shape import needle_shape_msg
-from needle_common.ros.ros_parameters import declare_all
+from needle_common.ros.ros_parameters import declare_all, qos_profile
 from needle_common.ros.runner import run_node
 from needle_common.ros.tf_output import TfOutput, transform_stamped
 from needle_common.transforms import quaternions_from_x_axes
-from needle_vision.streams.base_pose import store_base_pose
-from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, rig_from_calibration_files
-from needle_vision.streams.image_codec import (ImageFormatError, compressed_message_to_gray, image_fields,
-                                               image_message_to_gray)
+from needle_vision.calibration.rig import CalibrationError, StereoRig
+from needle_vision.streams.image_codec import ImageFormatError, SerializedImage, deserialize_image, image_fields
 from needle_vision.streams.outputs import debug_image, pointcloud2_fields
 from needle_vision.streams.pairing import StampPairer
-from needle_vision.parameters import SPECS, base_pose_store, output_from_left, stereo_config, validate_all
-from needle_vision.pipeline import FrameResult, FrameStatus, StereoNeedlePipeline, compile_kernels
+from needle_vision.parameters import SPECS, StereoFrontEnd, validate_all
+from needle_vision.pipeline import FrameResult, FrameStatus, compile_kernels
 from needle_vision.ros.measurement_status import MeasurementStatus
-
-
-def _stamp_seconds(header: Header) -> float:
-    return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
 class NeedleStereoNode(Node):
     def __init__(self) -> None:
         super().__init__("needle_stereo")
         self.values = validate_all(declare_all(self, SPECS))
-        self.config = stereo_config(self.values)
-        self.output_from_left = output_from_left(self.values)
-        self.base_poses = base_pose_store(self.values)
+        self.front = StereoFrontEnd(self.values)
         self.pairer = StampPairer(self.values["sync_tolerance"], self.values["sync_queue_size"])
-        self.pipeline: StereoNeedlePipeline | None = None
-        self.camera_infos = CameraInfoRig()
-        compressed = self.values["image_transport"] == "compressed"
+        self.compressed = self.values["image_transport"] == "compressed"
         # the two images of a pair decoded at once (OpenCV releases the GIL while decoding)
-        self._decoder = ThreadPoolExecutor(2, thread_name_prefix="decode") if compressed else None
+        self._decoder = ThreadPoolExecutor(2, thread_name_prefix="decode") if self.compressed else None
         self.frame_id = self.values["output_frame"]
         self._last_warning: dict[str, float] = {}
         self._reported_drops = 0
-        self._image_frame = ""  # frame_id of the left images (the raw left optical frame)
         self.tf = TfOutput(self)
         self.measurement_status = MeasurementStatus(self.get_fully_qualified_name())
         self.inputs = InputStatus(self, lambda: [self.measurement_status.status(
-            self.pairer.dropped, self.pipeline.rejections if self.pipeline else Counter())])
-        qos = qos_profile_sensor_data if self.values["image_qos"] == "sensor_data" else \
-            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        if self.values["left_calibration_file"]:
-            try:
-                rig = rig_from_calibration_files(self.values["left_calibration_file"],
-                                                 self.values["right_calibration_file"])
-            except CalibrationError as error:
-                raise ParameterError(f"parameter 'left_calibration_file'/'right_calibration_file': {error}") from error
-            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left, self.base_poses)
-            self.send_camera_frames(rig)
+            self.pairer.dropped, self.front.pipeline.rejections if self.front.pipeline else Counter())])
+        qos = qos_profile(self.values["image_qos"])
+        if self.front.pipeline:
+            self.send_camera_frames(self.front.pipeline.rig)
         else:
             for side in ("left", "right"):
                 self.inputs.track(self.create_subscription(CameraInfo, f"{side}/camera_info",
@@ -93,20 +73,21 @@ class NeedleStereoNode(Node):
         # after the parameters are checked and the static frames sent, before subscribing: a pair arriving while the
         # kernels compile would wait, and the ones after it be dropped
         self.get_logger().info(f"measurement kernels ready in {compile_kernels():.1f} s")
-        image_type, suffix = (CompressedImage, "/compressed") if compressed else (Image, "")
-        for side in ("left", "right"):
+        image_type, suffix = (CompressedImage, "/compressed") if self.compressed else (Image, "")
+        for side in ("left", "right"):  # read serialized, as the offline tools read a bag's images
             self.inputs.track(self.create_subscription(image_type, f"{side}/image_raw{suffix}",
-                                                       lambda msg, side=side: self.on_image(side, msg), qos))
+                                                       lambda data, side=side: self.on_image(side, data), qos,
+                                                       raw=True))
         if self.values["base_pose.topic"]:
             self.inputs.track(self.create_subscription(PoseStamped, self.values["base_pose.topic"], self.on_base_pose,
-                                                       qos_profile_sensor_data, raw=True))
+                                                       qos_profile("sensor_data", 5), raw=True))
         self.tf_buffer = self.base_tf_buffer()
         self.cloud_pub = self.create_publisher(PointCloud2, "needle/measured_points", 10)
         self.shape_pub = self.create_publisher(NeedleShape, "needle/measured_shape", 10)
         self.debug_pub = self.create_publisher(Image, "needle/debug_image", 1)
-        source = "calibration files" if self.pipeline else "left/camera_info and right/camera_info"
+        source = "calibration files" if self.front.pipeline else "left/camera_info and right/camera_info"
         self.get_logger().info(f"needle_stereo ready: {self.values['image_transport']} images, calibration from "
-                               f"{source}, background from {self.config.background_frames} pairs")
+                               f"{source}, background from {self.values['background.frames']} pairs")
 
     def base_tf_buffer(self) -> Any:
         """A tf2_ros buffer listening to /tf for the base frame, or None (no frame set, or tf2_ros missing)."""
@@ -125,12 +106,11 @@ class NeedleStereoNode(Node):
     def on_base_pose(self, data: bytes) -> None:
         """A serialized base pose, stored in the output frame; unusable ones are warned about (throttled)."""
         try:
-            store_base_pose(self.base_poses, pose_stamped(data), self.frame_id,
-                            (self.values["left_optical_frame"], self._image_frame), self.output_from_left)
+            self.front.add_base_pose(pose_stamped(data))
         except ValueError as error:
             self.warn("base_pose", f"base pose on '{self.values['base_pose.topic']}' ignored: {error}")
 
-    def look_up_base(self, header: Header) -> None:
+    def look_up_base(self, header: Header, stamp: float) -> None:
         """The base frame's pose on TF at the image's stamp into the store (nothing when TF has none)."""
         try:
             transform = self.tf_buffer.lookup_transform(self.frame_id or header.frame_id,
@@ -140,7 +120,7 @@ class NeedleStereoNode(Node):
             return
         t, r = transform.transform.translation, transform.transform.rotation
         try:
-            self.base_poses.add(_stamp_seconds(header), (t.x, t.y, t.z), (r.x, r.y, r.z, r.w))
+            self.front.base_poses.add(stamp, (t.x, t.y, t.z), (r.x, r.y, r.z, r.w))
         except ValueError as error:
             self.warn("base_pose", f"base frame '{self.values['base_pose.frame']}' on TF ignored: {error}")
 
@@ -166,50 +146,57 @@ class NeedleStereoNode(Node):
 
     def on_camera_info(self, side: str, msg: CameraInfo) -> None:
         try:
-            rig = self.camera_infos.offer(side, msg)
-            if rig is None:
-                return
-            self.pipeline = StereoNeedlePipeline(rig, self.config, self.output_from_left, self.base_poses)
-        except (CalibrationError, cv2.error, np.linalg.LinAlgError) as error:
-            self.pipeline = None
+            rig = self.front.on_camera_info(side, msg)
+        except CalibrationError as error:
             self.warn("calibration", f"camera_info unusable, nothing is measured: {error}")
+            return
+        if rig is None:
             return
         self.send_camera_frames(rig)
         self.get_logger().info("stereo calibration received from camera_info; background model restarts")
 
-    def on_image(self, side: str, msg: Image | CompressedImage) -> None:
-        pair = self.pairer.push(side, _stamp_seconds(msg.header), msg)
+    def on_image(self, side: str, data: bytes) -> None:
+        try:
+            image = deserialize_image(data, self.compressed)
+        except ImageFormatError as error:
+            self.measurement_status.count("skipped_decode_error")
+            self.warn("decode", f"{side} image skipped: {error}")
+            return
+        pair = self.pairer.push(side, image.stamp, image)
         if self.pairer.dropped > self._reported_drops:
             self.warn("sync", f"{self.pairer.dropped - self._reported_drops} frame(s) without a partner within "
                               f"{self.values['sync_tolerance']} s were dropped")
             self._reported_drops = self.pairer.dropped
         if pair is None:
             return
-        if self.pipeline is None:
+        pipeline = self.front.pipeline
+        if pipeline is None:
             self.measurement_status.count("skipped_no_calibration")
             self.warn("calibration", "no usable stereo calibration yet (waiting for left/camera_info and "
                                      "right/camera_info): frame skipped")
             return
         try:
-            images = list(self._decoder.map(compressed_message_to_gray, (pair.left, pair.right))) if self._decoder \
-                else [image_message_to_gray(pair.left), image_message_to_gray(pair.right)]
+            images = list(self._decoder.map(SerializedImage.gray, (pair.left, pair.right))) if self._decoder \
+                else [pair.left.gray(), pair.right.gray()]
         except ImageFormatError as error:
             self.measurement_status.count("skipped_decode_error")
             self.warn("decode", f"pair at {pair.stamp:.6f} s skipped: {error}")
             return
-        self._image_frame = pair.left.header.frame_id
+        left = pair.left
+        self.front.image_frame = left.frame_id
+        header = Header(stamp=Time(sec=left.sec, nanosec=left.nanosec), frame_id=left.frame_id)
         if self.tf_buffer is not None:
-            self.look_up_base(pair.left.header)
-        result = self.pipeline.process(pair.stamp, *images)
+            self.look_up_base(header, pair.stamp)
+        result = pipeline.process(pair.stamp, *images)
         self.measurement_status.count(result.status.name.lower())
         if result.status is FrameStatus.REJECTED:
-            counts = ", ".join(f"{kind} {count}" for kind, count in self.pipeline.rejections.most_common())
+            counts = ", ".join(f"{kind} {count}" for kind, count in pipeline.rejections.most_common())
             self.warn("rejected", f"nothing published for the pair at {pair.stamp:.6f} s: {result.reason} "
                                   f"(rejected so far: {counts})")
         if result.status is not FrameStatus.BACKGROUND:
-            self.publish_debug(pair.left.header, images, result)
+            self.publish_debug(header, images, result)
         if result.status is FrameStatus.MEASURED:
-            self.publish(pair.left.header, result)
+            self.publish(header, result)
 
     def publish(self, image_header: Header, result: FrameResult) -> None:
         measurement = result.measurement

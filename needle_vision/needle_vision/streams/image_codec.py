@@ -1,12 +1,11 @@
 """``sensor_msgs/Image`` fields <-> numpy arrays for mono8, mono16, bgr8 and rgb8 (no cv_bridge, no ROS).
 
-Works on plain field values, so the node (rclpy messages) and the offline command (messages decoded from a
-bag) share it. The pipeline works on one grey channel: colour images are converted to grey. Serialized
-``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage`` (CDR, as a rosbag2 MCAP stores them) are read here
-too, without building message objects: the pixels stay a view into the serialized bytes.
+The pipeline works on one grey channel: colour images are converted to grey. The node (its subscriptions are raw) and
+the offline tools (a bag's records) read serialized ``sensor_msgs/Image`` and ``sensor_msgs/CompressedImage`` (CDR)
+alike (:func:`deserialize_image`), without building message objects: the pixels stay a view into the serialized bytes.
 
 ``sensor_msgs/CompressedImage`` (image_transport's ``<image>/compressed`` topics) is decoded by
-:func:`compressed_to_gray` with OpenCV, for the node and the offline command alike. Its ``format`` follows
+:func:`compressed_to_gray` with OpenCV. Its ``format`` follows
 compressed_image_transport: ``"<encoding>; <jpeg|png> compressed <encoding of the compressed pixels>"`` (e.g.
 ``"bgr8; jpeg compressed bgr8"``, ``"mono16; png compressed mono16"``), or just ``"jpeg"``/``"png"`` as older
 drivers write it; colour is stored as BGR in either. :func:`compress_image` writes the same formats.
@@ -16,13 +15,12 @@ from __future__ import annotations
 import re
 import struct
 import sys
-from typing import Any, Mapping, NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 
 from needle_common.cdr import aligned, cdr_string
-from needle_common.message_fields import field_getter
 
 #: encoding -> (dtype, channels)
 ENCODINGS = {"mono8": (np.uint8, 1), "mono16": (np.uint16, 1), "bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3)}
@@ -60,13 +58,6 @@ def image_to_gray(height: int, width: int, encoding: str, step: int, data: Any,
     if array.ndim == 3:
         array = cv2.cvtColor(array, cv2.COLOR_BGR2GRAY if encoding == "bgr8" else cv2.COLOR_RGB2GRAY)
     return array
-
-
-def image_message_to_gray(message: Mapping[str, Any] | Any) -> np.ndarray:
-    """:func:`image_to_gray` of a message object (rclpy or decoded from a bag) or a mapping of its fields."""
-    get = field_getter(message)
-    return image_to_gray(int(get("height")), int(get("width")), str(get("encoding")), int(get("step")),
-                         get("data"), bool(get("is_bigendian")))
 
 
 def gray_to_encoding(gray: np.ndarray, encoding: str) -> np.ndarray:
@@ -180,12 +171,6 @@ def compressed_to_gray(data: Any, image_format: str) -> np.ndarray:
         raise ImageFormatError(f"cannot decode the compressed image ({buffer.size} bytes, format '{image_format}'): "
                                "corrupt or not an image")
     return decoded_to_gray(image)
-
-
-def compressed_message_to_gray(message: Mapping[str, Any] | Any) -> np.ndarray:
-    """:func:`compressed_to_gray` of a ``CompressedImage`` message object or a mapping of its fields."""
-    get = field_getter(message)
-    return compressed_to_gray(get("data"), str(get("format")))
 
 
 def compress_image(array: np.ndarray, encoding: str, codec: str = "png", quality: int = 95) -> tuple[str, bytes]:
