@@ -49,9 +49,8 @@ def _largest_component(mask: np.ndarray) -> int:
 def detect_polarity(darkening: np.ndarray, brightening: np.ndarray, background: np.ndarray,
                     threshold: ContrastThreshold) -> int:
     """+1 (dark needle) when the largest connected structure darker than the background by more than the
-    threshold (at the coarse scale) is twice the largest brighter one, -1 (bright) for the converse, 0 when
-    neither dominates (no needle, or noise). ``darkening``/``brightening``: how much darker/brighter than the
-    background each pixel is [DN]. The needle is one long structure, texture and noise are scattered."""
+    threshold (at the coarse scale) is twice the largest brighter one, -1 (bright) for the converse, 0 when neither
+    dominates. ``darkening``/``brightening``: how much darker/brighter than the background each pixel is [DN]."""
     factor = threshold.downsample
     return _coarse_polarity(downsample(darkening, factor), downsample(brightening, factor),
                             downsample(background, factor), threshold)
@@ -173,8 +172,7 @@ class StereoNeedlePipeline:
                                      for image in (left, right))
         backgrounds = self.backgrounds
         if not self.polarity:  # decided here, kept only once a needle is measured with it (not on empty frames)
-            # the coarse brightening is minus the coarse darkening (area averages commute with the sign exactly), and
-            # the background's coarse image is kept: one downsampling instead of three
+            # the coarse brightening is minus the coarse darkening (area averages commute with the sign exactly)
             coarse = downsample(backgrounds[0].image - left.astype(np.float32), threshold.downsample)
             polarity = _coarse_polarity(coarse, -coarse, backgrounds[0].coarse, threshold)
             if not polarity:
@@ -242,10 +240,9 @@ class StereoNeedlePipeline:
 
 
 def compile_kernels() -> float:
-    """Compile, or load from numba's cache, the measurement's kernels by measuring one rendered pair of a bent needle
-    with the synthetic rig (:mod:`needle_vision.render`), uint8 and uint16, writable and read-only, ordered either way,
-    and once with the curve fit; returns the seconds it took. The stereo node runs it before it subscribes, and the
-    package's install step runs it once, so that the first real pairs do not wait for compilation (which drops them)."""
+    """Compile, or load from numba's cache, the measurement's kernels on one rendered pair (uint8 and uint16,
+    writable and read-only, ordered either way, and with the curve fit); returns the seconds it took. Run by the node
+    before it subscribes and by the install step, so that the first real pairs do not wait for compilation."""
     import time
 
     from needle_vision.render import NEEDLE_RADIUS, default_rig, make_scene, render_background_pair, render_stereo_pair

@@ -3,8 +3,7 @@ needs a calibrated rig).
 
 Input read as ``needle_stereo_offline`` reads it; outputs and accuracy: README, "Calibration". Each camera is
 calibrated alone (``plumb_bob``), then ``cv2.stereoCalibrate`` refines both cameras' intrinsics with the extrinsics
-(ROS ``camera_calibration`` keeps the intrinsics fixed: on the sample rig's renders the needle ends 0.17 mm off
-instead of 0.04-0.10 mm); R and P come from ``stereoRectify`` with ``CALIB_ZERO_DISPARITY``.
+(unlike ROS ``camera_calibration``); R and P come from ``stereoRectify`` with ``CALIB_ZERO_DISPARITY``.
 Exit status 0 on success, 1 when too few pairs show the board, 2 on bad input.
 
     needle_stereo_calibrate board_images/ --board 9x6 --square 0.015 --output-dir calibration/

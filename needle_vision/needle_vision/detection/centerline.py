@@ -9,8 +9,7 @@ extract the background, find the needle points).
 2. Full-resolution refinement: the band around the coarse path is cut into axis-aligned one-pixel slices
    (columns where the needle runs closer to horizontal, rows elsewhere); the centroid of the covered fraction
    (B - I) / (B - N) across each slice is a centerline point (no image interpolation; N the needle's own grey
-   level along it, so the background's texture does not weight the slice; the aliasing error of integer sampling,
-   ~0.04 px with no lens blur, is negligible at a realistic blur). Weak slices (gaps, beyond the ends) are dropped.
+   level along it). Weak slices (gaps, beyond the ends) are dropped.
 3. The ends to sub-pixel from the covered fraction's profile along the needle's end direction
    (:func:`_end_along_profile`).
 """
@@ -53,17 +52,13 @@ class CenterlineConfig:
 
 @dataclass(frozen=True)
 class ImageCenterline:
-    """Centerline points ``(n, 2)`` (x, y raw pixels) ordered from one end to the other, their slice contrast
-    (sum of the covered fraction across the slice: the needle's width along it), the robust scatter [px] of the
-    points across the curve, and that scatter along the curve (``local_noise_px``, per point, over ``NOISE_WINDOW``
-    points: the noise grows where the needle's contrast is lower, e.g. in front of a darker background; at least the
-    slice's own centroid noise, image noise over its contrast, scaled so that the median slice's is that scatter);
-    ``extrapolation_px``: per point, the lateral uncertainty [px] of the points extrapolated towards the ends (0 for the
-    slices' points; :func:`_placed_end`), one error shared by the stretch, which smoothing along it does not average;
-    ``end_taper_px``: how far [px] each end (first, last) was put beyond the middle of its fitted taper (a bevel seen
-    side-on: half its length; 0 for a flat end); ``taper_candidates``: per end, the tapered end of an end placed flat
-    whose taper only the covered fraction shows (an :class:`EndReading`; None where there is none); ``flat_ends``:
-    per tapered end, that end placed flat (None where the end is flat)."""
+    """Centerline points ``(n, 2)`` (x, y raw pixels) ordered from one end to the other, their slice contrast (the
+    covered fraction summed across the slice), the robust scatter [px] across the curve, and per point: that scatter
+    over ``NOISE_WINDOW`` points (``local_noise_px``, at least the slice's own centroid noise) and the lateral
+    uncertainty [px] of the points extrapolated towards the ends (``extrapolation_px``, 0 for slices: one error
+    shared by the stretch); per end (first, last): how far [px] it was put beyond the middle of its fitted taper
+    (``end_taper_px``, 0: flat), the tapered reading of an end placed flat (``taper_candidates``) and the flat
+    placement of a tapered end (``flat_ends``), :class:`EndReading` or None."""
 
     points: np.ndarray
     contrast: np.ndarray
@@ -78,13 +73,10 @@ class ImageCenterline:
 @dataclass(frozen=True)
 class EndReading:
     """The other reading of an end, for the other view to decide (``reconstruction._shared_bevels``): a taper
-    candidate (an end placed flat whose covered fraction alone falls slowly, over ``TAPER_FACTOR`` times the blur: a
-    bright needle's relative contrast follows the background's texture, +-15 %, whose scatter hides 1 mm bevels in
-    one view, their ratio 1.20-1.50 against thresholds 1.56-1.95) or a tapered end placed flat. It replaces the
-    centerline's last ``drop`` points at that end by ``points`` (ordered outward, ending with the end),
+    candidate (an end placed flat whose covered fraction alone falls slowly) or a tapered end placed flat. It replaces
+    the centerline's last ``drop`` points at that end by ``points`` (ordered outward, ending with the end),
     ``half_taper_px`` beyond the middle of its fitted taper (0: flat). ``fall_ratio``: a candidate's covered-fraction
-    fall over the side edges' blur (strong over ``CANDIDATE_TAPER_FACTOR``; 0 for a flat placement);
-    ``extrapolation_px``: per point, as ``ImageCenterline.extrapolation_px`` (0 for the slices it takes back)."""
+    fall over the side edges' blur (0 for a flat placement); ``extrapolation_px``: as ``ImageCenterline``'s."""
 
     drop: int
     points: np.ndarray
@@ -250,14 +242,10 @@ def _refine_path(image, background, polarity, path):  # pragma: no cover - compi
 def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, half_width, needle,
                      with_noise):  # pragma: no cover - compiled
     """Centroid across each one-pixel slice: slice k is row ``fixed[k]`` (along_rows) or column ``fixed[k]``,
-    spanning ``round(predicted[k]) ± half_width``. The weights are the relative contrast (B - I) / B, or where the
-    needle's own intensity ``needle[k]`` (N) is given (non-empty), the covered fraction (B - I) / (B - N): the
-    relative contrast is the covered fraction times 1 - N / B, which the background's albedo texture modulates
-    across the slice (a bright needle on a dark background: ~+-15 %, a centroid error correlated over ~4 px of
-    texture). Returns (centroid, contrast sum: of the weights, the centroid's noise per unit of image noise [px/DN],
-    inf unless ``with_noise``); contrast 0 when the slice leaves the image. A pixel's weight carries the image noise
-    over its denominator d, so the centroid's variance is sum((c - centroid)^2 / d^2) / contrast^2 times the image
-    noise's: it grows as the needle's contrast against the background (B - N) fades."""
+    spanning ``round(predicted[k]) ± half_width``, weighted by the relative contrast (B - I) / B or, given the
+    needle's own intensity ``needle[k]`` (N, non-empty), the covered fraction (B - I) / (B - N). Returns (centroid,
+    contrast: the weights' sum, 0 where the slice leaves the image; the centroid's noise per unit of image noise
+    [px/DN], inf unless ``with_noise``: sqrt(sum((c - centroid)^2 / d^2)) / contrast, d the weight's denominator)."""
     height, width = image.shape
     n = fixed.shape[0]
     centroid = np.empty(n)
@@ -291,10 +279,9 @@ def _slice_centroids(image, background, polarity, along_rows, fixed, predicted, 
 
 @numba.njit(cache=True, nogil=True)
 def _needle_levels(image, polarity, along_rows, fixed, centroid, contrast, window):  # pragma: no cover - compiled
-    """The needle's own intensity N at each slice: the grey level of the pixel nearest its centroid (covered by the
-    needle), a running median over ``window`` of the slices whose contrast is at least half the median (the light
-    is smooth along the needle; the others take their nearest such slice's). Empty when fewer than ``window``
-    slices qualify."""
+    """The needle's own intensity N at each slice: the grey level at its centroid, a running median over ``window``
+    of the slices with at least half the median contrast (the others take their nearest such slice's). Empty when
+    fewer than ``window`` slices qualify."""
     n = centroid.shape[0]
     height, width = image.shape
     strong = contrast > 0.5 * np.median(contrast[contrast > 0]) if np.any(contrast > 0) else contrast > 0
@@ -318,11 +305,10 @@ def _needle_levels(image, polarity, along_rows, fixed, centroid, contrast, windo
 
 @numba.njit(cache=True, nogil=True)
 def _slices_along(path):  # pragma: no cover - compiled
-    """One-pixel slices across the polyline ``path`` (full-res x, y), in path order: returns (along_rows,
-    fixed, predicted, obliquity). Each segment is cut by the integer columns (segments closer to horizontal)
-    or rows it spans, half-open so that consecutive segments share none; where the slicing direction switches,
-    the new segment starts one pixel early so that no pixel is skipped at the switch. ``obliquity`` is the cosine
-    between the slice's index axis and the segment: a straight band's contrast along a slice scales with 1/it."""
+    """One-pixel slices across the polyline ``path`` (full-res x, y), in path order: (along_rows, fixed, predicted,
+    obliquity). Each segment is cut by the integer columns (closer to horizontal) or rows it spans, half-open; where
+    the slicing direction switches, one pixel early. ``obliquity``: cosine between the slice's index axis and the
+    segment (a straight band's contrast along a slice scales with 1/it)."""
     total = 0
     for k in range(path.shape[0] - 1):
         total += int(abs(path[k + 1, 0] - path[k, 0]) + abs(path[k + 1, 1] - path[k, 1])) + 3
@@ -370,9 +356,8 @@ def _extended(values, j, mirror):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def _running_median(values, size, mirror):  # pragma: no cover - compiled
-    """scipy.ndimage.median_filter of 1D ``values`` over ``size`` samples (the window's element of rank
-    size // 2, centred at size // 2; modes as :func:`_extended`): a sorted window updated one sample in and one
-    out, O(size) per sample."""
+    """scipy.ndimage.median_filter of 1D ``values`` over ``size`` samples (modes as :func:`_extended`): a sorted
+    window updated one sample in and one out, O(size) per sample."""
     n = values.shape[0]
     out = np.empty(n)
     if n == 0:
@@ -398,33 +383,16 @@ def _running_median(values, size, mirror):  # pragma: no cover - compiled
 
 
 #: An end whose contrast profile falls over more than this many times the blur of the needle's side edges is
-#: tapered (a bevel seen side-on): over 20 noise seeds a flat end's ratio is 0.85-1.14, a 1 mm bevel's 1.15-1.75.
-#: Both profiles must fall so (:func:`_falls_slowly`): a bright needle's relative contrast follows the background's
-#: texture (+-15 %), its level sagged below 75 % 10-13 px before flat bases (ratio 10-108: half tapers 0.5-0.7
-#: px); on the covered fraction 500 flat bases read 0.80-1.18 (both polarities, 13 shapes at 5 noise seeds, 4 at
-#: 15 more), the 320 1 mm bevels' tips 1.28-2.12. The covered fraction alone would taper bright flat tips turned
-#: towards the cameras (1.15-1.30), which the relative contrast's scatter keeps flat.
+#: tapered (a bevel seen side-on), in both profiles (:func:`_falls_slowly`; measurements: docs/stereo_history.md).
 TAPER_FACTOR = 1.15
-#: ... and by more than this many times the profile's relative scatter along the needle (a weak needle's noisy
-#: profile does not tell a taper: a flat end's ratio scatters ~3x the profile's scatter about 1).
+#: ... and by more than this many times the profile's relative scatter along the needle.
 TAPER_SIGNIFICANCE = 5.0
 #: An end placed flat whose covered fraction alone falls slowly is a taper candidate (:class:`EndReading`), a strong
-#: one where its spread exceeds this many times the blur: over noise seeds 7 + 1000 k, k = 0..19, both polarities, the
-#: flat ends (bases included) that are candidates read 1.15-1.30 (mostly the tips turned towards the cameras, the up
-#: curl's and the turning plane's; 8 up curl tips where the other view read a short taper), the bright 1 mm bevels'
-#: (straight, hook) 1.38-1.66; the 1 mm bevels along the epipolar lines that one view reads flat 1.20-1.41
-#: (``reconstruction._shared_bevels`` takes a weak candidate only where the other view reads a bevel's taper).
+#: one where its spread exceeds this many times the blur.
 CANDIDATE_TAPER_FACTOR = 1.34
-#: The end's lateral extrapolation takes a cubic term (the curvature changing along the 80 slices before the end)
-#: when its coefficient exceeds this many white-noise standard errors and the end lies within ``CUBIC_REACH`` of the
-#: fitted span beyond it. The centroids' errors are correlated over ~20 slices, so noise alone reaches ~5; over 208
-#: flat ends of 13 shapes, both polarities, the cubic put the end nearer in 88 % of those at 5-7 standard errors and
-#: in all beyond 7 (the rod S's tips read 6.4-8.9).
+#: The end's lateral extrapolation takes a cubic term when its coefficient exceeds this many white-noise standard
+#: errors and the end lies within ``CUBIC_REACH`` of the fitted span beyond it.
 CURVATURE_RAMP_SIGNIFICANCE = 5.0
-#: A third-order term's extrapolation error grows with the cube of the distance: flat ends lie 5-8 px beyond the
-#: last fitted slice, bevels' 8-13 px (their cubics read below 5 standard errors); the offline median background
-#: (test_offline_modes), which holds part of the needle where every frame's needle covers it, reads as 18-25 px half
-#: tapers, the end 42-55 px beyond, where cubics of 6.5-9.8 standard errors moved it by 1.4-2.8 px.
 CUBIC_REACH = 0.25
 
 
@@ -466,9 +434,8 @@ def _phi(z):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
     """Fraction of the contrast left at ``s`` by an end whose width falls linearly to nothing over ``taper``
-    (centred at ``centre``), seen through a Gaussian blur ``sigma``: the mean of the blurred step
-    Phi((x - s) / sigma) over the taper x, in closed form (G(z) = z Phi(z) + phi(z) integrates Phi); and its
-    derivatives by the centre and by the taper."""
+    (centred at ``centre``) through a Gaussian blur ``sigma``: the mean of Phi((x - s) / sigma) over the taper x,
+    closed form (G(z) = z Phi(z) + phi(z) integrates Phi); and its derivatives by the centre and the taper."""
     taper = max(taper, 1e-3)
     value, d_centre, d_taper = np.empty(s.shape[0]), np.empty(s.shape[0]), np.empty(s.shape[0])
     for k in range(s.shape[0]):
@@ -483,11 +450,9 @@ def _tapered_step(s, centre, taper, sigma):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def _side_blur(u, cross):  # pragma: no cover - compiled
-    """Gaussian blur sigma of the needle's side edges, and the band's centre, half width and contrast: fit of
-    a blurred band (contrast, centre, half width, sigma) to its cross profile ``cross`` at ``u`` (Gauss-Newton
-    from the profile's peak, area and a 0.6 px blur; the last estimate where the fit is singular, e.g. a flat
-    profile). Fitted like the end's profile (:func:`_taper_fit`); the quartiles of the interpolated profile read
-    ~1.0 px where the fit gives 0.72 px (1.349 sigma for a Gaussian step)."""
+    """Gaussian blur sigma of the needle's side edges, and the band's centre, half width and contrast: Gauss-Newton
+    fit of a blurred band to its cross profile ``cross`` at ``u`` from the profile's peak, area and a 0.6 px blur
+    (the last estimate where the fit is singular, e.g. a flat profile)."""
     peak = int(np.argmax(cross))
     parameters = np.array([cross[peak], u[peak], 0.5 * np.sum(cross) * (u[1] - u[0]) / max(cross[peak], 1e-9), 0.6])
     for _ in range(4):
@@ -597,10 +562,8 @@ def _column_medians(rows):  # pragma: no cover - compiled
 def _band_centroids(image, background, polarity, points, rows, half_band,
                     needle):  # pragma: no cover - compiled
     """The centerline points ``(n, 2)`` re-measured over the needle's blurred band only: the centroid of the contrast
-    (as :func:`_contrast_grid`'s: the covered fraction given the needle's intensity ``needle`` > 0, else relative)
-    across the row (``rows``) or column through each point, in a window of ``half_band`` px (the band's half width
-    across the slice) about the point, its edge pixels weighted by their overlap; re-centred once. A point whose
-    window leaves the image is kept."""
+    (:func:`_contrast_grid`'s) across the row (``rows``) or column through each point within ``half_band`` px of it
+    (edge pixels weighted by their overlap), re-centred once; a point whose window leaves the image is kept."""
     height, width = image.shape
     out = points.copy()
     a = 0 if rows else 1  # the coordinate measured across the slice
@@ -652,18 +615,13 @@ def _profile_crossings(s, grid, band, inside, start):  # pragma: no cover - comp
 def _end_along_profile(image, background, polarity, points, half_width, step=0.25):  # pragma: no cover - compiled
     """The needle's end to sub-pixel, ``points`` ordered towards it (about one pixel apart).
 
-    A line fitted to the points 8-30 from the end (fully covered slices: the last few cut the end obliquely) gives
-    the direction of the end profile: the covered fraction (B - I) / (B - N) integrated across the needle's band (its
-    blurred edges included), on a grid bent along the needle's curvature. The end is where the profile falls to half
-    its level (a flat end is a step blurred symmetrically); :func:`_placed_end` replaces the points near it. A bevel
-    seen side-on tapers the end (:data:`TAPER_FACTOR`): a blurred linear taper is fitted to the profile and the end
-    put half its length beyond its middle (least squares over the whole taper: the half-contrast crossing alone moves
-    with the noise of a few samples on a shallow slope). The other reading (:class:`EndReading`) is a taper candidate
-    or the tapered end placed flat. Returns (number of points kept, the new points ending with the end, the taper's
-    half length [px]) of the end, (number of those points the other reading drops, its points, its half taper, a
-    candidate's covered-fraction fall over the blur, 0 for a flat placement), and the lateral uncertainty [px] of the
-    new points of each (:func:`_placed_end`; 0 for the slices the other reading takes back); kept is -1 where the
-    profile leaves the image or does not fall (the other reading's drop where there is none)."""
+    A line fitted to the points 8-30 from the end gives the direction of the end profile: the covered fraction
+    integrated across the needle's blurred band, on a grid bent along the needle. The end is where the profile falls
+    to half its level; a bevel seen side-on (:data:`TAPER_FACTOR`) is fitted a blurred linear taper and the end put
+    half its length beyond its middle. Returns the end's (points kept, new points ending with the end, half taper
+    [px]), the other reading's (:class:`EndReading`: points it drops, its points, half taper, fall ratio) and each
+    one's lateral uncertainty [px] (:func:`_placed_end`); kept (drop) is -1 where the profile leaves the image or
+    does not fall (where there is no other reading)."""
     none = (-1, np.zeros((0, 2)), 0.0, -1, np.zeros((0, 2)), 0.0, 0.0, np.zeros(0), np.zeros(0))
     n = points.shape[0]
     if n < 100:
@@ -674,8 +632,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     direction, centre = _principal_direction(points[n - 30:n - 8])
     normal = np.array([-direction[1], direction[0]])
     along = (points[:, 0] - centre[0]) * direction[0] + (points[:, 1] - centre[1]) * direction[1]
-    # The profile's grid is bent along the needle: a quadratic of the points' lateral offset from the line, fitted
-    # to the points 8-60 from the end, shifts each of its rows (a curved end leaves the straight line's band).
+    # The profile's grid is bent along the needle: each row shifted by a quadratic fit of the points' lateral offset.
     aside = (points[:, 0] - centre[0]) * normal[0] + (points[:, 1] - centre[1]) * normal[1]
     bend = np.empty((52, 3))
     for k in range(52):
@@ -683,7 +640,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         bend[k, 0], bend[k, 1], bend[k, 2] = t * t, t, 1.0
     bend_coefficients = np.linalg.lstsq(bend, np.ascontiguousarray(aside[n - 60:n - 8]))[0]
     # The profile runs 2 half widths beyond the last slice; 6 when it does not fall within that, if its end then lies
-    # beyond the last slice (the last slices dropped short of the end; a fall before it is a faint stretch).
+    # beyond the last slice (a fall before it is a faint stretch).
     for reach in (2.0 * half_width, 6.0 * half_width):
         s = np.arange(along[n - 30], along[n - 1] + reach, step)
         u = np.arange(-half_width - 1.0, half_width + 1.5, 0.5)
@@ -698,8 +655,7 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         grid = _contrast_grid(image, background, polarity, centre, direction, s, u, shift, 0.0)
         inside = s <= along[n - 9]
         cross = _column_medians(grid[inside])
-        # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only: the slices'
-        # margins add noise, not contrast.
+        # The profile sums the contrast over the needle's band and its blurred edges (2 sigma) only.
         side_sigma, band_centre, band_half_width, band_contrast = _side_blur(u, cross)
         band = np.abs(u - band_centre) <= band_half_width + 2 * side_sigma
         if np.count_nonzero(band) < 3:
@@ -712,9 +668,8 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
     blur = _edge_spread(cross, u)
     spread = last - first
     tapered = _falls_slowly(profile, level, inside, spread, blur)
-    # The needle's own intensity N, from the band's fitted contrast over the harmonic mean of B, gives the covered
-    # fraction (B - I) / (B - N) (:func:`_slice_centroids`) to locate the end; the end is tapered where it falls slowly
-    # in both profiles (TAPER_FACTOR), a candidate taper where it does in the covered fraction only.
+    # N from the band's fitted contrast over the harmonic mean of B: the covered fraction locates the end; tapered
+    # where both profiles fall slowly, a candidate taper where the covered fraction's only does.
     needle = 0.0
     candidate = False
     if band_contrast > 0.0 and 1.0 - polarity * band_contrast > 0.0:
@@ -771,19 +726,15 @@ def _placed_end(image, background, polarity, points, along, centre, direction, n
                 band_half_width, side_sigma, needle):  # pragma: no cover - compiled
     """The points towards the ``end`` (:func:`_end_along_profile`: ``along`` the line through ``centre`` in
     ``direction``, ``half_taper`` beyond the middle of its taper): (number of ``points`` kept, the new points
-    ending with the end, their lateral uncertainty [px]); kept is -1 where too few points are left before the taper.
-    The new points are extrapolated: how the curvature changes beyond the slices fitted is not seen there, so each
-    point is known no better than the quadratic and the cubic fit to those slices agree on it (their difference at the
-    end: up to 0.12 px at flat ends 5-8 px beyond, 0.25-0.5 px where the needle fades into a background at its own
-    level and a long taper is read 48-60 px beyond, the extrapolation's error there 0.4-0.6 px)."""
-    # The slices within the taper (a bevel: the band narrows from one side, its centroids move towards the other) and
-    # within half_width + 1 of the end (cut obliquely: centroids biased) are replaced. (along increases towards the end)
+    ending with the end, their lateral uncertainty [px]: where the quadratic and cubic fits to the slices disagree);
+    kept is -1 where too few points are left before the taper."""
+    # The slices within the taper (centroids pulled aside by the bevel) and within half_width + 1 of the end (cut
+    # obliquely) are replaced.
     kept = int(np.searchsorted(along, end - 2 * half_taper - half_width - 1))
     if kept < 80 or end <= along[kept - 1]:
         return -1, np.zeros((0, 2)), np.zeros(0)
-    # Quadratic lateral offset against the distance along the line (least squares, centred abscissa), fitted to the
-    # slices' centroids over the needle's blurred band only (the margins' noise has the largest lever arm), weighted
-    # by the covered fraction where N is known.
+    # Quadratic lateral offset against the distance along the line (centred abscissa), fitted to the slices'
+    # centroids over the needle's blurred band only.
     rows = abs(direction[1]) > abs(direction[0])
     half_band = min(max(band_half_width + 2 * side_sigma, 1.0), half_width) / max(abs(direction[1 if rows else 0]),
                                                                                    0.5)
@@ -792,8 +743,6 @@ def _placed_end(image, background, polarity, points, along, centre, direction, n
     abscissa = (fit[:, 0] - centre[0]) * direction[0] + (fit[:, 1] - centre[1]) * direction[1]
     offset = abscissa.mean()
     lateral = (fit[:, 0] - centre[0]) * normal[0] + (fit[:, 1] - centre[1]) * normal[1]
-    # A cubic term where it stands out of the fit's noise (CURVATURE_RAMP_SIGNIFICANCE standard errors) and the
-    # extrapolation is short (CUBIC_REACH).
     design = np.empty((80, 4))
     for k in range(80):
         t = abscissa[k] - offset
@@ -805,8 +754,7 @@ def _placed_end(image, background, polarity, points, along, centre, direction, n
     quadratic[1:] = np.linalg.lstsq(np.ascontiguousarray(design[:, 1:]), lateral)[0]
     coefficients = quadratic if end - along[kept - 1] > CUBIC_REACH * (along[kept - 1] - along[kept - 80]) \
         or cubic[0] * cubic[0] <= CURVATURE_RAMP_SIGNIFICANCE ** 2 * variance else cubic
-    # As many points as the centerline's own spacing (the slices' step along the needle) puts up to the end, evenly
-    # spaced: the 3D smoothing's first pass fits by point index, so a short last step pushed the end outward.
+    # Evenly spaced points at the slices' own spacing up to the end (the 3D smoothing's first pass fits by index).
     spacing = (along[kept - 1] - along[kept - 21]) / 20
     count = max(int(round((end - along[kept - 1]) / max(spacing, 0.5))), 1)
     steps = along[kept - 1] + (end - along[kept - 1]) * np.arange(1, count + 1) / count
@@ -845,13 +793,11 @@ def _scatter(points, first, count):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def _slice_points(image, background, polarity, path, half_width, wide, min_contrast_fraction,
                   min_profile_fraction):  # pragma: no cover - compiled
-    """The centerline points of the one-pixel slices across ``path`` (:func:`_slices_along`; centroids of a first
-    pass ``wide`` slices, then ``half_width`` ones around them), in path order, with their contrast, their centroid's
-    noise per unit of image noise, their contrast per unit of needle width (independent of the slice's obliquity: low
-    at gaps and partial tips) and two selections: ``keep``, slices with at least ``min_contrast_fraction`` of the
-    needle's median width contrast whose centroid stayed within the first pass, cut to the first and last of the
-    ``full`` ones (also with ``min_profile_fraction`` of it; beyond them, the partly covered slices at the tips are
-    dropped); ``keep`` is empty when fewer than 3 slices have contrast or are full."""
+    """The centerline points of the one-pixel slices across ``path`` (:func:`_slices_along`; ``wide`` slices, then
+    ``half_width`` ones around their centroids), in path order, with their contrast, centroid noise per unit of image
+    noise, contrast per unit of needle width, and two selections: ``keep`` (at least ``min_contrast_fraction`` of the
+    median width contrast, centroid within the first pass, cut to the first and last ``full`` slice) and ``full``
+    (also ``min_profile_fraction`` of it); ``keep`` is empty when fewer than 3 slices have contrast or are full."""
     along_rows, fixed, predicted, obliquity = _slices_along(path)
     relative = np.zeros(0)
     centroid, contrast, noise = _slice_centroids(image, background, polarity, along_rows, fixed, predicted, wide,
@@ -1000,9 +946,8 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
         config.min_profile_fraction)
     if len(keep) == 0:
         raise NoNeedleError("the needle's slices have no contrast")
-    # Between the first and last full slice a slice is compared with the median of its neighbours above a floor
-    # (adaptive along the curve: a faded stretch is followed; the floor keeps gaps and background texture out),
-    # compiled where the window reflects at most once (the usual case; scipy's repeated reflection otherwise).
+    # A slice is compared with the median of its neighbours above a floor (a faded stretch is followed), compiled
+    # where the window reflects at most once (scipy's repeated reflection otherwise).
     window, widths = config.local_window, width_contrast[keep]
     local = median_filter(widths, size=window, mode="mirror") if window > len(widths) else _running_median(
         np.ascontiguousarray(widths, dtype=float), window, True)
@@ -1019,10 +964,8 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     contrast_kept, slice_noise = per_slice[:, 0], per_slice[:, 1]
     if len(points) < 3 or arc_length(points)[-1] < config.min_length_px:
         raise NoNeedleError("too few centerline points with enough contrast")
-    # Scatter of the slice centroids (the points towards the ends lie on a fitted curve: theirs is the fit's), at
-    # least the slice's own centroid noise (image noise over its contrast, :func:`_slice_centroids`) scaled so that
-    # the median slice's is the measured scatter: where the needle's contrast against the background fades, a slice
-    # errs more than its neighbours' running median shows.
+    # Scatter of the slice centroids, at least the slice's own centroid noise scaled so that the median slice's is
+    # the measured scatter (a slice where the contrast fades errs more than its neighbours' median shows).
     noise, local = _scatter(points, head, slices)
     local = np.maximum(local, noise * slice_noise / np.median(slice_noise[head:head + slices]))
     extrapolation = np.concatenate([first[7][::-1], np.zeros(slices), last[7]])  # empty where an end is kept as it is

@@ -300,8 +300,7 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
                 _accumulate(normal, rhs, s, b, row, weight, residual)
         if iteration == iterations:
             # The covariance: the correlated image error and noisier images than their scatter said widen what the
-            # images say (their terms' variance), not what the prior says (inflating it all overstated sigma 2-4x
-            # along the epipolar lines, where the prior carries the curve).
+            # images say (their terms' variance), not what the prior says.
             scale = 1.0 / (inflation * max(rms, 1.0) ** 2)
             for i in range(size):
                 for j in range(max(0, i - _BAND), i + 1):
@@ -408,8 +407,8 @@ def _fit(initial, initial_weights, ends, left, right, left_noise, right_noise, p
     control = _initial_control(initial, abscissa, initial_weights, segments + 3, h, bending)
     if not np.all(np.isfinite(control)):
         return False, *empty
-    # Means of ``stride`` consecutive points (their centroids' aliasing alternates along the needle: means keep its
-    # cancellation, which every other point would not), each weighted as ``stride`` points.
+    # Means of ``stride`` consecutive points (keeping the cancellation of the centroids' alternating aliasing), each
+    # weighted as ``stride`` points.
     counts = (left.shape[0] // stride, right.shape[0] // stride)
     observations = np.zeros((counts[0] + counts[1], 2))
     noise = np.zeros(counts[0] + counts[1])

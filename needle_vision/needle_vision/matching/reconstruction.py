@@ -27,20 +27,17 @@ from needle_common.transforms import RigidTransform
 MIN_IMAGE_NOISE_PX = 0.02
 #: 1-sigma error [px] of the needle's end positions along the needle (sub-pixel edge; flat or bevelled end).
 END_LOCALIZATION_PX = 0.3
-#: Correlated part of the image centerlines' lateral error [px] and the points it spans: the fitted curve averages
-#: white noise over hundreds of points but not this. Over twice the largest noise-free 41-point mean error against
-#: the projected truth (0.008 px on a curl; 0.015 left a bright rod curl's fitted sample at 4.9 sigma).
+#: Correlated part of the image centerlines' lateral error [px] and the points it spans (not averaged by the fit).
 CORRELATED_NOISE_PX = 0.02
 CORRELATED_NOISE_POINTS = 20
 #: Arc length [m] of the anchored stretch beside a stretch placed by continuity over which the needle's bending in
-#: depth, the scale of that stretch's unseen bending, is fitted (a quadratic; 0.1 mm of depth noise: ~1/m).
+#: depth is fitted (:func:`_continuity_sigma`).
 CURVATURE_SPAN = 20e-3
-#: How far beyond a flat end each view puts it, over the half axis of its end disc's projection along the needle: the
-#: band-integrated profile of that half ellipse falls to half its level at sqrt(3)/2 of it (its chord's half width).
+#: How far beyond a flat end each view puts it, over the half axis of its end disc's projection along the needle
+#: (the half ellipse's band-integrated profile falls to half at sqrt(3)/2 of it).
 END_CAP_CROSSING = math.sqrt(3.0) / 2
 #: Longest half taper [px] of an end one view reads tapered that is placed flat where the other view reads no taper
-#: (``_shared_bevels``): flat tips read so 0.18-0.85 px (dark ones; bright ones turned towards the cameras), 1 mm bevels
-#: the other view reads flat 1.20-1.57 px (the curls and rod S along the epipolar lines, 20 seeds).
+#: (``_shared_bevels``).
 FLAT_TIP_HALF_TAPER_PX = 1.0
 #: ``uncertainty`` of a sample in a gap (no triangulated point within ``max_gap``): interpolated, not measured.
 UNMEASURED = -1.0
@@ -313,9 +310,8 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     if len(points) < config.min_points:
         raise MatchError(f"only {len(points)} points left after outlier rejection")
 
-    # Per-point noise (the images' local scatter where above their median): lateral from the image noise, depth
-    # through the disparity (worse where the needle is close to parallel to the epipolar lines: there the match
-    # slides along the curve).
+    # Per-point noise: lateral from the image noise, depth through the disparity (worse where the needle runs along
+    # the epipolar lines).
     nearest = _nearest_points(left_rect, match.left), _nearest_points(right_rect, match.right)
     noise_px = np.maximum.reduce([left.local_noise_px[nearest[0]], right.local_noise_px[nearest[1]],
                                   np.full(len(match.left), max(left.noise_px, right.noise_px,
@@ -342,12 +338,9 @@ def _shared_bevels(left: ImageCenterline, right: ImageCenterline, rectification:
     """Both views with each taper candidate (``ImageCenterline.taper_candidates``) taken where the other view reads at
     the same end a strong candidate, a taper of at least :data:`FLAT_TIP_HALF_TAPER_PX`, or, for a strong candidate,
     any taper or candidate; the rest flat; and each end tapered by less than :data:`FLAT_TIP_HALF_TAPER_PX` placed
-    flat (``flat_ends``) where the other view reads neither a taper nor a strong candidate there. A bevel is one
-    feature of the needle, seen by both cameras: where one view's relative contrast stands out of its scatter, the
-    other's need not; a strong candidate's covered fraction falls more slowly than any flat end's
-    (``CANDIDATE_TAPER_FACTOR``), a weak one's as slowly as a flat tip's turned towards the cameras, and a flat tip
-    may read as a short taper in one view. The same end: the two ends (a candidate's tapered) lie within
-    ``tolerance`` [px] of one epipolar line, the other view's other end does not."""
+    flat (``flat_ends``) where the other view reads neither a taper nor a strong candidate there (a bevel is one
+    feature, seen by both cameras). The same end: the two ends lie within ``tolerance`` [px] of one epipolar line,
+    the other view's other end does not."""
     views = (left, right)
     if all(reading is None for view in views for reading in view.taper_candidates + view.flat_ends):
         return left, right
@@ -418,12 +411,9 @@ def _slide(sin_angle: np.ndarray, extrapolation_px: np.ndarray) -> np.ndarray:
     tangent makes an angle theta (``sin_angle``, floored like the anchors) with the epipolar lines; at the points
     extrapolated towards an image's ends, their shared lateral error too (``extrapolation_px``, both views').
 
-    A lateral image error e moves the curve's crossing of its epipolar line, hence the match, by e / sin(theta)
-    along the line. The white part of e is in ``point_sigma`` (averaged by the local cubic); the correlated part
-    c = CORRELATED_NOISE_PX spans ~20 points, shifts all their matches alike and is not averaged. Both views
-    independent: sqrt(2) c / sin(theta); the floor of sin(theta) (min_epipolar_angle, half of it where the match is
-    interpolated) caps it at ~6 (~12) times sqrt(2) c. An extrapolated stretch's error is one for the whole stretch: it
-    adds in quadrature (its lateral part is added in ``triangulate_centerline``)."""
+    A lateral image error e moves the match by e / sin(theta) along the epipolar line; its correlated part
+    c = CORRELATED_NOISE_PX is not averaged: sqrt(2) c / sin(theta) for both views, the extrapolated stretch's error
+    added in quadrature (its lateral part in ``triangulate_centerline``)."""
     return np.sqrt(2.0 * CORRELATED_NOISE_PX ** 2 + extrapolation_px ** 2) / sin_angle
 
 
@@ -444,13 +434,11 @@ def _continuity_sigma(smooth: np.ndarray, anchored: np.ndarray, span: float, dep
     """1-sigma error [m] of the points placed by continuity (not ``anchored``: the correspondence interpolates their
     match linearly between the anchors around them, or extrapolates it with the local ratio beyond the last ones).
 
-    The images hold such a stretch across, along the epipolar lines, but not its depth (along the unit
-    ``depth_axis``, the rectified optical axis, in the frame of ``smooth``): the match follows the chord between the
-    bordering anchors in disparity, so the depth follows the chord between theirs. A depth profile Z(u) of second
-    derivative Z'' (the depth component of the curvature vector) leaves the chord between fixed points a before and
-    b after it (arc lengths) by Z'' a b / 2, and the end tangent by Z'' a^2 / 2 when extrapolated. Z'' in the
-    stretch is not seen; an elastic rod's curvature is continuous, so it is taken as large as the anchored
-    needle's beside it (fitted over ``span`` on the far side of each bordering anchor, the larger of the two)."""
+    The depth (along the unit ``depth_axis``, the rectified optical axis) follows the chord between the bordering
+    anchors; a depth profile of second derivative Z'' leaves the chord between points a before and b after it (arc
+    lengths) by Z'' a b / 2, and the end tangent by Z'' a^2 / 2 when extrapolated. Z'' is taken as large as the
+    anchored needle's beside it (fitted over ``span`` beyond each bordering anchor, the larger): a rod's curvature is
+    continuous."""
     n = len(smooth)
     sigma = np.zeros(n)
     gap = ~anchored
@@ -490,12 +478,10 @@ def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, spacing: float,
     rotation = rectification.rotation_left
     noise = tuple(np.maximum.reduce([c.local_noise_px, c.extrapolation_px, np.full(len(c.points), max(
         c.noise_px, MIN_IMAGE_NOISE_PX))]) for c in centerlines)
-    # Each run of CORRELATED_NOISE_POINTS points carries the correlated error once: its variance over the white
-    # noise's variance of their mean scales the image terms' variance in the covariance (not the prior's).
+    # The correlated error, once per CORRELATED_NOISE_POINTS points, inflates the image terms' variance.
     white = float(np.median(np.concatenate(noise)))
     inflation = 1.0 + CORRELATED_NOISE_POINTS * (CORRELATED_NOISE_PX / white) ** 2
-    # The ends as the correspondence placed them (moved onto a common epipolar line, bevels shared): their
-    # triangulated points seen by each view.
+    # The ends as the correspondence placed them, seen by each view.
     ends = np.stack([rectification.project_rectified(points[[0, -1]], side) for side in ("left", "right")])
     fit = fit_curve(smooth @ rotation.T, 1.0 / np.maximum(point_sigma * gain, 1e-9) ** 2, ends, rectified, noise,
                     (rectification.projection_left, rectification.projection_right),

@@ -3,10 +3,8 @@ state "is defined by the position, velocity and acceleration of the point cloud"
 
 Samples are identified across frames by their arc length from the base (the needle is inextensible and its base end is
 seen). Over the last ``window`` frames a quadratic in time is fitted by least squares to each sample's position; its
-first and second derivatives at the newest frame are the velocity and acceleration. A quadratic reproduces
-constant-acceleration motion exactly, and the fit averages measurement noise instead of amplifying it like finite
-differences (by 1/dt² for the acceleration). The detected base end jitters along the needle by ~0.1 mm between frames,
-so the velocity along the needle is noisier than across it (at 220 FPS with a 5-frame window: ~20 mm/s against ~3 mm/s).
+first and second derivatives at the newest frame are the velocity and acceleration (exact for constant acceleration;
+noise averaged, not amplified as by finite differences). The velocity along the needle is noisier than across it.
 """
 from __future__ import annotations
 
