@@ -48,9 +48,8 @@ def board_corners(corners: tuple[int, int], square: float) -> np.ndarray:
 def find_corners(image: np.ndarray, corners: tuple[int, int]) -> np.ndarray | None:
     """Sub-pixel inner corners ``(n, 2)`` of the board in one grey image (OpenCV's order), or None.
 
-    ``cv2.findChessboardCornersSB`` (OpenCV >= 4.0; ~0.5 s per 1440x1080 image, ~0.03 px on renders): unlike
-    ``findChessboardCorners``, which may search for 10 s when the board has other dimensions than asked, its time
-    is bounded."""
+    ``cv2.findChessboardCornersSB`` (OpenCV >= 4.0; ~0.03 px on renders): its time is bounded, unlike
+    ``findChessboardCorners``'s when the board has other dimensions than asked."""
     image = image if image.dtype == np.uint8 else cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
     found, points = cv2.findChessboardCornersSB(image, corners, flags=cv2.CALIB_CB_NORMALIZE_IMAGE
                                                 | cv2.CALIB_CB_ACCURACY)

@@ -236,8 +236,7 @@ def rig_from_calibration_files(left: str | Path, right: str | Path) -> StereoRig
 
 
 def rig_from_camera_infos(left: Mapping[str, Any] | Any, right: Mapping[str, Any] | Any) -> StereoRig:
-    """The rig of the two cameras' ``sensor_msgs/CameraInfo`` (message objects or mappings of their fields): the
-    calibration of the node, the offline command and the offline pipeline when no calibration files are given.
+    """The rig of the two cameras' ``sensor_msgs/CameraInfo`` (message objects or mappings of their fields);
     CalibrationError names the camera and field when they do not make a stereo pair."""
     try:
         return StereoRig.from_camera_calibrations(calibration_from_camera_info(left, "left"),

@@ -96,8 +96,7 @@ def output_from_pose_frame(frame_id: str, output_frame: str, left_frames: Sequen
 def store_base_pose(store: BasePoseStore, pose: PoseStamped, output_frame: str, left_frames: Sequence[str],
                     output_from_left: RigidTransform) -> None:
     """Add ``pose`` to ``store`` in the output frame (:func:`output_from_pose_frame`); ValueError saying why a pose
-    cannot be used (another frame, non-finite values, a zero quaternion). The stereo node, ``needle_stereo_offline``
-    and the offline pipeline's stereo stage all store their base poses through this."""
+    cannot be used (another frame, non-finite values, a zero quaternion)."""
     to_output = output_from_pose_frame(pose.frame_id, output_frame, left_frames, output_from_left)
     if to_output is None:
         raise ValueError(f"frame '{pose.frame_id}' is neither the output frame "
