@@ -385,9 +385,9 @@ def run(arguments: argparse.Namespace) -> int:
     source = open_source(source_path, arguments.fps, arguments.left_topic, arguments.right_topic,
                          values["sync_tolerance"], base_topic, values["sync_queue_size"])
     front = StereoFrontEnd(values)
-    if front.pipeline is None and source.reader is None:
-        raise InputError("an image folder needs calibration files (--left-calibration/--right-calibration)")
     if front.pipeline is None:
+        if source.reader is None:
+            raise InputError("an image folder needs calibration files (--left-calibration/--right-calibration)")
         front.use_rig(bag_rig(source.reader, arguments.left_info_topic, arguments.right_info_topic))
     pipeline = front.pipeline
     mode = arguments.background or "first"

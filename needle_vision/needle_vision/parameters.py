@@ -183,7 +183,6 @@ def output_from_left(values: dict[str, Any]) -> RigidTransform:
     return RigidTransform.from_xyz_quaternion(values["output_transform"])
 
 
-
 class StereoFrontEnd:
     """The measurement as validated parameter ``values`` set it up, one builder for ``needle_stereo``, the offline
     command and the offline pipeline: the rig of the calibration files, else of both cameras' ``camera_info``; the
