@@ -37,7 +37,8 @@ from needle_common.cdr import CameraInfo, PoseStamped, camera_info, pose_stamped
 from needle_common.cli_types import command_status, positive, positive_int
 from needle_common.output_files import check_output_file
 from needle_common.parameters import ParameterError, load_params_file, valid_topic_name
-from needle_vision.parameters import SPECS, StereoFrontEnd, validate_all
+from needle_vision.front_end import StereoFrontEnd
+from needle_vision.parameters import SPECS, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, PairMeasurement, StereoNeedlePipeline
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".bmp", ".pgm", ".jpg", ".jpeg"}

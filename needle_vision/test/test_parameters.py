@@ -7,7 +7,8 @@ from needle_common.package_files import share_file
 from needle_common.parameters import ParameterError, check_ros_arguments, load_params_file
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.calibration.rig import CalibrationError, camera_info_fields
-from needle_vision.parameters import SPECS, StereoFrontEnd, stereo_config, validate_all
+from needle_vision.front_end import StereoFrontEnd
+from needle_vision.parameters import SPECS, stereo_config, validate_all
 
 CONFIG = share_file("needle_vision", "config/needle_stereo.yaml")  # as installed
 

@@ -35,7 +35,8 @@ from needle_common.bag_reader import absolute_topic
 from needle_common.cdr import PoseStamped
 from needle_common.transforms import quaternions_from_x_axes
 from needle_common.parameters import ParameterError
-from needle_vision.parameters import StereoFrontEnd, validate_all
+from needle_vision.front_end import StereoFrontEnd
+from needle_vision.parameters import validate_all
 from needle_vision.pipeline import FrameStatus
 
 from needle_sim_ros.comparison import ComparedPair, ComparisonSession

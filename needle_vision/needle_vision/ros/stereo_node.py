@@ -42,7 +42,8 @@ from needle_vision.calibration.rig import CalibrationError, StereoRig
 from needle_vision.streams.image_codec import ImageFormatError, SerializedImage, deserialize_image, image_fields
 from needle_vision.streams.outputs import debug_image, pointcloud2_fields
 from needle_vision.streams.pairing import StampPairer
-from needle_vision.parameters import SPECS, StereoFrontEnd, validate_all
+from needle_vision.front_end import StereoFrontEnd
+from needle_vision.parameters import SPECS, validate_all
 from needle_vision.pipeline import FrameResult, FrameStatus, compile_kernels
 from needle_vision.ros.measurement_status import MeasurementStatus
 
