@@ -1,9 +1,8 @@
 """Mesh of ANCF cable elements and the cubic shape functions of seed 000 eq. 4.
 
-Global coordinates (model API layout): node i carries [r_i (3), r_x,i (3)], so q has 6 n_nodes entries and element j
-(nodes j, j+1) has e_j = q[6j : 6j + 12] = [r_A, r_xA, r_B, r_xB] (eq. 1) -- neighbouring elements share a node.
-"Slots" are the 3-vectors of q: slot 2i is r_i, slot 2i+1 is r_x,i; element j uses slots 2j .. 2j+3, each
-weighted by one scalar shape function (S = [S1 I3, S2 I3, S3 I3, S4 I3], eq. 4).
+Node i carries [r_i (3), r_x,i (3)] of q (6 n_nodes entries); element j has e_j = q[6j : 6j + 12] =
+[r_A, r_xA, r_B, r_xB] (eq. 1). "Slots" are the 3-vectors of q (slot 2i: r_i, 2i+1: r_x,i); element j uses slots
+2j .. 2j+3, each weighted by one scalar shape function (S = [S1 I3, S2 I3, S3 I3, S4 I3], eq. 4).
 """
 from __future__ import annotations
 
@@ -220,11 +219,9 @@ class Mesh:
 
 
 def slot_matrix(left: np.ndarray, right: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Assemble sum_j int f_a g_b dx over all elements into a (2 n_nodes, 2 n_nodes) scalar matrix on slots.
-
-    left, right: (n_elements, n_points, 4) shape-function tables; weights (n_elements, n_points) include l/2 and any
-    coefficient.  The coordinate matrix is kron(result, I3) -- see the module docstring.
-    """
+    """Assemble sum_j int f_a g_b dx over all elements into a (2 n_nodes, 2 n_nodes) scalar matrix on slots (the
+    coordinate matrix is kron(result, I3)); left, right: (n_elements, n_points, 4) shape-function tables; weights
+    (n_elements, n_points) include l/2 and any coefficient."""
     n_elements = left.shape[0]
     blocks = np.einsum("jg,jga,jgb->jab", weights, left, right)
     matrix = np.zeros((2 * n_elements + 2, 2 * n_elements + 2))

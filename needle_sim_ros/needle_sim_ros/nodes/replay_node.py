@@ -1,11 +1,9 @@
 """needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
 
-Options (``needle_replay --help``) and their behaviour: README, "needle_replay". Messages are published as the
-recorded CDR bytes (no deserialization) with the QoS the recorded publishers offered. The start handshake
-(``--wait-for-subscribers``, ``--wait-for-nodes``) reads the subscribers' own reports on the latched readiness topic
-(``needle_common.ros.input_status``): discovery is two-sided, and messages published before a subscriber has
-matched the publisher are lost. ``--linger`` waits for every reliable subscriber's acknowledgement at the end: a
-large message whose fragment was lost is resent only then.
+Options: ``needle_replay --help`` and README, "needle_replay". Messages go out as the recorded CDR bytes with the QoS
+the recorded publishers offered. The start handshake (``--wait-for-subscribers``, ``--wait-for-nodes``) reads the
+subscribers' own reports on the latched readiness topic (``needle_common.ros.input_status``): discovery is two-sided.
+``--linger`` waits for every reliable subscriber's acknowledgement at the end (a lost fragment is resent only then).
 """
 from __future__ import annotations
 

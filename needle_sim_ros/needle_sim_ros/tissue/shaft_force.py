@@ -1,10 +1,9 @@
-"""The shaft support as a contribution: lateral Winkler springs and dampers over the cut tissue and the axial
-stick-slip law on the shaft points (``coupling.ShaftSupport``), with the points' data frozen over each step.
+"""The shaft support (``coupling.ShaftSupport``) as a contribution, its points' data frozen over each step.
 
 ``ShaftRecord``: the axial law's state, the points' anchors (track coordinates) and active flags, and the next
-step's frozen points, the lateral then the axial ones: their q slots and one table (``coupling.POINT_COLUMNS``),
-what every Newton correction's assembly reads (two arrays: numba counts the references of each array passed).
-After each step ``advance_shaft`` reads the contact (``contact.ContactRecord``). Kernels: ``SHAFT_KERNELS``.
+step's frozen points (lateral, then axial): their q slots and one table (``coupling.POINT_COLUMNS``), two arrays
+because numba counts the references of each array passed. ``advance_shaft`` reads the contact after each step.
+Kernels: ``SHAFT_KERNELS``.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
-"""The tissue as one stateful force contribution composed of its parts: the contact (the shared record) and each
-force -- the shaft support, the bevel tip, the seed 002 tip resistance -- with its typed record and compiled kernels
-(``contact``, ``shaft_force``, ``tip_forces``), which every path runs (``model.step.compiled_run``, ``compose``).
-
-A :class:`TissueModel` is immutable; what changes as the needle moves is a :class:`TissueState` in ``NeedleData``
-(``force_states``): the parts' records packed into one array, replaced (never changed in place) once per accepted
+"""The tissue as one stateful force contribution composed of its parts, each with a typed record and compiled
+kernels that every path runs: the contact (the shared record), the shaft support, the bevel tip and the seed 002 tip
+resistance (``contact``, ``shaft_force``, ``tip_forces``). A :class:`TissueModel` is immutable; its
+:class:`TissueState` in ``NeedleData.force_states`` (the parts' records in one array) is replaced once per accepted
 step by :meth:`TissueModel.advance`, so a failed step leaves it as it was.
 """
 from __future__ import annotations

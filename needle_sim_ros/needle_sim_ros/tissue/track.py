@@ -1,14 +1,9 @@
 """The track cut by the advancing needle tip: a polyline in the world frame, parameterised by its arc length.
 
-Path memory (Glozman & Shoham's virtual springs, seed 001 Sec. II: forces act "at the nodes in contact with the
-tissue nodes that are previously cut by the needle"): the track starts where the tip crossed the entry surface
-and, whenever the tip has advanced ``spacing`` beyond its end, grows a vertex ON THE TIP'S PATH: each tissue point's
-rest position is where the tip passed when it cut that point.  The vertex is interpolated between the tip's
-positions before and after the step at the exact crossing (``spacing`` ahead of the end), not put at the step's
-end: the track then depends continuously on the motion, not on which step the crossing fell in (a 1 ms step at
-20 mm/s would otherwise shift it by up to 20 um and make the response jump with any parameter).  Tissue beyond
-the end is uncut and holds nothing laterally (the cut front carries no spring).  Retracting leaves the track in
-place, so a re-insertion follows it until the tip passes its end, then cuts new tissue.
+Path memory (seed 001 Sec. II, Glozman & Shoham's virtual springs): the track starts where the tip crossed the entry
+surface and, whenever the tip has advanced ``spacing`` beyond its end, grows a vertex on the tip's path, interpolated
+at the exact crossing so the track depends continuously on the motion (docs/design_notes.md). Tissue beyond the end
+is uncut and holds nothing laterally; retracting leaves the track, so a re-insertion follows it past its end.
 """
 from __future__ import annotations
 
@@ -25,8 +20,7 @@ END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at
 @njit(cache=True)
 def chord_tangent(vertices, direction):
     """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (``direction``
-    while there is none). One 0.1 mm segment would carry the tip's lateral jitter: tilted by it, the cut front
-    seemed to recede from an advancing tip, the track stopped growing and the tip forces switched off."""
+    while there is none; why not one segment: docs/design_notes.md)."""
     count = vertices.shape[0]
     if count < 2:
         return direction
