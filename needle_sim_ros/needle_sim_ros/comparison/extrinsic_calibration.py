@@ -58,10 +58,8 @@ def _arc_length_guess(frames: Sequence[tuple[CenterlineSamples, CenterlineSample
 def calibrate_extrinsic(frames: Sequence[tuple[CenterlineSamples, CenterlineSamples]],
                         initial: RigidTransform | None = None, max_iterations: int = 100,
                         step_tolerance: float = 1e-10) -> ExtrinsicCalibration:
-    """Estimate the camera -> model extrinsic from (model centerline, measured centerline) pairs of static frames.
-
-    Iterates until no measured sample moves by more than ``step_tolerance`` [m] in an iteration, or ``max_iterations``.
-    """
+    """Estimate the camera -> model extrinsic from (model centerline, measured centerline) pairs of static frames,
+    iterating until no measured sample moves by more than ``step_tolerance`` [m], or ``max_iterations``."""
     if not frames:
         raise ComparisonError("calibration needs at least one frame")
     measured_all = np.concatenate([measured.points for _, measured in frames])

@@ -21,10 +21,8 @@ class StampedPair:
 
 
 class ShapePairer:
-    """Pairs each measurement with the model shape nearest in stamp, if within ``tolerance_ns``.
-
-    One-sided and streaming (a measurement waits for the model shapes around it); the stereo node's
-    :class:`needle_vision.streams.pairing.StampPairer` instead pairs two symmetric camera streams frame by frame."""
+    """Pairs each measurement with the model shape nearest in stamp, if within ``tolerance_ns``: one-sided and
+    streaming (the stereo node's :class:`needle_vision.streams.pairing.StampPairer` pairs two symmetric streams)."""
 
     def __init__(self, tolerance_ns: int, model_buffer: int = 200, pending_limit: int = 100) -> None:
         if tolerance_ns < 0 or model_buffer < 1 or pending_limit < 1:

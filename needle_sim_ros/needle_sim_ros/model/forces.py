@@ -100,10 +100,8 @@ _CHECKED_CLASSES: set[type] = set()  # classes that passed and declare every cap
 
 
 def check_forces(forces) -> tuple:
-    """The contributions as a tuple, each checked against the :class:`ForceContribution` protocol; TypeError naming
-    the class of the first one that breaks it. A class that passed with its capabilities plain class attributes
-    (not properties, so the same for every instance) is not checked again (the tissue makes new contributions at
-    every step)."""
+    """The contributions as a tuple, each checked against the :class:`ForceContribution` protocol (TypeError naming
+    the first class that breaks it); a class whose capabilities are plain class attributes is checked once."""
     forces = tuple(forces)
     for force in forces:
         if type(force) in _CHECKED_CLASSES:

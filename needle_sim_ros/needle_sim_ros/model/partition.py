@@ -105,10 +105,8 @@ class Partition:
 
 
 def hermite_quintic(start: np.ndarray, end: np.ndarray, h: float, theta: float) -> np.ndarray:
-    """Quintic Hermite interpolation of [y, y', y''] (3, m) between two instants h apart, at t0 + theta h.
-
-    Used for the prescribed coordinates of sub-steps: exact for motions polynomial up to degree 5 in time.
-    """
+    """Quintic Hermite interpolation of [y, y', y''] (3, m) between two instants h apart, at t0 + theta h: the
+    prescribed coordinates of sub-steps, exact for motions polynomial up to degree 5 in time."""
     y0, v0, a0 = start
     y1, v1, a1 = end
     s = theta

@@ -138,10 +138,9 @@ class ReplayNode(Node):
             rclpy.spin_once(self, timeout_sec=period)
 
     def wait_for_subscribers(self, timeout: float) -> None:
-        """Up to ``timeout`` [s] until every played topic has a subscriber and each subscriber that reports its
-        inputs has matched it from its own side (and, with --clock, follows the start time on /clock); with
-        --wait-for-nodes, until each of those nodes has matched the played topics it subscribes to and its other
-        inputs that someone publishes."""
+        """Up to ``timeout`` [s] until every played topic has a subscriber and each subscriber reporting its inputs has
+        matched it from its own side (with --clock, following the start time); with --wait-for-nodes, until each of
+        those nodes has matched the played topics it subscribes to and its other inputs that someone publishes."""
         reports = InputReports(self)
         topics = [p.topic_name for p in self.publishers_by_topic.values()]
         clock_ns = self.start_time_ns if self.clock_publisher is not None else None
