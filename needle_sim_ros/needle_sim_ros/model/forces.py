@@ -322,10 +322,9 @@ class MaterialPointForce(ElementLocalForce):
 
 @njit(cache=True)
 def assemble_point_forces(slots, S, S_x, weights, F, dF_dr, dF_drx, dF_dv, Q, band, kl, c_q, c_qd):
-    """Scatter sum_k w_k S_k^T F_k (eq. 15) into Q and c_q dQ/dq + c_qd dQ/dq' (chain rule, MaterialPointForce)
-    into the band matrix ``band`` (row i, column j at band[i, j - i + kl]; a point couples the 12 coordinates of
-    its element: kl >= 11), point by point (:func:`scatter_point`); a (0, 0) band: Q alone; a derivative of no
-    points ((0, 3, 3)): zero."""
+    """Scatter sum_k w_k S_k^T F_k (eq. 15) into Q and c_q dQ/dq + c_qd dQ/dq' (MaterialPointForce's chain rule) into
+    ``band`` (row i, column j at band[i, j - i + kl], kl >= 11), point by point (:func:`scatter_point`); a (0, 0)
+    band: Q alone; a derivative of no points ((0, 3, 3)): zero."""
     with_matrix = band.shape[0] > 0
     with_position, with_gradient, with_velocity = dF_dr.shape[0] > 0, dF_drx.shape[0] > 0, dF_dv.shape[0] > 0
     position = np.zeros((3, 3))  # c_q dF/dr + c_qd dF/dv of the point

@@ -120,12 +120,10 @@ def search_right(sorted_values: np.ndarray, value: float) -> int:
 
 
 def clamped_element_lengths(length: float, n_elements: int, intervals) -> np.ndarray:
-    """Element lengths [m] of an n_elements mesh whose nodes include every clamp interval's ends: one element per
-    clamped interval (held straight, it needs no more), the others over the free spans in proportion to their
-    lengths. A span held at both ends (by the base at s = 0 or a clamp) gets Chebyshev-Lobatto nodes
-    s = a + (b - a)(1 - cos(pi i / k)) / 2, clustered towards its ends: a needle stretched between two holds bends
-    in boundary layers of width sqrt(EI / T) there, which equal elements resolve poorly (README, "Wrench accuracy").
-    A span ending at the free tip keeps equal elements."""
+    """Element lengths [m] of an n_elements mesh with nodes at every clamp interval's ends: one element per clamped
+    interval, the others over the free spans in proportion to their lengths. A span held at both ends (base or clamp)
+    gets Chebyshev-Lobatto nodes s = a + (b - a)(1 - cos(pi i / k)) / 2, resolving the boundary layers of width
+    sqrt(EI / T) at the holds (README, "Wrench accuracy"); a span ending at the free tip keeps equal elements."""
     pairs = sorted((float(a), float(b)) for a, b in intervals)
     if not all(0.0 <= a <= b <= length for a, b in pairs):  # NaN fails too
         raise ValueError(f"clamp intervals {pairs} must satisfy 0 <= s_start <= s_end <= L = {length:g} m")

@@ -70,11 +70,9 @@ def _stage_rate(z, theta, depth, velocity, speed, rate_slope):
 
 @njit(cache=True)
 def bristle_step(z, theta, depth, velocity, dt, velocity_scale, row):
-    """Kutta's third-order Runge-Kutta scheme for eq. 1a over ``dt`` [s] with the depth advancing at the constant
-    ``velocity`` (seed 003 Sec. III discretisation), compiled: the simulator advances z with it every step, the
-    EKF (``rk3_step``) also takes its sensitivities. The step is split so that each sub-step stays well inside
-    RK3's stability region (|dz'/dz| dt <= 1). Returns z_next; a (7,) ``row`` receives dz_next/d(z, theta)
-    (a (0,) array: not computed)."""
+    """Kutta's RK3 for eq. 1a over ``dt`` [s], the depth advancing at the constant ``velocity`` (seed 003 Sec. III),
+    split into sub-steps inside RK3's stability region (|dz'/dz| dt <= 1); the simulator's step and the EKF
+    (``rk3_step``) both use it. Returns z_next; a (7,) ``row`` receives dz_next/d(z, theta) (a (0,) array: none)."""
     stiffness = abs(theta[2] * velocity / stribeck_value(theta, depth))
     n_sub = int(min(np.ceil(stiffness * dt), 1000.0)) if np.isfinite(stiffness) else 1000
     h = dt / max(n_sub, 1)

@@ -48,10 +48,9 @@ class TissueState:
 
 @dataclass(frozen=True)
 class TissueReadout:
-    """What the simulator publishes: insertion_depth [m] (tip depth below the entry surface, >= 0),
-    inserted_length [m] (needle arc length below the surface), tip_force [N] (world force of the tissue on the
-    tip: bevel + cutting/capsule), axial_force [N] (total tissue force on the needle along the base x axis,
-    positive when it resists insertion, i.e. what the holder's force sensor sees from the tissue)."""
+    """What the simulator publishes: insertion_depth [m] (tip below the entry surface, >= 0), inserted_length [m]
+    (arc length below it), tip_force [N] (world; bevel + cutting/capsule), axial_force [N] (total tissue force along
+    the base x axis, positive resisting insertion: what the holder's force sensor sees of the tissue)."""
 
     insertion_depth: float
     inserted_length: float

@@ -30,10 +30,9 @@ def chord_tangent(vertices, direction):
 
 @njit(cache=True)
 def cut_polyline(vertices, arc, end_tangent, previous, tip, spacing):
-    """The track (vertices, arc lengths, end tangent) grown from the previous tip position toward ``tip`` while the tip
-    is ``spacing`` or more beyond its end, each vertex where that straight path crosses ``spacing`` ahead of the end
-    (compiled: it runs every step). Coordinates beyond the end are measured along the end tangent: length +
-    (point - end) . end_tangent, in uncut tissue."""
+    """The track (vertices, arc lengths, end tangent) grown from the previous tip position toward ``tip`` while the
+    tip is ``spacing`` or more beyond its end, a vertex where that path crosses ``spacing`` ahead of the end; beyond
+    the end a point's coordinate is length + (point - end) . end_tangent (uncut tissue)."""
     while True:
         count = arc.size
         length = arc[count - 1]
@@ -86,11 +85,9 @@ def project_on_polyline(vertices, arc, end_tangent, points):
 
 @njit(cache=True)
 def project_on_blocks(vertices, arc, end_tangent, points, centres, radii):
-    """``project_on_polyline`` with the polyline's ``segment_blocks``: blocks whose bounding sphere lies farther
-    than an upper bound of the closest distance are skipped; they cannot hold it, so the result is the full scan's,
-    at a cost that grows with the track length by the block count only. The bound is the closest of the
-    continuation and of the vertices of the block whose centre is nearest (vertices lie on the polyline): a point
-    near the track scans the one or two blocks around it. Distances are compared squared (one root per point)."""
+    """``project_on_polyline`` with the polyline's ``segment_blocks``: blocks whose bounding sphere lies beyond an
+    upper bound of the closest distance (the continuation's and the nearest block's vertices') are skipped, so the
+    result is the full scan's at a cost growing with the block count only. Distances compared squared."""
     count = arc.size
     n = points.shape[0]
     coordinate = np.empty(n)
