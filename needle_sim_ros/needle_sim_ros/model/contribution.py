@@ -90,10 +90,10 @@ class ContributionRun:
 
     def __call__(self, model, integrator, state, owns: list, dt: float, times: np.ndarray, motions: np.ndarray,
                  rotations: np.ndarray, forces, memory) -> tuple[SequenceResult, list]:
-        """Steps of dt from ``state`` (with ``aux``) to the end times (k,), the base at each given packed (k, 19)
-        with rotations (k, 3, 3), under ``forces`` (time-invariant) and the contributions (``owns``: their states,
-        None for those without), in one compiled call; the run ends early at a step that does not converge
-        (integrate that one with the general step). Returns the steps done and the contributions' states."""
+        """Steps of dt from ``state`` (with ``aux``) to the end times (k,), the base at each given packed (k, 19) with
+        rotations (k, 3, 3), under ``forces`` (time-invariant) and the contributions (``owns``: their states, None if
+        stateless), in one compiled call, ending early at a step that does not converge (for the general step).
+        Returns the steps done and the contributions' states."""
         k, n = times.size, model.n_dof
         needle, constant_Q = integrator.run_arguments(forces, dt, float(times[0]), memory)
         history = np.empty((4, n))

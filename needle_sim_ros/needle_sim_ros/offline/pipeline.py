@@ -109,10 +109,9 @@ class OfflinePipeline:
     def run(self, bag: Path | BagReader, output: Path | None, start_offset: float = 0.0,
             duration: float | None = None, progress: Callable[[float], None] | None = None,
             stop_on_corrupt: bool = False) -> OfflineRun:
-        """Process the bag slice [start + start_offset, + duration] (s); write the log to ``output`` (.mcap), if
-        given. ``progress(seconds)`` is told the bag time processed so far, about every 0.1 s of it. Corrupt chunks
-        and undecodable messages are skipped and counted (``stop_on_corrupt``: BagReadError instead; a given
-        reader keeps its own setting)."""
+        """Process the bag slice [start + start_offset, + duration] (s), writing the log to ``output`` (.mcap) if given;
+        ``progress(seconds)`` hears the bag time done about every 0.1 s of it. Corrupt chunks and undecodable messages
+        are skipped and counted (``stop_on_corrupt``: BagReadError; a given reader keeps its own setting)."""
         reader = bag if isinstance(bag, BagReader) else BagReader(bag, stop_on_corrupt)
         bag = reader.path
         undecodable = 0

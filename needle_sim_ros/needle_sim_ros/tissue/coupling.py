@@ -173,12 +173,10 @@ def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc
 @njit(cache=True)
 def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_point, entry_normal, thickness,
                          was_active, active, anchor, vertices, arc, end_tangent, centres, radii):
-    """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``):
-    marks them in ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track,
-    and returns their indices, entry coverage, needle tangents, anchor points on the track and those points'
-    depths, and the axial offsets u = (r - anchor point) . tangent. The arc lengths increase, so the candidates
-    are the points from the first beyond ``candidate_arc`` on (scalar loops: it runs every step); ``centres``,
-    ``radii``: the track's ``track.segment_blocks``."""
+    """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``), marked in
+    ``active``, the entering ones (not ``was_active``) anchored at their projection on the track: their indices, entry
+    coverage, needle tangents, anchor points and those points' depths, and the axial offsets u = (r - anchor) . tangent
+    (scalar loops: it runs every step); ``centres``, ``radii``: the track's ``track.segment_blocks``."""
     first = search_right(arc_lengths, candidate_arc)
     r, tangents = needle_points(S[first:], S_x[first:], slots[first:], q)
     m = r.shape[0]
