@@ -1,14 +1,11 @@
 """The haptic output's shaping, without ROS: frame, pose watchdog with a resume ramp, and saturation.
 
-The wrench rendered to the operator is the needle's wrench **on its holder** about the clamp point A (the same
-sign as the simulator's ``wrench`` output: the hand holding the needle feels what the needle does to the holder),
-in the arm's base frame (``frames.world``, ``frame == "base"``) or the holder frame (``frames.base``, ``"tool"``).
-
-Watchdog: the time a base pose last *arrived* (the caller's monotonic wall clock, also under simulated time: the
-watchdog guards the link to the arm, not the simulation) older than ``pose_timeout`` makes the gain zero; when poses
-come back the gain ramps linearly from 0 to 1 over ``resume_ramp`` (also after the very first pose: a soft start).
-Saturation: a force (torque) longer than ``max_force`` (``max_torque``) is scaled down to it, direction kept, and
-counted.
+The rendered wrench is the needle's wrench on its holder about A (the sign of the ``wrench`` output), in the arm's
+base frame (``frame == "base"``: ``frames.world``) or the holder frame (``"tool"``: ``frames.base``). Watchdog: a
+last pose *arrival* (monotonic wall clock, also under simulated time: it guards the link to the arm) older than
+``pose_timeout`` makes the gain zero; when poses return it ramps from 0 to 1 over ``resume_ramp`` (also after the
+first pose). Saturation: a force (torque) beyond ``max_force`` (``max_torque``) is scaled to it, direction kept,
+and counted.
 """
 from __future__ import annotations
 

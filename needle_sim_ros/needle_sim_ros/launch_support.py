@@ -106,10 +106,9 @@ PLAYER_WAIT = 30.0  # [s] the bag player waits at most this long for the nodes t
 
 
 def player_arguments(bag: str, namespace: str, nodes: list[str], compress_images: str = "") -> list[str]:
-    """``needle_replay``'s arguments in mode:=replay: the whole bag in simulated time (/clock), in ``namespace``
-    where the nodes read it, played once each of ``nodes`` (names in ``namespace``) has matched, from its own side,
-    the bag's topics it subscribes to: discovery is two-sided, and what is played before a subscriber has matched
-    is lost. ``compress_images`` ('png', 'jpeg'): its raw images played as CompressedImage on <topic>/compressed."""
+    """``needle_replay``'s arguments in mode:=replay: the whole bag in simulated time (/clock), in ``namespace``,
+    played once each of ``nodes`` (names in ``namespace``) has matched the bag's topics it subscribes to from its own
+    side (discovery is two-sided); ``compress_images`` ('png', 'jpeg'): raw images as CompressedImage."""
     prefix = "/" + namespace.strip("/") if namespace.strip("/") else ""
     return [bag, "--clock", *(["--in-namespace"] if prefix else []), "--wait-for-subscribers", f"{PLAYER_WAIT:g}",
             "--wait-for-nodes", *(f"{prefix}/{node}" for node in nodes),

@@ -211,7 +211,7 @@ def test_configuration_errors_name_the_parameter(model):
         build_tissue_model({"tissue.layers.stiffness": [1.0]}, model)
     with pytest.raises(ValueError, match="tissue.layers.friction_coulomb"):
         build_tissue_model(config(layers__friction_coulomb=[6.0, 6.0]), model)
-    assert all(isinstance(description, str) and description for _, description in TISSUE_PARAMETERS.values())
+    assert all(isinstance(spec.description, str) and spec.description for spec in TISSUE_PARAMETERS)
 
 
 def test_params_file_builds_and_its_keys_are_all_known(model):

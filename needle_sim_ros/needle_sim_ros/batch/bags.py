@@ -1,8 +1,6 @@
-"""The bags of a batch: ``--bags`` as a folder, a glob or a manifest, and each bag's content hash.
-
-A manifest is a text file listing one bag per line (relative paths are taken from the manifest's folder), optionally
-followed by the bag's experiment params file; ``#`` starts a comment. A listed bag that is missing is kept: it
-becomes a failed row of the batch, not an error of the whole run.
+"""The bags of a batch: ``--bags`` as a folder, a glob or a manifest, and each bag's content hash. A manifest lists
+one bag per line (relative to the manifest's folder), optionally followed by its experiment params file; ``#``
+starts a comment. A listed bag that is missing becomes a failed row, not an error of the whole run.
 """
 from __future__ import annotations
 

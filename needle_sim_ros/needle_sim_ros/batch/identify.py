@@ -1,11 +1,9 @@
 """``needle_batch identify``: tissue parameters fitted to all bags at once (nonlinear least squares).
 
-The unknowns are x_j = ln(p_j / p_j0) (positive parameters, relative steps). The residual vector stacks every bag's
-signed residuals (:func:`needle_sim_ros.batch.task.run_residuals`: measured minus model centerline, model minus
-reference wrench, scaled). ``scipy.optimize.least_squares`` (trust region reflective) minimises half their sum of
-squares; its Jacobian is by forward differences whose columns, one offline run per bag and column, are evaluated in
-parallel on the cluster. Uncertainty: the Gauss-Newton covariance s^2 (J^T J)^-1 at the estimate,
-s^2 = |r|^2 / (m - n), mapped to the parameters by dp = p dx.
+Unknowns x_j = ln(p_j / p_j0); residuals: every bag's scaled signed residuals
+(:func:`needle_sim_ros.batch.task.run_residuals`). ``scipy.optimize.least_squares`` (trust region reflective) with
+forward-difference Jacobian columns (one offline run per bag and column) evaluated in parallel on the cluster.
+Uncertainty: s^2 (J^T J)^-1 at the estimate, s^2 = |r|^2 / (m - n), mapped by dp = p dx.
 """
 from __future__ import annotations
 

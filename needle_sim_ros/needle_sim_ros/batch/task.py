@@ -1,8 +1,6 @@
-"""One batch task on a worker: the offline pipeline (:class:`needle_sim_ros.offline.pipeline.OfflinePipeline`, as
-``needle_offline`` runs it) over one bag with one parameter set, reduced to a table row or a residual vector.
-
-Only paths and parameters travel through the scheduler; the worker reads the bag. A failing task returns a row with
-``status = failed`` and a one-line message instead of raising, so one bad bag never aborts a batch.
+"""One batch task on a worker: the offline pipeline (as ``needle_offline`` runs it) over one bag with one parameter
+set, reduced to a table row or a residual vector. Only paths and parameters travel through the scheduler; a failing
+task returns a row with ``status = failed`` and a one-line message, so one bad bag never aborts a batch.
 """
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
-"""The worker processes' logging of a batch's own LocalCluster: distributed's heartbeat that races the cluster's
-shutdown (the scheduler closes its comms while a worker's heartbeat is in flight) logs "Failed to communicate with
-scheduler during heartbeat." with a traceback at ERROR; :class:`QuietShutdownHeartbeat` drops that one record so a
-batch's stderr has only its own report. Every other worker log record is kept."""
+"""The worker processes' logging of a batch's own LocalCluster: :class:`QuietShutdownHeartbeat` drops the one ERROR
+record with traceback that distributed's heartbeat logs when it races the cluster's shutdown; all others are kept.
+"""
 from __future__ import annotations
 
 import logging

@@ -1,9 +1,8 @@
 """Distance of points to a needle centerline given as a polyline, and the arc length of the closest point.
 
-The model centerline r(s) is known at samples r_i = r(s_i) (NeedleShape ``points``/``arc_length``); between samples it
-is taken as the straight chord. For a point p the closest point on segment i is r_i + t (r_{i+1} - r_i) with
-t = clip(((p - r_i) . d_i) / |d_i|^2, 0, 1), and its arc length s_i + t (s_{i+1} - s_i). The chord approximation
-differs from the smooth curve by at most the sagitta kappa h^2 / 8 (curvature kappa, sample spacing h).
+Between samples r_i = r(s_i) the centerline is the chord: the closest point on segment i to p is r_i + t d_i,
+t = clip(((p - r_i) . d_i) / |d_i|^2, 0, 1), at arc length s_i + t (s_{i+1} - s_i). The chord differs from the
+smooth curve by at most the sagitta kappa h^2 / 8 (curvature kappa, sample spacing h).
 """
 from __future__ import annotations
 
@@ -32,11 +31,9 @@ def chord_arc_length(vertices: np.ndarray) -> np.ndarray:
 
 def closest_points_on_polyline(points: np.ndarray, vertices: np.ndarray,
                                vertex_arc_length: np.ndarray | None = None) -> ClosestPoints:
-    """Closest points on the polyline ``vertices`` (n, 3) to each of ``points`` (m, 3), vectorized over both.
-
-    ``vertex_arc_length`` (n,) parameterizes the polyline (default: chord length); the arc length of a closest
-    point is interpolated linearly within its segment. A single vertex is a degenerate polyline (a point).
-    """
+    """Closest points on the polyline ``vertices`` (n, 3) to each of ``points`` (m, 3), vectorized over both;
+    ``vertex_arc_length`` (n,) parameterizes it (default: chord length), interpolated linearly within a segment. A
+    single vertex is a degenerate polyline (a point)."""
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     vertices = np.asarray(vertices, dtype=float).reshape(-1, 3)
     if len(vertices) == 0:

@@ -1,13 +1,10 @@
 """Camera -> model extrinsic from a few static frames, by point-to-centerline registration (ICP with Kabsch steps).
 
-Given frames k with a model centerline (model frame) and measured samples q_kj (camera frame), find the rigid
-motion (R, t) minimizing sum_kj dist(R q_kj + t, model centerline_k)^2. Each iteration replaces the distance by the
-distance to the current closest points c_kj and solves that least-squares problem in closed form (Kabsch/Wahba:
-R aligns the centred point sets, t = mean(c) - R mean(q)); the cost never increases, so it converges to a local
-minimum. The start is either given or, for ordered samples, taken from equal-arc-length correspondences.
-
-The motion is observable only if the measured samples of all frames together are not collinear: a straight needle
-in a single pose leaves the rotation about its axis free. Such input is rejected.
+(R, t) minimizes sum_kj dist(R q_kj + t, model centerline_k)^2 over frames k and measured samples q_kj (camera
+frame): each iteration solves the least-squares problem to the current closest points c_kj in closed form (Kabsch:
+t = mean(c) - R mean(q)); the cost never increases (a local minimum). The start is given or, for ordered samples,
+from equal-arc-length correspondences. Collinear samples (a straight needle in one pose) leave the rotation about
+its axis free: rejected.
 """
 from __future__ import annotations
 
@@ -61,10 +58,8 @@ def _arc_length_guess(frames: Sequence[tuple[CenterlineSamples, CenterlineSample
 def calibrate_extrinsic(frames: Sequence[tuple[CenterlineSamples, CenterlineSamples]],
                         initial: RigidTransform | None = None, max_iterations: int = 100,
                         step_tolerance: float = 1e-10) -> ExtrinsicCalibration:
-    """Estimate the camera -> model extrinsic from (model centerline, measured centerline) pairs of static frames.
-
-    Iterates until no measured sample moves by more than ``step_tolerance`` [m] in an iteration, or ``max_iterations``.
-    """
+    """Estimate the camera -> model extrinsic from (model centerline, measured centerline) pairs of static frames,
+    iterating until no measured sample moves by more than ``step_tolerance`` [m], or ``max_iterations``."""
     if not frames:
         raise ComparisonError("calibration needs at least one frame")
     measured_all = np.concatenate([measured.points for _, measured in frames])

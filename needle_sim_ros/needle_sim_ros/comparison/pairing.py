@@ -1,10 +1,8 @@
 """Pairing of measured shapes with model shapes by header stamp (nearest model stamp within a tolerance).
 
-Model shapes arrive as a stream with non-decreasing stamps and are kept in a bounded buffer. A measurement with
-stamp t is decided as soon as a model stamp >= t has been seen (every later model stamp is farther from t): it is
-paired with the nearer of the two model shapes around t if that one is within the tolerance, else it is counted
-as unpaired. Until then it waits (at most ``pending_limit`` measurements; the oldest is dropped beyond that).
-A model stamp earlier than the newest one means time restarted (a looped bag): both buffers are cleared.
+Model shapes (non-decreasing stamps) are kept in a bounded buffer. A measurement at t is decided once a model stamp
+>= t arrived: paired with the nearer model shape around t if within the tolerance, else counted unpaired; until then
+it waits (at most ``pending_limit``, the oldest dropped). A model stamp going back (a looped bag) clears both buffers.
 """
 from __future__ import annotations
 
@@ -23,10 +21,8 @@ class StampedPair:
 
 
 class ShapePairer:
-    """Pairs each measurement with the model shape nearest in stamp, if within ``tolerance_ns``.
-
-    One-sided and streaming (a measurement waits for the model shapes around it); the stereo node's
-    :class:`needle_vision.streams.pairing.StampPairer` instead pairs two symmetric camera streams frame by frame."""
+    """Pairs each measurement with the model shape nearest in stamp, if within ``tolerance_ns``: one-sided and
+    streaming (the stereo node's :class:`needle_vision.streams.pairing.StampPairer` pairs two symmetric streams)."""
 
     def __init__(self, tolerance_ns: int, model_buffer: int = 200, pending_limit: int = 100) -> None:
         if tolerance_ns < 0 or model_buffer < 1 or pending_limit < 1:

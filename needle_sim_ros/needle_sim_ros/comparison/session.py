@@ -1,9 +1,8 @@
 """The comparison core of ``needle_compare``, ROS-free: what the node and the offline comparison stage both run.
 
-Model and measured centerlines come in with their header stamp and frame; a shape in an unexpected frame or with
-unusable samples is rejected (counted by reason), the others are paired by stamp (:class:`ShapePairer`) and each
-pair is compared in the model frame (:func:`compare_centerlines`). The caller keeps any tag with a shape (its
-message header) and gets it back with the comparison.
+Shapes in an unexpected frame or with unusable samples are rejected (counted by reason), the others paired by stamp
+(:class:`ShapePairer`) and compared in the model frame (:func:`compare_centerlines`); a shape's tag (its header)
+comes back with the comparison.
 """
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
-"""Error of a model centerline against a measured one (the ShapeError message, without ROS).
-
-The measured samples q_j (camera frame) are brought into the model frame by the rigid extrinsic
-p_j = R q_j + t (camera -> model), and each sample's error is its distance to the model centerline
-(:mod:`.centerline_distance`). RMSE and maximum are taken over the matched samples; the tip error is the distance
-between the model tip (last model sample) and the measured tip.
+"""Error of a model centerline against a measured one (the ShapeError message, without ROS): each measured sample,
+brought into the model frame by the extrinsic p_j = R q_j + t, is its distance to the model centerline
+(:mod:`.centerline_distance`); RMSE and maximum over the matched samples; tip error between the model's last sample
+and the measured tip.
 """
 from __future__ import annotations
 
@@ -23,12 +21,10 @@ class ComparisonError(ValueError):
 
 @dataclass(frozen=True)
 class CenterlineSamples:
-    """Needle centerline samples [m] in one frame, as compared (validated input; the model's own sampled
-    centerline with tangents is :class:`needle_sim_ros.model.Centerline`).
-
-    ``ordered`` samples run from the base to the tip (NeedleShape); an unordered set (a point cloud) has no
-    defined last sample. ``arc_length`` [m] (optional) must be non-decreasing and as long as ``points``.
-    """
+    """Needle centerline samples [m] in one frame, as compared (validated input; the model's own sampled centerline with
+    tangents is :class:`needle_sim_ros.model.Centerline`). ``ordered`` samples run from the base to the tip
+    (NeedleShape); an unordered set (a point cloud) has no defined last sample. ``arc_length`` [m] (optional) must be
+    non-decreasing and as long as ``points``."""
 
     points: np.ndarray
     arc_length: np.ndarray | None = None
@@ -78,10 +74,9 @@ def compare_centerlines(model: CenterlineSamples, measured: CenterlineSamples,
                         max_match_distance: float = math.inf) -> ShapeComparison:
     """Compare a measured centerline (in its own frame) with the model centerline (in the model frame).
 
-    A measured sample is matched when it lies within ``max_match_distance`` of the model centerline (outlier
-    gate; ``inf`` matches all). The measured tip is the last sample of an ordered centerline, else the matched
-    sample whose closest model point lies farthest along the model. Raises ComparisonError if nothing matched.
-    """
+    A sample is matched within ``max_match_distance`` of the model centerline (``inf``: all). The measured tip is an
+    ordered centerline's last sample, else the matched sample whose closest model point lies farthest along the model.
+    Raises ComparisonError if nothing matched."""
     if len(model.points) < 2:
         raise ComparisonError("model centerline needs at least two samples")
     if not max_match_distance > 0.0:

@@ -1,8 +1,6 @@
-"""Independent reference solutions (no ANCF code) for the tests and the bag generator: the exact elastica of a
-cantilever.
-
-Exact inextensible elastica of a horizontal cantilever under a uniform vertical load w [N/m] (own weight) and a
-vertical tip load P [N], both downwards: with theta(s) the tangent angle,
+"""Independent reference (no ANCF code) for the tests and the bag generator: the exact inextensible elastica of a
+horizontal cantilever under a uniform load w [N/m] (own weight) and a tip load P [N], both downwards; theta(s) the
+tangent angle:
     EI theta'' = (P + w (L - s)) cos(theta),  theta(0) = 0,  theta'(L) = 0,  x' = cos(theta),  z' = sin(theta),
 solved by shooting on theta'(0) (DOP853, tolerances 1e-12) with Brent's method.
 """

@@ -1,13 +1,10 @@
 """Ground truth of the sample bags: a converged run of the ANCF model (seed 000, eqs. 1-20) with its own damping.
 
-The "real needle" of the synthetic experiments is the ANCF model discretized far beyond the simulator's settings
-(:class:`TruthModel`: 8x the elements, a 10x smaller step), checked against the exact elastica at rest
-(:func:`static_check`), with its own damping, driven by the exact base motion of the protocol (analytic pose, velocity
-and acceleration, not the recorded poses) and, for the insertions, by the tissue models with their default parameters.
-It is advanced by :class:`needle_sim_ros.simulation.NeedleSimulation` (the simulator's one time loop, the base from the
-protocol's ``base(t)``, the general step throughout), like the simulator node, so fixtures and the tissue models'
-per-step hooks behave the same. Unlike the node, it starts from static equilibrium (the real needle hangs at rest when
-the recording starts) when the protocol says so.
+The "real needle" is the ANCF model discretized far beyond the simulator's settings (:class:`TruthModel`), checked
+against the exact elastica at rest (:func:`static_check`), driven by the protocol's exact base motion (not the
+recorded poses) and, for insertions, the default tissue. It is advanced by the simulator's one time loop
+(:class:`needle_sim_ros.simulation.NeedleSimulation`, the general step throughout), so fixtures and the tissue's
+per-step hooks behave as in the node; unlike the node it starts from static equilibrium when the protocol says so.
 """
 from __future__ import annotations
 

@@ -25,6 +25,7 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
+from needle_common.cli_types import command_status
 from needle_common.output_files import check_output_file, write_atomically
 
 from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, run_ground_truth, static_check
@@ -230,22 +231,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output-dir", type=Path, default=Path("bags"), help="directory of the bags (default: bags)")
     parser.add_argument("--experiments", nargs="+", choices=sorted(EXPERIMENTS), default=list(EXPERIMENTS),
                         help="which bags to write (default: all)")
-    args = parser.parse_args(argv)
-    try:  # every bag's file checked before the first ground truth is integrated
-        paths = {name: check_output_file(args.output_dir / f"{name}.mcap", "bag") for name in args.experiments}
-    except ValueError as error:
-        print(f"needle_make_bags: error: {error}", file=sys.stderr)
-        return 2
+    return command_status("needle_make_bags", run, parser.parse_args(argv), (ValueError,), (RecordingError, OSError))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the bags, every bag's file checked before the first ground truth is integrated."""
+    paths = {name: check_output_file(args.output_dir / f"{name}.mcap", "bag") for name in args.experiments}
     total = 0
     for name, path in paths.items():
         experiment = EXPERIMENTS[name]()
         print(f"[needle_make_bags] {name}: {experiment.description}", flush=True)
-        try:
-            written = write_bag(experiment, path, log=lambda m: print(m, flush=True))
-        except (RecordingError, OSError) as error:
-            print(f"needle_make_bags: error: {error}", file=sys.stderr)
-            return 1
-        total += written["size_bytes"]
+        total += write_bag(experiment, path, log=lambda m: print(m, flush=True))["size_bytes"]
     print(f"[needle_make_bags] {len(paths)} bag(s), {total / 1e6:.1f} MB in total")
     return 0
 

@@ -1,12 +1,9 @@
 """The sample experiments (seed 000, Sec. III, and a tissue insertion): base motion, loads and sensor schedules.
 
-Each :class:`Experiment` describes what the robot does (the motion of the clamp point A in the world frame, with
-exact velocity and acceleration), what is hung on the needle, what is clamped, and when the sensors sample. The
-same description drives the ground-truth run (:mod:`.ground_truth`) and the bag writer (:mod:`.make_bags`).
-
-World frame as in ``needle_vision.render.default_rig()``: A at the origin, the undeformed needle along +x, z up;
-the stereo cameras look at the needle from +y. The experiments (``EXPERIMENTS``) are described each by its
-``description`` and in bags/README.md.
+Each :class:`Experiment` gives the motion of the clamp point A (world frame, exact velocity and acceleration), the
+tip loads, the clamp and the sensors' sample times; it drives both :mod:`.ground_truth` and :mod:`.make_bags`.
+World frame as in ``needle_vision.render.default_rig()``: A at the origin, the undeformed needle along +x, z up, the
+cameras looking from +y. Each experiment's ``description`` and bags/README.md describe it.
 """
 from __future__ import annotations
 

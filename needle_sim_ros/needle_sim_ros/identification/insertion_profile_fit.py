@@ -35,16 +35,12 @@ def fit_insertion_profile(depth, force, n_frequencies: int = 2, exit_depth: floa
                           drop_window: float = 1e-3) -> ProfileFit:
     """Identify a1, a2, d1, the Fourier friction terms and the cutting force from a force-vs-depth record.
 
-    depth [m] (monotonically increasing insertion), force [N] (measured total F_a).
-    n_frequencies: M, the number of dominant frequencies kept (seed 002 keeps two).
-    exit_depth: d2 if the record goes through the tissue; the friction is then fitted on x > d2 (phase III, as in
-    the seed) and the cutting force on d1 < x < d2.  Without it the friction and the (constant) cutting force are
-    fitted together on x > d1: they are then only separable through the series' shape, so the split is
-    reported with the mean friction A_0 absorbing any constant part (cutting_force = 0).
-    Steps: puncture = largest force drop; eq. 1 by linear least squares on x < d1 (no intercept); dominant
-    frequencies from the FFT of the uniformly resampled, mean-removed friction; then all of eq. 2 (A_i, B_i,
-    w_i) refined by nonlinear least squares; eq. 3 as the residual total - friction.
-    """
+    depth [m] (increasing), force [N] (measured total F_a); n_frequencies: M dominant frequencies kept (seed 002: 2).
+    exit_depth: d2 if the record goes through the tissue: friction fitted on x > d2 (phase III), cutting force on
+    d1 < x < d2; without it both on x > d1, A_0 absorbing any constant part (cutting_force = 0).
+    Steps: puncture = largest force drop; eq. 1 by linear least squares on x < d1 (no intercept); frequencies from the
+    FFT of the resampled, mean-removed friction; eq. 2 (A_i, B_i, w_i) refined by nonlinear least squares; eq. 3 as
+    the residual total - friction."""
     x = np.asarray(depth, dtype=float)
     f = np.asarray(force, dtype=float)
     if x.ndim != 1 or x.shape != f.shape or x.size < 8:

@@ -1,22 +1,15 @@
 """Online identification of the seed 003 LuGre parameters: multiple asynchronous joint EKFs and a single joint EKF.
 
-Seed 003 eqs. 3-4: the bristle state z is augmented with the parameter vector theta (random walk), the model is
-discretised with third-order Runge-Kutta (``lugre.rk3_step``) and the measured axial force is
-``f_k = H(z_k, theta_k, l_k) + w_k``.  Two schemes share one filter implementation:
-
-* single joint EKF: one filter over all of (z, f1, f2, sigma0, sigma1, sigma2, alpha);
-* multiple asynchronous joint EKFs (seed 003 Sec. III and Table I): filters over (z, f2, sigma0), (z, f1, sigma1)
-  and (z, alpha, sigma2); they take turns on the samples (round robin, ``dwell`` samples each), the active one
-  updates its subset and writes it into the shared model, the others treat those values as known.  Each filter
-  keeps its own covariance; correlations between groups are not tracked, so the multiple scheme reports a
-  block-diagonal covariance (``cross_group_covariance_tracked`` = False) whose blocks are conditional on the other
-  groups' values -- optimistic for correlated parameters -- and flags no parameter as identifiable.
-
-Table I's noise values (Q = 0.05 diag(1, 1e5, 1e9) ...) are in the seed's unstated units; here each filter works
-on parameters divided by a scale (their prior magnitude) and the random-walk intensities are set in those
-normalised units.  Every estimate is reported with its covariance, and a parameter counts as identifiable when its
-posterior standard deviation is below ``identifiability_tolerance`` times its magnitude.  ``fisher_information``
-gives the Cramer-Rao bound for a record, the reference for what one insertion can identify at all.
+Seed 003 eqs. 3-4: the bristle state z augmented with the parameters theta (random walk), discretised by RK3
+(``lugre.rk3_step``), measured axial force ``f_k = H(z_k, theta_k, l_k) + w_k``. One filter class serves both:
+* single joint EKF over (z, f1, f2, sigma0, sigma1, sigma2, alpha);
+* multiple asynchronous joint EKFs (seed 003 Sec. III, Table I) over (z, f2, sigma0), (z, f1, sigma1) and
+  (z, alpha, sigma2), taking turns (``dwell`` samples each); each keeps its own covariance, so the reported
+  covariance is block-diagonal and conditional on the other groups (optimistic) and no parameter is flagged
+  identifiable.
+Each filter works on parameters divided by their prior scale (Table I's noise values are in unstated units). A
+parameter is identifiable when its posterior std is below ``identifiability_tolerance`` times its magnitude;
+``fisher_information`` gives a record's Cramer-Rao bound.
 """
 from __future__ import annotations
 
@@ -35,13 +28,10 @@ TABLE_I_GROUPS = (("f2", "sigma0"), ("f1", "sigma1"), ("alpha", "sigma2"))
 
 @dataclass(frozen=True)
 class LuGreEstimate:
-    """Estimates reported by ``LuGreEstimator.estimate``.
-
-    parameters: current estimate; z: bristle state [m]; covariance: (6, 6) in SI units (PARAMETER_NAMES order);
-    std: standard deviations; correlation: (6, 6); identifiable: per-parameter flags (relative std below the
-    tolerance; always False for the multiple scheme, whose conditional covariances cannot show it); samples: number fed;
-    cross_group_covariance_tracked: False for the multiple-EKF scheme (off-block entries are then zero).
-    """
+    """Estimates reported by ``LuGreEstimator.estimate``: parameters; z: bristle state [m]; covariance (6, 6) in SI
+    units (PARAMETER_NAMES order), std, correlation (6, 6); identifiable: per-parameter flags (relative std below the
+    tolerance; always False for the multiple scheme, whose covariances are conditional); samples fed;
+    cross_group_covariance_tracked: False for the multiple-EKF scheme (off-block entries zero)."""
 
     parameters: LuGreParameters
     z: float
@@ -87,15 +77,11 @@ class _JointEKF:
 class LuGreEstimator:
     """Online joint-EKF identification of seed 003 eqs. 1-2 from (depth, velocity, axial force) samples.
 
-    initial: prior parameter guess; initial_std: (6,) prior standard deviations [SI].
-    measurement_std: force noise standard deviation [N] (seed 003 uses R = 0.01 N^2).
-    groups: parameter-name groups; None = single joint EKF over all six, ``TABLE_I_GROUPS`` = the seed's three.
-    parameter_random_walk: (6,) random-walk intensities [unit/sqrt(s)] (0 = constant parameters).
-    z_random_walk: [m/sqrt(s)];  z_std0: prior std of z [m] (z starts at 0, the needle outside the tissue).
-    velocity_scale: sgn regularisation of the model [m/s] (0 = exact sign, as in the seed).
-    identifiability_tolerance: relative posterior std below which a parameter is reported identifiable.
-    dwell: samples each filter of the multiple scheme stays active before the next one takes over.
-    """
+    initial: prior guess; initial_std: (6,) prior standard deviations [SI]; measurement_std: force noise [N] (seed 003:
+    R = 0.01 N^2); groups: None = one joint EKF over all six, ``TABLE_I_GROUPS`` = the seed's three;
+    parameter_random_walk: (6,) [unit/sqrt(s)] (0 = constant); z_random_walk [m/sqrt(s)]; z_std0: prior std of z [m]
+    (z starts at 0, outside the tissue); velocity_scale: sgn regularisation [m/s] (0 = exact sign);
+    identifiability_tolerance: relative posterior std for "identifiable"; dwell: samples per filter turn."""
 
     def __init__(self, initial: LuGreParameters, initial_std, measurement_std: float, groups=None,
                  parameter_random_walk=None, z_random_walk: float = 0.0, z_std0: float = 1e-6,

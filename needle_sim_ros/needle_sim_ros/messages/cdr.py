@@ -1,16 +1,11 @@
-"""CDR encoding of the simulator's outputs straight from numpy arrays, without building rclpy message objects
-(decoding: :mod:`needle_common.cdr`, images :func:`needle_vision.streams.image_codec.deserialize_image`).
+"""CDR encoding of the simulator's outputs straight from numpy arrays, without rclpy message objects (decoding:
+:mod:`needle_common.cdr`, images :func:`needle_vision.streams.image_codec.deserialize_image`).
 
-The simulator publishes a WrenchStamped per 1 ms step, shapes at 100 Hz and a Marker tube of thousands of
-vertices. Building rclpy messages (a Python object per point) and serializing them costs ~1 ms per shape, ~50 us
-per wrench and ~10 ms per tube -- Python work that holds the GIL against the 1 kHz integration thread. These
-encoders write the same bytes from the arrays in microseconds; nodes publish them with ``Publisher.publish(bytes)``
-and the offline pipeline records them. They produce exactly what ``rclpy.serialization.serialize_message``
-produces for the equivalent message (checked byte for byte by test_cdr): XCDR1 little endian (encapsulation 0x0001),
-primitives aligned to their size from the start of the payload, strings as uint32 length (with the terminating
-NUL) + bytes + NUL, sequences as uint32 count + elements, padding bytes zero. ``serialize_message`` returns as many
-bytes as rmw_fastrtps's size estimate, which aligns a sequence of float64 to 8 bytes even when it is empty (the
-serializer itself does not): the encoders end with the same number of zero bytes.
+Each encoder writes exactly the bytes of ``rclpy.serialization.serialize_message`` for the equivalent message
+(test_cdr checks them): XCDR1 little endian (encapsulation 0x0001), primitives aligned to their size from the
+payload's start, strings as uint32 length (with the NUL) + bytes + NUL, sequences as uint32 count + elements, zero
+padding, and the trailing zero bytes of rmw_fastrtps's size estimate (a float64 sequence aligned to 8 even when
+empty). Nodes publish them with ``Publisher.publish(bytes)``; why and what it saves: docs/design_notes.md.
 """
 from __future__ import annotations
 
@@ -211,18 +206,6 @@ def needle_shape(sec: int, nanosec: int, frame_id: str, source: str, points: np.
     return bytes(data)
 
 
-def _needle_shape_into(buffer: _Buffer, sec: int, nanosec: int, frame_id: str, source: str,
-                       blocks: list[np.ndarray]) -> None:
-    """A NeedleShape's fields; ``blocks``: points, tangents, arc length, uncertainty, tip pose and length."""
-    _header(buffer, sec, nanosec, frame_id)
-    buffer.string(source)
-    buffer.sequence(blocks[0], 3)
-    buffer.sequence(blocks[1], 3)
-    buffer.float64_sequence(blocks[2])
-    buffer.float64_sequence(blocks[3])
-    buffer.doubles(blocks[4])
-
-
 class _Layout(_Buffer):
     """A :class:`_Buffer` that notes where each block of doubles starts in the serialized bytes."""
 
@@ -242,7 +225,13 @@ def _needle_shape_layout(frame_id: str, source: str, sizes: tuple[int, ...]) -> 
     """The bytes of a NeedleShape with a zero stamp and zero values of blocks of these sizes, and where each block
     starts (a model shape's layout is the same at every output: ~20 us of encoding less each)."""
     layout = _Layout()
-    _needle_shape_into(layout, 0, 0, frame_id, source, [np.zeros(size) for size in sizes])
+    _header(layout, 0, 0, frame_id)
+    layout.string(source)
+    layout.sequence(np.zeros(sizes[0]), 3)  # points
+    layout.sequence(np.zeros(sizes[1]), 3)  # tangents
+    layout.float64_sequence(np.zeros(sizes[2]))  # arc length
+    layout.float64_sequence(np.zeros(sizes[3]))  # uncertainty
+    layout.doubles(np.zeros(sizes[4]))  # tip pose and length
     return layout.bytes(), tuple(layout.starts)
 
 

@@ -1,7 +1,5 @@
-"""Model and measured centerlines of a comparison for RViz and Foxglove: nav_msgs/Path and a Marker tube.
-
-Both are in the model frame (the measurement mapped by the camera -> model extrinsic), serialized with the
-encoders of :mod:`needle_sim_ros.messages.cdr` (checked byte for byte against rclpy in test_cdr).
+"""Model and measured centerlines of a comparison for RViz and Foxglove: nav_msgs/Path and a Marker tube, in the
+model frame, serialized by :mod:`needle_sim_ros.messages.cdr`.
 """
 from __future__ import annotations
 

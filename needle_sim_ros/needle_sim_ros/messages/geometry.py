@@ -18,12 +18,9 @@ def polyline_tangents(points: np.ndarray) -> np.ndarray:
 
 
 def tube_triangles(points: np.ndarray, tangents: np.ndarray, radius: float, sides: int = 8) -> np.ndarray:
-    """Triangle-list vertices (m, 3) of a tube of the given radius around a centerline.
-
-    Cross-section frames are carried along the curve by parallel transport (no twist,
-    :func:`~needle_sim_ros.model.outputs.transported_normals`), so the tube does not spin with the curve's Frenet
-    frame and stays well defined where the curvature vanishes.
-    """
+    """Triangle-list vertices (m, 3) of a tube of the given radius around a centerline, its cross-section frames carried
+    by parallel transport (:func:`~needle_sim_ros.model.outputs.transported_normals`): no spin with the Frenet frame,
+    well defined where the curvature vanishes."""
     t = np.ascontiguousarray(tangents / np.linalg.norm(tangents, axis=1, keepdims=True))
     helper = np.array([0.0, 0.0, 1.0]) if abs(t[0, 2]) < 0.9 else np.array([0.0, 1.0, 0.0])
     first = np.array(cross(helper, t[0]))

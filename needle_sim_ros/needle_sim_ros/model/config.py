@@ -1,7 +1,6 @@
-"""Needle configuration from a ROS 2 parameters file (``/**: ros__parameters: {needle: ..., damping: ...}``).
-
-Only the groups ``needle.``, ``damping.``, ``integrator.`` and ``fixtures.`` are read (other groups, e.g. the node's
-topics, are ignored); an unknown key inside them is an error, so a typo cannot silently fall back to a default.
+"""Needle configuration from a ROS 2 parameters file (``/**: ros__parameters: {needle: ..., damping: ...}``): only
+the groups ``needle.``, ``damping.``, ``integrator.`` and ``fixtures.`` are read, and an unknown key inside them is
+an error (a typo cannot fall back to a default).
 """
 from __future__ import annotations
 

@@ -1,13 +1,12 @@
 """Force laws written once, as compiled kernels, for every path, and the compiled run that composes them.
 
-A contribution with ``compiled_run`` declares its :class:`~needle_sim_ros.model.step.Kernels` (``kernels``; or its
-parts', :func:`~needle_sim_ros.model.step.parts_of`, e.g. the tissue), its constants packed into one float64 array
-(``constants``; of parts: ``step.pack``'s of theirs) and, if stateful, its state packed likewise (``packed_state``)
-and back (``unpacked_state``). :class:`ContributionRun` composes any number of them, every part one level
-(:func:`~needle_sim_ros.model.step.compiled_run`), into one compiled run of steps. A :class:`CompiledContribution`
-subclass (a law without state) names its ``assemble`` kernel (and, if it acts on the base element,
-``touches_base``) on a float64 array of its parameters; the general path (``Integrator.step``: sub-stepping,
-statics) calls the same kernel through ``assemble_banded``. ``docs/extending.md`` walks through an example.
+A ``compiled_run`` contribution declares its :class:`~needle_sim_ros.model.step.Kernels` (``kernels``, or its
+parts', :func:`~needle_sim_ros.model.step.parts_of`), its constants in one float64 array (``constants``) and, if
+stateful, its packed state (``packed_state``, ``unpacked_state``). :class:`ContributionRun` composes any number of
+them into one compiled run of steps (:func:`~needle_sim_ros.model.step.compiled_run`). A
+:class:`CompiledContribution` subclass (a law without state) names its ``assemble`` kernel (and ``touches_base``)
+on a float64 parameter array; the general path calls the same kernel through ``assemble_banded``. Example:
+``docs/extending.md``.
 """
 from __future__ import annotations
 
@@ -91,10 +90,10 @@ class ContributionRun:
 
     def __call__(self, model, integrator, state, owns: list, dt: float, times: np.ndarray, motions: np.ndarray,
                  rotations: np.ndarray, forces, memory) -> tuple[SequenceResult, list]:
-        """Steps of dt from ``state`` (with ``aux``) to the end times (k,), the base at each given packed (k, 19)
-        with rotations (k, 3, 3), under ``forces`` (time-invariant) and the contributions (``owns``: their states,
-        None for those without), in one compiled call; the run ends early at a step that does not converge
-        (integrate that one with the general step). Returns the steps done and the contributions' states."""
+        """Steps of dt from ``state`` (with ``aux``) to the end times (k,), the base at each given packed (k, 19) with
+        rotations (k, 3, 3), under ``forces`` (time-invariant) and the contributions (``owns``: their states, None if
+        stateless), in one compiled call, ending early at a step that does not converge (for the general step).
+        Returns the steps done and the contributions' states."""
         k, n = times.size, model.n_dof
         needle, constant_Q = integrator.run_arguments(forces, dt, float(times[0]), memory)
         history = np.empty((4, n))

@@ -50,16 +50,12 @@ def add_elastic(q, axial_S_x, axial_weights, bending_S_x, bending_S_xx, bending_
     (bandwidth kl >= 11; ``lower``: its lower triangle and diagonal only), with ``work`` (ELEMENT_WORK,) as its work
     area. Returns the elastic energy Pi (eq. 9).
 
-    Given the axial strain-rate weights of ``damping`` (beta EA w at the axial points), the matrix of that damping,
-    rate_factor * int beta EA S_x^T S_x (x) r_x r_x^T (-dQ_d,a/dq'), is added too: it has the blocks of the axial
-    stiffness at the same points, so it costs no loop of its own; given the rates ``qd`` as well, so is its force
-    Q_d,a = -int beta EA (r_x . r_x') S_x^T r_x (``damping``).
-
-    Per element the 3 x 3 blocks (a, b >= a) of K are summed over the points in scalar arithmetic, the bending
-    blocks as d_b G_a + dd_b H_a with G_a = d_a f11 + dd_a f12^T, H_a = d_a f12 + dd_a f22 (f: the second
-    derivatives of w kappa^2 / 2 by r_x and r_xx), then written into the band once: 3.0-3.2 us for 10 elements
-    with the matrix, against 4.4-4.6 us for 3 x 3 arrays per point and 0.4 us for a pass of the damping's own
-    (``bench/bench_step_stages.py``)."""
+    Given the axial strain-rate weights of ``damping`` (beta EA w at the axial points), that damping's matrix
+    rate_factor * int beta EA S_x^T S_x (x) r_x r_x^T (-dQ_d,a/dq') is added with the axial stiffness blocks at the
+    same points; given ``qd`` too, so is its force Q_d,a = -int beta EA (r_x . r_x') S_x^T r_x (``damping``).
+    Per element the 3 x 3 blocks (a, b >= a) of K are summed over the points in scalar arithmetic, the bending blocks
+    as d_b G_a + dd_b H_a with G_a = d_a f11 + dd_a f12^T, H_a = d_a f12 + dd_a f22 (f: the second derivatives of
+    w kappa^2 / 2 by r_x and r_xx), then written into the band once (timings: docs/design_notes.md)."""
     n_elements = axial_S_x.shape[0]
     energy = 0.0
     element_force = work[:12]

@@ -1,7 +1,6 @@
 """Fixtures: clamp nodes of the needle (all six coordinates [r, r_x]) to the world, the holder, or a moving frame.
-
-Seed 000 Sec. III clamps the distal 40 % of the needle while the base pitches (Fig. 8): that is
-``Fixture(interval=(0.6 * L, L))`` with the needle straight along the world x axis from the origin when clamped.
+Seed 000 Sec. III (Fig. 8) clamps the distal 40 %: ``Fixture(interval=(0.6 * L, L))``, the needle straight along
+the world x axis from the origin when clamped.
 """
 from __future__ import annotations
 
@@ -22,16 +21,12 @@ FixtureFrame = Union[str, Callable[[float], BaseMotion]]
 class Fixture:
     """Clamp a set of nodes and/or the nodes of an arc-length interval.
 
-    nodes: node indices (negative ones count from the tip); interval: (s_start, s_end) [m] -- every node with
-    reference arc length in the closed interval; both ends must be mesh nodes (choose ``element_lengths`` so), since
-    a cable element cannot be clamped along part of its length.
-    frame: "world" (fixed), "base" (moves with the holder), "start" (held in the world where the needle's base frame
-    was when the needle was (re)started: the pose is the needle's data, ``IntegratorMemory.clamp``, so one model
-    serves every restart) or a callable t -> BaseMotion of a moving frame.
-    needle_pose: (position, orientation xyzw) of the straight needle's base frame in the fixture frame at the time of
-    clamping; node i is held at rho = p + R s_i e_x with gradient tau = R e_x in that frame. Default: the needle lay
-    along the frame's x axis from its origin.
-    """
+    nodes: node indices (negative from the tip); interval: (s_start, s_end) [m], every node with reference arc length in
+    the closed interval; its ends must be mesh nodes (``element_lengths``): an element cannot be clamped in part.
+    frame: "world", "base" (moves with the holder), "start" (held where the needle's base frame was at the (re)start:
+    the pose is the needle's data, ``IntegratorMemory.clamp``) or a callable t -> BaseMotion of a moving frame.
+    needle_pose: (position, orientation xyzw) of the straight needle's base frame in the fixture frame when clamped;
+    node i is held at rho = p + R s_i e_x, gradient tau = R e_x (default: along the frame's x axis from its origin)."""
 
     nodes: tuple[int, ...] = ()
     interval: tuple[float, float] | None = None

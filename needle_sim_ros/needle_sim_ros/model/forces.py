@@ -1,13 +1,10 @@
 """External generalized forces (seed 000 eqs. 14-16): one protocol for gravity, loads and tissue models.
 
 A point force F at the material point x of element j does the virtual work F^T S(x) delta e_j (eq. 14), hence
-Q_f = sum_i S^T(x_i) F_i (eq. 15); nodal loads add Q_P directly (eq. 16); a line load f per length adds
-int S^T f ds.  Every contribution implements ``evaluate(model, q, qd, t, base) -> GeneralizedForce`` (and may
-override ``generalized_force``, the same Q without Jacobians) and declares
-its capabilities as class attributes (:class:`ForceContribution`), checked by :func:`check_forces` when a force
-list is handed to the integrator, the statics or the simulation.  Element-local contributions (forces at material
-points, eq. 15) also assemble their Jacobian blocks straight into the banded iteration matrix through the shared
-compiled kernel ``assemble_point_forces`` (``assemble_banded``), so Newton never builds a dense n x n matrix.
+Q_f = sum_i S^T(x_i) F_i (eq. 15); nodal loads add Q_P directly (eq. 16); a line load f per length adds int S^T f ds.
+Every contribution implements ``evaluate(model, q, qd, t, base) -> GeneralizedForce`` (``generalized_force``: Q
+alone) and declares its capabilities (:class:`ForceContribution`, checked by :func:`check_forces`). Element-local
+ones assemble their Jacobian blocks straight into the banded iteration matrix (``assemble_point_forces``).
 """
 from __future__ import annotations
 
@@ -30,29 +27,23 @@ class GeneralizedForce(NamedTuple):
 
 
 class ForceContribution:
-    """Base of the external force contributions. Each declares, as class attributes (a property where the answer
-    depends on the instance, e.g. the frame of a load):
+    """Base of the external force contributions; the capabilities are class attributes (a property where the answer
+    depends on the instance, e.g. a load's frame):
 
-    * ``state_dependent``: Q depends on q or q' and its Jacobians may be non-zero (evaluated at every Newton
-      iteration); False: Q depends on (t, base) only, both Jacobians zero (evaluated once per step).
-    * ``time_invariant``: Q is one constant vector (neither state dependent nor stateful, never mutated): summed
-      once and reused; when every force is so, the compiled step sequence applies.
-    * ``stateful``: it has state that changes from step to step (tissue contact, track, anchors, friction states),
-      kept as an immutable value in ``NeedleData.force_states``, and implements ``initial_state(model)``,
-      ``advance(model, state, base, own) -> own'`` (once per accepted step; returns the next value, never changes
-      ``own``) and ``at(own)``: the contributions, not stateful themselves, that act over the step starting from
-      ``own``. It is never evaluated itself; the step hands ``at(own)`` to the integrator, and a failed step keeps
-      the old value.
-    * ``element_local`` (default False): its Jacobians couple the coordinates of one element only (forces at material
-      points, eq. 15) and it implements ``assemble_banded``: Q and its Jacobian blocks added to the banded
-      iteration matrix in one compiled pass, and ``touches_element``: whether a point lies in a given element
-      now (the base wrench skips forces off the first element). False: Newton takes the dense Jacobians of
-      ``evaluate``.
-    * ``compiled_run`` (default False): a state-dependent contribution given by compiled kernels (``kernels``,
-      ``constants``; if stateful ``packed_state`` and ``unpacked_state``, see ``contribution``) that the
-      simulator's fast path composes with any others into one compiled run of steps: the tissue, a
-      ``contribution.CompiledContribution``.
-    """
+    * ``state_dependent``: Q depends on q or q' (evaluated at every Newton iteration); False: on (t, base) only, both
+      Jacobians zero (once per step).
+    * ``time_invariant``: Q is one constant vector (not state dependent, not stateful, never mutated): summed once;
+      when every force is so, the compiled step sequence applies.
+    * ``stateful``: its state changes from step to step (kept immutable in ``NeedleData.force_states``); implements
+      ``initial_state(model)``, ``advance(model, state, base, own) -> own'`` (once per accepted step, ``own``
+      unchanged) and ``at(own)``: the non-stateful contributions acting over the step from ``own``. Never evaluated
+      itself; a failed step keeps the old value.
+    * ``element_local`` (default False): its Jacobians couple one element's coordinates (eq. 15); implements
+      ``assemble_banded`` (Q and its Jacobian blocks into the band, compiled) and ``touches_element`` (the base
+      wrench skips forces off the first element). False: Newton takes the dense Jacobians of ``evaluate``.
+    * ``compiled_run`` (default False): state dependent, given by compiled kernels (``kernels``, ``constants``; if
+      stateful ``packed_state``, ``unpacked_state``: ``contribution``) that the fast path composes into one compiled
+      run: the tissue, a ``contribution.CompiledContribution``."""
 
     state_dependent: ClassVar[bool]
     time_invariant: ClassVar[bool]
@@ -109,10 +100,8 @@ _CHECKED_CLASSES: set[type] = set()  # classes that passed and declare every cap
 
 
 def check_forces(forces) -> tuple:
-    """The contributions as a tuple, each checked against the :class:`ForceContribution` protocol; TypeError naming
-    the class of the first one that breaks it. A class that passed with its capabilities plain class attributes
-    (not properties, so the same for every instance) is not checked again (the tissue makes new contributions at
-    every step)."""
+    """The contributions as a tuple, each checked against the :class:`ForceContribution` protocol (TypeError naming
+    the first class that breaks it); a class whose capabilities are plain class attributes is checked once."""
     forces = tuple(forces)
     for force in forces:
         if type(force) in _CHECKED_CLASSES:
@@ -188,7 +177,8 @@ def distribution_matrix(interpolation: Interpolation, weights: np.ndarray, n_dof
 
 
 class _ConstantVectorLoad(ForceContribution):
-    """A load Q = G f with a constant vector f given in the world or the base frame (state independent)."""
+    """A load of a constant vector f given in the world or the base frame (state independent): Q = G f with G of
+    ``distribution``, or its own ``evaluate``."""
 
     state_dependent = False
     stateful = False
@@ -266,19 +256,16 @@ class Gravity(ForceContribution):
             _read_only(self.distribution(m) @ np.asarray(m.props.gravity))))
 
 
-class NodalLoad(ForceContribution):
+class NodalLoad(_ConstantVectorLoad):
     """Generalized load Q_P on the coordinates of one node (eq. 16): ``force`` [N] on r, ``gradient_force`` [N m]
     on r_x (a moment M at the node corresponds to gradient_force = M x r_x / |r_x|^2, state dependent). Node
     indices may be negative (-1 = tip). World or base frame."""
 
-    state_dependent = False
-    stateful = False
-
     def __init__(self, node: int, force, gradient_force=(0.0, 0.0, 0.0), frame: str = "world") -> None:
+        super().__init__(force, frame, "NodalLoad")
         self.node = int(node)
-        self.frame = frame
-        self.generalized = np.concatenate([_frame_vector(force, frame, "NodalLoad"),
-                                           _frame_vector(gradient_force, frame, "NodalLoad gradient_force")])
+        self.generalized = np.concatenate([self.vector, _frame_vector(gradient_force, frame,
+                                                                      "NodalLoad gradient_force")])
 
     def evaluate(self, model, q, qd, t, base) -> GeneralizedForce:
         if not -model.n_nodes <= self.node < model.n_nodes:
@@ -290,11 +277,6 @@ class NodalLoad(ForceContribution):
         first = 6 * (self.node % model.n_nodes)
         Q[first:first + 6] = values.ravel()
         return GeneralizedForce(Q)
-
-    @property
-    def time_invariant(self) -> bool:
-        """World-frame loads are constant; base-frame ones turn with the base."""
-        return self.frame == "world"
 
 
 PointForceLaw = Callable[[np.ndarray, np.ndarray, np.ndarray, float, object], PointForces]
@@ -340,10 +322,9 @@ class MaterialPointForce(ElementLocalForce):
 
 @njit(cache=True)
 def assemble_point_forces(slots, S, S_x, weights, F, dF_dr, dF_drx, dF_dv, Q, band, kl, c_q, c_qd):
-    """Scatter sum_k w_k S_k^T F_k (eq. 15) into Q and c_q dQ/dq + c_qd dQ/dq' (chain rule, MaterialPointForce)
-    into the band matrix ``band`` (row i, column j at band[i, j - i + kl]; a point couples the 12 coordinates of
-    its element: kl >= 11), point by point (:func:`scatter_point`); a (0, 0) band: Q alone; a derivative of no
-    points ((0, 3, 3)): zero."""
+    """Scatter sum_k w_k S_k^T F_k (eq. 15) into Q and c_q dQ/dq + c_qd dQ/dq' (MaterialPointForce's chain rule) into
+    ``band`` (row i, column j at band[i, j - i + kl], kl >= 11), point by point (:func:`scatter_point`); a (0, 0)
+    band: Q alone; a derivative of no points ((0, 3, 3)): zero."""
     with_matrix = band.shape[0] > 0
     with_position, with_gradient, with_velocity = dF_dr.shape[0] > 0, dF_drx.shape[0] > 0, dF_dv.shape[0] > 0
     position = np.zeros((3, 3))  # c_q dF/dr + c_qd dF/dv of the point

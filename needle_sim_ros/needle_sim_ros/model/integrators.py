@@ -1,24 +1,17 @@
-"""Implicit fixed-step time integration of the active coordinates (seed 000 eq. 19) with Newton on the analytic
-Jacobian, and automatic sub-stepping.
+"""Implicit fixed-step integration of the active coordinates (seed 000 eq. 19): Newton on the analytic Jacobian,
+automatic sub-stepping.
 
-Schemes (all in the Arnold-Bruels form of generalized-alpha: the equations of motion hold exactly at t_{n+1}, so
-the returned q'' is the true acceleration of the step and eq. 20 gives a consistent base wrench):
-* ``generalized_alpha`` (Chung-Hulbert parameters): alpha_m = (2 rho - 1)/(rho + 1), alpha_f = rho/(rho + 1),
-  gamma = 1/2 - alpha_m + alpha_f, beta = (1 - alpha_m + alpha_f)^2 / 4; second order, rho_inf in [0, 1] is the
-  spectral radius at infinite frequency (1: no numerical damping -- the trapezoidal rule; 0: asymptotic
-  annihilation).  rho_inf = 1 conserves energy only for linear(ized) motion: when large deformations meet unresolved
-  high-frequency content (e.g. a tip load released at once, 10 elements, dt = 1 ms) it is unstable -- the energy
-  grew 40-fold within 0.5 s (0.98: +39 % in 1 s).  rho_inf <= 0.95 is stable there (-0.14 % energy in 1 s).
-* ``hht``: the HHT-alpha parameter set alpha_m = 0, alpha_f = (1 - rho)/(1 + rho), rho_inf in [0.5, 1] (for linear
-  systems identical to Hilber-Hughes-Taylor).
-* ``backward_euler``: q' = q'_n + h q'', q = q_n + h q' -- first order, strongly dissipative, the robust fallback.
-Newton starts from the constant-acceleration predictor and, if that has not converged after
-``newton.EXTRAPOLATION_ITERATIONS``, once more from q_{n+1} = q_n (robust when unresolved high-frequency content makes
-extrapolation useless); after such a fallback the following steps start from q_n until it converges within two
-iterations again.  A step that still fails (Newton not converged within ``max_newton_iterations``, singular
-matrix, non-finite values) is retried as 2, 4, ... sub-steps (prescribed coordinates interpolated by quintic Hermite
-polynomials from their values, velocities and accelerations at both ends) up to ``max_substep_halvings`` times,
-then ``StepFailed`` is raised.  The input state is never modified.
+Schemes, all in the Arnold-Bruels form of generalized-alpha (eq. 19 holds at t_{n+1}, so q'' is the step's true
+acceleration and eq. 20 a consistent base wrench); design notes and measurements: docs/design_notes.md:
+* ``generalized_alpha`` (Chung-Hulbert): alpha_m = (2 rho - 1)/(rho + 1), alpha_f = rho/(rho + 1),
+  gamma = 1/2 - alpha_m + alpha_f, beta = (1 - alpha_m + alpha_f)^2 / 4; rho_inf in [0, 1] (1: trapezoidal rule,
+  no numerical damping; unstable under large deformations with unresolved high frequencies: use <= 0.95).
+* ``hht``: alpha_m = 0, alpha_f = (1 - rho)/(1 + rho), rho_inf in [0.5, 1].
+* ``backward_euler``: q' = q'_n + h q'', q = q_n + h q'; first order, the robust fallback.
+Newton starts from the constant-acceleration predictor, after ``newton.EXTRAPOLATION_ITERATIONS`` once more from
+q_n (kept until it converges within two iterations again). A failed step (no convergence, singular matrix,
+non-finite values) is retried as 2, 4, ... sub-steps (prescribed coordinates by quintic Hermite interpolation) up to
+``max_substep_halvings`` times, then ``StepFailed`` is raised. The input state is never modified.
 """
 from __future__ import annotations
 

@@ -1,9 +1,8 @@
 """Mesh of ANCF cable elements and the cubic shape functions of seed 000 eq. 4.
 
-Global coordinates (model API layout): node i carries [r_i (3), r_x,i (3)], so q has 6 n_nodes entries and element j
-(nodes j, j+1) has e_j = q[6j : 6j + 12] = [r_A, r_xA, r_B, r_xB] (eq. 1) -- neighbouring elements share a node.
-"Slots" are the 3-vectors of q: slot 2i is r_i, slot 2i+1 is r_x,i; element j uses slots 2j .. 2j+3, each
-weighted by one scalar shape function (S = [S1 I3, S2 I3, S3 I3, S4 I3], eq. 4).
+Node i carries [r_i (3), r_x,i (3)] of q (6 n_nodes entries); element j has e_j = q[6j : 6j + 12] =
+[r_A, r_xA, r_B, r_xB] (eq. 1). "Slots" are the 3-vectors of q (slot 2i: r_i, 2i+1: r_x,i); element j uses slots
+2j .. 2j+3, each weighted by one scalar shape function (S = [S1 I3, S2 I3, S3 I3, S4 I3], eq. 4).
 """
 from __future__ import annotations
 
@@ -121,12 +120,10 @@ def search_right(sorted_values: np.ndarray, value: float) -> int:
 
 
 def clamped_element_lengths(length: float, n_elements: int, intervals) -> np.ndarray:
-    """Element lengths [m] of an n_elements mesh whose nodes include every clamp interval's ends: one element per
-    clamped interval (held straight, it needs no more), the others over the free spans in proportion to their
-    lengths. A span held at both ends (by the base at s = 0 or a clamp) gets Chebyshev-Lobatto nodes
-    s = a + (b - a)(1 - cos(pi i / k)) / 2, clustered towards its ends: a needle stretched between two holds bends
-    in boundary layers of width sqrt(EI / T) there, which equal elements resolve poorly (README, "Wrench accuracy").
-    A span ending at the free tip keeps equal elements."""
+    """Element lengths [m] of an n_elements mesh with nodes at every clamp interval's ends: one element per clamped
+    interval, the others over the free spans in proportion to their lengths. A span held at both ends (base or clamp)
+    gets Chebyshev-Lobatto nodes s = a + (b - a)(1 - cos(pi i / k)) / 2, resolving the boundary layers of width
+    sqrt(EI / T) at the holds (README, "Wrench accuracy"); a span ending at the free tip keeps equal elements."""
     pairs = sorted((float(a), float(b)) for a, b in intervals)
     if not all(0.0 <= a <= b <= length for a, b in pairs):  # NaN fails too
         raise ValueError(f"clamp intervals {pairs} must satisfy 0 <= s_start <= s_end <= L = {length:g} m")
@@ -220,11 +217,9 @@ class Mesh:
 
 
 def slot_matrix(left: np.ndarray, right: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Assemble sum_j int f_a g_b dx over all elements into a (2 n_nodes, 2 n_nodes) scalar matrix on slots.
-
-    left, right: (n_elements, n_points, 4) shape-function tables; weights (n_elements, n_points) include l/2 and any
-    coefficient.  The coordinate matrix is kron(result, I3) -- see the module docstring.
-    """
+    """Assemble sum_j int f_a g_b dx over all elements into a (2 n_nodes, 2 n_nodes) scalar matrix on slots (the
+    coordinate matrix is kron(result, I3)); left, right: (n_elements, n_points, 4) shape-function tables; weights
+    (n_elements, n_points) include l/2 and any coefficient."""
     n_elements = left.shape[0]
     blocks = np.einsum("jg,jga,jgb->jab", weights, left, right)
     matrix = np.zeros((2 * n_elements + 2, 2 * n_elements + 2))

@@ -30,12 +30,10 @@ class State:
 
 @dataclass(frozen=True, eq=False)
 class NeedleModel:
-    """Everything constant about the discretized needle (build with ``build_model``).
-
-    mass_slots: scalar factor of the consistent mass matrix (M = kron(mass_slots, I3), eq. 7);
-    elastic: quadrature tables of eqs. 12-13; damping: Rayleigh tables; partition: q_c / q_a (eqs. 18-19);
-    increment_scale: per-coordinate scale of Newton corrections (L for positions, 1 for gradients).
-    """
+    """Everything constant about the discretized needle (build with ``build_model``): mass_slots, the scalar factor of
+    the consistent mass matrix (M = kron(mass_slots, I3), eq. 7); elastic: quadrature tables of eqs. 12-13; damping:
+    Rayleigh tables; partition: q_c / q_a (eqs. 18-19); increment_scale: per-coordinate scale of Newton corrections
+    (L for positions, 1 for gradients)."""
 
     props: NeedleProperties
     mesh: Mesh

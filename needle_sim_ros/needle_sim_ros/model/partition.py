@@ -1,7 +1,6 @@
-"""Partition q = [q_c, q_a] into prescribed (constrained) and active coordinates (seed 000 eqs. 18-19).
-
-q_c holds the base node A (r_A and the unit axis r_xA of the holder) and every clamped node; their values,
-velocities and accelerations come from the rigid motion of the frame each is attached to.  Only q_a is integrated.
+"""Partition q = [q_c, q_a] into prescribed (constrained) and active coordinates (seed 000 eqs. 18-19): q_c holds the
+base node A (r_A and the holder's unit axis r_xA) and every clamped node, their values, velocities and
+accelerations from the rigid motion of their frame. Only q_a is integrated.
 """
 from __future__ import annotations
 
@@ -106,10 +105,8 @@ class Partition:
 
 
 def hermite_quintic(start: np.ndarray, end: np.ndarray, h: float, theta: float) -> np.ndarray:
-    """Quintic Hermite interpolation of [y, y', y''] (3, m) between two instants h apart, at t0 + theta h.
-
-    Used for the prescribed coordinates of sub-steps: exact for motions polynomial up to degree 5 in time.
-    """
+    """Quintic Hermite interpolation of [y, y', y''] (3, m) between two instants h apart, at t0 + theta h: the
+    prescribed coordinates of sub-steps, exact for motions polynomial up to degree 5 in time."""
     y0, v0, a0 = start
     y1, v1, a1 = end
     s = theta

@@ -10,11 +10,9 @@ import numpy as np
 
 @dataclass(frozen=True)
 class NeedleProperties:
-    """Homogeneous needle with a circular (solid or annular) cross-section.
-
-    length [m] from the clamp point A to the tip; radius [m] (outer); youngs_modulus E [Pa]; density rho [kg/m^3];
-    gravity [m/s^2], world frame (z up); inner_radius [m] of the bore (0: solid, seed 000).
-    """
+    """Homogeneous needle with a circular (solid or annular) cross-section: length [m] from the clamp point A to the
+    tip; radius [m] (outer); youngs_modulus E [Pa]; density rho [kg/m^3]; gravity [m/s^2], world frame (z up);
+    inner_radius [m] of the bore (0: solid, seed 000)."""
 
     length: float
     radius: float

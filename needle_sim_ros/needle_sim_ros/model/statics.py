@@ -53,10 +53,8 @@ def static_initial_guess(model: NeedleModel, base: BaseMotion, t: float = 0.0) -
 def solve_static(model: NeedleModel, base: BaseMotion, forces=(), load_steps: int = 1, t: float = 0.0,
                  initial: State | None = None, newton_tol: float = 1e-10, max_newton_iterations: int = 25,
                  max_bisections: int = 12) -> StaticResult:
-    """Equilibrium under ``forces`` with the base (and fixtures) at their pose at time t.
-
-    initial: a starting state (e.g. the previous equilibrium of a sweep); default ``static_initial_guess``.
-    """
+    """Equilibrium under ``forces`` with the base (and fixtures) at their pose at time t; ``initial``: a starting
+    state (e.g. a sweep's previous equilibrium), default ``static_initial_guess``."""
     if not (isinstance(load_steps, (int, np.integer)) and load_steps >= 1):
         raise ValueError(f"load_steps must be an integer >= 1, got {load_steps!r}")
     n = model.n_dof

@@ -2,14 +2,12 @@
 
     needle_bringup [--experiment config/experiments/dynamic_pitch.yaml] [--no-stereo] [--ros-args ...]
 
-Each node is the class of its own executable. A MultiThreadedExecutor spins the three (each node's callbacks stay
-mutually exclusive; the nodes run concurrently) and the simulator keeps its own integration thread. The comparison's
-inputs are remapped onto the other nodes' outputs (``needle_compare:model/shape:=needle/shape``,
-``needle_compare:measured/shape:=needle/measured_shape``) unless the command line remaps them first. With
-``--experiment`` the node config files (``config/needle_<node>.yaml``) and then the experiment file are passed as
-parameter files, and the experiment decides whether the stereo node runs. ROS arguments apply as for any node
-(``-p`` to all three; target one node with its section in a ``--params-file``). On SIGINT/SIGTERM the comparison
-finalizes its MCAP log and summary. Exit status 2: a parameter is invalid (the log names it).
+Each node is the class of its own executable, spun by a MultiThreadedExecutor (the simulator keeps its integration
+thread). The comparison's inputs are remapped onto the other nodes' outputs unless the command line remaps them
+first. ``--experiment`` passes the node config files and then the experiment file as parameter files, and the
+experiment decides whether the stereo node runs. ROS arguments apply as for any node (``-p`` to all three; one node:
+its section in a ``--params-file``). On SIGINT/SIGTERM the comparison finalizes its log and summary. Exit status 2:
+a parameter is invalid (the log names it).
 """
 from __future__ import annotations
 

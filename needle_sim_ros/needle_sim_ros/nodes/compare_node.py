@@ -1,11 +1,9 @@
 """needle_compare: model vs measured needle shape, published as ShapeError and logged to MCAP.
 
-Subscribes ``model/shape`` (NeedleShape) and ``measured/shape`` (NeedleShape) or ``measured/points`` (PointCloud2,
-float32 x, y, z), pairs them by header stamp, brings the measurement into the model frame with the camera -> model
-extrinsic and publishes ``shape_error`` (needle_interfaces/ShapeError). With ``log.path`` set it records the shapes,
-errors, ``base_pose`` (PoseStamped) and ``wrench`` (WrenchStamped) plus the parameters in force into a
-rosbag2-compatible MCAP file, finalized on SIGINT/SIGTERM. The comparison itself is :mod:`needle_sim_ros.comparison`,
-its parameters :mod:`needle_sim_ros.parameters.compare`.
+Pairs ``model/shape`` with ``measured/shape`` (NeedleShape) or ``measured/points`` (PointCloud2, float32 x, y, z) by
+stamp, maps the measurement into the model frame and publishes ``shape_error``. With ``log.path`` it records the
+shapes, errors, ``base_pose``, ``wrench`` and the parameters in force into an MCAP file, finalized on SIGINT/SIGTERM.
+Core: :mod:`needle_sim_ros.comparison`; parameters: :mod:`needle_sim_ros.parameters.compare`.
 """
 from __future__ import annotations
 
@@ -76,11 +74,11 @@ class CompareNode(Node):
             self._record_tf()
         inputs = InputStatus(self)
         # The inputs arrive serialized: the log holds the bytes received, not rclpy's re-serialization of them.
-        inputs.track(self.create_subscription(NeedleShape, "model/shape", self.on_model, QoSProfile(depth=50),
-                                              raw=True))
+        inputs.track(self.create_subscription(NeedleShape, "model/shape", lambda data: self.on_shape(
+            "model/shape", data, self.session.add_model), QoSProfile(depth=50), raw=True))
         if v["measured_input"] == "shape":
-            inputs.track(self.create_subscription(NeedleShape, "measured/shape", self.on_measured_shape,
-                                                  QoSProfile(depth=10), raw=True))
+            inputs.track(self.create_subscription(NeedleShape, "measured/shape", lambda data: self.on_shape(
+                "measured/shape", data, self.session.add_measurement), QoSProfile(depth=10), raw=True))
         else:
             inputs.track(self.create_subscription(PointCloud2, "measured/points", self.on_measured_points,
                                                   QoSProfile(depth=10), raw=True))
@@ -125,12 +123,6 @@ class CompareNode(Node):
 
     def warn_rejected(self, what: str, reason: str) -> None:
         self.get_logger().warning(f"ignoring {what}: {reason}", throttle_duration_sec=WARN_PERIOD)
-
-    def on_model(self, data: bytes) -> None:
-        self.on_shape("model/shape", data, self.session.add_model)
-
-    def on_measured_shape(self, data: bytes) -> None:
-        self.on_shape("measured/shape", data, self.session.add_measurement)
 
     def on_shape(self, topic: str, data: bytes, add) -> None:
         """A NeedleShape of ``topic``, logged and handed to the session's ``add`` (model or measurement)."""

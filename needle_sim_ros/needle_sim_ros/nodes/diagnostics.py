@@ -1,15 +1,11 @@
 """Health of the needle simulator for ``/diagnostics``: a level and a message from what happened since the last report.
 
-Each report looks at the counters' increase over its window, so a cause raises the level while it lasts and the
-level clears in the first report after it stopped. Levels (``diagnostic_msgs/DiagnosticStatus``):
-
+Each report looks at the counters' increase over its window, so a level lasts as long as its cause:
 - ERROR: steps failed (the needle was reset to the straight state);
-- WARN: no base pose yet, the pose input is lost (the last pose is held), inputs were rejected (poses, twists,
-  tip loads), wall-clock steps missed their deadline or simulated time was skipped to catch up;
+- WARN: no base pose yet, the pose input lost (the last pose held), inputs rejected (poses, twists, tip loads),
+  wall-clock deadlines missed or simulated time skipped to catch up;
 - OK otherwise.
-
-A deadline exists in wall-clock time only: in simulated time (``use_sim_time``) several steps per tick are the
-catch-up after the clock moved on (a bag's ``/clock`` in bursts, a jump), counted as ``catch_up_steps``.
+In simulated time (``use_sim_time``) there is no deadline: several steps per tick are catch-up (``catch_up_steps``).
 """
 from __future__ import annotations
 

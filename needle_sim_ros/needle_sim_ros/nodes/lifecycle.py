@@ -1,8 +1,6 @@
-"""Managed-node helpers (REP 2002 lifecycle, ``rclpy.lifecycle``) for the needle simulator.
-
-The simulator is a ``LifecycleNode``: a robot bringup sequences it with ``ros2 lifecycle set needle_simulator
-configure|activate|deactivate|cleanup``. With ``autostart`` (the default) it configures and activates itself at
-construction, so ``ros2 run`` behaves like a plain node.
+"""Managed-node helpers (REP 2002 lifecycle, ``rclpy.lifecycle``) for the needle simulator: a bringup sequences it with
+``ros2 lifecycle set needle_simulator configure|activate|deactivate|cleanup``; with ``autostart`` (the default) it
+configures and activates itself, so ``ros2 run`` behaves like a plain node.
 """
 from __future__ import annotations
 

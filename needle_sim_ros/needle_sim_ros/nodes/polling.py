@@ -1,12 +1,9 @@
 """Subscriptions that their owner's thread drains, instead of an executor.
 
-rclpy's executor builds a wait set and a task for every message: ~100 µs of Python per callback, which at
-1 kHz of base poses costs a tenth of a core and, worse, makes the integration thread wait for the GIL while the
-executor thread works. The simulator's integration loop instead takes the waiting poses itself at each tick,
-right before it steps: no executor, no thread hand-over, the newest pose is used at once; between ticks it
-waits on its own wait set (:class:`MessageWaiter`), so that a pose arriving mid-period is taken at once. The
-subscription is a normal one (graph, QoS, remapping, ``ros2 topic info``); it only belongs to a callback group
-that no executor runs.
+The simulator's integration loop takes the waiting poses itself at each tick, right before it steps (no executor,
+no thread hand-over: why, docs/design_notes.md); between ticks it waits on its own wait set
+(:class:`MessageWaiter`), so a pose arriving mid-period is taken at once. The subscription is a normal one (graph,
+QoS, remapping) in a callback group that no executor runs.
 """
 from __future__ import annotations
 
@@ -50,11 +47,10 @@ def drain(subscription: Subscription, limit: int = 10_000, run_callback: bool = 
 
 
 class MessageWaiter:
-    """Blocks its owner's thread (GIL released) until one of the polled subscriptions has a message waiting, or
-    a timeout passes. One rcl wait set, made at the first wait and kept (made anew per wait, as rclpy's executor
-    does, it costs as much CPU as the rest of the wait); the subscriptions and the context are held in use during
-    each wait, so a node or context torn down meanwhile is destroyed after it, and :meth:`close` destroys the wait
-    set once no wait uses it. One thread waits on it."""
+    """Blocks its owner's thread (GIL released) until a polled subscription has a message waiting, or a timeout
+    passes. One rcl wait set, made at the first wait and kept; the subscriptions and the context are held in use
+    during each wait (a node or context torn down meanwhile is destroyed after it), and :meth:`close` destroys the
+    wait set once no wait uses it. One thread waits on it."""
 
     def __init__(self, subscriptions: Sequence[Subscription], context: Context) -> None:
         self._subscriptions = list(subscriptions)

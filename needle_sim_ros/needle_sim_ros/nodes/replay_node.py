@@ -1,11 +1,9 @@
 """needle_replay: play a rosbag2 MCAP recording onto ROS topics with the recorded timing (like ``ros2 bag play``).
 
-Options (``needle_replay --help``) and their behaviour: README, "needle_replay". Messages are published as the
-recorded CDR bytes (no deserialization) with the QoS the recorded publishers offered. The start handshake
-(``--wait-for-subscribers``, ``--wait-for-nodes``) reads the subscribers' own reports on the latched readiness topic
-(``needle_common.ros.input_status``): discovery is two-sided, and messages published before a subscriber has
-matched the publisher are lost. ``--linger`` waits for every reliable subscriber's acknowledgement at the end: a
-large message whose fragment was lost is resent only then.
+Options: ``needle_replay --help`` and README, "needle_replay". Messages go out as the recorded CDR bytes with the QoS
+the recorded publishers offered. The start handshake (``--wait-for-subscribers``, ``--wait-for-nodes``) reads the
+subscribers' own reports on the latched readiness topic (``needle_common.ros.input_status``): discovery is two-sided.
+``--linger`` waits for every reliable subscriber's acknowledgement at the end (a lost fragment is resent only then).
 """
 from __future__ import annotations
 
@@ -140,10 +138,9 @@ class ReplayNode(Node):
             rclpy.spin_once(self, timeout_sec=period)
 
     def wait_for_subscribers(self, timeout: float) -> None:
-        """Up to ``timeout`` [s] until every played topic has a subscriber and each subscriber that reports its
-        inputs has matched it from its own side (and, with --clock, follows the start time on /clock); with
-        --wait-for-nodes, until each of those nodes has matched the played topics it subscribes to and its other
-        inputs that someone publishes."""
+        """Up to ``timeout`` [s] until every played topic has a subscriber and each subscriber reporting its inputs has
+        matched it from its own side (with --clock, following the start time); with --wait-for-nodes, until each of
+        those nodes has matched the played topics it subscribes to and its other inputs that someone publishes."""
         reports = InputReports(self)
         topics = [p.topic_name for p in self.publishers_by_topic.values()]
         clock_ns = self.start_time_ns if self.clock_publisher is not None else None

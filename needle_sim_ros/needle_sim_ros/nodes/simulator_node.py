@@ -1,17 +1,12 @@
 """`needle_simulator`: the ANCF needle in real time, driven by base-pose topics, publishing wrench and shape.
 
-Thin ROS layer over :class:`needle_sim_ros.simulation.NeedleSimulation` (base input, clock loop, stepper). A
-dedicated thread runs the fixed-rate loop: at each tick it takes the poses that arrived (polled subscriptions,
-:mod:`needle_sim_ros.nodes.polling`) and advances the model by elapsed clock time (not by counting wake-ups, which
-a loaded machine skips); the executor thread serves the tip load topic, services and parameters; an output thread
-publishes shapes, visualization and diagnostics.
-
-With ``haptics.enable`` each step also yields the force the operator should feel on ``topics.haptic``
-(:mod:`needle_sim_ros.haptics`: frame, limits, a wall-clock pose watchdog with a resume ramp), and every stop
-(deactivate, cleanup, shutdown, SIGINT/SIGTERM, an exception on the way out) publishes a zero wrench there first.
-
-Time (:mod:`needle_sim_ros.clock_loop`): with ``use_sim_time`` the node follows ``/clock`` and integrates
-deterministically; in wall-clock mode up to now, extrapolating the newest pose up to ``pose_input.max_extrapolation``.
+Thin ROS layer over :class:`needle_sim_ros.simulation.NeedleSimulation`. A dedicated thread runs the fixed-rate loop:
+each tick takes the poses that arrived (:mod:`needle_sim_ros.nodes.polling`) and advances the model by elapsed clock
+time; the executor serves the tip load, services and parameters; an output thread publishes shapes, visualization
+and diagnostics. With ``haptics.enable`` each step also yields the operator's force on ``topics.haptic``
+(:mod:`needle_sim_ros.haptics`), and every stop publishes a zero wrench there first. Time
+(:mod:`needle_sim_ros.clock_loop`): with ``use_sim_time`` the node follows ``/clock`` deterministically; in
+wall-clock mode up to now, extrapolating the newest pose up to ``pose_input.max_extrapolation``.
 """
 from __future__ import annotations
 
@@ -397,11 +392,10 @@ class NeedleSimulatorNode(LifecycleNode):
         return self.p["loop.ahead_to_pose"] and not self.use_sim_time
 
     def run_loop(self) -> None:
-        """Ticks until shutdown. In wall-clock time each tick is timed to the moment the next step's end time
-        passes, so a tick integrates exactly one step and publishes its wrench at once (a step integrated more than
-        a period after its end time is a deadline miss); with ``loop.ahead_to_pose`` a pose wakes the loop between
-        ticks (the tick waits ``LATE_POSE_WAIT`` of a period more for a late pose: ``ClockLoop.lock_phase``). In
-        simulated time (no relation to this process's clock) ticks come every dt."""
+        """Ticks until shutdown. In wall-clock time a tick is timed to the next step's end time, so it integrates one
+        step and publishes its wrench at once (a step integrated more than a period late is a deadline miss); with
+        ``loop.ahead_to_pose`` a pose wakes the loop between ticks (a tick waits ``LATE_POSE_WAIT`` of a period more for
+        a late pose: ``ClockLoop.lock_phase``). In simulated time ticks come every dt."""
         period = self.p["integrator.dt"]
         busy = self.p["loop.busy_wait"]
         grace = LATE_POSE_WAIT * period if self.ahead_to_pose else 0.0

@@ -4,12 +4,10 @@
     needle_offline BAG --duration 2.6 --set needle_simulator:needle.youngs_modulus=250e9 --output-dir out/wrong_e
 
 Writes into the output directory (default ``out/<bag>/offline``): ``pipeline.mcap`` (what ``needle_compare`` records
-live: model and measured shapes, ShapeError, base pose, wrench, the compared centerlines; the same bytes for the same
-input), ``summary.json`` (RMSE statistics, counts, the simulator's effort, wall time and real-time factor, and for
-synthetic bags the model's and the measurement's own error against the ground truth) and, with ``--plots``,
-``plots/`` (centerlines at the experiment's instants, error and wrench vs time: matplotlib adds ~1 s per run, a
-third of the command, so scripted runs over many bags go without; the shipped Foxglove layout shows the log).
-Exit status: 0 done, 1 the run failed, 2 bad arguments, parameters or input.
+live; the same bytes for the same input), ``summary.json`` (RMSE statistics, counts, the simulator's effort, wall
+time, real-time factor and, for synthetic bags, model and measurement against the ground truth) and, with
+``--plots``, ``plots/`` (matplotlib adds ~1 s per run). Exit status: 0 done, 1 the run failed, 2 bad arguments,
+parameters or input.
 """
 from __future__ import annotations
 
@@ -25,8 +23,7 @@ from typing import Any
 import yaml
 from tqdm import tqdm
 
-from needle_common.cli_types import non_negative, positive
-from needle_common.parameters import ParameterError
+from needle_common.cli_types import command_status, non_negative, positive
 
 from needle_sim_ros.parameters.experiment import NODES, ExperimentConfigError, experiment_for_bag, load_experiment
 from needle_sim_ros.offline.pipeline import OfflinePipeline
@@ -100,27 +97,29 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--stop-on-corrupt", action="store_true", help="stop at a corrupt chunk or message of the "
                         "bag (default: skip it and count it in the summary)")
-    args = parser.parse_args(argv)
+    return command_status("needle_offline", run, parser.parse_args(argv),
+                          (BagReadError, ValueError), (RecordingError, OSError))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Check the bag, the experiment and the output directory, then run into a staging directory and move the
+    results into place only when the run succeeded."""
     overrides: dict[str, dict[str, Any]] = {}
     for node, name, value in args.overrides:
         overrides.setdefault(node, {})[name] = value
-    name = args.bag.stem
-    output_dir = args.output_dir or Path("out") / name / "offline"
+    output_dir = args.output_dir or Path("out") / args.bag.stem / "offline"
+    reader = BagReader(args.bag, args.stop_on_corrupt)
+    reader.check_start_offset(args.start_offset)
     try:
-        reader = BagReader(args.bag, args.stop_on_corrupt)
-        reader.check_start_offset(args.start_offset)
         experiment = load_experiment(args.experiment) if args.experiment else experiment_for_bag(args.bag)
         pipeline = OfflinePipeline(experiment, overrides, stereo=False if args.no_stereo else None)
+    except ExperimentConfigError as error:
+        hint = "" if args.experiment else " (give the bag's experiment file with --experiment FILE)"
+        raise ExperimentConfigError(f"{error}{hint}") from error
+    try:
         output_dir.mkdir(parents=True, exist_ok=True)
-    except (ExperimentConfigError, ParameterError, BagReadError, ValueError) as error:
-        hint = " (give the bag's experiment file with --experiment FILE)" \
-            if isinstance(error, ExperimentConfigError) and not args.experiment else ""
-        print(f"needle_offline: error: {error}{hint}", file=sys.stderr)
-        return 2
     except OSError as error:
-        print(f"needle_offline: error: output directory '{output_dir}': {error.strerror or error}", file=sys.stderr)
-        return 2
-    # Everything is written into a staging directory and moved into place only when the run succeeded.
+        raise ValueError(f"output directory '{output_dir}': {error.strerror or error}") from error
     staging = Path(tempfile.mkdtemp(prefix=".needle_offline-", dir=output_dir))
     try:
         return run_and_publish(args, experiment, pipeline, reader, staging, output_dir)
@@ -134,19 +133,12 @@ def run_and_publish(args: argparse.Namespace, experiment, pipeline: OfflinePipel
     name = args.bag.stem
     total = (reader.end_time_ns - reader.start_time_ns) / 1e9 - args.start_offset
     total = min(total, args.duration) if args.duration is not None else total
-    try:
-        with tqdm(total=round(total, 3), unit="s", desc=f"needle_offline {name}", disable=args.quiet,
-                  bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s of bag [{elapsed}<{remaining}]") as bar:
-            def progress(done: float) -> None:
-                bar.update(min(round(done, 3), bar.total) - bar.n)
-            run = pipeline.run(reader, staging / "pipeline.mcap", args.start_offset, args.duration, progress)
-        summary, log = run.summary, run.log
-    except (ParameterError, BagReadError, ValueError) as error:
-        print(f"needle_offline: error: {error}", file=sys.stderr)
-        return 2
-    except (RecordingError, OSError) as error:
-        print(f"needle_offline: error: {error}", file=sys.stderr)
-        return 1
+    with tqdm(total=round(total, 3), unit="s", desc=f"needle_offline {name}", disable=args.quiet,
+              bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s of bag [{elapsed}<{remaining}]") as bar:
+        def progress(done: float) -> None:
+            bar.update(min(round(done, 3), bar.total) - bar.n)
+        result = pipeline.run(reader, staging / "pipeline.mcap", args.start_offset, args.duration, progress)
+    summary, log = result.summary, result.log
     for warning in summary["warnings"]:
         print(f"[needle_offline] note: {warning}", file=sys.stderr)
     summary["versus_ground_truth"] = versus_ground_truth(log)

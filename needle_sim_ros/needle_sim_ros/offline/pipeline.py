@@ -1,20 +1,15 @@
 """Offline batch mode: simulator + stereo + comparison over a bag, as fast as the model steps and deterministic.
 
-The bag's messages are taken in log-time order; the log time is the clock. Before a message is delivered the
-simulator integrates up to it (deterministically: never past the newest pose), and every produced message goes
-through the stages that would receive it in the live pipeline::
+The log time is the clock: before a message is delivered the simulator integrates up to it (never past the newest
+pose), and every produced message goes through the stages that would receive it live::
 
     /base_pose, /base_twist, /tip_load ──> SimulatorStage ──> /wrench, /needle/shape ───────┐
     /left|right/image_raw ──> StereoStage ──> /needle/measured_shape ──> ComparisonStage ──> /shape_error
     (or a recorded /needle/measured_shape, e.g. a shape-sensing needle) ────────────────┘
 
-The output MCAP holds what ``needle_compare`` records in the live pipeline (``/needle/shape``,
-``/needle/measured_shape``, ``/shape_error``, ``/base_pose``, ``/wrench`` and the compared centerlines'
-``/compare/{model,measured}/{path,marker}``), with the same topic names, so the plots, reports and the Foxglove
-layout read either (TF is not written: the displayed messages are in the model frame). Nothing here depends on
-wall time: the same bag and parameters give the same file. The run's series (shapes, errors, wrench) and the bag's
-ground truth are collected on the way (:class:`~needle_sim_ros.offline.results.LogCollector`): neither file is
-read again for the summary and plots.
+The output MCAP holds what ``needle_compare`` records live, with the same topic names (no TF: the displayed
+messages are in the model frame); the same bag and parameters give the same file. The run's series and the bag's
+ground truth are collected on the way (:class:`~needle_sim_ros.offline.results.LogCollector`).
 """
 from __future__ import annotations
 
@@ -114,10 +109,9 @@ class OfflinePipeline:
     def run(self, bag: Path | BagReader, output: Path | None, start_offset: float = 0.0,
             duration: float | None = None, progress: Callable[[float], None] | None = None,
             stop_on_corrupt: bool = False) -> OfflineRun:
-        """Process the bag slice [start + start_offset, + duration] (s); write the log to ``output`` (.mcap), if
-        given. ``progress(seconds)`` is told the bag time processed so far, about every 0.1 s of it. Corrupt chunks
-        and undecodable messages are skipped and counted (``stop_on_corrupt``: BagReadError instead; a given
-        reader keeps its own setting)."""
+        """Process the bag slice [start + start_offset, + duration] (s), writing the log to ``output`` (.mcap) if given;
+        ``progress(seconds)`` hears the bag time done about every 0.1 s of it. Corrupt chunks and undecodable messages
+        are skipped and counted (``stop_on_corrupt``: BagReadError; a given reader keeps its own setting)."""
         reader = bag if isinstance(bag, BagReader) else BagReader(bag, stop_on_corrupt)
         bag = reader.path
         undecodable = 0

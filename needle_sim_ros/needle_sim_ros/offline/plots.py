@@ -45,9 +45,8 @@ def plot_centerlines(log: PipelineLog, instants: Sequence[float], path: Path, ti
     ax.plot([], [], "o", color="0.3", mfc="none", label="measured (every ~40th sample)")
     if log.truth_shapes:
         ax.plot([], [], "--", color="0.4", lw=0.8, label="ground truth (synthetic bag)")
-    ax.set_xlabel("x [mm] (world)")
-    ax.set_ylabel("z [mm] (world, up)")
-    ax.set_title(title or "needle centerline: model vs measurement")
+    ax.set(xlabel="x [mm] (world)", ylabel="z [mm] (world, up)",
+           title=title or "needle centerline: model vs measurement")
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=7, loc="best")
     return save_figure(fig, path)
@@ -60,9 +59,7 @@ def plot_errors(log: PipelineLog, path: Path, title: str = "") -> Path:
     for values, style, label in ((log.rmse, "o-", "RMSE"), (log.max_error, "s--", "largest sample error"),
                                  (log.tip_error, "^:", "tip error")):
         ax.plot(t, values * 1e3, style, ms=3.5, label=label)
-    ax.set_xlabel("time [s] from the bag start")
-    ax.set_ylabel("error [mm]")
-    ax.set_title(title or "model vs measurement")
+    ax.set(xlabel="time [s] from the bag start", ylabel="error [mm]", title=title or "model vs measurement")
     ax.grid(True, alpha=0.4)
     ax.legend(fontsize=8)
     return save_figure(fig, path)
@@ -79,10 +76,8 @@ def plot_wrench(log: PipelineLog, path: Path, title: str = "") -> Path:
             for k, (component, colour) in enumerate(zip("xyz", ("C0", "C1", "C2"))):
                 axis.plot(t, values[:, k], style, color=colour, lw=1.0 if style == "-" else 0.8,
                           label=f"{prefix}{unit}{component}")
-    axes[0].set_ylabel("force [N]")
-    axes[1].set_ylabel("torque [N m]")
-    axes[1].set_xlabel("time [s] from the bag start")
-    axes[0].set_title(title or "wrench of the needle on its holder (base frame)")
+    axes[0].set(ylabel="force [N]", title=title or "wrench of the needle on its holder (base frame)")
+    axes[1].set(ylabel="torque [N m]", xlabel="time [s] from the bag start")
     for axis in axes:
         axis.grid(True, alpha=0.4)
         axis.legend(fontsize=7, ncol=2, loc="best")

@@ -1,12 +1,7 @@
 """A pipeline log (the live ``needle_compare`` recording or an offline run) as plain arrays for plots and reports,
-plus the ground truth of a synthetic bag.
-
-:class:`LogCollector` takes the serialized messages (CDR, read straight from the bytes: no message objects) as the
-offline pipeline writes them, or as :func:`read_pipeline_log` reads them back from an MCAP file.
-
-The comparison's error against the measurement mixes two errors; for the synthetic bags the ground truth separates
-them: :func:`versus_ground_truth` measures the model and the measurement each against the true centerline at the
-measurement instants (same distance as the comparison: RMS of point-to-centerline distances).
+plus the ground truth of a synthetic bag. :class:`LogCollector` reads the CDR bytes as the offline pipeline writes
+them, or as :func:`read_pipeline_log` reads them back; :func:`versus_ground_truth` measures the model and the
+measurement each against the true centerline (RMS of point-to-centerline distances, as the comparison).
 """
 from __future__ import annotations
 

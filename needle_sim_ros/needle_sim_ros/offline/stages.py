@@ -64,11 +64,9 @@ class MeasuredShape(NamedTuple):
 
 
 class SimulatorStage:
-    """``needle_simulator`` (:mod:`needle_sim_ros.nodes.simulator_node`) on recorded input, deterministically.
-
-    The simulator is built by :func:`needle_sim_ros.simulation.simulation_from_parameters`, as in the node; only
-    ``loop.max_catch_up`` does not apply: offline, every step is integrated.
-    """
+    """``needle_simulator`` on recorded input, deterministically, built by
+    :func:`needle_sim_ros.simulation.simulation_from_parameters` as in the node (offline every step is integrated:
+    no ``loop.max_catch_up``)."""
 
     def __init__(self, p: dict[str, Any]) -> None:
         self.p = p

@@ -1,10 +1,9 @@
 """Parameters of the three pipeline nodes and of an experiment, read from ROS 2 params files without ROS.
 
-An experiment file (``share/needle_sim_ros/config/experiments/<bag>.yaml``) is an ordinary ROS 2 params file with one
-section per node (``needle_simulator``, ``needle_stereo``, ``needle_compare``: per-bag overrides) and a
-``needle_pipeline`` section that only the pipeline tools read (the bag, whether images are measured, plot instants). The
-nodes get the node config files (``share/<package>/config/<node>.yaml``) and then the experiment file, later files
-overriding earlier ones, as ``--params-file`` does; the offline pipeline reads the same files in the same order.
+An experiment file (``share/needle_sim_ros/config/experiments/<bag>.yaml``) is a ROS 2 params file with a section
+per node (per-bag overrides) and a ``needle_pipeline`` section for the pipeline tools (bag, stereo on/off, plot
+instants). The nodes get the node config files (``share/<package>/config/<node>.yaml``), then the experiment file,
+later files overriding earlier ones as ``--params-file`` does; the offline pipeline reads them in the same order.
 """
 from __future__ import annotations
 

@@ -1,16 +1,19 @@
 """Parameters of the `needle_simulator` node (declared with descriptors, validated at start)."""
 from __future__ import annotations
 
-import numpy as np
-
 from needle_sim_ros.model.config import DEFAULTS as MODEL_DEFAULTS
 from needle_sim_ros.model.integrators import METHODS
 from needle_common.parameters import QOS_CHOICES, TOPIC_CHECK, ParamSpec
+from needle_common.transforms import unit_quaternion
 from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
 
-def _unit_quaternion(q) -> bool:
-    return abs(float(np.linalg.norm(q)) - 1.0) < 1e-6
+def _unit_quaternion(value) -> bool:
+    """Whether :func:`needle_common.transforms.unit_quaternion`, the clamp offset's own check, takes ``value``."""
+    try:
+        return unit_quaternion(value) is not None
+    except ValueError:
+        return False
 
 
 def _model(name: str, *arguments, **options) -> ParamSpec:
@@ -173,8 +176,7 @@ SIMULATOR_PARAMETERS = [
               "the rtprio limit (e.g. the 'realtime' group); without it the node warns and runs with normal "
               "scheduling.", 0, 99),
     # Needle-tissue interaction (needle_sim_ros.tissue; config/tissue.yaml): checked together when enabled.
-    *(ParamSpec(name, default, meaning[:1].upper() + meaning[1:] + ".", allow_infinite=True)
-      for name, (default, meaning) in TISSUE_PARAMETERS.items()),
+    *TISSUE_PARAMETERS,
 ]
 
 # Structural parameters that the node's construction already used (its topics, QoS, frames, whether it has a haptic

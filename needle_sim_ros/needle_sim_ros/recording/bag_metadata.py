@@ -1,9 +1,8 @@
 """rosbag2 bag metadata (version 9, Jazzy): the ``rosbag2`` MCAP metadata record and a bag directory's metadata.yaml.
 
-rosbag2's MCAP storage writes, on close, a metadata record named ``rosbag2`` whose key ``serialized_metadata`` holds
-the BagMetadata as YAML; a bag directory has the same mapping under ``rosbag2_bagfile_information`` in
-metadata.yaml. Times are ``{nanoseconds_since_epoch}``/``{nanoseconds}``; a topic's ``offered_qos_profiles`` is the
-list of profiles (:mod:`.qos`).
+The record's key ``serialized_metadata`` holds the BagMetadata as YAML, metadata.yaml the same mapping under
+``rosbag2_bagfile_information``. Times are ``{nanoseconds_since_epoch}``/``{nanoseconds}``; a topic's
+``offered_qos_profiles`` is the list of its publishers' profiles.
 """
 from __future__ import annotations
 

@@ -1,14 +1,11 @@
 """rosbag2-compatible MCAP recording of already CDR-serialized messages (``ros2 bag info/play``, Foxglove).
 
-Layout as rosbag2_storage_mcap writes it: profile ``ros2``; one schema per type (encoding ``ros2msg``, text from
-:mod:`.message_definitions`); one channel per topic (message encoding ``cdr``, metadata ``offered_qos_profiles``
-and ``topic_type_hash``); chunked (zstd or lz4) with message indexes, chunk indexes, statistics and summary; on close
-a ``rosbag2`` metadata record with the bag metadata (:mod:`.bag_metadata`).
-
-Crash safety: records go straight to the OS (no user-space buffer), and a chunk is written as soon as it holds
-``chunk_size`` bytes or spans ``chunk_interval`` seconds of log time, so after SIGKILL the file holds every
-complete chunk; :mod:`.recovery` rebuilds an indexed file from it. A path ending in ``.mcap`` is a single file;
-any other path is a rosbag2 bag directory (``<name>_<i>.mcap`` + metadata.yaml) that may be split by size or time.
+Layout as rosbag2_storage_mcap writes it: profile ``ros2``; a schema per type (``ros2msg``,
+:mod:`.message_definitions`); a channel per topic (``cdr``, metadata ``offered_qos_profiles``, ``topic_type_hash``);
+zstd/lz4 chunks with message and chunk indexes, statistics and summary; on close a ``rosbag2`` metadata record
+(:mod:`.bag_metadata`). Records go straight to the OS and a chunk is written at ``chunk_size`` bytes or
+``chunk_interval`` of log time, so after SIGKILL the file holds every complete chunk (:mod:`.recovery`). A path
+ending in ``.mcap`` is one file, any other a bag directory (``<name>_<i>.mcap`` + metadata.yaml), split by size or time.
 """
 from __future__ import annotations
 
@@ -52,16 +49,11 @@ class RecordingError(RuntimeError):
 class WriterOptions:
     """How the MCAP files are written.
 
-    compression: chunk compression, ``zstd`` (level 1: half the time of level 3 for 4 % more bytes), ``lz4`` or
-        ``none``.
-    chunk_size: uncompressed bytes [B] after which a chunk is written.
-    chunk_interval: log-time span [s] after which a chunk is written (bounds the loss on a crash); 0 = by size only.
-    max_file_size: bytes [B] after which a bag directory continues in a new file; 0 = never.
-    max_file_duration: log-time span [s] after which a bag directory continues in a new file; 0 = never.
+    compression: ``zstd`` (level 1), ``lz4`` or ``none``. chunk_size: uncompressed bytes [B] per chunk.
+    chunk_interval: log-time span [s] after which a chunk is written (bounds a crash's loss); 0 = by size only.
+    max_file_size [B], max_file_duration [s]: a bag directory continues in a new file beyond them; 0 = never.
     overwrite: replace an existing output instead of refusing.
-    background: compress each chunk on a worker thread (zstd and lz4 release the GIL) and write it with the next
-        message: the same file, with the compression off the caller's thread (the offline pipeline's).
-    """
+    background: compress each chunk on a worker thread and write it with the next message (the same file)."""
 
     compression: str = "zstd"
     chunk_size: int = 1 << 20
@@ -112,10 +104,9 @@ class _UnbufferedFile:
 
 
 class _McapFile:
-    """One MCAP file laid out as ``mcap.Writer`` lays it out (records of :mod:`mcap.records`; chunks with message
-    indexes; a summary with schemas, channels, statistics, chunk, metadata and attachment indexes, offsets and CRC),
-    the message records packed here: ``mcap.Writer`` spends ~5 us of Python per message, and the offline pipeline
-    writes ~1300 of them per second of bag. Schemas and channels are written before the chunks that use them."""
+    """One MCAP file laid out as ``mcap.Writer`` lays it out (chunks with message indexes; a summary with schemas,
+    channels, statistics, chunk, metadata and attachment indexes, offsets and CRC), the message records packed here
+    (faster: docs/design_notes.md). Schemas and channels are written before the chunks that use them."""
 
     def __init__(self, path: Path, options: WriterOptions) -> None:
         self.stream = _UnbufferedFile(path)
@@ -296,11 +287,9 @@ def _describe(error: OSError, path: Path) -> str:
 
 
 class McapBagWriter:
-    """Writes serialized messages into a rosbag2-compatible MCAP file or bag directory.
-
-    ``custom_data`` goes into the bag metadata (``ros2 bag info`` / rosbag2_py ``custom_data``). Any write failure
-    raises RecordingError and stops the recording; what was written stays recoverable.
-    """
+    """Writes serialized messages into a rosbag2-compatible MCAP file or bag directory; ``custom_data`` goes into the
+    bag metadata (``ros2 bag info``). A write failure raises RecordingError and stops the recording (what was
+    written stays recoverable)."""
 
     def __init__(self, path: str | os.PathLike, options: WriterOptions = WriterOptions(),
                  custom_data: dict[str, str] | None = None) -> None:

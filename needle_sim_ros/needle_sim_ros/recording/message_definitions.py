@@ -1,11 +1,9 @@
 """Message definitions (MCAP schemas, encoding ``ros2msg``) and type hashes of ROS 2 types, as rosbag2 writes them.
 
-The schema of ``pkg/msg/Type`` is the text of ``share/pkg/msg/Type.msg`` followed, for every message type it
-depends on (directly or not, each once, depth first, dependencies of one file in sorted order), by
-``"\\n" + "=" * 80 + "\\nMSG: dep_pkg/DepType\\n"`` and that type's .msg text. Field types are the first word of a
-line (optionally followed by an array bracket); names without a package belong to the package of the file.
-Files are found in the ``share`` directories of the AMENT_PREFIX_PATH prefixes (ament index), like rosbag2 does.
-The type hash (``RIHS01_...``, REP 2011) is read from the ``Type.json`` that rosidl installs next to the .msg.
+The schema of ``pkg/msg/Type`` is ``share/pkg/msg/Type.msg`` followed, for each type it depends on (depth first,
+each once, one file's dependencies sorted), by ``"\\n" + "=" * 80 + "\\nMSG: dep_pkg/DepType\\n"`` and its text; a
+field type without package is the file's package. Files come from the ament index (AMENT_PREFIX_PATH), the type
+hash (``RIHS01_...``, REP 2011) from the ``Type.json`` next to the .msg.
 """
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
 """Recovery of an MCAP recording that was cut short (killed writer, full disk): no summary, no footer.
 
-An MCAP file is a magic followed by records ``opcode (1 B) | length (8 B) | body``. The data section is read
-record by record; a record counts only if its whole body is in the file, and a chunk only if it decompresses and
-matches its CRC. Reading stops at the first incomplete or corrupt record (the lost tail) or at the end of the data
-section. Schemas, channels, messages, metadata and attachments found so far are rewritten with
-:class:`.McapBagWriter` into a valid, indexed file; the ``rosbag2`` bag-metadata record is regenerated.
-
+The data section is read record by record (``opcode (1 B) | length (8 B) | body``) up to the first incomplete or
+corrupt record (a chunk counts if it decompresses and matches its CRC); what was found is rewritten by
+:class:`.McapBagWriter` into a valid, indexed file with a regenerated ``rosbag2`` record.
 CLI: ``needle_mcap_recover in.mcap out.mcap`` (a bag directory as input: all its .mcap files, in order).
 """
 from __future__ import annotations

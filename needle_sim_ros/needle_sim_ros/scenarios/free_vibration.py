@@ -1,11 +1,9 @@
 """Scenario ``free_vibration``: release of a tip mass.
 
-The cantilever (base fixed, needle along world x) rests in static equilibrium under its weight and a tip mass; at
-t = 0 the tip mass is removed and the needle vibrates about its self-weight equilibrium.  Written per sample: tip
-position (base frame = world frame), kinetic, elastic and gravitational energy (eqs. 7, 9) and their sum, and the
-base wrench (needle on holder, eq. 20).  Without Rayleigh damping (--beta 0) and rho_inf = 0.95 the total energy
-stays within ~0.2 % per second (the sudden release excites unresolved modes, for which rho_inf = 1 is unstable at
-large deformation, see ``needle_sim_ros.model.integrators``); Rayleigh or more numerical damping make it decay.
+The cantilever (base fixed, needle along world x) rests in equilibrium under its weight and a tip mass, removed at
+t = 0. Written per sample: tip position (base frame = world frame), kinetic, elastic and gravitational energy
+(eqs. 7, 9) and their sum, and the base wrench (eq. 20). Without damping (--beta 0) and rho_inf = 0.95 the total
+energy stays within ~0.2 % per second (rho_inf = 1 is unstable here: ``needle_sim_ros.model.integrators``).
 """
 from __future__ import annotations
 
@@ -62,15 +60,13 @@ def plot_release(result: dict, path) -> None:
     fig, (top, bottom) = figure(2, (7.0, 6.0))
     t = np.array([s["t_s"] for s in result["samples"]])
     top.plot(t, [s["tip_position_m"][2] * 1e3 for s in result["samples"]])
-    top.set_ylabel("tip z [mm]")
-    top.set_title(f"release of a {result['tip_mass_kg'] * 1e3:g} g tip mass ({result['elements']} elements, "
-                  f"dt = {result['dt_s'] * 1e3:g} ms)")
+    top.set(ylabel="tip z [mm]", title=f"release of a {result['tip_mass_kg'] * 1e3:g} g tip mass "
+            f"({result['elements']} elements, dt = {result['dt_s'] * 1e3:g} ms)")
     for key, label in (("kinetic_energy_j", "kinetic"), ("elastic_energy_j", "elastic")):
         bottom.plot(t, [s[key] * 1e3 for s in result["samples"]], label=label)
     total = [s["total_energy_j"] for s in result["samples"]]
-    bottom.set_title(f"change of the total energy (incl. gravity): {(total[-1] - total[0]) * 1e3:+.5f} mJ")
-    bottom.set_xlabel("t [s]")
-    bottom.set_ylabel("energy [mJ]")
+    bottom.set(title=f"change of the total energy (incl. gravity): {(total[-1] - total[0]) * 1e3:+.5f} mJ",
+               xlabel="t [s]", ylabel="energy [mJ]")
     bottom.legend()
     for ax in (top, bottom):
         ax.grid(True)

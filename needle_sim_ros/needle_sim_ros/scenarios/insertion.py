@@ -1,12 +1,10 @@
 """Scenario ``insertion``: insert the needle into a configured tissue (ROS-free).
 
-The base (clamp point A) starts at the world origin with the needle along world x, in static equilibrium under gravity,
-its tip ``gap`` in front of the entry surface (the configured entry point is moved along its normal to x = L + gap; the
-normal must be world +x).  It then follows an ``InsertionMotion``: tip depths reached in turn at a constant speed
-(insert, retract, re-insert), a roll that turns the bevel, duty-cycled spinning.  Written (SI): time, insertion depth,
-the tip's lateral deflection (distance from the entry axis, perpendicular to it), tip position, its offset (y, z) from
-the axis and unit tangent, base roll, base force and torque (eq. 20, the needle on its holder, base frame), the tissue
-readout, the parameters used, and a seed 001 Fig. 4 style plot of the deflection versus depth.
+The base (clamp point A) starts at the origin, the needle along world x in static equilibrium, its tip ``gap``
+before the entry surface (the entry point moved along its normal, which must be world +x, to x = L + gap), then
+follows an ``InsertionMotion``. Written (SI): time, insertion depth, the tip's lateral deflection from the entry axis,
+tip position, offset (y, z) and unit tangent, base roll, base force and torque (eq. 20, base frame), the tissue
+readout, the parameters used, and a deflection-versus-depth plot (seed 001 Fig. 4 style).
 """
 from __future__ import annotations
 
@@ -46,11 +44,9 @@ def _json_value(value):
 def simulate_insertion(props: NeedleProperties, tissue_config, motion: InsertionMotion, dt: float = 1e-3,
                        sample_every: int = 10, build: dict | None = None, integrator_kwargs: dict | None = None,
                        centerline_samples: int = 41) -> dict:
-    """Run the insertion and return the JSON-ready result (see module docstring).
-
-    build / integrator_kwargs: ``build_model`` / ``Integrator`` keyword arguments; None = the simulator node's
-    defaults (10 elements, Rayleigh beta 1e-4 s, generalized-alpha).
-    """
+    """Run the insertion and return the JSON-ready result (module docstring). build / integrator_kwargs:
+    ``build_model`` / ``Integrator`` keyword arguments; None: the node's defaults (10 elements, Rayleigh beta
+    1e-4 s, generalized-alpha)."""
     if not (np.isfinite(dt) and dt > 0.0) or sample_every < 1:
         raise ValueError(f"insertion scenario: dt must be > 0 and sample_every >= 1, got {dt!r}, {sample_every!r}")
     config = dict(TissueConfig.from_any(tissue_config).values)
@@ -135,10 +131,9 @@ def plot_deflection(result: dict, path: Path, reference: tuple[np.ndarray, np.nd
         ax.plot(np.asarray(reference[0]) * 1e3, np.asarray(reference[1]) * 1e3, ":", color="k", lw=2,
                 label="reference: Euler-Bernoulli beam on Winkler foundation")
     motion = result["motion"]
-    ax.set_xlabel("insertion depth [mm]")
-    ax.set_ylabel("tip deflection from the insertion axis [mm]")
-    ax.set_title(f"insertion at {motion['speed_m_s'] * 1e3:.1f} mm/s, roll {np.degrees(motion['roll_rad']):.0f} deg"
-                 + (f", duty cycle {motion['duty_cycle']:.2f}" if motion["duty_cycle"] else ""))
+    ax.set(xlabel="insertion depth [mm]", ylabel="tip deflection from the insertion axis [mm]",
+           title=f"insertion at {motion['speed_m_s'] * 1e3:.1f} mm/s, roll {np.degrees(motion['roll_rad']):.0f} deg"
+           + (f", duty cycle {motion['duty_cycle']:.2f}" if motion["duty_cycle"] else ""))
     ax.grid(True)
     ax.legend(fontsize=8)
     save_figure(fig, path)

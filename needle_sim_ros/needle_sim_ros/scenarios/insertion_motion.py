@@ -1,11 +1,9 @@
 """Base motion of a needle insertion (ROS-free): axial travel through tip-depth waypoints at a constant speed, and
 the roll of the base about its axis, which turns the bevel (the cable has no torsion, so the tip rolls with it).
 
-Roll = ``roll`` + duty-cycled spinning + ``roll_changes``.  Duty-cycled spinning (Minhas et al. 2007): each
-period spins the base one full turn at ``spin_rate`` during the last fraction ``duty_cycle`` of the period and holds
-it during the rest; the bevel then pushes along a fixed direction only (1 - d) of the time, so the path curvature
-falls roughly as (1 - d), and d = 1 (constant spinning) goes straight.  A roll change (t_start, duration, angle)
-turns the base by ``angle`` with a smooth (cubic) profile.
+Roll = ``roll`` + duty-cycled spinning + ``roll_changes``. Duty-cycled spinning (Minhas et al. 2007): each period
+spins the base one turn at ``spin_rate`` during its last fraction ``duty_cycle`` d and holds it otherwise, so the
+path curvature falls roughly as (1 - d). A roll change (t_start, duration, angle) turns the base with a cubic profile.
 """
 from __future__ import annotations
 
@@ -19,11 +17,8 @@ from needle_sim_ros.model import BaseMotion
 @dataclass(frozen=True)
 class InsertionMotion:
     """Insertion along world +x from the base at the origin; the tip starts ``gap`` [m] before the entry surface.
-
-    waypoints: tip depths [m] to reach in turn (e.g. (0.09,), or (0.06, 0.03, 0.09) to retract and re-insert);
-    speed [m/s]; roll [rad] at the start; spin_rate [rad/s] and duty_cycle [0, 1] of duty-cycled spinning;
-    roll_changes: ((t_start [s], duration [s], angle [rad]), ...).
-    """
+    waypoints: tip depths [m] in turn (e.g. (0.06, 0.03, 0.09): retract and re-insert); speed [m/s]; roll [rad] at
+    the start; spin_rate [rad/s], duty_cycle [0, 1]; roll_changes: ((t_start [s], duration [s], angle [rad]), ...)."""
 
     waypoints: tuple[float, ...]
     speed: float

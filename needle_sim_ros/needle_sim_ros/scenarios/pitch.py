@@ -1,10 +1,8 @@
 """Scenario ``pitch``: seed 000's dynamic experiment (Sec. III, Fig. 8).
 
-The distal ``clamp_fraction`` of the needle (seed 000: 40 %) is clamped in the world where the straight needle lay
-(along world x from the origin); the base at the origin pitches about its y axis, theta(t) = A sin(2 pi f t)
-(seed 000: 10 deg range, A = 5 deg, f = 0.2 Hz).  The needle starts at rest in its static equilibrium at theta = 0
-and is integrated with the configured implicit scheme.  Written per sample: time, pitch angle, tip position and
-centerline in the base frame, centerline in the world frame, base wrench (needle on holder, base frame).
+The distal ``clamp_fraction`` (seed 000: 40 %) is clamped where the straight needle lay (along world x); the base
+pitches about its y axis, theta(t) = A sin(2 pi f t) (seed 000: A = 5 deg, f = 0.2 Hz), from static equilibrium.
+Written per sample: time, pitch, tip and centerline (base frame), centerline (world frame), base wrench (base frame).
 """
 from __future__ import annotations
 
@@ -91,10 +89,8 @@ def plot_instants(result: dict, path) -> None:
                                               f"({np.degrees(sample['base_pitch_rad']):+.1f} deg)")
     clamp = (1.0 - result["clamp_fraction"]) * result["material"]["length_m"] * 1e3
     ax.axvspan(clamp, result["material"]["length_m"] * 1e3, color="0.9", label="clamped")
-    ax.set_xlabel("x [mm] (world)")
-    ax.set_ylabel("z [mm]")
-    ax.set_title(f"base pitch {np.degrees(result['amplitude_rad']):.0f} deg at {result['frequency_hz']:g} Hz, "
-                 f"T = {period:g} s")
+    ax.set(xlabel="x [mm] (world)", ylabel="z [mm]", title=f"base pitch {np.degrees(result['amplitude_rad']):.0f} "
+           f"deg at {result['frequency_hz']:g} Hz, T = {period:g} s")
     ax.grid(True)
     ax.legend(fontsize="small", ncol=2)
     save_figure(fig, path)

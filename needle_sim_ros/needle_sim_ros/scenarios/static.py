@@ -1,8 +1,8 @@
 """Scenario ``static``: cantilever under its own weight plus a tip mass (seed 000 Fig. 7), one mass or a sweep.
 
-The base is fixed with the needle along world x (base frame = world frame, z up); each tip mass m adds the point
-load -m g e_z at the tip.  Solved with ``solve_static`` (Newton, load stepping); a sweep continues from the previous
-equilibrium.  Written: tip position, base wrench (the needle on its holder, eq. 20), centerline.
+Base fixed, needle along world x (base frame = world frame, z up); a tip mass m adds -m g e_z at the tip. Solved by
+``solve_static``, a sweep continuing from the previous equilibrium. Written: tip position, base wrench (eq. 20),
+centerline.
 """
 from __future__ import annotations
 
@@ -47,9 +47,8 @@ def plot_deflections(results: list[dict], path) -> None:
     for result in results:
         line = np.asarray(result["centerline_m"]) * 1e3
         ax.plot(line[:, 0], line[:, 2], label=f"{result['tip_mass_kg'] * 1e3:g} g")
-    ax.set_xlabel("x [mm] (base frame, along the undeformed needle)")
-    ax.set_ylabel("z [mm]")
-    ax.set_title(f"needle deflection under tip loads ({results[0]['elements']} ANCF elements)")
+    ax.set(xlabel="x [mm] (base frame, along the undeformed needle)", ylabel="z [mm]",
+           title=f"needle deflection under tip loads ({results[0]['elements']} ANCF elements)")
     ax.grid(True)
     ax.legend(title="tip mass")
     save_figure(fig, path)

@@ -1,9 +1,7 @@
-"""Needle-tissue interaction models (ROS-free): seed 001 (Karnopp friction, bevel tip, angular-spring needle),
-seed 002 (insertion force profile), seed 003 (modified LuGre), and their coupling to the ANCF needle as force
-contributions. Their identification from data is in :mod:`needle_sim_ros.identification`.
-
-The pure laws import without the ANCF model; ``build_tissue_model`` and the ``TissueModel`` (which need
-``needle_sim_ros.model``) are imported on first use.
+"""Needle-tissue interaction models (ROS-free): seed 001 (Karnopp friction, bevel tip, angular-spring needle), seed 002
+(insertion force profile), seed 003 (modified LuGre), and their coupling to the ANCF needle as force contributions
+(``build_tissue_model``, ``TissueModel``: imported on first use, as they need ``needle_sim_ros.model``).
+Identification from data: :mod:`needle_sim_ros.identification`.
 """
 from .angular_spring import AngularSpringNeedle
 from .bevel_tip import BevelTip

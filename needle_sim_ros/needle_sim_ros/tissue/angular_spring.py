@@ -1,13 +1,10 @@
-"""Angular-spring (pseudo-rigid-link) planar needle of seed 001 Sec. II-A (its k_b identification, eqs. 6-8:
-:mod:`needle_sim_ros.identification.bending_stiffness`).
+"""Angular-spring (pseudo-rigid-link) planar needle of seed 001 Sec. II-A, the cheaper alternative to the ANCF cable
+(n_links - 1 degrees of freedom; its k_b identification, eqs. 6-8: :mod:`needle_sim_ros.identification.
+bending_stiffness`).
 
-The needle is a planar chain of rigid links; link 0 is clamped in the holder, links i and i-1 meet at a pseudo joint
-with a torsional spring k_i and angle gamma_i, and each link's mass sits at its distal end (seed 001 Fig. 1a with
-two joints and three links).  Coordinates are in the base frame: x along the clamped link, y lateral.  Eq. 1
-``M(gamma) gamma'' + C(gamma, gamma') = F`` is formed from the point masses, with F = joint spring torques plus
-J^T of the applied nodal forces (the seed's Newton-Euler recursion gives the same equations for this chain).
-
-This is the cheaper alternative to the ANCF cable, for comparison: n_links - 1 degrees of freedom.
+A planar chain of rigid links, link 0 clamped, links i-1 and i joined by a torsional spring k_i at angle gamma_i, each
+link's mass at its distal end (seed 001 Fig. 1a); base frame: x along the clamped link, y lateral. Eq. 1
+``M(gamma) gamma'' + C(gamma, gamma') = F`` from the point masses, F = spring torques + J^T of the nodal forces.
 """
 from __future__ import annotations
 

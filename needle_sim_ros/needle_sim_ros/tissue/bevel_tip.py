@@ -3,16 +3,11 @@
 Eq. 4:  P = K_T b^2/2 sin(lambda) (tan(lambda) - tan(beta)) / (1 + tan(lambda) tan(beta))
 Eq. 5:  Q = K_T b^2/2 cos(lambda) (tan(lambda) - tan(beta)) / (1 + tan(lambda) tan(beta)) - K_T a^2/2 tan(beta)
 
-(the fraction is tan(lambda - beta)).  K_T [N/m^2] is the tissue's tip-stiffness property (seed 001: 9.42e3,
-range 4e3..13e3), a and b [m] the bevel edge lengths, lambda the bevel angle and beta the acting-point angle
-(seed 001: beta/lambda = 0.2).  P acts along the shaft, against the insertion; Q acts perpendicular to the shaft.
-
-Bevel frame (the reading used here): Q > 0 pushes the tip toward the bevel side, the side of the sharp point,
-opposite to the outward normal of the bevel face (the tissue pressing on the inclined face pushes the tip away
-from the face), which is the side toward which bevel-tip needles are observed to bend.  The bevel side is fixed
-in the needle, so it rolls with the needle's axial rotation; the ANCF cable has no torsion, so its direction is
-taken from the base orientation: the configured bevel-side direction in the base frame, rotated to the world
-and projected perpendicular to the current tip tangent.  Spinning the base by 180 degrees reverses Q.
+K_T [N/m^2]: tissue tip stiffness (seed 001: 9.42e3); a, b [m]: bevel edge lengths; lambda: bevel angle; beta:
+acting-point angle (seed 001: beta/lambda = 0.2). P acts along the shaft against the insertion; Q > 0 pushes the tip
+toward the bevel side (the sharp point's). The bevel side is fixed in the needle: the configured base-frame
+direction rotated to the world and projected perpendicular to the tip tangent (the cable has no torsion), so
+spinning the base by 180 degrees reverses Q. The frame's reasoning: docs/design_notes.md.
 """
 from __future__ import annotations
 
@@ -30,12 +25,9 @@ SIDE_ALONG_TANGENT = "bevel side direction is parallel to the needle tip tangent
 
 @dataclass(frozen=True)
 class BevelTip:
-    """Bevel geometry and tissue tip stiffness (seed 001 Sec. IV and Fig. 2).
-
-    tip_stiffness: K_T [N/m^2].   bevel_angle: lambda [rad].   acting_angle: beta [rad] (0 <= beta < lambda).
-    edge_a, edge_b: bevel edge lengths a, b [m] (for a bevel of needle diameter D: b = D / sin(lambda) is the
-    bevel face and a = D / tan(lambda) its projection on the needle axis; see ``for_diameter``).
-    """
+    """Bevel geometry and tissue tip stiffness (seed 001 Sec. IV, Fig. 2): tip_stiffness K_T [N/m^2]; bevel_angle
+    lambda [rad]; acting_angle beta [rad] (0 <= beta < lambda); edge_a, edge_b: bevel edge lengths a, b [m] (a needle
+    of diameter D: b = D / sin(lambda), the bevel face, and a = D / tan(lambda); ``for_diameter``)."""
 
     tip_stiffness: float
     bevel_angle: float
@@ -76,12 +68,9 @@ class BevelTip:
                 - 0.5 * self.tip_stiffness * self.edge_a**2 * np.tan(beta))
 
     def tip_force(self, tip_gradient: np.ndarray, bevel_side_world: np.ndarray):
-        """World force on the tip ``F = -P t + Q n`` and its Jacobian dF/dr_x (3, 3).
-
-        tip_gradient: r_x at the tip (3,) (its direction is the tip tangent t).
-        bevel_side_world: the bevel-side direction (3,), any length, not parallel to t; n is its unit component
-        perpendicular to t.
-        """
+        """World force on the tip ``F = -P t + Q n`` and its Jacobian dF/dr_x (3, 3). tip_gradient: r_x at the tip
+        (3,), along the tip tangent t; bevel_side_world: the bevel-side direction (3,), any length, not parallel to t
+        (n: its unit component perpendicular to t)."""
         rx = np.ascontiguousarray(tip_gradient, dtype=float)
         side = np.ascontiguousarray(bevel_side_world, dtype=float)
         force, jacobian, ok = tip_force_kernel(rx, side, self.axial_force, self.transverse_force)

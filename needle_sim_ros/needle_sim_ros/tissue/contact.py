@@ -1,9 +1,7 @@
-"""The tissue contact as the shared record of the tissue's contributions: puncture, tip depth and speed, the step's
-duration, whether the tip is at the cut front, and the track cut so far (``track``).
-
-It adds no force; the force contributions (``shaft_force``, ``bevel_tip``, ``insertion_profile``) read it after
-each accepted step (``model.step.compose`` with ``shared``). Kernels: ``CONTACT_KERNELS``; its state crosses the
-Python boundary packed (``pack_record`` / ``unpack_contact``), its constants by ``contact_constants``.
+"""The tissue contact, the shared record of the tissue's contributions: puncture, tip depth and speed, the step's
+duration, whether the tip is at the cut front, and the track cut so far (``track``). It adds no force; the force
+contributions read it after each accepted step (``model.step.compose`` with ``shared``). Kernels:
+``CONTACT_KERNELS``; state packed by ``pack_record`` / ``unpack_contact``, constants by ``contact_constants``.
 """
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
-"""Coupling of the tissue laws to the ANCF needle: the contact's and the shaft support's parameters and the shaft's
-compiled point-force and contact-point kernels (the contributions themselves: ``contact``, ``shaft_force``,
-``tip_forces``).
-
-* ``TissueContact``: the block, the capsule puncture and the spacing of the track cut by the tip;
-* ``ShaftSupport``: the Winkler lateral support over the cut tissue and an axial stick-slip law (``shaft_laws``) on
-  shaft points.
+"""Coupling of the tissue laws to the ANCF needle: ``TissueContact`` (the block, capsule puncture, track spacing)
+and ``ShaftSupport`` (Winkler lateral support over the cut tissue, an axial stick-slip law of ``shaft_laws`` on
+shaft points), with the shaft's compiled point-force and contact-point kernels (the contributions themselves:
+``contact``, ``shaft_force``, ``tip_forces``).
 """
 from __future__ import annotations
 
@@ -46,12 +43,10 @@ POINT_COLUMNS = 23
 
 @njit(cache=True)
 def shaft_generalized_force(q, qd, slots, points, Q, band, kl, c_q, c_qd):
-    """The force per length of the shaft's points (ShaftSupport; their q slots and their rows of ``points``, whose
-    columns are named above) added to Q and, unless band is (0, 0) (Q alone), c_q dQ/dq + c_qd dQ/dq' to the band
-    matrix, in one pass over the points without per-point temporaries (it runs at every Newton correction): each
-    point's position r and velocity v (eq. 3), lateral springs and dampers perpendicular to the track tangent tau
-    and the axial traction of ``karnopp.axial_traction`` along it, scattered by ``model.forces.scatter_point`` with
-    dF/dr, dF/dv and no dF/dr_x."""
+    """The shaft points' force per length (``points``: their table rows, columns above; ``slots``: their q slots) added
+    to Q and, unless band is (0, 0), c_q dQ/dq + c_qd dQ/dq' to the band, in one pass without per-point temporaries:
+    lateral springs and dampers perpendicular to the track tangent tau and ``karnopp.axial_traction`` along it, at
+    each point's r and v (eq. 3), scattered by ``model.forces.scatter_point`` (dF/dr, dF/dv, no dF/dr_x)."""
     with_matrix = band.shape[0] > 0
     S, S_x = points[:, SHAPES:SHAPES + 4], points[:, GRADIENT_SHAPES:GRADIENT_SHAPES + 4]
     r, v, force = np.empty(3), np.empty(3), np.empty(3)
@@ -138,13 +133,10 @@ def cut_quadrature(node_arc, element_lengths, lower, upper, xi, w):
 
 @njit(cache=True)
 def entry_coverage(arc_lengths, depth, inside):
-    """Share of each shaft point's length (trapezoid segment) that lies below the entry surface, for consecutive
-    points (base to tip) with their depths and inside flags.
-
-    Interior inside points count fully; an inside point whose outer neighbour is still outside takes the inserted
-    length from the crossing of the surface (interpolated between the two) to its segment's inner end, so the
-    weights sum to the inserted length without jumps as points enter one by one.  (The first point of the list
-    is taken as interior.)"""
+    """Share of each shaft point's length (trapezoid segment) below the entry surface, for consecutive points (base to
+    tip) with their depths and inside flags: an inside point whose outer neighbour is outside takes the length from the
+    surface crossing (interpolated) to its segment's inner end, so the weights sum to the inserted length without jumps
+    as points enter (the first point counts as interior)."""
     n = arc_lengths.size
     coverage = np.zeros(n)
     for k in range(n):
@@ -181,12 +173,10 @@ def lateral_quadrature(q, node_arc, element_lengths, s_tip, xi, w, vertices, arc
 @njit(cache=True)
 def shaft_contact_points(q, arc_lengths, candidate_arc, S, S_x, slots, entry_point, entry_normal, thickness,
                          was_active, active, anchor, vertices, arc, end_tangent, centres, radii):
-    """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``):
-    marks them in ``active``, anchors the entering ones (not in ``was_active``) at their projection on the track,
-    and returns their indices, entry coverage, needle tangents, anchor points on the track and those points'
-    depths, and the axial offsets u = (r - anchor point) . tangent. The arc lengths increase, so the candidates
-    are the points from the first beyond ``candidate_arc`` on (scalar loops: it runs every step); ``centres``,
-    ``radii``: the track's ``track.segment_blocks``."""
+    """The shaft points beyond the arc length ``candidate_arc`` inside the tissue (``ShaftSupport.advance``), marked in
+    ``active``, the entering ones (not ``was_active``) anchored at their projection on the track: their indices, entry
+    coverage, needle tangents, anchor points and those points' depths, and the axial offsets u = (r - anchor) . tangent
+    (scalar loops: it runs every step); ``centres``, ``radii``: the track's ``track.segment_blocks``."""
     first = search_right(arc_lengths, candidate_arc)
     r, tangents = needle_points(S[first:], S_x[first:], slots[first:], q)
     m = r.shape[0]
@@ -261,19 +251,15 @@ def first_slot_in(slots, slot):
 
 
 class ShaftSupport:
-    """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points along the needle
-    (immutable; the points' state is a ``shaft_force.ShaftRecord``).
+    """Winkler lateral support over the cut tissue and an axial stick-slip law on shaft points (immutable; the points'
+    state is a ``shaft_force.ShaftRecord``, advanced by ``shaft_force.advance_shaft`` with ``kernel_arguments``).
 
-    Lateral (``lateral``: per-layer ``lateral_stiffness``, ``lateral_damping`` per unit length): springs and
-    dampers perpendicular to the track on the needle's arc interval lying in tissue the tip has already cut (path
-    memory), integrated with LATERAL_GAUSS_POINTS Gauss points on each element's share of that interval, so the
-    support is exact from the first cut millimetre on, whatever the shaft point spacing.
-    Axial (``axial_law``: one of ``shaft_laws``, or None for none): on the material shaft points at
-    ``arc_lengths`` (k,), base to tip, with length shares ``weights`` (k,) [m], each anchored to the track once
-    inside the tissue (stick-slip); without a law the needle slides freely.  Both are assembled with the model's
-    point-force kernel over the points inside the tissue only, so the cost grows with the inserted length.
-    ``shaft_force.advance_shaft`` advances the record with ``kernel_arguments``.
-    """
+    Lateral (per-layer ``lateral_stiffness``, ``lateral_damping`` per unit length): springs and dampers perpendicular
+    to the track on the needle's arc interval in already cut tissue (path memory), LATERAL_GAUSS_POINTS Gauss points
+    on each element's share of it, exact from the first cut millimetre whatever the point spacing.
+    Axial (``axial_law``: one of ``shaft_laws``, None: slides freely): on the material points at ``arc_lengths`` (k,),
+    base to tip, with length shares ``weights`` (k,) [m], each anchored to the track once inside (stick-slip).
+    Both use the model's point-force kernel over the points inside the tissue only (cost grows with the depth)."""
 
     def __init__(self, model, block: TissueBlock, arc_lengths: np.ndarray, weights: np.ndarray, lateral: bool,
                  axial_law: ShaftLaw | None = None) -> None:

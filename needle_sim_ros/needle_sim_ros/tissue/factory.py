@@ -1,7 +1,7 @@
 """Tissue configuration (ROS 2 params under ``tissue.``) -> the TissueModel.
 
-``TISSUE_PARAMETERS`` lists every key with its default and meaning (SI units); ``config/tissue.yaml`` sets them.
-Per-layer parameters are parallel arrays under ``tissue.layers.`` (one entry per layer, entry surface first).
+``TISSUE_PARAMETERS`` declares every key (SI units); ``config/tissue.yaml`` sets them. Per-layer parameters are
+parallel arrays under ``tissue.layers.`` (one entry per layer, entry surface first).
 """
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from needle_common.parameters import flatten_tree, parameter_tree
+from needle_common.parameters import ParamSpec, flatten_tree, parameter_tree
 
 from .bevel_tip import BevelTip
 from .coupling import ShaftSupport, TissueContact
@@ -21,49 +21,56 @@ from .tissue_model import TissueModel
 
 AXIAL_MODELS = ("karnopp", "insertion_profile", "lugre", "none")
 
-TISSUE_PARAMETERS: dict[str, tuple[object, str]] = {
-    "tissue.enable": (False, "couple the tissue models to the needle"),
-    "tissue.entry_point": ([0.28, 0.0, 0.0], "a point of the entry surface, world frame [m]"),
-    "tissue.entry_normal": ([1.0, 0.0, 0.0], "entry surface normal pointing into the tissue, world frame"),
-    **{f"tissue.layers.{name}": (value, meaning) for (name, meaning), value in zip(
-        LAYER_PARAMETERS.items(), ([np.inf], [2.0e4], [5.0], [6.0], [120.0], [9.42e3]))},
-    "tissue.shaft.point_spacing": (2.0e-3, "spacing of the shaft points carrying the distributed forces [m]"),
-    "tissue.shaft.lateral_support": (True, "Winkler springs/dampers anchoring the shaft to its track"),
-    "tissue.shaft.axial_model": ("karnopp", f"axial law along the shaft: one of {AXIAL_MODELS}"),
-    "tissue.shaft.stick_stiffness": (2.0e4, "axial stiffness of the stick anchors per unit length k_a [N/m^2]; "
-                                            "stick band = C_n / k_a"),
-    "tissue.track.spacing": (1.0e-4, "the tip extends its track (path memory: to where it is) after advancing this "
-                                     "far into uncut tissue [m]"),
-    "tissue.bevel_tip.enable": (True, "bevel-tip forces P, Q (seed 001 eqs. 4-5) at the tip"),
-    "tissue.bevel_tip.bevel_angle": (np.deg2rad(30.0), "bevel angle lambda [rad] (seed 001: 30 deg)"),
-    "tissue.bevel_tip.acting_fraction": (0.2, "beta / lambda, acting-point angle fraction (seed 001: 0.2)"),
-    "tissue.bevel_tip.diameter": (0.0, "needle diameter for the bevel edges a, b [m]; 0 = twice the needle radius"),
-    "tissue.bevel_tip.side": ([0.0, 1.0, 0.0], "bevel side (where Q pushes the tip) in the base frame"),
-    "tissue.insertion_profile.enable": (False, "seed 002 at the tip: capsule stiffness until puncture, then cutting"),
-    "tissue.insertion_profile.a1": (1.9, "capsule stiffness a1 [N/m] (seed 002: 0.0019 N/mm)"),
-    "tissue.insertion_profile.a2": (4.99e4, "capsule stiffness a2 [N/m^2] (seed 002: 0.0499 N/mm^2)"),
-    "tissue.insertion_profile.puncture_depth": (3e-3, "capsule puncture depth d1 [m]; F_s(d1) must stay below the "
-                                                      "needle's buckling load"),
-    "tissue.insertion_profile.frequencies": ([0.0], "friction series wavenumbers w_1..w_M [rad/m] (0 entries "
-                                                    "are dropped)"),
-    "tissue.insertion_profile.cos_coefficients": ([0.5, 0.0], "friction series A_0..A_M [N]"),
-    "tissue.insertion_profile.sin_coefficients": ([0.0], "friction series B_1..B_M [N]"),
-    "tissue.insertion_profile.cutting_force": (0.3, "cutting force F_c while the tip cuts [N]"),
-    "tissue.insertion_profile.cutting_speed_scale": (1.0e-3, "tip speed over which F_c ramps in [m/s]"),
-    "tissue.lugre.f1": (8.0, "seed 003 f1 [N/m]"),
-    "tissue.lugre.f2": (500.0, "seed 003 f2 [N/m]"),
-    "tissue.lugre.sigma0": (2.5e5, "seed 003 sigma0 [N/m^2]"),
-    "tissue.lugre.sigma1": (50.0, "seed 003 sigma1 [N/m]"),
-    "tissue.lugre.sigma2": (12.0, "seed 003 sigma2 [N/m]"),
-    "tissue.lugre.alpha": (125.0, "seed 003 alpha [1/m]"),
-    "tissue.lugre.velocity_scale": (1.0e-4, "sgn(l') regularisation tanh(l'/v_s) [m/s]"),
-}
+
+def _tissue(name: str, default: object, description: str) -> ParamSpec:
+    """A ``tissue.`` parameter; +-inf allowed (e.g. an infinite last layer)."""
+    return ParamSpec(f"tissue.{name}", default, description, allow_infinite=True)
+
+
+TISSUE_PARAMETERS: tuple[ParamSpec, ...] = (
+    _tissue("enable", False, "Couple the tissue models to the needle."),
+    _tissue("entry_point", [0.28, 0.0, 0.0], "A point of the entry surface, world frame [m]."),
+    _tissue("entry_normal", [1.0, 0.0, 0.0], "Entry surface normal pointing into the tissue, world frame."),
+    *(_tissue(f"layers.{name}", [value], meaning[:1].upper() + meaning[1:] + ".") for (name, meaning), value in zip(
+        LAYER_PARAMETERS.items(), (np.inf, 2.0e4, 5.0, 6.0, 120.0, 9.42e3))),
+    _tissue("shaft.point_spacing", 2.0e-3, "Spacing of the shaft points carrying the distributed forces [m]."),
+    _tissue("shaft.lateral_support", True, "Winkler springs/dampers anchoring the shaft to its track."),
+    _tissue("shaft.axial_model", "karnopp", f"Axial law along the shaft: one of {AXIAL_MODELS}."),
+    _tissue("shaft.stick_stiffness", 2.0e4, "Axial stiffness of the stick anchors per unit length k_a [N/m^2]; "
+            "stick band = C_n / k_a."),
+    _tissue("track.spacing", 1.0e-4, "The tip extends its track (path memory: to where it is) after advancing this "
+            "far into uncut tissue [m]."),
+    _tissue("bevel_tip.enable", True, "Bevel-tip forces P, Q (seed 001 eqs. 4-5) at the tip."),
+    _tissue("bevel_tip.bevel_angle", np.deg2rad(30.0), "Bevel angle lambda [rad] (seed 001: 30 deg)."),
+    _tissue("bevel_tip.acting_fraction", 0.2, "Beta / lambda, acting-point angle fraction (seed 001: 0.2)."),
+    _tissue("bevel_tip.diameter", 0.0, "Needle diameter for the bevel edges a, b [m]; 0 = twice the needle radius."),
+    _tissue("bevel_tip.side", [0.0, 1.0, 0.0], "Bevel side (where Q pushes the tip) in the base frame."),
+    _tissue("insertion_profile.enable", False, "Seed 002 at the tip: capsule stiffness until puncture, then cutting."),
+    _tissue("insertion_profile.a1", 1.9, "Capsule stiffness a1 [N/m] (seed 002: 0.0019 N/mm)."),
+    _tissue("insertion_profile.a2", 4.99e4, "Capsule stiffness a2 [N/m^2] (seed 002: 0.0499 N/mm^2)."),
+    _tissue("insertion_profile.puncture_depth", 3e-3, "Capsule puncture depth d1 [m]; F_s(d1) must stay below the "
+            "needle's buckling load."),
+    _tissue("insertion_profile.frequencies", [0.0], "Friction series wavenumbers w_1..w_M [rad/m] (0 entries are "
+            "dropped)."),
+    _tissue("insertion_profile.cos_coefficients", [0.5, 0.0], "Friction series A_0..A_M [N]."),
+    _tissue("insertion_profile.sin_coefficients", [0.0], "Friction series B_1..B_M [N]."),
+    _tissue("insertion_profile.cutting_force", 0.3, "Cutting force F_c while the tip cuts [N]."),
+    _tissue("insertion_profile.cutting_speed_scale", 1.0e-3, "Tip speed over which F_c ramps in [m/s]."),
+    _tissue("lugre.f1", 8.0, "Seed 003 f1 [N/m]."),
+    _tissue("lugre.f2", 500.0, "Seed 003 f2 [N/m]."),
+    _tissue("lugre.sigma0", 2.5e5, "Seed 003 sigma0 [N/m^2]."),
+    _tissue("lugre.sigma1", 50.0, "Seed 003 sigma1 [N/m]."),
+    _tissue("lugre.sigma2", 12.0, "Seed 003 sigma2 [N/m]."),
+    _tissue("lugre.alpha", 125.0, "Seed 003 alpha [1/m]."),
+    _tissue("lugre.velocity_scale", 1.0e-4, "Sgn(l') regularisation tanh(l'/v_s) [m/s]."),
+)
+DEFAULTS = {spec.name: spec.default for spec in TISSUE_PARAMETERS}
 
 
 def flatten_tissue_config(config) -> dict:
     """Dotted ``tissue.*`` keys from a flat dict, a nested dict, a ROS 2 params-file dict or a YAML path."""
     flat = flatten_tree(parameter_tree(config))  # params file: the merged ros__parameters of its sections
-    unknown = [k for k in flat if k.startswith("tissue.") and k not in TISSUE_PARAMETERS]
+    unknown = [k for k in flat if k.startswith("tissue.") and k not in DEFAULTS]
     if unknown:
         raise ValueError(f"unknown tissue parameters: {sorted(unknown)}")
     return {k: v for k, v in flat.items() if k.startswith("tissue.")}
@@ -77,9 +84,7 @@ class TissueConfig:
 
     @classmethod
     def from_any(cls, config) -> "TissueConfig":
-        values = {k: v for k, (v, _) in TISSUE_PARAMETERS.items()}
-        values.update(flatten_tissue_config(config))
-        return cls(values)
+        return cls({**DEFAULTS, **flatten_tissue_config(config)})
 
     def __getitem__(self, key: str):
         return self.values[key]

@@ -1,9 +1,8 @@
 """Tissue geometry: a block of planar layers in the world frame, and the depth and inserted interval of a needle.
 
-The block is bounded by the entry surface, a plane through ``entry_point`` with unit normal ``entry_normal``
-pointing into the tissue; layers follow each other along the normal with given thicknesses (the last may be
-infinite).  Lateral extent is unbounded.  The depth of a point is its distance below the entry surface,
-``depth = n . (r - p0)``; the insertion depth of the needle is the depth of its tip.
+The entry surface is the plane through ``entry_point`` with unit normal ``entry_normal`` into the tissue; layers
+follow along the normal with given thicknesses (the last may be infinite), laterally unbounded. A point's depth is
+``n . (r - p0)``; the needle's insertion depth is its tip's.
 """
 from __future__ import annotations
 
@@ -93,12 +92,9 @@ class TissueBlock:
 
 
 def inserted_interval(block: TissueBlock, points: np.ndarray, arc_length: np.ndarray) -> tuple[float, float]:
-    """Reference arc-length interval (s_entry, s_tip) of the needle below the entry surface.
-
-    points: (n, 3) centerline samples ordered from base to tip; arc_length: (n,) their arc lengths.  s_entry is
-    the last crossing of the entry surface before the tip (linear interpolation between samples); (s_tip, s_tip)
-    if the tip is not below the surface.
-    """
+    """Reference arc-length interval (s_entry, s_tip) of the needle below the entry surface, from centerline samples
+    ``points`` (n, 3) base to tip and their ``arc_length`` (n,): s_entry is the last crossing before the tip (linear
+    between samples); (s_tip, s_tip) if the tip is not below the surface."""
     depth = block.depth(points)
     s_tip = float(arc_length[-1])
     if depth[-1] <= 0.0:

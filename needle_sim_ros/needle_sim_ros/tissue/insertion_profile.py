@@ -5,12 +5,9 @@ Eq. 1:  F_s(x) = a1 x + a2 x^2                                       for x <= d1
 Eq. 2:  F_f(x) = sum_{i=0..M} A_i cos(w_i x) + B_i sin(w_i x)        after puncture (w_0 = 0: the mean friction)
 Eq. 3:  F_c(x) = F_a(x) - F_f(x)  for d1 < x < d2, else 0            (cutting = measured total - friction)
 
-x is the needle displacement (insertion depth) [m], d1 the puncture depth, d2 the depth at which the needle has
-passed through the tissue.  The seed prints a1 = 0.0019 and a2 = 0.0499 without units; with x in mm and F in N
-(the scale of its Fig. 6) that is a1 = 1.9 N/m and a2 = 4.99e4 N/m^2.  Eq. 3 only defines the cutting force from a
-recorded total; for simulation the profile keeps its mean over (d1, d2) as a constant cutting force.
-
-Signs: all forces here are magnitudes resisting insertion (positive while inserting).
+x: insertion depth [m]; d2: the depth where the needle has passed through. The seed's unitless a1 = 0.0019,
+a2 = 0.0499 (x in mm, F in N, its Fig. 6) are 1.9 N/m and 4.99e4 N/m^2. For simulation the cutting force is eq. 3's
+mean over (d1, d2), constant. All forces are magnitudes resisting insertion (positive while inserting).
 """
 from __future__ import annotations
 

@@ -1,35 +1,15 @@
 """Modified LuGre axial force model of seed 003 (eqs. 1-2) with its RK3 discretisation and sensitivities.
 
-Seed 003 prints, with l the insertion depth and f the axial force measured at the base:
+With l the insertion depth, l' its velocity and sgn(l') regularised as tanh(l'/v_s) (``velocity_scale`` v_s,
+0 = exact sign); the reading of the printed equations (which lose the time derivatives' dots) is explained in
+docs/design_notes.md:
 
-    dz/dt = l (1 - sigma0 z / g(l))                                                          (1a)
-    f     = sigma0 z l + sign(l) l {sigma1 exp(-alpha l) (1 - sigma0 z / g(l)) + sigma2}     (1b)
+    dz/dt = l' - sigma0 |l'| z / g(l)                                                        (1a)
+    f     = l [ sigma0 z + sigma1 exp(-alpha l) (sgn(l') - sigma0 z / g(l)) + sigma2 sgn(l') ]  (1b)
     g(l)  = f1 + f2 exp(-alpha l)                                                            (2)
 
-The printed equations lose the dots of the time derivatives.  Reading used here (physically consistent, and as
-literal as possible):
-
-* The rate in (1a) is the insertion *velocity* l': the bristle state z must not move while the needle is at
-  rest (the seed says relaxation is ignored), so ``dz/dt = l' - sigma0 |l'| z / g(l)``, which is (1a) with the
-  original LuGre |v| restored.  Without |l'| the state equation is unstable during retraction (z runs away
-  exponentially), so the sign factor is required for a bounded force.
-* g is a function of depth, as printed ("velocity replaced by depth": the Stribeck drop becomes the puncture drop).
-* In (1b) ``sign(l)`` is the sign of the velocity (a depth is never negative), and the factor l that multiplies
-  every term is the depth: the bracket is a force per unit inserted length, so the force vanishes when the needle
-  is out of the tissue (l = 0) at the start of insertion and at the end of retraction, and turns negative on
-  retraction (z -> -g/sigma0 and sign(l') = -1).  Then
-
-      f = l [ sigma0 z + sigma1 exp(-alpha l) (sgn(l') - sigma0 z / g(l)) + sigma2 sgn(l') ]
-
-  which is (1b) with ``sgn(l') (1 - sigma0 sgn(l') z / g) = sgn(l') - sigma0 z / g``.
-* Units: z [m] (bristle deflection); f1, f2, sigma1, sigma2 [N/m] (force per inserted length); sigma0 [N/m^2];
-  alpha [1/m].  At constant insertion speed z settles at g(l)/sigma0 over a depth of about g/sigma0, so
-  f ~ l (f1 + f2 exp(-alpha l) + sigma2): the force rises, peaks near l = 1/alpha (puncture), drops and then
-  grows with the friction of the inserted length.
-* sgn(l') is regularised as tanh(l'/v_s) (``velocity_scale`` v_s, 0 = exact sign) so the force is continuous when
-  the needle stops; |l'| = l' sgn(l').
-
-Parameter vectors theta are ordered as ``PARAMETER_NAMES``; the estimator's augmented state is (z, theta).
+Units: z [m] (bristle deflection); f1, f2, sigma1, sigma2 [N/m]; sigma0 [N/m^2]; alpha [1/m]. Parameter vectors
+theta are ordered as ``PARAMETER_NAMES``; the estimator's augmented state is (z, theta).
 """
 from __future__ import annotations
 
@@ -90,11 +70,9 @@ def _stage_rate(z, theta, depth, velocity, speed, rate_slope):
 
 @njit(cache=True)
 def bristle_step(z, theta, depth, velocity, dt, velocity_scale, row):
-    """Kutta's third-order Runge-Kutta scheme for eq. 1a over ``dt`` [s] with the depth advancing at the constant
-    ``velocity`` (seed 003 Sec. III discretisation), compiled: the simulator advances z with it every step, the
-    EKF (``rk3_step``) also takes its sensitivities. The step is split so that each sub-step stays well inside
-    RK3's stability region (|dz'/dz| dt <= 1). Returns z_next; a (7,) ``row`` receives dz_next/d(z, theta)
-    (a (0,) array: not computed)."""
+    """Kutta's RK3 for eq. 1a over ``dt`` [s], the depth advancing at the constant ``velocity`` (seed 003 Sec. III),
+    split into sub-steps inside RK3's stability region (|dz'/dz| dt <= 1); the simulator's step and the EKF
+    (``rk3_step``) both use it. Returns z_next; a (7,) ``row`` receives dz_next/d(z, theta) (a (0,) array: none)."""
     stiffness = abs(theta[2] * velocity / stribeck_value(theta, depth))
     n_sub = int(min(np.ceil(stiffness * dt), 1000.0)) if np.isfinite(stiffness) else 1000
     h = dt / max(n_sub, 1)

@@ -1,10 +1,9 @@
-"""The shaft support as a contribution: lateral Winkler springs and dampers over the cut tissue and the axial
-stick-slip law on the shaft points (``coupling.ShaftSupport``), with the points' data frozen over each step.
+"""The shaft support (``coupling.ShaftSupport``) as a contribution, its points' data frozen over each step.
 
 ``ShaftRecord``: the axial law's state, the points' anchors (track coordinates) and active flags, and the next
-step's frozen points, the lateral then the axial ones: their q slots and one table (``coupling.POINT_COLUMNS``),
-what every Newton correction's assembly reads (two arrays: numba counts the references of each array passed).
-After each step ``advance_shaft`` reads the contact (``contact.ContactRecord``). Kernels: ``SHAFT_KERNELS``.
+step's frozen points (lateral, then axial): their q slots and one table (``coupling.POINT_COLUMNS``), two arrays
+because numba counts the references of each array passed. ``advance_shaft`` reads the contact after each step.
+Kernels: ``SHAFT_KERNELS``.
 """
 from __future__ import annotations
 
@@ -65,11 +64,10 @@ def advance_shaft(q, vertices, arc, end_tangent, centres, radii, tip_depth, tip_
                   was_active, law_state, arc_lengths, point_weights, margin, S, S_x, slots, lateral, law_kind,
                   law_parameters, stick_stiffness, entry_point, entry_normal, bottoms, table, node_arc, element_lengths,
                   xi, w):
-    """The shaft after a step to q (contact advanced). The law's state advances first; with a started track the
-    lateral points cover the cut interval and, with an axial law, the points inside the tissue are active (entering
-    ones anchored where they are) and their anchors slip beyond the stick band. A point an arc length a behind the
-    tip is at most a shallower than the tip, so only points closer to the tip than its depth (plus ``margin``, the
-    outer neighbours for the entry coverage) are candidates."""
+    """The shaft after a step to q (contact advanced): the law's state first; with a started track the lateral points
+    cover the cut interval and, with an axial law, the points inside are active (entering ones anchored where they
+    are), their anchors slipping beyond the stick band. A point an arc length a behind the tip is at most a shallower,
+    so only points closer to the tip than its depth (plus ``margin``, for the entry coverage) are candidates."""
     law_state = law_advance(law_kind, law_parameters, law_state, tip_depth, tip_speed, step_duration)
     active = np.zeros(arc_lengths.size, dtype=np.bool_)
     lateral_slots, lateral_points = no_points()

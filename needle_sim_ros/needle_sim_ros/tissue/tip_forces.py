@@ -1,14 +1,12 @@
-"""The tissue's forces at the tip as contributions, each reading the contact (``contact.ContactRecord``) after a step:
+"""The tissue's forces at the tip as contributions, each reading the contact (``contact.ContactRecord``) after a step,
+applied by the shared point-force kernel at the last element's end (eq. 15):
 
-* the bevel tip (``BEVEL_KERNELS``): seed 001 eqs. 4-5, F = K_T (-P1 t + Q1 n) with P1, Q1 the unit bevel's forces
-  and n the bevel side (base frame) rolled with the base, while the tip is at the cut front below the punctured
-  surface, ramped in over the bevel length a: its record is the force's scale (K_T of the tip's layer times the
-  square of the embedded fraction; 0: not engaged);
-* the seed 002 tip resistance (``RESISTANCE_KERNELS``): the capsule stiffness -(a1 x + a2 x^2) n along the entry
-  normal before puncture (conservative), then the cutting force -F_c clip(v_t / v_c, 0, 1) t while the tip
-  advances into uncut tissue (it resists only forward motion: it never adds energy); its record is (punctured,
-  cutting).
-Each force goes through the shared point-force kernel at the last element's end (eq. 15).
+* the bevel tip (``BEVEL_KERNELS``): seed 001 eqs. 4-5, F = K_T (-P1 t + Q1 n) (unit bevel's P1, Q1; n the bevel
+  side rolled with the base) while the tip is at the cut front below the punctured surface, ramped in over the
+  bevel length a; record: the force's scale (K_T of the tip's layer times the embedded fraction squared);
+* the seed 002 tip resistance (``RESISTANCE_KERNELS``): capsule stiffness -(a1 x + a2 x^2) n along the entry normal
+  before puncture, then the cutting force -F_c clip(v_t / v_c, 0, 1) t while the tip advances into uncut tissue
+  (never adding energy); record: (punctured, cutting).
 """
 from __future__ import annotations
 

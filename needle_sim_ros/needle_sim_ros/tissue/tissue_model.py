@@ -1,9 +1,7 @@
-"""The tissue as one stateful force contribution composed of its parts: the contact (the shared record) and each
-force -- the shaft support, the bevel tip, the seed 002 tip resistance -- with its typed record and compiled kernels
-(``contact``, ``shaft_force``, ``tip_forces``), which every path runs (``model.step.compiled_run``, ``compose``).
-
-A :class:`TissueModel` is immutable; what changes as the needle moves is a :class:`TissueState` in ``NeedleData``
-(``force_states``): the parts' records packed into one array, replaced (never changed in place) once per accepted
+"""The tissue as one stateful force contribution composed of its parts, each with a typed record and compiled
+kernels that every path runs: the contact (the shared record), the shaft support, the bevel tip and the seed 002 tip
+resistance (``contact``, ``shaft_force``, ``tip_forces``). A :class:`TissueModel` is immutable; its
+:class:`TissueState` in ``NeedleData.force_states`` (the parts' records in one array) is replaced once per accepted
 step by :meth:`TissueModel.advance`, so a failed step leaves it as it was.
 """
 from __future__ import annotations
@@ -50,10 +48,9 @@ class TissueState:
 
 @dataclass(frozen=True)
 class TissueReadout:
-    """What the simulator publishes: insertion_depth [m] (tip depth below the entry surface, >= 0),
-    inserted_length [m] (needle arc length below the surface), tip_force [N] (world force of the tissue on the
-    tip: bevel + cutting/capsule), axial_force [N] (total tissue force on the needle along the base x axis,
-    positive when it resists insertion, i.e. what the holder's force sensor sees from the tissue)."""
+    """What the simulator publishes: insertion_depth [m] (tip below the entry surface, >= 0), inserted_length [m]
+    (arc length below it), tip_force [N] (world; bevel + cutting/capsule), axial_force [N] (total tissue force along
+    the base x axis, positive resisting insertion: what the holder's force sensor sees of the tissue)."""
 
     insertion_depth: float
     inserted_length: float

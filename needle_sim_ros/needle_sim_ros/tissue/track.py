@@ -1,14 +1,9 @@
 """The track cut by the advancing needle tip: a polyline in the world frame, parameterised by its arc length.
 
-Path memory (Glozman & Shoham's virtual springs, seed 001 Sec. II: forces act "at the nodes in contact with the
-tissue nodes that are previously cut by the needle"): the track starts where the tip crossed the entry surface
-and, whenever the tip has advanced ``spacing`` beyond its end, grows a vertex ON THE TIP'S PATH: each tissue point's
-rest position is where the tip passed when it cut that point.  The vertex is interpolated between the tip's
-positions before and after the step at the exact crossing (``spacing`` ahead of the end), not put at the step's
-end: the track then depends continuously on the motion, not on which step the crossing fell in (a 1 ms step at
-20 mm/s would otherwise shift it by up to 20 um and make the response jump with any parameter).  Tissue beyond
-the end is uncut and holds nothing laterally (the cut front carries no spring).  Retracting leaves the track in
-place, so a re-insertion follows it until the tip passes its end, then cuts new tissue.
+Path memory (seed 001 Sec. II, Glozman & Shoham's virtual springs): the track starts where the tip crossed the entry
+surface and, whenever the tip has advanced ``spacing`` beyond its end, grows a vertex on the tip's path, interpolated
+at the exact crossing so the track depends continuously on the motion (docs/design_notes.md). Tissue beyond the end
+is uncut and holds nothing laterally; retracting leaves the track, so a re-insertion follows it past its end.
 """
 from __future__ import annotations
 
@@ -25,8 +20,7 @@ END_CHORD_SEGMENTS = 10  # segments over which the end tangent is taken (1 mm at
 @njit(cache=True)
 def chord_tangent(vertices, direction):
     """Direction of the cut at the end: the chord over the last ``END_CHORD_SEGMENTS`` segments (``direction``
-    while there is none). One 0.1 mm segment would carry the tip's lateral jitter: tilted by it, the cut front
-    seemed to recede from an advancing tip, the track stopped growing and the tip forces switched off."""
+    while there is none; why not one segment: docs/design_notes.md)."""
     count = vertices.shape[0]
     if count < 2:
         return direction
@@ -36,10 +30,9 @@ def chord_tangent(vertices, direction):
 
 @njit(cache=True)
 def cut_polyline(vertices, arc, end_tangent, previous, tip, spacing):
-    """The track (vertices, arc lengths, end tangent) grown from the previous tip position toward ``tip`` while the tip
-    is ``spacing`` or more beyond its end, each vertex where that straight path crosses ``spacing`` ahead of the end
-    (compiled: it runs every step). Coordinates beyond the end are measured along the end tangent: length +
-    (point - end) . end_tangent, in uncut tissue."""
+    """The track (vertices, arc lengths, end tangent) grown from the previous tip position toward ``tip`` while the
+    tip is ``spacing`` or more beyond its end, a vertex where that path crosses ``spacing`` ahead of the end; beyond
+    the end a point's coordinate is length + (point - end) . end_tangent (uncut tissue)."""
     while True:
         count = arc.size
         length = arc[count - 1]
@@ -92,11 +85,9 @@ def project_on_polyline(vertices, arc, end_tangent, points):
 
 @njit(cache=True)
 def project_on_blocks(vertices, arc, end_tangent, points, centres, radii):
-    """``project_on_polyline`` with the polyline's ``segment_blocks``: blocks whose bounding sphere lies farther
-    than an upper bound of the closest distance are skipped; they cannot hold it, so the result is the full scan's,
-    at a cost that grows with the track length by the block count only. The bound is the closest of the
-    continuation and of the vertices of the block whose centre is nearest (vertices lie on the polyline): a point
-    near the track scans the one or two blocks around it. Distances are compared squared (one root per point)."""
+    """``project_on_polyline`` with the polyline's ``segment_blocks``: blocks whose bounding sphere lies beyond an
+    upper bound of the closest distance (the continuation's and the nearest block's vertices') are skipped, so the
+    result is the full scan's at a cost growing with the block count only. Distances compared squared."""
     count = arc.size
     n = points.shape[0]
     coordinate = np.empty(n)
