@@ -64,14 +64,13 @@ def apply_twist(flange: np.ndarray, times: np.ndarray, twist: np.ndarray, twist_
 
 @njit(cache=True)
 def advance_from_trajectory(plan, times, motions, rotations, start, index, states, wrenches, iterations):
-    """Steps at the end times ``times`` from the trajectory's fit (the plan's buffers: the arguments of
-    :func:`trajectory_motions`, :attr:`BaseTrajectory.buffers`, with the fit and its state): the flange motions into
-    ``motions`` (k, 19), the twist within its timeout and the flange-to-clamp offset (the plan's ``packed``:
-    :attr:`BaseInput.packed`) applied there in place, the rotations into ``rotations`` (k, 3, 3), then the steps from
-    the start state ``start[index]`` (m, 4, n_dof) [q, q', q'', a] (the previous run's states: no view made in
-    Python) by :func:`integrate_sequence` with the factorization kept across steps, into the outputs (states,
-    wrenches, iterations: :func:`~needle_sim_ros.model.integrators.run_outputs`). Every argument is an array, a number
-    or the :class:`AdvancePlan` (numba 0.59 types a tuple in Python on every call). Returns the number of steps done."""
+    """Steps at the end times ``times`` from the trajectory's fit, returning how many were done (the plan's buffers:
+    :func:`trajectory_motions`' arguments, :attr:`BaseTrajectory.buffers`, with the fit and its state): the flange
+    motions into ``motions`` (k, 19), there in place the twist within its timeout and the flange-to-clamp offset (the
+    plan's ``packed``: :attr:`BaseInput.packed`) with the rotations into ``rotations`` (k, 3, 3), then the steps from
+    the start state ``start[index]`` ((m, 4, n_dof) [q, q', q'', a]) by :func:`integrate_sequence` with the
+    factorization kept across steps, into the outputs (states, wrenches, iterations: ``integrators.run_outputs``).
+    Every argument is an array, a number or the :class:`AdvancePlan` (numba 0.59 types a tuple in Python per call)."""
     p = plan
     trajectory_motions(p.sample_times, p.positions, p.orientations, p.deltas, p.starts, p.blends, p.fit, p.counts,
                        p.served, p.served_motion, p.scratch, p.window, p.max_extrapolation, times, motions)

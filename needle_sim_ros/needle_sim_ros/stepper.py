@@ -44,8 +44,7 @@ def magnitude(vector) -> float:
 
 
 def _motion(motions, rotations: np.ndarray | None, index: int) -> BaseMotion:
-    """The base motion of step ``index`` of a run's motions: packed (k, 19) with their rotations, or BaseMotions
-    (``rotations`` None)."""
+    """Base motion ``index`` of a run's: packed (k, 19) with ``rotations``, or BaseMotions (``rotations`` None)."""
     return motions[index] if rotations is None else BaseMotion.from_packed(motions[index], rotations[index])
 
 

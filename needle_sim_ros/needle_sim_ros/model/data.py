@@ -65,9 +65,8 @@ class NeedleData:
         self._state, self._run_end = state, None
 
     def end_run(self, states: np.ndarray, index: int, t: float, motions: np.ndarray, rotations: np.ndarray) -> None:
-        """The state a compiled run ended at: its step ``index`` of the rows [q, q', q'', a] (k, 4, n_dof), at time
-        t, the base motions packed (k, 19) with their rotations (:meth:`BaseMotion.from_packed`), all never changed
-        after (no view is made until the state is read)."""
+        """The state a compiled run ended at: step ``index`` of its rows [q, q', q'', a] (k, 4, n_dof) at time t
+        and of its packed base motions (k, 19) and rotations (:meth:`BaseMotion.from_packed`), never changed after."""
         self._state, self._run_end = None, (states, index, t, motions, rotations)
 
     @property
@@ -86,8 +85,7 @@ class NeedleData:
         return self._run_end is not None or self._state.aux is not None
 
     def start_rows(self) -> tuple[np.ndarray, int]:
-        """(rows [q, q', q'', a] (k, 4, n_dof), index of the state's) of the state (started, :attr:`with_history`): a
-        compiled run's start."""
+        """(rows [q, q', q'', a] (k, 4, n_dof), the state's index) (started, :attr:`with_history`): a run's start."""
         end = self._run_end
         if end is not None:
             return end[0], end[1]
