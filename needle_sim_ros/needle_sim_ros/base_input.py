@@ -79,7 +79,7 @@ class BaseInput:
     def offer_pose(self, t: float, position, orientation, gap: float) -> PoseVerdict:
         """Offer a flange pose to the trajectory; a pose more than ``gap`` [s] after the previous one and farther
         than ``limits.resume_tolerance`` from it starts the trajectory anew there (RESTARTED)."""
-        return self.trajectory.offer(t, position, orientation, gap, self.limits.resume_tolerance)
+        return self._trajectory.offer(t, position, orientation, gap, self.limits.resume_tolerance)
 
     def set_twist(self, t: float, linear_velocity: np.ndarray, angular_velocity: np.ndarray) -> None:
         """Velocity feed-forward of the flange (world frame); used instead of the estimate while fresh.

@@ -63,23 +63,21 @@ def apply_twist(flange: np.ndarray, times: np.ndarray, twist: np.ndarray, twist_
 
 
 @njit(cache=True)
-def advance_from_trajectory(plan, times, motions, rotations, start, states, wrenches, iterations):
-    """Steps at the end times ``times`` from the trajectory's fit (the plan's buffers: the arguments of
-    :func:`trajectory_motions`, :attr:`BaseTrajectory.buffers`, with the fit and its state): the flange motions,
-    the twist within its timeout and the flange-to-clamp offset (the plan's ``packed``: :attr:`BaseInput.packed`),
-    the clamp motions and rotations into ``motions`` (k, 19) and ``rotations`` (k, 3, 3), then the steps from the
-    start state ``start`` (4, n_dof) [q, q', q'', a] by :func:`integrate_sequence` with the factorization kept
-    across steps, into the outputs (states, wrenches, iterations:
-    :func:`~needle_sim_ros.model.integrators.run_outputs`). Every argument is an array, a number or the
-    :class:`AdvancePlan` (numba 0.59 types a tuple in Python on every call). Returns the number of steps done."""
+def advance_from_trajectory(plan, times, motions, rotations, start, index, states, wrenches, iterations):
+    """Steps at the end times ``times`` from the trajectory's fit, returning how many were done (the plan's buffers:
+    :func:`trajectory_motions`' arguments, :attr:`BaseTrajectory.buffers`, with the fit and its state): the flange
+    motions into ``motions`` (k, 19), there in place the twist within its timeout and the flange-to-clamp offset (the
+    plan's ``packed``: :attr:`BaseInput.packed`) with the rotations into ``rotations`` (k, 3, 3), then the steps from
+    the start state ``start[index]`` ((m, 4, n_dof) [q, q', q'', a]) by :func:`integrate_sequence` with the
+    factorization kept across steps, into the outputs (states, wrenches, iterations: ``integrators.run_outputs``).
+    Every argument is an array, a number or the :class:`AdvancePlan` (numba 0.59 types a tuple in Python per call)."""
     p = plan
-    flange = np.empty((times.size, 19))
     trajectory_motions(p.sample_times, p.positions, p.orientations, p.deltas, p.starts, p.blends, p.fit, p.counts,
-                       p.served, p.served_motion, p.scratch, p.window, p.max_extrapolation, times, flange)
+                       p.served, p.served_motion, p.scratch, p.window, p.max_extrapolation, times, motions)
     packed = p.packed
-    apply_twist(flange, times, packed[1:8], packed[0])
-    compose_offsets(flange, packed[8:11], packed[11:20].reshape((3, 3)), motions, rotations)
-    return integrate_sequence(start, times, motions, rotations, p.coef, p.ext_Q, p.tol, p.max_iterations,
+    apply_twist(motions, times, packed[1:8], packed[0])
+    compose_offsets(motions, packed[8:11], packed[11:20].reshape((3, 3)), motions, rotations)
+    return integrate_sequence(start[index], times, motions, rotations, p.coef, p.ext_Q, p.tol, p.max_iterations,
                               p.prescribed, p.base_nodes, p.base_local_r, p.base_local_rx, p.active, p.scale,
                               p.tables, p.residual, p.band, p.pivots, p.factorization, p.kl, p.control, True,
                               p.last_motion, states, wrenches, iterations)

@@ -43,6 +43,11 @@ def magnitude(vector) -> float:
         return float(np.linalg.norm(np.asarray(vector, dtype=float)))
 
 
+def _motion(motions, rotations: np.ndarray | None, index: int) -> BaseMotion:
+    """Base motion ``index`` of a run's: packed (k, 19) with ``rotations``, or BaseMotions (``rotations`` None)."""
+    return motions[index] if rotations is None else BaseMotion.from_packed(motions[index], rotations[index])
+
+
 class StepRecord(NamedTuple):
     """What one accepted step produced: its end time, the base wrench and the integrator's effort."""
 
@@ -235,15 +240,12 @@ class Stepper:
             prescribed = None if sequence or run is not None else source.prescribed_motions(times)
             motions, rotations = source.motions(times) if prescribed is None else (prescribed, None)
 
-        def motion(index: int) -> BaseMotion:
-            return motions[index] if rotations is None else BaseMotion.from_packed(motions[index], rotations[index])
-
         i = 0
         general = False  # whether a step left the compiled sequence (whose converged states are finite)
         if not regular:  # after a grid shift (lock_phase)
             if not (forces is not None
                     and self._step_sequence(forces, times[:1], motions[:1], rotations[:1], records, first_dt)):
-                records.append(self.step(motion(0), times[0], first_dt))
+                records.append(self.step(_motion(motions, rotations, 0), times[0], first_dt))
                 general = True
             data.step_index += 1
             i = 1
@@ -263,7 +265,7 @@ class Stepper:
                 if i == stop:  # all it was asked for: the next run (a step that failed takes the general step)
                     continue
             if i < count:
-                records.append(self.step(motion(i), times[i]))
+                records.append(self.step(_motion(motions, rotations, i), times[i]))
                 general = True
                 data.step_index += 1
                 i += 1
@@ -305,11 +307,11 @@ class Stepper:
         compiled call (:mod:`needle_sim_ros.compiled_advance`), the base motions at all the times written into
         ``motions`` and ``rotations`` first (a run that stops early leaves them for the general step); returns how
         many steps were done (as :meth:`_step_sequence`)."""
-        start = time.perf_counter()
+        began = time.perf_counter()
         data, source = self.data, self.source
         memory, integrator, work = data.integrator, self.integrator, self.integrator.work
-        start_rows = data.start_rows()
-        outputs = run_outputs(times.size, start_rows.shape[1])
+        start, index = data.start_rows()
+        outputs = run_outputs(times.size, start.shape[2])
         plan_integrator, plan_forces, plan_memory, plan_source, plan, advance = self._advance_plan
         if not (plan_forces is forces and plan_memory is memory and plan_integrator is integrator
                 and plan_source is source and memory.h == self.dt and (not work.held or work.clamp is memory.clamp)):
@@ -317,10 +319,10 @@ class Stepper:
             before = integrator.sequence_arguments(self.dt, forces, float(times[0]), memory)
             plan = advance_plan(*before[1:], memory.last_motion, *source.trajectory.buffers, source.packed)
             # the arguments' types hold with the plan: times (k,) of the clock loop, the rows and arrays made here
-            advance = compiled_entry(advance_from_trajectory, plan, times, motions, rotations, start_rows, *outputs)
+            advance = compiled_entry(advance_from_trajectory, plan, times, motions, rotations, start, index, *outputs)
             self._advance_plan = (integrator, forces, memory, source, plan, advance)
-        done = advance(plan, times, motions, rotations, start_rows, *outputs)
-        self._record_run(done, outputs, start, times, motions, rotations, records)
+        done = advance(plan, times, motions, rotations, start, index, *outputs)
+        self._record_run(done, outputs, began, times, motions, rotations, records)
         return done
 
     def _record_run(self, done: int, outputs: tuple, start: float, times: np.ndarray, motions: np.ndarray,
@@ -334,9 +336,9 @@ class Stepper:
         hook, stats = self.after_step, self.statistics
         states, wrenches, iterations = outputs
         if done == 1 and hook is None:  # the live loop's run: one step per pose
-            w, n, t = wrenches[0], int(iterations[0]), float(times[0])
+            w, n, t = wrenches[0], iterations.item(0), float(times[0])
             records.append(StepRecord(t, BaseWrench(w), n, 1, wall))
-            self.data.end_run(states[0], t, motions[0], rotations[0])
+            self.data.end_run(states, 0, t, motions, rotations)
             stats.steps += 1
             stats.step_wall_times.append(wall)
             if n > stats.max_newton_iterations:
@@ -345,12 +347,12 @@ class Stepper:
         end_times, counts = times[:done].tolist(), iterations[:done].tolist()
         if hook is None:  # the records, then the last step's state
             records += map(StepRecord, end_times, map(BaseWrench, wrenches), counts, repeat(1), repeat(wall))
-            self.data.end_run(states[done - 1], end_times[-1], motions[done - 1], rotations[done - 1])
+            self.data.end_run(states, done - 1, end_times[-1], motions, rotations)
         else:  # the hook reads the state of its step
             for i, (t, w) in enumerate(zip(end_times, wrenches)):
                 record = StepRecord(t, BaseWrench(w), counts[i], 1, wall)
                 records.append(record)
-                self.data.end_run(states[i], t, motions[i], rotations[i])
+                self.data.end_run(states, i, t, motions, rotations)
                 hook(record)
         stats.steps += done
         stats.step_wall_times.extend([wall] * done)

@@ -22,9 +22,9 @@ class NeedleData:
     """Everything a step changes, in one place:
 
     * ``state``: t, q, q', q'', the integrator's history a of the last accepted step and the base motion (clamp
-      point A) at t (None: not started; :attr:`base` is the state's). A compiled run leaves its last step's rows
-      [q, q', q'', a], end time and packed base motion (:meth:`end_run`); its :class:`State` is made when first read
-      (the live loop's next step reads only the rows and the time: :meth:`start_rows`, :attr:`time`);
+      point A) at t (None: not started; :attr:`base` is the state's). A compiled run leaves its outputs and the
+      index and end time of its last step (:meth:`end_run`); its :class:`State` is made when first read (the live
+      loop's next step reads only the rows and the time: :meth:`start_rows`, :attr:`time`);
     * ``grid_origin`` [s], ``step_index``: steps end at grid_origin + step_index dt (set at each (re)start; the
       live time loop may shift the origin by less than a step to keep the grid half a step from the poses);
     * ``pose_phase``: the poses' phase on the step grid, a running mean of exp(2 pi i x) over the accepted poses,
@@ -48,14 +48,15 @@ class NeedleData:
     point_loads: dict[str, PointLoad] = field(default_factory=dict)
     force_states: tuple = ()
     _state: State | None = None
-    _run_end: tuple | None = None  # (rows (4, n_dof), t, packed motion (19,), rotation) of end_run, until read
+    _run_end: tuple | None = None  # (states, index, t, motions, rotations) of end_run, until read
 
     @property
     def state(self) -> State | None:
         end = self._run_end
         if end is not None:
-            rows, t, motion, rotation = end
-            self._state = State(rows[0], rows[1], rows[2], t, rows[3], BaseMotion.from_packed(motion, rotation))
+            states, i, t, motions, rotations = end
+            rows = states[i]
+            self._state = State(rows[0], rows[1], rows[2], t, rows[3], BaseMotion.from_packed(motions[i], rotations[i]))
             self._run_end = None
         return self._state
 
@@ -63,10 +64,10 @@ class NeedleData:
     def state(self, state: State | None) -> None:
         self._state, self._run_end = state, None
 
-    def end_run(self, rows: np.ndarray, t: float, motion: np.ndarray, rotation: np.ndarray) -> None:
-        """The state a compiled run ended at: its rows [q, q', q'', a] (4, n_dof) at time t, the base motion
-        packed (19,) with its rotation (:meth:`BaseMotion.from_packed`), all never changed after."""
-        self._state, self._run_end = None, (rows, t, motion, rotation)
+    def end_run(self, states: np.ndarray, index: int, t: float, motions: np.ndarray, rotations: np.ndarray) -> None:
+        """The state a compiled run ended at: step ``index`` of its rows [q, q', q'', a] (k, 4, n_dof) at time t
+        and of its packed base motions (k, 19) and rotations (:meth:`BaseMotion.from_packed`), never changed after."""
+        self._state, self._run_end = None, (states, index, t, motions, rotations)
 
     @property
     def started(self) -> bool:
@@ -76,20 +77,20 @@ class NeedleData:
     def time(self) -> float:
         """The state's time t (started)."""
         end = self._run_end
-        return end[1] if end is not None else self._state.t
+        return end[2] if end is not None else self._state.t
 
     @property
     def with_history(self) -> bool:
         """Whether the (started) state has the integrator's history a (aux), as a compiled run needs."""
         return self._run_end is not None or self._state.aux is not None
 
-    def start_rows(self) -> np.ndarray:
-        """[q, q', q'', a] (4, n_dof) of the state (started, :attr:`with_history`): a compiled run's start."""
+    def start_rows(self) -> tuple[np.ndarray, int]:
+        """(rows [q, q', q'', a] (k, 4, n_dof), the state's index) (started, :attr:`with_history`): a run's start."""
         end = self._run_end
         if end is not None:
-            return end[0]
+            return end[0], end[1]
         state = self._state
-        return np.stack((state.q, state.qd, state.qdd, state.aux))
+        return np.stack((state.q, state.qd, state.qdd, state.aux))[None], 0
 
     @property
     def base(self) -> BaseMotion | None:

@@ -190,7 +190,7 @@ def rigid_node_kinematics(p, rotation, v, w, a, alpha, local_r, local_rx, nodes,
 @njit(cache=True)
 def compose_offsets(flange, offset, offset_rotation, values, rotations):
     """Motions (k, 19) and rotations (k, 3, 3) of a frame rigidly offset (offset, offset_rotation in the moving
-    frame) from the moving frames packed in flange (k, 19) as BaseMotion fields."""
+    frame) from the moving frames packed in flange (k, 19) as BaseMotion fields; ``values`` may be ``flange``."""
     for i in range(flange.shape[0]):
         m = flange[i]
         rotation = quaternion_matrix(m[3:7])

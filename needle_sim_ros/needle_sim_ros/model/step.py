@@ -28,9 +28,7 @@ With no state-dependent contribution (``keep_matrix``) the iteration matrix is k
 holds still and the steps converge in a single correction: then no matrix is assembled or factored at all (a
 needle held still under a load: 22 instead of 40 us per step). Otherwise a step starts with a fresh matrix: chord
 corrections on an older matrix converge slowly (released from a 10 g tip load: 4.2 corrections per step instead
-of 2.1; pitching base: 3.0 instead of 1.1). Released from a 10 g tip load a step takes 1.99 corrections, 1.04 on a
-fresh matrix: 10.6-10.9 us in a run (12.0-12.1 with numba's reference counts), of which the fresh ones 5.5 (assembly
-3.5, Cholesky 1.9), the solves 1.8, the chord ones' residuals 1.2, the wrench 0.3 (``bench/bench_step_stages.py``).
+of 2.1; pitching base: 3.0 instead of 1.1). The cost of each stage: ``bench/bench_step_stages.py`` (README).
 """
 from __future__ import annotations
 
