@@ -184,12 +184,13 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
     assert any(image.encoding == "bgr8" and (image.width, image.height) == (1440, 540) for image in received["debug"])
 
 
+@pytest.mark.timeout(1800)
 def test_a_cold_kernel_cache_delays_the_measurement_not_the_node(ros_env, tmp_path, background_frames, renders):
     """With an empty numba cache (a first run after ``colcon build --symlink-install``, ``NEEDLE_COMPILE_KERNELS=0``
     or another NUMBA_CACHE_DIR) the kernels compile for ~1 min: the node subscribes and reports at once, with
     ``accepting: false`` until they are loaded, counts the pairs it skips meanwhile, and measures the pairs after.
     Before, it compiled before subscribing: no subscription and no report for that minute, a camera's pairs lost
-    uncounted. Takes the cold compilation itself (~1 min; 2 on a loaded host)."""
+    uncounted. Takes the cold compilation itself: ~1 min on a quiet host, 11 min and more at a load of 15 on 2 cores."""
     params = tmp_path / "params.yaml"
     params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
         "background": {"frames": 1}, "warning_period": 0.01, "image_qos": "reliable",
@@ -227,7 +228,7 @@ def test_a_cold_kernel_cache_delays_the_measurement_not_the_node(ros_env, tmp_pa
         publish(1.0, renders("planar"))
         spin_until(lambda: counted("skipped_loading_kernels") == "1", 10)
         assert counted("skipped_loading_kernels") == "1" and statuses["inputs"][-1]["accepting"] == "false"
-        spin_until(lambda: not _waiting(node, reports, images.values()), 600)
+        spin_until(lambda: not _waiting(node, reports, images.values()), 1500)
         assert not _waiting(node, reports, images.values())
         for stamp, pair in ((2.0, background_frames[0]), (2.1, renders("planar"))):
             publish(stamp, pair)
