@@ -112,8 +112,9 @@ if [ "$(cat "$STAMPS/build" 2>/dev/null)" != "$src_hash" ] || [ ! -f "$REPO/$INS
   for package in "${relisted[@]}"; do
     rm -rf "${REPO:?}/$BUILD/$package" "${REPO:?}/$INSTALL/$package"
   done
-  # numba checks only a kernel's own file, so a cached caller would keep a changed callee's old code: the install
-  # step compiles every kernel anew into an empty cache
+  # numba checks only a kernel's own file, so a cached caller would keep a changed callee's old code: the cache is
+  # emptied and the install steps of needle_sim_ros and needle_vision compile their nodes' kernels into it anew (other
+  # kernels at first use; a node run without this NUMBA_CACHE_DIR looks in install/'s __pycache__: it compiles them)
   rm -rf "$REPO/$BUILD/numba_cache"
   step "building the colcon workspace (${src_dirs[*]})"
   (cd "$REPO" && colcon --log-base "$BUILD/colcon_log" build --build-base "$BUILD" --install-base "$INSTALL" \

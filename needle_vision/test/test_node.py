@@ -17,6 +17,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2  # noqa: E402
 
 from vision_shapes import SHAPES, distance_to_curve  # noqa: E402
+from needle_common.ros.input_status import InputReports  # noqa: E402
 from needle_interfaces.msg import NeedleShape  # noqa: E402
 from needle_vision.calibration.rig import camera_info_fields  # noqa: E402
 from needle_vision.streams.image_codec import compress_image, image_fields  # noqa: E402
@@ -60,14 +61,23 @@ def _stop(node, process: subprocess.Popen) -> str:
     return output
 
 
+def _waiting(node, reports: InputReports, publishers) -> list[str]:
+    """What the node still lacks before our ``publishers``' messages are measured: as ``needle_replay
+    --wait-for-nodes /needle_stereo`` waits, its input report matching them and taking input (its kernels loaded),
+    and our discovery of its measured shape."""
+    return reports.waiting_for(["/needle_stereo"], [p.topic_name for p in publishers]) + (
+        ["no measured shape publisher"] if node.count_publishers("needle/measured_shape") < 1 else [])
+
+
 def _wait_for_node(node, process: subprocess.Popen, publishers, warm_up: float = 1.0) -> None:
-    """Spin until each of our ``publishers`` has the node as a subscriber and the node publishes its measured shape
-    (start-up: imports, compiled-code cache, discovery), check it is alive, then spin ``warm_up`` seconds more."""
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and (min(p.get_subscription_count() for p in publishers) < 1
-                                           or node.count_publishers("needle/measured_shape") < 1):
+    """Spin until the node takes the input of our ``publishers`` (:func:`_waiting`; start-up: imports, kernel
+    cache, discovery), check it is alive, then spin ``warm_up`` seconds more."""
+    reports, deadline = InputReports(node), time.monotonic() + 60
+    while time.monotonic() < deadline and _waiting(node, reports, publishers):
         rclpy.spin_once(node, timeout_sec=0.1)
     assert process.poll() is None, process.stdout.read()
+    assert not _waiting(node, reports, publishers)
+    reports.close()
     end = time.monotonic() + warm_up
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.1)
@@ -103,21 +113,17 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
         images = {side: node.create_publisher(Image, f"{side}/image_raw", reliable) for side in ("left", "right")}
         infos = {side: node.create_publisher(CameraInfo, f"{side}/camera_info", reliable) for side in ("left", "right")}
         ros = rig.with_ros_rectification()
-        deadline = time.monotonic() + 60  # node start-up (imports, compiled-code cache) and discovery
-        publishers = [*images.values(), *infos.values()]
-        while time.monotonic() < deadline and min(p.get_subscription_count() for p in publishers) < 1:
-            rclpy.spin_once(node, timeout_sec=0.1)
-        assert process.poll() is None, process.stdout.read()
-
-        # Like a camera driver, publish camera_info for a while before the images: discovery completes on the
-        # node's side after it does on ours, and messages sent before that are lost.
+        deadline = time.monotonic() + 60  # node start-up (imports, kernel cache) and discovery
+        publishers, reports = [*images.values(), *infos.values()], InputReports(node)
+        # Like a camera driver, publish camera_info for a while before the images, until the node takes them
         warm_up = time.monotonic() + 1.5
         outputs = ("needle/measured_shape", "needle/measured_points", "needle/debug_image")
-        while time.monotonic() < deadline and (time.monotonic() < warm_up
+        while time.monotonic() < deadline and (time.monotonic() < warm_up or _waiting(node, reports, publishers)
                                                or min(node.count_publishers(topic) for topic in outputs) < 1):
             for side, camera in (("left", ros.left), ("right", ros.right)):
                 infos[side].publish(CameraInfo(**camera_info_fields(camera)))
             rclpy.spin_once(node, timeout_sec=0.1)
+        assert process.poll() is None and not _waiting(node, reports, publishers), process.stdout.read()
         needle = renders("planar")
         pairs = [(1.00, *background_frames[0]), (1.01, *background_frames[1]), (1.02, *needle),
                  (1.03, needle[0][::2, ::2].copy(), needle[1][::2, ::2].copy()),  # wrong size
@@ -176,6 +182,66 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
     np.testing.assert_allclose(np.frombuffer(bytes(cloud.data), "<f4").reshape(-1, 3), points, atol=1e-6)
     # Side by side, half size (also published for rejected pairs, e.g. 720 px wide for the half-size pair).
     assert any(image.encoding == "bgr8" and (image.width, image.height) == (1440, 540) for image in received["debug"])
+
+
+@pytest.mark.timeout(1800)
+def test_a_cold_kernel_cache_delays_the_measurement_not_the_node(ros_env, tmp_path, background_frames, renders):
+    """With an empty numba cache (a first run after ``colcon build --symlink-install``, ``NEEDLE_COMPILE_KERNELS=0``
+    or another NUMBA_CACHE_DIR) the kernels compile for ~1 min: the node subscribes and reports at once, with
+    ``accepting: false`` until they are loaded, counts the pairs it skips meanwhile, and measures the pairs after.
+    Before, it compiled before subscribing: no subscription and no report for that minute, a camera's pairs lost
+    uncounted. Takes the cold compilation itself: ~1 min on a quiet host, 11 min and more at a load of 15 on 2 cores."""
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {
+        "background": {"frames": 1}, "warning_period": 0.01, "image_qos": "reliable",
+        "left_calibration_file": "package://needle_vision/config/stereo/left.yaml",
+        "right_calibration_file": "package://needle_vision/config/stereo/right.yaml"}}}))
+    process = start_node(dict(ros_env, NUMBA_CACHE_DIR=str(tmp_path / "numba_cache")), "--params-file", str(params))
+    rclpy.init()
+    node = rclpy.create_node("needle_stereo_cold_test")
+    try:
+        shapes, statuses = [], {"inputs": [], "measurement": []}
+        node.create_subscription(NeedleShape, "needle/measured_shape", shapes.append, 10)
+        node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: [
+            statuses[s.name.split(": ")[1]].append({kv.key: kv.value for kv in s.values}) for s in m.status
+            if s.name in ("/needle_stereo: inputs", "/needle_stereo: measurement")], 10)
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        images = {side: node.create_publisher(Image, f"{side}/image_raw", reliable) for side in ("left", "right")}
+        reports = InputReports(node)
+
+        def spin_until(done, seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end and not done():
+                rclpy.spin_once(node, timeout_sec=0.1)
+
+        def publish(stamp: float, pair) -> None:
+            for side, image in zip(("left", "right"), pair):
+                images[side].publish(_image_msg(image, stamp, f"{side}_optical"))
+
+        def counted(outcome: str) -> str | None:
+            return statuses["measurement"][-1][f"pairs_{outcome}"] if statuses["measurement"] else None
+
+        loading = ["/needle_stereo is not taking input yet"]
+        spin_until(lambda: _waiting(node, reports, images.values()) == loading, 30)  # imports and discovery
+        assert process.poll() is None, process.stdout.read()
+        assert _waiting(node, reports, images.values()) == loading
+        publish(1.0, renders("planar"))
+        spin_until(lambda: counted("skipped_loading_kernels") == "1", 10)
+        assert counted("skipped_loading_kernels") == "1" and statuses["inputs"][-1]["accepting"] == "false"
+        spin_until(lambda: not _waiting(node, reports, images.values()), 1500)
+        assert not _waiting(node, reports, images.values())
+        for stamp, pair in ((2.0, background_frames[0]), (2.1, renders("planar"))):
+            publish(stamp, pair)
+            spin_until(lambda: False, 0.5)
+        spin_until(lambda: shapes and counted("measured") == "1", 30)
+    finally:
+        output = _stop(node, process)
+    assert "Traceback" not in output
+    assert len(shapes) == 1 and shapes[0].header.stamp.nanosec == 100_000_000, output
+    assert {k: counted(k) for k in ("measured", "background", "skipped_loading_kernels")} == {
+        "measured": "1", "background": "1", "skipped_loading_kernels": "1"}, output
+    assert "pair at 1.000000 s skipped: the measurement kernels are still loading" in output
+    assert "measurement kernels ready in" in output and "s (1 pairs skipped)" in output, output
 
 
 def test_singular_right_projection_is_refused_without_a_crash(ros_env, rig):

@@ -1,8 +1,9 @@
 """What became of the stereo node's image pairs, on ``/diagnostics`` beside its input report.
 
 A status ``<fully qualified node name>: measurement`` (e.g. ``/needle_stereo: measurement``) with cumulative counts
-(``pairs_<outcome>``: measured, background, rejected, skipped_no_calibration, skipped_decode_error (an image
-of an encoding it cannot read or a compressed image that does not decode); ``frames_unpaired``: frames dropped
+(``pairs_<outcome>``: measured, background, rejected, skipped_no_calibration, skipped_loading_kernels (before the
+measurement's kernels are compiled or loaded), skipped_decode_error (an image of an encoding it cannot read or a
+compressed image that does not decode); ``frames_unpaired``: frames dropped
 without a partner within ``sync_tolerance``,
 ``rejected_<kind>``: the measurement's rejections by kind since the calibration) and a level from what happened
 since the previous report: WARN while pairs are rejected or skipped or frames go unpaired, OK otherwise.
@@ -15,7 +16,8 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from needle_common.ros.input_status import OK, WARN
 
-OUTCOMES = ("measured", "background", "rejected", "skipped_no_calibration", "skipped_decode_error")
+OUTCOMES = ("measured", "background", "rejected", "skipped_no_calibration", "skipped_loading_kernels",
+            "skipped_decode_error")
 
 
 class MeasurementStatus:

@@ -10,11 +10,14 @@ with per-sample uncertainty), ``needle/debug_image`` (bgr8, centerlines drawn) a
 what became of the pairs on ``/diagnostics`` (:mod:`needle_common.ros.input_status`,
 :mod:`needle_vision.ros.measurement_status`). Base and tip are told apart by the needle's base pose: ``base_pose``
 (geometry_msgs/PoseStamped, read raw) and, where tf2_ros is installed, the TF frame ``base_pose.frame``. Everything else
-happens in the ROS-free :class:`needle_vision.pipeline.StereoNeedlePipeline`.
+happens in the ROS-free :class:`needle_vision.pipeline.StereoNeedlePipeline`, whose numba kernels load on a worker
+thread at start (~1 min where numba's cache has none): until then the input report says ``accepting: false`` and the
+pairs are counted as ``skipped_loading_kernels``.
 """
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
@@ -62,8 +65,10 @@ class NeedleStereoNode(Node):
         self._reported_drops = 0
         self.tf = TfOutput(self)
         self.measurement_status = MeasurementStatus(self.get_fully_qualified_name())
+        self.kernels_ready = threading.Event()
         self.inputs = InputStatus(self, lambda: [self.measurement_status.status(
-            self.pairer.dropped, self.front.pipeline.rejections if self.front.pipeline else Counter())])
+            self.pairer.dropped, self.front.pipeline.rejections if self.front.pipeline else Counter())],
+            accepting=self.kernels_ready.is_set)
         qos = qos_profile(self.values["image_qos"])
         if self.front.pipeline:
             self.send_camera_frames(self.front.pipeline.rig)
@@ -71,9 +76,9 @@ class NeedleStereoNode(Node):
             for side in ("left", "right"):
                 self.inputs.track(self.create_subscription(CameraInfo, f"{side}/camera_info",
                                                            lambda msg, side=side: self.on_camera_info(side, msg), qos))
-        # after the parameters are checked and the static frames sent, before subscribing: a pair arriving while the
-        # kernels compile would wait, and the ones after it be dropped
-        self.get_logger().info(f"measurement kernels ready in {compile_kernels():.1f} s")
+        # after the parameters are checked, on a worker: the node subscribes and reports at once (daemon: a stop
+        # while they compile does not wait for them)
+        threading.Thread(target=self.load_kernels, name="kernels", daemon=True).start()
         image_type, suffix = (CompressedImage, "/compressed") if self.compressed else (Image, "")
         for side in ("left", "right"):  # read serialized, as the offline tools read a bag's images
             self.inputs.track(self.create_subscription(image_type, f"{side}/image_raw{suffix}",
@@ -81,7 +86,7 @@ class NeedleStereoNode(Node):
                                                        raw=True))
         if self.values["base_pose.topic"]:
             self.inputs.track(self.create_subscription(PoseStamped, self.values["base_pose.topic"], self.on_base_pose,
-                                                       qos_profile("sensor_data", 5), raw=True))
+                                                       qos_profile("sensor_data", 100), raw=True))
         self.tf_buffer = self.base_tf_buffer()
         self.cloud_pub = self.create_publisher(PointCloud2, "needle/measured_points", 10)
         self.shape_pub = self.create_publisher(NeedleShape, "needle/measured_shape", 10)
@@ -89,6 +94,18 @@ class NeedleStereoNode(Node):
         source = "calibration files" if self.front.pipeline else "left/camera_info and right/camera_info"
         self.get_logger().info(f"needle_stereo ready: {self.values['image_transport']} images, calibration from "
                                f"{source}, background from {self.values['background.frames']} pairs")
+
+    def load_kernels(self) -> None:
+        """Compile, or load from numba's cache, the measurement's kernels (:func:`compile_kernels`), then take
+        pairs."""
+        self.get_logger().info("loading the measurement kernels (compiling them if numba's cache has none: ~1 min); "
+                               "pairs are counted as skipped_loading_kernels until then")
+        try:
+            self.get_logger().info(f"measurement kernels ready in {compile_kernels():.1f} s "
+                                   f"({self.measurement_status.pairs['skipped_loading_kernels']} pairs skipped)")
+        except Exception as error:  # noqa: BLE001 - numba's or LLVM's: the pairs compile them as they need them
+            self.get_logger().error(f"loading the measurement kernels failed, the first pairs compile them: {error}")
+        self.kernels_ready.set()
 
     def base_tf_buffer(self) -> Any:
         """A tf2_ros buffer listening to /tf for the base frame, or None (no frame set, or tf2_ros missing)."""
@@ -175,6 +192,10 @@ class NeedleStereoNode(Node):
             self.measurement_status.count("skipped_no_calibration")
             self.warn("calibration", "no usable stereo calibration yet (waiting for left/camera_info and "
                                      "right/camera_info): frame skipped")
+            return
+        if not self.kernels_ready.is_set():
+            self.measurement_status.count("skipped_loading_kernels")
+            self.warn("kernels", f"pair at {pair.stamp:.6f} s skipped: the measurement kernels are still loading")
             return
         try:
             images = list(self._decoder.map(SerializedImage.gray, (pair.left, pair.right))) if self._decoder \
