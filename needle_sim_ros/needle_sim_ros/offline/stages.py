@@ -32,8 +32,7 @@ from needle_vision.calibration.rig import CalibrationError
 from needle_vision.streams.image_codec import ImageFormatError, SerializedImage
 from needle_vision.streams.pairing import StampPairer as FramePairer
 from needle_common.bag_reader import absolute_topic
-from needle_common.cdr import PoseStamped
-from needle_common.transforms import quaternions_from_x_axes
+from needle_common.cdr import PoseStamped, needle_shape
 from needle_common.parameters import ParameterError
 from needle_vision.front_end import StereoFrontEnd
 from needle_vision.parameters import validate_all
@@ -191,8 +190,8 @@ class StereoStage:
             return []
         m = result.measurement
         frame = self.values["output_frame"] or left.frame_id
-        data = cdr.needle_shape(left.sec, left.nanosec, frame, NeedleShape.SOURCE_STEREO, m.points, m.tangents,
-                                m.arc_length, m.points[-1], quaternions_from_x_axes(m.tangents[-1]), m.uncertainty)
+        data = needle_shape(left.sec, left.nanosec, frame, NeedleShape.SOURCE_STEREO, m.points, m.tangents,
+                            m.arc_length, uncertainty=m.uncertainty)
         return [MeasuredShape(Tag(Stamp(left.sec, left.nanosec), frame), m.points, m.arc_length, data)]
 
     def statistics(self) -> dict[str, Any]:
