@@ -7,7 +7,7 @@ Each stage holds the same ROS-free core as its node and translates messages exac
   at ``rates.shape_hz``. The node publishes shapes when its clock passes the due time; here they are due on the same
   rate counted in integration steps from the first pose, so that a measurement stamped on that grid meets a model
   shape of the very same instant. The two high-rate outputs are serialized straight from arrays
-  (:mod:`needle_sim_ros.messages.cdr`).
+  (:mod:`needle_sim_ros.messages.cdr`, :mod:`needle_common.cdr`).
 * :class:`StereoStage` — ``needle_stereo``: its images (raw, or image_transport's compressed topics), left/right
   pairing by approximate time and :class:`needle_vision.pipeline.StereoNeedlePipeline`, publishing
   ``needle/measured_shape``.
