@@ -1,11 +1,22 @@
-"""Decoding of serialized input messages (CDR: XCDR1 little endian, as a bag or a raw subscription gives them)
-without building rclpy message objects (rclpy builds six Python objects per pose). No ROS here."""
+"""CDR (XCDR1 little endian, as a bag or a raw subscription gives them) without rclpy message objects (rclpy
+builds six Python objects per pose): decoding of the input messages, and :class:`Writer` with the NeedleShape
+encoder (the simulator's other outputs: :mod:`needle_sim_ros.messages.cdr`). No ROS here.
+
+An encoder writes exactly the bytes of ``rclpy.serialization.serialize_message`` for the equivalent message
+(needle_sim_ros's test_cdr checks them): encapsulation 0x0001, primitives aligned to their size from the payload's
+start, strings as uint32 length (with the NUL) + bytes + NUL, sequences as uint32 count + elements, zero padding,
+and the trailing zero bytes of rmw_fastrtps's size estimate (a float64 sequence aligned to 8 even when empty).
+Nodes publish them with ``Publisher.publish(bytes)``; why and what it saves: docs/design_notes.md.
+"""
 from __future__ import annotations
 
 import struct
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
+
+from needle_common.transforms import quaternions_from_x_axes
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
 NS = 1_000_000_000
@@ -100,3 +111,116 @@ def camera_info(data: bytes | memoryview) -> CameraInfo:
     except (struct.error, ValueError) as error:
         raise ValueError(f"truncated CameraInfo message ({error})") from error
     return CameraInfo(stamp, frame_id, height, width, distortion_model, d, k, r, p)
+
+
+class Writer:
+    """A little-endian CDR payload with alignment relative to its start."""
+
+    def __init__(self) -> None:
+        self.parts: list[bytes] = []
+        self.size = 0
+        self.estimated_size = 0  # rmw_fastrtps's size estimate: never less than ``size``
+
+    def add(self, data: bytes) -> None:
+        """Bytes as they are (no alignment)."""
+        self.parts.append(data)
+        self.size += len(data)
+        self.estimated_size += len(data)
+
+    def align(self, boundary: int) -> None:
+        padding = -self.size % boundary
+        self.estimated_size += -self.estimated_size % boundary - padding
+        if padding:
+            self.add(b"\x00" * padding)
+
+    def pack(self, fmt: str, alignment: int, *values) -> None:
+        """Primitives of one size (struct format without byte order), aligned to it."""
+        self.align(alignment)
+        self.add(struct.pack("<" + fmt, *values))
+
+    def uint32(self, value: int) -> None:
+        self.pack("I", 4, value)
+
+    def time(self, sec: int, nanosec: int) -> None:
+        self.pack("iI", 4, sec, nanosec)
+
+    def string(self, text: str) -> None:
+        data = text.encode() + b"\x00"
+        self.uint32(len(data))
+        self.add(data)
+
+    def header(self, sec: int, nanosec: int, frame_id: str) -> None:
+        """A std_msgs/Header."""
+        self.time(sec, nanosec)
+        self.string(frame_id)
+
+    def doubles(self, values: np.ndarray) -> None:
+        """Consecutive float64 values (a fixed-size struct of doubles, or a sequence's elements)."""
+        values = np.ascontiguousarray(values, dtype="<f8")
+        if values.size:
+            self.align(8)
+            self.add(values.tobytes())
+
+    def sequence(self, values: np.ndarray, per_element: int) -> None:
+        """uint32 element count, then the elements' doubles: structs of ``per_element`` doubles each (Point,
+        Vector3, Pose)."""
+        values = np.asarray(values, dtype=float).reshape(-1)
+        self.uint32(values.size // per_element)
+        self.doubles(values)
+
+    def float64_sequence(self, values: np.ndarray) -> None:
+        """uint32 count, then the float64 values (the size estimate aligns them even when there are none)."""
+        self.sequence(values, 1)
+        self.estimated_size += -self.estimated_size % 8
+
+    def bytes(self) -> bytes:
+        return ENCAPSULATION + b"".join(self.parts) + bytes(self.estimated_size - self.size)
+
+
+def needle_shape(sec: int, nanosec: int, frame_id: str, source: str, points: np.ndarray, tangents: np.ndarray,
+                 arc_length: np.ndarray, tip_position: np.ndarray | None = None,
+                 tip_orientation: np.ndarray | None = None, uncertainty: np.ndarray | None = None) -> bytes:
+    """needle_interfaces/msg/NeedleShape, the suite's one: ``length`` = the last arc length; the tip pose by default
+    the last point, oriented with x along the last tangent (a measured centerline has no twist). The layout of its
+    frame, source and sizes (:func:`_needle_shape_layout`) filled with the stamp and the values."""
+    tip_position = points[-1] if tip_position is None else tip_position
+    tip_orientation = quaternions_from_x_axes(tangents[-1]) if tip_orientation is None else tip_orientation
+    length = float(arc_length[-1]) if len(arc_length) else 0.0
+    blocks = [np.asarray(values, dtype=float).reshape(-1) for values in (
+        points, tangents, arc_length, np.zeros(0) if uncertainty is None else uncertainty)]
+    blocks.append(np.concatenate([tip_position, tip_orientation, [length]]).astype(float))
+    template, starts = _needle_shape_layout(frame_id, source, tuple(block.size for block in blocks))
+    data = bytearray(template)
+    struct.pack_into("<iI", data, len(ENCAPSULATION), sec, nanosec)
+    for start, block in zip(starts, blocks):
+        data[start:start + 8 * block.size] = block.astype("<f8").tobytes()
+    return bytes(data)
+
+
+class _Layout(Writer):
+    """A :class:`Writer` that notes where each block of doubles starts in the serialized bytes."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.starts: list[int] = []
+
+    def doubles(self, values: np.ndarray) -> None:
+        if np.size(values):
+            self.align(8)
+        self.starts.append(len(ENCAPSULATION) + self.size)
+        super().doubles(values)
+
+
+@lru_cache(maxsize=64)
+def _needle_shape_layout(frame_id: str, source: str, sizes: tuple[int, ...]) -> tuple[bytes, tuple[int, ...]]:
+    """The bytes of a NeedleShape with a zero stamp and zero values of blocks of these sizes, and where each block
+    starts (a model shape's layout is the same at every output: ~20 us of encoding less each)."""
+    layout = _Layout()
+    layout.header(0, 0, frame_id)
+    layout.string(source)
+    layout.sequence(np.zeros(sizes[0]), 3)  # points
+    layout.sequence(np.zeros(sizes[1]), 3)  # tangents
+    layout.float64_sequence(np.zeros(sizes[2]))  # arc length
+    layout.float64_sequence(np.zeros(sizes[3]))  # uncertainty
+    layout.doubles(np.zeros(sizes[4]))  # tip pose and length
+    return layout.bytes(), tuple(layout.starts)

@@ -52,7 +52,8 @@ class ParamSpec:
     """One parameter: name, default (its type is the parameter's type), meaning with unit, valid values.
 
     ``low``/``high`` bound numbers (and every element of number arrays); ``choices`` lists valid values;
-    ``length`` fixes an array's length; ``check`` is an extra predicate with the message shown when it fails.
+    ``length`` fixes an array's length; ``check`` is an extra predicate with the message shown when it fails (by
+    returning false or raising ValueError: a rule's own check, e.g. :func:`needle_common.transforms.unit_quaternion`).
     ``dynamic`` parameters may change while a node runs; ``allow_infinite`` admits +-inf (e.g. "no limit").
     """
 
@@ -107,8 +108,13 @@ class ParamSpec:
             fail(f"expected {self.length} values, got {len(values)}")
         if self.choices is not None and value not in self.choices:
             fail(f"must be one of {', '.join(map(str, self.choices))}")
-        if self.check is not None and not self.check[0](value):
-            fail(self.check[1])
+        if self.check is not None:
+            try:
+                passed = self.check[0](value)
+            except ValueError:
+                passed = False
+            if not passed:
+                fail(self.check[1])
         return [expected(v) for v in values] if self.is_list else expected(value)
 
 

@@ -192,13 +192,21 @@ def simulation_from_parameters(p: dict) -> NeedleSimulation:
                                                                   p["pose_input.max_angular_speed"],
                                                                   p["pose_input.resume_tolerance"]))
     sim = NeedleSimulation(stepper, source, p["loop.max_catch_up"], p["pose_input.timeout"])
-    tip_force = np.asarray(p["loads.tip_force"], dtype=float)
-    if np.any(tip_force != 0.0):
-        try:
-            sim.set_point_load(TIP_FORCE_PARAMETER, model.props.length, tip_force)
-        except ValueError as error:
-            raise ValueError(f"parameter 'loads.tip_force' = {tip_force.tolist()}: {error}") from error
+    apply_tip_force(sim, p["loads.tip_force"])
     return sim
+
+
+def apply_tip_force(sim: NeedleSimulation, force) -> None:
+    """The ``loads.tip_force`` parameter [N]: the point load at the tip (zero: none); ValueError naming the parameter
+    for a load the needle cannot carry."""
+    force = np.asarray(force, dtype=float)
+    if not np.any(force != 0.0):
+        sim.clear_point_loads([TIP_FORCE_PARAMETER])
+        return
+    try:
+        sim.set_point_load(TIP_FORCE_PARAMETER, sim.model.props.length, force)
+    except ValueError as error:
+        raise ValueError(f"parameter 'loads.tip_force' = {force.tolist()}: {error}") from error
 
 
 TIP_FORCE_PARAMETER = "tip_force_parameter"  # name of the point load set by the `loads.tip_force` parameter

@@ -1,4 +1,5 @@
-"""The hand-written CDR encoders (:mod:`needle_sim_ros.messages.cdr`) byte for byte against rclpy.
+"""The hand-written CDR encoders (:mod:`needle_sim_ros.messages.cdr`, :func:`needle_common.cdr.needle_shape`) byte
+for byte against rclpy.
 
 Every encoder's bytes must equal ``rclpy.serialization.serialize_message`` of the equivalent rclpy message, built
 field by field here, for every field the encoder writes (Jazzy's full ``visualization_msgs/Marker`` included). The
@@ -28,11 +29,11 @@ from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MeshFile
 
+from needle_common.cdr import needle_shape
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.messages.centerline_display import COLORS, centerline_display
 from needle_common.transforms import quaternions_from_x_axes
 from needle_sim_ros.messages.geometry import polyline_tangents, tube_triangles
-from needle_common.ros.needle_shape import needle_shape_msg
 from needle_vision.streams.image_codec import deserialize_image
 from needle_sim_ros.messages.shape import shape_error_cdr, time_msg
 
@@ -218,16 +219,18 @@ def test_needle_shape_is_rclpys(serializers):
                     points, tangents = rng.normal(size=(count, 3)), rng.normal(size=(count, 3))
                     arc, tip, quaternion = np.cumsum(rng.random(count)), rng.normal(size=3), rng.normal(size=4)
                     uncertainty = rng.random(count) if with_uncertainty else None
-                    encoded.append(cdr.needle_shape(SEC, NANOSEC, frame, source, points, tangents, arc, tip,
-                                                    quaternion, uncertainty))
+                    encoded.append(needle_shape(SEC, NANOSEC, frame, source, points, tangents, arc, tip,
+                                                quaternion, uncertainty))
                     messages.append(NeedleShape(
                         header=header(frame), source=source, points=[Point(x=p[0], y=p[1], z=p[2]) for p in points],
                         tangents=[Vector3(x=v[0], y=v[1], z=v[2]) for v in tangents], arc_length=arc.tolist(),
                         uncertainty=[] if uncertainty is None else uncertainty.tolist(),
                         tip_pose=pose(tip, quaternion), length=float(arc[-1]) if count else 0.0))
-                    # the message objects the stereo stage and the bag generator build are the same message
-                    assert needle_shape_msg(header(frame), source, points, tangents, arc, tip, quaternion,
-                                            uncertainty) == messages[-1]
+                    if count:  # a measured shape's default tip pose: the last point along the last tangent
+                        assert needle_shape(SEC, NANOSEC, frame, source, points, tangents, arc,
+                                            uncertainty=uncertainty) == needle_shape(
+                            SEC, NANOSEC, frame, source, points, tangents, arc, points[-1],
+                            quaternions_from_x_axes(tangents[-1]), uncertainty)
     assert_rclpy_bytes(serializers, encoded, messages)
 
 

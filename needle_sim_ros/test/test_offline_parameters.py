@@ -36,6 +36,10 @@ def test_overrides_are_checked_against_the_declarations(experiment):
         experiment.values("needle_simulator", {"needle.lenght": 0.2})
     with pytest.raises(ParameterError, match="parameter 'needle.elements' = 0: must be >= 1"):
         experiment.values("needle_simulator", {"needle.elements": 0})
+    # the clamp offset's check is needle_common.transforms.unit_quaternion's rule (norm 1 within 1e-6)
+    experiment.values("needle_simulator", {"flange_offset.orientation": [0.0, 0.0, 0.6, 0.8 + 5e-7]})
+    with pytest.raises(ParameterError, match="'flange_offset.orientation' = .*: must be a unit quaternion"):
+        experiment.values("needle_simulator", {"flange_offset.orientation": [0.0, 0.0, 0.6, 0.8 + 5e-6]})
 
 
 def test_needle_offline_refuses_a_misspelled_override_in_one_line(tmp_path, capsys):

@@ -207,10 +207,12 @@ def test_readout_of_a_straight_inserted_needle(model):
 def test_configuration_errors_name_the_parameter(model):
     with pytest.raises(ValueError, match="tissue.shaft.axial_model"):
         build_tissue_model(config(shaft__axial_model="coulomb"), model)
-    with pytest.raises(ValueError, match="unknown tissue parameters"):
+    with pytest.raises(ValueError, match="unknown parameter 'tissue.layers.stiffness' \\(did you mean"):
         build_tissue_model({"tissue.layers.stiffness": [1.0]}, model)
     with pytest.raises(ValueError, match="tissue.layers.friction_coulomb"):
         build_tissue_model(config(layers__friction_coulomb=[6.0, 6.0]), model)
+    with pytest.raises(ValueError, match="'tissue.entry_point' = .*: expected 3 values"):
+        build_tissue_model(config(entry_point=[0.28, 0.0]), model)
     assert all(isinstance(spec.description, str) and spec.description for spec in TISSUE_PARAMETERS)
 
 

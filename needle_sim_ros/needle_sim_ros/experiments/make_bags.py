@@ -20,18 +20,17 @@ from typing import Callable
 import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, WrenchStamped
-from needle_interfaces.msg import NeedleShape
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
+from needle_common.cdr import needle_shape
 from needle_common.cli_types import command_status
 from needle_common.output_files import check_output_file, write_atomically
 
 from needle_sim_ros.experiments.ground_truth import TruthModel, TruthSamples, run_ground_truth, static_check
 from needle_sim_ros.experiments.protocols import EXPERIMENTS, Experiment
 from needle_sim_ros.model import BaseMotion
-from needle_common.ros.needle_shape import needle_shape_msg
 from needle_common.qos import OfferedQos
 from needle_sim_ros.recording import McapBagWriter, RecordingError, WriterOptions
 
@@ -94,9 +93,9 @@ def resampled_shape(shape, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return points, tangents / np.linalg.norm(tangents, axis=1, keepdims=True), arc
 
 
-def shape_msg(t: float, source: str, points, tangents, arc, tip, uncertainty=None) -> NeedleShape:
-    return needle_shape_msg(Header(stamp=stamp(t), frame_id=WORLD), source, points, tangents, arc, tip[0], tip[1],
-                            uncertainty)
+def shape_cdr(t: float, source: str, points, tangents, arc, tip, uncertainty=None) -> bytes:
+    """A serialized NeedleShape in the world frame."""
+    return needle_shape(*divmod(log_time(t), 10**9), WORLD, source, points, tangents, arc, *tip, uncertainty)
 
 
 class BagContent:
@@ -136,7 +135,7 @@ class BagContent:
         for t, force, torque in zip(truth.wrench_times, truth.force_base, truth.torque_base):
             events.append((t, 3, "/ground_truth/wrench", lambda t=t, f=force, m=torque: wrench_msg(t, f, m, BASE)))
         for i, t in enumerate(truth.shape_times):
-            events.append((t, 4, "/ground_truth/shape", lambda i=i, t=t: shape_msg(
+            events.append((t, 4, "/ground_truth/shape", lambda i=i, t=t: shape_cdr(
                 t, "ground_truth", *resampled_shape(truth.shapes[i], TRUTH_SHAPE_SAMPLES), truth.tips[i])))
         if e.has_images:
             events.append((e.background_time, 0, "images", lambda: self.render(None)))
@@ -149,13 +148,13 @@ class BagContent:
         return events
 
     # --- sensors --------------------------------------------------------------------------------------------
-    def fbg_shape(self, index: int, t: float) -> NeedleShape:
+    def fbg_shape(self, index: int, t: float) -> bytes:
         shape = self.truth.shapes[index]
         count = int(round(shape.arc_length[-1] / FBG_SPACING)) + 1
         points, tangents, arc = resampled_shape(shape, count)
         points = points + self.rng.normal(0.0, FBG_NOISE, points.shape)
         tip = (points[-1], self.truth.tips[index][1])
-        return shape_msg(t, "fbg", points, tangents, arc, tip, np.full(count, FBG_NOISE))
+        return shape_cdr(t, "fbg", points, tangents, arc, tip, np.full(count, FBG_NOISE))
 
     def render(self, index: int | None) -> list[tuple[str, object]]:
         """Camera infos and images of one stereo pair: needle-free (index None) or the truth at frame ``index``."""
@@ -215,7 +214,7 @@ def write_bag(experiment: Experiment, path: Path, truth_model: TruthModel = Trut
             for t, _, topic, factory in content.events():
                 produced = factory()
                 for name, msg in (produced if topic == "images" else [(topic, produced)]):
-                    writer.write(name, serialize_message(msg), log_time(t))
+                    writer.write(name, msg if isinstance(msg, bytes) else serialize_message(msg), log_time(t))
                     counts[name] = counts.get(name, 0) + 1
 
     write_atomically(path, write)  # an interrupted run leaves no half-written bag

@@ -1,5 +1,5 @@
-"""Needle centerline <-> ROS messages (NeedleShape, ShapeError, Time), serialized ones by
-:mod:`needle_sim_ros.messages.cdr`."""
+"""Needle centerline <-> ROS messages (NeedleShape, ShapeError, Time), serialized ones by :mod:`needle_common.cdr`
+and :mod:`needle_sim_ros.messages.cdr`."""
 from __future__ import annotations
 
 import math
@@ -10,6 +10,7 @@ from builtin_interfaces.msg import Time
 from needle_interfaces.msg import NeedleShape
 from std_msgs.msg import Header
 
+from needle_common.cdr import needle_shape
 from needle_sim_ros.messages import cdr
 from needle_sim_ros.model import ModelShape
 
@@ -42,8 +43,8 @@ def stamp_ns(stamp) -> int:
 def model_shape_cdr(shape: ModelShape, frame_id: str) -> bytes:
     """The simulator's ``needle/shape`` message (NeedleShape, source ``model``) of a shape output, serialized."""
     stamp = stamp_of(shape.t)
-    return cdr.needle_shape(stamp.sec, stamp.nanosec, frame_id, NeedleShape.SOURCE_MODEL, shape.line.points,
-                            shape.line.tangents, shape.line.arc_length, shape.tip_position, shape.tip_orientation)
+    return needle_shape(stamp.sec, stamp.nanosec, frame_id, NeedleShape.SOURCE_MODEL, shape.line.points,
+                        shape.line.tangents, shape.line.arc_length, shape.tip_position, shape.tip_orientation)
 
 
 def shape_arrays(msg: NeedleShape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -50,8 +50,8 @@ from needle_common.ros.runner import run_node
 from needle_common.ros.tf_output import TfOutput, transform_stamped
 from needle_sim_ros.parameters.simulator import FIXED_AT_CONSTRUCTION, SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import (
-    LATE_POSE_WAIT, TIP_FORCE_PARAMETER, compile_kernels, model_builder_from_parameters,
-    simulation_from_parameters, step_wrenches)
+    LATE_POSE_WAIT, apply_tip_force, compile_kernels, model_builder_from_parameters, simulation_from_parameters,
+    step_wrenches)
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
 ZERO_ACK_WAIT = 0.5  # [s] longest wait for the haptic subscribers to acknowledge the zero sent at exit
@@ -201,12 +201,6 @@ class NeedleSimulatorNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     # -- construction helpers --------------------------------------------------------------------------------
-    def _apply_tip_force(self, force) -> None:
-        if np.any(np.asarray(force) != 0.0):
-            self.sim.set_point_load(TIP_FORCE_PARAMETER, self.props.length, np.asarray(force, dtype=float))
-        else:
-            self.sim.clear_point_loads([TIP_FORCE_PARAMETER])
-
     def warn_throttled(self, key: str, message: str) -> None:
         now = time.monotonic()
         if now - self._warned_at.get(key, -np.inf) >= WARN_PERIOD:
@@ -318,7 +312,7 @@ class NeedleSimulatorNode(LifecycleNode):
     def on_parameters_changed(self, changed: dict) -> None:
         with self._lock:
             if "loads.tip_force" in changed and self.sim is not None:
-                self._apply_tip_force(changed["loads.tip_force"])  # first: a load the model cannot carry refuses all
+                apply_tip_force(self.sim, changed["loads.tip_force"])  # first: a load it cannot carry refuses all
             self.p.update(changed)
             if self.haptics is not None:
                 self.haptics.max_force = self.p["haptics.max_force"]

@@ -7,7 +7,7 @@ Each stage holds the same ROS-free core as its node and translates messages exac
   at ``rates.shape_hz``. The node publishes shapes when its clock passes the due time; here they are due on the same
   rate counted in integration steps from the first pose, so that a measurement stamped on that grid meets a model
   shape of the very same instant. The two high-rate outputs are serialized straight from arrays
-  (:mod:`needle_sim_ros.messages.cdr`).
+  (:mod:`needle_sim_ros.messages.cdr`, :mod:`needle_common.cdr`).
 * :class:`StereoStage` — ``needle_stereo``: its images (raw, or image_transport's compressed topics), left/right
   pairing by approximate time and :class:`needle_vision.pipeline.StereoNeedlePipeline`, publishing
   ``needle/measured_shape``.
@@ -32,8 +32,7 @@ from needle_vision.calibration.rig import CalibrationError
 from needle_vision.streams.image_codec import ImageFormatError, SerializedImage
 from needle_vision.streams.pairing import StampPairer as FramePairer
 from needle_common.bag_reader import absolute_topic
-from needle_common.cdr import PoseStamped
-from needle_common.transforms import quaternions_from_x_axes
+from needle_common.cdr import PoseStamped, needle_shape
 from needle_common.parameters import ParameterError
 from needle_vision.front_end import StereoFrontEnd
 from needle_vision.parameters import validate_all
@@ -191,8 +190,8 @@ class StereoStage:
             return []
         m = result.measurement
         frame = self.values["output_frame"] or left.frame_id
-        data = cdr.needle_shape(left.sec, left.nanosec, frame, NeedleShape.SOURCE_STEREO, m.points, m.tangents,
-                                m.arc_length, m.points[-1], quaternions_from_x_axes(m.tangents[-1]), m.uncertainty)
+        data = needle_shape(left.sec, left.nanosec, frame, NeedleShape.SOURCE_STEREO, m.points, m.tangents,
+                            m.arc_length, uncertainty=m.uncertainty)
         return [MeasuredShape(Tag(Stamp(left.sec, left.nanosec), frame), m.points, m.arc_length, data)]
 
     def statistics(self) -> dict[str, Any]:

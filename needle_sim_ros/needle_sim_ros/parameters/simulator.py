@@ -8,14 +8,6 @@ from needle_common.transforms import unit_quaternion
 from needle_sim_ros.tissue import TISSUE_PARAMETERS
 
 
-def _unit_quaternion(value) -> bool:
-    """Whether :func:`needle_common.transforms.unit_quaternion`, the clamp offset's own check, takes ``value``."""
-    try:
-        return unit_quaternion(value) is not None
-    except ValueError:
-        return False
-
-
 def _model(name: str, *arguments, **options) -> ParamSpec:
     """A parameter of the needle model with the model's default (:data:`needle_sim_ros.model.config.DEFAULTS`)."""
     return ParamSpec(name, MODEL_DEFAULTS[name], *arguments, **options)
@@ -75,7 +67,7 @@ SIMULATOR_PARAMETERS = [
               -10.0, 10.0, length=3),
     ParamSpec("flange_offset.orientation", [0.0, 0.0, 0.0, 1.0],
               "Rotation flange -> needle base frame, quaternion (x, y, z, w).", -1.0, 1.0, length=4,
-              check=(_unit_quaternion, "must be a unit quaternion")),
+              check=(lambda q: unit_quaternion(q) is not None, "must be a unit quaternion")),
     # Topics (relative, so they can be remapped and namespaced).
     ParamSpec("topics.base_pose", "base_pose", "Input geometry_msgs/PoseStamped of the needle holder (flange).",
               check=TOPIC_CHECK),

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from needle_common.parameters import ParamSpec, flatten_tree, parameter_tree
+from needle_common.parameters import ParamSpec, flatten_tree, parameter_tree, unknown_name_error
 
 from .bevel_tip import BevelTip
 from .coupling import ShaftSupport, TissueContact
@@ -22,20 +22,20 @@ from .tissue_model import TissueModel
 AXIAL_MODELS = ("karnopp", "insertion_profile", "lugre", "none")
 
 
-def _tissue(name: str, default: object, description: str) -> ParamSpec:
+def _tissue(name: str, default: object, description: str, **options) -> ParamSpec:
     """A ``tissue.`` parameter; +-inf allowed (e.g. an infinite last layer)."""
-    return ParamSpec(f"tissue.{name}", default, description, allow_infinite=True)
+    return ParamSpec(f"tissue.{name}", default, description, allow_infinite=True, **options)
 
 
 TISSUE_PARAMETERS: tuple[ParamSpec, ...] = (
     _tissue("enable", False, "Couple the tissue models to the needle."),
-    _tissue("entry_point", [0.28, 0.0, 0.0], "A point of the entry surface, world frame [m]."),
-    _tissue("entry_normal", [1.0, 0.0, 0.0], "Entry surface normal pointing into the tissue, world frame."),
+    _tissue("entry_point", [0.28, 0.0, 0.0], "A point of the entry surface, world frame [m].", length=3),
+    _tissue("entry_normal", [1.0, 0.0, 0.0], "Entry surface normal pointing into the tissue, world frame.", length=3),
     *(_tissue(f"layers.{name}", [value], meaning[:1].upper() + meaning[1:] + ".") for (name, meaning), value in zip(
         LAYER_PARAMETERS.items(), (np.inf, 2.0e4, 5.0, 6.0, 120.0, 9.42e3))),
     _tissue("shaft.point_spacing", 2.0e-3, "Spacing of the shaft points carrying the distributed forces [m]."),
     _tissue("shaft.lateral_support", True, "Winkler springs/dampers anchoring the shaft to its track."),
-    _tissue("shaft.axial_model", "karnopp", f"Axial law along the shaft: one of {AXIAL_MODELS}."),
+    _tissue("shaft.axial_model", "karnopp", "Axial law along the shaft.", choices=AXIAL_MODELS),
     _tissue("shaft.stick_stiffness", 2.0e4, "Axial stiffness of the stick anchors per unit length k_a [N/m^2]; "
             "stick band = C_n / k_a."),
     _tissue("track.spacing", 1.0e-4, "The tip extends its track (path memory: to where it is) after advancing this "
@@ -44,7 +44,7 @@ TISSUE_PARAMETERS: tuple[ParamSpec, ...] = (
     _tissue("bevel_tip.bevel_angle", np.deg2rad(30.0), "Bevel angle lambda [rad] (seed 001: 30 deg)."),
     _tissue("bevel_tip.acting_fraction", 0.2, "Beta / lambda, acting-point angle fraction (seed 001: 0.2)."),
     _tissue("bevel_tip.diameter", 0.0, "Needle diameter for the bevel edges a, b [m]; 0 = twice the needle radius."),
-    _tissue("bevel_tip.side", [0.0, 1.0, 0.0], "Bevel side (where Q pushes the tip) in the base frame."),
+    _tissue("bevel_tip.side", [0.0, 1.0, 0.0], "Bevel side (where Q pushes the tip) in the base frame.", length=3),
     _tissue("insertion_profile.enable", False, "Seed 002 at the tip: capsule stiffness until puncture, then cutting."),
     _tissue("insertion_profile.a1", 1.9, "Capsule stiffness a1 [N/m] (seed 002: 0.0019 N/mm)."),
     _tissue("insertion_profile.a2", 4.99e4, "Capsule stiffness a2 [N/m^2] (seed 002: 0.0499 N/mm^2)."),
@@ -64,36 +64,35 @@ TISSUE_PARAMETERS: tuple[ParamSpec, ...] = (
     _tissue("lugre.alpha", 125.0, "Seed 003 alpha [1/m]."),
     _tissue("lugre.velocity_scale", 1.0e-4, "Sgn(l') regularisation tanh(l'/v_s) [m/s]."),
 )
-DEFAULTS = {spec.name: spec.default for spec in TISSUE_PARAMETERS}
+SPECS = {spec.name: spec for spec in TISSUE_PARAMETERS}
 
 
 def flatten_tissue_config(config) -> dict:
-    """Dotted ``tissue.*`` keys from a flat dict, a nested dict, a ROS 2 params-file dict or a YAML path."""
+    """The dotted ``tissue.*`` values, validated by their declarations, of a flat dict, a nested dict, a ROS 2
+    params-file dict or a YAML path; ParameterError (a ValueError) naming a bad or unknown one."""
     flat = flatten_tree(parameter_tree(config))  # params file: the merged ros__parameters of its sections
-    unknown = [k for k in flat if k.startswith("tissue.") and k not in DEFAULTS]
-    if unknown:
-        raise ValueError(f"unknown tissue parameters: {sorted(unknown)}")
-    return {k: v for k, v in flat.items() if k.startswith("tissue.")}
+    tissue = {name: value for name, value in flat.items() if name.startswith("tissue.")}
+    for name in tissue:
+        if name not in SPECS:
+            raise unknown_name_error(name, SPECS)
+    return {name: SPECS[name].validate(value) for name, value in tissue.items()}
 
 
 @dataclass(frozen=True)
 class TissueConfig:
-    """Parsed ``tissue.*`` parameters (defaults from TISSUE_PARAMETERS)."""
+    """Validated ``tissue.*`` parameters (defaults from TISSUE_PARAMETERS)."""
 
     values: dict
 
     @classmethod
     def from_any(cls, config) -> "TissueConfig":
-        return cls({**DEFAULTS, **flatten_tissue_config(config)})
+        return cls({**{name: spec.default for name, spec in SPECS.items()}, **flatten_tissue_config(config)})
 
     def __getitem__(self, key: str):
         return self.values[key]
 
-    def vector(self, key: str, size: int | None = None) -> np.ndarray:
-        value = np.atleast_1d(np.asarray(self.values[key], dtype=float))
-        if (size is not None and value.shape != (size,)) or np.any(np.isnan(value)):
-            raise ValueError(f"{key} must be {size or 'a list of'} numbers, got {self.values[key]!r}")
-        return value
+    def vector(self, key: str) -> np.ndarray:
+        return np.asarray(self.values[key], dtype=float)
 
     def block(self) -> TissueBlock:
         columns = {name: self.vector(f"tissue.layers.{name}") for name in LAYER_PARAMETERS}
@@ -102,7 +101,7 @@ class TissueConfig:
             if column.size != n:
                 raise ValueError(f"tissue.layers.{name} has {column.size} entries, tissue.layers.thickness has {n}")
         layers = tuple(TissueLayer(**{name: float(columns[name][i]) for name in LAYER_PARAMETERS}) for i in range(n))
-        return TissueBlock(self.vector("tissue.entry_point", 3), self.vector("tissue.entry_normal", 3), layers)
+        return TissueBlock(self.vector("tissue.entry_point"), self.vector("tissue.entry_normal"), layers)
 
     def profile(self) -> InsertionForceProfile:
         p = "tissue.insertion_profile."
@@ -141,8 +140,6 @@ def build_tissue_model(config, model) -> TissueModel:
     cfg = TissueConfig.from_any(config)
     block = cfg.block()
     axial_model = cfg["tissue.shaft.axial_model"]
-    if axial_model not in AXIAL_MODELS:
-        raise ValueError(f"tissue.shaft.axial_model must be one of {AXIAL_MODELS}, got {axial_model!r}")
     profile_enabled = bool(cfg["tissue.insertion_profile.enable"])
     profile = cfg.profile() if profile_enabled or axial_model == "insertion_profile" else None
     contact = TissueContact(block, float(cfg["tissue.track.spacing"]),
@@ -161,7 +158,7 @@ def build_tissue_model(config, model) -> TissueModel:
         diameter = float(cfg["tissue.bevel_tip.diameter"]) or 2.0 * float(model.props.radius)
         bevel = (BevelTip.for_diameter(1.0, float(cfg["tissue.bevel_tip.bevel_angle"]),
                                        float(cfg["tissue.bevel_tip.acting_fraction"]), diameter),
-                 cfg.vector("tissue.bevel_tip.side", 3))
+                 cfg.vector("tissue.bevel_tip.side"))
     tip_resistance = ((profile, float(cfg["tissue.insertion_profile.cutting_speed_scale"])) if profile_enabled
                       else None)
     return TissueModel(contact, shaft, bevel, tip_resistance)

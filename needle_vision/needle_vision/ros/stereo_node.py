@@ -34,13 +34,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from needle_common.cdr import pose_stamped
+from needle_common.cdr import needle_shape, pose_stamped
 from needle_common.ros.input_status import InputStatus
-from needle_common.ros.needle_shape import needle_shape_msg
 from needle_common.ros.ros_parameters import declare_all, qos_profile
 from needle_common.ros.runner import run_node
 from needle_common.ros.tf_output import TfOutput, transform_stamped
-from needle_common.transforms import quaternions_from_x_axes
 from needle_vision.calibration.rig import CalibrationError, StereoRig
 from needle_vision.streams.image_codec import ImageFormatError, SerializedImage, deserialize_image, image_fields
 from needle_vision.streams.outputs import debug_image, pointcloud2_fields
@@ -227,9 +225,9 @@ class NeedleStereoNode(Node):
         fields = pointcloud2_fields(measurement.points, extra)
         fields["fields"] = [PointField(**field) for field in fields["fields"]]
         self.cloud_pub.publish(PointCloud2(header=header, **fields))
-        self.shape_pub.publish(needle_shape_msg(
-            header, NeedleShape.SOURCE_STEREO, measurement.points, measurement.tangents, measurement.arc_length,
-            measurement.points[-1], quaternions_from_x_axes(measurement.tangents[-1]), measurement.uncertainty))
+        self.shape_pub.publish(needle_shape(
+            header.stamp.sec, header.stamp.nanosec, header.frame_id, NeedleShape.SOURCE_STEREO, measurement.points,
+            measurement.tangents, measurement.arc_length, uncertainty=measurement.uncertainty))
 
     def publish_debug(self, image_header: Header, images: list[np.ndarray], result: FrameResult) -> None:
         if not self.values["debug_image.enabled"] or self.debug_pub.get_subscription_count() == 0:
