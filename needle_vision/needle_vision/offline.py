@@ -252,10 +252,6 @@ def _frames(text: str) -> slice:
     return slice(start, stop)
 
 
-def _selected(index: int, frames: slice) -> bool:
-    return (frames.start is None or index >= frames.start) and (frames.stop is None or index < frames.stop)
-
-
 def load_pairs(source: PairSource, wanted: Callable[[int], bool], workers: int, limit: int) -> list:
     """Decoded pairs whose index is ``wanted`` (at most ``limit``), stopping early when possible."""
     jobs = (job for job in source.jobs() if wanted(job[0]))
@@ -400,7 +396,8 @@ def run(arguments: argparse.Namespace) -> int:
     half_width = pipeline.config.centerline.profile_half_width
     # The leading background pairs of mode "first" are read in the same pass (the models are set before the first
     # pair after them).
-    jobs = (job for job in source.jobs() if job[0] < background_pairs or _selected(job[0], frames))
+    selected = range(frames.start or 0, sys.maxsize if frames.stop is None else frames.stop)
+    jobs = (job for job in source.jobs() if job[0] < background_pairs or job[0] in selected)
     background: list[tuple[np.ndarray, np.ndarray]] = []
     total = None if source.count is None else len(range(*slice(max(frames.start or 0, background_pairs),
                                                                frames.stop).indices(source.count))) + background_pairs

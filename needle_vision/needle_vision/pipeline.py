@@ -49,16 +49,9 @@ def _largest_component(mask: np.ndarray) -> int:
 def detect_polarity(darkening: np.ndarray, brightening: np.ndarray, background: np.ndarray,
                     threshold: ContrastThreshold) -> int:
     """+1 (dark needle) when the largest connected structure darker than the background by more than the
-    threshold (at the coarse scale) is twice the largest brighter one, -1 (bright) for the converse, 0 when neither
-    dominates. ``darkening``/``brightening``: how much darker/brighter than the background each pixel is [DN]."""
-    factor = threshold.downsample
-    return _coarse_polarity(downsample(darkening, factor), downsample(brightening, factor),
-                            downsample(background, factor), threshold)
-
-
-def _coarse_polarity(darkening: np.ndarray, brightening: np.ndarray, background: np.ndarray,
-                     threshold: ContrastThreshold) -> int:
-    """:func:`detect_polarity` of images already downsampled by ``threshold.downsample``."""
+    threshold is twice the largest brighter one, -1 (bright) for the converse, 0 when neither dominates.
+    ``darkening``/``brightening``: how much darker/brighter than the background each pixel is [DN]; all three
+    images at the coarse scale (downsampled by ``threshold.downsample``)."""
     limit = np.maximum(threshold.relative * background, threshold.absolute)
     darker, brighter = (_largest_component(excess > limit) for excess in (darkening, brightening))
     if darker >= 2 * brighter and darker > 0:
@@ -161,9 +154,9 @@ class StereoNeedlePipeline:
                 image = left.astype(np.float32)
                 size = 2 * config.centerline.profile_half_width + 1
                 kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-                self.polarity = detect_polarity(cv2.morphologyEx(image, cv2.MORPH_CLOSE, kernel) - image,
-                                                image - cv2.morphologyEx(image, cv2.MORPH_OPEN, kernel), image,
-                                                threshold)
+                self.polarity = detect_polarity(*(downsample(excess, threshold.downsample) for excess in (
+                    cv2.morphologyEx(image, cv2.MORPH_CLOSE, kernel) - image,
+                    image - cv2.morphologyEx(image, cv2.MORPH_OPEN, kernel), image)), threshold)
                 if not self.polarity:
                     return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
                 threshold = replace(threshold, polarity=self.polarity)
@@ -174,7 +167,7 @@ class StereoNeedlePipeline:
         if not self.polarity:  # decided here, kept only once a needle is measured with it (not on empty frames)
             # the coarse brightening is minus the coarse darkening (area averages commute with the sign exactly)
             coarse = downsample(backgrounds[0].image - left.astype(np.float32), threshold.downsample)
-            polarity = _coarse_polarity(coarse, -coarse, backgrounds[0].coarse, threshold)
+            polarity = detect_polarity(coarse, -coarse, backgrounds[0].coarse, threshold)
             if not polarity:
                 return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
             threshold = replace(threshold, polarity=polarity)

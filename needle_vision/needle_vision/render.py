@@ -145,27 +145,14 @@ def _box_filtered_step(z: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarra
                     np.where(z < -half_diff, low, np.where(z > half_diff, high, middle))))
 
 
-def _abs_normal(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(larger, smaller) absolute component of unit normals ``(n, 2)``."""
-    return (np.maximum(np.abs(normal[:, 0]), np.abs(normal[:, 1])),
-            np.minimum(np.abs(normal[:, 0]), np.abs(normal[:, 1])))
-
-
-def _band_coverage(across: np.ndarray, normal: np.ndarray, half_width: np.ndarray, blur_sigma: float) -> np.ndarray:
-    """Response of unit pixels at signed distance ``across`` from the axis of a straight band of
-    ``half_width``: area fraction covered, averaged over a Gaussian point spread of ``blur_sigma`` [px]
-    (Gauss-Hermite quadrature; exact area fraction when ``blur_sigma`` is 0)."""
-    a, b = _abs_normal(normal)
+def _blurred_step(z: np.ndarray, normal: np.ndarray, blur_sigma: float) -> np.ndarray:
+    """Response of unit pixels at signed distance ``z`` inside a straight edge of unit ``normal`` (``(n, 2)`` or one
+    for all): the area fraction inside, averaged over a Gaussian point spread of ``blur_sigma`` [px] (Gauss-Hermite
+    quadrature; the exact area fraction when ``blur_sigma`` is 0)."""
+    normal = np.abs(np.broadcast_to(normal, (len(z), 2)))
+    a, b = normal.max(axis=1), normal.min(axis=1)
     nodes, weights = _GAUSS_HERMITE if blur_sigma > 0 else (np.zeros(1), np.ones(1))
-    return sum(w * (_box_filtered_step(half_width - across - blur_sigma * g, a, b)
-                    - _box_filtered_step(-half_width - across - blur_sigma * g, a, b)) for g, w in zip(nodes, weights))
-
-
-def _end_fraction(along: np.ndarray, tangent: np.ndarray, blur_sigma: float) -> np.ndarray:
-    """Fraction of the response kept by a flat end: ``along`` is the signed distance inside the end [px]."""
-    a, b = _abs_normal(np.broadcast_to(tangent, (len(along), 2)))
-    nodes, weights = _GAUSS_HERMITE if blur_sigma > 0 else (np.zeros(1), np.ones(1))
-    return sum(w * _box_filtered_step(along - blur_sigma * g, a, b) for g, w in zip(nodes, weights))
+    return sum(w * _box_filtered_step(z - blur_sigma * g, a, b) for g, w in zip(nodes, weights))
 
 
 def _polygon_square_area(polygon: np.ndarray, centres: np.ndarray) -> np.ndarray:
@@ -196,7 +183,7 @@ def _polygon_square_area(polygon: np.ndarray, centres: np.ndarray) -> np.ndarray
 def _polygon_coverage(pixels: np.ndarray, polygon: np.ndarray, blur_sigma: float, axis: np.ndarray) -> np.ndarray:
     """Response of unit pixels centred at ``pixels`` to a polygon: its area fraction within each pixel, averaged
     over an isotropic Gaussian point spread of ``blur_sigma`` [px] (2D Gauss-Hermite quadrature on the unit
-    ``axis`` and its normal: across a band along ``axis`` the nodes are :func:`_band_coverage`'s)."""
+    ``axis`` and its normal: across a band along ``axis`` the nodes are :func:`_blurred_step`'s)."""
     if blur_sigma <= 0:
         return _polygon_square_area(polygon, pixels)
     nodes, weights = _GAUSS_HERMITE
@@ -293,11 +280,13 @@ def needle_coverage(camera: CameraCalibration, points_camera: np.ndarray, radius
         best[better] = np.column_stack([normal, (1 - t) * extended_half_width[first]
                                         + t * extended_half_width[first + 1],
                                         np.einsum("ij,ij->i", offset, normal)])[better]
-    coverage = _band_coverage(best[:, 3], best[:, :2], best[:, 2], blur_sigma_px)
+    # A band of half-width w at signed distance d: the edge at w - d less the one at -w - d.
+    coverage = (_blurred_step(best[:, 2] - best[:, 3], best[:, :2], blur_sigma_px)
+                - _blurred_step(-best[:, 2] - best[:, 3], best[:, :2], blur_sigma_px))
     ends = list(zip(centres[[0, -1]], end_tangents))[:1 if bevel_length > 0 else 2]  # a bevel: the last end below
     for (end, outward), point, inward in zip(ends, points[[0, -1]], (points[1] - points[0], points[-2] - points[-1])):
         near = np.linalg.norm(pixels - end, axis=1) < half_width.max() + 5 + 4 * blur_sigma_px  # + extension
-        coverage[near] *= _end_fraction(-(pixels[near] - end) @ outward, outward, blur_sigma_px)
+        coverage[near] *= _blurred_step(-(pixels[near] - end) @ outward, outward, blur_sigma_px)
         if end_caps:
             cap = _half_plane(project(_disc(point, inward, radius)), end, outward)
             if len(cap) >= 3:

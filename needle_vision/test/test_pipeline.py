@@ -165,9 +165,9 @@ def test_polarity_is_detected_automatically(rig, albedo, polarity, frames):
 @pytest.mark.parametrize("seed", range(3))
 def test_polarity_from_the_coarse_difference_is_detect_polaritys(seed):
     """The pipeline decides the polarity on its averaged background from one downsampled difference and the
-    background's kept coarse image: the same bits as detect_polarity's three downsamplings of the full images."""
+    background's kept coarse image: the same bits as three downsamplings of the full images."""
     from needle_vision.detection.background import downsample
-    from needle_vision.pipeline import _coarse_polarity, detect_polarity
+    from needle_vision.pipeline import detect_polarity
 
     rng = np.random.default_rng(seed)
     background = rng.uniform(20.0, 230.0, (216, 288)).astype(np.float32)
@@ -178,6 +178,7 @@ def test_polarity_from_the_coarse_difference_is_detect_polaritys(seed):
     coarse = downsample(difference, threshold.downsample)
     assert np.array_equal(downsample(-difference, threshold.downsample), -coarse)
     assert np.array_equal(BackgroundModel(background, threshold).coarse, downsample(background, threshold.downsample))
-    expected = detect_polarity(difference, -difference, background, threshold)
+    expected = detect_polarity(*(downsample(image, threshold.downsample) for image in (difference, -difference,
+                                                                                        background)), threshold)
     assert expected == (1 if seed % 2 == 0 else -1)
-    assert _coarse_polarity(coarse, -coarse, downsample(background, threshold.downsample), threshold) == expected
+    assert detect_polarity(coarse, -coarse, BackgroundModel(background, threshold).coarse, threshold) == expected

@@ -94,8 +94,8 @@ def with_end_reading(centerline: ImageCenterline, end: int, reading: EndReading)
     points, contrast, noise, extrapolation = (values[::step] for values in (
         centerline.points, centerline.contrast, centerline.local_noise_px, centerline.extrapolation_px))
     points = np.vstack([points[:keep], reading.points])[::step]
-    contrast = np.concatenate([contrast[:keep], np.full(count, contrast[keep - 1])])[::step]
-    noise = np.concatenate([noise[:keep], np.full(count, noise[keep - 1])])[::step]
+    contrast, noise = (np.concatenate([values[:keep], np.full(count, values[keep - 1])])[::step]
+                       for values in (contrast, noise))
     extrapolation = np.concatenate([extrapolation[:keep], reading.extrapolation_px])[::step]
     tapers = centerline.end_taper_px.copy()
     tapers[end] = reading.half_taper_px

@@ -77,9 +77,12 @@ def _project(projection, point, derivative, pixel, jacobian, tangent):  # pragma
 
 
 @numba.njit(cache=True, nogil=True)
-def _accumulate(normal, rhs, s, b, row, weight, residual):  # pragma: no cover - compiled
-    """One weighted scalar residual of segment ``s`` into the normal equations: its row ``row`` (d residual / d point,
-    (3,)) spread over the segment's four control points by the basis ``b`` (lower triangle of ``normal``)."""
+def _accumulate(normal, rhs, s, b, jacobian, nx, ny, row, weight, residual):  # pragma: no cover - compiled
+    """One weighted scalar residual of segment ``s`` along the image direction (``nx``, ``ny``) into the normal
+    equations: its row (d residual / d point: the direction through the projection's ``jacobian``, into ``row``)
+    spread over the segment's four control points by the basis ``b`` (lower triangle of ``normal``)."""
+    for k in range(3):
+        row[k] = nx * jacobian[0, k] + ny * jacobian[1, k]
     for a in range(4):
         wa = weight * b[a]
         for c in range(a, 4):
@@ -281,9 +284,7 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
                     total += scaled * scaled
                     used += 1
                 weight = multiplicity * min(1.0, huber / max(scaled, 1e-12)) / (noise[i] * noise[i])
-                for k in range(3):
-                    row[k] = nx * jacobian[0, k] + ny * jacobian[1, k]
-                _accumulate(normal, rhs, s, b, row, weight, residual)
+                _accumulate(normal, rhs, s, b, jacobian, nx, ny, row, weight, residual)
         rms = np.sqrt(total / max(used, 1))
         for v in range(2):
             for e in range(2):  # along the projected curve only: across it, the image points say it
@@ -294,10 +295,7 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
                 norm = max(np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1]), 1e-300)
                 tx, ty = tangent[0] / norm, tangent[1] / norm
                 residual = tx * (ends[v, e, 0] - pixel[0]) + ty * (ends[v, e, 1] - pixel[1])
-                for k in range(3):
-                    row[k] = tx * jacobian[0, k] + ty * jacobian[1, k]
-                weight = 1.0 / (end_noise * end_noise)
-                _accumulate(normal, rhs, s, b, row, weight, residual)
+                _accumulate(normal, rhs, s, b, jacobian, tx, ty, row, 1.0 / (end_noise * end_noise), residual)
         if iteration == iterations:
             # The covariance: the correlated image error and noisier images than their scatter said widen what the
             # images say (their terms' variance), not what the prior says.

@@ -116,22 +116,17 @@ def _nearest_of(reference, query, first, last, step):  # pragma: no cover - comp
 
 
 @numba.njit(cache=True, nogil=True)
-def _nearest(reference, queries, stride):  # pragma: no cover - compiled
-    """Index of the nearest of the ``reference`` points ``(n, 2)``, ordered along a curve, to each of the ``queries``
-    ``(m, 2)``: the nearest of every ``stride``-th point, then of the points within ``stride`` of it."""
-    out = np.empty(queries.shape[0], np.int64)
-    n = reference.shape[0]
-    for i in range(queries.shape[0]):
-        coarse = _nearest_of(reference, queries[i], 0, n, stride)
-        out[i] = _nearest_of(reference, queries[i], max(coarse - stride, 0), min(coarse + stride + 1, n), 1)
+def _nearest_points(rectified, matched, stride=8):  # pragma: no cover - compiled
+    """For each of the ``matched`` points ``(m, 2)``, the index of the nearest point of a centerline (``rectified``:
+    its points rectified, ``(n, 2)`` in curve order: the nearest of every ``stride``-th point, then of the points
+    within ``stride`` of it), whose own per-point values (local noise, extrapolation error) are the matched point's:
+    where the background passes through the needle's level a single slice errs by a pixel and its own noise says so."""
+    out = np.empty(matched.shape[0], np.int64)
+    n = rectified.shape[0]
+    for i in range(matched.shape[0]):
+        coarse = _nearest_of(rectified, matched[i], 0, n, stride)
+        out[i] = _nearest_of(rectified, matched[i], max(coarse - stride, 0), min(coarse + stride + 1, n), 1)
     return out
-
-
-def _nearest_points(rectified: np.ndarray, matched: np.ndarray) -> np.ndarray:
-    """For each of the ``matched`` points, the index of the nearest point of a centerline (``rectified``: its points
-    rectified), whose own per-point values (local noise, extrapolation error) are the matched point's: where the
-    background passes through the needle's level a single slice errs by a pixel and its own noise says so."""
-    return _nearest(np.ascontiguousarray(rectified), matched, 8)
 
 
 def _rectified(centerline: ImageCenterline, rectification: Rectification, side: str) -> tuple[np.ndarray,
@@ -162,25 +157,26 @@ def _smooth_along(points, abscissa, window):  # pragma: no cover - compiled
     n, half = points.shape[0], window // 2
     out = np.empty_like(points)
     gain = np.empty(n)
-    moments = np.empty(7)
+    moments, powers, sums = np.empty(7), np.empty(7), np.empty((4, 3))
     normal = np.empty((4, 4))
     coefficients = np.empty(4)
     for k in range(n):
         first = min(max(k - half, 0), n - window)
         inverse_scale = 1.0 / max(abscissa[first + window - 1] - abscissa[first], 1e-12)
-        m1 = m2 = m3 = m4 = m5 = m6 = 0.0
-        x0 = x1 = x2 = x3 = y0 = y1 = y2 = y3 = z0 = z1 = z2 = z3 = 0.0
+        moments[:] = 0.0
+        sums[:] = 0.0  # sum over the window of t^a times the points
+        moments[0] = float(window)
         for j in range(first, first + window):
             t = (abscissa[j] - abscissa[k]) * inverse_scale
             t2 = t * t
             t3 = t2 * t
-            m1, m2, m3, m4, m5, m6 = m1 + t, m2 + t2, m3 + t3, m4 + t2 * t2, m5 + t2 * t3, m6 + t3 * t3
-            x, y, z = points[j, 0], points[j, 1], points[j, 2]
-            x0, x1, x2, x3 = x0 + x, x1 + t * x, x2 + t2 * x, x3 + t3 * x
-            y0, y1, y2, y3 = y0 + y, y1 + t * y, y2 + t2 * y, y3 + t3 * y
-            z0, z1, z2, z3 = z0 + z, z1 + t * z, z2 + t2 * z, z3 + t3 * z
-        m0 = float(window)
-        moments[0], moments[1], moments[2], moments[3], moments[4], moments[5], moments[6] = m0, m1, m2, m3, m4, m5, m6
+            powers[1], powers[2], powers[3], powers[4], powers[5], powers[6] = t, t2, t3, t2 * t2, t2 * t3, t3 * t3
+            for a in range(1, 7):
+                moments[a] += powers[a]
+            for c in range(3):
+                sums[0, c] += points[j, c]
+                for a in range(1, 4):
+                    sums[a, c] += powers[a] * points[j, c]
         # The fit's value at t = 0 is c . (the sums of t^a times the points) with c = solve(normal, e0) (Cholesky of
         # the moment matrix); its white-noise gain is sqrt(c0) (the hat matrix row's squared norm: e0' normal^-1 e0).
         for a in range(4):
@@ -199,10 +195,9 @@ def _smooth_along(points, abscissa, window):  # pragma: no cover - compiled
             for m in range(a + 1, 4):
                 value -= normal[m, a] * coefficients[m]
             coefficients[a] = value / normal[a, a]
-        c0, c1, c2, c3 = coefficients[0], coefficients[1], coefficients[2], coefficients[3]
-        out[k, 0] = c0 * x0 + c1 * x1 + c2 * x2 + c3 * x3
-        out[k, 1] = c0 * y0 + c1 * y1 + c2 * y2 + c3 * y3
-        out[k, 2] = c0 * z0 + c1 * z1 + c2 * z2 + c3 * z3
+        for c in range(3):
+            out[k, c] = coefficients[0] * sums[0, c] + coefficients[1] * sums[1, c] + coefficients[2] * sums[2, c] \
+                + coefficients[3] * sums[3, c]
         gain[k] = np.sqrt(max(coefficients[0], 0.0))
     return out, gain
 
@@ -401,9 +396,8 @@ def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray
         return centerline
     new_arc = np.concatenate([[start], arc[(arc > start) & (arc < stop)], [stop]])
     return replace(centerline, points=interpolate(arc, centerline.points, new_arc),
-                   contrast=np.interp(new_arc, arc, centerline.contrast),
-                   local_noise_px=np.interp(new_arc, arc, centerline.local_noise_px),
-                   extrapolation_px=np.interp(new_arc, arc, centerline.extrapolation_px))
+                   **{name: np.interp(new_arc, arc, getattr(centerline, name))
+                      for name in ("contrast", "local_noise_px", "extrapolation_px")})
 
 
 def _slide(sin_angle: np.ndarray, extrapolation_px: np.ndarray) -> np.ndarray:

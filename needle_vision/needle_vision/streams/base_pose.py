@@ -22,13 +22,11 @@ class BasePoseStore:
 
     ``offset``: the point used as the base in the pose's own frame [m] (e.g. the clamp point A in the flange
     frame of the simulator's ``base_pose``, plus a stretch of needle hidden in the holder along x);
-    ``max_age`` [s]: a pose farther in time from a pair's stamp is not used. Keeps the newest ``capacity`` poses.
+    ``max_age`` [s]: a pose farther in time from a pair's stamp is not used (both as the parameters
+    ``base_pose.offset`` and ``base_pose.max_age`` validate them). Keeps the newest ``capacity`` poses.
     """
 
     def __init__(self, max_age: float, offset: Sequence[float] = (0.0, 0.0, 0.0), capacity: int = 4096):
-        if not (max_age >= 0 and math.isfinite(max_age)) or capacity < 1 \
-                or len(offset) != 3 or not all(math.isfinite(v) for v in offset):
-            raise ValueError("max_age must be finite and >= 0, capacity >= 1, offset 3 finite values")
         self.max_age = float(max_age)
         self.offset = tuple(float(v) for v in offset)
         self.capacity = capacity
