@@ -32,6 +32,20 @@ NOISE_WINDOW = 61
 GAP_PX = 40.0
 #: [slices] running median of the needle's own intensity along the needle (the covered fraction's denominator).
 NEEDLE_LEVEL_WINDOW = 41
+#: [thresholds] an end of the coarse detection is followed on where the background lies within this many detection
+#: thresholds of the needle's own level, or beyond it (:func:`_grow_faded`): there the needle fades, then reverses.
+FADE_FACTOR = 3.0
+#: [coarse px] the longest step taken there: across the stretch where the background passes through the needle's
+#: level and the needle is not seen at all.
+FADE_REACH = 6
+#: [coarse px per coarse px of the image's diagonal] the most pixels one end is followed through: a needle's band
+#: at most a few pixels wide; more means the background model differs from the image (e.g. one bootstrapped from a
+#: needle frame, whose closing flattens the texture).
+FADE_MAX_AREA = 3.0
+#: [-] how many times the ends are followed on from the new ends (each round crosses one faded stretch).
+FADE_ROUNDS = 6
+#: [points] the needle's level at a coarse path's end: the median over this many refined points before its last four.
+END_LEVEL_POINTS = 10
 
 
 class NoNeedleError(ValueError):
@@ -218,17 +232,62 @@ def _coarse_path_kernel(mask, index, min_length, count):  # pragma: no cover - c
 
 
 @numba.njit(cache=True, nogil=True)
+def _grow_faded(coarse, background, mask, seed, level, polarity, relative, absolute):  # pragma: no cover - compiled
+    """Where the needle fades into a background at its own ``level`` N (and beyond it, where it shows reversed): the
+    coarse pixels reached from ``seed`` (x, y) through pixels up to ``FADE_REACH`` apart (Chebyshev; bridged by a
+    straight line where farther than 2: where the background passes through N the needle is not seen at all) whose
+    background lies within ``FADE_FACTOR`` detection thresholds (``max(relative * B, absolute)``) of N or beyond it,
+    and that are ``mask``ed or differ from the background by at least ``absolute`` either way (the background is
+    static: there only the needle changes the image, of either polarity). Returns those not in ``mask`` (uint8, 255)
+    and their count."""
+    height, width = mask.shape
+    grown = np.zeros((height, width), np.uint8)
+    visited = np.zeros((height, width), np.bool_)
+    queue = np.empty((height * width, 2), np.int32)
+    head, tail, count = 0, 0, 0
+    if 0 <= seed[1] < height and 0 <= seed[0] < width:
+        visited[seed[1], seed[0]] = True
+        queue[0, 0], queue[0, 1] = seed[1], seed[0]
+        tail = 1
+    while head < tail:
+        y0, x0 = queue[head, 0], queue[head, 1]
+        head += 1
+        for y in range(max(y0 - FADE_REACH, 0), min(y0 + FADE_REACH + 1, height)):
+            for x in range(max(x0 - FADE_REACH, 0), min(x0 + FADE_REACH + 1, width)):
+                if visited[y, x]:
+                    continue
+                b = background[y, x]
+                if polarity * (b - level) >= FADE_FACTOR * max(relative * b, absolute):
+                    continue
+                if mask[y, x] or abs(b - float(coarse[y, x])) >= absolute:
+                    visited[y, x] = True
+                    queue[tail, 0], queue[tail, 1] = y, x
+                    tail += 1
+                    steps = max(abs(y - y0), abs(x - x0))
+                    for k in range(1, steps + 1):  # the pixel, and the straight bridge to it from farther than 2
+                        if k == steps or steps > 2:
+                            yk, xk = y0 + (y - y0) * k // steps, x0 + (x - x0) * k // steps
+                            if not mask[yk, xk] and not grown[yk, xk]:
+                                grown[yk, xk] = 255
+                                count += 1
+    return grown, count
+
+
+@numba.njit(cache=True, nogil=True)
 def _refine_path(image, background, polarity, path):  # pragma: no cover - compiled
-    """Centroid of the subtracted grey levels in the 3x3 neighbourhood of each coarse path pixel."""
+    """Centroid of the subtracted grey levels in the 3x3 neighbourhood of each coarse path pixel (of the opposite
+    polarity where the pixel itself differs the other way: a needle followed where it shows reversed)."""
     height, width = image.shape
     out = np.empty((path.shape[0], 2))
     for k in range(path.shape[0]):
+        sign = polarity if polarity * (background[path[k, 1], path[k, 0]] - image[path[k, 1], path[k, 0]]) >= 0 \
+            else -polarity
         sw, sx, sy = 0.0, 0.0, 0.0
         for dy in range(-1, 2):
             for dx in range(-1, 2):
                 y, x = path[k, 1] + dy, path[k, 0] + dx
                 if 0 <= y < height and 0 <= x < width:
-                    w = polarity * (background[y, x] - image[y, x])
+                    w = sign * (background[y, x] - image[y, x])
                     if w > 0:
                         sw, sx, sy = sw + w, sx + w * x, sy + w * y
         if sw > 0:
@@ -702,6 +761,8 @@ def _end_along_profile(image, background, polarity, points, half_width, step=0.2
         candidate_end = middle + candidate_half_taper
         if tapered:
             end, half_taper = candidate_end, candidate_half_taper
+    if not end <= s[-1]:  # placed beyond the profile read (a taper fitted to a profile that does not end)
+        return none
     kept, out, uncertainty = _placed_end(image, background, polarity, points, along, centre, direction, normal, end,
                                          half_taper, half_width, band_half_width, side_sigma, needle)
     if kept < 0:
@@ -791,14 +852,41 @@ def _scatter(points, first, count):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _reversed_slices(background, polarity, along_rows, fixed, predicted, half_width,
+                     fade_level):  # pragma: no cover - compiled
+    """The slices whose mean background over ``predicted ± half_width`` lies beyond the needle's own level
+    ``fade_level`` (brighter than a bright needle, darker than a dark one): there the needle shows reversed. None
+    when ``fade_level`` is 0 (no faded end was followed)."""
+    height, width = background.shape
+    n = fixed.shape[0]
+    out = np.zeros(n, np.bool_)
+    if fade_level <= 0:
+        return out
+    for k in range(n):
+        centre = int(np.floor(predicted[k] + 0.5))
+        limit = width if along_rows[k] else height
+        f = fixed[k]
+        if f < 0 or f >= (height if along_rows[k] else width):
+            continue
+        total, count = 0.0, 0
+        for c in range(max(centre - half_width, 0), min(centre + half_width + 1, limit)):
+            total += background[f, c] if along_rows[k] else background[c, f]
+            count += 1
+        out[k] = count > 0 and polarity * (total / count - fade_level) < 0
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def _slice_points(image, background, polarity, path, half_width, wide, min_contrast_fraction,
-                  min_profile_fraction):  # pragma: no cover - compiled
+                  min_profile_fraction, fade_level):  # pragma: no cover - compiled
     """The centerline points of the one-pixel slices across ``path`` (:func:`_slices_along`; ``wide`` slices, then
     ``half_width`` ones around their centroids), in path order, with their contrast, centroid noise per unit of image
     noise, contrast per unit of needle width, and two selections: ``keep`` (at least ``min_contrast_fraction`` of the
     median width contrast, centroid within the first pass, cut to the first and last ``full`` slice) and ``full``
-    (also ``min_profile_fraction`` of it); ``keep`` is empty when fewer than 3 slices have contrast or are full."""
+    (also ``min_profile_fraction`` of it); ``keep`` is empty when fewer than 3 slices have contrast or are full. Last,
+    the slices where the needle shows reversed (:func:`_reversed_slices` at the needle's level ``fade_level``)."""
     along_rows, fixed, predicted, obliquity = _slices_along(path)
+    flipped = _reversed_slices(background, polarity, along_rows, fixed, predicted, wide, fade_level)
     relative = np.zeros(0)
     centroid, contrast, noise = _slice_centroids(image, background, polarity, along_rows, fixed, predicted, wide,
                                                  relative, False)
@@ -816,16 +904,16 @@ def _slice_points(image, background, polarity, path, half_width, wide, min_contr
     none = np.zeros(0, np.bool_)
     strong = contrast > 0
     if np.count_nonzero(strong) < 3:
-        return points, contrast, noise, width_contrast, none, none
+        return points, contrast, noise, width_contrast, none, none, flipped
     level = np.median(width_contrast[strong])
     keep = (width_contrast >= min_contrast_fraction * level) & (np.abs(centroid - predicted) <= wide)
     full = keep & (width_contrast >= min_profile_fraction * level)
     ends = np.flatnonzero(full)
     if len(ends) < 3:
-        return points, contrast, noise, width_contrast, none, none
+        return points, contrast, noise, width_contrast, none, none, flipped
     keep[:ends[0]] = False
     keep[ends[-1] + 1:] = False
-    return points, contrast, noise, width_contrast, keep, full
+    return points, contrast, noise, width_contrast, keep, full, flipped
 
 
 @numba.njit(cache=True, nogil=True)
@@ -911,16 +999,37 @@ def _link_components(paths: list[np.ndarray], max_angle_deg: float, margin: floa
     return path
 
 
-def extract_centerline(image: np.ndarray, background: BackgroundModel, config: CenterlineConfig = CenterlineConfig()
-                       ) -> ImageCenterline:
-    """The needle's sub-pixel centerline in ``image`` (uint8/uint16 grey, same size as the background)."""
-    if image.shape != background.shape:
-        raise ValueError(f"image size {image.shape[::-1]} differs from the background's {background.shape[::-1]}")
-    threshold = background.threshold
-    factor, polarity = threshold.downsample, float(threshold.polarity)
-    coarse = downsample(image, factor)
-    paths = _coarse_paths(background.coarse_foreground(coarse), background.coarse_scratch,
-                          int(config.min_length_px / factor))
+@numba.njit(cache=True, nogil=True)
+def _end_level(image, background, path, polarity):  # pragma: no cover - compiled
+    """The needle's own grey level near the end of ``path`` (full-resolution points ordered towards it, 4 px apart):
+    the median over ``END_LEVEL_POINTS`` points before the last four of the grey level of the pixel that differs most
+    from the background among the 5x5 around each, in the needle's ``polarity`` (0: either way, where it may show
+    reversed); 0 when the path is too short."""
+    height, width = image.shape
+    first = max(path.shape[0] - 4 - END_LEVEL_POINTS, 0)
+    levels = np.empty(max(path.shape[0] - 4 - first, 0))
+    count = 0
+    for k in range(first, path.shape[0] - 4):
+        cx, cy = int(np.floor(path[k, 0] + 0.5)), int(np.floor(path[k, 1] + 0.5))
+        best, level = -np.inf, 0.0
+        for y in range(max(cy - 2, 0), min(cy + 3, height)):
+            for x in range(max(cx - 2, 0), min(cx + 3, width)):
+                excess = background[y, x] - float(image[y, x])
+                score = polarity * excess if polarity != 0 else abs(excess)
+                if score > best:
+                    best, level = score, float(image[y, x])
+        if best > -np.inf:
+            levels[count] = level
+            count += 1
+    return np.median(levels[:count]) if count > 0 else 0.0
+
+
+def _coarse_needle_path(image: np.ndarray, coarse: np.ndarray, mask: np.ndarray, background: BackgroundModel,
+                        config: CenterlineConfig) -> np.ndarray:
+    """The needle's path (full-resolution points) from the coarse ``mask``: its largest component's, linked with the
+    components whose ends face its ends (:func:`_link_components`)."""
+    factor, polarity = background.threshold.downsample, float(background.threshold.polarity)
+    paths = _coarse_paths(mask, background.coarse_scratch, int(config.min_length_px / factor))
     if not paths:
         raise NoNeedleError("no pixel differs enough from the background")
     # Refined (:func:`_refine_path`), in full-resolution coordinates (of the coarse pixel centres), 3-point smoothed.
@@ -932,7 +1041,52 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
                             f"(< {config.min_length_px:.0f} px): no needle")
     # Components whose ends face each other are one needle with a hidden stretch between them: sliced through
     # (the slices in the gap have no contrast and are dropped).
-    path = _link_components(paths, config.max_link_angle_deg, 2.0 * factor)
+    return _link_components(paths, config.max_link_angle_deg, 2.0 * factor)
+
+
+def _followed_fades(image: np.ndarray, coarse: np.ndarray, mask: np.ndarray, background: BackgroundModel,
+                    config: CenterlineConfig, path: np.ndarray) -> tuple[np.ndarray, float]:
+    """The path with its ends followed where the needle fades into a background at its own level and beyond it, where
+    it shows reversed (:func:`_grow_faded`, from each end at the needle's level there; again from the new ends, up to
+    ``FADE_ROUNDS`` times), and that level (the mean over the detected ends followed; 0 where none was: the path as it
+    is)."""
+    threshold = background.threshold
+    factor, polarity = threshold.downsample, float(threshold.polarity)
+    levels: list[float] = []
+    for round_ in range(FADE_ROUNDS):
+        grown = np.zeros_like(mask)
+        for ordered in (path[::-1], path):
+            # The detected ends show the needle's polarity; the ends followed to may lie where it shows reversed.
+            level = _end_level(image, background.image, ordered, polarity if round_ == 0 else 0.0)
+            if level <= 0:
+                continue
+            seed = np.round((ordered[-1] + 0.5) / factor - 0.5).astype(np.int64)
+            pixels, count = _grow_faded(coarse, background.coarse, mask, seed, level, polarity, threshold.relative,
+                                        threshold.absolute)
+            if count > FADE_MAX_AREA * np.hypot(*mask.shape):  # not a needle's band: the background model is off
+                continue
+            if count:
+                grown |= pixels
+                if round_ == 0:  # the ends of the needle as detected: its level where it fades
+                    levels.append(level)
+        if not grown.any():
+            break
+        mask = mask | grown
+        path = _coarse_needle_path(image, coarse, mask, background, config)
+    return path, float(np.mean(levels)) if levels else 0.0
+
+
+def extract_centerline(image: np.ndarray, background: BackgroundModel, config: CenterlineConfig = CenterlineConfig()
+                       ) -> ImageCenterline:
+    """The needle's sub-pixel centerline in ``image`` (uint8/uint16 grey, same size as the background)."""
+    if image.shape != background.shape:
+        raise ValueError(f"image size {image.shape[::-1]} differs from the background's {background.shape[::-1]}")
+    threshold = background.threshold
+    factor, polarity = threshold.downsample, float(threshold.polarity)
+    coarse = downsample(image, factor)
+    mask = background.coarse_foreground(coarse)
+    path = _coarse_needle_path(image, coarse, mask, background, config)
+    path, fade_level = _followed_fades(image, coarse, mask, background, config, path)
     # Extend both ends along the end tangents so that the tips are sliced too (empty slices are dropped).
     ends = []
     for end, inner in ((path[0], path[min(2, len(path) - 1)]), (path[-1], path[max(-3, -len(path))])):
@@ -941,11 +1095,15 @@ def extract_centerline(image: np.ndarray, background: BackgroundModel, config: C
     path = np.vstack([ends[0], path, ends[1][::-1]])
 
     wide = config.profile_half_width + factor // 2  # first pass: the coarse path is good to ~factor/2 px
-    points, contrast, slice_noise, width_contrast, keep, full = _slice_points(
+    points, contrast, slice_noise, width_contrast, keep, full, flipped = _slice_points(
         image, background.image, polarity, path, config.profile_half_width, wide, config.min_contrast_fraction,
-        config.min_profile_fraction)
+        config.min_profile_fraction, fade_level)
     if len(keep) == 0:
         raise NoNeedleError("the needle's slices have no contrast")
+    # Where the needle shows reversed it is linked through, not measured: the covered fraction's denominator B - N
+    # passes through zero at the stretch's edges, and N there is only known from beyond them (measured, the stretch
+    # broke the uncertainty's promise: 97.0 % within 3 sigma and 6.3 sigma on the hard band, docs/stereo_history.md).
+    keep &= ~flipped
     # A slice is compared with the median of its neighbours above a floor (a faded stretch is followed), compiled
     # where the window reflects at most once (scipy's repeated reflection otherwise).
     window, widths = config.local_window, width_contrast[keep]
