@@ -8,10 +8,11 @@ import numpy as np
 
 from needle_common.cdr import PoseStamped
 from needle_common.parameters import ParameterError
-from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, rig_from_calibration_files
-from needle_vision.parameters import base_pose_store, output_from_left, stereo_config
+from needle_common.transforms import RigidTransform
+from needle_vision.calibration.rig import CalibrationError, CameraInfoRig, StereoRig, load_camera_calibration
+from needle_vision.parameters import stereo_config
 from needle_vision.pipeline import StereoNeedlePipeline
-from needle_vision.streams.base_pose import store_base_pose
+from needle_vision.streams.base_pose import BasePoseStore, store_base_pose
 
 
 class StereoFrontEnd:
@@ -21,15 +22,17 @@ class StereoFrontEnd:
 
     def __init__(self, values: dict[str, Any]) -> None:
         self.values = values
-        self.output_from_left = output_from_left(values)
-        self.base_poses = base_pose_store(values)
+        # pose of the raw left optical frame in the output frame (the identity without an output_frame)
+        self.output_from_left = RigidTransform.from_xyz_quaternion(values["output_transform"]) \
+            if values["output_frame"] else RigidTransform()
+        self.base_poses = BasePoseStore(values["base_pose.max_age"], values["base_pose.offset"])
         self.camera_infos = CameraInfoRig()
         self.image_frame = ""  # frame_id of the left images (the raw left optical frame)
         self.pipeline: StereoNeedlePipeline | None = None
         if values["left_calibration_file"]:
             try:
-                self.use_rig(rig_from_calibration_files(values["left_calibration_file"],
-                                                        values["right_calibration_file"]))
+                self.use_rig(StereoRig.from_camera_calibrations(*map(load_camera_calibration, (
+                    values["left_calibration_file"], values["right_calibration_file"]))))
             except CalibrationError as error:
                 raise ParameterError(f"parameter 'left_calibration_file'/'right_calibration_file': {error}") from error
 

@@ -414,7 +414,7 @@ def run(arguments: argparse.Namespace) -> int:
             written: deque[Future] = deque()  # CSV rows formatted and written on a thread of their own
             # Pairs measured ahead on the measuring threads once the pipeline is settled (their order-dependent
             # part, base/tip ordering, state and tracking, is completed here in input order).
-            ahead: deque[tuple[int, float, Future, Future, list[PoseStamped]]] = deque()
+            ahead: deque[tuple[int, float, Future, Future | None, list[PoseStamped]]] = deque()
 
             def complete(frame: int, stamp: float, images: Future, measurement: Future | None,
                          poses: list[PoseStamped]) -> None:
@@ -456,14 +456,11 @@ def run(arguments: argparse.Namespace) -> int:
                 if background_pairs and pipeline.backgrounds is None:
                     set_backgrounds(pipeline, mode, background)
                     background.clear()
-                if arguments.workers > 1 and not per_frame and pipeline.settled:
-                    ahead.append((frame, stamp, future, measuring.submit(_measured, pipeline, future), poses))
-                    while len(ahead) > 2 * arguments.workers:
-                        complete(*ahead.popleft())
-                    continue
-                while ahead:
+                concurrent = arguments.workers > 1 and not per_frame and pipeline.settled
+                ahead.append((frame, stamp, future, measuring.submit(_measured, pipeline, future) if concurrent
+                              else None, poses))
+                while len(ahead) > (2 * arguments.workers if concurrent else 0):
                     complete(*ahead.popleft())
-                complete(frame, stamp, future, None, poses)
             while ahead:
                 complete(*ahead.popleft())
             if background_pairs and pipeline.backgrounds is None:  # nothing after the background pairs

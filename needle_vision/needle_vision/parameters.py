@@ -11,13 +11,12 @@ from needle_common.package_files import resolve_path
 from needle_common.parameters import (QOS_CHOICES, TOPIC_CHECK, ParameterError, ParamSpec, unknown_name_error,
                                       valid_topic_name)
 from needle_vision.detection.background import ContrastThreshold
-from needle_vision.streams.base_pose import BasePoseStore
 from needle_vision.detection.centerline import CenterlineConfig
 from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.pipeline import StereoConfig
 from needle_vision.matching.reconstruction import ReconstructionConfig
 from needle_vision.matching.tracking import TrackingConfig
-from needle_common.transforms import RigidTransform, nonzero_quaternion
+from needle_common.transforms import nonzero_quaternion
 
 
 def _readable_file_or_empty(path: str) -> bool:
@@ -165,16 +164,3 @@ def stereo_config(values: dict[str, Any]) -> StereoConfig:
         tracking=TrackingConfig(values["tracking.window"], values["tracking.max_gap"])
         if values["tracking.enabled"] else None,
         auto_polarity=values["needle_polarity"] == "auto")
-
-
-def base_pose_store(values: dict[str, Any]) -> BasePoseStore:
-    """An empty store of base poses with the validated ``base_pose.max_age`` and ``base_pose.offset``."""
-    return BasePoseStore(values["base_pose.max_age"], values["base_pose.offset"])
-
-
-def output_from_left(values: dict[str, Any]) -> RigidTransform:
-    """Pose of the raw left optical frame in the output frame: ``output_transform`` when ``output_frame`` is
-    set, else the identity (the points stay in the raw left optical frame)."""
-    if not values["output_frame"]:
-        return RigidTransform()
-    return RigidTransform.from_xyz_quaternion(values["output_transform"])

@@ -141,37 +141,35 @@ class StereoNeedlePipeline:
         self._dtype = left.dtype
         config = self.config
         threshold = replace(config.threshold, polarity=self.polarity or 1)
-        if self.backgrounds is None:
-            if config.background_frames > 0:
-                self._background_frames.append((left.copy(), right.copy()))
-                if len(self._background_frames) < config.background_frames:
-                    return FrameResult(FrameStatus.BACKGROUND)
+        if self.backgrounds is None and config.background_frames > 0:
+            self._background_frames.append((left.copy(), right.copy()))
+            if len(self._background_frames) == config.background_frames:
                 self.backgrounds = tuple(BackgroundModel.from_frames([pair[k] for pair in self._background_frames],
                                                                      threshold) for k in range(2))
                 self._background_frames.clear()
-                return FrameResult(FrameStatus.BACKGROUND)
-            if not self.polarity:  # thin dark structures filled by a closing, thin bright ones by an opening
+            return FrameResult(FrameStatus.BACKGROUND)
+        backgrounds = self.backgrounds
+        if not self.polarity:
+            if backgrounds is None:  # thin dark structures filled by a closing, thin bright ones by an opening
                 image = left.astype(np.float32)
                 size = 2 * config.centerline.profile_half_width + 1
                 kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-                self.polarity = detect_polarity(*(downsample(excess, threshold.downsample) for excess in (
+                polarity = detect_polarity(*(downsample(excess, threshold.downsample) for excess in (
                     cv2.morphologyEx(image, cv2.MORPH_CLOSE, kernel) - image,
                     image - cv2.morphologyEx(image, cv2.MORPH_OPEN, kernel), image)), threshold)
-                if not self.polarity:
-                    return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
-                threshold = replace(threshold, polarity=self.polarity)
-            self.backgrounds = tuple(BackgroundModel.from_needle_frame(image, threshold,
-                                                                       config.centerline.profile_half_width)
-                                     for image in (left, right))
-        backgrounds = self.backgrounds
-        if not self.polarity:  # decided here, kept only once a needle is measured with it (not on empty frames)
-            # the coarse brightening is minus the coarse darkening (area averages commute with the sign exactly)
-            coarse = downsample(backgrounds[0].image - left.astype(np.float32), threshold.downsample)
-            polarity = detect_polarity(coarse, -coarse, backgrounds[0].coarse, threshold)
+            else:  # the coarse brightening is minus the coarse darkening (area averages commute with the sign exactly)
+                coarse = downsample(backgrounds[0].image - left.astype(np.float32), threshold.downsample)
+                polarity = detect_polarity(coarse, -coarse, backgrounds[0].coarse, threshold)
             if not polarity:
                 return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
             threshold = replace(threshold, polarity=polarity)
-            backgrounds = tuple(BackgroundModel(background.image, threshold) for background in backgrounds)
+            if backgrounds is None:  # bootstrapped from this pair: kept
+                self.polarity = polarity
+            else:  # kept only once a needle is measured with it (not on empty frames)
+                backgrounds = tuple(BackgroundModel(background.image, threshold) for background in backgrounds)
+        if backgrounds is None:
+            backgrounds = self.backgrounds = tuple(BackgroundModel.from_needle_frame(
+                image, threshold, config.centerline.profile_half_width) for image in (left, right))
         return self._complete(stamp, left, right, self._measure(left, right, backgrounds), threshold, backgrounds)
 
     @property

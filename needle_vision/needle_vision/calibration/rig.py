@@ -230,11 +230,6 @@ class StereoRig:
 
 # --- the rig from camera_info topics ------------------------------------------------------------------------
 
-def rig_from_calibration_files(left: str | Path, right: str | Path) -> StereoRig:
-    """The rig of the left and right cameras' ``camera_calibration`` YAML files (:func:`load_camera_calibration`)."""
-    return StereoRig.from_camera_calibrations(load_camera_calibration(left), load_camera_calibration(right))
-
-
 def rig_from_camera_infos(left: Mapping[str, Any] | Any, right: Mapping[str, Any] | Any) -> StereoRig:
     """The rig of the two cameras' ``sensor_msgs/CameraInfo`` (message objects or mappings of their fields);
     CalibrationError names the camera and field when they do not make a stereo pair."""

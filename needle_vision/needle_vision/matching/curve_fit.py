@@ -54,13 +54,15 @@ def _basis(u, h, segments, b, d1):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _evaluate(control, s, b, d1, point, derivative):  # pragma: no cover - compiled
-    """The curve's point and derivative at a parameter of segment ``s`` with basis ``b``, ``d1``, into the arrays."""
+def _evaluate(control, u, h, segments, b, d1, point, derivative):  # pragma: no cover - compiled
+    """The curve's point and derivative at ``u`` into the arrays (its basis into ``b``, ``d1``); its segment index."""
+    s = _basis(u, h, segments, b, d1)
     for k in range(3):
         point[k] = b[0] * control[s, k] + b[1] * control[s + 1, k] + b[2] * control[s + 2, k] \
             + b[3] * control[s + 3, k]
         derivative[k] = d1[0] * control[s, k] + d1[1] * control[s + 1, k] + d1[2] * control[s + 2, k] \
             + d1[3] * control[s + 3, k]
+    return s
 
 
 @numba.njit(cache=True, nogil=True)
@@ -196,8 +198,7 @@ def _feet(control, h, segments, length, projection, observations, feet, first, s
         pixels = np.empty((samples, 2))
         for k in range(samples):
             grid[k] = length * k / (samples - 1)
-            s = _basis(grid[k], h, segments, b, d1)
-            _evaluate(control, s, b, d1, point, derivative)
+            _evaluate(control, grid[k], h, segments, b, d1, point, derivative)
             _project(projection, point, derivative, pixel, jacobian, tangent)
             pixels[k] = pixel
         current = -1
@@ -222,8 +223,7 @@ def _feet(control, h, segments, length, projection, observations, feet, first, s
     for i in range(n):
         u = feet[i]
         for _ in range(steps):
-            s = _basis(u, h, segments, b, d1)
-            _evaluate(control, s, b, d1, point, derivative)
+            _evaluate(control, u, h, segments, b, d1, point, derivative)
             _project(projection, point, derivative, pixel, jacobian, tangent)
             norm2 = tangent[0] * tangent[0] + tangent[1] * tangent[1]
             if norm2 <= 0.0:
@@ -265,8 +265,7 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
         total, used = 0.0, 0
         for i in range(m):
             u = feet[i]
-            s = _basis(u, h, segments, b, d1)
-            _evaluate(control, s, b, d1, point, derivative)
+            s = _evaluate(control, u, h, segments, b, d1, point, derivative)
             _project(projections[views[i]], point, derivative, pixel, jacobian, tangent)
             norm = np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1])
             if norm <= 0.0:
@@ -289,8 +288,7 @@ def _gauss_newton(control, h, length, observations, views, noise, multiplicity, 
         for v in range(2):
             for e in range(2):  # along the projected curve only: across it, the image points say it
                 u = 0.0 if e == 0 else length
-                s = _basis(u, h, segments, b, d1)
-                _evaluate(control, s, b, d1, point, derivative)
+                s = _evaluate(control, u, h, segments, b, d1, point, derivative)
                 _project(projections[v], point, derivative, pixel, jacobian, tangent)
                 norm = max(np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1]), 1e-300)
                 tx, ty = tangent[0] / norm, tangent[1] / norm
@@ -339,8 +337,7 @@ def _sample(control, h, length, factor, spacing):  # pragma: no cover - compiled
     for p in range(n):
         u = length * p / (n - 1)
         parameters[p] = u
-        s = _basis(u, h, segments, b, d1)
-        _evaluate(control, s, b, d1, points[p], t)
+        s = _evaluate(control, u, h, segments, b, d1, points[p], t)
         t /= max(np.sqrt(np.sum(t * t)), 1e-300)
         block[:] = 0.0
         for a in range(4):

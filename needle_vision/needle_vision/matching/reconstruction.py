@@ -143,10 +143,11 @@ def _rectified(centerline: ImageCenterline, rectification: Rectification, side: 
     return rectified, tapers * scale
 
 
-def _runs(points: np.ndarray, split: float) -> list[slice]:
-    """The runs of consecutive points not separated by a step longer than ``split`` (a hidden stretch)."""
+def _runs(points: np.ndarray, split: float, min_points: int = 0) -> list[slice]:
+    """The runs of at least ``min_points`` consecutive points not separated by a step longer than ``split`` (a hidden
+    stretch)."""
     bounds = run_bounds(np.ascontiguousarray(points), split).tolist()
-    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= min_points]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -295,24 +296,21 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     spacing = float(np.mean(steps[steps <= split])) if np.any(steps <= split) else split
     window = _odd_window(config.smoothing_length, spacing, len(points))
     inliers = np.zeros(len(points), bool)
-    for run in _runs(points, split):
-        if run.stop - run.start >= 5:
-            inliers[run] = _robust_inliers(points[run], config, window)
+    for run in _runs(points, split, 5):
+        inliers[run] = _robust_inliers(points[run], config, window)
     inliers = np.flatnonzero(inliers)
-    runs = [run for run in _runs(points[inliers], split) if run.stop - run.start >= 5]
-    inliers = np.concatenate([inliers[run] for run in runs] + [np.zeros(0, int)])
+    inliers = np.concatenate([inliers[run] for run in _runs(points[inliers], split, 5)] + [np.zeros(0, int)])
     points, anchored, sin_angle = points[inliers], anchored[inliers], sin_angle[inliers]
     if len(points) < config.min_points:
         raise MatchError(f"only {len(points)} points left after outlier rejection")
 
     # Per-point noise: lateral from the image noise, depth through the disparity (worse where the needle runs along
     # the epipolar lines).
-    nearest = _nearest_points(left_rect, match.left), _nearest_points(right_rect, match.right)
+    kept = np.flatnonzero(valid)[inliers]
+    nearest = _nearest_points(left_rect, match.left[kept]), _nearest_points(right_rect, match.right[kept])
     noise_px = np.maximum.reduce([left.local_noise_px[nearest[0]], right.local_noise_px[nearest[1]],
-                                  np.full(len(match.left), max(left.noise_px, right.noise_px,
-                                                               MIN_IMAGE_NOISE_PX))])[valid]
-    noise_px = noise_px[inliers]
-    extrapolation_px = np.hypot(left.extrapolation_px[nearest[0]], right.extrapolation_px[nearest[1]])[valid][inliers]
+                                  np.full(len(kept), max(left.noise_px, right.noise_px, MIN_IMAGE_NOISE_PX))])
+    extrapolation_px = np.hypot(left.extrapolation_px[nearest[0]], right.extrapolation_px[nearest[1]])
     min_sin = np.sin(np.radians(matching.min_epipolar_angle_deg))
     slope = np.where(anchored, np.maximum(sin_angle, min_sin), 0.5 * min_sin)
     per_disparity = rectification.depth_per_disparity(points)

@@ -54,12 +54,6 @@ class BasePoseStore:
         if len(self._stamps) > self.capacity:
             del self._stamps[0], self._poses[0]
 
-    def _point(self, position: Sequence[float], unit_quaternion: list[float],
-               output_from_pose: RigidTransform | None) -> np.ndarray:
-        shift = rotate(unit_quaternion, self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
-        point = np.array([p + s for p, s in zip(position, shift)])
-        return point if output_from_pose is None else output_from_pose.apply(point)
-
     def base_at(self, stamp: float) -> np.ndarray | None:
         """The base point [m, output frame] of the pose nearest in time to ``stamp``, or None when none is
         within ``max_age``."""
@@ -68,7 +62,10 @@ class BasePoseStore:
                       key=lambda k: abs(self._stamps[k] - stamp), default=None)
         if nearest is None or abs(self._stamps[nearest] - stamp) > self.max_age:
             return None
-        return self._point(*self._poses[nearest])
+        position, unit_quaternion, output_from_pose = self._poses[nearest]
+        shift = rotate(unit_quaternion, self.offset) if any(self.offset) else (0.0, 0.0, 0.0)
+        point = np.array([p + s for p, s in zip(position, shift)])
+        return point if output_from_pose is None else output_from_pose.apply(point)
 
 
 def _floats(values: Sequence[float]) -> list[float]:
