@@ -197,6 +197,15 @@ def needle_shape(sec: int, nanosec: int, frame_id: str, source: str, points: np.
     return bytes(data)
 
 
+def needle_shape_points(data: bytes | memoryview) -> tuple[int, np.ndarray]:
+    """(stamp [ns], points (n, 3) [m], a copy) of a NeedleShape, as :func:`needle_shape` lays it out."""
+    stamp, offset = header(data)
+    offset = aligned(cdr_string(data, offset)[1], 4)  # after the source
+    (count,) = struct.unpack_from("<I", data, offset)
+    offset = aligned(offset + 4, 8) if count else offset + 4
+    return stamp, np.frombuffer(data, "<f8", 3 * count, offset).reshape(-1, 3).copy()
+
+
 class _Layout(Writer):
     """A :class:`Writer` that notes where each block of doubles starts in the serialized bytes."""
 

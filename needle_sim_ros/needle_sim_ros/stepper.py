@@ -74,9 +74,12 @@ class LoopStatistics:
     late_poses: int = 0
     step_wall_times: list[float] = field(default_factory=list)
 
-    def take_step_times(self) -> np.ndarray:
+    def take_step_time_ms(self, empty: float | None) -> dict[str, float | None]:
+        """``step_time_mean_ms`` and ``step_time_max_ms`` [ms] of the steps since the last call (``empty`` without
+        steps)."""
         times, self.step_wall_times = np.array(self.step_wall_times), []
-        return times
+        return {"step_time_mean_ms": float(times.mean() * 1e3) if times.size else empty,
+                "step_time_max_ms": float(times.max() * 1e3) if times.size else empty}
 
 
 class Stepper:

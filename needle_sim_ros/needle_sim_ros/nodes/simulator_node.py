@@ -38,7 +38,8 @@ from needle_sim_ros.haptics import ZERO, HapticShaper
 from needle_sim_ros.inputs import USED_POSES, InputRejected, SimulatorInputs, rejected_poses
 from needle_sim_ros.messages import cdr
 from needle_common.transforms import conjugate, multiply, quaternion_matrix, quaternions_from_x_axes
-from needle_sim_ros.messages.geometry import compile_geometry_kernels, tube_triangles
+from needle_sim_ros.messages.centerline_display import COLORS, path_and_tube
+from needle_sim_ros.messages.geometry import compile_geometry_kernels
 from needle_sim_ros.messages.shape import model_shape_cdr, time_msg
 from needle_sim_ros.model import BaseMotion, State, elastic_energy, kinetic_energy, model_shape
 from needle_sim_ros.nodes.diagnostics import ERROR, OK, WARN, HealthMonitor
@@ -55,7 +56,6 @@ from needle_sim_ros.simulation import (
 
 WARN_PERIOD = 2.0  # [s] throttle of repeated input warnings
 ZERO_ACK_WAIT = 0.5  # [s] longest wait for the haptic subscribers to acknowledge the zero sent at exit
-TUBE_COLOR = (0.75, 0.75, 0.8, 1.0)  # RGBA of the needle's Marker tube
 
 
 class NeedleSimulatorNode(LifecycleNode):
@@ -571,12 +571,12 @@ class NeedleSimulatorNode(LifecycleNode):
             self.publish_shape(snap)
         if visualization_due:
             stamp, frame, line = time_msg(snap["shape"].t), self.p["frames.world"], snap["shape"].line
-            orientations = quaternions_from_x_axes(line.tangents)
-            self.path_pub.publish(cdr.path(stamp.sec, stamp.nanosec, frame, line.points, orientations))
-            self.pose_array_pub.publish(cdr.pose_array(stamp.sec, stamp.nanosec, frame, line.points, orientations))
-            self.marker_pub.publish(cdr.triangle_list_marker(
-                stamp.sec, stamp.nanosec, frame, "needle", 0,
-                tube_triangles(line.points, line.tangents, self.props.radius), TUBE_COLOR))
+            path, marker = path_and_tube(stamp.sec, stamp.nanosec, frame, "needle", line.points, line.tangents,
+                                         self.props.radius, COLORS["model"])
+            self.path_pub.publish(path)
+            self.marker_pub.publish(marker)
+            self.pose_array_pub.publish(cdr.pose_array(stamp.sec, stamp.nanosec, frame, line.points,
+                                                       quaternions_from_x_axes(line.tangents)))
 
     def publish_diagnostics_if_due(self, now: float) -> None:
         """Counters of the loop and inputs, and a level with a message that clears when its cause does
@@ -592,11 +592,8 @@ class NeedleSimulatorNode(LifecycleNode):
                          for k, n in self.counters_other.items()}}
             if sim is not None:
                 stats = sim.statistics
-                step_times = stats.take_step_times()
                 values.update({
-                    "steps": stats.steps,
-                    "step_time_mean_ms": float(step_times.mean() * 1e3) if step_times.size else 0.0,
-                    "step_time_max_ms": float(step_times.max() * 1e3) if step_times.size else 0.0,
+                    "steps": stats.steps, **stats.take_step_time_ms(empty=0.0),
                     "max_newton_iterations": stats.max_newton_iterations, "failed_steps": stats.failed_steps,
                     "poses_late_for_their_step": stats.late_poses,
                     "started_at_s": f"{self.started_at:.6f}",  # an epoch time in full, not .6g

@@ -13,13 +13,12 @@ import numpy as np
 
 from needle_sim_ros.comparison import CenterlineSamples, compare_centerlines
 from needle_common.bag_reader import BagReader
-from needle_common.cdr import NS, aligned, header
+from needle_common.cdr import NS, aligned, header, needle_shape_points
 
 MODEL_TOPIC, MEASURED_TOPIC = "/needle/shape", "/needle/measured_shape"
 ERROR_TOPIC, WRENCH_TOPIC = "/shape_error", "/wrench"
 TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC = "/ground_truth/shape", "/ground_truth/wrench"
 TRUTH_TOPICS = (TRUTH_SHAPE_TOPIC, TRUTH_WRENCH_TOPIC)
-_UINT32 = struct.Struct("<I")
 _STAMPS = struct.Struct("<iIiI")  # a ShapeError's model and measurement stamps
 _ERROR_VALUES = struct.Struct("<3d")  # rmse, max and tip error
 
@@ -60,16 +59,6 @@ def _wrenches(messages: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
     return stamps[:, 0] * NS + (stamps[:, 1] & 0xFFFFFFFF), np.ascontiguousarray(rows[:, at:at + 48]).view("<f8")
 
 
-def _shape(data: bytes | memoryview) -> tuple[int, np.ndarray]:
-    """(stamp [ns], points (n, 3), a copy) of a NeedleShape."""
-    stamp, offset = header(data)
-    offset = aligned(offset, 4)
-    offset = aligned(offset + 4 + _UINT32.unpack_from(data, offset)[0], 4)  # after the source string
-    (count,) = _UINT32.unpack_from(data, offset)
-    offset = aligned(offset + 4, 8) if count else offset + 4
-    return stamp, np.frombuffer(data, "<f8", 3 * count, offset).reshape(-1, 3).copy()
-
-
 def _error(data: bytes | memoryview) -> tuple:
     """(stamp, measurement stamp, model stamp [ns], rmse, max error, tip error [m]) of a ShapeError."""
     stamp, offset = header(data)
@@ -91,7 +80,7 @@ class LogCollector:
         if topic in self.wrenches:
             self.wrenches[topic].append(bytes(data))  # a copy: a view would keep the bag's whole chunk
         elif topic in self.shapes:
-            stamp, points = _shape(data)
+            stamp, points = needle_shape_points(data)
             self.shapes[topic][stamp] = points
         elif topic == ERROR_TOPIC:
             self.errors.append(_error(data))

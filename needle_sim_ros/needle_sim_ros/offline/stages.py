@@ -125,11 +125,8 @@ class SimulatorStage:
 
     def statistics(self) -> dict[str, Any]:
         stats = self.sim.statistics
-        times = stats.take_step_times()
         return {"steps": stats.steps, "failed_steps": stats.failed_steps, "skipped_time_s": stats.skipped_time,
-                "max_newton_iterations": stats.max_newton_iterations,
-                "step_time_mean_ms": float(times.mean() * 1e3) if times.size else None,
-                "step_time_max_ms": float(times.max() * 1e3) if times.size else None,
+                "max_newton_iterations": stats.max_newton_iterations, **stats.take_step_time_ms(empty=None),
                 "rejected_inputs": dict(self.rejected)}
 
 
