@@ -16,9 +16,11 @@ COLORS = {"model": (0.75, 0.75, 0.8, 1.0), "measured": (1.0, 0.55, 0.1, 0.8)}  #
 
 
 def path_and_tube(sec: int, nanosec: int, frame_id: str, namespace: str, points: np.ndarray, tangents: np.ndarray,
-                  radius: float, color: tuple[float, float, float, float]) -> tuple[bytes, bytes]:
-    """nav_msgs/Path (x along the tangents) and Marker tube (``radius`` [m], RGBA ``color``) of a centerline."""
-    return (cdr.path(sec, nanosec, frame_id, points, quaternions_from_x_axes(tangents)),
+                  orientations: np.ndarray, radius: float, color: tuple[float, float, float, float]
+                  ) -> tuple[bytes, bytes]:
+    """nav_msgs/Path (``orientations``: x along the tangents) and Marker tube (``radius`` [m], RGBA ``color``) of a
+    centerline."""
+    return (cdr.path(sec, nanosec, frame_id, points, orientations),
             cdr.triangle_list_marker(sec, nanosec, frame_id, namespace, 0, tube_triangles(points, tangents, radius),
                                      color))
 
@@ -26,7 +28,9 @@ def path_and_tube(sec: int, nanosec: int, frame_id: str, namespace: str, points:
 def centerline_display(sec: int, nanosec: int, frame_id: str, kind: str, points: np.ndarray,
                        radius: float) -> dict[str, bytes]:
     """{'compare/<kind>/path': Path, 'compare/<kind>/marker': Marker} of a centerline (n >= 2, base to tip)."""
-    path, marker = path_and_tube(sec, nanosec, frame_id, kind, points, polyline_tangents(points), radius, COLORS[kind])
+    tangents = polyline_tangents(points)
+    path, marker = path_and_tube(sec, nanosec, frame_id, kind, points, tangents, quaternions_from_x_axes(tangents),
+                                 radius, COLORS[kind])
     return {f"compare/{kind}/path": path, f"compare/{kind}/marker": marker}
 
 

@@ -571,12 +571,12 @@ class NeedleSimulatorNode(LifecycleNode):
             self.publish_shape(snap)
         if visualization_due:
             stamp, frame, line = time_msg(snap["shape"].t), self.p["frames.world"], snap["shape"].line
+            orientations = quaternions_from_x_axes(line.tangents)
             path, marker = path_and_tube(stamp.sec, stamp.nanosec, frame, "needle", line.points, line.tangents,
-                                         self.props.radius, COLORS["model"])
+                                         orientations, self.props.radius, COLORS["model"])
             self.path_pub.publish(path)
             self.marker_pub.publish(marker)
-            self.pose_array_pub.publish(cdr.pose_array(stamp.sec, stamp.nanosec, frame, line.points,
-                                                       quaternions_from_x_axes(line.tangents)))
+            self.pose_array_pub.publish(cdr.pose_array(stamp.sec, stamp.nanosec, frame, line.points, orientations))
 
     def publish_diagnostics_if_due(self, now: float) -> None:
         """Counters of the loop and inputs, and a level with a message that clears when its cause does
