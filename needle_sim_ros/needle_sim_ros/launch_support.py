@@ -102,7 +102,10 @@ def exit_error(name: str, returncode: int, shutting_down: bool) -> str:
     return f"{name} exited with status {returncode}: the launch stops"
 
 
-PLAYER_WAIT = 30.0  # [s] the bag player waits at most this long for the nodes to match its topics
+# [s] the bag player waits at most this long for the nodes to match its topics: it plays as soon as they did, and a
+# node compiling its kernels cold (an install built with NEEDLE_COMPILE_KERNELS=0, a cache from another CPU) takes
+# minutes on 2 cores before it subscribes (30 s played the bag's start to nobody)
+PLAYER_WAIT = 300.0
 
 
 def player_arguments(bag: str, namespace: str, nodes: list[str], compress_images: str = "") -> list[str]:

@@ -180,10 +180,10 @@ def test_only_an_unexpected_failure_fails_the_launch():
 def test_the_bag_player_waits_for_the_nodes_that_read_the_bag():
     """mode:=replay plays the whole bag (ground truth for RViz too) once each node has matched its inputs."""
     assert player_arguments("a.mcap", "", ["needle_simulator", "needle_stereo"]) == [
-        "a.mcap", "--clock", "--wait-for-subscribers", "30", "--wait-for-nodes", "/needle_simulator", "/needle_stereo"]
+        "a.mcap", "--clock", "--wait-for-subscribers", "300", "--wait-for-nodes", "/needle_simulator", "/needle_stereo"]
     for namespace in ("robot1", "/robot1", "/robot1/"):  # the bag's topics go where the namespaced nodes read them
         assert player_arguments("a.mcap", namespace, ["needle_compare"]) == [
-            "a.mcap", "--clock", "--in-namespace", "--wait-for-subscribers", "30", "--wait-for-nodes",
+            "a.mcap", "--clock", "--in-namespace", "--wait-for-subscribers", "300", "--wait-for-nodes",
             "/robot1/needle_compare"]
     assert player_arguments("a.mcap", "/", ["needle_compare"])[-1] == "/needle_compare"
     assert player_arguments("a.mcap", "", ["needle_stereo"], "png")[-3:] == ["/needle_stereo", "--compress-images",

@@ -73,15 +73,14 @@ class ReconstructionConfig:
 @dataclass(frozen=True)
 class NeedleMeasurement:
     """The measured centerline in the output frame, base to tip: samples ``points (k, 3)`` [m], unit ``tangents``,
-    ``arc_length`` [m], 1-sigma ``uncertainty`` [m] (UNMEASURED in gaps, see ``measured``), total ``length`` [m]; the
-    inlier ``triangulated`` points ``(n, 3)`` before smoothing; and the raw image centerlines (for the debug image)."""
+    ``arc_length`` [m], 1-sigma ``uncertainty`` [m] (UNMEASURED in gaps, see ``measured``), total ``length`` [m]; and
+    the raw image centerlines (for the debug image)."""
 
     points: np.ndarray
     tangents: np.ndarray
     arc_length: np.ndarray
     uncertainty: np.ndarray
     length: float
-    triangulated: np.ndarray
     left_centerline: ImageCenterline
     right_centerline: ImageCenterline
     anchored_fraction: float
@@ -553,5 +552,5 @@ def order_and_resample(triangulation: Triangulation, rectification: Rectificatio
     if length > config.max_length:
         raise ImplausibleError(f"implausible: measured needle is {length * 1e3:.0f} mm long "
                                f"(> max_length {config.max_length * 1e3:.0f} mm)")
-    return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, points, triangulation.left_centerline,
+    return NeedleMeasurement(resampled, tangents, samples, uncertainty, length, triangulation.left_centerline,
                              triangulation.right_centerline, float(np.mean(anchored)), measured)
