@@ -74,6 +74,14 @@ class LoopStatistics:
     late_poses: int = 0
     step_wall_times: list[float] = field(default_factory=list)
 
+    def count_steps(self, done: int, wall: float, newton_iterations: int) -> None:
+        """``done`` accepted steps of ``wall`` [s] each, the most Newton iterations among them
+        ``newton_iterations``."""
+        self.steps += done
+        self.step_wall_times += [wall] * done
+        if newton_iterations > self.max_newton_iterations:
+            self.max_newton_iterations = newton_iterations
+
     def take_step_time_ms(self, empty: float | None) -> dict[str, float | None]:
         """``step_time_mean_ms`` and ``step_time_max_ms`` [ms] of the steps since the last call (``empty`` without
         steps)."""
@@ -336,16 +344,13 @@ class Stepper:
         if not done:
             return
         wall = (time.perf_counter() - start) / done
-        hook, stats = self.after_step, self.statistics
+        hook = self.after_step
         states, wrenches, iterations = outputs
         if done == 1 and hook is None:  # the live loop's run: one step per pose
             w, n, t = wrenches[0], iterations.item(0), float(times[0])
             records.append(StepRecord(t, BaseWrench(w), n, 1, wall))
             self.data.end_run(states, 0, t, motions, rotations)
-            stats.steps += 1
-            stats.step_wall_times.append(wall)
-            if n > stats.max_newton_iterations:
-                stats.max_newton_iterations = n
+            self.statistics.count_steps(1, wall, n)
             return
         end_times, counts = times[:done].tolist(), iterations[:done].tolist()
         if hook is None:  # the records, then the last step's state
@@ -357,9 +362,7 @@ class Stepper:
                 records.append(record)
                 self.data.end_run(states, i, t, motions, rotations)
                 hook(record)
-        stats.steps += done
-        stats.step_wall_times.extend([wall] * done)
-        stats.max_newton_iterations = max(stats.max_newton_iterations, *counts)
+        self.statistics.count_steps(done, wall, max(counts))
 
     def _run_steps(self, runs: list, times: np.ndarray, motions: np.ndarray, rotations: np.ndarray,
                    records: list[StepRecord]) -> int:
@@ -402,10 +405,7 @@ class Stepper:
     def _finish_step(self, start: float, wrench: BaseWrench, iterations: int, substeps: int) -> StepRecord:
         """Statistics, record and hook of the step that led to the current state, with its base wrench."""
         wall = time.perf_counter() - start
-        stats = self.statistics
-        stats.steps += 1
-        stats.max_newton_iterations = max(stats.max_newton_iterations, iterations)
-        stats.step_wall_times.append(wall)
+        self.statistics.count_steps(1, wall, iterations)
         record = StepRecord(self.state.t, wrench, iterations, substeps, wall)
         if self.after_step is not None:
             self.after_step(record)
