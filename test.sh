@@ -9,6 +9,7 @@ TESTS=(needle_common/test needle_sim_ros/test needle_vision/test test)
 # Each run sources its environment in a child shell, so the two never mix.
 run() {  # run <lock: "" or noble> <title> <pytest args...>
   local lock=$1 title=$2; shift 2
+  df -h . "${TMPDIR:-/tmp}" | sed 's/^/[disk] /'  # a full disk fails tests far from its cause: say what was free
   NEEDLE_LOCK=$lock bash -c \
     'source scripts/setup_env.sh && printf "\033[1m[test]\033[0m %s\n" "$0" && exec pytest "$@"' "$title" "$@"
 }
