@@ -1,7 +1,5 @@
 """Cold start (issue #12): after `compile_kernels` the node's pose path compiles nothing more."""
 import json
-import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -79,32 +77,9 @@ def test_an_insertion_needs_no_kernel_beyond_compile_kernels_with_the_tissue_on(
     assert compiled_specializations() == compiled
 
 
-@pytest.fixture(scope="module")
-def hook_cache(run_install_hook, tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
-    """A kernel cache filled by setup.py's install hook alone, as on a fresh install, and the hook's output.
-
-    Filled in the main lock's run only: the hook and the kernels it compiles are the same on both locks, and numba
-    0.59 (noble) takes 800-1500 s to fill a cache from empty on CI's 2 cores, which the suite's two runs cannot
-    spend within CI's 90 minutes. The noble run's own build (scripts/setup_env.sh) runs the same hook."""
-    if Path(os.environ.get("NEEDLE_INSTALL", "install")).name == "install-noble":
-        pytest.skip("the install hook's compile from an empty cache runs in the main lock's run (same hook, same "
-                    "kernels; numba 0.59 takes 800-1500 s of CI's 90 minutes for it)")
-    cache = tmp_path_factory.mktemp("numba_cache")
-    result = run_install_hook(Path(__file__).resolve().parents[1] / "setup.py", 1200, {"NUMBA_CACHE_DIR": str(cache)})
-    assert result.returncode == 0, result.stderr
-    return cache, result
-
-
-@pytest.mark.slow
-@pytest.mark.timeout(1500)
-def test_the_install_hook_compiles_against_the_installed_package(hook_cache):
-    """setup.py's install step (what colcon build runs) compiles the kernels with a snippet of its own; a stale
-    import there would only print a warning at build time and leave every fresh install compiling at first start."""
-    assert "compiled the simulator's numba kernels" in hook_cache[1].stdout
-
-
-# Counts, in a fresh process, the kernels numba compiles (cache misses) while ``compile_kernels`` -- what the node's
-# on_configure runs -- prepares each tissue setting a user can switch to (every composition of its parts).
+# After the install hook's snippet, in its process: the kernel signatures that ``compile_kernels`` -- what the node's
+# on_configure runs -- needs for each tissue setting a user can switch to (every composition of its parts) beyond
+# those the hook compiled (or loaded from the cache).
 TISSUE_SWITCHES = """
 import itertools, json, sys
 from numba.core.dispatcher import Dispatcher
@@ -112,33 +87,37 @@ from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
 from needle_sim_ros.simulation import compile_kernels
 from needle_sim_ros.tissue.factory import AXIAL_MODELS
 
-def misses():
-    return {f"{name}.{kernel_name}": sum(kernel.stats.cache_misses.values())
+def signatures():
+    return {(name, kernel_name): {str(signature) for signature in kernel.signatures}
             for name, module in list(sys.modules.items()) for kernel_name, kernel in list(vars(module).items())
-            if isinstance(kernel, Dispatcher) and sum(kernel.stats.cache_misses.values())}
+            if isinstance(kernel, Dispatcher)}
 
+hooked = signatures()
 defaults = {spec.name: spec.default for spec in SIMULATOR_PARAMETERS}
-compiled = {}
+beyond = {}
 for law, lateral, bevel, profile in itertools.product(AXIAL_MODELS, (True, False), (True, False), (True, False)):
-    before = misses()
     compile_kernels({**defaults, "tissue.enable": True, "tissue.shaft.axial_model": law,
                      "tissue.shaft.lateral_support": lateral, "tissue.bevel_tip.enable": bevel,
                      "tissue.insertion_profile.enable": profile})
-    new = sorted(name for name, count in misses().items() if count != before.get(name, 0))
-    if new:
-        compiled[f"{law}, lateral {lateral}, bevel {bevel}, profile {profile}"] = new
-print(json.dumps(compiled))
+    setting = f"{law}, lateral {lateral}, bevel {bevel}, profile {profile}"
+    for key, found in signatures().items():
+        for signature in found - hooked.get(key, set()):
+            beyond.setdefault(".".join(key), {})[signature] = setting
+            hooked.setdefault(key, set()).add(signature)
+print(json.dumps(beyond))
 """
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(1500)
-def test_switching_the_tissue_setting_compiles_nothing_at_configure(hook_cache):
-    """Whatever tissue laws a user switches on (axial law x lateral support x bevel tip x seed 002 profile), the
-    node's configure loads every kernel from the cache the install hook filled: it compiles none (which would take
-    up to a minute with the node unresponsive). Checked on the hook's own cache, filled from empty, so that no
-    other test's compilation can stand in for it."""
-    result = subprocess.run([sys.executable, "-c", TISSUE_SWITCHES], capture_output=True, text=True, timeout=600,
-                            env={**os.environ, "NUMBA_CACHE_DIR": str(hook_cache[0])})
+def test_the_install_hook_covers_every_tissue_setting_a_node_can_switch_to(run_install_hook):
+    """setup.py's install step (what colcon build runs) compiles the kernels with a snippet of its own: it runs
+    against the installed package (a stale import there would only print a warning at build time and leave every
+    fresh install compiling at first start), and whatever tissue laws a user switches on (axial law x lateral
+    support x bevel tip x seed 002 profile), the node's configure needs no kernel it did not compile (which would
+    take up to a minute with the node unresponsive). Checked on what the hook's own process compiled or loaded, so
+    that no other test's compilation in the shared cache can stand in for it (before: a cache filled from empty,
+    ~6 min of every CI run); the build fills its cache from empty with the same snippet."""
+    result = run_install_hook(Path(__file__).resolve().parents[1] / "setup.py", 1200, TISSUE_SWITCHES)
     assert result.returncode == 0, result.stderr
+    assert "compiled the simulator's numba kernels" in result.stdout
     assert json.loads(result.stdout.splitlines()[-1]) == {}

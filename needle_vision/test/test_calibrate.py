@@ -78,7 +78,14 @@ def test_needle_measured_with_the_estimated_calibration(rig, estimated, backgrou
 
 
 def test_errors(tmp_path, board_folder, capsys):
-    assert main([str(board_folder), "--board", "8x5", "--square", "0.02", "--output-dir", str(tmp_path)]) == 1
+    """A board size that is not the one in the images: no pair found, exit 1, nothing written (two views: OpenCV's
+    search for a board it cannot find takes seconds per image)."""
+    views = tmp_path / "views"
+    for side in ("left", "right"):
+        (views / side).mkdir(parents=True)
+        for image in sorted((board_folder / side).iterdir())[:2]:
+            shutil.copy(image, views / side)
+    assert main([str(views), "--board", "8x5", "--square", "0.02", "--output-dir", str(tmp_path)]) == 1
     assert "found in both images of 0 pair(s)" in capsys.readouterr().err
     assert not (tmp_path / "left.yaml").exists()
     assert main([str(tmp_path / "absent"), "--board", "9x6", "--square", "0.02"]) == 2

@@ -184,6 +184,7 @@ def test_node_measures_pairs_and_skips_bad_ones(ros_env, tmp_path, rig, backgrou
     assert any(image.encoding == "bgr8" and (image.width, image.height) == (1440, 540) for image in received["debug"])
 
 
+@pytest.mark.compiles_from_empty
 @pytest.mark.timeout(1800)
 def test_a_cold_kernel_cache_delays_the_measurement_not_the_node(ros_env, tmp_path, background_frames, renders):
     """With an empty numba cache (a first run after ``colcon build --symlink-install``, ``NEEDLE_COMPILE_KERNELS=0``
