@@ -348,7 +348,9 @@ def test_saturation_holds_and_a_stop_signal_sends_zero_then_exits_cleanly(arm, r
     wait_until(lambda: len([e for e in arm.haptic if e[1].any()]) > 500, process, what="500 haptic wrenches")
     forces, torques = norms(arm.haptic), norms(arm.haptic, 2)
     assert forces.max() <= 0.01 + 1e-12 and torques.max() <= 0.001 + 1e-12
-    np.testing.assert_allclose(arm.haptic[-1][1], [0.0, 0.0, -0.01], atol=1e-4)  # direction kept: down
+    # direction kept: down (the last wrench rendered: a stand-in arm starved on a loaded host can trip the watchdog,
+    # whose zeros are checked elsewhere)
+    np.testing.assert_allclose([e for e in arm.haptic if e[1].any()][-1][1], [0.0, 0.0, -0.01], atol=1e-4)
     assert np.linalg.norm(arm.wrenches[-1][:3]) > 2 * 0.01  # the unlimited output is not clipped
     wait_until(lambda: any(s.level == b"\x01" and "saturated" in s.message for s in arm.status("haptics")), process,
                10.0, "a diagnostics WARN for the saturation")
