@@ -66,7 +66,7 @@ def parse_arguments(argv: list[str]) -> argparse.Namespace:
                         "where the nodes of a launch in that namespace read them")
     parser.add_argument("--wait-for-subscribers", type=non_negative, default=0.0, metavar="S",
                         help="wait up to S seconds until every topic has a subscriber, matched from the "
-                        "subscriber's side where it reports its inputs")
+                        "player's side and from the subscriber's where it reports its inputs")
     parser.add_argument("--wait-for-nodes", nargs="+", metavar="NODE", type=_node_name,
                         help="with --wait-for-subscribers: wait for these nodes (fully qualified names) instead, until "
                         "each has matched the played topics it subscribes to and its other inputs that someone "
@@ -140,21 +140,37 @@ class ReplayNode(Node):
     def wait_for_subscribers(self, timeout: float) -> None:
         """Up to ``timeout`` [s] until every played topic has a subscriber and each subscriber reporting its inputs has
         matched it from its own side (with --clock, following the start time); with --wait-for-nodes, until each of
-        those nodes has matched the played topics it subscribes to and its other inputs that someone publishes."""
+        those nodes has matched the played topics it subscribes to and its other inputs that someone publishes. The
+        player's publishers must have matched those subscriptions too (:meth:`unmatched`)."""
         reports = InputReports(self)
         topics = [p.topic_name for p in self.publishers_by_topic.values()]
         clock_ns = self.start_time_ns if self.clock_publisher is not None else None
         nodes = self.args.wait_for_nodes
 
         def waiting() -> list[str]:
-            return reports.waiting_for(nodes, topics, clock_ns) if nodes else reports.waiting(
-                topics, time.monotonic(), clock_ns)
+            return (reports.waiting_for(nodes, topics, clock_ns) if nodes else reports.waiting(
+                topics, time.monotonic(), clock_ns)) + self.unmatched(nodes)
 
         self.hold_clock(lambda: not waiting(), timeout)
         missing = waiting()
         reports.close()
         if missing:
             self.get_logger().warning(f"playing after {timeout} s without: {'; '.join(missing)}")
+
+    def unmatched(self, nodes: list[str] | None) -> list[str]:
+        """The played topics whose publisher has not matched, from its own side, every subscription in the graph (of
+        the named ``nodes`` only, if given). Discovery is two-sided: a subscriber that reports its match may not be
+        matched by the publisher yet, and what is published before that is lost to it (reliable, volatile), e.g. a
+        simulator's first poses (the needle started 15 ms into the bag)."""
+        lines = []
+        for publisher in self.publishers_by_topic.values():
+            subscribers = [f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+                           for info in self.get_subscriptions_info_by_topic(publisher.topic_name)]
+            expected = sum(name in nodes for name in subscribers) if nodes else len(subscribers)
+            if publisher.get_subscription_count() < expected:
+                lines.append(f"{publisher.topic_name}: the player has matched {publisher.get_subscription_count()} "
+                             f"of its {expected} subscription(s)")
+        return lines
 
     def publish_clock(self, bag_time_ns: int) -> None:
         self.clock_ns = bag_time_ns
