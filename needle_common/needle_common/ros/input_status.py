@@ -24,10 +24,15 @@ READINESS_READER_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIA
                                   durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+def fully_qualified_name(namespace: str, node_name: str) -> str:
+    """A node's fully qualified name (``/robot1/needle_simulator``; ``/needle_simulator`` in the root namespace)."""
+    return f"{namespace.rstrip('/')}/{node_name}"
+
+
 def input_status_name(namespace: str, node_name: str) -> str:
     """The status name a node's input report has: its fully qualified name (nodes of one name in two namespaces,
     e.g. two robots, report apart)."""
-    return f"{namespace.rstrip('/')}/{node_name}: inputs"
+    return f"{fully_qualified_name(namespace, node_name)}: inputs"
 
 
 class InputStatus:
@@ -104,8 +109,8 @@ class InputReports:
             if not subscribers:
                 waiting.append(f"{topic}: no subscriber")
             for info in subscribers:
+                name = fully_qualified_name(info.node_namespace, info.node_name)
                 status_name = input_status_name(info.node_namespace, info.node_name)
-                name = status_name.rsplit(": ", 1)[0]
                 seen = self._first_seen.setdefault(name, now)
                 report = self._reports.get(status_name)
                 if report is None:

@@ -26,7 +26,7 @@ from std_srvs.srv import Trigger
 from needle_common.cli_types import non_negative, positive
 from needle_common.parameters import check_ros_arguments
 from needle_common.ros.command_line import EXIT_BAD_ARGUMENTS, checked_command_line, init_rclpy
-from needle_common.ros.input_status import InputReports
+from needle_common.ros.input_status import InputReports, fully_qualified_name
 from needle_vision.streams.image_codec import ImageFormatError, compress_image, deserialize_image, image_to_array
 
 from needle_sim_ros.messages import cdr
@@ -164,12 +164,13 @@ class ReplayNode(Node):
         simulator's first poses (the needle started 15 ms into the bag)."""
         lines = []
         for publisher in self.publishers_by_topic.values():
-            subscribers = [f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            subscribers = [fully_qualified_name(info.node_namespace, info.node_name)
                            for info in self.get_subscriptions_info_by_topic(publisher.topic_name)]
             expected = sum(name in nodes for name in subscribers) if nodes else len(subscribers)
-            if publisher.get_subscription_count() < expected:
-                lines.append(f"{publisher.topic_name}: the player has matched {publisher.get_subscription_count()} "
-                             f"of its {expected} subscription(s)")
+            matched = publisher.get_subscription_count()
+            if matched < expected:
+                lines.append(f"{publisher.topic_name}: the player has matched {matched} of its {expected} "
+                             "subscription(s)")
         return lines
 
     def publish_clock(self, bag_time_ns: int) -> None:
