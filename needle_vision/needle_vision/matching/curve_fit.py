@@ -31,12 +31,14 @@ _JUMP_PX = 8.0
 @dataclass(frozen=True)
 class CurveFit:
     """The fitted curve sampled densely from its first to its last control parameter: ``points (n, 3)`` in the left
-    rectified frame [m], ``sigma (n,)`` [m] (1-sigma across the needle, worst direction) and ``supported (n,)`` (both
-    views have image points within ``max_gap`` around the sample)."""
+    rectified frame [m], ``sigma (n,)`` [m] (1-sigma across the needle, worst direction), ``supported (n,)`` (both
+    views have image points within ``max_gap`` around the sample) and ``parameters (n,)`` [m] (the samples' curve
+    parameter: the arc length along the initial points)."""
 
     points: np.ndarray
     sigma: np.ndarray
     supported: np.ndarray
+    parameters: np.ndarray
 
 
 @numba.njit(cache=True, nogil=True)
@@ -390,11 +392,11 @@ def _support(length, left, right, feet, stride, parameters, max_gap):  # pragma:
 @numba.njit(cache=True, nogil=True)
 def _fit(initial, initial_weights, ends, left, right, left_noise, right_noise, projections, knot_spacing, bending,
          end_noise, max_gap, sample_spacing, inflation, iterations, huber, stride):  # pragma: no cover - compiled
-    """:func:`fit_curve` in one compiled call: success, points, sigma, supported."""
+    """:func:`fit_curve` in one compiled call: success, points, sigma, supported, parameters."""
     steps = initial[1:] - initial[:-1]
     abscissa = np.concatenate((np.zeros(1), np.cumsum(np.sqrt((steps * steps).sum(axis=1)))))
     length = abscissa[-1]
-    empty = np.empty((0, 3)), np.empty(0), np.empty(0, np.bool_)
+    empty = np.empty((0, 3)), np.empty(0), np.empty(0, np.bool_), np.empty(0)
     if initial.shape[0] < 8 or not length > 4 * knot_spacing or min(left.shape[0], right.shape[0]) < 8:
         return False, *empty
     segments = max(int(np.ceil(length / knot_spacing)), 1)
@@ -423,7 +425,7 @@ def _fit(initial, initial_weights, ends, left, right, left_noise, right_noise, p
     if not (np.all(np.isfinite(points)) and np.all(np.isfinite(sigma))):
         return False, *empty
     # Support from every image point (a hidden stretch is no shorter than its gap between single points).
-    return True, points, sigma, _support(length, left, right, feet, stride, parameters, max_gap)
+    return True, points, sigma, _support(length, left, right, feet, stride, parameters, max_gap), parameters
 
 
 def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray,
@@ -439,8 +441,8 @@ def fit_curve(initial: np.ndarray, initial_weights: np.ndarray, ends: np.ndarray
     means of ``stride`` consecutive image points are fitted; ``noise_inflation``: the image terms' variance factor in
     the covariance (:func:`_gauss_newton`). None when the fit fails (singular or non-finite)."""
     array = partial(np.ascontiguousarray, dtype=float)
-    success, points, sigma, supported = _fit(
+    success, points, sigma, supported, parameters = _fit(
         array(initial), array(initial_weights), array(ends), *map(array, views), *map(array, noise),
         array(np.stack(projections)), knot_spacing, bending_weight, end_noise_px, max_gap, sample_spacing,
         noise_inflation, iterations, huber, stride)
-    return CurveFit(points, sigma, supported) if success else None
+    return CurveFit(points, sigma, supported, parameters) if success else None

@@ -317,9 +317,10 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     lateral_scale = np.linalg.norm(points, axis=1) / rectification.focal_length  # [m/px]
     point_sigma = np.sqrt(depth_noise ** 2 + 2 * (lateral_scale * noise_px) ** 2)
     # Not averaged by the smoothing: the correlated error's slide and the extrapolated ends' shared error.
-    unaveraged = np.hypot(per_disparity * _slide(slope, extrapolation_px), lateral_scale * extrapolation_px)
+    unaveraged = _unaveraged(per_disparity, lateral_scale, slope, extrapolation_px)
 
-    fit = _fitted_curve(points, point_sigma, spacing, (left, right), (left_rect, right_rect), rectification, config)
+    fit = _fitted_curve(points, point_sigma, _unaveraged(per_disparity, lateral_scale, slope, extrapolation_px, 0.0),
+                        spacing, (left, right), (left_rect, right_rect), rectification, config)
     return Triangulation(output_from_left.apply(points), point_sigma, unaveraged,
                          anchored, spacing, left, right,
                          None if fit is None else (output_from_left.apply(fit[0]), fit[1], fit[2]))
@@ -397,15 +398,24 @@ def _without_end_caps(centerline: ImageCenterline, side: str, points: np.ndarray
                       for name in ("contrast", "local_noise_px", "extrapolation_px")})
 
 
-def _slide(sin_angle: np.ndarray, extrapolation_px: np.ndarray) -> np.ndarray:
+def _slide(sin_angle: np.ndarray, extrapolation_px: np.ndarray, correlated_px: float) -> np.ndarray:
     """Disparity error [px] of a match that the smoothing along the curve does not average, where the image
     tangent makes an angle theta (``sin_angle``, floored like the anchors) with the epipolar lines; at the points
     extrapolated towards an image's ends, their shared lateral error too (``extrapolation_px``, both views').
 
     A lateral image error e moves the match by e / sin(theta) along the epipolar line; its correlated part
-    c = CORRELATED_NOISE_PX is not averaged: sqrt(2) c / sin(theta) for both views, the extrapolated stretch's error
-    added in quadrature (its lateral part in ``triangulate_centerline``)."""
-    return np.sqrt(2.0 * CORRELATED_NOISE_PX ** 2 + extrapolation_px ** 2) / sin_angle
+    c = ``correlated_px`` is not averaged: sqrt(2) c / sin(theta) for both views, the extrapolated stretch's error
+    added in quadrature (its lateral part in :func:`_unaveraged`)."""
+    return np.sqrt(2.0 * correlated_px ** 2 + extrapolation_px ** 2) / sin_angle
+
+
+def _unaveraged(per_disparity: np.ndarray, lateral_scale: np.ndarray, slope: np.ndarray,
+                extrapolation_px: np.ndarray, correlated_px: float = CORRELATED_NOISE_PX) -> np.ndarray:
+    """1-sigma error [m] of each triangulated point that averaging along the curve does not reduce: the slide
+    (:func:`_slide`) through the depth per disparity pixel, and the extrapolated ends' shared error laterally
+    (``lateral_scale`` [m/px]). The curve fit takes ``correlated_px`` = 0: its covariance carries the correlated
+    image error already (``noise_inflation``)."""
+    return np.hypot(per_disparity * _slide(slope, extrapolation_px, correlated_px), lateral_scale * extrapolation_px)
 
 
 def _depth_curvature(curve: np.ndarray, arc: np.ndarray, anchored: np.ndarray, start: float, stop: float,
@@ -455,13 +465,18 @@ def _continuity_sigma(smooth: np.ndarray, anchored: np.ndarray, span: float, dep
     return sigma
 
 
-def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, spacing: float,
+def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, extrapolation_sigma: np.ndarray, spacing: float,
                   centerlines: tuple[ImageCenterline, ImageCenterline], rectified: tuple[np.ndarray, np.ndarray],
                   rectification: Rectification, config: ReconstructionConfig
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The curve fitted to both views (:mod:`needle_vision.matching.curve_fit`) from the triangulated ``points``
     (raw left frame, smoothed first), sampled every half ``sample_spacing``: points (raw left frame), sigma,
-    supported; None when disabled or the fit fails (then the triangulated points are used)."""
+    supported; None when disabled or the fit fails (then the triangulated points are used).
+
+    The fit weighs each image point by its own noise, the extrapolation error included, and its covariance averages
+    that over the stretch like white noise; but an extrapolated stretch shares one error (the fitted curve follows
+    it), so each sample's sigma adds in quadrature the ``extrapolation_sigma`` [m] of the triangulated points
+    (:func:`_unaveraged` of the extrapolation alone) at its curve parameter (their arc length)."""
     if not config.curve_fit:
         return None
     split = 0.5 * config.smoothing_length
@@ -479,7 +494,10 @@ def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, spacing: float,
                     knot_spacing=config.knot_spacing, bending_weight=config.bending_weight,
                     end_noise_px=config.end_noise_px, max_gap=config.max_gap,
                     sample_spacing=0.5 * config.sample_spacing, noise_inflation=inflation)
-    return None if fit is None else (fit.points @ rotation, fit.sigma, fit.supported)
+    if fit is None:
+        return None
+    shared = np.interp(fit.parameters, arc_length(smooth), extrapolation_sigma)
+    return fit.points @ rotation, np.hypot(fit.sigma, shared), fit.supported
 
 
 @numba.njit(cache=True, nogil=True)
