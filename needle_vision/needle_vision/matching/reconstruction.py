@@ -320,7 +320,8 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     unaveraged = _unaveraged(per_disparity, lateral_scale, slope, extrapolation_px)
 
     fit = _fitted_curve(points, point_sigma, _unaveraged(per_disparity, lateral_scale, slope, extrapolation_px, 0.0),
-                        spacing, (left, right), (left_rect, right_rect), rectification, config)
+                        spacing, (left, right), (left_rect, right_rect), rectification, config) \
+        if config.curve_fit else None
     return Triangulation(output_from_left.apply(points), point_sigma, unaveraged,
                          anchored, spacing, left, right,
                          None if fit is None else (output_from_left.apply(fit[0]), fit[1], fit[2]))
@@ -471,14 +472,12 @@ def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, extrapolation_sig
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The curve fitted to both views (:mod:`needle_vision.matching.curve_fit`) from the triangulated ``points``
     (raw left frame, smoothed first), sampled every half ``sample_spacing``: points (raw left frame), sigma,
-    supported; None when disabled or the fit fails (then the triangulated points are used).
+    supported; None when the fit fails (then the triangulated points are used).
 
     The fit weighs each image point by its own noise, the extrapolation error included, and its covariance averages
     that over the stretch like white noise; but an extrapolated stretch shares one error (the fitted curve follows
     it), so each sample's sigma adds in quadrature the ``extrapolation_sigma`` [m] of the triangulated points
     (:func:`_unaveraged` of the extrapolation alone) at its curve parameter (their arc length)."""
-    if not config.curve_fit:
-        return None
     split = 0.5 * config.smoothing_length
     smooth, gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
     rotation = rectification.rotation_left
