@@ -6,7 +6,7 @@ from vision_shapes import SHAPES, distance_to_curve
 from needle_vision.detection.centerline import extract_centerline
 from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.matching.reconstruction import UNMEASURED, ReconstructionConfig, _continuity_sigma, \
-    _nearest_points, _smooth_along, reconstruct_centerline
+    _matched, _nearest_points, _smooth_along, reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import world_from_camera
 from needle_common.transforms import RigidTransform
@@ -165,3 +165,12 @@ def test_continuity_sigma_is_the_sagitta_of_the_unseen_bend(tilt_deg):
     sigma = _continuity_sigma(arc, anchored, 20e-3, depth)
     beyond = (len(arc) - 400) * spacing
     assert sigma[-1] == pytest.approx(np.cos(tilt) * radius * (1 - np.cos(beyond / radius)), rel=0.03)
+
+
+def test_the_fit_takes_the_image_points_of_kept_matches_only():
+    """The curve fit's image points (``_matched``): those of the kept matches and between two consecutive kept
+    matches (either direction along the view); not those beyond the matched range (the other view did not see them)
+    nor between kept matches that a rejected match separates."""
+    nearest = np.array([2, 4, 7, 6, 9])  # the image points of five kept matches; a rejected one between the 2nd and 3rd
+    chained = np.array([True, False, True, True])
+    assert np.flatnonzero(_matched(12, nearest, chained)).tolist() == [2, 3, 4, 6, 7, 8, 9]

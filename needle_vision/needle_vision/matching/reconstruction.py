@@ -319,9 +319,13 @@ def triangulate_centerline(left: ImageCenterline, right: ImageCenterline, rectif
     # Not averaged by the smoothing: the correlated error's slide and the extrapolated ends' shared error.
     unaveraged = _unaveraged(per_disparity, lateral_scale, slope, extrapolation_px)
 
-    fit = _fitted_curve(points, point_sigma, _unaveraged(per_disparity, lateral_scale, slope, extrapolation_px, 0.0),
-                        spacing, (left, right), (left_rect, right_rect), rectification, config) \
-        if config.curve_fit else None
+    fit = None
+    if config.curve_fit:
+        chained = np.diff(kept) == 1  # consecutive kept matches: no rejected or invalid match between them
+        matched = _matched(len(left_rect), nearest[0], chained), _matched(len(right_rect), nearest[1], chained)
+        fit = _fitted_curve(points, point_sigma, unaveraged,
+                            _unaveraged(per_disparity, lateral_scale, slope, extrapolation_px, 0.0), spacing,
+                            (left, right), (left_rect, right_rect), matched, rectification, config)
     return Triangulation(output_from_left.apply(points), point_sigma, unaveraged,
                          anchored, spacing, left, right,
                          None if fit is None else (output_from_left.apply(fit[0]), fit[1], fit[2]))
@@ -466,23 +470,71 @@ def _continuity_sigma(smooth: np.ndarray, anchored: np.ndarray, span: float, dep
     return sigma
 
 
-def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, extrapolation_sigma: np.ndarray, spacing: float,
-                  centerlines: tuple[ImageCenterline, ImageCenterline], rectified: tuple[np.ndarray, np.ndarray],
+def _matched(count: int, nearest: np.ndarray, chained: np.ndarray) -> np.ndarray:
+    """Which of a view's ``count`` image points the kept matches stand for: each kept match's ``nearest`` image point
+    and those between two kept matches that were consecutive matches (``chained``: no rejected or invalid match
+    between them); not the image points of rejected matches nor those the other view did not match."""
+    low, high = np.minimum(nearest[:-1], nearest[1:])[chained], np.maximum(nearest[:-1], nearest[1:])[chained]
+    steps = np.zeros(count + 1, int)
+    np.add.at(steps, low, 1)
+    np.add.at(steps, high + 1, -1)
+    matched = np.cumsum(steps[:-1]) > 0
+    matched[nearest] = True
+    return matched
+
+
+def _beyond_hidden_stretches(parameters: np.ndarray, arc: np.ndarray, runs: list[slice], per_point: np.ndarray,
+                             max_gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """The per-point path's sigma (``per_point`` at the triangulated points, arc lengths ``arc``) and whether it
+    measures (no step above ``max_gap``) at the fitted curve's ``parameters`` on each run of the points (``runs``) that
+    a hidden stretch longer than the run separates from the rest; 0 and True elsewhere.
+
+    Across a hidden stretch the curve's parameter is the chord between the runs, shorter than the hidden needle, and
+    its bending prior ties the run to the rest along a curve of the wrong length: a bias its covariance does not know,
+    which outweighs the run's own image points where the run is the shorter (the 3D shape behind the soft column band:
+    a 22 mm run beyond 182 mm, fitted 1.4-1.6 mm off at sigma 0.3 mm, its triangulated points 0.1-0.8 mm off). There
+    the fit says no more than the per-point path."""
+    floor, gapless = np.zeros(len(parameters)), np.ones(len(parameters), bool)
+    for run in runs:
+        run_arc = arc[run]
+        hidden = max(run_arc[0] - arc[max(run.start - 1, 0)], arc[min(run.stop, len(arc) - 1)] - run_arc[-1])
+        if hidden <= run_arc[-1] - run_arc[0]:
+            continue
+        inside = (parameters >= run_arc[0]) & (parameters <= run_arc[-1])
+        floor[inside] = np.interp(parameters[inside], run_arc, per_point[run])
+        after = np.clip(np.searchsorted(run_arc, parameters[inside]), 1, len(run_arc) - 1)
+        gapless[inside] = run_arc[after] - run_arc[after - 1] <= max_gap
+    return floor, gapless
+
+
+def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, unaveraged: np.ndarray, extrapolation_sigma: np.ndarray,
+                  spacing: float, centerlines: tuple[ImageCenterline, ImageCenterline],
+                  rectified: tuple[np.ndarray, np.ndarray], matched: tuple[np.ndarray, np.ndarray],
                   rectification: Rectification, config: ReconstructionConfig
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The curve fitted to both views (:mod:`needle_vision.matching.curve_fit`) from the triangulated ``points``
     (raw left frame, smoothed first), sampled every half ``sample_spacing``: points (raw left frame), sigma,
     supported; None when the fit fails (then the triangulated points are used).
 
+    Only the image points that the kept matches stand for (``matched``, :func:`_matched`) are fitted and support it:
+    the curve spans the triangulated points only, so an image point the other view did not match (one view's needle
+    beyond the other's end) has its foot clamped at an end and pulls the curve towards it (the S-curve behind the soft
+    column band: 180 right image points beyond the left view's end put 30 mm of the curve 0.4-0.8 mm off at 3-6
+    sigma), and where the per-point path rejected a match as an outlier its image points err beyond their noise.
+
     The fit weighs each image point by its own noise, the extrapolation error included, and its covariance averages
     that over the stretch like white noise; but an extrapolated stretch shares one error (the fitted curve follows
     it), so each sample's sigma adds in quadrature the ``extrapolation_sigma`` [m] of the triangulated points
-    (:func:`_unaveraged` of the extrapolation alone) at its curve parameter (their arc length)."""
+    (:func:`_unaveraged` of the extrapolation alone) at its curve parameter (their arc length). On a run beyond a
+    longer hidden stretch the sigma is at least the per-point path's (``point_sigma`` smoothed, ``unaveraged``
+    added) and the samples are measured only where it measures (:func:`_beyond_hidden_stretches`)."""
     split = 0.5 * config.smoothing_length
-    smooth, gain = _smooth_runs(points, _runs(points, split), config.smoothing_length, spacing)
+    runs = _runs(points, split)
+    smooth, gain = _smooth_runs(points, runs, config.smoothing_length, spacing)
     rotation = rectification.rotation_left
     noise = tuple(np.maximum.reduce([c.local_noise_px, c.extrapolation_px, np.full(len(c.points), max(
-        c.noise_px, MIN_IMAGE_NOISE_PX))]) for c in centerlines)
+        c.noise_px, MIN_IMAGE_NOISE_PX))])[m] for c, m in zip(centerlines, matched))
+    rectified = tuple(view[m] for view, m in zip(rectified, matched))
     # The correlated error, once per CORRELATED_NOISE_POINTS points, inflates the image terms' variance.
     white = float(np.median(np.concatenate(noise)))
     inflation = 1.0 + CORRELATED_NOISE_POINTS * (CORRELATED_NOISE_PX / white) ** 2
@@ -495,8 +547,12 @@ def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, extrapolation_sig
                     sample_spacing=0.5 * config.sample_spacing, noise_inflation=inflation)
     if fit is None:
         return None
-    shared = np.interp(fit.parameters, arc_length(smooth), extrapolation_sigma)
-    return fit.points @ rotation, np.hypot(fit.sigma, shared), fit.supported
+    arc = arc_length(smooth)
+    floor, gapless = _beyond_hidden_stretches(fit.parameters, arc, runs, np.hypot(point_sigma * gain, unaveraged),
+                                              config.max_gap)
+    sigma = np.maximum(np.hypot(fit.sigma, np.interp(fit.parameters, arc, extrapolation_sigma)), floor)
+    supported = fit.supported & gapless
+    return fit.points @ rotation, sigma, supported
 
 
 @numba.njit(cache=True, nogil=True)
