@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import statistics
 import subprocess
@@ -28,6 +27,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from host_gauge import gauge_line
 
 REPO = Path(__file__).resolve().parents[1]
 BAGS = ("static_tip_load", "dynamic_pitch", "insertion")
@@ -69,19 +70,6 @@ def offline_rows(directory: Path, repeats: int) -> list[str]:
     return rows
 
 
-def host_gauge(repeats: int = 5) -> float:
-    """Best time [ms] of a fixed pure-Python loop (10^6 iterations, the interpreter work the pipeline's Python
-    stages do between compiled calls), a reading of the host's speed."""
-    best = math.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        total = 0
-        for i in range(1_000_000):
-            total += i & 7
-        best = min(best, time.perf_counter() - start)
-    return best * 1e3
-
-
 def live_rows(rates: list[float], directory: Path, from_source: bool) -> list[str]:
     rows = ["| rate | compared / expected | dropped | needle started at [s of bag] | simulator skipped [s] | "
             "mean step [ms] | RMSE mean [mm] | CPU s: simulator / stereo / compare |", "|---" * 8 + "|"]
@@ -121,7 +109,7 @@ def main() -> int:
         directory = Path(temporary)
         print(f"## Offline batch mode (whole bags, {os.cpu_count()} CPUs)\n")
         print("\n".join(offline_rows(directory, args.repeats)))
-        print(f"\nHost gauge (10^6 Python loop iterations, best of 5): {host_gauge():.1f} ms")
+        print(f"\n{gauge_line()}")
         if not args.no_live:
             print("\n## Live pipeline, bags/dynamic_pitch.mcap (node processes + needle_replay --clock)\n")
             print("\n".join(live_rows(args.rates, directory, args.from_source)))

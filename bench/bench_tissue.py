@@ -6,7 +6,8 @@ tissue configuration and prints a table: simulated time / wall time of the simul
 advanced, each step's reaction wrench -- and the insertion scenario's samples; > 1 is faster than real time), mean
 step time, and the final tip position off the
 insertion axis (y, z; z includes the gravity sag of about -2.8 mm).
-A baseline without tissue (gravity only, same base motion) shows the tissue's cost.
+A baseline without tissue (gravity only, same base motion) shows the tissue's cost. The host gauge printed first
+(``host_gauge.py``) reads the shared host's speed: compare runs of different moments by it first.
 
 Usage (the installed package: source .venv/needle_env.sh first):
     python bench/bench_tissue.py [--depth 0.09] [--speed 0.006] [--elements 10] [--dt 0.001]
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from host_gauge import gauge_line
 from needle_sim_ros.model import load_needle_config
 from needle_sim_ros.scenarios.insertion import InsertionMotion, shipped_tissue_config, simulate_insertion
 from needle_sim_ros.tissue.factory import flatten_tissue_config
@@ -60,6 +62,7 @@ def main() -> int:
 
     tissue = flatten_tissue_config(shipped_tissue_config())
     print(f"{args.elements} elements, dt = {args.dt * 1e3:g} ms, {args.depth * 1e3:g} mm at {args.speed * 1e3:g} mm/s")
+    print(gauge_line())
     print(f"{'case':34s} {'sim time':>9s} {'wall':>8s} {'RT factor':>10s} {'mean step':>10s} {'tip y, z [mm]':>16s}")
     # load the compiled kernels from the numba cache first (once per process, 0.3-0.5 s: bench_cold_start.py's),
     # for every case: each set of tissue parts is its own composition (``model.step.compose``)

@@ -19,7 +19,8 @@ ones the segments stretch to 3x their length under the 80 g load) and it has no 
   and after the table the general path against MuJoCo in the same run and the floor of any call from Python
   into numba (one array argument). Time is this process's CPU time (both sides run on one thread): on a shared
   machine the time other processes or the hypervisor take is not charged to either side; each path's runs
-  alternate between the two sides, the best run of each is reported.
+  alternate between the two sides, the best run of each is reported. The host gauge (``host_gauge.py``) printed
+  first reads the shared host's speed, for comparing runs of different moments.
 * Accuracy: tip position under the needle's weight plus an 80 g tip mass against the exact elastica
   (``needle_sim_ros.experiments.elastica``, a shooting solution sharing no code with either model); MuJoCo's
   equilibrium is reached by running it with joint damping until it stops.
@@ -35,6 +36,7 @@ import numpy as np
 from numba import njit
 
 import needle_sim_ros.stepper as stepper_module
+from host_gauge import gauge_line
 from needle_sim_ros.experiments.elastica import elastica
 from needle_sim_ros.model import BaseMotion, Gravity, PointLoad, solve_static, tip_pose
 from needle_sim_ros.parameters.simulator import SIMULATOR_PARAMETERS
@@ -230,7 +232,7 @@ def main() -> None:
         print(f"error: MuJoCo {mujoco.__version__} has no bending for 1D flexes (added in 3.17): "
               "pip install -U 'mujoco>=3.17'", file=sys.stderr)
         sys.exit(2)
-    print(f"MuJoCo {mujoco.__version__}; {SEGMENTS} elements / segments, dt = {DT * 1e3:g} ms\n")
+    print(f"MuJoCo {mujoco.__version__}; {SEGMENTS} elements / segments, dt = {DT * 1e3:g} ms\n{gauge_line()}\n")
     exact, ours, theirs = static_errors(mujoco)
     print(f"| 80 g tip mass + weight, static tip | x [mm] | z [mm] | error [mm] |\n|---|---|---|---|\n"
           f"| exact elastica | {exact[0] * 1e3:.3f} | {exact[1] * 1e3:.3f} | |\n"
