@@ -28,11 +28,12 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "needle_vision" / "test"))
-from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, bright_scene, distance_to_curve  # noqa: E402
+from vision_shapes import (EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, background_models, bright_scene,  # noqa: E402
+                           distance_to_curve)
 
 from needle_vision.calibration.rectification import Rectification  # noqa: E402
 from needle_vision.calibration.rig import camera_calibration_yaml  # noqa: E402
-from needle_vision.detection.background import BackgroundModel, ContrastThreshold  # noqa: E402
+from needle_vision.detection.background import ContrastThreshold  # noqa: E402
 from needle_vision.detection.centerline import extract_centerline  # noqa: E402
 from needle_vision.offline import decoded, open_source  # noqa: E402
 from needle_vision.streams.image_codec import compress_image, compressed_to_gray  # noqa: E402
@@ -228,9 +229,8 @@ def epipolar_cases(rig, scene, seeds: tuple[int, ...]) -> None:
     bright = bright_scene(scene)
     polarities = {}
     for name, polarity_scene, polarity in (("dark", scene, 1), ("bright", bright, -1)):
-        frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=polarity_scene) for k in range(8)]
-        polarities[name] = (polarity_scene, tuple(BackgroundModel.from_frames(
-            [pair[k] for pair in frames], ContrastThreshold(polarity=polarity)) for k in range(2)))
+        threshold = ContrastThreshold(polarity=polarity)
+        polarities[name] = (polarity_scene, background_models(rig, polarity_scene, threshold))
     methods = {"per-point": ReconstructionConfig(),
                "curve fit": ReconstructionConfig(curve_fit=True, max_uncertainty=0.3e-3),
                "curve fit, default max_uncertainty": ReconstructionConfig(curve_fit=True)}

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from needle_vision.detection.background import BackgroundModel, ContrastThreshold
-from needle_vision.render import NEEDLE_RADIUS, default_rig, make_scene, render_background_pair, \
-    render_stereo_pair
+from needle_vision.render import NEEDLE_RADIUS, default_rig, make_scene, render_stereo_pair
+import vision_shapes
 from vision_shapes import SHAPES
 
 
@@ -23,15 +22,12 @@ def scene(rig):
 
 @pytest.fixture(scope="session")
 def background_frames(rig, scene):
-    """Eight needle-free pairs (the default background model averages ten; eight keep the noise of the
-    model at a third of a frame's)."""
-    return [render_background_pair(rig, np.random.default_rng(100 + k), scene=scene) for k in range(8)]
+    return vision_shapes.background_frames(rig, scene)
 
 
 @pytest.fixture(scope="session")
-def backgrounds(background_frames):
-    threshold = ContrastThreshold()
-    return tuple(BackgroundModel.from_frames([pair[k] for pair in background_frames], threshold) for k in range(2))
+def backgrounds(rig, scene):
+    return vision_shapes.background_models(rig, scene)
 
 
 @pytest.fixture(scope="session")

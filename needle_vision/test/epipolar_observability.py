@@ -34,7 +34,8 @@ from needle_vision.calibration.rig import StereoRig
 from needle_vision.detection.curves import arc_length
 from needle_vision.render import NEEDLE_RADIUS, Imaging, Scene, default_rig, make_scene, noise_sigma, render_signal, \
     world_from_camera
-from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, bright_scene, distance_to_curve
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, background_models, bright_scene, \
+    distance_to_curve
 
 #: The stretch displaced: the longest run of the curve whose tangent is within this angle of its epipolar plane.
 MAX_PLANE_ANGLE_DEG = 1.0
@@ -283,21 +284,18 @@ def reconstruction_report(seeds: tuple[int, ...] = (7, 1007)) -> None:
     apart the two outputs are and each output's distance to each truth (RMS over its samples there, measured or
     not)."""
     from needle_vision.calibration.rectification import Rectification
-    from needle_vision.detection.background import BackgroundModel, ContrastThreshold
+    from needle_vision.detection.background import ContrastThreshold
     from needle_vision.detection.centerline import extract_centerline
     from needle_vision.matching.correspondence import MatchingConfig
     from needle_vision.matching.reconstruction import ReconstructionConfig, reconstruct_centerline
-    from needle_vision.render import render_background_pair, render_stereo_pair
+    from needle_vision.render import render_stereo_pair
 
     rig = default_rig()
     rectification = Rectification.from_rig(rig)
     dark = make_scene(rig, np.random.default_rng(0))
     polarities = {}
     for name, scene, polarity in (("dark", dark, 1), ("bright", bright_scene(dark), -1)):
-        frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=scene) for k in range(8)]
-        polarities[name] = (scene, tuple(BackgroundModel.from_frames([pair[k] for pair in frames],
-                                                                     ContrastThreshold(polarity=polarity))
-                                         for k in range(2)))
+        polarities[name] = (scene, background_models(rig, scene, ContrastThreshold(polarity=polarity)))
     methods = {"per point": ReconstructionConfig(), "fit": ReconstructionConfig(curve_fit=True)}
     print("| case | polarity | seed | method | outputs apart [mm] | true: to true / to displaced [mm] | "
           "displaced: to true / to displaced [mm] | measured (true / displaced) |")

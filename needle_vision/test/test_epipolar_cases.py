@@ -7,16 +7,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, bright_scene, check_not_invented, \
-    distance_to_curve
+from vision_shapes import EPIPOLAR_SHAPES, ROD_EPIPOLAR_SHAPES, SHAPES, background_models, bright_scene, \
+    check_not_invented, distance_to_curve
 from needle_vision.calibration.rectification import Rectification
-from needle_vision.detection.background import BackgroundModel, ContrastThreshold
+from needle_vision.detection.background import ContrastThreshold
 from needle_vision.detection.centerline import CANDIDATE_TAPER_FACTOR, extract_centerline
 from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.matching.reconstruction import UNMEASURED, NeedleMeasurement, ReconstructionConfig, \
     reconstruct_centerline
-from needle_vision.render import NEEDLE_RADIUS, project_points, render_background_pair, \
-    render_stereo_pair
+from needle_vision.render import NEEDLE_RADIUS, project_points, render_stereo_pair
 
 FIT = ReconstructionConfig(curve_fit=True, max_uncertainty=0.3e-3)
 
@@ -26,10 +25,7 @@ def polarities(scene, backgrounds, rig):
     """Scene and background models per polarity: the default dark needle, and a bright one (albedo 0.9) on the
     same background at 0.3x its albedo."""
     bright = bright_scene(scene)
-    frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=bright) for k in range(8)]
-    models = tuple(BackgroundModel.from_frames([pair[k] for pair in frames], ContrastThreshold(polarity=-1))
-                   for k in range(2))
-    return {"dark": (scene, backgrounds), "bright": (bright, models)}
+    return {"dark": (scene, backgrounds), "bright": (bright, background_models(rig, bright, ContrastThreshold(-1)))}
 
 
 def _measure(rig, polarities, name: str, polarity: str, config: ReconstructionConfig,

@@ -7,15 +7,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from vision_shapes import SHAPES, bright_scene, check_not_invented, distance_to_curve, faded
-from needle_vision.detection.background import BackgroundModel, ContrastThreshold
+from vision_shapes import SHAPES, background_models, bright_scene, check_not_invented, distance_to_curve, faded
+from needle_vision.detection.background import ContrastThreshold
 from needle_vision.detection.centerline import extract_centerline
 from needle_vision.detection.curves import arc_length
 from needle_vision.matching.correspondence import MatchingConfig
 from needle_vision.matching.reconstruction import NeedleMeasurement, ReconstructionConfig, reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
-from needle_vision.render import NEEDLE_RADIUS, Imaging, Scene, make_scene, project_points, render_background_pair, \
-    render_stereo_pair
+from needle_vision.render import NEEDLE_RADIUS, Imaging, Scene, make_scene, project_points, render_stereo_pair
 
 
 def _measure(rig, backgrounds, images, config: ReconstructionConfig = ReconstructionConfig()) -> NeedleMeasurement:
@@ -68,9 +67,7 @@ def edge_scene(rig):
     """The default scene with the background's albedo halved left of the image centre over ~15 px: the
     needle passes in front of that ramp in both cameras."""
     scene = make_scene(rig, np.random.default_rng(0), edge_contrast=0.5)
-    frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=scene) for k in range(8)]
-    return scene, tuple(BackgroundModel.from_frames([pair[k] for pair in frames], ContrastThreshold())
-                        for k in range(2))
+    return scene, background_models(rig, scene)
 
 
 @pytest.mark.parametrize("name", ["3d", "planar"])
@@ -99,12 +96,6 @@ def _band(scene: Scene, level: float, width: float, edge: float, across_rows: bo
     return Scene(scene.illumination, tuple(albedo), scene.needle_albedo)
 
 
-def _band_backgrounds(rig, band: Scene, threshold: ContrastThreshold) -> tuple[BackgroundModel, BackgroundModel]:
-    """Both cameras' background models from 8 needle-free pairs of the ``band`` scene."""
-    frames = [render_background_pair(rig, np.random.default_rng(100 + k), scene=band) for k in range(8)]
-    return tuple(BackgroundModel.from_frames([pair[k] for pair in frames], threshold) for k in range(2))
-
-
 def _assert_sigma_promise(measurement: NeedleMeasurement, truth: np.ndarray) -> np.ndarray:
     """The uncertainty's promise: >= 98 % of the measured samples within 3 sigma of the ``truth``, none beyond 5
     sigma; returns the samples' arc lengths along the truth."""
@@ -124,7 +115,7 @@ def test_dark_needle_across_a_soft_dark_band(rig, scene, name, seed):
     sigma (before: the 3D shape 95.5 %, one sample 5.45 mm off at 5.9 sigma; the S 97.2 %; now 100 %, at most 1.4
     and 2.7 sigma)."""
     band = _band(scene, 0.08, 200.0, 60.0)
-    backgrounds = _band_backgrounds(rig, band, ContrastThreshold())
+    backgrounds = background_models(rig, band, ContrastThreshold())
     images = render_stereo_pair(rig, SHAPES[name], NEEDLE_RADIUS, np.random.default_rng(seed), scene=band)
     measurement = _measure(rig, backgrounds, images)
     _assert_sigma_promise(measurement, SHAPES[name])
@@ -145,7 +136,7 @@ def test_bright_needle_across_a_brighter_band(rig, scene, level, width, edge, ac
     needle beyond it, within 2 mm of both true ends (before: the piece beyond the soft bands lost, the measured
     samples ending 157 mm short of the tip across the rows, starting 178 mm from the base across the columns)."""
     band = _band(bright_scene(scene), level, width, edge, across_rows)
-    backgrounds = _band_backgrounds(rig, band, ContrastThreshold(polarity=-1))
+    backgrounds = background_models(rig, band, ContrastThreshold(polarity=-1))
     images = render_stereo_pair(rig, SHAPES["planar"], NEEDLE_RADIUS, np.random.default_rng(seed), scene=band)
     measurement = _measure(rig, backgrounds, images)
     arc = _assert_sigma_promise(measurement, SHAPES["planar"])
@@ -162,7 +153,7 @@ def test_fitted_curve_behind_a_brighter_column_band(rig, scene, name, seed):
     sigma, none beyond 5 sigma (before: the S-curve 53.6 % at 5.8 sigma, the 3D shape 85.2 % at 21.3 sigma; now 100
     %, at most 2.3 and 1.1 sigma)."""
     band = _band(bright_scene(scene), 1.1, 200.0, 60.0)
-    backgrounds = _band_backgrounds(rig, band, ContrastThreshold(polarity=-1))
+    backgrounds = background_models(rig, band, ContrastThreshold(polarity=-1))
     images = render_stereo_pair(rig, SHAPES[name], NEEDLE_RADIUS, np.random.default_rng(seed), scene=band)
     measurement = _measure(rig, backgrounds, images, ReconstructionConfig(curve_fit=True))
     _assert_sigma_promise(measurement, SHAPES[name])

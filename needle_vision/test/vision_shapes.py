@@ -8,8 +8,9 @@ import numpy as np
 from scipy.optimize import brentq
 
 from needle_vision.calibration.rig import StereoRig
+from needle_vision.detection.background import BackgroundModel, ContrastThreshold
 from needle_vision.matching.reconstruction import UNMEASURED, NeedleMeasurement
-from needle_vision.render import NEEDLE_LENGTH, Scene, project_points
+from needle_vision.render import NEEDLE_LENGTH, Scene, project_points, render_background_pair
 
 SAMPLES = 1081  # 0.25 mm along the needle: the polyline is the true curve to ~1e-8 m for these curvatures
 
@@ -18,6 +19,19 @@ def bright_scene(scene: Scene) -> Scene:
     """The bright polarity of the tests and benches: a needle of albedo 0.9 on ``scene``'s background at 0.3x its
     albedo."""
     return Scene(scene.illumination, tuple(0.3 * albedo for albedo in scene.background_albedo), 0.9)
+
+
+def background_frames(rig: StereoRig, scene: Scene) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Eight needle-free pairs of ``scene`` (the default background model averages ten; eight keep the noise of
+    the model at a third of a frame's)."""
+    return [render_background_pair(rig, np.random.default_rng(100 + k), scene=scene) for k in range(8)]
+
+
+def background_models(rig: StereoRig, scene: Scene, threshold: ContrastThreshold = ContrastThreshold()
+                      ) -> tuple[BackgroundModel, BackgroundModel]:
+    """Both cameras' background models from :func:`background_frames` of ``scene``."""
+    frames = background_frames(rig, scene)
+    return tuple(BackgroundModel.from_frames([pair[k] for pair in frames], threshold) for k in range(2))
 
 
 def centerline_from_angles(pitch, yaw=lambda xi: 0.0 * xi, length: float = NEEDLE_LENGTH) -> np.ndarray:
