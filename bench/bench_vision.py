@@ -5,6 +5,7 @@ curve fitted to both views, with the calibration of their uncertainty), and sens
 Prints Markdown tables.
 
     source .venv/needle_env.sh && PYTHONPATH=needle_vision python bench/bench_vision.py [--quick] [--only-throughput]
+    ... bench/bench_vision.py --only-throughput --params fit.yaml  (end to end with a params file, e.g. curve_fit)
     ... bench/bench_vision.py --only-epipolar [--seeds 7,1007,2007]
 
 Times are the minimum and the median over repetitions (the minimum is the machine's speed without
@@ -154,11 +155,11 @@ def write_inputs(root: Path, rig, pairs: list[tuple[np.ndarray, np.ndarray]]) ->
     return inputs
 
 
-def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: tuple[int, ...] = (1, 2, 4)
-               ) -> None:
+def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: tuple[int, ...] = (1, 2, 4),
+               params: str | None = None) -> None:
     """needle_stereo_offline end to end (decoding, background, measurement, CSV) on the same pairs per input; with
     --workers >= 2 pairs are also measured concurrently (the CSV is the same). ``only``: inputs whose name
-    contains it; ``worker_counts``: the --workers values."""
+    contains it; ``worker_counts``: the --workers values; ``params``: a ROS 2 params file the command reads."""
     count = 60 if quick else 200
     background = [render_background_pair(rig, np.random.default_rng(2000 + k), scene=scene, imaging=imaging)
                   for k in range(10)]
@@ -195,6 +196,7 @@ def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: 
               "the pairs with the same threads, nothing measured (the ceiling of the input), and its CPU per pair. "
               "CPU-bound share: decoding's CPU over the whole run's, the fraction of the ceiling that the cores can "
               "reach when both are busy (decoding and measuring share them).\n")
+        options = ["--params", params] if params else []
         print("| input | --workers (decoding and measuring threads) | wall [s] (best / median of 3) "
               "| pairs/s (best / median) | CPU [ms/pair] | decoding only [pairs/s] | decoding CPU [ms/pair] "
               "| best / ceiling | CPU-bound share |")
@@ -208,7 +210,7 @@ def throughput(rig, scene, imaging, quick: bool, only: str = "", worker_counts: 
                     cpu, start = time.process_time(), time.perf_counter()
                     with contextlib.redirect_stdout(io.StringIO()):  # the command's summary
                         code = offline_main([*arguments, "--quiet", "--workers", str(workers),
-                                             "--output", str(root / "out.csv")])
+                                             "--output", str(root / "out.csv"), *options])
                     walls.append(time.perf_counter() - start)
                     cpus.append(time.process_time() - cpu)
                     assert code == 0, name
@@ -334,6 +336,8 @@ def main() -> None:
     parser.add_argument("--only-throughput", action="store_true", help="only the end-to-end table")
     parser.add_argument("--inputs", default="", help="end to end: only the inputs whose name contains this")
     parser.add_argument("--workers", default="1,2,4", help="end to end: comma-separated --workers values")
+    parser.add_argument("--params", help="end to end: ROS 2 params file of needle_stereo passed to the command "
+                        "(e.g. reconstruction.curve_fit)")
     parser.add_argument("--only-epipolar", action="store_true", help="only the table of needles along the epipolar "
                         "lines (issue 39)")
     parser.add_argument("--seeds", default="7", help="that table: comma-separated sensor-noise seeds")
@@ -350,7 +354,7 @@ def main() -> None:
     if arguments.only_epipolar:
         epipolar_cases(rig, scene, noise_seeds)
         return
-    throughput(rig, scene, imaging, arguments.quick, arguments.inputs, worker_counts)
+    throughput(rig, scene, imaging, arguments.quick, arguments.inputs, worker_counts, arguments.params)
     if arguments.only_throughput:
         return
     cv2.setNumThreads(1)  # one core

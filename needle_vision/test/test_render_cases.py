@@ -12,7 +12,8 @@ from needle_vision.detection.background import ContrastThreshold
 from needle_vision.detection.centerline import extract_centerline
 from needle_vision.detection.curves import arc_length
 from needle_vision.matching.correspondence import MatchingConfig
-from needle_vision.matching.reconstruction import NeedleMeasurement, ReconstructionConfig, reconstruct_centerline
+from needle_vision.matching.reconstruction import END_LOCALIZATION_PX, NeedleMeasurement, ReconstructionConfig, \
+    reconstruct_centerline
 from needle_vision.calibration.rectification import Rectification
 from needle_vision.render import NEEDLE_RADIUS, Imaging, Scene, make_scene, project_points, render_stereo_pair
 
@@ -177,6 +178,20 @@ def test_an_extrapolated_end_shares_one_error(rig, backgrounds, renders, curve_f
     measurement = reconstruct_centerline(left, right, Rectification.from_rig(rig), MatchingConfig(),
                                          ReconstructionConfig(curve_fit=curve_fit), rig.world_from_left)
     _assert_sigma_promise(measurement, SHAPES["planar"])
+
+
+@pytest.mark.parametrize("curve_fit", [False, True])
+def test_end_samples_carry_the_ends_localization(rig, backgrounds, renders, curve_fit):
+    """The needle's ends are located along it to END_LOCALIZATION_PX (a flat or bevelled end's sub-pixel edge), an
+    error that neither the smoothing of the triangulated points nor the fit's covariance (its ends at 0.1 px, as the
+    correspondence placed them) carries: both end samples' sigma is at least that at their distance from the left
+    camera, per point and with the curve fit (before, the fit's: END_LOCALIZATION_PX not added)."""
+    measurement = _measure(rig, backgrounds, renders("3d"), ReconstructionConfig(curve_fit=curve_fit))
+    ends = measurement.points[[0, -1]]
+    floor = END_LOCALIZATION_PX * np.linalg.norm(ends - rig.world_from_left.translation, axis=1) \
+        / Rectification.from_rig(rig).focal_length
+    assert np.all(measurement.measured[[0, -1]])
+    assert np.all(measurement.uncertainty[[0, -1]] >= floor)
 
 
 @pytest.mark.parametrize("name, start, stop", [("3d", 0.3, 0.4), ("planar", 0.6, 0.7)])

@@ -556,13 +556,13 @@ def _fitted_curve(points: np.ndarray, point_sigma: np.ndarray, unaveraged: np.nd
 
 
 @numba.njit(cache=True, nogil=True)
-def _resampled(smooth, point_sigma, supported, sample_spacing, max_gap, max_uncertainty, end_localization, camera,
+def _resampled(smooth, point_sigma, supported, sample_spacing, max_gap, max_uncertainty, camera,
                focal_length):  # pragma: no cover - compiled
-    """The smoothed centerline ``smooth (n, 3)`` resampled every ``sample_spacing`` of arc length (no sliver at the
-    tip): arc lengths, points, unit tangents, 1-sigma uncertainty (interpolated from ``point_sigma``, the end samples'
-    with the localization of the needle's ends, ~END_LOCALIZATION_PX at the distance from the ``camera`` centre, when
-    ``end_localization``; UNMEASURED in gaps) and whether each was measured (no step longer than ``max_gap`` around it,
-    both points around it ``supported``, the uncertainty at most ``max_uncertainty``)."""
+    """The centerline ``smooth (n, 3)`` (smoothed, or the fitted curve's samples) resampled every ``sample_spacing``
+    of arc length (no sliver at the tip): arc lengths, points, unit tangents, 1-sigma uncertainty (interpolated from
+    ``point_sigma``, the end samples' with the localization of the needle's ends, ~END_LOCALIZATION_PX at the
+    distance from the ``camera`` centre; UNMEASURED in gaps) and whether each was measured (no step longer than
+    ``max_gap`` around it, both points around it ``supported``, the uncertainty at most ``max_uncertainty``)."""
     arc = arc_length(smooth)
     length = arc[-1]
     steps = np.arange(0.0, length, sample_spacing)
@@ -582,11 +582,10 @@ def _resampled(smooth, point_sigma, supported, sample_spacing, max_gap, max_unce
             tangents[k, j] = (resampled[after, j] - resampled[before, j]) / (samples[after] - samples[before])
         tangents[k] /= max(np.sqrt(np.sum(tangents[k] * tangents[k])), 1e-12)
     uncertainty = np.interp(samples, arc, point_sigma)
-    if end_localization:
-        for k in (0, count - 1):
-            offset = resampled[k] - camera
-            distance = np.sqrt(offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2])
-            uncertainty[k] = np.hypot(uncertainty[k], END_LOCALIZATION_PX * (distance / focal_length))
+    for k in (0, count - 1):
+        offset = resampled[k] - camera
+        distance = np.sqrt(offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2])
+        uncertainty[k] = np.hypot(uncertainty[k], END_LOCALIZATION_PX * (distance / focal_length))
     measured = np.empty(count, np.bool_)
     last = arc.shape[0] - 1
     for k in range(count):
@@ -620,7 +619,7 @@ def order_and_resample(triangulation: Triangulation, rectification: Rectificatio
         supported = np.ones(len(smooth), np.bool_)
     samples, resampled, tangents, uncertainty, measured = _resampled(
         smooth, point_sigma, supported, config.sample_spacing, config.max_gap, config.max_uncertainty,
-        triangulation.fit is None, output_from_left.translation, rectification.focal_length)
+        output_from_left.translation, rectification.focal_length)
     length = float(samples[-1])
     if length > config.max_length:
         raise ImplausibleError(f"implausible: measured needle is {length * 1e3:.0f} mm long "
