@@ -57,8 +57,8 @@ class BackgroundModel:
         self._coarse_limit = (self.coarse - self.threshold.polarity * contrast).astype(np.float32)
 
     def with_polarity(self, polarity: int) -> BackgroundModel:
-        """This background for a needle of ``polarity`` (+1 dark, -1 bright): the model it replaces, sharing its
-        image (not copied: its :meth:`update` changes this model's too) and coarse copy, with its own threshold."""
+        """This background for a needle of ``polarity`` (+1 dark, -1 bright), to replace this model: the image is
+        shared, not copied (the new model's :meth:`update` changes this one's too), the coarse copy kept."""
         model = copy.copy(self)
         model.threshold = replace(self.threshold, polarity=polarity)
         model._set_limit()
