@@ -158,7 +158,7 @@ class StereoNeedlePipeline:
                     cv2.morphologyEx(image, cv2.MORPH_CLOSE, kernel) - image,
                     image - cv2.morphologyEx(image, cv2.MORPH_OPEN, kernel), image)), threshold)
             else:  # the coarse brightening is minus the coarse darkening (area averages commute with the sign exactly)
-                coarse = downsample(backgrounds[0].image - left.astype(np.float32), threshold.downsample)
+                coarse = downsample(backgrounds[0].image - left, threshold.downsample)  # float32 (promoted)
                 polarity = detect_polarity(coarse, -coarse, backgrounds[0].coarse, threshold)
             if not polarity:
                 return self._reject("no needle", "neither a dark nor a bright needle stands out (polarity auto)")
@@ -166,7 +166,7 @@ class StereoNeedlePipeline:
             if backgrounds is None:  # bootstrapped from this pair: kept
                 self.polarity = polarity
             else:  # kept only once a needle is measured with it (not on empty frames)
-                backgrounds = tuple(BackgroundModel(background.image, threshold) for background in backgrounds)
+                backgrounds = tuple(background.with_polarity(polarity) for background in backgrounds)
         if backgrounds is None:
             backgrounds = self.backgrounds = tuple(BackgroundModel.from_needle_frame(
                 image, threshold, config.centerline.profile_half_width) for image in (left, right))

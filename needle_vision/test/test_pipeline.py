@@ -182,3 +182,26 @@ def test_polarity_from_the_coarse_difference_is_detect_polaritys(seed):
                                                                                         background)), threshold)
     assert expected == (1 if seed % 2 == 0 else -1)
     assert detect_polarity(coarse, -coarse, BackgroundModel(background, threshold).coarse, threshold) == expected
+
+
+@pytest.mark.parametrize("polarity", [1, -1])
+def test_background_for_another_polarity_is_the_model_built_for_it(polarity):
+    """A model switched to the polarity the pipeline decided: the image shared (not copied) and the coarse copy kept,
+    the threshold and foreground those of a model built for that polarity. The pipeline's coarse difference of an 8-
+    or 16-bit image from it is float32 without converting the image first (the same bits)."""
+    from needle_vision.detection.background import downsample
+
+    rng = np.random.default_rng(5)
+    background = rng.uniform(20.0, 230.0, (216, 288)).astype(np.float32)
+    model = BackgroundModel(background, ContrastThreshold(polarity=-polarity))
+    switched = model.with_polarity(polarity)
+    built = BackgroundModel(background, ContrastThreshold(polarity=polarity))
+    assert switched.threshold == built.threshold and model.threshold.polarity == -polarity
+    assert switched.image is model.image and switched.coarse is model.coarse
+    image = background + rng.normal(0.0, 20.0, background.shape).astype(np.float32)
+    coarse = downsample(image, built.threshold.downsample)
+    assert np.array_equal(switched.coarse_foreground(coarse), built.coarse_foreground(coarse))
+    assert not np.array_equal(switched.coarse_foreground(coarse), model.coarse_foreground(coarse))
+    for raw in (np.clip(image, 0, 255).astype(np.uint8), (np.clip(image, 0, 255) * 257).astype(np.uint16)):
+        difference = switched.image - raw
+        assert difference.dtype == np.float32 and np.array_equal(difference, switched.image - raw.astype(np.float32))

@@ -8,8 +8,9 @@ uneven lighting; the coarse threshold is also relative to the local background b
 """
 from __future__ import annotations
 
+import copy
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterable
 
 import cv2
@@ -47,10 +48,21 @@ class BackgroundModel:
 
     def _refresh_coarse(self) -> None:
         self.coarse = downsample(self.image, self.threshold.downsample)
+        self._set_limit()
+        self._scratch = threading.local()
+
+    def _set_limit(self) -> None:
         contrast = np.maximum(self.threshold.relative * self.coarse, self.threshold.absolute)
         # Grey level a coarse pixel must pass (below it for a dark needle, above for a bright one).
         self._coarse_limit = (self.coarse - self.threshold.polarity * contrast).astype(np.float32)
-        self._scratch = threading.local()
+
+    def with_polarity(self, polarity: int) -> BackgroundModel:
+        """This background for a needle of ``polarity`` (+1 dark, -1 bright), to replace this model: the image is
+        shared, not copied (the new model's :meth:`update` changes this one's too), the coarse copy kept."""
+        model = copy.copy(self)
+        model.threshold = replace(self.threshold, polarity=polarity)
+        model._set_limit()
+        return model
 
     @property
     def coarse_scratch(self) -> np.ndarray:
