@@ -99,12 +99,8 @@ def sweep_sets(document: Any) -> list[ParameterSet]:
 def point_sets(document: Any) -> list[ParameterSet]:
     if not isinstance(document, list) or not document:
         raise GridError("points: expected a non-empty list of node sections")
-    sets = []
-    for i, point in enumerate(document):
-        sections = node_sections(point, f"points[{i}]")
-        sets.append({node: {name: check_value(node, name, v) for name, v in values.items()}
-                     for node, values in sections.items()})
-    return sets
+    return [{node: {name: check_value(node, name, v) for name, v in values.items()}
+             for node, values in node_sections(point, f"points[{i}]").items()} for i, point in enumerate(document)]
 
 
 @dataclass(frozen=True)
