@@ -40,10 +40,6 @@ def split_index(name: str) -> tuple[str, int | None]:
     return (match["name"], int(match["index"])) if match else (name, None)
 
 
-def is_array(spec: ParamSpec) -> bool:
-    return isinstance(spec.default, (list, tuple))
-
-
 def check_value(node: str, name: str, value: Any) -> Any:
     """``value`` validated as the node validates parameter ``name`` (an indexed name: one array element)."""
     if node not in SPECS:
@@ -53,13 +49,13 @@ def check_value(node: str, name: str, value: Any) -> Any:
     if spec is None:
         raise GridError(f"{node}: no parameter '{base}' (names are those of the node's params file)")
     if index is not None:
-        if not is_array(spec):
+        if not spec.is_list:
             raise GridError(f"{node}: '{base}' is not an array: '{name}' cannot index it")
         if isinstance(value, (list, dict)):
             raise GridError(f"{node}: '{name}' is one array element: give a number")
         return value
     try:
-        spec.validate(list(value) if is_array(spec) and isinstance(value, list) else value)
+        spec.validate(list(value) if spec.is_list and isinstance(value, list) else value)
     except ParameterError as error:
         raise GridError(f"{node}: {error}") from error
     return value
@@ -87,7 +83,7 @@ def sweep_sets(document: Any) -> list[ParameterSet]:
             if not isinstance(options, list) or not options:
                 raise GridError(f"sweep.{node}.{name}: expected a non-empty list of values")
             spec = SPECS.get(node, {}).get(base)
-            if spec is not None and is_array(spec) and index is None and not all(isinstance(v, list) for v in options):
+            if spec is not None and spec.is_list and index is None and not all(isinstance(v, list) for v in options):
                 raise GridError(f"sweep.{node}.{name}: an array-valued parameter is swept as a list of arrays, "
                                 f"e.g. [[1.0], [2.0]]")
             axes.append((node, name, [check_value(node, name, v) for v in options]))
@@ -103,12 +99,8 @@ def sweep_sets(document: Any) -> list[ParameterSet]:
 def point_sets(document: Any) -> list[ParameterSet]:
     if not isinstance(document, list) or not document:
         raise GridError("points: expected a non-empty list of node sections")
-    sets = []
-    for i, point in enumerate(document):
-        sections = node_sections(point, f"points[{i}]")
-        sets.append({node: {name: check_value(node, name, v) for name, v in values.items()}
-                     for node, values in sections.items()})
-    return sets
+    return [{node: {name: check_value(node, name, v) for name, v in values.items()}
+             for node, values in node_sections(point, f"points[{i}]").items()} for i, point in enumerate(document)]
 
 
 @dataclass(frozen=True)

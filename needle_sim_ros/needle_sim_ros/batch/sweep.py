@@ -47,10 +47,8 @@ def run_sweep(client: Any, tasks: list[TaskSpec], grid: Grid, output_dir: Path, 
     """Run the tasks not finished before (``resume``: rows with status ok under the same key are reused) and write
     ``results.parquet``/``results.csv`` (also while running, at most every SAVE_EVERY_S)."""
     previous = finished_rows(output_dir) if resume else {}
-    rows: list[dict[str, Any] | None] = [None] * len(tasks)
-    for i, task in enumerate(tasks):
-        if task.key in previous:
-            rows[i] = {**previous[task.key], "bag": task.bag}
+    rows: list[dict[str, Any] | None] = [{**previous[task.key], "bag": task.bag} if task.key in previous else None
+                                         for task in tasks]
     pending = [i for i, row in enumerate(rows) if row is None]
     last_save = time.monotonic()
 

@@ -96,8 +96,7 @@ class ContributionRun:
         Returns the steps done and the contributions' states."""
         k, n = times.size, model.n_dof
         needle, constant_Q = integrator.run_arguments(forces, dt, float(times[0]), memory)
-        history = np.empty((4, n))
-        history[0], history[1], history[2], history[3] = state.q, state.qd, state.qdd, state.aux
+        history = np.stack((state.q, state.qd, state.qdd, state.aux))
         outputs = run_outputs(k, n)
         packed = pack([NO_STATE if own is None else force.packed_state(own)
                        for force, own in zip(self.contributions, owns)])

@@ -23,15 +23,6 @@ from .banded import NO_REFCOUNTS
 _ZERO3 = (0.0, 0.0, 0.0)
 
 
-def _vector(value, name: str, size: int = 3) -> np.ndarray:
-    array = np.asarray(value, dtype=float)
-    if array.shape == ():
-        array = np.full(size, float(array))
-    if array.shape != (size,) or not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be {size} finite numbers, got {value!r}")
-    return array
-
-
 _FIELDS = (("position", slice(0, 3)), ("orientation", slice(3, 7)), ("linear_velocity", slice(7, 10)),
            ("angular_velocity", slice(10, 13)), ("linear_acceleration", slice(13, 16)),
            ("angular_acceleration", slice(16, 19)))
@@ -121,7 +112,11 @@ STATIC_WORLD = BaseMotion(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 
 def clamp_offset(position, orientation, prefix: str = "offset_") -> tuple[np.ndarray, np.ndarray]:
     """Position of A (3,) [m] and rotation of frame f (3, 3) in the flange frame; ValueError names ``<prefix>...``."""
-    offset = _vector(position, f"{prefix}position")
+    offset = np.asarray(position, dtype=float)
+    if offset.shape == ():
+        offset = np.full(3, float(offset))
+    if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+        raise ValueError(f"{prefix}position must be 3 finite numbers, got {position!r}")
     return offset, quaternion_matrix(unit_quaternion(orientation, f"{prefix}orientation"))
 
 

@@ -52,7 +52,7 @@ def centerline(model: NeedleModel, q: np.ndarray, n_samples: int) -> Centerline:
 
 
 @njit(cache=True)
-def _unit_tangents(S_x: np.ndarray, slots: np.ndarray, q: np.ndarray) -> np.ndarray:
+def unit_tangents(S_x: np.ndarray, slots: np.ndarray, q: np.ndarray) -> np.ndarray:
     """r_x / |r_x| at each point of an interpolation table, (k, 3)."""
     tangents = interpolate(slots, S_x, q)
     for k in range(tangents.shape[0]):
@@ -75,7 +75,7 @@ def _centerline_arrays(S, S_x, slots, gauss_S_x, gauss_slots, s, gauss_w, q):
             p = j * m + g
             stretch += gauss_w[g] * np.sqrt(gradients[p, 0] ** 2 + gradients[p, 1] ** 2 + gradients[p, 2] ** 2)
         arc[j + 1] = arc[j] + 0.5 * (s[j + 1] - s[j]) * stretch
-    return interpolate(slots, S, q), _unit_tangents(S_x, slots, q), arc
+    return interpolate(slots, S, q), unit_tangents(S_x, slots, q), arc
 
 
 def axial_strain(model: NeedleModel, q: np.ndarray, s) -> np.ndarray:
@@ -130,7 +130,7 @@ def transported_normals(tangents: np.ndarray, normal: np.ndarray) -> np.ndarray:
 def _tip_rotation(S_x: np.ndarray, slots: np.ndarray, q: np.ndarray, base_rotation: np.ndarray) -> np.ndarray:
     """Rotation matrix of the tip frame (see :func:`tip_pose`) from the tangents at the points of an interpolation
     table along the whole needle; ``base_rotation`` (3, 3), or (0, 0) for the minimal rotation onto r_xA."""
-    tangents = _unit_tangents(S_x, slots, q)
+    tangents = unit_tangents(S_x, slots, q)
     t0 = tangents[0]
     if base_rotation.size:
         normal = base_rotation[:, 1].copy()

@@ -144,17 +144,15 @@ class CompareNode(Node):
 
     # --- output -----------------------------------------------------------------------------------------------
     def publish(self, compared: list[ComparedPair]) -> None:
+        """Each pair's ShapeError, then the compared centerlines as Path and Marker tube (model frame), published
+        and recorded."""
         for pair in compared:
             data = shape_error_cdr(pair.result, pair.model_tag, pair.measured_tag)
             self.error_publisher.publish(data)
             self.log("shape_error", data, ShapeError, self.error_qos)
-            self.display(pair)
-
-    def display(self, pair: ComparedPair) -> None:
-        """The compared centerlines as Path and Marker tube (model frame), published and recorded."""
-        for topic, data in self.displayer.outputs(pair).items():
-            self.display_publishers[topic].publish(data)
-            self.log(topic, data, LOGGABLE[topic])
+            for topic, data in self.displayer.outputs(pair).items():
+                self.display_publishers[topic].publish(data)
+                self.log(topic, data, LOGGABLE[topic])
 
     def finish(self) -> dict:
         """Finalize the recording; return (and write, if configured) the run summary."""

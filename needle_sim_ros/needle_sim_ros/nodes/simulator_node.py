@@ -469,17 +469,13 @@ class NeedleSimulatorNode(LifecycleNode):
             self.catch_up_steps += max(len(records) - 1, 0)
         else:  # a step integrated more than a period after its end time (not one integrated ahead to a pose)
             self.deadline_misses += sum(1 for record in records if record.t < now - self.sim.dt)
-        if records:
-            self.publish_wrenches(records)
+        # the wrench of each step on the holder, base frame, stamped with the step's end time (as CDR bytes)
+        for data in cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records)):
+            self.wrench_pub.publish(data)
         if self.haptic_pub is not None:
             self.publish_haptics(records, now)
 
     # -- outputs ---------------------------------------------------------------------------------------------
-    def publish_wrenches(self, records) -> None:
-        """The wrench of each step on the holder, base frame, stamped with the step's end time (as CDR bytes)."""
-        for data in cdr.wrench_stamped_many(self.p["frames.base"], step_wrenches(records)):
-            self.wrench_pub.publish(data)
-
     def publish_haptics(self, records, now: float) -> None:
         """The haptic wrench of each step (frame, watchdog gain, limits); none stepped while the watchdog holds the
         output (e.g. a paused /clock, no first pose yet): one zero, so that zero keeps coming at the step rate."""

@@ -24,7 +24,7 @@ from needle_interfaces.msg import NeedleShape
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import CameraInfo
 
-from needle_common.cdr import pose_stamped
+from needle_common.cdr import NS, pose_stamped
 from needle_vision.streams.image_codec import deserialize_image
 
 from needle_sim_ros.messages.centerline_display import DISPLAY_TYPES
@@ -38,7 +38,6 @@ from needle_common.qos import OfferedQos
 from needle_sim_ros.recording import McapBagWriter, WriterOptions
 from needle_sim_ros.recording.playback import EXPECTED_TYPES
 
-NS = 1_000_000_000
 # Output topics (as the live pipeline names them) -> (type, offered QoS of the live publisher; /wrench's is set per
 # run, as the simulator's qos.wrench).
 OUTPUT_TOPICS = {

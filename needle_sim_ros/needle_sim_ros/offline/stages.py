@@ -73,12 +73,9 @@ class SimulatorStage:
         self.sim.max_catch_up = math.inf
         self.inputs = SimulatorInputs(self.sim, p["frames.world"], p["frames.base"])  # simulated time: stamps kept
         self.shape_every = max(1, int(round(1.0 / (p["rates.shape_hz"] * p["integrator.dt"]))))
-        self.rejected: dict[str, int] = {}
+        self.rejected: Counter[str] = Counter()
         self.core_seconds = 0.0  # wall time in NeedleSimulation.advance (base trajectory, steps, reaction wrench)
         self._steps_since_start = 0
-
-    def _reject(self, reason: str) -> None:
-        self.rejected[reason] = self.rejected.get(reason, 0) + 1
 
     # --- inputs (as NeedleSimulatorNode.on_pose / on_tip_load in simulated time) ------------------------------
     def on_pose(self, pose: PoseStamped, now_ns: int) -> None:
@@ -87,24 +84,24 @@ class SimulatorStage:
             verdict = self.inputs.offer_pose(pose.frame_id, pose.stamp_ns * 1e-9, pose.position, pose.orientation,
                                              now_ns * 1e-9).verdict
         except InputRejected as error:
-            self._reject(error.kind)
+            self.rejected[error.kind] += 1
             return
         if not started and self.sim.started:
             self._steps_since_start = 0
         if verdict not in USED_POSES:
-            self._reject(f"base pose {verdict.value}")
+            self.rejected[f"base pose {verdict.value}"] += 1
 
     def on_twist(self, msg: TwistStamped, now_ns: int) -> None:
         try:
             self.inputs.on_twist(msg, now_ns * 1e-9)
         except InputRejected as error:
-            self._reject(error.kind)
+            self.rejected[error.kind] += 1
 
     def on_tip_load(self, msg: WrenchStamped, now_ns: int) -> None:
         try:
             self.inputs.on_tip_load(msg)
         except InputRejected as error:
-            self._reject(error.kind)
+            self.rejected[error.kind] += 1
 
     # --- outputs ---------------------------------------------------------------------------------------------
     def advance(self, now_ns: int) -> tuple[list[bytes], list[tuple[int, ModelShape]]]:

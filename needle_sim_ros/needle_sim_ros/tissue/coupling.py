@@ -11,6 +11,7 @@ from numba import njit
 from needle_sim_ros.model.forces import scatter_point
 from needle_sim_ros.model.kinematics import dot3, offset_dot
 from needle_sim_ros.model.mesh import hermite_shapes, interpolate, search_right
+from needle_sim_ros.model.outputs import unit_tangents
 
 from .geometry import TissueBlock
 from .karnopp import axial_traction
@@ -98,12 +99,7 @@ def point_table(weights, S, S_x, anchors, tangents, stiffness, damping, coulomb,
 @njit(cache=True)
 def needle_points(S, S_x, slots, q):
     """Positions (k, 3) and unit tangents (k, 3) of the needle at interpolation points (model.interpolation)."""
-    r, tangents = interpolate(slots, S, q), interpolate(slots, S_x, q)
-    for p in range(slots.shape[0]):
-        norm = np.sqrt(dot3(tangents[p], tangents[p]))
-        for i in range(3):
-            tangents[p, i] /= norm
-    return r, tangents
+    return interpolate(slots, S, q), unit_tangents(S_x, slots, q)
 
 
 @njit(cache=True)
