@@ -26,8 +26,8 @@ def background_frames(rig, scene):
 
 
 @pytest.fixture(scope="session")
-def backgrounds(rig, scene):
-    return vision_shapes.background_models(rig, scene)
+def backgrounds(background_frames):
+    return vision_shapes.models_of_frames(background_frames)
 
 
 @pytest.fixture(scope="session")

@@ -30,7 +30,12 @@ def background_frames(rig: StereoRig, scene: Scene) -> list[tuple[np.ndarray, np
 def background_models(rig: StereoRig, scene: Scene, threshold: ContrastThreshold = ContrastThreshold()
                       ) -> tuple[BackgroundModel, BackgroundModel]:
     """Both cameras' background models from :func:`background_frames` of ``scene``."""
-    frames = background_frames(rig, scene)
+    return models_of_frames(background_frames(rig, scene), threshold)
+
+
+def models_of_frames(frames: list[tuple[np.ndarray, np.ndarray]], threshold: ContrastThreshold = ContrastThreshold()
+                     ) -> tuple[BackgroundModel, BackgroundModel]:
+    """Both cameras' background models from needle-free ``frames`` (left, right) pairs."""
     return tuple(BackgroundModel.from_frames([pair[k] for pair in frames], threshold) for k in range(2))
 
 
